@@ -1,0 +1,40 @@
+# Two commands do all of the set-up on a fresh machine: `make run` and `make test`.
+# Both are idempotent: the install step runs again only when pyproject.toml changes.
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+TORCH := torch==2.13.0
+
+.PHONY: run test install system-deps clean
+
+run: install
+	$(BIN)/walkcap tui
+
+test: install
+	$(BIN)/python -m pytest -q
+
+install: system-deps $(STAMP)
+
+# Open3D loads libusb-1.0 at import time; a fresh Debian machine lacks it.
+system-deps:
+	@if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then \
+	  if [ "$$(id -u)" = 0 ]; then \
+	    echo "Installing libusb-1.0-0 (needed by Open3D)"; \
+	    (apt-get install -y -qq libusb-1.0-0 >/dev/null 2>&1 || \
+	     (apt-get update -qq && apt-get install -y -qq libusb-1.0-0 >/dev/null)) || exit 1; \
+	  else \
+	    echo "Open3D needs libusb-1.0. Run: sudo apt-get install -y libusb-1.0-0" >&2; exit 1; \
+	  fi; \
+	fi
+
+$(STAMP): pyproject.toml
+	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	@# torch first, pinned: a local CPU wheel. Unpinned, it drags in GBs of CUDA packages.
+	$(BIN)/python -c "import torch" 2>/dev/null || $(BIN)/pip install -q $(TORCH)
+	$(BIN)/pip install -q -e ".[dev]"
+	@touch $(STAMP)
+
+clean:
+	rm -rf $(VENV) *.egg-info

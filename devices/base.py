@@ -1,0 +1,81 @@
+"""What every device backend shares: a bounded buffer with counted drops, and a status.
+
+Backends produce on their own thread and call `_deliver`; consumers call `recv`.
+The buffer never blocks the producer: when full, the oldest item is dropped and counted,
+so a slow consumer costs data that is accounted for, never a stalled device.
+"""
+from __future__ import annotations
+
+import collections
+import threading
+from dataclasses import dataclass, field
+from typing import Generic, TypeVar
+
+from devices.clock import now_ns
+
+T = TypeVar("T")
+
+OK, DEGRADED, LOST, STOPPED = "ok", "degraded", "lost", "stopped"
+
+
+@dataclass
+class DeviceStatus:
+    backend: str
+    state: str = STOPPED  # ok | degraded | lost | stopped
+    message: str = ""
+    configured_rate_hz: float = 0.0
+    measured_rate_hz: float = 0.0
+    delivered: int = 0
+    dropped: int = 0  # overwritten in the buffer because the consumer was slow
+    errors: int = 0  # device-side errors (checksum errors, missing packets, ...)
+    details: dict = field(default_factory=dict)
+
+
+class BoundedBuffer(Generic[T]):
+    """A thread-safe FIFO of bounded size that drops the oldest item when full."""
+
+    def __init__(self, maxlen: int = 256) -> None:
+        self._items: collections.deque[T] = collections.deque()
+        self._maxlen = maxlen
+        self._cond = threading.Condition()
+        self.dropped = 0
+
+    def put(self, item: T) -> None:
+        with self._cond:
+            if len(self._items) >= self._maxlen:
+                self._items.popleft()
+                self.dropped += 1
+            self._items.append(item)
+            self._cond.notify()
+
+    def get(self, timeout: float | None = None) -> T | None:
+        with self._cond:
+            if not self._items:
+                self._cond.wait(timeout)
+            return self._items.popleft() if self._items else None
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+
+class RateMeter:
+    """Measured rate over the last `window_s` seconds of arrivals."""
+
+    def __init__(self, window_s: float = 2.0) -> None:
+        self._times: collections.deque[int] = collections.deque()
+        self._window_ns = int(window_s * 1e9)
+
+    def tick(self, t_ns: int | None = None) -> None:
+        t = now_ns() if t_ns is None else t_ns
+        self._times.append(t)
+        while self._times and t - self._times[0] > self._window_ns:
+            self._times.popleft()
+
+    def rate(self, t_ns: int | None = None) -> float:
+        t = now_ns() if t_ns is None else t_ns
+        while self._times and t - self._times[0] > self._window_ns:
+            self._times.popleft()
+        if len(self._times) < 2:
+            return 0.0
+        span = (self._times[-1] - self._times[0]) * 1e-9
+        return (len(self._times) - 1) / span if span > 0 else 0.0

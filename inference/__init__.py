@@ -1,0 +1,1 @@
+"""Inference: pure algorithms (preprocessing, terrain features, CNN, fusion)."""

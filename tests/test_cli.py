@@ -1,0 +1,64 @@
+import subprocess
+import sys
+
+import pytest
+
+from tui import cli
+
+
+def walkcap(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "tui.cli", *args], capture_output=True,
+                          text=True, timeout=120)
+
+
+def test_help_lists_every_subcommand():
+    out = walkcap("--help")
+    assert out.returncode == 0
+    for name in cli.COMMANDS:
+        assert name in out.stdout
+
+
+@pytest.mark.parametrize("name", cli.COMMANDS)
+def test_every_subcommand_has_help(name, capsys):
+    with pytest.raises(SystemExit) as e:
+        cli.main([name, "--help"])
+    assert e.value.code == 0
+    assert "usage: walkcap " + name in capsys.readouterr().out
+
+
+def test_unknown_flag_is_one_line_without_traceback():
+    out = walkcap("record", "--no-such-flag")
+    assert out.returncode == 2
+    assert "Traceback" not in out.stderr
+    assert len(out.stderr.strip().splitlines()) == 1
+    assert "--no-such-flag" in out.stderr
+
+
+def test_bad_config_is_one_line_naming_the_key(tmp_path):
+    cfg = tmp_path / "bad.toml"
+    cfg.write_text("[camera]\nfps = 'fast'\n")
+    out = walkcap("--config", str(cfg), "info", "x.mcap")
+    assert out.returncode == 1
+    assert "Traceback" not in out.stderr
+    assert len(out.stderr.strip().splitlines()) == 1
+    assert "camera.fps" in out.stderr
+
+
+def test_missing_config_file_is_a_clear_error(capsys):
+    assert cli.main(["--config", "nowhere.toml", "info", "x"]) == 1
+    err = capsys.readouterr().err
+    assert "nowhere.toml" in err and "Traceback" not in err
+
+
+def test_internal_errors_go_to_a_crash_log(monkeypatch, capsys, tmp_path):
+    from tui.commands import info
+
+    def boom(args, config):
+        raise ZeroDivisionError("bug")
+
+    monkeypatch.setattr(info, "run", boom)
+    monkeypatch.delenv("WALKCAP_DEBUG", raising=False)
+    assert cli.main(["info", "x"]) == 70
+    err = capsys.readouterr().err
+    assert "internal error" in err and "Traceback" not in err
+    assert "ZeroDivisionError" in (tmp_path / ".cache" / "walkcap" / "crash.log").read_text()

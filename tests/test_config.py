@@ -1,0 +1,62 @@
+import pytest
+
+from capture import config as cfg
+from capture.errors import ConfigError
+
+
+def test_defaults_run_out_of_the_box():
+    c = cfg.load(None)
+    assert c.camera.backend == "mock" and c.imu.backend == "mock"
+    assert c.camera.fps == 15.0
+    assert c.fusion.transition[0] == [0.80, 0.05, 0.05, 0.05, 0.05]
+
+
+def test_reads_local_walkcap_toml(tmp_path):
+    (tmp_path / "walkcap.toml").write_text("[camera]\nfps = 45\n[imu]\nport = '/dev/ttyUSB0'\n")
+    c = cfg.load(None)
+    assert c.camera.fps == 45.0 and isinstance(c.camera.fps, float)
+    assert c.imu.port == "/dev/ttyUSB0"
+    assert c.source == "walkcap.toml"
+
+
+@pytest.mark.parametrize("text, key", [
+    ("[camera]\nfpss = 3\n", "camera.fpss"),
+    ("[nosuch]\nx = 1\n", "nosuch"),
+    ("[imu]\nbaudrate = 'fast'\n", "imu.baudrate"),
+    ("[imu]\nbaudrate = 1.5\n", "imu.baudrate"),
+    ("[simulator]\nrealtime = 1\n", "simulator.realtime"),
+    ("[fusion]\ntransition = [[1, 'a']]\n", "fusion.transition[0][1]"),
+    ("camera = 3\n", "camera"),
+])
+def test_bad_keys_and_types_name_the_key(tmp_path, text, key):
+    p = tmp_path / "c.toml"
+    p.write_text(text)
+    with pytest.raises(ConfigError) as e:
+        cfg.load(p)
+    assert key in str(e.value)
+
+
+def test_invalid_toml_names_the_file(tmp_path):
+    p = tmp_path / "c.toml"
+    p.write_text("[camera\n")
+    with pytest.raises(ConfigError, match="c.toml"):
+        cfg.load(p)
+
+
+def test_override_checks_types():
+    c = cfg.Config()
+    cfg.override(c, "camera.fps", 30)
+    assert c.camera.fps == 30.0
+    with pytest.raises(ConfigError, match="camera.fps"):
+        cfg.override(c, "camera.fps", "x")
+    with pytest.raises(ConfigError, match="camera.nope"):
+        cfg.override(c, "camera.nope", 1)
+
+
+def test_save_then_load_round_trips(tmp_path):
+    c = cfg.Config()
+    c.mounting.pitch_deg = 31.5
+    c.keys.quit = "x"
+    path = cfg.save(c, tmp_path / "w.toml")
+    back = cfg.load(path)
+    assert cfg.to_dict(back) == cfg.to_dict(c)

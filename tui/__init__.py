@@ -1,0 +1,1 @@
+"""The user's side: the `walkcap` command line and the Textual terminal UI."""

@@ -1,0 +1,113 @@
+"""The `walkcap` command: subcommands, configuration, and one clear line per user error.
+
+Each subcommand is a module in `tui/commands/` with `HELP`, `add_arguments(parser)` and
+`run(args, config) -> int`. Modules import heavy libraries (torch, open3d) inside `run`,
+so `walkcap --help` stays instant.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import os
+import sys
+import traceback
+
+from capture import __version__
+
+COMMANDS = (
+    "tui", "record", "replay", "info", "recover", "eval", "train", "synth",
+    "calibrate", "bench", "imu",
+)
+
+
+class NotYetAvailable(Exception):
+    """A subcommand whose issue has not landed yet."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, but a usage error is one line naming the command and the fix."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+
+
+def _user_errors() -> tuple[type[BaseException], ...]:
+    from capture.errors import CaptureError
+    from devices.errors import DeviceError
+    from inference.errors import InferenceError
+
+    return (CaptureError, DeviceError, InferenceError, OSError, NotYetAvailable)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(
+        prog="walkcap",
+        description="Data-collection sessions for assistive walking: depth camera + IMU, "
+        "live terrain classification with HMM fusion, synchronized MCAP recordings.",
+    )
+    parser.add_argument("--version", action="version", version=f"walkcap {__version__}")
+    parser.add_argument("--config", metavar="PATH", help="configuration file (TOML); "
+                        "default: $WALKCAP_CONFIG or ./walkcap.toml when present")
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    for name in COMMANDS:
+        module = importlib.import_module(f"tui.commands.{name}")
+        p = sub.add_parser(name, help=module.HELP, description=module.HELP)
+        module.add_arguments(p)
+        p.set_defaults(_module=module)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:  # plain `walkcap` opens the terminal UI
+        args = parser.parse_args(["tui", *(argv if argv is not None else sys.argv[1:])])
+    logging.basicConfig(
+        level=logging.WARNING - 10 * min(args.verbose, 2),
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+    )
+    try:
+        from capture import config as config_mod
+
+        config = config_mod.load(args.config)
+        return int(args._module.run(args, config) or 0)
+    except KeyboardInterrupt:
+        print("walkcap: interrupted", file=sys.stderr)
+        return 130
+    except Exception as e:
+        if isinstance(e, _user_errors()):
+            if isinstance(e, NotYetAvailable):
+                print(f"walkcap {args.command}: {e}", file=sys.stderr)
+                return 2
+            print(f"walkcap {args.command}: error: {_describe(e)}", file=sys.stderr)
+            return 1
+        if os.environ.get("WALKCAP_DEBUG"):
+            raise
+        log = _write_crash_log()
+        print(f"walkcap {args.command}: internal error: {type(e).__name__}: {e} "
+              f"(details in {log}; please report it)", file=sys.stderr)
+        return 70
+
+
+def _describe(e: BaseException) -> str:
+    if isinstance(e, OSError) and e.strerror:
+        where = f": {e.filename}" if e.filename else ""
+        return f"{e.strerror}{where}"
+    return str(e)
+
+
+def _write_crash_log() -> str:
+    path = os.path.join(os.path.expanduser("~"), ".cache", "walkcap", "crash.log")
+    try:
+        os.makedirs(os.path.dirname(path), exist_ok=True)
+        with open(path, "a") as f:
+            f.write(traceback.format_exc() + "\n")
+    except OSError:
+        return "(no crash log could be written)"
+    return path
+
+
+if __name__ == "__main__":
+    sys.exit(main())
