@@ -31,6 +31,17 @@ class DeviceStatus:
     details: dict = field(default_factory=dict)
 
 
+@dataclass
+class DeviceEvent:
+    """Something the session must know and record: a fault, a gap, a reconnect."""
+
+    time_ns: int  # session clock
+    device: str  # "camera" | "imu"
+    kind: str  # e.g. "lost", "reconnected", "gap", "checksum_error", "stall", "drop"
+    message: str
+    details: dict = field(default_factory=dict)
+
+
 class BoundedBuffer(Generic[T]):
     """A thread-safe FIFO of bounded size that drops the oldest item when full."""
 
