@@ -1,0 +1,151 @@
+"""Per-frame pipeline: orientation at the frame's time -> image -> CNN -> fusion -> features.
+
+No threads and no I/O here: the live session, replay and the benchmarks run the same code.
+"""
+from __future__ import annotations
+
+import collections
+import threading
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from devices.clock import now_ns
+from devices.frames import MODES, DepthFrame
+from devices.rotations import quat_slerp
+
+
+class OrientationTrack:
+    """Recent IMU orientations on the session clock, interpolated at any time inside them.
+
+    Thread-safe: the IMU thread adds, the pipeline thread reads.
+    """
+
+    def __init__(self, span_s: float = 3.0) -> None:
+        self._times: collections.deque[int] = collections.deque()
+        self._quats: collections.deque[np.ndarray] = collections.deque()
+        self._span_ns = int(span_s * 1e9)
+        self._lock = threading.Lock()
+        self._new = threading.Condition(self._lock)
+
+    def add(self, time_ns: int, quaternion: np.ndarray) -> None:
+        with self._new:
+            if self._times and time_ns <= self._times[-1]:
+                return  # out of order or repeated: the clock estimator already smooths
+            self._times.append(time_ns)
+            self._quats.append(np.asarray(quaternion, dtype=np.float64))
+            while self._times and time_ns - self._times[0] > self._span_ns:
+                self._times.popleft()
+                self._quats.popleft()
+            self._new.notify_all()
+
+    @property
+    def latest_ns(self) -> int | None:
+        with self._lock:
+            return self._times[-1] if self._times else None
+
+    def wait_until(self, time_ns: int, timeout_s: float) -> bool:
+        """Wait until a sample at or after `time_ns` arrived (so we interpolate, not hold)."""
+        with self._new:
+            return self._new.wait_for(lambda: bool(self._times) and self._times[-1] >= time_ns,
+                                      timeout_s)
+
+    def at(self, time_ns: int) -> tuple[np.ndarray | None, int]:
+        """Orientation at `time_ns` and the distance (ns) to the nearest sample used.
+
+        Between two samples: slerp. Outside the track: the nearest sample held.
+        """
+        with self._lock:
+            if not self._times:
+                return None, 0
+            times = self._times
+            if time_ns >= times[-1]:
+                return self._quats[-1], time_ns - times[-1]
+            if time_ns <= times[0]:
+                return self._quats[0], times[0] - time_ns
+            # the track is short (a few hundred samples): bisect on a list copy is cheap
+            i = _bisect(times, time_ns)
+            t0, t1 = times[i - 1], times[i]
+            w = (time_ns - t0) / (t1 - t0)
+            q = quat_slerp(self._quats[i - 1], self._quats[i], w)
+            return q, min(time_ns - t0, t1 - time_ns)
+
+
+def _bisect(times: collections.deque[int], t: int) -> int:
+    lo, hi = 0, len(times)
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if times[mid] < t:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@dataclass
+class FrameResult:
+    """What the pipeline made of one frame."""
+
+    index: int
+    time_ns: int  # the frame's sample time, session clock
+    host_time_ns: int  # receive time, session clock
+    quaternion: np.ndarray | None
+    image: np.ndarray  # 100 x 100 uint8 0/1
+    cloud: np.ndarray  # N x 3 float32, leveled
+    profile: np.ndarray  # M x 2 float32 (forward, height)
+    flag: str  # "" or why the image is empty
+    probabilities: np.ndarray  # CNN softmax, 5
+    cnn_decision: int
+    fused: object | None  # inference.fusion.FusionOutput: refers to an earlier frame
+    features: dict = field(default_factory=dict)
+    done_ns: int = 0  # when the fused decision was ready
+
+    @property
+    def latency_ms(self) -> float:
+        return (self.done_ns - self.host_time_ns) * 1e-6
+
+
+class Pipeline:
+    """Preprocess -> classify -> fuse -> features, one frame at a time."""
+
+    def __init__(self, params, classifier, fusion) -> None:
+        self.params = params
+        self.classifier = classifier
+        self.fusion = fusion
+
+    def process(self, frame: DepthFrame, quaternion: np.ndarray | None,
+                time_ns: int | None = None) -> FrameResult:
+        from inference.features import terrain_features
+        from inference.preprocess import preprocess
+
+        if quaternion is None:
+            quaternion = np.full(4, np.nan)
+        pre = preprocess(frame.xyz, frame.confidence, quaternion, self.params)
+        probs = np.asarray(self.classifier.predict(pre.image), dtype=np.float64)
+        fused = self.fusion.push(probs)
+        hint = MODES[fused.decision] if fused is not None else MODES[int(np.argmax(probs))]
+        feats = terrain_features(pre.profile, hint) if pre.ok else None
+        return FrameResult(
+            index=frame.index,
+            time_ns=frame.device_time_ns if time_ns is None else time_ns,
+            host_time_ns=frame.host_time_ns,
+            quaternion=None if not np.all(np.isfinite(quaternion)) else quaternion,
+            image=pre.image,
+            cloud=pre.cloud,
+            profile=pre.profile,
+            flag=pre.flag,
+            probabilities=probs,
+            cnn_decision=int(np.argmax(probs)),
+            fused=fused,
+            features=_features_dict(feats),
+            done_ns=now_ns(),
+        )
+
+
+def _features_dict(feats) -> dict:
+    if feats is None:
+        return {}
+    import dataclasses
+
+    return {k: v for k, v in dataclasses.asdict(feats).items()
+            if v is None or isinstance(v, (int, float, str, bool))}

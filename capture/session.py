@@ -1,0 +1,449 @@
+"""A data-collection session: devices in; pipeline, recording and UI snapshots out.
+
+Threads: one reads the IMU into the orientation track (and the recorder); one takes
+camera frames through the pipeline; the recorder writes on its own thread. Nothing here
+waits on the UI or the disk: the UI pulls `snapshot()` at its own pace and sends commands
+(`set_label`, `add_marker`, `start_recording`, ...) that only touch memory and queues.
+"""
+from __future__ import annotations
+
+import collections
+import dataclasses
+import datetime as dt
+import json
+import logging
+import re
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from capture import __version__
+from capture import config as config_mod
+from capture.errors import CaptureError
+from capture.pipeline import FrameResult, OrientationTrack, Pipeline
+from devices.base import DeviceEvent, DeviceStatus
+from devices.clock import now_ns
+from devices.frames import MODES, DepthFrame
+
+log = logging.getLogger(__name__)
+
+TIMELINE_S = 20.0
+IMU_WAIT_S = 0.012  # how long a frame waits for the IMU sample after it, to interpolate
+
+
+@dataclass
+class SubjectInfo:
+    """The session form: the paper's subject tables plus condition and trial."""
+
+    subject: str = "S01"  # pseudonymous id, never a name
+    height_m: float | None = None
+    weight_kg: float | None = None
+    age: int | None = None
+    sex: str = ""  # female | male | other | ""
+    amputee: bool = False
+    side: str = ""  # left | right (amputees)
+    residual_limb_cm: float | None = None
+    condition: str = "indoor"  # indoor | outdoor | free text
+    trial: int = 1
+    notes: str = ""
+
+    def validate(self) -> None:
+        if not re.fullmatch(r"[A-Za-z0-9_-]{1,32}", self.subject):
+            raise CaptureError("subject id: 1-32 letters, digits, '-' or '_' (pseudonymous, no names)")
+        if self.height_m is not None and not 0.5 <= self.height_m <= 2.5:
+            raise CaptureError("height: expected metres between 0.5 and 2.5")
+        if self.weight_kg is not None and not 20 <= self.weight_kg <= 300:
+            raise CaptureError("weight: expected kilograms between 20 and 300")
+        if self.age is not None and not 1 <= self.age <= 120:
+            raise CaptureError("age: expected years between 1 and 120")
+        if self.sex not in ("", "female", "male", "other"):
+            raise CaptureError("sex: female, male, other or empty")
+        if self.side not in ("", "left", "right"):
+            raise CaptureError("side: left, right or empty")
+        if self.amputee and not self.side:
+            raise CaptureError("side: required for an amputee (left or right)")
+        if not re.fullmatch(r"[A-Za-z0-9_-]{1,32}", self.condition):
+            raise CaptureError("condition: 1-32 letters, digits, '-' or '_' (e.g. indoor)")
+        if self.trial < 1:
+            raise CaptureError("trial: a number from 1")
+
+    def to_metadata(self) -> dict[str, str]:
+        return {k: "" if v is None else str(v) for k, v in dataclasses.asdict(self).items()}
+
+
+@dataclass
+class LabelChange:
+    time_ns: int
+    mode: str
+    source: str  # operator | undo | simulator
+
+
+@dataclass
+class TimelineEntry:
+    index: int
+    time_ns: int
+    label: str | None
+    cnn: int
+    fused: int | None = None  # filled in when the fused decision for this frame arrives
+    voted: int | None = None
+    truth: str | None = None
+
+
+@dataclass
+class Snapshot:
+    """Everything the UI shows, copied out under the lock: the UI never touches threads."""
+
+    time_ns: int
+    running: bool
+    camera: DeviceStatus | None
+    imu: DeviceStatus | None
+    sync: dict
+    label: str | None
+    latest: FrameResult | None
+    timeline: list[TimelineEntry]
+    events: list[DeviceEvent]
+    recording: object | None  # capture.recorder.RecorderStats
+    recording_started_ns: int | None
+    frames: int
+    latency_ms: dict
+
+
+class Session:
+    """Open devices, run the pipeline, record trials, serve snapshots and commands."""
+
+    def __init__(self, config: config_mod.Config, *, camera=None, imu=None, classifier=None,
+                 auto_label: bool = False) -> None:
+        self.config = config
+        self._camera = camera
+        self._imu = imu
+        self._classifier = classifier
+        self.auto_label = auto_label
+        self.track = OrientationTrack()
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._recorder = None
+        self._recording_started_ns: int | None = None
+        self._label: str | None = None
+        self._label_history: list[LabelChange] = []
+        self._latest: FrameResult | None = None
+        self._timeline: collections.deque[TimelineEntry] = collections.deque()
+        self._by_index: dict[int, TimelineEntry] = {}
+        self._events: collections.deque[DeviceEvent] = collections.deque(maxlen=200)
+        self._latencies: collections.deque[float] = collections.deque(maxlen=2000)
+        self._sync_errors: collections.deque[float] = collections.deque(maxlen=5000)
+        self._frames = 0
+        self._last_truth_mode: str | None = None
+        self.pipeline: Pipeline | None = None
+        self.model_metadata: dict = {}
+        self.finished = threading.Event()  # the camera ran out of frames (end of a mock course)
+
+    # ---- life cycle -------------------------------------------------------------------
+
+    def start(self) -> None:
+        """Load the model, open both devices and start the threads."""
+        from devices.camera import open_camera
+        from devices.imu import open_imu
+        from inference.fusion import make_fusion
+        from inference.model import load_classifier
+        from inference.preprocess import PreprocessParams
+
+        cfg = self.config
+        if self._classifier is None:
+            self._classifier = load_classifier(cfg.model.path or None)
+        self.model_metadata = dict(getattr(self._classifier, "metadata", {}) or {})
+        fusion = make_fusion("hmm+voting", window=cfg.fusion.window,
+                             vote_delay=cfg.fusion.vote_delay,
+                             transition=np.asarray(cfg.fusion.transition))
+        self.pipeline = Pipeline(PreprocessParams.from_config(cfg), self._classifier, fusion)
+        if self._camera is None:
+            self._camera = open_camera(cfg.camera, cfg.simulator)
+        simulator = getattr(self._camera, "simulator", None)
+        try:
+            self._camera.open()
+            if self._imu is None:
+                orientation_at = simulator.thigh_quaternion if simulator is not None else None
+                self._imu = open_imu(cfg.imu, orientation_at=orientation_at)
+            self._imu.open()
+            self._imu.start()
+            self._camera.start()
+        except BaseException:
+            self._close_devices()
+            raise
+        self._spawn(self._imu_loop, "imu")
+        self._spawn(self._frame_loop, "pipeline")
+        self._spawn(self._monitor_loop, "monitor")
+
+    def _spawn(self, target, name: str) -> None:
+        t = threading.Thread(target=target, name=f"walkcap-{name}", daemon=True)
+        t.start()
+        self._threads.append(t)
+
+    def stop(self):
+        """Stop the threads and devices; finalise a recording in progress. Idempotent."""
+        self._stop.set()
+        for t in self._threads:
+            t.join(timeout=3.0)
+        self._threads.clear()
+        stats = self.stop_recording() if self._recorder is not None else None
+        self._close_devices()
+        return stats
+
+    def _close_devices(self) -> None:
+        for device in (self._camera, self._imu):
+            if device is None:
+                continue
+            for step in ("stop", "close"):
+                try:
+                    getattr(device, step)()
+                except Exception as e:  # a lost device must not stop the others closing
+                    log.warning("closing %s: %s", type(device).__name__, e)
+
+    def __enter__(self) -> "Session":
+        self.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    # ---- threads ----------------------------------------------------------------------
+
+    def _imu_loop(self) -> None:
+        while not self._stop.is_set():
+            sample = self._imu.recv(0.1)
+            if sample is None:
+                continue
+            t = sample.time_ns if sample.time_ns is not None else sample.host_time_ns
+            if sample.quaternion is not None:
+                self.track.add(t, sample.quaternion)
+            truth = getattr(self._imu, "true_time_ns", None)
+            if truth is not None and sample.sample_time_fine is not None:
+                self._sync_errors.append(abs(t - truth(sample.sample_time_fine)) * 1e-6)
+            rec = self._recorder
+            if rec is not None:
+                rec.write_imu(sample)
+
+    def _frame_loop(self) -> None:
+        while not self._stop.is_set():
+            frame = self._camera.recv(0.1)
+            if frame is None:
+                if self._camera_finished():
+                    self.finished.set()
+                continue
+            try:
+                self.process_frame(frame)
+            except Exception as e:  # one bad frame must not end the session
+                log.exception("frame %d", frame.index)
+                self._event(DeviceEvent(now_ns(), "pipeline", "error", f"frame {frame.index}: {e}"))
+
+    def _camera_finished(self) -> bool:
+        status = self._camera.status()
+        return status.state == "stopped" and not self._stop.is_set()
+
+    def _monitor_loop(self) -> None:
+        while not self._stop.wait(0.2):
+            for device in (self._camera, self._imu):
+                for event in device.poll_events():
+                    self._event(event)
+
+    def _event(self, event: DeviceEvent) -> None:
+        with self._lock:
+            self._events.append(event)
+        rec = self._recorder
+        if rec is not None:
+            rec.write_event(event)
+
+    # ---- per frame --------------------------------------------------------------------
+
+    def process_frame(self, frame: DepthFrame) -> FrameResult:
+        t = frame.device_time_ns
+        self.track.wait_until(t, IMU_WAIT_S)
+        quaternion, _ = self.track.at(t)
+        result = self.pipeline.process(frame, quaternion, t)
+        truth_mode = frame.truth.get("mode") if frame.truth else None
+        if self.auto_label and truth_mode and truth_mode != self._last_truth_mode:
+            self.set_label(truth_mode, source="simulator", time_ns=t)
+        self._last_truth_mode = truth_mode
+        rec = self._recorder
+        if rec is not None:
+            self._record(rec, frame, result)
+        self._publish(result, truth_mode)
+        return result
+
+    def _record(self, rec, frame: DepthFrame, r: FrameResult) -> None:
+        rec.write_frame(frame)
+        rec.write_processed(r.index, r.time_ns, r.host_time_ns, r.cloud, r.image, r.quaternion, r.flag)
+        rec.write_inference(r.index, r.time_ns, r.done_ns, r.probabilities, _fused_dict(r))
+        if r.features:
+            rec.write_features(r.index, r.time_ns, r.features)
+        if frame.truth:
+            rec.write_truth(r.index, r.time_ns, frame.truth)
+
+    def _publish(self, r: FrameResult, truth_mode: str | None) -> None:
+        entry = TimelineEntry(r.index, r.time_ns, self._label, r.cnn_decision, truth=truth_mode)
+        horizon = r.time_ns - int(TIMELINE_S * 1e9)
+        with self._lock:
+            self._latest = r
+            self._frames += 1
+            self._timeline.append(entry)
+            self._by_index[r.index] = entry
+            while self._timeline and self._timeline[0].time_ns < horizon:
+                self._by_index.pop(self._timeline.popleft().index, None)
+            fused = r.fused
+            if fused is not None:
+                e = self._by_index.get(fused.frame_index)
+                if e is not None:
+                    e.fused = fused.decision
+                if fused.voted is not None:
+                    e = self._by_index.get(fused.voted_frame_index)
+                    if e is not None:
+                        e.voted = fused.voted
+            self._latencies.append(r.latency_ms)
+
+    # ---- commands (from the UI or the CLI) --------------------------------------------
+
+    def set_label(self, mode: str, source: str = "operator", time_ns: int | None = None) -> LabelChange:
+        """The true mode from now on. Stamped here, at the key press, not at the next frame."""
+        if mode not in MODES:
+            raise CaptureError(f"unknown mode {mode!r} (one of {', '.join(MODES)})")
+        change = LabelChange(now_ns() if time_ns is None else time_ns, mode, source)
+        with self._lock:
+            self._label_history.append(change)
+            self._label = mode
+        rec = self._recorder
+        if rec is not None:
+            rec.write_label(change.time_ns, mode, source)
+        return change
+
+    def undo_label(self) -> LabelChange | None:
+        """Take back the last change: the mode before it applies again from now on."""
+        with self._lock:
+            if not self._label_history:
+                return None
+            undone = self._label_history.pop()
+            previous = self._label_history[-1].mode if self._label_history else None
+            self._label = previous
+        change = LabelChange(now_ns(), previous or "", "undo")
+        rec = self._recorder
+        if rec is not None:
+            rec.write_label(change.time_ns, previous or "", f"undo:{undone.mode}")
+        return change
+
+    def add_marker(self, note: str = "") -> None:
+        self._event(DeviceEvent(now_ns(), "operator", "marker", note or "marker"))
+
+    @property
+    def label(self) -> str | None:
+        return self._label
+
+    @property
+    def recording(self) -> bool:
+        return self._recorder is not None
+
+    def start_recording(self, info: SubjectInfo) -> Path:
+        """One MCAP file per trial, named from subject, condition, trial and time."""
+        from capture.recorder import Recorder
+
+        info.validate()
+        if self._recorder is not None:
+            raise CaptureError("already recording")
+        folder = Path(self.config.session.recordings)
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise CaptureError(f"cannot create the recordings folder {folder}: {e.strerror}") from None
+        stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+        path = folder / f"{info.subject}_{info.condition}_t{info.trial:02d}_{stamp}.mcap"
+        recorder = Recorder(path, metadata=self._metadata(info), attachments=self._attachments())
+        recorder.start()
+        self._recorder = recorder
+        self._recording_started_ns = now_ns()
+        if self._label is not None:  # the mode in force when the trial starts
+            recorder.write_label(self._recording_started_ns, self._label, "start")
+        return path
+
+    def stop_recording(self):
+        rec, self._recorder = self._recorder, None
+        self._recording_started_ns = None
+        return rec.close() if rec is not None else None
+
+    def _metadata(self, info: SubjectInfo) -> dict[str, dict[str, str]]:
+        cfg = self.config
+        cam = self._camera.status() if self._camera else None
+        imu = self._imu.status() if self._imu else None
+        devices = {
+            "camera_backend": cfg.camera.backend,
+            "camera_fps": str(cfg.camera.fps),
+            "camera_use_case": cfg.camera.use_case,
+            "camera_details": json.dumps(cam.details if cam else {}, default=str),
+            "imu_backend": cfg.imu.backend,
+            "imu_port": cfg.imu.port,
+            "imu_rate_hz": str(cfg.imu.rate_hz),
+            "imu_info": json.dumps(getattr(self._imu, "info", {}) or {}, default=str),
+            "imu_details": json.dumps(imu.details if imu else {}, default=str),
+        }
+        if cfg.camera.backend == "mock":
+            devices["simulator"] = json.dumps(dataclasses.asdict(cfg.simulator))
+        software = {
+            "walkcap_version": __version__,
+            "model_path": cfg.model.path or "bundled",
+            "model_hash": str(self.model_metadata.get("hash", "")),
+            "fusion_window": str(cfg.fusion.window),
+            "fusion_vote_delay": str(cfg.fusion.vote_delay),
+            "fusion_transition": json.dumps(cfg.fusion.transition),
+            "preprocess": json.dumps(self.pipeline.params.to_dict() if self.pipeline else {}),
+        }
+        session = info.to_metadata()
+        session["operator"] = cfg.session.operator
+        return {"session": session, "devices": devices, "software": software}
+
+    def _attachments(self) -> dict[str, bytes]:
+        return {
+            "walkcap.toml": config_mod.dumps(self.config).encode(),
+            "model.json": json.dumps(self.model_metadata, indent=2, default=str).encode(),
+        }
+
+    # ---- what the UI reads ------------------------------------------------------------
+
+    def snapshot(self) -> Snapshot:
+        with self._lock:
+            latencies = np.asarray(self._latencies) if self._latencies else None
+            sync = np.asarray(self._sync_errors) if self._sync_errors else None
+            snap = Snapshot(
+                time_ns=now_ns(),
+                running=not self._stop.is_set(),
+                camera=None,
+                imu=None,
+                sync={},
+                label=self._label,
+                latest=self._latest,
+                timeline=[dataclasses.replace(e) for e in self._timeline],
+                events=list(self._events),
+                recording=None,
+                recording_started_ns=self._recording_started_ns,
+                frames=self._frames,
+                latency_ms={} if latencies is None else {
+                    "p50": float(np.median(latencies)), "p99": float(np.percentile(latencies, 99))},
+            )
+        snap.camera = self._camera.status() if self._camera else None
+        snap.imu = self._imu.status() if self._imu else None
+        if sync is not None:
+            snap.sync = {"p50_ms": float(np.median(sync)), "p99_ms": float(np.percentile(sync, 99))}
+        rec = self._recorder
+        snap.recording = rec.stats() if rec is not None else None
+        return snap
+
+
+def _fused_dict(r: FrameResult) -> dict:
+    f = r.fused
+    if f is None:
+        return {}
+    return {
+        "frame_index": f.frame_index,
+        "decision": MODES[f.decision],
+        "posterior": [float(p) for p in f.posterior],
+        "voted": MODES[f.voted] if f.voted is not None else None,
+        "voted_frame_index": f.voted_frame_index,
+    }
