@@ -1,0 +1,660 @@
+"""Evaluating classifiers and fusion the way the paper does: per-frame accuracy per trial,
+mean +- SD across trials, paired t-tests, accuracy against delay, confusion matrices.
+
+Decisions always come from the streaming objects of `inference.fusion`, pushed frame by
+frame and flushed at the end (`run_offline`): offline results are the live ones.
+Accuracy is the fraction of frames whose final decision equals the reference, over the
+frames that have a reference (-1 = none); the mean over trials is the mean of the trials'
+accuracies, as in the paper (not pooled over frames); SD uses n-1.
+
+Inputs: score files (CSV, `read_scores`) or recordings (`load_trials_from_recordings`,
+through capture's recording reader), both as `Trial`s.
+"""
+from __future__ import annotations
+
+import csv
+import importlib
+import math
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from devices.frames import MODES
+from inference.errors import InferenceError
+from inference.fusion import (
+    N_MODES, PAPER_TRANSITION, FixedLagSmoother, Fusion, HmmFusion, Voter,
+    estimate_transition, make_fusion, mode_indices,
+)
+
+PAPER_METHODS = ("cnn", "cnn+voting", "hmm", "hmm+voting")
+TITLES = {
+    "cnn": "CNN", "cnn+voting": "CNN + voting", "hmm": "HMM", "hmm+voting": "HMM + voting",
+    "forward": "forward filter", "fixed-lag": "fixed-lag smoother",
+}
+SCORE_HEADER = (*MODES, "label")
+SUM_TOLERANCE = 0.01  # score rows must sum to 1 within this (they are often rounded)
+
+
+class ScoreFileError(InferenceError):
+    """A score CSV is malformed; the message names the file and line."""
+
+
+class RecordingsUnavailable(InferenceError):
+    """capture's recording reader is not there yet."""
+
+
+@dataclass(frozen=True)
+class FusionParameters:
+    window: int = 5  # l_w
+    vote_delay: int = 1  # l_v
+    transition: np.ndarray = field(default_factory=lambda: PAPER_TRANSITION.copy())
+    lag: int = 1  # fixed-lag smoother only
+
+    def make(self, method: str) -> Fusion:
+        return make_fusion(method, self.window, self.vote_delay, self.transition, self.lag)
+
+    def delay_frames(self, method: str) -> int:
+        return self.make(method).delay_frames
+
+
+@dataclass
+class Trial:
+    """One sequence to evaluate: CNN probabilities per frame and the true mode per frame."""
+
+    path: str
+    probabilities: np.ndarray  # (N, 5), index order MODES
+    reference: Any  # (N,) mode names or indices; None / "" / -1: no reference
+    metadata: dict = field(default_factory=dict)  # "subject", "condition", ...
+
+    def __post_init__(self) -> None:
+        self.probabilities = np.asarray(self.probabilities, dtype=float)
+        if self.probabilities.ndim != 2 or self.probabilities.shape[1] != N_MODES:
+            raise InferenceError(f"{self.path}: expected probabilities of shape (N, 5), "
+                                 f"got {self.probabilities.shape}")
+        try:
+            self.reference = mode_indices(self.reference)
+        except InferenceError as e:
+            raise InferenceError(f"{self.path}: {e}") from None
+        if len(self.reference) != len(self.probabilities):
+            raise InferenceError(f"{self.path}: {len(self.probabilities)} frames but "
+                                 f"{len(self.reference)} reference labels")
+
+    @property
+    def subject(self) -> str:
+        return str(self.metadata.get("subject") or Path(self.path).stem)
+
+    @property
+    def condition(self) -> str:
+        return str(self.metadata.get("condition") or "")
+
+
+@dataclass
+class FusionRun:
+    """One method over one sequence; -1 / NaN where a frame got nothing."""
+
+    method: str
+    decisions: np.ndarray  # (N,) first stage: argmax, smooth state, filter, smoother
+    final: np.ndarray  # (N,) the method's decision (the vote for methods with voting)
+    posteriors: np.ndarray  # (N, 5) the method's distribution per frame
+
+
+@dataclass
+class TrialResult:
+    trial: Trial
+    accuracy: dict[str, float]
+    runs: dict[str, FusionRun]
+
+
+@dataclass
+class PairedTest:
+    a: str
+    b: str
+    n: int
+    t: float  # NaN when undefined (fewer than 2 trials, identical results)
+    p: float
+
+
+@dataclass
+class DelaySweep:
+    """Accuracy per trial against the number of delayed frames (NaN: not reachable)."""
+
+    delays: list[int]
+    accuracy: dict[str, np.ndarray]  # method -> (trials, delays)
+
+
+# ---------------------------------------------------------------------------------------
+# running methods
+
+def run_offline(fusion: Fusion, probabilities: np.ndarray) -> FusionRun:
+    """Push every frame through a fresh streaming object, then flush: the live decisions."""
+    e = np.asarray(probabilities, dtype=float)
+    n = len(e)
+    decisions = np.full(n, -1)
+    voted = np.full(n, -1)
+    posteriors = np.full((n, N_MODES), np.nan)
+    fusion.reset()
+
+    def collect(out) -> None:
+        if out is None:
+            return
+        if out.frame is not None:
+            decisions[out.frame] = out.decision
+        if out.posterior_frame is not None:
+            posteriors[out.posterior_frame] = out.probabilities
+        if out.voted_frame is not None:
+            voted[out.voted_frame] = out.voted
+
+    for row in e:
+        collect(fusion.push(row))
+    for out in fusion.flush():
+        collect(out)
+    final = voted if fusion.votes else decisions
+    if np.any(final < 0):  # every frame must be decided once flushed
+        raise AssertionError(f"{fusion.method}: frames without a decision")
+    return FusionRun(fusion.method, decisions, final, posteriors)
+
+
+def vote_offline(decisions: np.ndarray, vote_delay: int) -> np.ndarray:
+    """The streaming Voter over a decision sequence (pushed, then flushed)."""
+    voter = Voter(vote_delay)
+    votes = np.full(len(decisions), -1)
+    for frame, decision in enumerate(decisions.tolist()):
+        vote = voter.push(frame, decision)
+        if vote is not None:
+            votes[vote[0]] = vote[1]
+    for frame, vote in voter.flush():
+        votes[frame] = vote
+    return votes
+
+
+def accuracy(decisions: np.ndarray, reference: np.ndarray) -> float:
+    """Fraction of frames with a reference whose decision equals it."""
+    reference = np.asarray(reference)
+    labeled = reference >= 0
+    if not labeled.any():
+        raise InferenceError("no frame has a reference mode")
+    return float(np.mean(np.asarray(decisions)[labeled] == reference[labeled]))
+
+
+def _per_trial(params: FusionParameters | Sequence[FusionParameters], n: int):
+    if isinstance(params, FusionParameters):
+        return [params] * n
+    if len(params) != n:
+        raise ValueError("one FusionParameters per trial")
+    return list(params)
+
+
+def evaluate_trial(trial: Trial, methods: Sequence[str] = PAPER_METHODS,
+                   params: FusionParameters = FusionParameters()) -> TrialResult:
+    if not (trial.reference >= 0).any():
+        raise InferenceError(f"{trial.path}: no frame has a reference mode")
+    runs = {m: run_offline(params.make(m), trial.probabilities) for m in methods}
+    return TrialResult(trial, {m: accuracy(r.final, trial.reference) for m, r in runs.items()},
+                       runs)
+
+
+def evaluate(trials: Sequence[Trial], methods: Sequence[str] = PAPER_METHODS,
+             params: FusionParameters | Sequence[FusionParameters] = FusionParameters(),
+             ) -> list[TrialResult]:
+    return [evaluate_trial(t, methods, p)
+            for t, p in zip(trials, _per_trial(params, len(trials)))]
+
+
+def leave_one_out_transitions(trials: Sequence[Trial], smoothing: float = 1.0) -> list[np.ndarray]:
+    """Per trial, the transition matrix counted from the other trials' references
+    (from the trial itself when it is the only one)."""
+    refs = [t.reference for t in trials]
+    if len(refs) == 1:
+        return [estimate_transition(refs, smoothing)]
+    return [estimate_transition(refs[:i] + refs[i + 1:], smoothing) for i in range(len(refs))]
+
+
+# ---------------------------------------------------------------------------------------
+# statistics
+
+def mean_sd(values: Sequence[float]) -> tuple[float, float]:
+    """Mean and sample SD (n-1; NaN for one value)."""
+    v = np.asarray(values, dtype=float)
+    if v.size == 0:
+        return math.nan, math.nan
+    return float(v.mean()), float(v.std(ddof=1)) if v.size > 1 else math.nan
+
+
+def summarize(results: Sequence[TrialResult], methods: Sequence[str]) -> dict[str, dict]:
+    """{"mean": {method: ...}, "sd": {method: ...}} across trials."""
+    out: dict[str, dict] = {"mean": {}, "sd": {}}
+    for m in methods:
+        out["mean"][m], out["sd"][m] = mean_sd([r.accuracy[m] for r in results])
+    return out
+
+
+def paired_t_tests(results: Sequence[TrialResult], methods: Sequence[str]) -> list[PairedTest]:
+    """Paired t-test between every two methods over the same trials (scipy.stats.ttest_rel)."""
+    from scipy import stats
+
+    tests = []
+    for i, a in enumerate(methods):
+        for b in methods[i + 1:]:
+            x = np.array([r.accuracy[a] for r in results])
+            y = np.array([r.accuracy[b] for r in results])
+            t = p = math.nan
+            if len(x) >= 2 and np.any(x != y):
+                with np.errstate(all="ignore"):
+                    res = stats.ttest_rel(x, y)
+                t, p = float(res.statistic), float(res.pvalue)
+            elif len(x) >= 2:
+                p = 1.0  # identical results: no difference at all
+            tests.append(PairedTest(a, b, len(x), t, p))
+    return tests
+
+
+def group_results(results: Sequence[TrialResult]) -> dict[tuple[str, str], list[TrialResult]]:
+    """Trials grouped by (condition, subject), in first-seen order."""
+    groups: dict[tuple[str, str], list[TrialResult]] = {}
+    for r in results:
+        groups.setdefault((r.trial.condition, r.trial.subject), []).append(r)
+    return groups
+
+
+def by_condition(results: Sequence[TrialResult]) -> dict[str, list[TrialResult]]:
+    groups: dict[str, list[TrialResult]] = {}
+    for r in results:
+        groups.setdefault(r.trial.condition, []).append(r)
+    return groups
+
+
+def confusion_matrix(decisions: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """Counts: rows the reference mode, columns the decided mode (frames with a reference)."""
+    reference = np.asarray(reference)
+    labeled = reference >= 0
+    counts = np.zeros((N_MODES, N_MODES), dtype=int)
+    np.add.at(counts, (reference[labeled], np.asarray(decisions)[labeled]), 1)
+    return counts
+
+
+def pooled_confusion(results: Sequence[TrialResult], method: str) -> np.ndarray:
+    return sum((confusion_matrix(r.runs[method].final, r.trial.reference) for r in results),
+               np.zeros((N_MODES, N_MODES), dtype=int))
+
+
+def delay_sweep(trials: Sequence[Trial], methods: Sequence[str], max_delay: int,
+                params: FusionParameters | Sequence[FusionParameters] = FusionParameters(),
+                ) -> DelaySweep:
+    """Accuracy against the number of delayed frames D = 0..max_delay (the paper's trade-off).
+
+    cnn+voting: l_v = D; hmm+voting: l_v = D-1 (the HMM adds one frame); fixed-lag: lag = D.
+    Methods without a delay parameter (cnn, forward: 0; hmm: 1) keep their accuracy for
+    every D at or above their own delay; NaN below it.
+    """
+    delays = list(range(max_delay + 1))
+    acc = {m: np.full((len(trials), len(delays)), np.nan) for m in methods}
+    for i, (trial, p) in enumerate(zip(trials, _per_trial(params, len(trials)))):
+        ref = trial.reference
+        stages: dict[str, FusionRun] = {}
+
+        def stage(method: str) -> FusionRun:
+            if method not in stages:
+                stages[method] = run_offline(p.make(method), trial.probabilities)
+            return stages[method]
+
+        for m in methods:
+            if m in ("cnn", "forward", "hmm"):
+                acc[m][i, p.delay_frames(m):] = accuracy(stage(m).final, ref)
+            elif m == "cnn+voting":
+                for d in delays:
+                    acc[m][i, d] = accuracy(vote_offline(stage("cnn").decisions, d), ref)
+            elif m == "hmm+voting":
+                for d in delays[1:]:
+                    acc[m][i, d] = accuracy(vote_offline(stage("hmm").decisions, d - 1), ref)
+            elif m == "fixed-lag":
+                for d in delays:
+                    run = run_offline(FixedLagSmoother(p.transition, d), trial.probabilities)
+                    acc[m][i, d] = accuracy(run.final, ref)
+            else:
+                raise InferenceError(f"unknown method {m!r}")
+    return DelaySweep(delays, acc)
+
+
+# ---------------------------------------------------------------------------------------
+# the JSON report (what `walkcap eval --json` prints)
+
+def _num(x: float) -> float | None:
+    return None if x is None or not math.isfinite(x) else float(x)
+
+
+def _nums(d: dict) -> dict:
+    return {k: _num(v) for k, v in d.items()}
+
+
+def _tests_json(tests: Sequence[PairedTest]) -> list[dict]:
+    return [{"a": t.a, "b": t.b, "n": t.n, "t": _num(t.t), "p": _num(t.p)} for t in tests]
+
+
+def report(results: Sequence[TrialResult], methods: Sequence[str], params: FusionParameters,
+           sweep: DelaySweep | None = None, grouped: bool = False) -> dict:
+    """{"files": [...], "mean", "sd", "delay_frames", "parameters", ...}; accuracies as
+    fractions, null where undefined. grouped adds "groups" (subject x condition) and
+    "conditions" (with their own paired t-tests)."""
+    files = []
+    for r in results:
+        entry: dict[str, Any] = {"path": r.trial.path, "frames": len(r.trial.reference)}
+        labeled = int((r.trial.reference >= 0).sum())
+        if labeled != entry["frames"]:
+            entry["labeled_frames"] = labeled
+        if grouped:
+            entry["subject"] = r.trial.subject
+            entry["condition"] = r.trial.condition
+        entry["accuracy"] = _nums(r.accuracy)
+        files.append(entry)
+    summary = summarize(results, methods)
+    out: dict[str, Any] = {
+        "files": files,
+        "mean": _nums(summary["mean"]),
+        "sd": _nums(summary["sd"]),
+        "delay_frames": {m: params.delay_frames(m) for m in methods},
+        "parameters": {"window": params.window, "vote_delay": params.vote_delay,
+                       **({"lag": params.lag} if "fixed-lag" in methods else {})},
+    }
+    if len(results) >= 2:
+        out["paired_t_tests"] = _tests_json(paired_t_tests(results, methods))
+    if grouped:
+        out["groups"] = []
+        for (condition, subject), rs in group_results(results).items():
+            s = summarize(rs, methods)
+            out["groups"].append({"condition": condition, "subject": subject,
+                                  "trials": len(rs), "mean": _nums(s["mean"]),
+                                  "sd": _nums(s["sd"])})
+        out["conditions"] = []
+        for condition, rs in by_condition(results).items():
+            s = summarize(rs, methods)
+            out["conditions"].append({"condition": condition, "trials": len(rs),
+                                      "mean": _nums(s["mean"]), "sd": _nums(s["sd"]),
+                                      "paired_t_tests": _tests_json(paired_t_tests(rs, methods))})
+    if sweep is not None:
+        with np.errstate(all="ignore"):
+            out["sweep"] = {
+                "delays": sweep.delays,
+                "mean": {m: [_num(x) for x in _nanmean(a)] for m, a in sweep.accuracy.items()},
+                "sd": {m: [_num(x) for x in _nansd(a)] for m, a in sweep.accuracy.items()},
+            }
+    return out
+
+
+def _nanmean(a: np.ndarray) -> np.ndarray:
+    return np.array([np.mean(c) if not np.isnan(c).any() else np.nan for c in a.T])
+
+
+def _nansd(a: np.ndarray) -> np.ndarray:
+    return np.array([np.std(c, ddof=1) if len(c) > 1 and not np.isnan(c).any() else np.nan
+                     for c in a.T])
+
+
+# ---------------------------------------------------------------------------------------
+# inputs
+
+def read_scores(path: str | Path) -> Trial:
+    """A score CSV: header LG,US,DS,UR,DR,label, one row per frame in capture order.
+
+    Every problem is a ScoreFileError naming the file and line (1 = the header).
+    """
+    path = str(path)
+    expected = ",".join(SCORE_HEADER)
+    probabilities: list[list[float]] = []
+    labels: list[int] = []
+    with open(path, newline="", encoding="utf-8-sig") as f:
+        rows = csv.reader(f)
+        try:
+            header = next(rows, None)
+            if header is None or not any(h.strip() for h in header):
+                raise ScoreFileError(f"{path}: empty file (expected the header {expected} "
+                                     "and one row per frame)")
+            if tuple(h.strip() for h in header) != SCORE_HEADER:
+                raise ScoreFileError(f"{path}:1: expected the header {expected}, "
+                                     f"got {','.join(header)}")
+            for row in rows:
+                line = rows.line_num
+                if not row or not any(c.strip() for c in row):
+                    continue  # blank lines (often one at the end)
+                probabilities.append(_score_row(path, line, row))
+                label = row[N_MODES].strip()
+                if label not in MODES:
+                    raise ScoreFileError(f"{path}:{line}: unknown label {label!r} "
+                                         f"(expected one of {', '.join(MODES)})")
+                labels.append(MODES.index(label))
+        except csv.Error as e:
+            raise ScoreFileError(f"{path}:{rows.line_num}: not valid CSV: {e}") from None
+        except UnicodeDecodeError:
+            raise ScoreFileError(f"{path}: not a text file (expected CSV)") from None
+    if not probabilities:
+        raise ScoreFileError(f"{path}: no frames after the header")
+    return Trial(path, np.array(probabilities), np.array(labels))
+
+
+def _score_row(path: str, line: int, row: list[str]) -> list[float]:
+    if len(row) != len(SCORE_HEADER):
+        raise ScoreFileError(f"{path}:{line}: expected {len(SCORE_HEADER)} fields "
+                             f"({','.join(SCORE_HEADER)}), got {len(row)}")
+    values = []
+    for name, text in zip(MODES, row):
+        try:
+            v = float(text)
+        except ValueError:
+            raise ScoreFileError(f"{path}:{line}: {name}: not a number: {text.strip()!r}") from None
+        if not math.isfinite(v):
+            raise ScoreFileError(f"{path}:{line}: {name}: not a finite number: {text.strip()}")
+        if v < 0:
+            raise ScoreFileError(f"{path}:{line}: {name}: negative probability {v:g}")
+        values.append(v)
+    total = sum(values)
+    if abs(total - 1.0) > SUM_TOLERANCE:
+        raise ScoreFileError(f"{path}:{line}: probabilities sum to {total:.4g}, expected 1 "
+                             f"(within {SUM_TOLERANCE})")
+    return values
+
+
+def trial_from_recording(path: str, data: Any, reference: str = "auto") -> Trial:
+    """A Trial from what capture's reader returns for one recording.
+
+    data: a mapping (or object) with "probabilities" (N, 5), "labels" (N operator labels:
+    mode names, None where unlabeled), "truth" (N simulator modes, or None) and "metadata"
+    (dict with "subject", "condition"). reference: "labels", "truth" or "auto" (operator
+    labels when there are any, else simulator truth).
+    """
+    def get(key: str):
+        return data.get(key) if isinstance(data, dict) else getattr(data, key, None)
+
+    labels, truth = get("labels"), get("truth")
+
+    def usable(seq) -> bool:
+        return seq is not None and bool((mode_indices(seq) >= 0).any())
+
+    if reference == "auto":
+        reference = "labels" if usable(labels) else "truth"
+    chosen = labels if reference == "labels" else truth
+    if not usable(chosen):
+        what = "operator labels" if reference == "labels" else "simulator truth"
+        raise InferenceError(f"{path}: no {what} to compare with")
+    return Trial(str(path), get("probabilities"), chosen, dict(get("metadata") or {}))
+
+
+def load_trials_from_recordings(paths: Sequence[str], reference: str = "auto") -> list[Trial]:
+    """Trials from MCAP recordings through `capture.recording_reader.read_trial(path)`."""
+    try:  # lands with the [recording] issue
+        recording_reader = importlib.import_module("capture.recording_reader")
+    except ModuleNotFoundError as e:
+        if e.name not in ("capture.recording_reader", "capture"):
+            raise
+        raise RecordingsUnavailable(
+            "reading recordings arrives with the [recording] issue; meanwhile evaluate "
+            "score files with 'walkcap eval scores'") from None
+    return [trial_from_recording(p, recording_reader.read_trial(p), reference) for p in paths]
+
+
+def synthetic_trial(seed: int = 0, accuracy: float = 0.9, block_frames: tuple[int, int] = (30, 80),
+                    path: str = "", metadata: dict | None = None) -> Trial:
+    """A simulated trial for tests and demos: the paper's course (three level-ground
+    blocks, stairs and ramps up and down) and CNN-like scores that pick the true mode on
+    about `accuracy` of the frames, errors independent and less confident."""
+    rng = np.random.default_rng(seed)
+    course = ["LG", "US", "LG", "UR", "LG", "DS", "DR"]
+    reference = np.concatenate([np.full(rng.integers(*block_frames), MODES.index(m))
+                                for m in course])
+    n = len(reference)
+    chosen = reference.copy()
+    wrong = rng.random(n) > accuracy
+    chosen[wrong] = (reference[wrong] + rng.integers(1, N_MODES, wrong.sum())) % N_MODES
+    confidence = np.where(wrong, rng.uniform(0.35, 0.7, n), rng.uniform(0.55, 0.99, n))
+    rest = rng.dirichlet(np.ones(N_MODES - 1), n) * (1 - confidence)[:, None]
+    probabilities = np.empty((n, N_MODES))
+    for i in range(n):
+        probabilities[i, chosen[i]] = confidence[i]
+        probabilities[i, np.arange(N_MODES) != chosen[i]] = rest[i]
+    return Trial(path or f"synthetic-{seed}", probabilities, reference, dict(metadata or {}))
+
+
+# ---------------------------------------------------------------------------------------
+# figures (matplotlib, Agg, PNG)
+
+def _safe(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("_") or "trial"
+
+
+def write_plots(results: Sequence[TrialResult], out_dir: str | Path, methods: Sequence[str],
+                params: FusionParameters = FusionParameters(),
+                sweep: DelaySweep | None = None) -> list[Path]:
+    """The paper's figures as PNGs in out_dir; returns the files written.
+
+    accuracy_per_subject[_<condition>].png (mean +- SD per subject and method),
+    accuracy_vs_delay.png (with a sweep), decisions_<trial>.png and
+    probabilities_<trial>.png (the first trial of each condition), confusion.png.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    written: list[Path] = []
+
+    def save(fig, name: str) -> None:
+        path = out / name
+        fig.tight_layout()
+        fig.savefig(path, dpi=100)
+        plt.close(fig)
+        written.append(path)
+
+    conditions = by_condition(results)
+    for condition, rs in conditions.items():
+        save(_plot_per_subject(plt, rs, methods, condition),
+             f"accuracy_per_subject{'_' + _safe(condition) if condition else ''}.png")
+    if sweep is not None:
+        save(_plot_sweep(plt, results, sweep), "accuracy_vs_delay.png")
+    for condition, rs in conditions.items():
+        example = rs[0]
+        stem = _safe(Path(example.trial.path).stem)
+        save(_plot_decisions(plt, example, methods), f"decisions_{stem}.png")
+        save(_plot_probabilities(plt, example, params), f"probabilities_{stem}.png")
+    save(_plot_confusion(plt, results, methods), "confusion.png")
+    return written
+
+
+def _plot_per_subject(plt, results, methods, condition):
+    groups = group_results(results)
+    subjects = [s for (_, s) in groups]
+    fig, ax = plt.subplots(figsize=(max(6.0, 1.2 * len(subjects) + 2), 4))
+    width = 0.8 / len(methods)
+    x = np.arange(len(subjects))
+    for k, m in enumerate(methods):
+        stats = [mean_sd([r.accuracy[m] for r in rs]) for rs in groups.values()]
+        means = [100 * s[0] for s in stats]
+        sds = [0 if math.isnan(s[1]) else 100 * s[1] for s in stats]
+        ax.bar(x + (k - (len(methods) - 1) / 2) * width, means, width, yerr=sds, capsize=3,
+               label=TITLES.get(m, m))
+    ax.set_xticks(x, subjects, rotation=30 if len(subjects) > 6 else 0)
+    ax.set_ylabel("accuracy (%)")
+    low = min(100 * min(r.accuracy[m] for r in results for m in methods), 100)
+    ax.set_ylim(max(0, low - 5), 100.5)
+    ax.set_title(f"Classification accuracy per subject{' (' + condition + ')' if condition else ''}")
+    ax.legend(fontsize=8, ncol=2)
+    return fig
+
+
+def _plot_sweep(plt, results, sweep):
+    conditions = by_condition(results)
+    index = {id(r): i for i, r in enumerate(results)}
+    fig, axes = plt.subplots(1, len(conditions), figsize=(6 * len(conditions), 4), squeeze=False)
+    for ax, (condition, rs) in zip(axes[0], conditions.items()):
+        rows = [index[id(r)] for r in rs]
+        for m, a in sweep.accuracy.items():
+            sub = a[rows]
+            with np.errstate(all="ignore"):
+                mean, sd = _nanmean(sub), _nansd(sub)
+            ax.errorbar(sweep.delays, 100 * mean, yerr=100 * np.nan_to_num(sd), capsize=3,
+                        marker="o", label=TITLES.get(m, m))
+        ax.set_xlabel("delayed frames")
+        ax.set_ylabel("accuracy (%)")
+        ax.set_title(f"Accuracy against delay{' (' + condition + ')' if condition else ''}")
+        ax.legend(fontsize=8)
+    return fig
+
+
+def _plot_decisions(plt, result, methods):
+    trial = result.trial
+    frames = np.arange(len(trial.reference))
+    fig, ax = plt.subplots(figsize=(10, 3.5))
+    ref = np.where(trial.reference >= 0, trial.reference, np.nan)
+    ax.step(frames, ref, where="mid", color="black", linewidth=3, label="reference")
+    styles = {"cnn": dict(linestyle="none", marker="o", markersize=3, fillstyle="none"),
+              "cnn+voting": dict(linewidth=1), "hmm": dict(linestyle="--", linewidth=1.5),
+              "hmm+voting": dict(linestyle=":", linewidth=1.5)}
+    for m in methods:
+        ax.step(frames, result.runs[m].final, where="mid", label=TITLES.get(m, m),
+                **styles.get(m, dict(linewidth=1)))
+    ax.set_yticks(range(N_MODES), MODES)
+    ax.set_xlabel("frame")
+    ax.set_title(f"Sequential decisions: {Path(trial.path).name}")
+    ax.legend(fontsize=8, loc="upper right", ncol=len(methods) + 1)
+    return fig
+
+
+def _plot_probabilities(plt, result, params):
+    trial = result.trial
+    run = result.runs.get("hmm") or result.runs.get("hmm+voting")
+    if run is None:
+        run = run_offline(HmmFusion(params.window, params.transition), trial.probabilities)
+    fig, axes = plt.subplots(2, 1, figsize=(10, 5), sharex=True)
+    for ax, p, title in ((axes[0], trial.probabilities, "CNN probabilities"),
+                         (axes[1], run.posteriors, "HMM smoothed posterior p(s_t)")):
+        for j, mode in enumerate(MODES):
+            ax.plot(p[:, j], label=mode, linewidth=1)
+        ax.set_ylim(-0.02, 1.02)
+        ax.set_ylabel("probability")
+        ax.set_title(title)
+    axes[0].legend(fontsize=8, ncol=N_MODES, loc="upper right")
+    axes[1].set_xlabel("frame")
+    return fig
+
+
+def _plot_confusion(plt, results, methods):
+    fig, axes = plt.subplots(1, len(methods), figsize=(3.2 * len(methods), 3.4), squeeze=False)
+    for ax, m in zip(axes[0], methods):
+        counts = pooled_confusion(results, m)
+        with np.errstate(all="ignore"):
+            rate = counts / counts.sum(axis=1, keepdims=True)
+        ax.imshow(np.nan_to_num(rate), vmin=0, vmax=1, cmap="Blues")
+        for i in range(N_MODES):
+            for j in range(N_MODES):
+                ax.text(j, i, str(counts[i, j]), ha="center", va="center", fontsize=7,
+                        color="white" if np.nan_to_num(rate[i, j]) > 0.5 else "black")
+        ax.set_xticks(range(N_MODES), MODES)
+        ax.set_yticks(range(N_MODES), MODES)
+        ax.set_xlabel("decided")
+        ax.set_ylabel("reference")
+        ax.set_title(TITLES.get(m, m))
+    return fig
+

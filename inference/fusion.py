@@ -1,0 +1,572 @@
+"""Sequential decision fusion: the paper's modified Viterbi update (HMM), voting, baselines.
+
+Zhang et al., "Sequential Decision Fusion for Environmental Classification in Assistive
+Walking" (IEEE TNSRE 2019), Algorithm 1 and equation (voting). Every method is a streaming
+object: `push` one CNN probability vector per frame (index order `devices.frames.MODES`),
+get back what became known with that frame; `flush` at the end of a sequence decides the
+frames still waiting for future frames. Offline evaluation runs the same objects, so live
+and offline decisions are identical by construction.
+
+Methods (`make_fusion`), with the number of frames each decision waits for:
+- "cnn": argmax of each frame's probabilities (delay 0).
+- "cnn+voting": mode of the argmax decisions over frames t-l_v..t+l_v (delay l_v).
+- "hmm": Algorithm 1; frame t-1 is decided when frame t arrives (delay 1).
+- "hmm+voting": mode of the HMM's smooth states over t-l_v..t+l_v (delay 1 + l_v).
+- "forward": a standard HMM forward filter, argmax of p(z_t | x_1..x_t) (delay 0).
+- "fixed-lag": a standard fixed-lag smoother, argmax of p(z_t | x_1..x_{t+lag}) (delay lag).
+The standard HMMs use the CNN output as a scaled emission likelihood, as the paper does.
+
+At the ends of a sequence (documented choices, the paper does not say):
+- Algorithm 1 initialises p(s_t) = p(x_t|z_t) for the first l_w frames, and its first
+  update decides frame l_w-1 (0-based). Frames 0..l_w-2 are decided as argmax p(s_t), i.e.
+  the CNN's argmax, still emitted one frame late so the delay is uniform.
+- The last frame has no next frame: `flush` decides it as argmax of its smoothed p(s_t).
+- Voting windows are cut at both ends of the sequence (fewer votes there).
+- A tie in the vote goes to the smallest mode index (LG first), as MATLAB's `mode`.
+"""
+from __future__ import annotations
+
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import Iterable, Protocol, Sequence
+
+import numpy as np
+
+from devices.frames import MODES
+from inference.errors import InferenceError
+
+N_MODES = len(MODES)
+
+# The authors' transition matrix (rows: from, columns: to; LG, US, DS, UR, DR); the
+# same values as capture.config.PAPER_TRANSITION and ../shared/paper/README.md.
+PAPER_TRANSITION = np.array([
+    [0.80, 0.05, 0.05, 0.05, 0.05],
+    [0.15, 0.80, 0.01, 0.03, 0.01],
+    [0.15, 0.01, 0.80, 0.01, 0.03],
+    [0.15, 0.03, 0.01, 0.80, 0.01],
+    [0.15, 0.01, 0.03, 0.01, 0.80],
+])
+
+METHODS = ("cnn", "cnn+voting", "hmm", "hmm+voting", "forward", "fixed-lag")
+
+_INF = float("inf")
+
+
+@dataclass(slots=True)
+class FusionOutput:
+    """What one push (or flush) made known.
+
+    `frame`/`decision`: the decision of the method's first stage (argmax, HMM smooth state,
+    filter, smoother) and the frame it refers to; None in flush outputs that only carry
+    votes. `probabilities`: the method's distribution for `posterior_frame` (the HMM: the
+    smoothed p(s_t) of the newest frame, Algorithm 1's second output). `voted`/`voted_frame`:
+    the vote, for methods with voting, once its window is complete.
+    """
+
+    frame: int | None
+    decision: int | None
+    posterior_frame: int | None = None
+    probabilities: tuple[float, ...] | None = None
+    voted: int | None = None
+    voted_frame: int | None = None
+
+    @property
+    def posterior(self) -> np.ndarray | None:
+        # Built on demand: an array per frame would cost more than the fusion update.
+        return None if self.probabilities is None else np.array(self.probabilities)
+
+
+class Fusion(Protocol):
+    """A streaming fusion method (see the module docstring)."""
+
+    method: str
+    delay_frames: int  # frames between a frame's arrival and its final decision
+    votes: bool  # the final decision is `voted` (else `decision`)
+
+    def push(self, probabilities: np.ndarray | Sequence[float]) -> FusionOutput | None: ...
+
+    def flush(self) -> list[FusionOutput]: ...
+
+    def reset(self) -> None: ...
+
+
+# ---------------------------------------------------------------------------------------
+# transition matrices
+
+def validate_transition(matrix, name: str = "transition") -> np.ndarray:
+    """A 5x5 row-stochastic matrix with positive entries, as float64; else InferenceError."""
+    try:
+        t = np.array(matrix, dtype=float)
+    except (TypeError, ValueError):
+        raise InferenceError(f"{name}: expected 5 rows of 5 numbers") from None
+    if t.shape != (N_MODES, N_MODES):
+        raise InferenceError(f"{name}: expected 5 rows of 5 numbers ({', '.join(MODES)}), "
+                             f"got shape {t.shape}")
+    if not np.all(np.isfinite(t)) or np.any(t <= 0):
+        raise InferenceError(f"{name}: every entry must be a positive number "
+                             "(a zero transition could never be left)")
+    for i, row in enumerate(t):
+        if abs(row.sum() - 1.0) > 1e-3:
+            raise InferenceError(f"{name}: row {MODES[i]} sums to {row.sum():.4g}, expected 1")
+    return t
+
+
+def design_transition(stay: float = 0.80, to_level: float = 0.15,
+                      same_direction: float = 0.03) -> np.ndarray:
+    """The transition matrix from the paper's six rules, as a function of three numbers.
+
+    stay: t_ii for every mode (rules 1, 2); leaving level ground is split equally over the
+    four other modes (rule 3); to_level: from any non-level mode to LG (rule 4);
+    same_direction: between US and UR or DS and DR (|i-j| even, rule 5); the rest of each
+    row goes equally to the two opposite-direction modes (|i-j| odd, the lowest, rule 6).
+    The defaults give the authors' matrix.
+    """
+    opposite = (1.0 - stay - to_level - same_direction) / 2.0
+    leave_level = (1.0 - stay) / (N_MODES - 1)
+    if min(stay, to_level, same_direction, opposite, leave_level) <= 0:
+        raise InferenceError("transition design: every probability must be positive "
+                             f"(stay={stay}, to_level={to_level}, "
+                             f"same_direction={same_direction}, opposite={opposite:.4g})")
+    if stay <= max(to_level, same_direction, leave_level):
+        raise InferenceError("transition design: staying must be more likely than any change")
+    if same_direction <= opposite:
+        raise InferenceError("transition design: same-direction changes must be more likely "
+                             f"than opposite-direction ones ({same_direction} <= {opposite:.4g})")
+    t = np.empty((N_MODES, N_MODES))
+    t[0, :] = leave_level
+    t[1:, 0] = to_level
+    for i in range(1, N_MODES):
+        for j in range(1, N_MODES):
+            if i == j:
+                continue
+            t[i, j] = same_direction if (i - j) % 2 == 0 else opposite
+    np.fill_diagonal(t, stay)
+    return t
+
+
+def mode_indices(labels: Iterable) -> np.ndarray:
+    """Labels as mode indices: names ("LG") or ints; None, "" or -1 mean unlabeled (-1)."""
+    out = []
+    for label in labels:
+        if label is None or label == "":
+            out.append(-1)
+        elif isinstance(label, str):
+            if label not in MODES:
+                raise InferenceError(f"unknown mode {label!r} (expected one of "
+                                     f"{', '.join(MODES)})")
+            out.append(MODES.index(label))
+        else:
+            index = int(label)
+            if not -1 <= index < N_MODES:
+                raise InferenceError(f"mode index {index} out of range 0..{N_MODES - 1}")
+            out.append(index)
+    return np.array(out, dtype=int)
+
+
+def estimate_transition(label_sequences: Iterable[Iterable], smoothing: float = 1.0) -> np.ndarray:
+    """Transition probabilities counted from labeled frame sequences, additively smoothed.
+
+    Pairs of consecutive frames count when both are labeled. Note that per-frame counts at
+    15 fps give a much higher stay probability than the authors' designed 0.80.
+    """
+    if smoothing <= 0:
+        raise InferenceError("transition estimate: smoothing must be positive")
+    counts = np.zeros((N_MODES, N_MODES))
+    for labels in label_sequences:
+        z = mode_indices(labels)
+        a, b = z[:-1], z[1:]
+        keep = (a >= 0) & (b >= 0)
+        np.add.at(counts, (a[keep], b[keep]), 1.0)
+    counts += smoothing
+    return counts / counts.sum(axis=1, keepdims=True)
+
+
+# ---------------------------------------------------------------------------------------
+# streaming methods
+
+def _row(probabilities) -> list[float]:
+    """The frame's probabilities as 5 Python floats (the fast path), checked cheaply."""
+    e = probabilities.tolist() if isinstance(probabilities, np.ndarray) else [
+        float(x) for x in probabilities]
+    if len(e) != N_MODES:
+        raise InferenceError(f"fusion: expected {N_MODES} probabilities, got {len(e)}")
+    total = e[0] + e[1] + e[2] + e[3] + e[4]
+    if not 0.0 < total < _INF or min(e) < 0.0:
+        raise InferenceError(f"fusion: not a probability vector: {e}")
+    return e
+
+
+def _mode(decisions: Iterable[int]) -> int:
+    counts = [0] * N_MODES
+    for d in decisions:
+        counts[d] += 1
+    return counts.index(max(counts))  # ties: smallest index, as MATLAB's mode()
+
+
+class Voter:
+    """Voting: the mode of decisions over frames f-l_v..f+l_v, streamed.
+
+    Feed decisions in frame order; the vote for frame f is returned with decision f+l_v.
+    """
+
+    def __init__(self, vote_delay: int):
+        if vote_delay < 0:
+            raise InferenceError(f"vote delay must be >= 0, got {vote_delay}")
+        self.vote_delay = vote_delay
+        self._recent: deque[int] = deque(maxlen=2 * vote_delay + 1)
+        self._next = 0  # the frame of the next decision
+        self._unvoted = 0  # the first frame without a vote
+
+    def reset(self) -> None:
+        self._recent.clear()
+        self._next = self._unvoted = 0
+
+    def push(self, frame: int, decision: int) -> tuple[int, int] | None:
+        """(voted frame, vote) once frame - l_v has its full window, else None."""
+        if frame != self._next:
+            raise InferenceError(f"voting: expected frame {self._next}, got {frame}")
+        self._next += 1
+        self._recent.append(decision)
+        voted_frame = frame - self.vote_delay
+        if voted_frame < 0:
+            return None
+        self._unvoted = voted_frame + 1
+        # The deque holds frames max(0, f-l_v)..f+l_v: the window, cut at the start.
+        return voted_frame, _mode(self._recent)
+
+    def flush(self) -> list[tuple[int, int]]:
+        """Votes of the frames still waiting, over windows cut at the end of the sequence."""
+        lv, n = self.vote_delay, self._next
+        recent = list(self._recent)
+        first = n - len(recent)  # the frame of recent[0]
+        votes = [(f, _mode(recent[max(0, f - lv) - first:])) for f in range(self._unvoted, n)]
+        self._unvoted = n
+        return votes
+
+
+class _Stream:
+    """Frame counting, voting and the end-of-sequence flag shared by every method."""
+
+    method: str
+    delay_frames: int
+
+    def __init__(self, vote_delay: int | None):
+        self.votes = vote_delay is not None
+        self._voter = Voter(vote_delay) if vote_delay is not None else None
+        self._frame = 0  # frames pushed so far
+        self._flushed = False
+
+    def reset(self) -> None:
+        self._frame = 0
+        self._flushed = False
+        if self._voter is not None:
+            self._voter.reset()
+        self._reset_state()
+
+    def _reset_state(self) -> None:
+        raise NotImplementedError
+
+    def _check_open(self) -> None:
+        if self._flushed:
+            raise InferenceError(f"{self.method}: the sequence was flushed; reset() first")
+
+    def _vote_outputs(self) -> list[FusionOutput]:
+        if self._voter is None:
+            return []
+        return [FusionOutput(None, None, voted=v, voted_frame=f) for f, v in self._voter.flush()]
+
+
+class ArgmaxFusion(_Stream):
+    """The CNN alone ("cnn"), or with voting ("cnn+voting")."""
+
+    def __init__(self, vote_delay: int | None = None):
+        super().__init__(vote_delay)
+        self.method = "cnn" if vote_delay is None else "cnn+voting"
+        self.delay_frames = vote_delay or 0
+
+    def _reset_state(self) -> None:
+        pass
+
+    def push(self, probabilities) -> FusionOutput:
+        self._check_open()
+        e = _row(probabilities)
+        t = self._frame
+        self._frame = t + 1
+        decision = e.index(max(e))
+        out = FusionOutput(t, decision, t, tuple(e))
+        if self._voter is not None:
+            vote = self._voter.push(t, decision)
+            if vote is not None:
+                out.voted_frame, out.voted = vote
+        return out
+
+    def flush(self) -> list[FusionOutput]:
+        if self._flushed:
+            return []
+        self._flushed = True
+        return self._vote_outputs()
+
+
+class HmmFusion(_Stream):
+    """Algorithm 1, the modified Viterbi update, optionally followed by voting.
+
+    Pushing frame t returns the smooth state s_opt(t-1) (`frame` t-1, `decision`) and the
+    normalised p(s_t) (`posterior_frame` t). Pure-Python floats: a 5x5 update is faster
+    without numpy's per-call overhead (see `bench_fusion`).
+    """
+
+    def __init__(self, window: int = 5, transition=PAPER_TRANSITION,
+                 vote_delay: int | None = None):
+        if int(window) != window or window < 1:
+            raise InferenceError(f"fusion window l_w must be an integer >= 1, got {window}")
+        super().__init__(vote_delay)
+        self.method = "hmm" if vote_delay is None else "hmm+voting"
+        self.delay_frames = 1 + (vote_delay or 0)
+        self.window = int(window)
+        self.transition = validate_transition(transition)
+        self._rows = tuple(tuple(r) for r in self.transition.tolist())
+        self._smooth: deque[tuple[float, ...]] = deque(maxlen=self.window)  # p(s_k), last l_w
+
+    def _reset_state(self) -> None:
+        self._smooth.clear()
+
+    def push(self, probabilities) -> FusionOutput | None:
+        if self._flushed:
+            self._check_open()
+        e0, e1, e2, e3, e4 = _row(probabilities)
+        t = self._frame
+        self._frame = t + 1
+        smooth = self._smooth
+        lw = self.window
+        if t < lw:  # initialise: p(s_t) = p(x_t | z_t)
+            p = (e0, e1, e2, e3, e4)
+            decision = None
+            if t > 0:
+                last = smooth[-1]
+                decision = last.index(max(last))
+        else:
+            # mean of p(s_k) over k = t-l_w..t-1 (row by row, as numpy's sum(axis=0))
+            a0 = a1 = a2 = a3 = a4 = 0.0
+            for r in smooth:
+                a0 += r[0]
+                a1 += r[1]
+                a2 += r[2]
+                a3 += r[3]
+                a4 += r[4]
+            pbar = (a0 / lw, a1 / lw, a2 / lw, a3 / lw, a4 / lw)
+            # posterior of the last smooth state: pbar_i * sum_j t_ij p(x_t | z_t = j)
+            r0, r1, r2, r3, r4 = self._rows
+            h = (pbar[0] * (r0[0] * e0 + r0[1] * e1 + r0[2] * e2 + r0[3] * e3 + r0[4] * e4),
+                 pbar[1] * (r1[0] * e0 + r1[1] * e1 + r1[2] * e2 + r1[3] * e3 + r1[4] * e4),
+                 pbar[2] * (r2[0] * e0 + r2[1] * e1 + r2[2] * e2 + r2[3] * e3 + r2[4] * e4),
+                 pbar[3] * (r3[0] * e0 + r3[1] * e1 + r3[2] * e2 + r3[3] * e3 + r3[4] * e4),
+                 pbar[4] * (r4[0] * e0 + r4[1] * e1 + r4[2] * e2 + r4[3] * e3 + r4[4] * e4))
+            decision = h.index(max(h))
+            # the current smooth state given s_opt(t-1), normalised
+            c = pbar[decision]
+            r = self._rows[decision]
+            q0 = c * r[0] * e0
+            q1 = c * r[1] * e1
+            q2 = c * r[2] * e2
+            q3 = c * r[3] * e3
+            q4 = c * r[4] * e4
+            z = q0 + q1 + q2 + q3 + q4
+            p = (q0 / z, q1 / z, q2 / z, q3 / z, q4 / z)
+        smooth.append(p)
+        if decision is None:
+            return FusionOutput(None, None, t, p)
+        out = FusionOutput(t - 1, decision, t, p)
+        if self._voter is not None:
+            vote = self._voter.push(t - 1, decision)
+            if vote is not None:
+                out.voted_frame, out.voted = vote
+        return out
+
+    def flush(self) -> list[FusionOutput]:
+        """Decide the last frame as argmax of its p(s_t) (it has no next frame), then votes."""
+        if self._flushed:
+            return []
+        self._flushed = True
+        outputs = []
+        if self._frame > 0:
+            last = self._smooth[-1]
+            frame, decision = self._frame - 1, last.index(max(last))
+            out = FusionOutput(frame, decision)
+            if self._voter is not None:
+                vote = self._voter.push(frame, decision)
+                if vote is not None:
+                    out.voted_frame, out.voted = vote
+            outputs.append(out)
+        return outputs + self._vote_outputs()
+
+
+class ForwardFilter(_Stream):
+    """Standard HMM forward filter: argmax p(z_t | x_1..x_t), uniform prior (delay 0)."""
+
+    def __init__(self, transition=PAPER_TRANSITION):
+        super().__init__(None)
+        self.method = "forward"
+        self.delay_frames = 0
+        self.transition = validate_transition(transition)
+        self._alpha: np.ndarray | None = None
+
+    def _reset_state(self) -> None:
+        self._alpha = None
+
+    def push(self, probabilities) -> FusionOutput:
+        self._check_open()
+        e = np.array(_row(probabilities))
+        t = self._frame
+        self._frame = t + 1
+        prior = (np.full(N_MODES, 1.0 / N_MODES) if self._alpha is None
+                 else self._alpha @ self.transition)
+        alpha = prior * e
+        self._alpha = alpha = alpha / alpha.sum()
+        return FusionOutput(t, int(np.argmax(alpha)), t, tuple(alpha.tolist()))
+
+    def flush(self) -> list[FusionOutput]:
+        self._flushed = True
+        return []
+
+
+class FixedLagSmoother(_Stream):
+    """Standard HMM fixed-lag smoother: argmax p(z_{t-lag} | x_1..x_t) (delay lag).
+
+    `flush` smooths the last frames with the future that exists.
+    """
+
+    def __init__(self, transition=PAPER_TRANSITION, lag: int = 1):
+        if lag < 0:
+            raise InferenceError(f"smoother lag must be >= 0, got {lag}")
+        super().__init__(None)
+        self.method = "fixed-lag"
+        self.lag = self.delay_frames = int(lag)
+        self.transition = validate_transition(transition)
+        self._alphas: deque[np.ndarray] = deque(maxlen=self.lag + 1)
+        self._emissions: deque[np.ndarray] = deque(maxlen=self.lag + 1)
+
+    def _reset_state(self) -> None:
+        self._alphas.clear()
+        self._emissions.clear()
+
+    def _smoothed(self, back: int) -> np.ndarray:
+        """p(z | all pushed frames) for the frame `back` frames before the newest."""
+        beta = np.ones(N_MODES)
+        for k in range(1, back + 1):  # newest frame first
+            beta = self.transition @ (self._emissions[-k] * beta)
+            beta /= beta.sum()
+        gamma = self._alphas[-1 - back] * beta
+        return gamma / gamma.sum()
+
+    def push(self, probabilities) -> FusionOutput | None:
+        self._check_open()
+        e = np.array(_row(probabilities))
+        t = self._frame
+        self._frame = t + 1
+        prior = (np.full(N_MODES, 1.0 / N_MODES) if not self._alphas
+                 else self._alphas[-1] @ self.transition)
+        alpha = prior * e
+        self._alphas.append(alpha / alpha.sum())
+        self._emissions.append(e)
+        if t < self.lag:
+            return None
+        gamma = self._smoothed(self.lag)
+        return FusionOutput(t - self.lag, int(np.argmax(gamma)), t - self.lag,
+                            tuple(gamma.tolist()))
+
+    def flush(self) -> list[FusionOutput]:
+        if self._flushed:
+            return []
+        self._flushed = True
+        outputs = []
+        n = self._frame
+        for frame in range(max(0, n - self.lag), n):
+            gamma = self._smoothed(n - 1 - frame)
+            outputs.append(FusionOutput(frame, int(np.argmax(gamma)), frame,
+                                        tuple(gamma.tolist())))
+        return outputs
+
+
+def make_fusion(method: str, window: int = 5, vote_delay: int = 1,
+                transition=PAPER_TRANSITION, lag: int = 1) -> Fusion:
+    """A fresh streaming fusion object; `lag` is used by "fixed-lag" only."""
+    if int(vote_delay) != vote_delay or vote_delay < 0:
+        raise InferenceError(f"vote delay l_v must be an integer >= 0, got {vote_delay}")
+    if method == "cnn":
+        return ArgmaxFusion()
+    if method == "cnn+voting":
+        return ArgmaxFusion(int(vote_delay))
+    if method == "hmm":
+        return HmmFusion(window, transition)
+    if method == "hmm+voting":
+        return HmmFusion(window, transition, int(vote_delay))
+    if method == "forward":
+        return ForwardFilter(transition)
+    if method == "fixed-lag":
+        return FixedLagSmoother(transition, lag)
+    raise InferenceError(f"unknown fusion method {method!r} (known: {', '.join(METHODS)})")
+
+
+# ---------------------------------------------------------------------------------------
+# the straightforward transcription: reference for tests and the benchmark's baseline
+
+def paper_step(smooth_window: np.ndarray, emission: np.ndarray, transition: np.ndarray,
+               window: int) -> tuple[int, np.ndarray]:
+    """One iteration of Algorithm 1 in numpy: (s_opt(t-1), p(s_t))."""
+    pbar = smooth_window.sum(axis=0) / window
+    phat_last = pbar * (transition @ emission)
+    s_opt = int(np.argmax(phat_last))
+    phat = pbar[s_opt] * transition[s_opt] * emission
+    return s_opt, phat / phat.sum()
+
+
+def paper_viterbi(probabilities, transition=PAPER_TRANSITION,
+                  window: int = 5) -> tuple[np.ndarray, np.ndarray]:
+    """Algorithm 1 over a whole sequence: (smooth states (N,), p(s_t) (N, 5)).
+
+    Ends as documented in the module docstring, so it matches HmmFusion + flush.
+    """
+    e = np.asarray(probabilities, dtype=float)
+    t_matrix = np.asarray(transition, dtype=float)
+    n = len(e)
+    smooth = np.empty_like(e)
+    states = np.empty(n, dtype=int)
+    smooth[:window] = e[:window]
+    states[:window] = np.argmax(e[:window], axis=1)
+    for t in range(window, n):
+        states[t - 1], smooth[t] = paper_step(smooth[t - window:t], e[t], t_matrix, window)
+    if n:
+        states[n - 1] = int(np.argmax(smooth[n - 1]))
+    return states, smooth
+
+
+def bench_fusion(updates: int = 20000, window: int = 5, seed: int = 0) -> dict:
+    """Median time of one fusion update (HmmFusion.push) against the numpy transcription.
+
+    Returns {"fusion_update_us", "paper_loop_us", "speedup"}. Not a test: a figure to report.
+    """
+    rng = np.random.default_rng(seed)
+    frames = rng.dirichlet(np.ones(N_MODES), size=updates + window)
+    clock = time.perf_counter_ns
+
+    fusion = HmmFusion(window, PAPER_TRANSITION)
+    for row in frames[:window]:
+        fusion.push(row)
+    fast = []
+    for row in frames[window:]:
+        start = clock()
+        fusion.push(row)
+        fast.append(clock() - start)
+
+    smooth = frames.copy()
+    paper = []
+    for t in range(window, len(frames)):
+        start = clock()
+        _, smooth[t] = paper_step(smooth[t - window:t], frames[t], PAPER_TRANSITION, window)
+        paper.append(clock() - start)
+
+    fast_us = float(np.median(fast)) / 1000.0
+    paper_us = float(np.median(paper)) / 1000.0
+    return {"fusion_update_us": fast_us, "paper_loop_us": paper_us,
+            "speedup": paper_us / fast_us}
