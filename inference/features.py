@@ -1,0 +1,292 @@
+"""Terrain features from the leveled sagittal profile: ramp slope, stair riser and tread.
+
+After the authors' earlier work (Zhang et al. 2019): ramp slope from a line fit along the
+median-filtered profile, riser height from the difference of tread levels, tread depth
+from the distance between consecutive stair edges.
+
+How: the camera sees every point of the profile along its own ray, so the visible terrain
+is a function of the elevation angle seen from the camera (origin of the profile). The
+profile is cut into thin angle bins, each reduced to its median range (this is the median
+filter; the noise of a time-of-flight camera is along the ray), giving an ordered
+polyline from near to far. Range jumps (occlusions: the nosing of a step going down)
+break it; split-and-merge cuts it into straight segments; each segment is refit on its
+raw points (total least squares, trimmed). Then:
+- stairs: consecutive horizontal segments (treads) whose levels differ by a riser height,
+  all in the same direction; riser = median level difference; tread depth = median
+  distance between consecutive stair edges (up: the riser's position; down: the far end
+  of the upper tread, where it drops), when at least two edges are seen;
+- ramp: a long slanted segment; slope = its angle, positive uphill;
+- level: mostly horizontal segments; slope reported too (near 0);
+- unknown: anything else (too few points, clutter).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+ANGLE_BIN_DEG = 0.4  # polyline resolution (about 7 mm at 1 m)
+MIN_BIN_POINTS = 2
+BREAK_GAP_M = 0.08  # a range jump larger than this between neighbouring bins: occlusion
+SPLIT_TOL_M = 0.015  # split-and-merge tolerance
+FIT_TRIM_M = 0.025  # points farther than this from a segment's line are not its own
+FLAT_MAX_DEG = 3.0  # a segment this close to horizontal is flat (a tread, level ground)
+FLAT_SHORT_RISE_M = 0.015  # ...or a short one that rises less than this end to end
+FLAT_SHORT_MAX_DEG = 12.0
+RAMP_MAX_DEG = 35.0
+RAMP_MIN_LENGTH_M = 0.25  # 0.15 when the fused decision says ramp
+RISER_MIN_M = 0.04
+RISER_MAX_M = 0.30
+TREAD_MIN_M = 0.10
+TREAD_MAX_M = 0.80
+MAX_HIDDEN_M = 0.6  # longest occluded stretch between two treads going down
+MIN_POINTS = 30
+
+
+@dataclass
+class TerrainFeatures:
+    kind: str = "unknown"  # ramp | stairs | level | unknown
+    slope_deg: float | None = None  # positive uphill (ramp, level)
+    riser_m: float | None = None  # stairs: step height (positive)
+    tread_m: float | None = None  # stairs: step depth, when two stair edges are seen
+    direction: str = ""  # "up" | "down" for ramps and stairs
+    steps: int = 0  # risers seen
+    inlier_fraction: float = 0.0  # profile points explained by the fitted segments
+    residual_m: float | None = None  # RMS distance of those points to their segments
+    segments: list = field(default_factory=list)  # [(x0, z0, x1, z1, angle_deg), ...]
+
+
+@dataclass
+class _Segment:
+    points: np.ndarray  # (K, 2) raw profile points assigned to it
+    index: np.ndarray  # their indices in the profile
+    start: np.ndarray  # (x, z), near end
+    end: np.ndarray  # far end
+    angle_deg: float  # of the travel direction near -> far: +90 riser up, 0 flat
+    centre: np.ndarray
+    rms_m: float
+
+    @property
+    def length(self) -> float:
+        return float(np.hypot(*(self.end - self.start)))
+
+    @property
+    def flat(self) -> bool:
+        rise = abs(float(self.end[1] - self.start[1]))
+        return abs(self.angle_deg) <= FLAT_MAX_DEG or (
+            rise <= FLAT_SHORT_RISE_M and abs(self.angle_deg) <= FLAT_SHORT_MAX_DEG)
+
+    @property
+    def level(self) -> float:
+        return float(np.median(self.points[:, 1]))
+
+
+def terrain_features(profile: np.ndarray, mode_hint: str | None = None) -> TerrainFeatures:
+    """Features of the leveled profile ((M, 2): forward x, height z, camera at the origin).
+
+    mode_hint: the fused decision ("LG", "US", "DS", "UR", "DR") or None; it only relaxes
+    the evidence needed for the matching kind.
+    """
+    pts = np.asarray(profile, dtype=np.float64).reshape(-1, 2)
+    pts = pts[np.all(np.isfinite(pts), axis=1) & (pts[:, 0] > 0)]
+    if len(pts) < MIN_POINTS:
+        return TerrainFeatures()
+    angle = np.arctan2(pts[:, 1], pts[:, 0])
+    segments = [s for run in _polyline_runs(pts, angle) for s in _fit_segments(run, pts, angle)]
+    if not segments:
+        return TerrainFeatures()
+    explained = np.zeros(len(pts), bool)
+    for s in segments:
+        explained[s.index] = True
+    inlier_fraction = float(explained.mean())
+    residual = float(np.sqrt(sum(s.rms_m ** 2 * len(s.points) for s in segments)
+                             / sum(len(s.points) for s in segments)))
+    result = (_stairs(segments, mode_hint) or _ramp(segments, mode_hint)
+              or _level(segments) or TerrainFeatures())
+    result.inlier_fraction = inlier_fraction
+    result.residual_m = residual
+    result.segments = [(float(s.start[0]), float(s.start[1]), float(s.end[0]),
+                        float(s.end[1]), float(s.angle_deg)) for s in segments]
+    return result
+
+
+def _polyline_runs(pts: np.ndarray, angle: np.ndarray) -> list[np.ndarray]:
+    """Median range per elevation-angle bin, near to far, cut at range jumps.
+
+    Each run is (K, 4): x, z, bin low angle, bin high angle (radians).
+    """
+    rng = np.hypot(pts[:, 0], pts[:, 1])
+    width = np.radians(ANGLE_BIN_DEG)
+    index = np.floor(angle / width).astype(np.int64)
+    order = np.lexsort((rng, index))
+    index, rng_sorted = index[order], rng[order]
+    starts = np.flatnonzero(np.r_[True, index[1:] != index[:-1]])
+    counts = np.diff(np.r_[starts, len(index)])
+    keep = counts >= MIN_BIN_POINTS
+    starts, counts = starts[keep], counts[keep]
+    median_rng = rng_sorted[starts + counts // 2]  # sorted by range within each bin
+    bins = index[starts]
+    centre = (bins + 0.5) * width
+    vertices = np.stack([median_rng * np.cos(centre), median_rng * np.sin(centre),
+                         bins * width, (bins + 1) * width], axis=1)
+    if len(vertices) < 2:
+        return []
+    step = np.hypot(*np.diff(vertices[:, :2], axis=0).T)
+    cuts = np.flatnonzero((step > BREAK_GAP_M) | (np.diff(bins) > 3)) + 1
+    return [run for run in np.split(vertices, cuts) if len(run) >= 3]
+
+
+def _split(vertices: np.ndarray, lo: int, hi: int, out: list[tuple[int, int]]) -> None:
+    """Douglas-Peucker: cut [lo, hi] where a vertex lies farther than the tolerance."""
+    a, b = vertices[lo, :2], vertices[hi, :2]
+    if hi - lo >= 2:
+        d = b - a
+        n = np.hypot(*d)
+        rel = vertices[lo + 1:hi, :2] - a
+        dist = np.abs(rel[:, 0] * d[1] - rel[:, 1] * d[0]) / max(n, 1e-9)
+        k = int(np.argmax(dist))
+        if dist[k] > SPLIT_TOL_M:
+            _split(vertices, lo, lo + 1 + k, out)
+            _split(vertices, lo + 1 + k, hi, out)
+            return
+    out.append((lo, hi))
+
+
+def _fit_segments(run: np.ndarray, pts: np.ndarray, angle: np.ndarray) -> list[_Segment]:
+    pieces: list[tuple[int, int]] = []
+    _split(run, 0, len(run) - 1, pieces)
+    segments = []
+    for lo, hi in pieces:
+        if hi - lo < 2:  # two vertices say nothing about a surface
+            continue
+        # A shared corner vertex belongs to both neighbours; their own points do not.
+        mine = np.flatnonzero((angle >= run[lo, 2]) & (angle < run[hi, 3]))
+        seg = _fit_line(pts, mine)
+        if seg is not None:
+            segments.append(seg)
+    return segments
+
+
+def _fit_line(pts: np.ndarray, index: np.ndarray) -> _Segment | None:
+    """Total least squares line, refit once without the points beyond FIT_TRIM_M."""
+    points = pts[index]
+    for _ in range(2):
+        if len(points) < 5:
+            return None
+        centre = points.mean(axis=0)
+        _, _, vt = np.linalg.svd(points - centre, full_matrices=False)
+        direction, normal = vt[0], vt[1]
+        dist = (points - centre) @ normal
+        inside = np.abs(dist) <= FIT_TRIM_M
+        if inside.all():
+            break
+        points, index = points[inside], index[inside]
+    along = (points - centre) @ direction
+    start, end = centre + along.min() * direction, centre + along.max() * direction
+    # Travel direction from near to far: farther along the elevation angle.
+    if np.arctan2(start[1], start[0]) > np.arctan2(end[1], end[0]):
+        start, end = end, start
+    d = end - start
+    angle = float(np.degrees(np.arctan2(d[1], d[0])))
+    return _Segment(points=points, index=index, start=start, end=end, angle_deg=angle, centre=centre,
+                    rms_m=float(np.sqrt(np.mean(dist[inside] ** 2))))
+
+
+def _stairs(segments: list[_Segment], hint: str | None) -> TerrainFeatures | None:
+    flats = [i for i, s in enumerate(segments) if s.flat and s.length >= 0.02]
+    # Steps between consecutive treads: (rise, index of the lower-x tread, of the other).
+    up_rises: list[float] = []
+    down_steps: list[tuple[float, int, int]] = []
+    for i, j in zip(flats, flats[1:]):
+        a, b = segments[i], segments[j]
+        rise = b.level - a.level
+        if not RISER_MIN_M <= abs(rise) <= RISER_MAX_M:
+            continue
+        gap = float(np.percentile(b.points[:, 0], 2) - np.percentile(a.points[:, 0], 98))
+        if rise > 0 and gap <= 0.05:
+            up_rises.append(rise)
+        elif rise < 0 and -0.02 <= gap <= MAX_HIDDEN_M:  # the lower tread is half hidden
+            down_steps.append((-rise, i, j))
+    # Going up, the risers face the camera: each is a stair edge.
+    risers = [i for i, s in enumerate(segments) if s.angle_deg > 60
+              and 0.02 <= s.length <= RISER_MAX_M + 0.05]
+    up_evidence, down_evidence = len(up_rises) + len(risers), len(down_steps)
+    if hint == "US" and up_evidence or not down_evidence:
+        going_up = True
+    elif hint == "DS" and down_evidence:
+        going_up = False
+    else:
+        going_up = up_evidence > down_evidence
+    if going_up:
+        rises = up_rises or [r for r in (_complete_riser(segments, i) for i in risers) if r]
+        if not rises and len(risers) < 2:
+            return None
+        edges = [float(np.median(segments[i].points[:, 0])) for i in risers]
+        tops = [float(segments[i].end[1]) for i in risers]
+        bottoms = [float(segments[i].start[1]) for i in risers]
+        depths = [e1 - e0 for e0, e1, top, bottom in zip(edges, edges[1:], tops, bottoms[1:])
+                  if bottom >= top - 0.03]  # the next riser starts where this one ends
+        steps = max(len(rises), len(risers))
+    else:
+        rises = [r for r, _, _ in down_steps]
+        # The nosing (far end of the upper tread) is the edge; chained steps share treads.
+        nosing = {i: _nosing(segments[i], segments[j]) for _, i, j in down_steps}
+        depths = [nosing[j] - nosing[i] for (_, i, j), (_, k, _) in
+                  zip(down_steps, down_steps[1:]) if j == k]
+        steps = len(down_steps)
+    depths = [d for d in depths if TREAD_MIN_M <= d <= TREAD_MAX_M]
+    return TerrainFeatures(
+        kind="stairs",
+        riser_m=float(np.median(rises)) if rises else None,
+        tread_m=float(np.median(depths)) if depths else None,
+        direction="up" if going_up else "down",
+        steps=steps,
+    )
+
+
+def _nosing(upper: _Segment, lower: _Segment) -> float:
+    """Where a tread drops to the next one down.
+
+    The last sample on the upper tread falls short of the edge; the ray grazing the edge
+    lands on the lower tread at x_lower = x_edge * z_lower / z_upper (camera at the
+    origin), and the first sample there lies beyond. The mean of both cancels most of
+    the sampling bias.
+    """
+    last = float(np.percentile(upper.points[:, 0], 98))
+    first = float(np.percentile(lower.points[:, 0], 2))
+    if upper.level < -0.02 and lower.level < upper.level:
+        return 0.5 * (last + first * upper.level / lower.level)
+    return last
+
+
+def _complete_riser(segments: list[_Segment], i: int) -> float | None:
+    """A riser's height when both its foot (a tread) and its top (what follows) are seen."""
+    riser = segments[i]
+    below = [s for s in segments[:i] if s.flat]
+    if not below or i + 1 >= len(segments):
+        return None
+    tread = below[-1]
+    foot_ok = abs(tread.level - riser.start[1]) < 0.02 and abs(tread.end[0] - riser.start[0]) < 0.05
+    top_ok = abs(segments[i + 1].start[1] - riser.end[1]) < 0.02
+    rise = float(riser.end[1]) - tread.level
+    return rise if foot_ok and top_ok and RISER_MIN_M <= rise <= RISER_MAX_M else None
+
+
+def _ramp(segments: list[_Segment], hint: str | None) -> TerrainFeatures | None:
+    min_length = 0.15 if hint in ("UR", "DR") else RAMP_MIN_LENGTH_M
+    slanted = [s for s in segments if not s.flat and abs(s.angle_deg) <= RAMP_MAX_DEG
+               and s.length >= min_length]
+    if not slanted:
+        return None
+    ramp = max(slanted, key=lambda s: s.length)
+    return TerrainFeatures(kind="ramp", slope_deg=ramp.angle_deg,
+                           direction="up" if ramp.angle_deg > 0 else "down")
+
+
+def _level(segments: list[_Segment]) -> TerrainFeatures | None:
+    total = sum(s.length for s in segments)
+    flat = [s for s in segments if s.flat]
+    if not flat or sum(s.length for s in flat) < 0.5 * total:
+        return None
+    ground = max(flat, key=lambda s: s.length)
+    return TerrainFeatures(kind="level", slope_deg=ground.angle_deg)
