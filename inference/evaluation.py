@@ -596,6 +596,7 @@ def _plot_sweep(plt, results, sweep):
                 mean, sd = _nanmean(sub), _nansd(sub)
             ax.errorbar(sweep.delays, 100 * mean, yerr=100 * np.nan_to_num(sd), capsize=3,
                         marker="o", label=TITLES.get(m, m))
+        ax.set_xticks(sweep.delays)
         ax.set_xlabel("delayed frames")
         ax.set_ylabel("accuracy (%)")
         ax.set_title(f"Accuracy against delay{' (' + condition + ')' if condition else ''}")
@@ -606,7 +607,7 @@ def _plot_sweep(plt, results, sweep):
 def _plot_decisions(plt, result, methods):
     trial = result.trial
     frames = np.arange(len(trial.reference))
-    fig, ax = plt.subplots(figsize=(10, 3.5))
+    fig, ax = plt.subplots(figsize=(10, 4))
     ref = np.where(trial.reference >= 0, trial.reference, np.nan)
     ax.step(frames, ref, where="mid", color="black", linewidth=3, label="reference")
     styles = {"cnn": dict(linestyle="none", marker="o", markersize=3, fillstyle="none"),
@@ -618,7 +619,8 @@ def _plot_decisions(plt, result, methods):
     ax.set_yticks(range(N_MODES), MODES)
     ax.set_xlabel("frame")
     ax.set_title(f"Sequential decisions: {Path(trial.path).name}")
-    ax.legend(fontsize=8, loc="upper right", ncol=len(methods) + 1)
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.2),
+              ncol=len(methods) + 1, frameon=False)
     return fig
 
 
