@@ -1,12 +1,226 @@
-"""`walkcap eval`: evaluate classifiers and fusion on score files or recordings"""
+"""`walkcap eval`: evaluate classifiers and fusion on score files or recordings
+
+    walkcap eval scores FILE.csv ... [--window 5] [--vote-delay 1] [--json]
+    walkcap eval recordings FILE.mcap ... [--sweep-delay [N]] [--plot DIR] [--json]
+    walkcap eval model ...            (the CNN on unseen synthetic sessions; eval_model.py)
+
+Accuracies are per trial (file), then mean +- SD across trials, as in the paper.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import logging
+import math
+
 from tui.cli import NotYetAvailable
 
 HELP = "evaluate classifiers and fusion on score files or recordings"
 
+log = logging.getLogger(__name__)
 
-def add_arguments(parser) -> None:
-    parser.add_argument("rest", nargs="*", help="(not available yet)")
+DEFAULT_METHODS = "cnn,cnn+voting,hmm,hmm+voting"
+SWEEP_DEFAULT = 6  # frames; the paper's trade-off figure reaches 6
+
+
+def _count(minimum: int):
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {value}")
+        return value
+    return parse
+
+
+def _methods(text: str) -> list[str]:
+    from inference.fusion import METHODS
+
+    names = [m.strip() for m in text.split(",") if m.strip()]
+    unknown = [m for m in names if m not in METHODS]
+    if unknown or not names:
+        raise argparse.ArgumentTypeError(
+            f"unknown method {', '.join(unknown) or '(none)'} (known: {', '.join(METHODS)})")
+    return list(dict.fromkeys(names))
+
+
+def _common_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--window", type=_count(1), metavar="N",
+                   help="l_w, the HMM's smoothing window in frames (default: [fusion] window, 5)")
+    p.add_argument("--vote-delay", type=_count(0), metavar="N",
+                   help="l_v, voting half-window in frames (default: [fusion] vote_delay, 1)")
+    p.add_argument("--methods", type=_methods, default=DEFAULT_METHODS,
+                   metavar="LIST", help=f"comma-separated methods (default: {DEFAULT_METHODS}; "
+                   "also forward, fixed-lag: standard HMM filter and smoother)")
+    p.add_argument("--lag", type=_count(0), default=1, metavar="N",
+                   help="lag of the fixed-lag smoother (default: 1)")
+    p.add_argument("--transition", choices=("config", "paper", "estimated"), default="config",
+                   help="transition matrix: [fusion] transition (default: the authors'), the "
+                   "authors', or counted from the other files' labels (leave one out)")
+    p.add_argument("--sweep-delay", type=_count(0), nargs="?", const=SWEEP_DEFAULT, metavar="N",
+                   help=f"also accuracy against 0..N delayed frames (default N: {SWEEP_DEFAULT})")
+    p.add_argument("--plot", metavar="DIR", help="write the paper's figures as PNG into DIR")
+    p.add_argument("--json", action="store_true", help="print JSON instead of tables")
+
+
+def _model_module():
+    """tui.commands.eval_model when it exists (another issue), else (None, reason)."""
+    try:
+        return importlib.import_module("tui.commands.eval_model"), ""
+    except ModuleNotFoundError as e:
+        if e.name == "tui.commands.eval_model":
+            return None, "not available yet (it lands with the CNN evaluation issue)"
+        reason = f"not available: tui.commands.eval_model needs {e.name}"
+    except Exception as e:  # a broken module must not break every other command
+        reason = f"not available: tui.commands.eval_model failed to import: {e}"
+    log.debug("walkcap eval model %s", reason)
+    return None, reason
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    verbs = parser.add_subparsers(dest="eval_command", metavar="VERB", required=True)
+
+    p = verbs.add_parser("scores", help="any classifier's per-frame scores from CSV files",
+                         description="Evaluate per-frame scores: each CSV has the header "
+                         "LG,US,DS,UR,DR,label and one row per frame in capture order.")
+    p.add_argument("files", nargs="+", metavar="FILE.csv")
+    _common_arguments(p)
+
+    p = verbs.add_parser("recordings", help="the recorded CNN outputs of MCAP recordings",
+                         description="Evaluate recordings against operator labels (or "
+                         "simulator truth), grouped by subject and condition.")
+    p.add_argument("files", nargs="+", metavar="FILE.mcap")
+    p.add_argument("--reference", choices=("auto", "labels", "truth"), default="auto",
+                   help="what is true: operator labels, simulator truth, or auto (labels "
+                   "when the recording has any)")
+    _common_arguments(p)
+
+    module, reason = _model_module()
+    if module is not None:
+        p = verbs.add_parser("model", help=module.HELP, description=module.HELP)
+        module.add_arguments(p)
+        p.set_defaults(_eval_run=module.run)
+    else:
+        p = verbs.add_parser("model", help="the CNN on unseen synthetic sessions "
+                             "(not available yet)")
+        p.add_argument("rest", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
+        p.set_defaults(_eval_unavailable=reason)
 
 
 def run(args, config) -> int:
-    raise NotYetAvailable("not available yet: it lands with the [fusion] issue")
+    if args.eval_command == "model":
+        if getattr(args, "_eval_run", None) is None:
+            raise NotYetAvailable(f"model: {args._eval_unavailable}")
+        return args._eval_run(args, config)
+
+    from inference import evaluation as ev
+    from inference.errors import InferenceError
+    from inference.fusion import PAPER_TRANSITION, validate_transition
+
+    window = args.window if args.window is not None else config.fusion.window
+    vote_delay = args.vote_delay if args.vote_delay is not None else config.fusion.vote_delay
+    if window < 1 or vote_delay < 0:
+        raise InferenceError(f"fusion.window must be >= 1 and fusion.vote_delay >= 0 "
+                             f"(got {window}, {vote_delay})")
+    transition = (PAPER_TRANSITION if args.transition == "paper" else
+                  validate_transition(config.fusion.transition, "fusion.transition"))
+    params = ev.FusionParameters(window, vote_delay, transition, args.lag)
+
+    if args.eval_command == "scores":
+        trials = [ev.read_scores(path) for path in args.files]
+    else:
+        try:
+            trials = ev.load_trials_from_recordings(args.files, args.reference)
+        except ev.RecordingsUnavailable as e:
+            raise NotYetAvailable(f"recordings: {e}") from None
+    per_trial = params
+    if args.transition == "estimated":
+        per_trial = [ev.FusionParameters(window, vote_delay, t, args.lag)
+                     for t in ev.leave_one_out_transitions(trials)]
+
+    results = ev.evaluate(trials, args.methods, per_trial)
+    sweep = (ev.delay_sweep(trials, args.methods, args.sweep_delay, per_trial)
+             if args.sweep_delay is not None else None)
+    grouped = args.eval_command == "recordings"
+    data = ev.report(results, args.methods, params, sweep, grouped)
+    data["parameters"]["transition"] = args.transition
+    if args.plot:
+        data["plots"] = [str(p) for p in ev.write_plots(results, args.plot, args.methods,
+                                                        params, sweep)]
+    if args.json:
+        print(json.dumps(data, indent=2))
+    else:
+        print(format_report(data, args.methods))
+    return 0
+
+
+# ---------------------------------------------------------------------------------------
+# text output
+
+def _title(method: str) -> str:
+    from inference.evaluation import TITLES
+
+    return TITLES.get(method, method)
+
+
+def _pct(x: float | None) -> str:
+    return "-" if x is None or not math.isfinite(x) else f"{100 * x:.2f}"
+
+
+def _table(headers: list[str], rows: list[list[str]], left: int = 1) -> list[str]:
+    """Plain aligned columns: the first `left` columns left-aligned, the rest right."""
+    widths = [max(len(str(r[i])) for r in [headers, *rows]) for i in range(len(headers))]
+
+    def line(cells) -> str:
+        return "  ".join(str(c).ljust(w) if i < left else str(c).rjust(w)
+                         for i, (c, w) in enumerate(zip(cells, widths))).rstrip()
+    return [line(headers), *(line(r) for r in rows)]
+
+
+def format_report(data: dict, methods: list[str]) -> str:
+    p = data["parameters"]
+    out = [f"{len(data['files'])} file(s); l_w = {p['window']}, l_v = {p['vote_delay']}, "
+           f"transition: {p['transition']}; accuracy in %", ""]
+    titles = [_title(m) for m in methods]
+    rows = [[f["path"], str(f["frames"]), *(_pct(f["accuracy"][m]) for m in methods)]
+            for f in data["files"]]
+    rows.append(["mean", "", *(_pct(data["mean"][m]) for m in methods)])
+    rows.append(["SD", "", *(_pct(data["sd"][m]) for m in methods)])
+    rows.append(["delay (frames)", "", *(str(data["delay_frames"][m]) for m in methods)])
+    out += _table(["file", "frames", *titles], rows)
+
+    if "groups" in data:
+        out.append("")
+        rows = []
+        for g in data["groups"]:
+            rows.append([g["condition"] or "-", g["subject"], str(g["trials"]),
+                         *(_mean_sd(g, m) for m in methods)])
+        for c in data["conditions"]:
+            rows.append([c["condition"] or "-", "all", str(c["trials"]),
+                         *(_mean_sd(c, m) for m in methods)])
+        out += _table(["condition", "subject", "trials", *titles], rows, left=2)
+
+    tests = data.get("paired_t_tests")
+    if tests:
+        out += ["", f"paired t-tests over {tests[0]['n']} trials:"]
+        rows = [[f"{_title(t['a'])} vs {_title(t['b'])}",
+                 "t =       -" if t["t"] is None else f"t = {t['t']:7.3f}",
+                 "p = -" if t["p"] is None else f"p = {t['p']:.3g}"] for t in tests]
+        out += ["  " + line for line in _table(["", "", ""], rows, left=3)[1:]]
+
+    sweep = data.get("sweep")
+    if sweep:
+        out += ["", "accuracy (%) against delayed frames (mean over files):"]
+        rows = [[_title(m), *(_pct(x) for x in sweep["mean"][m])] for m in methods]
+        out += _table(["method", *map(str, sweep["delays"])], rows)
+    if data.get("plots"):
+        out += ["", f"wrote {len(data['plots'])} figure(s): {', '.join(data['plots'])}"]
+    return "\n".join(out)
+
+
+def _mean_sd(entry: dict, method: str) -> str:
+    mean, sd = entry["mean"][method], entry["sd"][method]
+    return _pct(mean) if sd is None else f"{_pct(mean)} ± {_pct(sd)}"
