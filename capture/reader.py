@@ -1,0 +1,402 @@
+"""Reading walkcap recordings in Python: metadata, topics decoded into numpy and dicts.
+
+    rec = open_recording("S01_indoor_t01.mcap")
+    rec.metadata["session"]["subject"]
+    for m in rec.messages(["/camera/cloud"]):    # m.data: (N, 3) float32
+        ...
+    trial = read_trial(path)                     # per-frame arrays for evaluation
+    for frame in depth_frames(path):             # DepthFrame with xyz rebuilt exactly
+        ...
+
+Finished files are read through their index. Unfinished ones (a crash, a full disk) are
+read record by record up to where they stop (capture.recovery.scan), so everything that
+reached the disk is readable without `walkcap recover`.
+Messages are decoded with the schema stored in the file (protobuf descriptors, JSON).
+"""
+from __future__ import annotations
+
+import io
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable, Iterator
+
+import numpy as np
+
+from capture import topics as T
+from capture.errors import CaptureError
+from capture.recovery import ScanResult, check_magic, scan
+from devices.frames import MODES, CameraGeometry, DepthFrame
+
+
+@dataclass
+class RecordedMessage:
+    topic: str
+    log_time_ns: int  # host receive time, session clock
+    publish_time_ns: int  # sample time, session clock
+    sequence: int  # frame index for camera topics, packet counter for /imu
+    data: Any  # numpy array (images, clouds, quaternions) or dict (JSON topics)
+
+
+@dataclass
+class TopicInfo:
+    topic: str
+    count: int
+    schema_name: str
+    message_encoding: str
+    description: str = ""
+
+
+@dataclass
+class Recording:
+    path: Path
+    complete: bool  # finished by the writer (summary and index present)
+    reason: str  # why an unfinished file stops where it does
+    size: int
+    library: str
+    metadata: dict[str, dict[str, str]]  # the last record of each name
+    metadata_records: list[tuple[str, dict[str, str]]]  # all, in file order
+    attachments: dict[str, bytes]  # the last attachment of each name
+    attachment_sizes: dict[str, int]
+    topics: dict[str, TopicInfo]
+    start_ns: int | None  # first and last log time of any message
+    end_ns: int | None
+    _log_times: dict[str, np.ndarray] | None = field(default=None, repr=False)
+
+    @property
+    def duration_s(self) -> float:
+        return 0.0 if self.start_ns is None else (self.end_ns - self.start_ns) * 1e-9
+
+    @property
+    def unix_offset_ns(self) -> int | None:
+        value = self.metadata.get("recording", {}).get("unix_offset_ns")
+        return int(value) if value else None
+
+    def messages(self, topics: Iterable[str] | str | None = None, *,
+                 raw: bool = False) -> Iterator[RecordedMessage]:
+        """Messages in file order (which is time order per topic), decoded with the file's
+        schemas; `raw=True` gives the protobuf objects and JSON dicts without conversion."""
+        if isinstance(topics, str):
+            topics = [topics]
+        wanted = None if topics is None else set(topics)
+        decoders = _Decoders()
+        for schema, channel, message in _iter_raw(self.path, self.complete, wanted):
+            decoded = decoders.decode(schema, channel, message.data)
+            if not raw:
+                decoded = convert(channel.topic, decoded)
+            yield RecordedMessage(channel.topic, message.log_time, message.publish_time,
+                                  message.sequence, decoded)
+
+    def read(self, topic: str, *, raw: bool = False) -> list[RecordedMessage]:
+        return list(self.messages([topic], raw=raw))
+
+    def log_times(self) -> dict[str, np.ndarray]:
+        """Sorted log times of every topic, from the index when there is one (no decoding)."""
+        if self._log_times is None:
+            self._log_times = _log_times(self.path, self.complete)
+        return self._log_times
+
+    def rays(self) -> np.ndarray:
+        """The camera's unit ray per pixel (H, W, 3) float32, as recorded."""
+        data = self.attachments.get(T.RAYS_ATTACHMENT)
+        if data is None:
+            raise CaptureError(f"{self.path}: no {T.RAYS_ATTACHMENT} (no depth frames recorded)")
+        return np.load(io.BytesIO(data))
+
+    def geometry(self) -> CameraGeometry:
+        camera = self.metadata.get("camera")
+        if not camera:
+            return CameraGeometry()
+        kwargs = {}
+        for name, f in CameraGeometry.__dataclass_fields__.items():
+            if name in camera:
+                kwargs[name] = type(getattr(CameraGeometry(), name))(camera[name])
+        return CameraGeometry(**kwargs)
+
+
+def convert(topic: str, decoded: Any) -> Any:
+    """A decoded message as walkcap data: images as arrays, clouds (N, 3), quaternions."""
+    if topic in (T.DEPTH, T.CONFIDENCE, T.GRAY, T.BINARY_IMAGE):
+        return T.image_from_message(decoded)
+    if topic == T.CLOUD:
+        return T.cloud_from_message(decoded)
+    if topic == T.TF:
+        return T.quaternion_from_transform(decoded)
+    return decoded
+
+
+class _Decoders:
+    """Decoders built from the schemas in the file: protobuf descriptors, JSON."""
+
+    def __init__(self) -> None:
+        from mcap_protobuf.decoder import DecoderFactory
+
+        self._protobuf = DecoderFactory()
+        self._by_channel: dict[int, Any] = {}
+
+    def decode(self, schema, channel, data: bytes) -> Any:
+        decoder = self._by_channel.get(channel.id)
+        if decoder is None:
+            if channel.message_encoding == "json":
+                decoder = json.loads
+            else:
+                decoder = self._protobuf.decoder_for(channel.message_encoding, schema)
+                if decoder is None:
+                    raise CaptureError(f"{channel.topic}: cannot decode {channel.message_encoding} "
+                                       f"messages with schema {schema.name if schema else None}")
+            self._by_channel[channel.id] = decoder
+        return decoder(data)
+
+
+def _iter_raw(path: Path, complete: bool, topics: set[str] | None):
+    """(schema, channel, message) in file order."""
+    from mcap.reader import make_reader
+    from mcap.records import Channel, Message, Schema
+
+    with open(path, "rb") as f:
+        if complete:
+            reader = make_reader(f)
+            yield from reader.iter_messages(topics=topics, log_time_order=False)
+            return
+        schemas: dict[int, Schema] = {}
+        channels: dict[int, Channel] = {}
+        for record in scan(f):
+            if isinstance(record, Schema):
+                schemas[record.id] = record
+            elif isinstance(record, Channel):
+                channels[record.id] = record
+            elif isinstance(record, Message):
+                channel = channels.get(record.channel_id)
+                if channel is None or (topics is not None and channel.topic not in topics):
+                    continue
+                yield schemas.get(channel.schema_id), channel, record
+
+
+def open_recording(path: str | os.PathLike) -> Recording:
+    """Open a recording: metadata, attachments and topic counts, finished or not.
+    Raises CaptureError (one line) for a missing file or one that is not MCAP."""
+    from mcap.reader import make_reader
+
+    p = Path(path)
+    if not p.exists():
+        raise CaptureError(f"{p}: no such file")
+    check_magic(p)
+    size = p.stat().st_size
+    with open(p, "rb") as f:
+        try:
+            reader = make_reader(f)
+            summary = reader.get_summary()
+        except Exception:  # no footer, cut-off summary: read it record by record
+            summary = None
+        if summary is not None and summary.statistics is not None:
+            records = [(m.name, dict(m.metadata)) for m in reader.iter_metadata()]
+            attachments = {a.name: a.data for a in reader.iter_attachments()}
+            sizes = {a.name: a.data_size for a in summary.attachment_indexes}
+            stats = summary.statistics
+            topics = {}
+            for cid, channel in summary.channels.items():
+                schema = summary.schemas.get(channel.schema_id)
+                topics[channel.topic] = TopicInfo(
+                    channel.topic, stats.channel_message_counts.get(cid, 0),
+                    schema.name if schema else "", channel.message_encoding,
+                    channel.metadata.get("description", ""))
+            library = reader.get_header().library
+            start = stats.message_start_time if stats.message_count else None
+            end = stats.message_end_time if stats.message_count else None
+            return Recording(p, True, "", size, library, dict(records), records, attachments,
+                             sizes, topics, start, end)
+    return _open_unfinished(p, size)
+
+
+def _open_unfinished(p: Path, size: int) -> Recording:
+    from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
+
+    result = ScanResult()
+    schemas, channels = {}, {}
+    records, attachments = [], {}
+    counts: dict[int, int] = {}
+    times: dict[int, list[int]] = {}
+    library = ""
+    with open(p, "rb") as f:
+        for record in scan(f, result):
+            if isinstance(record, Message):
+                counts[record.channel_id] = counts.get(record.channel_id, 0) + 1
+                times.setdefault(record.channel_id, []).append(record.log_time)
+            elif isinstance(record, Schema):
+                schemas[record.id] = record
+            elif isinstance(record, Channel):
+                channels[record.id] = record
+            elif isinstance(record, Metadata):
+                records.append((record.name, dict(record.metadata)))
+            elif isinstance(record, Attachment):
+                attachments[record.name] = record.data
+            elif isinstance(record, Header):
+                library = record.library
+    topics, log_times = {}, {}
+    for cid, channel in channels.items():
+        schema = schemas.get(channel.schema_id)
+        topics[channel.topic] = TopicInfo(channel.topic, counts.get(cid, 0),
+                                          schema.name if schema else "", channel.message_encoding,
+                                          channel.metadata.get("description", ""))
+        log_times[channel.topic] = np.sort(np.asarray(times.get(cid, []), dtype=np.int64))
+    every = [t for ts in log_times.values() for t in (ts[:1].tolist() + ts[-1:].tolist())]
+    return Recording(p, False, result.reason or "no summary", size, library, dict(records),
+                     records, attachments, {k: len(v) for k, v in attachments.items()}, topics,
+                     min(every) if every else None, max(every) if every else None, log_times)
+
+
+def _log_times(path: Path, complete: bool) -> dict[str, np.ndarray]:
+    """Log times per topic from the message indexes: no chunk is decompressed."""
+    from mcap.data_stream import ReadDataStream
+    from mcap.reader import make_reader
+    from mcap.records import MessageIndex
+
+    times: dict[str, list[int]] = {}
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+        for channel in summary.channels.values():
+            times.setdefault(channel.topic, [])
+        for chunk in summary.chunk_indexes:
+            if not chunk.message_index_offsets:  # no index: read the chunk itself
+                return {k: v for k, v in _scan_times(path).items()}
+            for cid, offset in chunk.message_index_offsets.items():
+                f.seek(offset + 9)
+                index = MessageIndex.read(ReadDataStream(f))
+                times[summary.channels[cid].topic].extend(t for t, _ in index.records)
+    return {k: np.sort(np.asarray(v, dtype=np.int64)) for k, v in times.items()}
+
+
+def _scan_times(path: Path) -> dict[str, np.ndarray]:
+    times: dict[str, list[int]] = {}
+    for _, channel, message in _iter_raw(path, False, None):
+        times.setdefault(channel.topic, []).append(message.log_time)
+    return {k: np.sort(np.asarray(v, dtype=np.int64)) for k, v in times.items()}
+
+
+# ---- analysis helpers -------------------------------------------------------------------
+
+
+def mode_index(mode: str | None) -> int:
+    return MODES.index(mode) if mode in MODES else -1
+
+
+def read_trial(path: str | os.PathLike) -> dict:
+    """Per-frame arrays of one trial, in frame order (frames with a CNN output):
+
+    - frame_index (N,), time_ns (N,): the frame's sample time, session clock
+    - probabilities (N, 5): CNN softmax, mode order MODES
+    - cnn_decisions (N,): argmax; decisions (N,): the fused (HMM) decision recorded for
+      the frame, -1 if none; voted (N,): the voted decision, -1 if none
+    - labels (N,): the operator's mode in force at the frame's time (-1: none yet)
+    - truth (N,) simulator's true mode, or None when the recording has no /sim/truth
+    - label_changes: [(time_ns, mode, source)] in time order; metadata; modes: MODES
+    """
+    rec = open_recording(path)
+    cnn: dict[int, dict] = {}
+    fused: dict[int, int] = {}
+    voted: dict[int, int] = {}
+    truth: dict[int, int] = {}
+    changes: list[tuple[int, str, str]] = []
+    wanted = [T.CNN, T.FUSED, T.LABELS, T.TRUTH]
+    for m in rec.messages(wanted):
+        d = m.data
+        if m.topic == T.CNN:
+            cnn[int(d["frame_index"])] = d
+        elif m.topic == T.FUSED:
+            fused[int(d["frame_index"])] = mode_index(d.get("decision"))
+            if d.get("voted") is not None and d.get("voted_frame_index") is not None:
+                voted[int(d["voted_frame_index"])] = mode_index(d["voted"])
+        elif m.topic == T.LABELS:
+            changes.append((int(d["time_ns"]), d.get("mode", ""), d.get("source", "")))
+        elif m.topic == T.TRUTH:
+            truth[int(d["frame_index"])] = mode_index(d.get("mode"))
+    index = np.array(sorted(cnn), dtype=np.int64)
+    times = np.array([int(cnn[i]["time_ns"]) for i in index], dtype=np.int64)
+    probs = np.array([[np.nan if p is None else p for p in cnn[i]["probabilities"]]
+                      for i in index], dtype=np.float64).reshape(-1, len(MODES))
+    changes.sort(key=lambda c: c[0])  # stable: same-time changes keep their file order
+    return {
+        "frame_index": index,
+        "time_ns": times,
+        "probabilities": probs,
+        "cnn_decisions": np.array([mode_index(cnn[i]["decision"]) for i in index], dtype=int),
+        "decisions": np.array([fused.get(int(i), -1) for i in index], dtype=int),
+        "voted": np.array([voted.get(int(i), -1) for i in index], dtype=int),
+        "labels": labels_at(times, changes),
+        "truth": (np.array([truth.get(int(i), -1) for i in index], dtype=int)
+                  if T.TRUTH in rec.topics else None),
+        "label_changes": changes,
+        "metadata": rec.metadata,
+        "modes": MODES,
+    }
+
+
+def labels_at(times_ns: np.ndarray, changes: list[tuple[int, str, str]]) -> np.ndarray:
+    """The mode index in force at each time: the last change at or before it (-1: none)."""
+    out = np.full(len(times_ns), -1, dtype=int)
+    if not changes:
+        return out
+    change_times = np.array([c[0] for c in changes], dtype=np.int64)
+    modes = np.array([mode_index(c[1]) for c in changes], dtype=int)
+    k = np.searchsorted(change_times, np.asarray(times_ns, dtype=np.int64), side="right") - 1
+    ok = k >= 0
+    out[ok] = modes[k[ok]]
+    return out
+
+
+def depth_frames(path: str | os.PathLike) -> Iterator[DepthFrame]:
+    """The recorded depth frames with xyz rebuilt from range and rays (within 0.5 mm along
+    each ray), confidence as recorded, gray if recorded (else zeros), truth if present.
+    device_time_ns is the recorded sample time (publish time)."""
+    rec = open_recording(path)
+    if T.DEPTH not in rec.topics:
+        return
+    rays = rec.rays()
+    geometry = rec.geometry()
+    truth = {}
+    if T.TRUTH in rec.topics:
+        for m in rec.messages([T.TRUTH]):
+            t = dict(m.data)
+            truth[int(t.pop("frame_index"))] = t
+    parts = (T.DEPTH, T.CONFIDENCE) + ((T.GRAY,) if T.GRAY in rec.topics else ())
+    pending: dict[int, dict] = {}
+    for m in rec.messages(parts):
+        entry = pending.setdefault(m.sequence, {"log": m.log_time_ns, "pub": m.publish_time_ns})
+        entry[m.topic] = m.data
+        if all(p in entry for p in parts):
+            del pending[m.sequence]
+            yield _frame(m.sequence, entry, rays, geometry, truth.get(m.sequence))
+    for index, entry in sorted(pending.items()):  # a part lost (a cut file): best effort
+        if T.DEPTH in entry:
+            yield _frame(index, entry, rays, geometry, truth.get(index))
+
+
+def _frame(index: int, entry: dict, rays: np.ndarray, geometry: CameraGeometry,
+           truth: dict | None) -> DepthFrame:
+    depth = entry[T.DEPTH]
+    confidence = entry.get(T.CONFIDENCE)
+    if confidence is None:
+        confidence = np.where(depth > 0, 255, 0).astype(np.uint8)
+    gray = entry.get(T.GRAY)
+    if gray is None:
+        gray = np.zeros(depth.shape, np.uint16)
+    if truth is not None:
+        truth = {k: v for k, v in truth.items() if k != "time_ns"}
+    return DepthFrame(index=index, device_time_ns=entry["pub"], host_time_ns=entry["log"],
+                      xyz=T.xyz_from_range(depth, rays), confidence=confidence, gray=gray,
+                      geometry=geometry, truth=truth)
+
+
+def find_gaps(times_ns: np.ndarray, factor: float = 2.5) -> list[tuple[int, float]]:
+    """Gaps in a regular stream: intervals longer than `factor` x the median interval,
+    as (start time ns, length s)."""
+    t = np.asarray(times_ns, dtype=np.int64)
+    if len(t) < 3:
+        return []
+    dt = np.diff(t)
+    median = float(np.median(dt))
+    if median <= 0:
+        return []
+    long = np.nonzero(dt > factor * median)[0]
+    return [(int(t[i]), float(dt[i]) * 1e-9) for i in long]

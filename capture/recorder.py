@@ -1,0 +1,692 @@
+"""The Recorder: one MCAP file per trial, written on its own thread, never blocking capture.
+
+Callers (the session's threads) hand data to `write_*`; each call only puts a reference
+into a bounded queue and returns. The writer thread encodes (capture.topics), writes zstd
+chunks and closes a chunk at least every `chunk_interval_s`, by the wall clock and by the
+data's own time span (so replayed or synthetic data is chunked the same way), then fsyncs.
+A kill loses at most the open chunk: about a second. If the queue is full the item is
+dropped, counted, and the count written to /events at the next chunk: never silently.
+
+Labels and operator markers never go through the bounded queue: they are first appended
+to the journal beside the file (fsync'ed, capture.journal), then to a small unbounded
+queue that the writer drains first.
+
+Chunk closing: mcap's `Writer.flush()` (mcap >= 1.6) finishes the open chunk and writes it
+out; `chunk_size` is set high so that the timer, not the size, decides.
+
+A write error (disk full, device gone) stops the recording cleanly: the file is cut back
+to the end of the last complete chunk, the state becomes "failed" with a one-line message,
+and what was written stays readable (capture.reader reads unfinished files; `walkcap
+recover` rebuilds the index).
+"""
+from __future__ import annotations
+
+import collections
+import errno
+import io
+import logging
+import os
+import queue
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from capture import __version__
+from capture import topics as T
+from capture.errors import CaptureError
+from capture.journal import Journal, fsync_directory, journal_path
+from devices.clock import now_ns
+
+log = logging.getLogger(__name__)
+
+IDLE, RECORDING, STOPPED, FAILED = "idle", "recording", "stopped", "failed"
+_STOP = object()
+_OPERATOR_KINDS = ("marker", "note")
+
+MEDIA_TYPES = {".toml": "application/toml", ".json": "application/json",
+               ".npy": "application/x-npy", ".txt": "text/plain", ".yaml": "application/yaml"}
+
+
+@dataclass
+class RecorderStats:
+    path: str
+    state: str  # idle | recording | stopped | failed
+    message: str = ""  # why it failed, in one line; or a warning (journal trouble)
+    bytes_written: int = 0
+    messages: int = 0
+    dropped: int = 0
+    dropped_by_kind: dict = field(default_factory=dict)
+    queue_depth: int = 0
+    queue_size: int = 0
+    labels: int = 0
+    chunks: int = 0
+    errors: int = 0  # items that could not be encoded (logged)
+    duration_s: float = 0.0  # span of the sensor data written
+
+
+class _TrackedFile:
+    """The recording's file as the mcap writer sees it: complete writes, counted bytes."""
+
+    def __init__(self, fd: int) -> None:
+        self.fd = fd
+        self.position = 0
+
+    def write(self, data) -> int:
+        view = memoryview(data)
+        total = len(view)
+        while view:
+            n = os.write(self.fd, view)
+            self.position += n
+            view = view[n:]
+        return total
+
+    def tell(self) -> int:
+        return self.position
+
+    def flush(self) -> None:
+        pass  # nothing is buffered here; fsync() makes it durable
+
+    def fsync(self) -> None:
+        os.fsync(self.fd)
+
+    def truncate(self, size: int) -> None:
+        os.ftruncate(self.fd, size)
+        os.lseek(self.fd, size, os.SEEK_SET)
+        self.position = size
+
+    def close(self) -> None:
+        if self.fd >= 0:
+            fd, self.fd = self.fd, -1
+            os.close(fd)
+
+
+def _media_type(name: str) -> str:
+    return MEDIA_TYPES.get(Path(name).suffix.lower(), "application/octet-stream")
+
+
+def _failure_message(e: BaseException, path: Path, seconds: float) -> str:
+    after = f"recording stopped after {seconds:.1f} s"
+    keep = f"what was written is readable; `walkcap recover {path}` rebuilds its index"
+    if isinstance(e, OSError) and e.errno in (errno.ENOSPC, errno.EDQUOT):
+        return f"disk full: {after}; {keep} once there is space"
+    if isinstance(e, OSError) and e.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
+        return f"cannot write {path} ({e.strerror}): {after}; {keep}"
+    if isinstance(e, OSError):
+        return f"write error ({e.strerror or e}): {after}; {keep}"
+    return f"internal error ({type(e).__name__}: {e}): {after}; {keep}"
+
+
+class Recorder:
+    """An MCAP recording being written. `start()`, then `write_*` from any thread, `close()`."""
+
+    def __init__(self, path: str | os.PathLike, *, metadata: dict[str, dict[str, str]] | None = None,
+                 attachments: dict[str, bytes] | None = None, queue_size: int = 512,
+                 chunk_interval_s: float = 1.0, gray: bool = False,
+                 cloud_max_points: int = 4096) -> None:
+        self.path = Path(path)
+        self.journal_path = journal_path(self.path)
+        self._metadata = {name: {str(k): str(v) for k, v in values.items()}
+                          for name, values in (metadata or {}).items()}
+        self._attachments = dict(attachments or {})
+        self._queue: queue.Queue = queue.Queue(maxsize=queue_size)
+        self._queue_size = queue_size
+        self._priority: collections.deque = collections.deque()  # labels, markers: unbounded
+        self._chunk_interval_s = chunk_interval_s
+        self._gray = gray
+        self._cloud_max_points = cloud_max_points
+        self._state = IDLE
+        self._message = ""
+        self._accepting = False
+        self._lock = threading.Lock()
+        self._dropped: collections.Counter = collections.Counter()
+        self._reported_drops: collections.Counter = collections.Counter()
+        self._labels = 0
+        self._file: _TrackedFile | None = None
+        self._writer = None
+        self._journal: Journal | None = None
+        self._thread: threading.Thread | None = None
+        # writer-thread state
+        self._channels: dict[str, int] = {}
+        self._messages = 0
+        self._errors = 0
+        self._chunks = 0
+        self._good_offset = 0
+        self._geometry = None
+        self._frame_times: dict[int, tuple[int, int]] = {}  # index -> (time, log time)
+        self._first_ns: int | None = None
+        self._last_ns: int | None = None
+        self._span: list[int] | None = None  # sensor log-time span of the open chunk
+        self._open_messages = 0
+        self._next_flush = 0.0
+
+    # ---- life cycle (caller's thread) ---------------------------------------------------
+
+    def start(self) -> None:
+        """Create the file and its journal, write header, metadata and attachments, start."""
+        from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
+
+        if self._state != IDLE:
+            raise CaptureError(f"recorder for {self.path} already started")
+        folder = self.path.parent
+        if not folder.is_dir():
+            self._set_failed(f"recordings folder {folder} does not exist")
+            raise CaptureError(self._message)
+        try:
+            fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+        except FileExistsError:
+            self._set_failed(f"{self.path} exists: a recording is never overwritten")
+            raise CaptureError(self._message) from None
+        except OSError as e:
+            self._set_failed(f"cannot create the recording {self.path}: {e.strerror}")
+            raise CaptureError(self._message) from None
+        self._file = _TrackedFile(fd)
+        try:
+            self._journal = Journal(self.journal_path)
+            self._writer = Writer(self._file, chunk_size=64 * 1024 * 1024,
+                                  compression=CompressionType.ZSTD)
+            self._writer.start(profile="", library=f"walkcap {__version__}; {LIBRARY_IDENTIFIER}")
+            for name, values in self._recording_metadata().items():
+                self._writer.add_metadata(name, values)
+            created = time.time_ns()
+            for name, data in self._attachments.items():
+                self._writer.add_attachment(created, now_ns(), name, _media_type(name), bytes(data))
+            self._writer.flush()
+            self._file.fsync()
+            fsync_directory(folder)
+            self._good_offset = self._file.tell()
+            self._journal.append({"type": "start", "recording": self.path.name,
+                                  "time_ns": now_ns(), "unix_time_ns": created})
+        except OSError as e:
+            self._abandon_start()
+            self._set_failed(f"cannot write the recording {self.path}: {e.strerror or e}")
+            raise CaptureError(self._message) from None
+        self._state = RECORDING
+        self._accepting = True
+        self._next_flush = time.monotonic() + self._chunk_interval_s
+        self._thread = threading.Thread(target=self._run, name="walkcap-recorder", daemon=True)
+        self._thread.start()
+
+    def _abandon_start(self) -> None:
+        """Start failed half-way: leave no empty or broken files behind."""
+        for closing in (self._file, self._journal):
+            try:
+                if closing is not None:
+                    closing.close()
+            except OSError:
+                pass
+        for p in (self.path, self.journal_path):
+            try:
+                p.unlink()
+            except OSError:
+                pass
+
+    def _recording_metadata(self) -> dict[str, dict[str, str]]:
+        import json
+
+        unix_offset = time.time_ns() - now_ns()
+        recording = {
+            "format_version": T.FORMAT_VERSION,
+            "writer": f"walkcap {__version__}",
+            "clock": "session clock: time.monotonic_ns of the recording host",
+            "unix_offset_ns": str(unix_offset),  # add to a log time for Unix time
+            "chunk_interval_s": str(self._chunk_interval_s),
+            "depth": "range along each pixel's ray in mm (16UC1) x attachment "
+                     f"{T.RAYS_ATTACHMENT} = xyz; within 0.5 mm",
+            "cloud_quantum_m": repr(T.CLOUD_QUANTUM_M),
+            "cloud_max_points": str(self._cloud_max_points),
+            "journal": self.journal_path.name,
+            "topics": json.dumps(T.DESCRIPTIONS),
+        }
+        return {**self._metadata, "recording": recording}
+
+    def close(self) -> RecorderStats:
+        """Write what is queued, finalise the file (summary and index), return the stats."""
+        self._accepting = False
+        thread = self._thread
+        if thread is not None:
+            while thread.is_alive():
+                try:
+                    self._queue.put(_STOP, timeout=0.2)
+                    break
+                except queue.Full:
+                    continue
+            thread.join()
+            self._thread = None
+        if self._journal is not None:
+            try:
+                self._journal.append({"type": "end", "time_ns": now_ns(), "state": self._state,
+                                      "message": self._message})
+            except OSError as e:
+                log.warning("journal %s: %s", self.journal_path, e)
+            self._journal.close()
+            self._journal = None
+        return self.stats()
+
+    def __enter__(self) -> "Recorder":
+        self.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def stats(self) -> RecorderStats:
+        with self._lock:
+            dropped = dict(self._dropped)
+        span = 0.0
+        if self._first_ns is not None and self._last_ns is not None:
+            span = (self._last_ns - self._first_ns) * 1e-9
+        return RecorderStats(
+            path=str(self.path), state=self._state, message=self._message,
+            bytes_written=self._file.position if self._file is not None else 0,
+            messages=self._messages, dropped=sum(dropped.values()), dropped_by_kind=dropped,
+            queue_depth=self._queue.qsize(), queue_size=self._queue_size, labels=self._labels,
+            chunks=self._chunks, errors=self._errors, duration_s=span,
+        )
+
+    @property
+    def state(self) -> str:
+        return self._state
+
+    # ---- writes (any thread; never block, never encode) ------------------------------
+
+    def _put(self, kind: str, item: tuple) -> None:
+        if self._accepting:
+            try:
+                self._queue.put_nowait((kind, item))
+                return
+            except queue.Full:
+                pass
+        if self._state in (RECORDING, FAILED):
+            with self._lock:
+                self._dropped[kind] += 1
+
+    def write_frame(self, frame, time_ns: int | None = None) -> None:
+        """Depth (range + confidence) of a DepthFrame; publish time = `time_ns` or device time."""
+        self._put("frame", (frame, time_ns))
+
+    def write_imu(self, sample) -> None:
+        self._put("imu", (sample,))
+
+    def write_processed(self, frame_index: int, time_ns: int, log_time_ns: int, cloud: np.ndarray,
+                        image: np.ndarray, quaternion, flag: str) -> None:
+        """Leveled cloud, classifier input image, camera orientation (None: unknown), flag."""
+        self._put("processed", (frame_index, time_ns, log_time_ns, cloud, image, quaternion, flag))
+
+    def write_inference(self, frame_index: int, time_ns: int, log_time_ns: int, cnn_probs,
+                        fused: dict | None) -> None:
+        """CNN probabilities of this frame; `fused` (may be empty) refers to an earlier frame."""
+        self._put("inference", (frame_index, time_ns, log_time_ns, cnn_probs, fused))
+
+    def write_features(self, frame_index: int, time_ns: int, features: dict) -> None:
+        self._put("features", (frame_index, time_ns, features))
+
+    def write_truth(self, frame_index: int, time_ns: int, truth: dict) -> None:
+        self._put("truth", (frame_index, time_ns, truth))
+
+    def write_label(self, time_ns: int, mode: str, source: str) -> None:
+        """The operator's mode from `time_ns` on. Journaled (on disk) before this returns."""
+        entry = T.label_json(time_ns, mode, source)
+        self._journal_append({"type": "label", **entry})
+        with self._lock:
+            self._labels += 1
+        if self._state == RECORDING:
+            self._priority.append((T.LABELS, entry))
+
+    def write_event(self, event) -> None:
+        """A DeviceEvent or a dict (time_ns, device, kind, message, details). Operator
+        markers and notes are journaled and never dropped; device events are queued."""
+        if isinstance(event, dict):
+            event = {"time_ns": now_ns(), **event}
+            device, kind = event.get("device", ""), event.get("kind", "")
+        else:
+            device, kind = event.device, event.kind
+        if device == "operator" or kind in _OPERATOR_KINDS:
+            entry = T.event_json(event)
+            self._journal_append({"type": "event", **T.jsonable(entry)})
+            if self._state == RECORDING:
+                self._priority.append((T.EVENTS, entry))
+        else:
+            self._put("event", (event,))
+
+    def _journal_append(self, entry: dict) -> None:
+        journal = self._journal
+        if journal is None:
+            return
+        try:
+            journal.append(entry)
+        except OSError as e:
+            log.error("journal %s: %s", self.journal_path, e)
+            if self._state == RECORDING:
+                self._message = f"journal not writable ({e.strerror or e}): labels only in the file"
+
+    # ---- the writer thread --------------------------------------------------------------
+
+    def _run(self) -> None:
+        try:
+            while True:
+                self._drain_priority()
+                timeout = max(0.0, self._next_flush - time.monotonic())
+                try:
+                    item = self._queue.get(timeout=timeout)
+                except queue.Empty:
+                    item = None
+                if item is _STOP:
+                    break
+                if item is not None:
+                    self._handle(*item)
+                if self._flush_due():
+                    self._flush()
+            self._finish()
+        except BaseException as e:  # a write error must end in a clean, readable file
+            self._fail(e)
+
+    def _drain_priority(self) -> None:
+        while self._priority:
+            topic, entry = self._priority.popleft()
+            t = entry["time_ns"]
+            self._add(topic, t, t, T.encode_json(entry))
+
+    def _flush_due(self) -> bool:
+        if time.monotonic() >= self._next_flush:
+            return True
+        return self._span is not None and self._span[1] - self._span[0] >= self._chunk_interval_s * 1e9
+
+    def _flush(self) -> None:
+        self._report_drops()
+        self._drain_priority()
+        if self._open_messages:
+            self._writer.flush()
+            self._file.fsync()
+            self._chunks += 1
+            self._good_offset = self._file.tell()
+        self._open_messages = 0
+        self._span = None
+        self._next_flush = time.monotonic() + self._chunk_interval_s
+
+    def _finish(self) -> None:
+        self._flush()  # the last chunk first: a file cut during finish() still has it
+        end = {"messages": str(self._messages), "chunks": str(self._chunks),
+               "dropped": str(sum(self._dropped.values())), "errors": str(self._errors),
+               "labels": str(self._labels), "closed_unix_time_ns": str(time.time_ns())}
+        self._writer.add_metadata("recording_end", end)
+        self._writer.finish()
+        self._file.fsync()
+        self._file.close()
+        self._state = STOPPED
+
+    def _fail(self, e: BaseException) -> None:
+        seconds = (self._last_ns - self._first_ns) * 1e-9 if self._first_ns is not None else 0.0
+        self._accepting = False
+        self._set_failed(_failure_message(e, self.path, seconds))
+        log.error("recording %s: %s", self.path, self._message,
+                  exc_info=not isinstance(e, OSError))
+        if self._file is not None:
+            try:  # cut the half-written chunk: the file ends with the last complete one
+                self._file.truncate(self._good_offset)
+                self._file.fsync()
+            except OSError:
+                pass
+            try:
+                self._file.close()
+            except OSError:
+                pass
+        self._journal_append({"type": "failed", "time_ns": now_ns(), "message": self._message})
+        while True:  # free the frames still queued
+            try:
+                self._queue.get_nowait()
+            except queue.Empty:
+                break
+
+    def _set_failed(self, message: str) -> None:
+        self._state = FAILED
+        self._message = message
+
+    def _report_drops(self) -> None:
+        with self._lock:
+            new = self._dropped - self._reported_drops
+            self._reported_drops = collections.Counter(self._dropped)
+        if not new:
+            return
+        n = sum(new.values())
+        what = ", ".join(f"{k} {v}" for k, v in sorted(new.items()))
+        t = now_ns()
+        event = {"time_ns": t, "device": "recorder", "kind": "drop",
+                 "message": f"recorder fell behind: {n} items dropped ({what})",
+                 "details": dict(new)}
+        self._add(T.EVENTS, t, t, T.encode_json(event))
+
+    def _channel(self, topic: str) -> int:
+        channel = self._channels.get(topic)
+        if channel is None:
+            spec = T.topic_spec(topic)
+            schema = self._writer.register_schema(spec.schema_name, spec.schema_encoding,
+                                                  spec.schema_data)
+            channel = self._writer.register_channel(topic, spec.message_encoding, schema,
+                                                    {"description": T.DESCRIPTIONS[topic]})
+            self._channels[topic] = channel
+        return channel
+
+    def _add(self, topic: str, log_time: int, publish_time: int, data: bytes,
+             sequence: int = 0, sensor: bool = False) -> None:
+        self._writer.add_message(self._channel(topic), int(log_time), data, int(publish_time),
+                                 int(sequence) & 0xFFFFFFFF)
+        self._messages += 1
+        self._open_messages += 1
+        if sensor:
+            if self._first_ns is None:
+                self._first_ns = log_time
+            self._last_ns = log_time if self._last_ns is None else max(self._last_ns, log_time)
+            if self._span is None:
+                self._span = [log_time, log_time]
+            else:
+                self._span[0] = min(self._span[0], log_time)
+                self._span[1] = max(self._span[1], log_time)
+
+    def _handle(self, kind: str, item: tuple) -> None:
+        try:
+            messages = getattr(self, f"_encode_{kind}")(*item)
+        except OSError:
+            raise  # a write error (the geometry attachment): the recording cannot go on
+        except Exception:  # bad data or a bug: lose this item, not the recording
+            log.exception("recorder: cannot encode %s", kind)
+            self._errors += 1
+            return
+        for topic, log_time, publish_time, data, sequence, sensor in messages:
+            self._add(topic, log_time, publish_time, data, sequence, sensor)
+
+    # Encoders: item -> [(topic, log_time, publish_time, bytes, sequence, sensor)]
+
+    def _remember(self, index: int, time_ns: int, log_time: int) -> None:
+        self._frame_times[index] = (time_ns, log_time)
+        if len(self._frame_times) > 512:
+            self._frame_times.pop(next(iter(self._frame_times)))
+
+    def _log_time(self, index: int, default: int) -> int:
+        return self._frame_times.get(index, (default, default))[1]
+
+    def _encode_frame(self, frame, time_ns: int | None) -> list:
+        t = frame.device_time_ns if time_ns is None else time_ns
+        log_time = frame.host_time_ns
+        self._remember(frame.index, t, log_time)
+        if frame.geometry != self._geometry:
+            self._write_geometry(frame)
+        depth = T.range_mm(frame.xyz, frame.confidence)
+        out = [
+            (T.DEPTH, log_time, t, T.raw_image(depth, t, "16UC1").SerializeToString(),
+             frame.index, True),
+            (T.CONFIDENCE, log_time, t,
+             T.raw_image(np.asarray(frame.confidence, np.uint8), t, "mono8").SerializeToString(),
+             frame.index, True),
+        ]
+        if self._gray and frame.gray is not None:
+            gray = np.asarray(frame.gray).astype("<u2")
+            out.append((T.GRAY, log_time, t, T.raw_image(gray, t, "16UC1").SerializeToString(),
+                        frame.index, True))
+        return out
+
+    def _write_geometry(self, frame) -> None:
+        """The rays (once per camera) that turn /camera/depth back into xyz."""
+        import dataclasses
+
+        g = frame.geometry
+        rays = np.ascontiguousarray(g.rays(), dtype=np.float32)
+        buf = io.BytesIO()
+        np.save(buf, rays)
+        self._writer.add_attachment(time.time_ns(), frame.host_time_ns, T.RAYS_ATTACHMENT,
+                                    "application/x-npy", buf.getvalue())
+        camera = {k: str(v) for k, v in dataclasses.asdict(g).items()}
+        camera["rays_attachment"] = T.RAYS_ATTACHMENT
+        camera["from_frame_index"] = str(frame.index)
+        self._writer.add_metadata("camera", camera)
+        self._geometry = g
+        off_ray = T.ray_error_m(frame.xyz, rays, frame.confidence)
+        if off_ray > 0.0005:  # the rays do not fit royale's points: say so in the file
+            t = frame.host_time_ns
+            event = {"time_ns": t, "device": "recorder", "kind": "rays_mismatch",
+                     "message": f"points lie up to {off_ray * 1000:.1f} mm off the camera's "
+                                "rays: depth rebuilds are approximate",
+                     "details": {"max_off_ray_m": off_ray}}
+            self._add(T.EVENTS, t, t, T.encode_json(event))
+            log.warning("recording %s: %s", self.path, event["message"])
+
+    def _encode_imu(self, sample) -> list:
+        t = sample.time_ns if sample.time_ns is not None else sample.host_time_ns
+        seq = sample.packet_counter or 0
+        return [(T.IMU, sample.host_time_ns, t, T.encode_json(T.imu_json(sample)), seq, True)]
+
+    def _encode_processed(self, index, time_ns, log_time, cloud, image, quaternion, flag) -> list:
+        self._remember(index, time_ns, log_time)
+        points = np.asarray(cloud, dtype=np.float32).reshape(-1, 3)
+        n = len(points)
+        if n > self._cloud_max_points:  # decimated evenly: the cloud is derived data
+            points = points[np.linspace(0, n - 1, self._cloud_max_points).astype(int)]
+        image_u8 = T.binary_image_u8(image)
+        oriented = quaternion is not None and bool(np.all(np.isfinite(quaternion)))
+        out = [
+            (T.CLOUD, log_time, time_ns, T.cloud_message(points, time_ns).SerializeToString(),
+             index, False),
+            (T.BINARY_IMAGE, log_time, time_ns,
+             T.raw_image(image_u8, time_ns, "mono8", frame_id="").SerializeToString(), index, False),
+            (T.PREPROCESS, log_time, time_ns,
+             T.encode_json(T.preprocess_json(index, time_ns, flag, oriented, n, len(points))),
+             index, False),
+        ]
+        if oriented:
+            out.append((T.TF, log_time, time_ns,
+                        T.transform_message(quaternion, time_ns).SerializeToString(), index, False))
+        return out
+
+    def _encode_inference(self, index, time_ns, log_time, probs, fused) -> list:
+        out = [(T.CNN, log_time, time_ns, T.encode_json(T.cnn_json(index, time_ns, probs)),
+                index, False)]
+        if fused:
+            msg = T.fused_json(index, time_ns, fused)
+            out.append((T.FUSED, log_time, time_ns, T.encode_json(msg), index, False))
+        return out
+
+    def _encode_features(self, index, time_ns, features) -> list:
+        return [(T.FEATURES, self._log_time(index, time_ns), time_ns,
+                 T.encode_json(T.features_json(index, time_ns, features)), index, False)]
+
+    def _encode_truth(self, index, time_ns, truth) -> list:
+        return [(T.TRUTH, self._log_time(index, time_ns), time_ns,
+                 T.encode_json(T.truth_json(index, time_ns, truth)), index, False)]
+
+    def _encode_event(self, event) -> list:
+        entry = T.event_json(event)
+        t = entry["time_ns"]
+        return [(T.EVENTS, t, t, T.encode_json(entry), 0, False)]
+
+
+# ---- benchmark ----------------------------------------------------------------------------
+
+
+def synthetic_frame(index: int, time_ns: int, noise: float = 0.01, seed: int = 0,
+                    geometry=None):
+    """A depth frame like the pico flexx gives on a thigh while walking: level ground and a
+    step ahead, range noise `noise` x range (the sensor's ~1 %), confidence 0 where invalid."""
+    from devices.frames import CameraGeometry, DepthFrame
+    from devices.rotations import mounting_matrix, quat_from_euler, quat_to_matrix
+
+    g = geometry or CameraGeometry()
+    rng = np.random.default_rng(seed * 100_003 + index)
+    rays = g.rays().reshape(-1, 3).astype(np.float64)
+    swing = np.radians(20.0) * np.sin(2 * np.pi * index / 45.0)  # thigh swing, ~1 Hz
+    cam_to_world = quat_to_matrix(quat_from_euler(0.0, swing, 0.0)) @ mounting_matrix(0, 35, 0)
+    d = rays @ cam_to_world.T
+    height = 0.55
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(d[:, 2] < -1e-6, height / -d[:, 2], np.inf)
+        step_x = 1.0 + 0.3 * np.sin(index / 90.0)
+        t_step = np.where(d[:, 0] > 1e-6, step_x / d[:, 0], np.inf)
+    z_step = height + t_step * d[:, 2]
+    t = np.where((t_step < t) & (z_step < 0.17) & (z_step > 0), t_step, t)
+    valid = np.isfinite(t) & (t >= g.min_range_m) & (t <= g.max_range_m)
+    t = np.where(valid, t * (1 + noise * rng.standard_normal(len(t))), 0.0)
+    xyz = (rays * t[:, None]).astype(np.float32).reshape(g.height, g.width, 3)
+    confidence = np.where(valid, 255, 0).astype(np.uint8).reshape(g.height, g.width)
+    gray = (np.where(valid, 4000 / np.maximum(t, 0.1) ** 2, 0)).astype(np.uint16)
+    return DepthFrame(index=index, device_time_ns=time_ns, host_time_ns=time_ns + 2_000_000,
+                      xyz=xyz, confidence=confidence, gray=gray.reshape(g.height, g.width),
+                      geometry=g, truth={"mode": "LG", "pose": np.eye(4)})
+
+
+def bench_record(fps: float = 45.0, seconds: float = 10.0, cloud_points: int = 2000,
+                 imu_hz: float = 100.0, folder: str | os.PathLike | None = None) -> dict:
+    """Record `seconds` of synthetic data at `fps` as fast as possible; report the file's
+    size per second of data and per frame (all topics: depth, confidence, cloud, image,
+    transform, inference, IMU)."""
+    import tempfile
+
+    from devices.frames import ImuSample
+
+    rng = np.random.default_rng(1)
+    n_frames = int(round(fps * seconds))
+    frames = [synthetic_frame(i, 0) for i in range(min(n_frames, 90))]  # reused, re-stamped
+    with tempfile.TemporaryDirectory(dir=folder) as tmp:
+        path = Path(tmp) / "bench.mcap"
+        rec = Recorder(path, metadata={"session": {"subject": "BENCH"}},
+                       queue_size=n_frames * 8 + int(imu_hz * seconds) + 16)
+        rec.start()
+        t0 = now_ns()
+        wall = time.perf_counter()
+        imu_period = int(1e9 / imu_hz)
+        next_imu = t0
+        for i in range(n_frames):
+            t = t0 + int(i * 1e9 / fps)
+            while next_imu <= t:
+                rec.write_imu(ImuSample(host_time_ns=next_imu + 1_000_000, time_ns=next_imu,
+                                        packet_counter=(next_imu - t0) // imu_period,
+                                        sample_time_fine=int((next_imu - t0) // 100_000),
+                                        quaternion=np.array([1.0, 0, 0, 0]) + rng.normal(0, 1e-3, 4),
+                                        acceleration=np.array([0, 0, 9.81]) + rng.normal(0, 0.05, 3),
+                                        rate_of_turn=rng.normal(0, 0.01, 3), status_word=3))
+                next_imu += imu_period
+            f = frames[i % len(frames)]
+            f = type(f)(index=i, device_time_ns=t, host_time_ns=t + 2_000_000, xyz=f.xyz,
+                        confidence=f.confidence, gray=f.gray, geometry=f.geometry, truth=f.truth)
+            rec.write_frame(f)
+            cloud = np.column_stack([rng.uniform(0, 1.5, cloud_points),
+                                     rng.uniform(-0.05, 0.05, cloud_points),
+                                     rng.normal(-0.55, 0.01, cloud_points)])
+            image = np.zeros((100, 100), np.uint8)
+            image[60 + int(10 * np.sin(i / 20)):, :] = 1
+            rec.write_processed(i, t, t + 2_000_000, cloud, image, np.array([1.0, 0, 0, 0]), "")
+            probs = rng.dirichlet(np.ones(5))
+            rec.write_inference(i, t, t + 8_000_000, probs, {
+                "frame_index": max(0, i - 2), "decision": "LG", "posterior": probs,
+                "voted": "LG", "voted_frame_index": max(0, i - 3)})
+            rec.write_features(i, t, {"riser_m": 0.17, "tread_m": 0.3, "slope_deg": 0.0})
+        stats = rec.close()
+        elapsed = time.perf_counter() - wall
+        size = path.stat().st_size
+    return {
+        "fps": fps, "seconds": seconds, "frames": n_frames, "cloud_points": cloud_points,
+        "bytes": size, "mb_per_s": size / seconds / 1e6, "bytes_per_frame": size / n_frames,
+        "write_s": elapsed, "realtime_factor": seconds / elapsed if elapsed else float("inf"),
+        "dropped": stats.dropped, "state": stats.state,
+    }

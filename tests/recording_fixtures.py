@@ -1,0 +1,112 @@
+"""Test fixture: write a synthetic walkcap recording with every topic, fast.
+
+Frames come from capture.recorder.synthetic_frame (a ray-cast step scene with 1 % range
+noise), a few of them re-stamped; times are synthetic session-clock times starting at T0.
+"""
+from __future__ import annotations
+
+import dataclasses
+import functools
+from pathlib import Path
+
+import numpy as np
+
+from capture.recorder import Recorder, synthetic_frame
+from devices.base import DeviceEvent
+from devices.frames import MODES, ImuSample
+
+T0 = 1_000_000_000_000  # 1000 s on the session clock
+FPS = 45.0
+IMU_HZ = 100.0
+METADATA = {
+    "session": {"subject": "S07", "height_m": "1.78", "amputee": "True", "side": "left",
+                "condition": "indoor", "trial": "3", "notes": "test"},
+    "devices": {"camera_backend": "mock", "imu_backend": "mock"},
+    "software": {"walkcap_version": "0.1.0", "model_hash": "abc123"},
+}
+ATTACHMENTS = {"walkcap.toml": b"[camera]\nfps = 45.0\n", "model.json": b'{"hash": "abc123"}'}
+
+
+@functools.lru_cache(maxsize=None)
+def _frames(n: int = 12):
+    return tuple(synthetic_frame(i, 0) for i in range(n))
+
+
+def frame_at(index: int):
+    base = _frames()[index % len(_frames())]
+    t = frame_time(index)
+    return dataclasses.replace(base, index=index, device_time_ns=t, host_time_ns=t + 3_000_000,
+                               truth={"mode": truth_mode(index), "pose": np.eye(4)})
+
+
+def frame_time(index: int) -> int:
+    return T0 + int(round(index * 1e9 / FPS))
+
+
+def truth_mode(index: int) -> str:
+    return MODES[(index // 40) % len(MODES)]
+
+
+def probabilities(index: int) -> np.ndarray:
+    p = np.full(len(MODES), 0.05)
+    p[(index // 40) % len(MODES)] = 0.8
+    return p
+
+
+def imu_sample(k: int) -> ImuSample:
+    t = T0 + int(round(k * 1e9 / IMU_HZ))
+    return ImuSample(host_time_ns=t + 1_000_000, time_ns=t, packet_counter=k % 65536,
+                     sample_time_fine=k * 100, quaternion=np.array([0.9, 0.1, -0.2, 0.3]) / np.linalg.norm([0.9, 0.1, -0.2, 0.3]),
+                     acceleration=np.array([0.1, -0.2, 9.81]), rate_of_turn=np.array([0.01, 0.02, -0.03]),
+                     status_word=3, extra={"temperature": 31.5})
+
+
+def label_schedule(seconds: float) -> list[tuple[int, str, str]]:
+    """A label change every 0.5 s (times between frames), cycling through the modes."""
+    out = []
+    k = 0
+    while k * 0.5 < seconds:
+        out.append((T0 + int(k * 0.5e9) + 7_000_000, MODES[k % len(MODES)], "operator"))
+        k += 1
+    return out
+
+
+def write_recording(path: str | Path, seconds: float = 2.0, *, chunk_interval_s: float = 1.0,
+                    queue_size: int = 100_000, close: bool = True, gray: bool = False) -> Recorder:
+    """Every topic, in the order a session writes them; returns the (closed) recorder."""
+    rec = Recorder(path, metadata=METADATA, attachments=ATTACHMENTS, queue_size=queue_size,
+                   chunk_interval_s=chunk_interval_s, gray=gray)
+    rec.start()
+    labels = label_schedule(seconds)
+    n_frames = int(seconds * FPS)
+    k_imu = 0
+    for i in range(n_frames):
+        t = frame_time(i)
+        while T0 + k_imu * 1e9 / IMU_HZ <= t:
+            rec.write_imu(imu_sample(k_imu))
+            k_imu += 1
+        while labels and labels[0][0] <= t:
+            rec.write_label(*labels.pop(0))
+        frame = frame_at(i)
+        rec.write_frame(frame)
+        cloud = np.column_stack([np.linspace(0.0, 1.5, 300), np.zeros(300),
+                                 np.full(300, -0.55) + 0.001 * i])
+        image = np.zeros((100, 100), np.uint8)
+        image[50 + i % 20:, :] = 1
+        quaternion = None if i == 5 else np.array([np.cos(0.1), 0.0, np.sin(0.1), 0.0])
+        rec.write_processed(i, t, frame.host_time_ns, cloud, image, quaternion,
+                            "" if i != 5 else "no orientation")
+        fused = {} if i < 2 else {
+            "frame_index": i - 1, "decision": truth_mode(i - 1),
+            "posterior": probabilities(i - 1), "voted": truth_mode(i - 2) if i > 2 else None,
+            "voted_frame_index": i - 2 if i > 2 else None}
+        rec.write_inference(i, t, frame.host_time_ns + 9_000_000, probabilities(i), fused)
+        rec.write_features(i, t, {"riser_m": 0.17, "tread_m": float("nan"), "ok": True})
+        rec.write_truth(i, t, frame.truth)
+        if i == 10:
+            rec.write_event(DeviceEvent(t, "imu", "gap", "3 samples missing", {"missing": 3}))
+            rec.write_event({"time_ns": t, "device": "operator", "kind": "marker",
+                             "message": "stairs start"})
+    if close:
+        rec.close()
+    return rec
