@@ -99,7 +99,7 @@ class FusionRun:
     method: str
     decisions: np.ndarray  # (N,) first stage: argmax, smooth state, filter, smoother
     final: np.ndarray  # (N,) the method's decision (the vote for methods with voting)
-    posteriors: np.ndarray  # (N, 5) the method's distribution per frame
+    posteriors: np.ndarray  # (N, 5) per frame; NaN where none (HMM: frame 0)
 
 
 @dataclass
@@ -579,7 +579,8 @@ def _plot_per_subject(plt, results, methods, condition):
     ax.set_ylabel("accuracy (%)")
     low = min(100 * min(r.accuracy[m] for r in results for m in methods), 100)
     ax.set_ylim(max(0, low - 5), 100.5)
-    ax.set_title(f"Classification accuracy per subject{' (' + condition + ')' if condition else ''}")
+    where = f" ({condition})" if condition else ""
+    ax.set_title(f"Classification accuracy per subject{where}")
     ax.legend(fontsize=8, ncol=2)
     return fig
 

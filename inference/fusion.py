@@ -58,10 +58,13 @@ class FusionOutput:
     """What one push (or flush) made known.
 
     `frame`/`decision`: the decision of the method's first stage (argmax, HMM smooth state,
-    filter, smoother) and the frame it refers to; None in flush outputs that only carry
-    votes. `probabilities`: the method's distribution for `posterior_frame` (the HMM: the
-    smoothed p(s_t) of the newest frame, Algorithm 1's second output). `voted`/`voted_frame`:
-    the vote, for methods with voting, once its window is complete.
+    filter, smoother) and the frame it refers to; `push` returns None until the first
+    decision exists, so these are set in every pushed output (None only in flush outputs
+    that carry nothing but votes).
+    `probabilities` (`posterior` as an array): the method's distribution for
+    `posterior_frame`. For the HMM that is the smoothed p(s_t) of the newest frame
+    (Algorithm 1's second output), one frame after `frame`; for the others, `frame`.
+    `voted`/`voted_frame`: the vote, for methods with voting, once its window is complete.
     """
 
     frame: int | None
@@ -70,6 +73,14 @@ class FusionOutput:
     probabilities: tuple[float, ...] | None = None
     voted: int | None = None
     voted_frame: int | None = None
+
+    @property
+    def frame_index(self) -> int | None:  # the name capture's session uses
+        return self.frame
+
+    @property
+    def voted_frame_index(self) -> int | None:
+        return self.voted_frame
 
     @property
     def posterior(self) -> np.ndarray | None:
@@ -311,7 +322,7 @@ class ArgmaxFusion(_Stream):
 class HmmFusion(_Stream):
     """Algorithm 1, the modified Viterbi update, optionally followed by voting.
 
-    Pushing frame t returns the smooth state s_opt(t-1) (`frame` t-1, `decision`) and the
+    Pushing frame t (t >= 1) returns the smooth state s_opt(t-1) (`frame` t-1, `decision`) and the
     normalised p(s_t) (`posterior_frame` t). Pure-Python floats: a 5x5 update is faster
     without numpy's per-call overhead (see `bench_fusion`).
     """
@@ -374,8 +385,8 @@ class HmmFusion(_Stream):
             z = q0 + q1 + q2 + q3 + q4
             p = (q0 / z, q1 / z, q2 / z, q3 / z, q4 / z)
         smooth.append(p)
-        if decision is None:
-            return FusionOutput(None, None, t, p)
+        if decision is None:  # frame 0: nothing to decide yet (p(s_0) is the CNN's output)
+            return None
         out = FusionOutput(t - 1, decision, t, p)
         if self._voter is not None:
             vote = self._voter.push(t - 1, decision)

@@ -92,8 +92,7 @@ def test_one_update_by_hand():
     e0 = np.array([0.5, 0.2, 0.1, 0.1, 0.1])
     e1 = np.array([0.1, 0.6, 0.1, 0.1, 0.1])
     fusion = HmmFusion(window=1)
-    first = fusion.push(e0)
-    assert first.frame is None and first.posterior_frame == 0
+    assert fusion.push(e0) is None  # frame 0 is decided when frame 1 arrives
     out = fusion.push(e1)
     pbar = e0  # mean over the last l_w = 1 smooth states
     phat_last = np.array([sum(pbar[i] * T[i, j] * e1[j] for j in range(5)) for i in range(5)])
@@ -117,7 +116,8 @@ def test_streaming_equals_the_numpy_transcription(window):
         states, smooth = paper_viterbi(e, T, window)
         decisions, _, posteriors = stream(HmmFusion(window, T), e)
         np.testing.assert_array_equal(decisions, states)
-        np.testing.assert_allclose(posteriors, smooth, rtol=0, atol=1e-14)
+        # frame 0 reports no posterior: p(s_0) is the CNN's output
+        np.testing.assert_allclose(posteriors[1:], smooth[1:], rtol=0, atol=1e-14)
 
 
 def test_streaming_equals_transcription_with_other_matrices():
@@ -132,10 +132,11 @@ def test_hmm_decides_the_previous_frame_and_flush_decides_the_last():
     e = random_probabilities(np.random.default_rng(1), 10)
     fusion = HmmFusion(window=3)
     assert fusion.delay_frames == 1
-    assert fusion.push(e[0]).frame is None
+    assert fusion.push(e[0]) is None
     for t in range(1, 10):
         out = fusion.push(e[t])
         assert out.frame == t - 1 and out.posterior_frame == t and out.voted is None
+        assert out.frame_index == out.frame and out.decision is not None
     (last,) = fusion.flush()
     assert last.frame == 9
     assert fusion.flush() == []
@@ -218,8 +219,10 @@ def test_voting_delays_and_combines_with_the_hmm():
     fusion = make_fusion("hmm+voting", window=5, vote_delay=2)
     assert fusion.delay_frames == 3 and fusion.votes
     outs = [fusion.push(row) for row in e]
-    voted = [(t, o.voted_frame) for t, o in enumerate(outs) if o.voted_frame is not None]
+    voted = [(t, o.voted_frame) for t, o in enumerate(outs)
+             if o is not None and o.voted_frame is not None]
     assert voted[0] == (3, 0) and all(t - f == 3 for t, f in voted)
+    assert all(o.voted_frame_index == o.voted_frame for o in outs if o is not None)
     hmm, _, _ = stream(make_fusion("hmm"), e)
     _, votes, _ = stream(make_fusion("hmm+voting", window=5, vote_delay=2), e)
     for f in range(30):
