@@ -1,3 +1,5 @@
+import re
+
 import numpy as np
 import pytest
 
@@ -87,3 +89,110 @@ def test_floor_plane_height_and_normal():
     np.testing.assert_allclose(normal, [0, -np.cos(np.radians(35)), -np.sin(np.radians(35))],
                                atol=1e-3)
     assert floor_plane(xyz, np.zeros_like(conf)) is None
+
+
+class FakeCamera:
+    """Hands out pre-rendered frames stamped on the session clock, one per recv."""
+
+    def __init__(self, xyz, conf):
+        self.frames = list(zip(xyz, conf))
+        self.k = 0
+        self.calls: list[str] = []
+
+    def start(self):
+        self.calls.append("start")
+
+    def recv(self, timeout=None):
+        import time
+
+        from devices.clock import now_ns
+        from devices.frames import DepthFrame
+
+        time.sleep(0.02)
+        xyz, conf = self.frames[self.k % len(self.frames)]
+        self.k += 1
+        t = now_ns()
+        return DepthFrame(self.k, t, t, xyz, conf, np.zeros(conf.shape, np.uint16))
+
+    def stop(self):
+        self.calls.append("stop")
+
+    def close(self):
+        self.calls.append("close")
+
+
+class FakeImu(FakeCamera):
+    """Samples of a standing thigh (quaternion at the time of each frame, in order)."""
+
+    def __init__(self, quats):
+        super().__init__([], [])
+        self.quats = quats
+
+    def recv(self, timeout=None):
+        import time
+
+        from devices.clock import now_ns
+        from devices.frames import ImuSample
+
+        time.sleep(0.005)
+        self.k += 1
+        t = now_ns()
+        return ImuSample(host_time_ns=t, time_ns=t, quaternion=self.quats[self.k % 2])
+
+
+@pytest.fixture
+def devices(monkeypatch):
+    from tui.commands import calibrate
+
+    def use(xyz, conf, quats):
+        camera, imu = FakeCamera(xyz, conf), FakeImu(quats)
+        monkeypatch.setattr(calibrate, "open_devices", lambda config: (camera, imu))
+        return camera, imu
+
+    return use
+
+
+def test_calibrate_command_writes_the_mounting(devices, tmp_path, capsys):
+    from capture import config as cfg
+    from tui import cli
+
+    xyz, conf, quats = standing(count=2, sway_deg=0.0)
+    camera, imu = devices(xyz, conf, quats)
+    path = tmp_path / "walkcap.toml"
+    path.write_text("[camera]\nfps = 30.0\n[mounting]\npitch_deg = 35.0\n")
+    assert cli.main(["--config", str(path), "calibrate", "--seconds", "0.3"]) == 0
+    out = capsys.readouterr().out
+    assert re.search(r"pitch\s+\+35\.00 ->\s+\+38\.(49|50|51) deg", out), out
+    assert "wrote [mounting]" in out
+    saved = cfg.load(path)
+    assert saved.mounting.pitch_deg == pytest.approx(38.5, abs=0.1)
+    assert saved.mounting.roll_deg == pytest.approx(2.0, abs=0.1)
+    assert saved.camera.fps == 30.0  # the rest of the file is kept
+    assert camera.calls == ["start", "stop", "close"] and imu.calls[-2:] == ["stop", "close"]
+
+
+def test_calibrate_command_refuses_when_the_subject_moves(devices, tmp_path, capsys):
+    from tui import cli
+
+    moving = [tr.thigh_quaternion(0, 0, 0), tr.thigh_quaternion(12, 0, 0)]
+    frames = [tr.render(tr.level(), q, mounting=TRUE_MOUNTING) for q in moving]
+    devices([f[0] for f in frames], [f[1] for f in frames], moving)
+    path = tmp_path / "walkcap.toml"
+    path.write_text("[mounting]\npitch_deg = 35.0\n")
+    assert cli.main(["--config", str(path), "calibrate", "--seconds", "0.3"]) == 1
+    err = capsys.readouterr().err
+    assert "moved" in err and "nothing written" in err and len(err.strip().splitlines()) == 1
+    assert path.read_text() == "[mounting]\npitch_deg = 35.0\n"
+
+
+def test_calibrate_dry_run_and_write_elsewhere(devices, tmp_path, capsys):
+    from capture import config as cfg
+    from tui import cli
+
+    devices(*standing(count=2, sway_deg=0.0))
+    assert cli.main(["calibrate", "--seconds", "0.2", "--dry-run"]) == 0
+    assert "nothing written" in capsys.readouterr().out
+    assert not (tmp_path / "walkcap.toml").exists()
+    other = tmp_path / "rig.toml"
+    assert cli.main(["calibrate", "--seconds", "0.2", "--write", str(other)]) == 0
+    assert cfg.load(other).mounting.pitch_deg == pytest.approx(38.5, abs=0.1)
