@@ -87,6 +87,9 @@ class PreprocessConfig:
     grid_size: int = 100  # 100 x 100 cells
     cell_m: float = 0.01  # 1 cm cells
     min_confidence: int = 1
+    outlier_min_points: int = 4  # isolated-point removal, 3 x 3 cm neighbourhood (0: off)
+    max_elevation_deg: float = 30.0  # camera looking higher than this: no image
+    backend: str = "numpy"  # numpy | open3d (same result; numpy is faster)
 
 
 @dataclass

@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from devices.rotations import mounting_matrix, quat_to_matrix
+from inference.errors import InferenceError
 
 log = logging.getLogger(__name__)
 
@@ -42,6 +43,8 @@ LOOKING_UP = "looking_up"
 BAD_ORIENTATION = "bad_orientation"
 NAN_INPUT = "nan_input"
 BAD_INPUT = "bad_input"
+
+BACKENDS = ("numpy", "open3d")
 
 
 @dataclass(frozen=True)
@@ -65,6 +68,18 @@ class PreprocessParams:
     max_elevation_deg: float = 30.0  # optical axis above the horizon by more: looking_up
     min_points: int = 10  # fewer corridor points than this: empty_corridor
     backend: str = "numpy"  # numpy | open3d
+
+    def __post_init__(self) -> None:
+        problems = []
+        if self.backend not in BACKENDS:
+            problems.append(f"backend: expected one of {', '.join(BACKENDS)}, got "
+                            f"{self.backend!r}")
+        if self.grid_size < 2 or self.cell_m <= 0 or self.outlier_cell_m <= 0:
+            problems.append("grid_size, cell_m and outlier_cell_m must be positive")
+        if self.corridor_width_m <= 0 or self.max_forward_m <= self.min_forward_m:
+            problems.append("the corridor must have a width and a length")
+        if problems:
+            raise InferenceError("preprocess." + "; ".join(problems))
 
     @classmethod
     def from_config(cls, config) -> PreprocessParams:

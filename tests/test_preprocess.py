@@ -222,6 +222,19 @@ def test_params_from_config_and_to_dict():
     data = params.to_dict()
     json.dumps(data)  # goes into recording and model metadata as is
     assert PreprocessParams(**data) == params
+    config.preprocess.backend = "open3d"
+    config.preprocess.outlier_min_points = 0
+    params = PreprocessParams.from_config(config)
+    assert params.backend == "open3d" and params.outlier_min_points == 0
+
+
+@pytest.mark.parametrize("bad", [{"backend": "gpu"}, {"cell_m": 0.0}, {"grid_size": 0},
+                                 {"corridor_width_m": -0.1}, {"max_forward_m": -1.0}])
+def test_bad_params_are_a_user_error(bad):
+    from inference.errors import InferenceError
+
+    with pytest.raises(InferenceError, match="preprocess"):
+        PreprocessParams(**bad)
 
 
 def test_preprocess_frame_and_grid_size():
