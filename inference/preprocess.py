@@ -305,23 +305,27 @@ def _bench_frames(count: int, seed: int = 0) -> list[tuple[np.ndarray, np.ndarra
 def bench_preprocess(frames: int = 200) -> dict:
     """Median milliseconds per frame, frame -> image, for the numpy and Open3D backends.
 
-    Not a test: run it by hand, e.g. `python -c "from inference.preprocess import
+    Also each backend without outlier removal (`*_no_outliers_*`): leveling and cropping
+    alone. Not a test: run it by hand, e.g. `python -c "from inference.preprocess import
     bench_preprocess as b; print(b())"`.
     """
     data = _bench_frames(min(frames, 40))
-    result: dict = {"frames": frames, "points_per_frame": int(data[0][0].shape[0]
-                                                             * data[0][0].shape[1])}
-    for backend in ("numpy", "open3d"):
-        params = PreprocessParams(backend=backend)
-        preprocess(*data[0], params)  # warm-up (imports, caches)
-        times, corridor = [], []
-        for i in range(frames):
-            xyz, confidence, q = data[i % len(data)]
-            t0 = time.perf_counter()
-            out = preprocess(xyz, confidence, q, params)
-            times.append(time.perf_counter() - t0)
-            corridor.append(len(out.cloud))
-        result[f"{backend}_median_ms"] = float(np.median(times) * 1e3)
-        result[f"{backend}_p95_ms"] = float(np.percentile(times, 95) * 1e3)
-        result[f"{backend}_corridor_points"] = int(np.median(corridor))
+    height, width = data[0][1].shape
+    result: dict = {"frames": frames, "resolution": f"{width}x{height}"}
+    for backend in BACKENDS:
+        for suffix, outliers in (("", PreprocessParams.outlier_min_points),
+                                 ("_no_outliers", 0)):
+            params = PreprocessParams(backend=backend, outlier_min_points=outliers)
+            preprocess(*data[0], params)  # warm-up (imports, caches)
+            times, corridor = [], []
+            for i in range(frames):
+                xyz, confidence, q = data[i % len(data)]
+                t0 = time.perf_counter()
+                out = preprocess(xyz, confidence, q, params)
+                times.append(time.perf_counter() - t0)
+                corridor.append(len(out.cloud))
+            name = backend + suffix
+            result[f"{name}_median_ms"] = float(np.median(times) * 1e3)
+            result[f"{name}_p95_ms"] = float(np.percentile(times, 95) * 1e3)
+            result[f"{name}_corridor_points"] = int(np.median(corridor))
     return result
