@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import csv
 import importlib
+import logging
 import math
 import re
 from collections.abc import Sequence
@@ -29,6 +30,8 @@ from inference.fusion import (
     N_MODES, PAPER_TRANSITION, FixedLagSmoother, Fusion, HmmFusion, Voter,
     estimate_transition, make_fusion, mode_indices,
 )
+
+log = logging.getLogger(__name__)
 
 PAPER_METHODS = ("cnn", "cnn+voting", "hmm", "hmm+voting")
 TITLES = {
@@ -457,12 +460,13 @@ def _score_row(path: str, line: int, row: list[str]) -> list[float]:
 
 
 def trial_from_recording(path: str, data: Any, reference: str = "auto") -> Trial:
-    """A Trial from what capture's reader returns for one recording.
+    """A Trial from what `capture.reader.read_trial` returns for one recording.
 
-    data: a mapping (or object) with "probabilities" (N, 5), "labels" (N operator labels:
-    mode names, None where unlabeled), "truth" (N simulator modes, or None) and "metadata"
-    (dict with "subject", "condition"). reference: "labels", "truth" or "auto" (operator
-    labels when there are any, else simulator truth).
+    data: a mapping (or object) with "probabilities" (N, 5), "labels" (N operator modes in
+    force at each frame: indices or names, -1/None where unlabeled), "truth" (N simulator
+    modes, or None) and "metadata" (capture's {"session": {"subject", "condition", ...}},
+    or a flat dict). reference: "labels", "truth" or "auto" (operator labels when there
+    are any, else simulator truth). Frames without a finite CNN output are left out.
     """
     def get(key: str):
         return data.get(key) if isinstance(data, dict) else getattr(data, key, None)
@@ -478,20 +482,28 @@ def trial_from_recording(path: str, data: Any, reference: str = "auto") -> Trial
     if not usable(chosen):
         what = "operator labels" if reference == "labels" else "simulator truth"
         raise InferenceError(f"{path}: no {what} to compare with")
-    return Trial(str(path), get("probabilities"), chosen, dict(get("metadata") or {}))
+    metadata = dict(get("metadata") or {})
+    metadata = {**metadata, **(metadata.get("session") or {})}  # capture nests the form
+    probabilities = np.asarray(get("probabilities"), dtype=float)
+    chosen = mode_indices(chosen)
+    finite = np.isfinite(probabilities).all(axis=1) if probabilities.ndim == 2 else None
+    if finite is not None and not finite.all():
+        log.warning("%s: %d frame(s) without a CNN output left out", path, (~finite).sum())
+        probabilities, chosen = probabilities[finite], chosen[finite]
+    return Trial(str(path), probabilities, chosen, metadata)
 
 
 def load_trials_from_recordings(paths: Sequence[str], reference: str = "auto") -> list[Trial]:
-    """Trials from MCAP recordings through `capture.recording_reader.read_trial(path)`."""
-    try:  # lands with the [recording] issue
-        recording_reader = importlib.import_module("capture.recording_reader")
+    """Trials from MCAP recordings through `capture.reader.read_trial(path)`."""
+    try:
+        reader = importlib.import_module("capture.reader")
     except ModuleNotFoundError as e:
-        if e.name not in ("capture.recording_reader", "capture"):
+        if e.name not in ("capture.reader", "capture"):
             raise
         raise RecordingsUnavailable(
             "reading recordings arrives with the [recording] issue; meanwhile evaluate "
             "score files with 'walkcap eval scores'") from None
-    return [trial_from_recording(p, recording_reader.read_trial(p), reference) for p in paths]
+    return [trial_from_recording(p, reader.read_trial(p), reference) for p in paths]
 
 
 def synthetic_trial(seed: int = 0, accuracy: float = 0.9, block_frames: tuple[int, int] = (30, 80),

@@ -43,7 +43,7 @@ def live_accuracy(method, probabilities, reference, **kw):
                                                                             out.decision)
         if frame is not None:
             final[frame] = decision
-    return np.mean([final[i] == r for i, r in enumerate(reference)])
+    return np.mean([final[i] == r for i, r in enumerate(reference) if r >= 0])
 
 
 def test_scores_table(capsys, score_files):
@@ -127,7 +127,7 @@ def test_missing_score_file(capsys):
 
 
 def test_recordings_without_reader_say_when_they_arrive(capsys, monkeypatch):
-    monkeypatch.setitem(sys.modules, "capture.recording_reader", None)
+    monkeypatch.setitem(sys.modules, "capture.reader", None)
     code, _, err = run(capsys, "eval", "recordings", "a.mcap")
     assert code == 2
     assert len(err.strip().splitlines()) == 1 and "[recording] issue" in err
@@ -142,9 +142,9 @@ def fake_reader(monkeypatch):
         trials[f"r{i}.mcap"] = {
             "probabilities": t.probabilities, "labels": [MODES[r] for r in t.reference],
             "truth": None, "metadata": {"subject": subject, "condition": condition}}
-    reader = types.ModuleType("capture.recording_reader")
+    reader = types.ModuleType("capture.reader")
     reader.read_trial = lambda path: trials[path]
-    monkeypatch.setitem(sys.modules, "capture.recording_reader", reader)
+    monkeypatch.setitem(sys.modules, "capture.reader", reader)
     return list(trials)
 
 
@@ -181,3 +181,25 @@ def test_model_module_is_registered_when_present(capsys, monkeypatch):
     monkeypatch.setitem(sys.modules, "tui.commands.eval_model", module)
     code, out, _ = run(capsys, "eval", "model", "--sessions", "3")
     assert code == 0 and out.strip() == "model with 3 sessions"
+
+
+def test_real_recording_end_to_end(capsys, tmp_path):
+    """A recording written by capture's recorder, read by capture.reader."""
+    from capture.reader import read_trial
+    from recording_fixtures import write_recording
+
+    path = str(tmp_path / "S07_indoor_t03.mcap")
+    write_recording(path, seconds=2.0)
+    code, out, err = run(capsys, "eval", "recordings", path, "--json")
+    assert code == 0, err
+    data = json.loads(out)
+    (entry,) = data["files"]
+    assert (entry["subject"], entry["condition"]) == ("S07", "indoor")
+    recorded = read_trial(path)
+    assert entry["frames"] == len(recorded["probabilities"])
+    assert entry["accuracy"]["hmm"] == pytest.approx(live_accuracy(
+        "hmm", recorded["probabilities"], recorded["labels"]))
+    code, out, _ = run(capsys, "eval", "recordings", path, "--reference", "truth", "--json")
+    truth = json.loads(out)["files"][0]["accuracy"]
+    assert truth["cnn"] == pytest.approx(np.mean(
+        np.argmax(recorded["probabilities"], axis=1) == recorded["truth"]))

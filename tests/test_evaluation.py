@@ -226,19 +226,19 @@ def test_trial_from_recording_prefers_operator_labels():
 
 
 def test_recordings_without_a_reader_say_when_it_arrives(monkeypatch):
-    monkeypatch.setitem(sys.modules, "capture.recording_reader", None)
+    monkeypatch.setitem(sys.modules, "capture.reader", None)
     with pytest.raises(ev.RecordingsUnavailable, match=r"\[recording\] issue"):
         ev.load_trials_from_recordings(["a.mcap"])
 
 
 def test_recordings_through_the_reader(monkeypatch, trials):
-    reader = types.ModuleType("capture.recording_reader")
+    reader = types.ModuleType("capture.reader")
     by_path = {t.path: t for t in trials}
     reader.read_trial = lambda path: {
         "probabilities": by_path[path].probabilities,
         "labels": [None] * len(by_path[path].reference),
         "truth": [int(x) for x in by_path[path].reference], "metadata": by_path[path].metadata}
-    monkeypatch.setitem(sys.modules, "capture.recording_reader", reader)
+    monkeypatch.setitem(sys.modules, "capture.reader", reader)
     loaded = ev.load_trials_from_recordings([t.path for t in trials[:2]])
     np.testing.assert_array_equal(loaded[1].reference, trials[1].reference)
     assert loaded[0].metadata["condition"] == "indoor"
