@@ -228,6 +228,11 @@ class XbusParser:
             out += self.feed(b"")
         return out
 
+    def clear(self) -> None:
+        """Drop buffered bytes without counting them (a port reopened)."""
+        self._buf.clear()
+        self._in_sync = True
+
     @property
     def buffered(self) -> int:
         return len(self._buf)
@@ -246,6 +251,12 @@ PRECISION_NAMES = {FLOAT32: "float32", FP1220: "fp1220", FP1632: "fp1632", FLOAT
 ENU, NED, NWU = 0x0, 0x4, 0x8
 COORDINATE_SYSTEMS = {ENU: "ENU", NED: "NED", NWU: "NWU"}
 _COORDINATE_CODES = {v: k for k, v in COORDINATE_SYSTEMS.items()}
+# Rows: the axes of each world frame in ENU coordinates (v_frame = M @ v_enu).
+FRAME_FROM_ENU = {
+    "ENU": ((1, 0, 0), (0, 1, 0), (0, 0, 1)),
+    "NED": ((0, 1, 0), (1, 0, 0), (0, 0, -1)),
+    "NWU": ((0, 1, 0), (-1, 0, 0), (0, 0, 1)),
+}
 _REAL_FORMATS = {FLOAT32: ("f", 4), FP1220: ("i", 4), FP1632: ("Ih", 6), FLOAT64: ("d", 8)}
 
 # xdi & 0xFFF0 -> (name, kind, count). kind "real" honours the precision bits.

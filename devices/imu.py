@@ -1,0 +1,627 @@
+"""The IMU: one small interface, a registry of backends, and the Xbus serial driver.
+
+Like python-can's bus: `Imu` is the surface every backend shares (open, start, recv,
+stop, close, status, poll_events, a context manager); backends are named in `BACKENDS`
+and imported only when chosen. There is one real driver, `XbusImu` (Xsens MTi over
+pyserial); the mock backend, `EmulatedImu`, is that same driver talking to an
+`ImuEmulator` on a pseudo-terminal, so the mock exercises pyserial and termios too.
+
+Samples: `time_ns` is the device's SampleTimeFine mapped onto the session clock by the
+clock estimator (devices/imu_clock.py), `host_time_ns` the receive time. Quaternions are
+always sensor -> ENU world (z up), whatever coordinate system the device reports in.
+A vanished or silent port is reported within a second, retried until it returns, and the
+gap reported; the reader thread never dies with the device.
+"""
+from __future__ import annotations
+
+import importlib
+import logging
+import threading
+import time
+from typing import Any, Callable, Iterator
+
+import numpy as np
+
+from devices import xbus
+from devices.base import DEGRADED, LOST, OK, STOPPED, BoundedBuffer, DeviceEvent, DeviceStatus, \
+    RateMeter
+from devices.clock import now_ns
+from devices.errors import DeviceError, DeviceInitError, DeviceNotAvailable
+from devices.frames import ImuSample
+from devices.imu_clock import DeviceClock
+from devices.rotations import matrix_to_quat, quat_from_euler, quat_multiply, quat_normalize
+from devices.xbus import MID
+
+log = logging.getLogger(__name__)
+
+# name -> (module, class); imported when chosen.
+BACKENDS = {
+    "mock": ("devices.imu", "EmulatedImu"),
+    "serial": ("devices.imu", "XbusImu"),
+}
+
+# sensor -> ENU = (frame -> ENU) * (sensor -> frame)
+_FRAME_TO_ENU = {name: matrix_to_quat(np.array(m, dtype=np.float64).T)
+                 for name, m in xbus.FRAME_FROM_ENU.items()}
+_VECTOR_OUTPUTS = ("acceleration", "rate_of_turn")
+_EVENT_INTERVAL_NS = 1_000_000_000  # repeated faults of one kind: one event a second
+
+
+def open_imu(config: Any, orientation_at: Callable[[float], np.ndarray] | None = None) -> "Imu":
+    """The IMU a configuration asks for (an ImuConfig or anything with its attributes).
+
+    Not yet opened: call open() (or start(), or use it as a context manager).
+    """
+    backend = getattr(config, "backend", "mock")
+    if backend not in BACKENDS:
+        raise DeviceNotAvailable(f"unknown IMU backend {backend!r} "
+                                 f"(known: {', '.join(sorted(BACKENDS))})")
+    module_name, class_name = BACKENDS[backend]
+    cls = getattr(importlib.import_module(module_name), class_name)
+    return cls.from_config(config, orientation_at=orientation_at)
+
+
+class Imu:
+    """What every IMU backend offers. Backends deliver samples with `_deliver`."""
+
+    backend = "?"
+
+    def __init__(self, buffer_size: int = 1024) -> None:
+        self._buffer: BoundedBuffer[ImuSample] = BoundedBuffer(buffer_size)
+        self._events: list[DeviceEvent] = []
+        self._lock = threading.Lock()
+        self._rate = RateMeter()
+        self.delivered = 0
+        self.info: dict[str, Any] = {}
+
+    def open(self) -> None:
+        raise NotImplementedError
+
+    def start(self) -> None:
+        raise NotImplementedError
+
+    def stop(self) -> None:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+    def status(self) -> DeviceStatus:
+        raise NotImplementedError
+
+    def recv(self, timeout: float | None = None) -> ImuSample | None:
+        """The oldest sample not yet received; None after `timeout` seconds without one."""
+        return self._buffer.get(timeout)
+
+    def poll_events(self) -> list[DeviceEvent]:
+        """Events since the last call (lost, reconnected, checksum errors, ...)."""
+        with self._lock:
+            events, self._events = self._events, []
+        return events
+
+    def __enter__(self) -> "Imu":
+        self.open()
+        self.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __iter__(self) -> Iterator[ImuSample]:
+        while self.status().state != STOPPED:
+            sample = self.recv(0.2)
+            if sample is not None:
+                yield sample
+
+    def _deliver(self, sample: ImuSample) -> None:
+        self._buffer.put(sample)
+        with self._lock:
+            self._rate.tick(sample.host_time_ns)
+        self.delivered += 1
+
+    def _event(self, kind: str, message: str, t_ns: int | None = None, **details: Any) -> None:
+        log.info("IMU %s: %s", kind, message)
+        event = DeviceEvent(now_ns() if t_ns is None else t_ns, "imu", kind, message, details)
+        with self._lock:
+            self._events.append(event)
+            del self._events[:-1000]  # nobody polls: keep the latest
+
+    def _measured_rate(self) -> float:
+        with self._lock:
+            return self._rate.rate()
+
+
+class _Stop(Exception):
+    """stop() was called while configuring."""
+
+
+class XbusImu(Imu):
+    """An Xsens MTi (or anything speaking Xbus) on a serial port."""
+
+    backend = "serial"
+
+    def __init__(self, port: str, baudrate: int = 115200, rate_hz: int = 100,
+                 outputs: tuple[str, ...] | None = xbus.DEFAULT_OUTPUTS, *,
+                 precision: int = xbus.FLOAT32, coordinate_system: str = "ENU",
+                 request_timeout_s: float = 1.0,
+                 config_timeout_s: float = 2.0, silence_s: float | None = None,
+                 retry_s: float = 0.5, buffer_size: int = 1024,
+                 raw_sink: Callable[[bytes], None] | None = None) -> None:
+        """outputs None: keep the device's output configuration (read it, do not set it)."""
+        super().__init__(buffer_size)
+        if not port:
+            raise DeviceNotAvailable("no IMU serial port given (set [imu] port, e.g. "
+                                     "/dev/ttyUSB0, or use the mock backend)")
+        self.port = port
+        self.baudrate = int(baudrate)
+        self.rate_hz = int(rate_hz)
+        if outputs is not None and not 1 <= self.rate_hz <= 2000:
+            raise DeviceInitError(f"IMU rate {rate_hz} Hz is out of range (1..2000)")
+        self.outputs = tuple(outputs) if outputs is not None else None
+        try:
+            self._settings = xbus.output_settings(outputs, self.rate_hz, precision,
+                                                  coordinate_system) \
+                if outputs is not None else None
+        except (ValueError, KeyError) as e:
+            raise DeviceInitError(f"IMU outputs: {e}") from None
+        self.request_timeout_s = request_timeout_s
+        self.config_timeout_s = config_timeout_s
+        # Silence longer than this is a lost device: half a second, or 3 periods when slow.
+        self.silence_ns = int((silence_s if silence_s is not None
+                               else max(0.5, 3.0 / max(self.rate_hz, 1))) * 1e9)
+        self.retry_ns = int(retry_s * 1e9)
+        self.raw_sink = raw_sink
+        self.configured_rate_hz = float(self.rate_hz)
+        self.clock = DeviceClock()
+        self._parser = xbus.XbusParser()
+        self._serial = None  # serial.Serial while connected
+        self._thread: threading.Thread | None = None
+        self._stopping = threading.Event()
+        self._state = STOPPED
+        self._message = "not started"
+        self._last_sample_ns: int | None = None
+        self._lost_at_ns: int | None = None
+        self._next_retry_ns = 0
+        self._last_counter: int | None = None
+        self._clock_resets = 0
+        self.missing_packets = 0
+        self.reconnects = 0
+        self.device_errors = 0
+        # kind -> [last event time, count not yet reported]
+        self._pending: dict[str, list[int]] = {}
+        self._seen = {"checksum_errors": 0, "resyncs": 0, "dropped": 0}
+        self._last_problem_ns = 0
+        self._started_ns = now_ns()
+
+    @classmethod
+    def from_config(cls, config: Any, orientation_at=None) -> "XbusImu":
+        return cls(getattr(config, "port", ""), getattr(config, "baudrate", 115200),
+                   getattr(config, "rate_hz", 100))
+
+    # ---- connection -------------------------------------------------------------------
+
+    def open(self) -> None:
+        """Open the port and configure the device; then it measures. Idempotent."""
+        if self._serial is not None:
+            return
+        self._stopping.clear()
+        self._connect()
+        self._message = f"configured, {self.configured_rate_hz:g} Hz"
+
+    def _connect(self) -> None:
+        ser = self._open_port()
+        try:
+            self._configure(ser)
+        except BaseException:
+            _close_quietly(ser)
+            raise
+        self._serial = ser
+
+    def _open_port(self):
+        import serial  # pyserial, imported when a port is opened
+
+        try:
+            return serial.Serial(self.port, self.baudrate, timeout=0.02, write_timeout=1.0)
+        except (serial.SerialException, OSError, ValueError) as e:
+            raise DeviceNotAvailable(f"cannot open IMU port {self.port}: {_reason(e)}") from None
+
+    def _configure(self, ser) -> None:
+        """WakeUp/GoToConfig, identify, set (or read) the outputs, GoToMeasurement."""
+        self._parser.clear()
+        self._woke_up = False
+        self._goto_config(ser)
+        device_id = self._request(ser, MID.REQ_DID, reply=MID.DEVICE_ID)
+        product = self._request(ser, MID.REQ_PRODUCT_CODE, reply=MID.PRODUCT_CODE)
+        firmware = self._request(ser, MID.REQ_FW_REV, reply=MID.FIRMWARE_REV)
+        request = xbus.encode_output_configuration(self._settings) if self._settings else b""
+        reply = self._request(ser, MID.SET_OUTPUT_CONFIGURATION, request,
+                              reply=MID.OUTPUT_CONFIGURATION)
+        try:
+            settings = xbus.decode_output_configuration(reply)
+        except ValueError as e:
+            raise DeviceInitError(f"IMU on {self.port}: bad OutputConfiguration: {e}") from None
+        if self._settings and settings != self._settings:
+            log.warning("IMU on %s adjusted the output configuration: %s", self.port,
+                        [s.describe() for s in settings])
+        self._request(ser, MID.GOTO_MEASUREMENT, reply=MID.GOTO_MEASUREMENT_ACK)
+        rates = [s.rate_hz for s in settings if s.rate_hz != xbus.EVERY_PACKET]
+        self.configured_rate_hz = float(max(rates)) if rates else float(self.rate_hz)
+        self.info = {
+            "device_id": f"{int.from_bytes(device_id[:4], 'big'):08X}" if len(device_id) >= 4
+            else device_id.hex(),
+            "product_code": product.decode("ascii", "replace").strip("\x00 "),
+            "firmware": _firmware_text(firmware),
+            "output_configuration": [s.describe() for s in settings],
+            "port": self.port,
+            "baudrate": self.baudrate,
+            "woke_up": self._woke_up,  # it had just powered up and sent WakeUp
+        }
+        self._last_counter = None
+
+    def _goto_config(self, ser) -> None:
+        """Into configuration: acknowledge a WakeUp, else GoToConfig until it is acked."""
+        deadline = time.monotonic() + self.config_timeout_s
+        while time.monotonic() < deadline:
+            self._write(ser, xbus.build(MID.GOTO_CONFIG), "GoToConfig")
+            if self._await(ser, MID.GOTO_CONFIG_ACK, "GoToConfig", 0.25) is not None:
+                return
+        raise DeviceInitError(f"IMU on {self.port}: no answer to GoToConfig within "
+                              f"{self.config_timeout_s:g} s (is an Xsens device on it, at "
+                              f"{self.baudrate} baud?)")
+
+    def _request(self, ser, mid: int, data: bytes = b"", *, reply: int) -> bytes:
+        name = _request_name(mid, data)
+        self._write(ser, xbus.build(mid, data), name)
+        answer = self._await(ser, reply, name, self.request_timeout_s)
+        if answer is None:
+            raise DeviceInitError(f"IMU on {self.port}: no answer to {name} within "
+                                  f"{self.request_timeout_s:g} s")
+        return answer
+
+    def _write(self, ser, frame: bytes, name: str) -> None:
+        import serial
+
+        try:
+            ser.write(frame)
+        except (serial.SerialException, OSError) as e:
+            raise DeviceNotAvailable(f"IMU port {self.port} failed sending {name}: "
+                                     f"{_reason(e)}") from None
+
+    def _await(self, ser, reply: int, name: str, timeout: float) -> bytes | None:
+        """The data of the first `reply` message; None on timeout; Error raises."""
+        import serial
+
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if self._stopping.is_set():
+                raise _Stop()
+            try:
+                waiting = ser.in_waiting
+                chunk = ser.read(waiting if waiting > 0 else 1)
+            except (serial.SerialException, OSError) as e:
+                raise DeviceNotAvailable(f"IMU port {self.port} failed waiting for the answer "
+                                         f"to {name}: {_reason(e)}") from None
+            for msg in self._parser.feed(chunk):
+                if msg.mid == reply:
+                    return msg.data
+                if msg.mid == MID.ERROR:
+                    code = msg.data[0] if msg.data else 0
+                    raise DeviceInitError(f"IMU on {self.port} answered {name} with "
+                                          f"{xbus.error_text(code)}")
+                if msg.mid == MID.WAKEUP:  # just powered up: keep it in configuration
+                    self._write(ser, xbus.build(MID.WAKEUP_ACK), "WakeUpAck")
+                    self._woke_up = True
+        return None
+
+    # ---- streaming --------------------------------------------------------------------
+
+    def start(self) -> None:
+        """Start the reader thread (opens first if needed)."""
+        if self._thread is not None and self._thread.is_alive():
+            return
+        self.open()
+        self._stopping.clear()
+        self._state = OK
+        self._message = f"streaming from {self.port}"
+        self._last_sample_ns = None
+        self._started_ns = now_ns()
+        self._thread = threading.Thread(target=self._run, name="walkcap-imu", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        """Stop the reader thread; the port stays open. Idempotent."""
+        self._stopping.set()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(timeout=5.0)
+        self._thread = None
+        self._state = STOPPED
+        self._message = "stopped"
+
+    def close(self) -> None:
+        self.stop()
+        if self._serial is not None:
+            _close_quietly(self._serial)
+            self._serial = None
+
+    def _run(self) -> None:
+        while not self._stopping.is_set():
+            try:
+                self._step()
+            except _Stop:
+                break
+            except Exception as e:  # a bug or an odd device must not end the session
+                log.exception("IMU reader")
+                self._lose(f"reader error: {e}")
+                self._stopping.wait(0.1)
+
+    def _step(self) -> None:
+        import serial
+
+        if self._serial is None:
+            self._retry()
+            return
+        try:
+            waiting = self._serial.in_waiting
+            chunk = self._serial.read(waiting if waiting > 0 else 1)
+        except (serial.SerialException, OSError, TypeError) as e:
+            # TypeError: pyserial reading a port closed under it
+            self._lose(f"port vanished ({_reason(e)})")
+            return
+        t = now_ns()
+        if chunk:
+            if self.raw_sink is not None:
+                self.raw_sink(chunk)
+            for msg in self._parser.feed(chunk):
+                self._on_message(msg, t)
+        last = max(self._last_sample_ns or 0, self._started_ns)  # started: (re)connected
+        if t - last > self.silence_ns:
+            self._lose(f"silent for {(t - last) * 1e-9:.1f} s")
+        self._count_problems(t)
+
+    def _lose(self, reason: str) -> None:
+        t = now_ns()
+        if self._state != LOST:
+            self._state = LOST
+            self._lost_at_ns = t
+            self._event("lost", f"IMU lost: {reason}", t, reason=reason, port=self.port,
+                        last_sample_ns=self._last_sample_ns)
+        self._message = f"lost: {reason}; retrying {self.port}"
+        if self._serial is not None:
+            _close_quietly(self._serial)
+            self._serial = None
+        self._parser.clear()
+        self._next_retry_ns = t + self.retry_ns // 2
+
+    def _retry(self) -> None:
+        t = now_ns()
+        if t < self._next_retry_ns:
+            self._stopping.wait(min(0.05, (self._next_retry_ns - t) * 1e-9))
+            return
+        self._next_retry_ns = t + self.retry_ns
+        try:
+            self._connect()
+        except DeviceError as e:
+            log.debug("IMU reconnect: %s", e)
+            self._message = f"lost: {e}; retrying"
+            return
+        # Connected and measuring: "reconnected" when the first sample arrives.
+        self._started_ns = now_ns()
+
+    def _on_message(self, msg: xbus.Message, t: int) -> None:
+        if msg.mid == MID.MTDATA2 and msg.mtdata2 is not None:
+            self._on_sample(msg, msg.mtdata2, t)
+        elif msg.mid == MID.ERROR:
+            self.device_errors += 1
+            code = msg.data[0] if msg.data else 0
+            self._event("device_error", f"IMU sent {xbus.error_text(code)}", t, code=code)
+        elif msg.mid == MID.WAKEUP:
+            self._event("device_restarted", "IMU restarted (WakeUp) while streaming", t)
+
+    def _on_sample(self, msg: xbus.Message, data: xbus.MTData2, t: int) -> None:
+        values = data.values
+        if self._state == LOST:
+            self._reconnected(t)
+        counter = values.get("packet_counter")
+        if counter is not None:
+            if self._last_counter is not None:
+                missing = (counter - self._last_counter - 1) & 0xFFFF
+                if 0 < missing < 0x8000:  # a larger step is a restarted counter
+                    self.missing_packets += missing
+                    self._count("missing_packets", missing, t)
+            self._last_counter = counter
+        # The device took the sample before sending it: remove the wire time.
+        t_sent = t - xbus.wire_time_ns(len(msg.data) + (5 if len(msg.data) < 255 else 7),
+                                       self.baudrate)
+        stf = values.get("sample_time_fine")
+        if stf is not None:
+            resets = self.clock.resets
+            time_ns = self.clock.update(stf, t_sent)
+            if self.clock.resets != resets:
+                self._event("clock_reset", "IMU clock jumped or restarted: refitting", t)
+        else:
+            time_ns = t_sent
+        self._last_sample_ns = t
+        self._deliver(_sample(values, data.coordinate_systems, t, time_ns))
+
+    def _reconnected(self, t: int) -> None:
+        lost_at = self._lost_at_ns or t
+        last = self._last_sample_ns if self._last_sample_ns is not None else lost_at
+        gap_s = (t - last) * 1e-9
+        self.reconnects += 1
+        self._state = OK
+        self._message = f"streaming from {self.port}"
+        self._event("reconnected", f"IMU back after a gap of {gap_s:.2f} s", t,
+                    gap_s=gap_s, gap_start_ns=last, gap_end_ns=t, port=self.port)
+
+    # ---- problems and status ----------------------------------------------------------
+
+    def _count(self, kind: str, n: int, t: int) -> None:
+        """Report a repeated problem at most once a second, with its count."""
+        self._last_problem_ns = t
+        pending = self._pending.setdefault(kind, [0, 0])
+        pending[1] += n
+        if t - pending[0] >= _EVENT_INTERVAL_NS:
+            self._flush_count(kind, t)
+
+    def _flush_count(self, kind: str, t: int) -> None:
+        pending = self._pending[kind]
+        count, pending[1], pending[0] = pending[1], 0, t
+        text = {"missing_packets": "packets missing (packet counter gaps)",
+                "checksum_error": "messages with a bad checksum",
+                "resync": "resynchronisations on the byte stream",
+                "drop": "samples dropped: the consumer is too slow"}[kind]
+        self._event(kind, f"IMU: {count} {text}", t, count=count)
+
+    def _count_problems(self, t: int) -> None:
+        now = {"checksum_errors": self._parser.checksum_errors,
+               "resyncs": self._parser.resyncs, "dropped": self._buffer.dropped}
+        for key, kind in (("checksum_errors", "checksum_error"), ("resyncs", "resync"),
+                          ("dropped", "drop")):
+            new = now[key] - self._seen[key]
+            if new > 0:
+                self._seen[key] = now[key]
+                self._count(kind, new, t)
+        for kind, (last, count) in self._pending.items():
+            if count and t - last >= _EVENT_INTERVAL_NS:
+                self._flush_count(kind, t)
+
+    def status(self) -> DeviceStatus:
+        t = now_ns()
+        state = self._state
+        measured = self._measured_rate()
+        if state == OK and (t - self._last_problem_ns < 2_000_000_000 or
+                            (t - self._started_ns > 2_500_000_000 and
+                             measured < 0.9 * self.configured_rate_hz)):
+            state = DEGRADED
+        clock = self.clock.state()
+        return DeviceStatus(
+            backend=self.backend, state=state, message=self._message,
+            configured_rate_hz=self.configured_rate_hz, measured_rate_hz=measured,
+            delivered=self.delivered, dropped=self._buffer.dropped,
+            errors=self._parser.checksum_errors + self.missing_packets,
+            details={
+                "device_id": self.info.get("device_id", ""),
+                "product_code": self.info.get("product_code", ""),
+                "firmware": self.info.get("firmware", ""),
+                "port": self.port,
+                "offset_ms": clock.offset_ms, "drift_ppm": clock.drift_ppm,
+                "residual_ms": clock.residual_ms, "clock_resets": clock.resets,
+                "missing_packets": self.missing_packets,
+                "checksum_errors": self._parser.checksum_errors,
+                "resyncs": self._parser.resyncs, "unknown_ids": self._parser.unknown_ids,
+                "device_errors": self.device_errors, "reconnects": self.reconnects,
+            })
+
+
+class EmulatedImu(XbusImu):
+    """The mock backend: the Xbus driver against an ImuEmulator on a pty it owns."""
+
+    backend = "mock"
+
+    def __init__(self, rate_hz: int = 100, drift_ppm: float = 0.0, jitter_ms: float = 0.0,
+                 seed: int = 0, orientation_at: Callable[[float], np.ndarray] | None = None,
+                 noise: bool = True, baudrate: int = 115200, **driver: Any) -> None:
+        from devices.imu_emulator import ImuEmulator
+
+        self.emulator = ImuEmulator(rate_hz=rate_hz, drift_ppm=drift_ppm, jitter_ms=jitter_ms,
+                                    seed=seed, orientation_at=orientation_at, noise=noise,
+                                    baudrate=baudrate)
+        port = self.emulator.start()
+        try:
+            super().__init__(port, baudrate, rate_hz, **driver)
+        except BaseException:
+            self.emulator.stop()
+            raise
+
+    @classmethod
+    def from_config(cls, config: Any, orientation_at=None) -> "EmulatedImu":
+        return cls(rate_hz=getattr(config, "rate_hz", 100),
+                   drift_ppm=getattr(config, "drift_ppm", 0.0),
+                   jitter_ms=getattr(config, "jitter_ms", 0.0),
+                   seed=getattr(config, "seed", 0), orientation_at=orientation_at,
+                   baudrate=getattr(config, "baudrate", 115200))
+
+    def true_time_ns(self, sample_time_fine: int) -> int:
+        """When the emulator really took that sample (for sync-accuracy checks)."""
+        return self.emulator.true_time_ns(sample_time_fine)
+
+    def close(self) -> None:
+        super().close()
+        self.emulator.stop()
+
+
+# ---- helpers ------------------------------------------------------------------------------
+
+def _sample(values: dict[str, Any], systems: dict[str, str], host_ns: int,
+            time_ns: int) -> ImuSample:
+    extra = {k: _plain(v) for k, v in values.items()
+             if k not in ("packet_counter", "sample_time_fine", "quaternion", "status_word",
+                          *_VECTOR_OUTPUTS)}
+    return ImuSample(
+        host_time_ns=host_ns, time_ns=int(time_ns),
+        packet_counter=values.get("packet_counter"),
+        sample_time_fine=values.get("sample_time_fine"),
+        quaternion=_orientation(values, systems),
+        acceleration=np.array(values["acceleration"]) if "acceleration" in values else None,
+        rate_of_turn=np.array(values["rate_of_turn"]) if "rate_of_turn" in values else None,
+        status_word=values.get("status_word"),
+        extra=extra,
+    )
+
+
+def _orientation(values: dict[str, Any], systems: dict[str, str]) -> np.ndarray | None:
+    """Sensor -> ENU quaternion from whichever orientation output the device sent."""
+    if "quaternion" in values:
+        q, name = np.array(values["quaternion"], dtype=np.float64), "quaternion"
+    elif "rotation_matrix" in values:
+        q, name = matrix_to_quat(np.array(values["rotation_matrix"])), "rotation_matrix"
+    elif "euler" in values:
+        q, name = quat_from_euler(*np.radians(values["euler"])), "euler"
+    else:
+        return None
+    norm = np.linalg.norm(q)
+    if not np.isfinite(norm) or norm < 1e-6:
+        return None
+    system = systems.get(name, "ENU")
+    if system != "ENU":
+        q = quat_multiply(_FRAME_TO_ENU[system], q)
+    return quat_normalize(q)
+
+
+def _plain(value: Any) -> Any:
+    """JSON-friendly: tuples to lists, recursively."""
+    if isinstance(value, tuple):
+        return [_plain(v) for v in value]
+    return value
+
+
+def _firmware_text(data: bytes) -> str:
+    if len(data) < 3:
+        return data.hex()
+    text = f"{data[0]}.{data[1]}.{data[2]}"
+    if len(data) >= 11:
+        build, revision = int.from_bytes(data[3:7], "big"), int.from_bytes(data[7:11], "big")
+        text += f" build {build} rev {revision}"
+    return text
+
+
+def _request_name(mid: int, data: bytes) -> str:
+    names = {MID.REQ_DID: "ReqDID", MID.REQ_PRODUCT_CODE: "ReqProductCode",
+             MID.REQ_FW_REV: "ReqFWRev", MID.GOTO_CONFIG: "GoToConfig",
+             MID.GOTO_MEASUREMENT: "GoToMeasurement", MID.RESET: "Reset",
+             MID.SET_OUTPUT_CONFIGURATION: "SetOutputConfiguration" if data
+             else "ReqOutputConfiguration"}
+    return names.get(mid, xbus.mid_name(mid))
+
+
+def _reason(e: BaseException) -> str:
+    if isinstance(e, OSError) and e.strerror:
+        return e.strerror
+    return str(e) or type(e).__name__
+
+
+def _close_quietly(ser) -> None:
+    try:
+        ser.close()
+    except Exception:  # the port may already be gone
+        pass

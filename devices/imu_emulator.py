@@ -1,0 +1,520 @@
+"""An Xsens-style IMU on a pseudo-terminal: the mock backend is the real driver against this.
+
+The emulator is the device side of a serial line. It opens a pty, points a stable path
+(a symlink in a temporary folder) at the slave end, and speaks Xbus on the master end:
+it answers configuration messages as an MTi does, streams MTData2 at the configured rate
+from its own clock (which drifts against the host's by `drift_ppm`), paces each message
+by its wire time at `baudrate` plus random transmit jitter, and injects faults on command.
+Unplugging removes the symlink and closes the pty; replugging opens a new pty and
+re-points the symlink, as udev would, so the driver reopens the same path.
+
+Its orientation comes from `orientation_at(t)` (seconds since start -> [w, x, y, z],
+sensor -> world (ENU)): the simulated walk's thigh when the mock camera runs, else a
+simple gait-like swing. Acceleration is gravity in the sensor frame, rate of turn the
+orientation's derivative, both with noise and bias.
+
+Runs in a daemon thread of the calling process (tests, the mock backend) or standalone
+(`walkcap imu emulate`).
+"""
+from __future__ import annotations
+
+import collections
+import errno
+import fcntl
+import logging
+import os
+import queue
+import select
+import shutil
+import struct
+import tempfile
+import threading
+import tty
+from typing import Callable
+
+import numpy as np
+
+from devices import xbus
+from devices.clock import now_ns
+from devices.rotations import (matrix_to_quat, quat_conjugate, quat_from_euler, quat_multiply,
+                               quat_normalize, quat_to_euler, quat_to_matrix)
+from devices.xbus import MID
+
+log = logging.getLogger(__name__)
+
+GRAVITY = 9.81  # m/s^2
+MAX_RATE_HZ = 400
+MAGNETIC_FIELD_ENU = np.array([0.0, 0.42, -0.91])  # arbitrary units: north and down
+FAULTS = ("corrupt", "drop", "hang", "disconnect", "reconnect")
+_COUNTERS = frozenset({"packet_counter", "sample_time_fine", "sample_time_coarse", "status_word"})
+# Requests a device in measurement mode accepts; the rest need GoToConfig first.
+_MEASUREMENT_OK = frozenset({MID.GOTO_CONFIG, MID.GOTO_MEASUREMENT, MID.RESET, MID.REQ_DID,
+                             MID.WAKEUP_ACK})
+_SPIN_NS = 300_000  # the last moments before a send are waited for by spinning
+_BAUD_CODE = {baud: code for code, baud in sorted(xbus.BAUD_CODES.items(), reverse=True)}
+
+
+def gait_orientation(t: float) -> np.ndarray:
+    """A thigh swinging at 0.9 Hz: pitch about -5 +- 25 degrees, a little roll."""
+    phase = 2 * np.pi * 0.9 * t
+    flexion = np.radians(5.0 + 25.0 * np.sin(phase) + 3.0 * np.sin(2 * phase))
+    roll = np.radians(2.0 * np.sin(phase))
+    return quat_from_euler(roll, -flexion, 0.0)
+
+
+class ImuEmulator:
+    """An MTi on a pty. `start()` returns the port path; see the module docstring."""
+
+    def __init__(self, rate_hz: int = 100, drift_ppm: float = 0.0, jitter_ms: float = 0.0,
+                 seed: int = 0, orientation_at: Callable[[float], np.ndarray] | None = None,
+                 noise: bool = True, *, baudrate: int = 115200, start_ticks: int | None = None,
+                 device_id: int = 0x03881234, product_code: str = "MTi-3-8A7G6",
+                 firmware: tuple[int, int, int] = (1, 8, 2), wakeup_s: float = 0.5) -> None:
+        if not 1 <= rate_hz <= MAX_RATE_HZ:
+            raise ValueError(f"IMU emulator rate {rate_hz} Hz: must be 1..{MAX_RATE_HZ}")
+        self.rate_hz = int(rate_hz)
+        self.drift_ppm = float(drift_ppm)
+        self.jitter_ms = float(jitter_ms)
+        self.baudrate = baudrate
+        self.noise = noise
+        self.device_id = device_id
+        self.product_code = product_code
+        self.firmware = firmware
+        self.wakeup_s = wakeup_s
+        self.orientation_at = orientation_at or gait_orientation
+        self._rng = np.random.default_rng(seed)
+        self._start_ticks = int(self._rng.integers(0, 2 ** 32)) if start_ticks is None \
+            else start_ticks % 2 ** 32
+        self._gyro_bias = self._rng.normal(0.0, 0.003, 3) if noise else np.zeros(3)
+        self._accel_bias = self._rng.normal(0.0, 0.02, 3) if noise else np.zeros(3)
+        self._outputs = xbus.output_settings(xbus.DEFAULT_OUTPUTS, self.rate_hz)
+        self._commands: queue.SimpleQueue = queue.SimpleQueue()
+        self._lock = threading.Lock()
+        self._thread: threading.Thread | None = None
+        self._stopping = threading.Event()
+        self._dir: str | None = None
+        self.port: str | None = None
+        self._master: int | None = None
+        self._slave: int | None = None
+        self._queue: collections.deque[tuple[int, bytes]] = collections.deque()  # (send at, bytes)
+        self._out = bytearray()  # bytes due but not yet taken by the pty
+        self.sent = 0  # MTData2 messages written
+        self.dropped_on_wire = 0  # bytes lost because nobody read the pty
+        self.requests: list[int] = []  # MIDs received, for tests and `--verbose`
+
+    # ---- life cycle -------------------------------------------------------------------
+
+    def start(self) -> str:
+        """Power up, plug in, start streaming; returns the stable port path."""
+        if self._thread is not None:
+            return self.port  # type: ignore[return-value]
+        self._dir = tempfile.mkdtemp(prefix="walkcap-imu-")
+        self.port = os.path.join(self._dir, "ttyIMU")
+        self._t0 = now_ns()
+        self._epoch_ticks = self._start_ticks  # device ticks at _t0
+        self._power_up(self._t0)
+        self._plug()
+        self._thread = threading.Thread(target=self._run, name="walkcap-imu-emulator",
+                                        daemon=True)
+        self._thread.start()
+        return self.port
+
+    def stop(self) -> None:
+        self._stopping.set()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(timeout=2.0)
+        self._unplug()
+        if self._dir is not None:
+            shutil.rmtree(self._dir, ignore_errors=True)
+            self._dir = None
+
+    def __enter__(self) -> "ImuEmulator":
+        self.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    def inject(self, fault: str, **kw) -> None:
+        """Inject a fault: "corrupt" (count=1: flip a byte in the next messages; garbage=b""
+        to send bytes first), "drop" (count=1 samples not sent), "hang" (seconds=2.0 of
+        silence, requests ignored), "disconnect" (seconds=None: unplug, replug after that
+        long if given), "reconnect" (power_cycle=False: plug in again; with a power cycle
+        the device restarts its clock and counter and wakes up)."""
+        if fault not in FAULTS:
+            raise ValueError(f"unknown fault {fault!r} (known: {', '.join(FAULTS)})")
+        done = threading.Event()
+        self._commands.put((fault, kw, done))
+        if self._thread is not None and self._thread.is_alive():
+            done.wait(2.0)
+
+    # ---- time -------------------------------------------------------------------------
+
+    def _ticks_at(self, t_ns: int) -> float:
+        """Device clock (SampleTimeFine ticks, unwrapped) at a session time."""
+        return self._epoch_ticks + (t_ns - self._t0) * (1 + self.drift_ppm * 1e-6) / 1e5
+
+    def _time_of_ticks(self, ticks: float) -> int:
+        return self._t0 + round((ticks - self._epoch_ticks) * 1e5 / (1 + self.drift_ppm * 1e-6))
+
+    def true_time_ns(self, sample_time_fine: int) -> int:
+        """When the emulator took the sample stamped sample_time_fine (session clock)."""
+        now_ticks = self._ticks_at(now_ns())
+        wraps = round((now_ticks - sample_time_fine) / 2 ** 32)
+        return self._time_of_ticks(sample_time_fine + wraps * 2 ** 32)
+
+    # ---- the device -------------------------------------------------------------------
+
+    def _power_up(self, t: int, restart_clock: bool = False) -> None:
+        if restart_clock:  # a real power cycle: clock and counter start again
+            self._t0, self._epoch_ticks = t, 0
+        self._counter = 0
+        self._measuring = False
+        self._wakeup_until = t + int(self.wakeup_s * 1e9)
+        self._next_wakeup = t
+        self._hang_until = 0
+        self._corrupt = 0
+        self._garbage = b""
+        self._drop = 0
+        self._reconnect_at: int | None = None
+        self._queue = collections.deque()
+        self._out = bytearray()
+        self._last_send = t
+
+    def _start_measurement(self, t: int) -> None:
+        self._measuring = True
+        self._wakeup_until = 0
+        rates = [s.rate_hz for s in self._outputs if s.name not in _COUNTERS]
+        rates = [MAX_RATE_HZ if r == xbus.EVERY_PACKET else r for r in rates]
+        self._rate = max(rates) if rates else MAX_RATE_HZ
+        self._period_ticks = 10_000 / self._rate
+        self._meas_ticks0 = int(self._ticks_at(t)) + 1  # the next tick
+        self._sample_index = 0
+
+    def _plug(self) -> None:
+        master, slave = os.openpty()
+        tty.setraw(slave)  # no echo, no line editing: a binary serial line
+        flags = fcntl.fcntl(master, fcntl.F_GETFL)
+        fcntl.fcntl(master, fcntl.F_SETFL, flags | os.O_NONBLOCK)
+        self._master, self._slave = master, slave
+        tmp = self.port + ".new"
+        if os.path.lexists(tmp):
+            os.unlink(tmp)
+        os.symlink(os.ttyname(slave), tmp)
+        os.replace(tmp, self.port)  # atomic: the path always points at a whole device
+        self._parser = xbus.XbusParser()
+        log.info("IMU emulator plugged in at %s -> %s", self.port, os.ttyname(slave))
+
+    def _unplug(self) -> None:
+        if self.port and os.path.lexists(self.port):
+            os.unlink(self.port)
+        for fd in (self._master, self._slave):
+            if fd is not None:
+                try:
+                    os.close(fd)
+                except OSError:
+                    pass
+        self._master = self._slave = None
+        self._queue.clear()
+        self._out.clear()
+
+    @property
+    def plugged(self) -> bool:
+        return self._master is not None
+
+    def _run(self) -> None:
+        try:
+            while not self._stopping.is_set():
+                self._step()
+        except Exception:  # the device dies, the process must not
+            log.exception("IMU emulator stopped")
+
+    def _step(self) -> None:
+        t = now_ns()
+        self._flush(t)  # first: what is due goes out before any other work
+        while not self._commands.empty():
+            fault, kw, done = self._commands.get()
+            try:
+                self._apply_fault(fault, kw, t)
+            finally:
+                done.set()
+        if self._reconnect_at is not None and t >= self._reconnect_at:
+            self._apply_fault("reconnect", {}, t)
+        hung = t < self._hang_until
+        if self._measuring and not hung:
+            self._take_samples(t)
+        if self.plugged and not self._measuring and t < self._wakeup_until and \
+                t >= self._next_wakeup:
+            # An MTi announces itself once; repeating it lets a host that opens late see it.
+            self._send_now(xbus.build(MID.WAKEUP), t)
+            self._next_wakeup = t + 100_000_000
+        elif self._wakeup_until and t >= self._wakeup_until and not self._measuring:
+            self._start_measurement(t)  # no WakeUpAck: measure with the stored settings
+        self._flush(t)
+        timeout = 0.02
+        if self._queue:
+            due = self._queue[0][0]
+            # select() wakes up late by the timer slack and more: wake early, then spin.
+            if due - now_ns() < _SPIN_NS:
+                while now_ns() < due:
+                    pass
+                return
+            timeout = min(timeout, (due - now_ns() - _SPIN_NS) * 1e-9)
+        if self._measuring:
+            next_ticks = self._meas_ticks0 + self._sample_index * self._period_ticks
+            wait = (self._time_of_ticks(next_ticks) - now_ns()) * 1e-9
+            timeout = min(timeout, max(0.0, wait))
+        if self.plugged:
+            try:
+                readable, _, _ = select.select([self._master], [], [], timeout)
+            except (OSError, ValueError):
+                return
+            if readable:
+                self._read(hung)
+        else:
+            self._stopping.wait(timeout)
+
+    def _read(self, hung: bool) -> None:
+        try:
+            data = os.read(self._master, 4096)
+        except OSError as e:
+            if e.errno not in (errno.EAGAIN, errno.EIO):
+                raise
+            return
+        if hung:
+            return  # a hung device does not read its UART
+        for msg in self._parser.feed(data):
+            self.requests.append(msg.mid)
+            del self.requests[:-200]
+            self._handle(msg, now_ns())
+
+    # ---- samples ----------------------------------------------------------------------
+
+    def _take_samples(self, t: int) -> None:
+        while True:
+            ticks = self._meas_ticks0 + round(self._sample_index * self._period_ticks)
+            taken_at = self._time_of_ticks(ticks)
+            if taken_at > t:
+                return
+            index = self._sample_index
+            self._sample_index += 1
+            if taken_at < self._hang_until:
+                continue  # hung: the sample was never taken
+            counter = self._counter
+            self._counter = (self._counter + 1) & 0xFFFF
+            if self._drop > 0:
+                self._drop -= 1
+                continue
+            if not self.plugged:
+                continue
+            payload = self._mtdata2(index, counter, ticks, taken_at)
+            frame = bytearray(xbus.build(MID.MTDATA2, payload))
+            if self._corrupt > 0:
+                self._corrupt -= 1
+                frame[len(frame) // 2] ^= 0xA5
+            if self._garbage:
+                frame[:0] = self._garbage
+                self._garbage = b""
+            jitter = self._rng.uniform(0, self.jitter_ms * 1e6) if self.jitter_ms > 0 else 0
+            send_at = taken_at + xbus.wire_time_ns(len(frame), self.baudrate) + int(jitter)
+            send_at = max(send_at, self._last_send)  # a UART never reorders
+            self._last_send = send_at
+            self._queue.append((send_at, bytes(frame)))
+            self.sent += 1
+
+    def _mtdata2(self, index: int, counter: int, ticks: int, taken_at: int) -> bytes:
+        t = (taken_at - self._t0) * 1e-9
+        dt = 1.0 / self._rate
+        q = quat_normalize(np.asarray(self.orientation_at(t), dtype=np.float64))
+        rot = quat_to_matrix(q)
+        rng = self._rng
+        noisy = self.noise
+
+        def noise(sigma: float, n: int = 3) -> np.ndarray:
+            return rng.normal(0.0, sigma, n) if noisy else np.zeros(n)
+
+        accel = rot.T @ np.array([0.0, 0.0, GRAVITY]) + self._accel_bias + noise(0.03)
+        h = 0.002  # body rate from the orientation's central difference
+        q_a = quat_normalize(np.asarray(self.orientation_at(t - h), dtype=np.float64))
+        q_b = quat_normalize(np.asarray(self.orientation_at(t + h), dtype=np.float64))
+        dq = quat_multiply(quat_conjugate(q_a), q_b)
+        if dq[0] < 0:
+            dq = -dq
+        gyro = dq[1:] / h + self._gyro_bias + noise(0.004)  # 2 * vec / (2 h)
+        values: dict[str, object] = {}
+        encodings: dict[str, tuple[int, str]] = {}  # name -> (precision, coordinate system)
+        for setting in self._outputs:
+            name = setting.name
+            if name not in _COUNTERS and setting.rate_hz != xbus.EVERY_PACKET and \
+                    index % max(1, self._rate // setting.rate_hz):
+                continue
+            system = xbus.COORDINATE_SYSTEMS.get(setting.xdi & 0xC, "ENU")
+            encodings[name] = (setting.xdi & 0x3, system)
+            to_frame = np.array(xbus.FRAME_FROM_ENU[system], dtype=np.float64)
+            if name == "packet_counter":
+                values[name] = counter
+            elif name == "sample_time_fine":
+                values[name] = ticks % 2 ** 32
+            elif name == "sample_time_coarse":
+                values[name] = (ticks // 10_000) % 2 ** 32
+            elif name == "status_word":
+                values[name] = 0b11  # self-test ok, filter valid
+            elif name == "quaternion":
+                values[name] = tuple(quat_multiply(matrix_to_quat(to_frame), q))
+            elif name == "rotation_matrix":
+                values[name] = tuple(map(tuple, to_frame @ rot))
+            elif name == "euler":
+                values[name] = tuple(np.degrees(quat_to_euler(matrix_to_quat(to_frame @ rot))))
+            elif name == "acceleration":
+                values[name] = tuple(accel)
+            elif name == "free_acceleration":
+                values[name] = tuple(to_frame @ (rot @ (accel - self._accel_bias)
+                                                 - [0.0, 0.0, GRAVITY]))
+            elif name == "delta_v":
+                values[name] = tuple(accel * dt)
+            elif name == "rate_of_turn":
+                values[name] = tuple(gyro)
+            elif name == "delta_q":
+                q_prev = quat_normalize(np.asarray(self.orientation_at(t - dt), dtype=np.float64))
+                d = quat_multiply(quat_conjugate(q_prev), q)
+                values[name] = tuple(d if d[0] >= 0 else -d)
+            elif name == "magnetic_field":
+                values[name] = tuple(rot.T @ MAGNETIC_FIELD_ENU + noise(0.01))
+            elif name == "temperature":
+                values[name] = 31.0 + float(noise(0.05, 1)[0])
+            elif name == "baro_pressure":
+                values[name] = int(101325 + noise(2.0, 1)[0])
+        return b"".join(xbus.encode_packet(name, value, *encodings[name])
+                        for name, value in values.items())
+
+    # ---- the wire ---------------------------------------------------------------------
+
+    def _send_now(self, frame: bytes, t: int) -> None:
+        send_at = max(t + xbus.wire_time_ns(len(frame), self.baudrate), self._last_send)
+        self._last_send = send_at
+        self._queue.append((send_at, frame))
+
+    def _flush(self, t: int) -> None:
+        while self._queue and self._queue[0][0] <= t:
+            self._out += self._queue.popleft()[1]
+        if not self._out or not self.plugged:
+            return
+        try:
+            n = os.write(self._master, self._out)
+            del self._out[:n]
+        except OSError as e:
+            if e.errno not in (errno.EAGAIN, errno.EIO):
+                raise
+        if len(self._out) > 65536:  # nobody reads: the bytes are lost, as on a UART
+            self.dropped_on_wire += len(self._out)
+            self._out.clear()
+
+    # ---- requests ---------------------------------------------------------------------
+
+    def _reply(self, mid: int, data: bytes, t: int) -> None:
+        self._send_now(xbus.build(mid, data), t)
+
+    def _error(self, code: int, t: int) -> None:
+        self._reply(MID.ERROR, bytes([code]), t)
+
+    def _handle(self, msg: xbus.Message, t: int) -> None:
+        mid, data = msg.mid, msg.data
+        if mid == MID.WAKEUP_ACK:
+            if self._wakeup_until and t < self._wakeup_until:
+                self._wakeup_until = 0  # stay in configuration
+            return
+        if self._measuring and mid not in _MEASUREMENT_OK:
+            self._error(xbus.INVALID_MESSAGE, t)
+            return
+        no_data = {MID.GOTO_CONFIG: MID.GOTO_CONFIG_ACK, MID.GOTO_MEASUREMENT:
+                   MID.GOTO_MEASUREMENT_ACK, MID.REQ_DID: MID.DEVICE_ID,
+                   MID.INIT_MT: MID.INIT_MT_RESULTS, MID.REQ_FW_REV: MID.FIRMWARE_REV,
+                   MID.REQ_PRODUCT_CODE: MID.PRODUCT_CODE, MID.RESET: MID.RESET_ACK}
+        if mid in no_data and data:
+            self._error(xbus.INVALID_MESSAGE, t)  # these requests carry no data
+            return
+        if mid == MID.GOTO_CONFIG:
+            self._measuring = False
+            self._wakeup_until = 0
+            self._reply(MID.GOTO_CONFIG_ACK, b"", t)
+        elif mid == MID.GOTO_MEASUREMENT:
+            self._reply(MID.GOTO_MEASUREMENT_ACK, b"", t)
+            self._start_measurement(t)
+        elif mid in (MID.REQ_DID, MID.INIT_MT):
+            self._reply(no_data[mid], struct.pack(">I", self.device_id), t)
+        elif mid == MID.REQ_FW_REV:
+            major, minor, rev = self.firmware
+            self._reply(MID.FIRMWARE_REV, struct.pack(">BBBII", major, minor, rev, 42, 7031), t)
+        elif mid == MID.REQ_PRODUCT_CODE:
+            self._reply(MID.PRODUCT_CODE, self.product_code.encode("ascii"), t)
+        elif mid == MID.REQ_BAUDRATE:
+            self._baudrate_request(data, t)
+        elif mid == MID.SET_OUTPUT_CONFIGURATION:
+            self._output_configuration(data, t)
+        elif mid == MID.RESET:
+            self._reply(MID.RESET_ACK, b"", t)
+            queued, last = self._queue, self._last_send
+            self._power_up(t)
+            self._queue, self._last_send = queued, last  # the ack still goes out
+        else:  # ReqConfiguration (legacy MTi) and anything unknown
+            self._error(xbus.INVALID_MESSAGE, t)
+
+    def _baudrate_request(self, data: bytes, t: int) -> None:
+        if not data:
+            self._reply(MID.REQ_BAUDRATE_ACK, bytes([_BAUD_CODE.get(self.baudrate, 0x02)]), t)
+        elif len(data) == 1 and data[0] in xbus.BAUD_CODES:
+            self._reply(MID.REQ_BAUDRATE_ACK, b"", t)  # effective after a reset
+        elif len(data) == 1:
+            self._error(xbus.INVALID_BAUDRATE, t)
+        else:
+            self._error(xbus.INVALID_MESSAGE, t)
+
+    def _output_configuration(self, data: bytes, t: int) -> None:
+        if not data:
+            self._reply(MID.OUTPUT_CONFIGURATION, xbus.encode_output_configuration(self._outputs), t)
+            return
+        try:
+            settings = xbus.decode_output_configuration(data)
+        except ValueError:
+            self._error(xbus.INVALID_MESSAGE, t)
+            return
+        rates = []
+        for s in settings:
+            known = xbus.OUTPUTS.get(s.xdi & 0xFFF0)
+            if known is None or (s.xdi & 0xC) not in xbus.COORDINATE_SYSTEMS:
+                self._error(xbus.INVALID_PARAMETER, t)
+                return
+            if s.rate_hz != xbus.EVERY_PACKET and s.name not in _COUNTERS:
+                rates.append(s.rate_hz)
+        if any(not 1 <= r <= MAX_RATE_HZ or MAX_RATE_HZ % r for r in rates):
+            self._error(xbus.INVALID_PERIOD, t)
+            return
+        top = max(rates, default=MAX_RATE_HZ)
+        if any(top % r for r in rates):
+            self._error(xbus.INVALID_PERIOD, t)
+            return
+        self._outputs = settings
+        self._reply(MID.OUTPUT_CONFIGURATION, xbus.encode_output_configuration(settings), t)
+
+    # ---- faults -----------------------------------------------------------------------
+
+    def _apply_fault(self, fault: str, kw: dict, t: int) -> None:
+        log.info("IMU emulator fault: %s %s", fault, kw)
+        if fault == "corrupt":
+            self._corrupt += int(kw.get("count", 1))
+            self._garbage += bytes(kw.get("garbage", b""))
+        elif fault == "drop":
+            self._drop += int(kw.get("count", 1))
+        elif fault == "hang":
+            self._hang_until = t + int(float(kw.get("seconds", 2.0)) * 1e9)
+            self._queue.clear()
+        elif fault == "disconnect":
+            self._unplug()
+            seconds = kw.get("seconds")
+            self._reconnect_at = t + int(float(seconds) * 1e9) if seconds is not None else None
+        elif fault == "reconnect":
+            self._reconnect_at = None
+            if not self.plugged:
+                self._plug()
+            if kw.get("power_cycle"):
+                self._power_up(t, restart_clock=True)
