@@ -1,28 +1,253 @@
-"""The Textual application (placeholder screen until the [tui] issue lands)."""
+"""The Textual application: opens the session, shows the form and the live screen.
+
+The session (devices, pipeline, recorder) runs on its own threads. Everything that may
+take time (opening devices, loading the model, starting or finalising a recording,
+stopping) runs in a thread worker that reports back with a message (tui/messages.py),
+so the UI never waits and a key is handled, and a label stamped, at once.
+"""
 from __future__ import annotations
 
-from textual.app import App, ComposeResult
-from textual.widgets import Footer, Header, Static
+import dataclasses
+import logging
+from collections.abc import Callable
+from pathlib import Path
+
+from textual import work
+from textual.app import App
+from textual.reactive import reactive
 
 from capture.config import Config
+from capture.session import SubjectInfo
+from tui import messages
+from tui.live_screen import LiveScreen
+from tui.session_screen import SessionScreen, load_last_session, save_last_session
+from tui.widgets.quit_dialog import QuitDialog
+from tui.widgets.recording_panel import human_bytes
+
+log = logging.getLogger(__name__)
+
+
+def default_session_factory(config: Config):
+    from capture.session import Session
+
+    return Session(config)
+
+
+def describe_error(e: BaseException) -> str:
+    """One line for the operator; our own errors carry a message meant to be read as is."""
+    from capture.errors import CaptureError
+    from devices.errors import DeviceError
+    from inference.errors import InferenceError
+
+    if isinstance(e, (CaptureError, DeviceError, InferenceError)):
+        return str(e)
+    if isinstance(e, OSError) and e.strerror:
+        return f"{e.strerror}{': ' + str(e.filename) if e.filename else ''}"
+    return f"{type(e).__name__}: {e}"
+
+
+def keymap(config: Config) -> dict[str, str]:
+    """config.keys -> Textual keymap over the live screen's binding ids."""
+    return {f"walkcap.{name}": value for name, value in dataclasses.asdict(config.keys).items() if value}
 
 
 class WalkcapApp(App):
     TITLE = "walkcap"
-    BINDINGS = [("q", "quit", "Quit")]
+    CSS_PATH = "walkcap.tcss"
+    HORIZONTAL_BREAKPOINTS = [(0, "-narrow"), (120, "-normal"), (150, "-wide")]
+    ENABLE_COMMAND_PALETTE = False
 
-    def __init__(self, config: Config | None = None) -> None:
+    status: reactive[str] = reactive("")  # starting devices… / stopping… / an error
+
+    def __init__(self, config: Config | None = None, session=None,
+                 session_factory: Callable[[Config], object] | None = None, *,
+                 subject: SubjectInfo | None = None, ask_subject: bool = True) -> None:
+        """`session`: a ready-made source (tests pass a fake); otherwise `session_factory`
+        (default: capture.session.Session) builds one from the configuration in a worker."""
         super().__init__()
         self.config = config or Config()
+        self.session = session
+        self.session_factory = session_factory or default_session_factory
+        self.subject = subject or load_last_session()
+        self.ask_subject = ask_subject
+        self.ready = False  # the session started: snapshots and commands go to it
+        self.status_is_error = False
+        self.recording_path: Path | None = None
+        self._busy_recording = False
+        self._quitting = False
+        self._start_failed = False
+        self.start_error: str | None = None  # why the devices did not start, for the CLI
+        self._subject_confirmed = not ask_subject
 
-    def compose(self) -> ComposeResult:
-        c = self.config
-        yield Header()
-        yield Static(
-            f"walkcap: camera [b]{c.camera.backend}[/b] at {c.camera.fps:g} fps, "
-            f"IMU [b]{c.imu.backend}[/b] at {c.imu.rate_hz} Hz, "
-            f"model {c.model.path or 'bundled'}.\n\n"
-            "The live session screen lands with the [tui] issue. Press q to quit.",
-            id="placeholder",
-        )
-        yield Footer()
+    @property
+    def source(self):
+        """What the live screen reads and commands: the session, once it runs."""
+        return self.session if self.ready else None
+
+    def on_mount(self) -> None:
+        self.set_keymap(keymap(self.config))
+        self.push_screen(LiveScreen())
+        if self.ask_subject:
+            self.push_screen(SessionScreen(self.subject), self._on_subject)
+        self._set_status("starting devices…")
+        self.start_session()
+
+    def _set_status(self, text: str, error: bool = False) -> None:
+        self.status_is_error = error
+        self.status = text
+
+    # ---- session life cycle -----------------------------------------------------------
+
+    @work(thread=True, exclusive=True, group="session")
+    def start_session(self) -> None:
+        try:
+            if self.session is None:
+                self.session = self.session_factory(self.config)
+            self.session.start()
+        except Exception as e:  # shown to the operator; the UI stays up to read it
+            log.exception("starting the session")
+            self.post_message(messages.SessionFailed(describe_error(e)))
+            return
+        self.post_message(messages.SessionStarted())
+
+    def on_session_started(self, _: messages.SessionStarted) -> None:
+        self.ready = True
+        self._set_status("")
+        if self._quitting:  # quit was asked while the devices were opening
+            self.stop_session()
+
+    def on_session_failed(self, message: messages.SessionFailed) -> None:
+        self._start_failed = True
+        self.start_error = message.error
+        self._set_status(f"device start failed: {message.error} (q quits)", error=True)
+        self.notify(message.error, title="device start failed", severity="error", timeout=30)
+        if self._quitting:
+            self.exit(return_code=1)
+
+    def request_quit(self) -> None:
+        """q: ask first while a trial records; a clean stop finalises its file."""
+        if self._quitting:
+            return  # already stopping
+        if self.session is not None and self.ready and self.session.recording:
+            self.push_screen(QuitDialog(), lambda yes: self.stop_session() if yes else None)
+        else:
+            self.stop_session()
+
+    def stop_session(self) -> None:
+        self._quitting = True
+        if self.ready:
+            self._set_status("stopping…")
+            self._stop_worker()
+        elif self._start_failed:
+            self.exit(return_code=1)
+        else:  # still opening the devices: on_session_started stops them, then we exit
+            self._set_status("quitting as soon as the devices have started…")
+
+    async def action_quit(self) -> None:
+        """ctrl+q too goes through the clean stop (and the question while recording)."""
+        self.request_quit()
+
+    @work(thread=True, exclusive=True, group="session")
+    def _stop_worker(self) -> None:
+        try:
+            stats = self.session.stop()
+        except Exception as e:
+            log.exception("stopping the session")
+            self.call_from_thread(self.notify, describe_error(e), severity="error")
+            stats = None
+        if stats is not None:
+            self.post_message(messages.RecordingStopped(stats, self.recording_path))
+        self.post_message(messages.SessionStopped())
+
+    def on_session_stopped(self, _: messages.SessionStopped) -> None:
+        self.ready = False
+        self.exit(0)
+
+    # ---- the session form -------------------------------------------------------------
+
+    def _on_subject(self, info: SubjectInfo | None) -> None:
+        if info is not None:
+            self.subject = info
+            self._subject_confirmed = True
+            self._refresh_live()
+
+    def open_session_form(self, then_record: bool = False) -> None:
+        if self.session is not None and self.ready and self.session.recording:
+            self.notify("stop the recording first (the form describes the next trial)",
+                        severity="warning", timeout=3)
+            return
+
+        def done(info: SubjectInfo | None) -> None:
+            self._on_subject(info)
+            if info is not None and then_record:
+                self.toggle_recording()
+
+        self.push_screen(SessionScreen(self.subject, can_cancel=True), done)
+
+    # ---- recording --------------------------------------------------------------------
+
+    def toggle_recording(self) -> None:
+        source = self.source
+        if source is None:
+            self.notify("the devices are not running yet", severity="warning", timeout=3)
+            return
+        if self._busy_recording:
+            return  # a start or stop is under way: one press, one action
+        if not self._subject_confirmed:
+            self.open_session_form(then_record=True)
+            return
+        self._busy_recording = True
+        if source.recording:
+            self._set_status("finalising the recording…")
+            self._stop_recording()
+        else:
+            self._start_recording(dataclasses.replace(self.subject))
+
+    @work(thread=True, group="recording")
+    def _start_recording(self, info: SubjectInfo) -> None:
+        try:
+            path = self.session.start_recording(info)
+        except Exception as e:
+            log.exception("starting a recording")
+            self.post_message(messages.RecordingFailed(describe_error(e)))
+            return
+        self.post_message(messages.RecordingStarted(Path(path)))
+
+    @work(thread=True, group="recording")
+    def _stop_recording(self) -> None:
+        try:
+            stats = self.session.stop_recording()
+        except Exception as e:
+            log.exception("stopping a recording")
+            self.post_message(messages.RecordingFailed(describe_error(e)))
+            return
+        self.post_message(messages.RecordingStopped(stats, self.recording_path))
+
+    def on_recording_started(self, message: messages.RecordingStarted) -> None:
+        self._busy_recording = False
+        self.recording_path = message.path
+        self.notify(f"recording {message.path.name}", timeout=4)
+        self._refresh_live()
+
+    def on_recording_stopped(self, message: messages.RecordingStopped) -> None:
+        self._busy_recording = False
+        self._set_status("")
+        self.recording_path = None
+        # the next trial of the same subject: advance and remember, even if the app dies now
+        self.subject = dataclasses.replace(self.subject, trial=self.subject.trial + 1)
+        save_last_session(self.subject)
+        name = message.path.name if message.path else "recording"
+        size = getattr(message.stats, "bytes_written", None) or getattr(message.stats, "bytes", None)
+        self.notify(f"saved {name}" + (f" ({human_bytes(size)})" if size else ""), timeout=6)
+        self._refresh_live()
+
+    def on_recording_failed(self, message: messages.RecordingFailed) -> None:
+        self._busy_recording = False
+        self._set_status("")
+        self.notify(message.error, title="recording", severity="error", timeout=15)
+        self._refresh_live()
+
+    def _refresh_live(self) -> None:
+        for screen in self.screen_stack:
+            if isinstance(screen, LiveScreen) and not screen.frozen:
+                screen.refresh_view()

@@ -1,0 +1,158 @@
+"""A stand-in for capture.session.Session for the UI tests: same public surface,
+deterministic snapshots built from the real dataclasses, and a record of every command."""
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+
+from capture.errors import CaptureError
+from capture.pipeline import FrameResult
+from capture.session import LabelChange, Snapshot, SubjectInfo, TimelineEntry
+from devices.base import DeviceEvent, DeviceStatus
+from devices.clock import now_ns
+from devices.frames import MODES
+
+NOW_NS = 100_000_000_000  # the snapshot's clock: fixed, so screenshots are stable
+FPS = 15
+
+
+def stairs_profile() -> np.ndarray:
+    """Four 0.16 m risers with 0.30 m treads, first riser 0.2 m ahead: (forward, height)."""
+    xs = np.arange(0.0, 1.5, 0.01)
+    steps = np.clip(np.floor((xs - 0.2) / 0.30) + 1, 0, 4)
+    heights = steps * 0.16
+    risers = [(0.2 + 0.3 * k, h) for k in range(4) for h in np.arange(0.16 * k, 0.16 * (k + 1), 0.01)]
+    return np.vstack([np.column_stack([xs, heights]), np.array(risers)]).astype(np.float32)
+
+
+def image_from_profile(profile: np.ndarray) -> np.ndarray:
+    """The 100 x 100 binary image: row 0 is the lowest height, column 0 the nearest point."""
+    img = np.zeros((100, 100), dtype=np.uint8)
+    p = profile - profile.min(axis=0) + 0.01
+    cols, rows = (p[:, 0] / 0.01).astype(int), (p[:, 1] / 0.01).astype(int)
+    keep = (cols < 100) & (rows < 100)
+    img[rows[keep], cols[keep]] = 1
+    return img
+
+
+def timeline(now_ns: int = NOW_NS, seconds: float = 20.0) -> list[TimelineEntry]:
+    """Level ground, then up stairs 10 s ago; the CNN slips now and then, fusion lags a frame."""
+    n = int(seconds * FPS)
+    entries = []
+    for i in range(n):
+        t = now_ns - int((n - 1 - i) * 1e9 / FPS)
+        true = 0 if i < n // 2 else 1
+        cnn = true if i % 37 not in (5, 6) else 3
+        if i in range(n // 2 - 4, n // 2):  # the camera sees the stairs before the operator
+            cnn = 1
+        fused = 0 if i < n // 2 - 2 else 1
+        entries.append(TimelineEntry(index=1000 + i, time_ns=t, label=MODES[true], cnn=cnn,
+                                     fused=fused if i < n - 1 else None, voted=None, truth=None))
+    return entries
+
+
+class FakeSession:
+    def __init__(self, *, start_error: Exception | None = None, start_gate: threading.Event | None = None,
+                 recordings: Path | None = None) -> None:
+        self.start_error = start_error
+        self.start_gate = start_gate  # start() waits for it, like devices being opened
+        self.recordings = recordings or Path("recordings")
+        self.started = threading.Event()
+        self.stopped = 0
+        self.labels: list[LabelChange] = []
+        self.undos = 0
+        self.markers: list[tuple[int, str]] = []
+        self.recordings_started: list[SubjectInfo] = []
+        self.recordings_stopped = 0
+        self.snapshots = 0
+        self._label: str | None = "US"
+        self._recording_path: Path | None = None
+        self.camera = DeviceStatus(backend="mock", state="ok", configured_rate_hz=15.0,
+                                   measured_rate_hz=14.9, delivered=4500, dropped=0, errors=0)
+        self.imu = DeviceStatus(backend="mock", state="ok", configured_rate_hz=100.0,
+                                measured_rate_hz=99.8, delivered=30000, dropped=0, errors=2,
+                                details={"clock_offset_ms": 1.25, "drift_ppm": 48.0,
+                                         "checksum_errors": 2})
+        self.events: list[DeviceEvent] = []
+        self.timeline = timeline()
+        profile = stairs_profile()
+        self.latest = FrameResult(
+            index=1299, time_ns=NOW_NS, host_time_ns=NOW_NS, quaternion=np.array([1.0, 0, 0, 0]),
+            image=image_from_profile(profile), cloud=np.zeros((0, 3), np.float32), profile=profile,
+            flag="", probabilities=np.array([0.05, 0.82, 0.03, 0.07, 0.03]), cnn_decision=1,
+            fused=SimpleNamespace(frame_index=1298, decision=1, posterior=[0.02, 0.9, 0.02, 0.04, 0.02],
+                                  voted=1, voted_frame_index=1297),
+            features={"riser_m": 0.162, "tread_m": 0.305, "slope_deg": None}, done_ns=NOW_NS + 12_000_000)
+
+    # ---- life cycle
+    def start(self) -> None:
+        if self.start_gate is not None:
+            self.start_gate.wait(10)
+        if self.start_error is not None:
+            raise self.start_error
+        self.started.set()
+
+    def stop(self):
+        self.stopped += 1
+        return self.stop_recording() if self._recording_path is not None else None
+
+    # ---- commands
+    def set_label(self, mode: str, source: str = "operator", time_ns: int | None = None) -> LabelChange:
+        if mode not in MODES:
+            raise CaptureError(f"unknown mode {mode!r}")
+        change = LabelChange(now_ns() if time_ns is None else time_ns, mode, source)
+        self.labels.append(change)
+        self._label = mode
+        return change
+
+    def undo_label(self) -> LabelChange | None:
+        self.undos += 1
+        if not self.labels:
+            return None
+        self.labels.pop()
+        self._label = self.labels[-1].mode if self.labels else None
+        return LabelChange(now_ns(), self._label or "", "undo")
+
+    def add_marker(self, note: str = "") -> None:
+        self.markers.append((now_ns(), note))
+
+    @property
+    def label(self) -> str | None:
+        return self._label
+
+    @property
+    def recording(self) -> bool:
+        return self._recording_path is not None
+
+    def start_recording(self, info: SubjectInfo) -> Path:
+        info.validate()
+        if self._recording_path is not None:
+            raise CaptureError("already recording")
+        self.recordings_started.append(info)
+        self._recording_path = self.recordings / f"{info.subject}_{info.condition}_t{info.trial:02d}.mcap"
+        return self._recording_path
+
+    def stop_recording(self):
+        if self._recording_path is None:
+            return None
+        path, self._recording_path = self._recording_path, None
+        self.recordings_stopped += 1
+        return SimpleNamespace(path=path, bytes_written=12_345_678, messages=4321, queue_depth=0)
+
+    # ---- what the UI reads
+    def snapshot(self) -> Snapshot:
+        self.snapshots += 1
+        recording = None
+        started = None
+        if self._recording_path is not None:
+            recording = SimpleNamespace(path=self._recording_path, bytes_written=3_456_789,
+                                        write_rate_bps=1_234_567.0, queue_depth=3, messages=2100)
+            started = NOW_NS - 75_000_000_000
+        return Snapshot(
+            time_ns=NOW_NS, running=True, camera=self.camera, imu=self.imu,
+            sync={"p50_ms": 0.4, "p99_ms": 1.9}, label=self._label, latest=self.latest,
+            timeline=list(self.timeline), events=list(self.events), recording=recording,
+            recording_started_ns=started, frames=1300, latency_ms={"p50": 11.8, "p99": 21.3})

@@ -1,0 +1,288 @@
+"""The live screen: devices, the image and profile, decisions, the last 20 s, the recording.
+
+It pulls one snapshot from its source at most REFRESH_HZ times a second (whatever the
+frame rate), hands each widget its part, and sends the operator's keys to the source as
+commands that only touch memory: nothing here waits on a device or the disk.
+"""
+from __future__ import annotations
+
+import logging
+
+from rich.text import Text
+from textual.app import ComposeResult
+from textual.binding import Binding
+from textual.containers import Horizontal, Vertical
+from textual.screen import Screen
+from textual.widgets import Footer, Static
+
+from capture.session import Snapshot
+from devices.frames import MODE_NAMES, MODES
+from tui.source import Playback
+from tui.widgets.binary_image import BinaryImage
+from tui.widgets.decision import DecisionDisplay
+from tui.widgets.device_panel import DevicePanel
+from tui.widgets.features import FeaturesPanel
+from tui.widgets.help_screen import HelpScreen, key_label
+from tui.widgets.marker_dialog import MarkerDialog
+from tui.widgets.modes import mode_text
+from tui.widgets.probability_bars import ProbabilityBars
+from tui.widgets.profile_plot import ProfilePlot
+from tui.widgets.recording_panel import RecordingPanel, clock_text
+from tui.widgets.timeline import TimelineStrips
+
+log = logging.getLogger(__name__)
+
+REFRESH_HZ = 20
+FAULT_KINDS = {"lost": "error", "error": "error", "stall": "error", "reconnected": "information"}
+SEEK_S = 5.0
+
+
+def _binding(key: str, action: str, description: str, field: str, **kw) -> Binding:
+    """A binding whose key config.keys.<field> can change (see WalkcapApp.keymap)."""
+    return Binding(key, action, description, id=f"walkcap.{field}", **kw)
+
+
+class LiveScreen(Screen):
+    BINDINGS = [
+        *[_binding(str(i + 1), f"label('{m}')", m, f"mode_{m.lower()}") for i, m in enumerate(MODES)],
+        _binding("u", "undo", "undo", "undo"),
+        _binding("m", "marker", "marker", "marker"),
+        _binding("r", "record", "record", "record"),
+        _binding("space", "freeze", "freeze", "freeze"),
+        _binding("question_mark", "help", "help", "help"),
+        _binding("q", "quit", "quit", "quit"),
+        Binding("s", "session_form", "session", show=False),
+        Binding("p", "play", "play/pause"),
+        Binding("left", "seek(-1)", "-5 s"),
+        Binding("right", "seek(1)", "+5 s"),
+    ]
+    # What each action does, for the help screen (keys come from the live bindings).
+    HELP = {
+        **{f"label('{m}')": f"true mode {m} ({MODE_NAMES[m]}) from now on" for m in MODES},
+        "undo": "undo the last label change",
+        "marker": "place a marker, with an optional note",
+        "record": "start / stop recording a trial (one file per trial)",
+        "freeze": "freeze / unfreeze the display (capture and recording go on)",
+        "help": "this help",
+        "quit": "quit (asks first while recording; the file is finalised)",
+        "session_form": "the session form (subject, condition, trial); not while recording",
+        "play": "replay: play / pause",
+        "seek(-1)": "replay: back 5 s",
+        "seek(1)": "replay: forward 5 s",
+    }
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.frozen = False
+        self.refreshes = 0  # views drawn from a snapshot (tests check freeze with it)
+        self._snapshot: Snapshot | None = None
+        self._fused: int | None = None
+        self._last_event_ns: int | None = None
+        self._topbar = Text()
+
+    def compose(self) -> ComposeResult:
+        yield Static("", id="topbar")
+        with Horizontal(id="main"):
+            with Vertical(id="left"):
+                yield DevicePanel(id="devices")
+                yield RecordingPanel(id="recording")
+            yield BinaryImage(id="image")
+            yield ProfilePlot(id="profile")
+            with Vertical(id="right"):
+                yield DecisionDisplay(id="decision")
+                yield ProbabilityBars(id="probabilities")
+                yield FeaturesPanel(id="features")
+        yield TimelineStrips(id="timeline")
+        yield Footer(compact=True)
+
+    def on_mount(self) -> None:
+        titles = {"devices": "devices", "recording": "recording", "image": "image",
+                  "profile": "profile", "decision": "fused decision", "probabilities": "CNN",
+                  "features": "terrain", "timeline": "last 20 s"}
+        for wid, title in titles.items():
+            self.query_one(f"#{wid}").border_title = title
+        self._w = {type(w): w for w in self.query("#main *, #timeline") if hasattr(w, "present")}
+        self._timer = self.set_interval(1 / REFRESH_HZ, self.refresh_view)
+        self.watch(self.app, "status", lambda _: self._show_topbar())
+        self.refresh_view()
+
+    # ---- the view ---------------------------------------------------------------------
+
+    def refresh_view(self) -> None:
+        """Pull one snapshot and show it (the timer calls this; commands too, for feedback)."""
+        source = self.app.source
+        if source is None:
+            self._show_topbar()
+            return
+        try:
+            snap = source.snapshot()
+        except Exception:  # a bug in a snapshot must not take the UI (and the recording) down
+            log.exception("snapshot")
+            return
+        self.present(snap)
+
+    def present(self, snap: Snapshot) -> None:
+        self.refreshes += 1
+        self._snapshot = snap
+        latest = snap.latest
+        key = latest.index if latest is not None else None
+        if latest is not None and latest.fused is not None:
+            self._fused = latest.fused.decision
+        self._w[BinaryImage].present(latest.image if latest else None,
+                                            latest.flag if latest else "", key)
+        self._w[ProfilePlot].present(latest.profile if latest else None, key)
+        self._w[DecisionDisplay].present(self._fused, latest.cnn_decision if latest else None,
+                                                snap.label)
+        self._w[ProbabilityBars].present(latest.probabilities if latest else None)
+        self._w[FeaturesPanel].present(latest.features if latest else None)
+        self._w[TimelineStrips].present(snap.timeline, snap.time_ns)
+        faults = [e for e in snap.events if e.device != "operator"]
+        self._w[DevicePanel].present(snap.camera, snap.imu, snap.sync,
+                                            faults[-1] if faults else None)
+        self._show_recording(snap)
+        self._notify_new_events(snap)
+        self._show_topbar()
+
+    def _show_recording(self, snap: Snapshot) -> None:
+        app = self.app
+        elapsed = None
+        if snap.recording_started_ns is not None:
+            elapsed = (snap.time_ns - snap.recording_started_ns) * 1e-9
+        info = app.subject
+        key = key_label(app.config.keys.record)
+        idle = f"{key}: record trial {info.trial}"
+        self._w[RecordingPanel].present(snap.recording, elapsed, app.recording_path, idle)
+
+    def _notify_new_events(self, snap: Snapshot) -> None:
+        """A device fault shows at once, as a notification as well as in the device panel."""
+        for e in snap.events:
+            if self._last_event_ns is not None and e.time_ns <= self._last_event_ns:
+                continue
+            severity = FAULT_KINDS.get(e.kind)
+            if e.device != "operator" and severity:
+                self.notify(f"{e.device} {e.kind}: {e.message}", severity=severity,
+                            timeout=10 if severity == "error" else 4)
+        if snap.events:
+            self._last_event_ns = max(self._last_event_ns or 0, max(e.time_ns for e in snap.events))
+
+    def _show_topbar(self) -> None:
+        app, snap = self.app, self._snapshot
+        info = app.subject
+        bar = Text.assemble(("walkcap ", "bold"), f"{info.subject} · {info.condition} · trial {info.trial}  ")
+        label = snap.label if snap is not None else None
+        bar.append_text(Text.assemble("true ", mode_text(label), "  "))
+        if snap is not None:
+            bar.append(f"frame {snap.frames}", style="dim")
+            if snap.latency_ms:
+                bar.append(f" · latency {snap.latency_ms.get('p50', 0):.0f}/"
+                           f"{snap.latency_ms.get('p99', 0):.0f} ms", style="dim")
+            bar.append("  ")
+            if snap.recording_started_ns is not None:
+                bar.append(f"● REC {clock_text((snap.time_ns - snap.recording_started_ns) * 1e-9)}  ",
+                           style="bold #e04040")
+        source = app.source
+        if isinstance(source, Playback):
+            pos, duration = source.position()
+            bar.append(f"{'▶' if source.playing else '⏸'} {clock_text(pos)} / {clock_text(duration)}  ",
+                       style="bold")
+        if self.frozen:
+            bar.append(" FROZEN ", style="bold #000000 on #2f7ff0")
+            bar.append("  ")
+        if app.status:
+            bar.append(app.status, style="bold #e04040" if app.status_is_error else "italic")
+        if bar != self._topbar:
+            self._topbar = bar
+            self.query_one("#topbar", Static).update(bar)
+
+    # ---- keys -------------------------------------------------------------------------
+
+    def check_action(self, action: str, parameters: tuple) -> bool | None:
+        if action in ("play", "seek"):
+            return isinstance(self.app.source, Playback)
+        return True
+
+    def _source_or_warn(self):
+        source = self.app.source
+        if source is None:
+            self.notify("the devices are not running yet", severity="warning", timeout=3)
+        return source
+
+    def action_label(self, mode: str) -> None:
+        source = self._source_or_warn()
+        if source is None:
+            return
+        source.set_label(mode)  # stamped inside, at this call: no waiting on the display
+        self._after_command()
+
+    def action_undo(self) -> None:
+        source = self._source_or_warn()
+        if source is None:
+            return
+        change = source.undo_label()
+        if change is None:
+            self.notify("no label to undo", timeout=2)
+        self._after_command()
+
+    def action_marker(self) -> None:
+        source = self._source_or_warn()
+        if source is None:
+            return
+
+        def place(note: str | None) -> None:
+            if note is None:
+                return
+            source.add_marker(note)
+            self.notify(f"marker{': ' + note if note else ''}", timeout=3)
+
+        self.app.push_screen(MarkerDialog(), place)
+
+    def action_record(self) -> None:
+        self.app.toggle_recording()
+
+    def action_freeze(self) -> None:
+        self.frozen = not self.frozen
+        if self.frozen:
+            self._timer.pause()
+        else:
+            self._timer.resume()
+            self.refresh_view()
+        self._show_topbar()
+
+    def action_help(self) -> None:
+        self.app.push_screen(HelpScreen(self.key_help()))
+
+    def key_help(self) -> list[tuple[str, str]]:
+        """(key, what it does) for this screen's bindings as configured, in BINDINGS order."""
+        order = [b.action for b in self.BINDINGS]
+        rows = [(key, active.binding) for key, active in self.active_bindings.items()
+                if active.node is self and active.binding.action in self.HELP]
+        rows.sort(key=lambda kb: order.index(kb[1].action) if kb[1].action in order else len(order))
+        return [(key, self.HELP.get(b.action, b.description)) for key, b in rows]
+
+    def action_quit(self) -> None:
+        self.app.request_quit()
+
+    def action_session_form(self) -> None:
+        self.app.open_session_form()
+
+    def action_play(self) -> None:
+        source = self.app.source
+        if isinstance(source, Playback):
+            source.toggle_play()
+            self._after_command()
+
+    def action_seek(self, direction: int) -> None:
+        source = self.app.source
+        if isinstance(source, Playback):
+            source.seek(direction * SEEK_S)
+            self._after_command()
+
+    def _after_command(self) -> None:
+        """Show the effect of a key at once (unless frozen: then only the top bar)."""
+        if self.frozen:
+            snap = self.app.source.snapshot() if self.app.source else None
+            if snap is not None and self._snapshot is not None:
+                self._snapshot.label = snap.label
+            self._show_topbar()
+        else:
+            self.refresh_view()

@@ -1,0 +1,194 @@
+"""The session form: who walks, under which condition, which trial; validated, remembered.
+
+The last values confirmed are kept in ~/.config/walkcap/last_session.json so that the next
+session (or a restart after a crash) opens with them, trial number included.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import os
+from pathlib import Path
+
+from textual.app import ComposeResult
+from textual.binding import Binding
+from textual.containers import Grid, Horizontal, Vertical
+from textual.screen import Screen
+from textual.suggester import SuggestFromList
+from textual.widgets import Button, Checkbox, Footer, Input, Label, Select, Static
+
+from capture.errors import CaptureError
+from capture.session import SubjectInfo
+
+log = logging.getLogger(__name__)
+
+_ID_CHARS = r"[A-Za-z0-9_-]*"
+# Form field -> (label, kind); kind decides the widget and how the text converts.
+FIELDS = {
+    "subject": ("Subject id", "id"),
+    "condition": ("Condition", "id"),
+    "trial": ("Trial", "int"),
+    "height_m": ("Height (m)", "float"),
+    "weight_kg": ("Weight (kg)", "float"),
+    "age": ("Age (years)", "int"),
+    "sex": ("Sex", ("", "female", "male", "other")),
+    "amputee": ("Amputee", "bool"),
+    "side": ("Side", ("", "left", "right")),
+    "residual_limb_cm": ("Residual limb (cm)", "float"),
+    "notes": ("Notes", "text"),
+}
+
+
+def last_session_path() -> Path:
+    return Path(os.path.expanduser("~")) / ".config" / "walkcap" / "last_session.json"
+
+
+def load_last_session(path: Path | None = None) -> SubjectInfo:
+    """The values confirmed last time; defaults when there are none or they are unreadable."""
+    path = path or last_session_path()
+    try:
+        data = json.loads(path.read_text())
+        known = {f.name for f in dataclasses.fields(SubjectInfo)}
+        info = SubjectInfo(**{k: v for k, v in data.items() if k in known})
+        info.validate()
+        return info
+    except FileNotFoundError:
+        return SubjectInfo()
+    except (OSError, ValueError, TypeError, CaptureError) as e:
+        log.warning("ignoring %s: %s", path, e)
+        return SubjectInfo()
+
+
+def save_last_session(info: SubjectInfo, path: Path | None = None) -> None:
+    path = path or last_session_path()
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(json.dumps(dataclasses.asdict(info), indent=2))
+        os.replace(tmp, path)
+    except OSError as e:  # losing the remembered form must never stop a session
+        log.warning("cannot save %s: %s", path, e)
+
+
+def info_from_form(values: dict[str, object]) -> SubjectInfo:
+    """Form values (text, or bool for the checkbox) -> a validated SubjectInfo.
+
+    Raises CaptureError naming the field when a value is not a number or out of range.
+    """
+    kwargs: dict[str, object] = {}
+    for name, (label, kind) in FIELDS.items():
+        raw = values.get(name, "")
+        if kind == "bool":
+            kwargs[name] = bool(raw)
+            continue
+        text = str(raw if raw is not None else "").strip()
+        if kind in ("int", "float"):
+            if not text:
+                if name == "trial":
+                    raise CaptureError("trial: a number from 1")
+                kwargs[name] = None
+                continue
+            try:
+                kwargs[name] = int(text) if kind == "int" else float(text)
+            except ValueError:
+                raise CaptureError(f"{label.split(' (')[0].lower()}: {text!r} is not a number") from None
+        else:
+            kwargs[name] = text
+    info = SubjectInfo(**kwargs)
+    info.validate()
+    return info
+
+
+def form_values(info: SubjectInfo) -> dict[str, object]:
+    """SubjectInfo -> what each form widget shows."""
+    values: dict[str, object] = {}
+    for name, (_, kind) in FIELDS.items():
+        v = getattr(info, name)
+        values[name] = v if kind == "bool" else ("" if v is None else (f"{v:g}" if isinstance(v, float) else str(v)))
+    return values
+
+
+class SessionScreen(Screen[SubjectInfo | None]):
+    """Dismisses with the confirmed SubjectInfo, or None when cancelled (escape)."""
+
+    BINDINGS = [
+        Binding("ctrl+s", "confirm", "Start", priority=True),
+        Binding("escape", "cancel", "Back"),
+    ]
+
+    def __init__(self, info: SubjectInfo, *, can_cancel: bool = False) -> None:
+        super().__init__()
+        self.info = info
+        self.can_cancel = can_cancel
+
+    def compose(self) -> ComposeResult:
+        values = form_values(self.info)
+        with Vertical(id="session-form"):
+            yield Static("[b]walkcap[/b] — session", id="form-title")
+            with Grid(id="form-grid"):
+                for name, (label, kind) in FIELDS.items():
+                    yield Label(label, classes="form-label")
+                    yield self._field(name, kind, values[name])
+            yield Static("", id="form-error")
+            yield Static("", id="device-status")
+            with Horizontal(id="form-buttons"):
+                yield Button("Start session (enter)", variant="primary", id="confirm", compact=True)
+                if self.can_cancel:
+                    yield Button("Back (escape)", id="cancel", compact=True)
+        yield Footer()
+
+    @staticmethod
+    def _field(name: str, kind, value):
+        if isinstance(kind, tuple):
+            options = [(v or "—", v) for v in kind]
+            return Select(options, value=value, allow_blank=False, id=f"f-{name}", compact=True)
+        if kind == "bool":
+            return Checkbox("", value=bool(value), id=f"f-{name}", compact=True)
+        common = dict(value=str(value), id=f"f-{name}", compact=True)
+        if kind == "id":
+            suggester = SuggestFromList(["indoor", "outdoor"]) if name == "condition" else None
+            return Input(restrict=_ID_CHARS, max_length=32, suggester=suggester, **common)
+        if kind == "int":
+            return Input(type="integer", **common)
+        if kind == "float":
+            return Input(type="number", **common)
+        return Input(max_length=500, **common)
+
+    def on_mount(self) -> None:
+        self.watch(self.app, "status", self._show_status)
+        self.query_one("#f-subject", Input).focus()
+
+    def _show_status(self, status: str) -> None:
+        self.query_one("#device-status", Static).update(status)
+
+    def values(self) -> dict[str, object]:
+        out: dict[str, object] = {}
+        for name in FIELDS:
+            widget = self.query_one(f"#f-{name}")
+            out[name] = widget.value
+        return out
+
+    def action_confirm(self) -> None:
+        try:
+            info = info_from_form(self.values())
+        except CaptureError as e:
+            self.query_one("#form-error", Static).update(f"[b red]{e}[/]")
+            return
+        save_last_session(info)
+        self.dismiss(info)
+
+    def action_cancel(self) -> None:
+        if self.can_cancel:
+            self.dismiss(None)
+
+    def on_input_submitted(self, event: Input.Submitted) -> None:
+        event.stop()
+        self.action_confirm()
+
+    def on_button_pressed(self, event: Button.Pressed) -> None:
+        event.stop()
+        if event.button.id == "confirm":
+            self.action_confirm()
+        else:
+            self.action_cancel()

@@ -1,0 +1,84 @@
+"""Both devices at a glance: state, rates, drops, errors, clock and sync; the latest fault."""
+from __future__ import annotations
+
+from rich.table import Table
+from rich.text import Text
+from textual.widget import Widget
+
+from devices.base import DeviceEvent, DeviceStatus
+from tui.widgets.modes import STATE_COLORS
+
+# Backends name their clock figures slightly differently; the first key present is shown.
+_OFFSET_KEYS = ("clock_offset_ms", "offset_ms")
+_DRIFT_KEYS = ("clock_drift_ppm", "drift_ppm")
+_CHECKSUM_KEYS = ("checksum_errors",)
+_RED, _AMBER = STATE_COLORS["lost"], STATE_COLORS["degraded"]
+
+Row = tuple[str, str, str]  # label, value, style of the value
+
+
+def _first(details: dict, keys: tuple[str, ...]):
+    for k in keys:
+        if details.get(k) is not None:
+            return details[k]
+    return None
+
+
+def device_rows(name: str, status: DeviceStatus | None, sync: dict | None = None) -> list[Row]:
+    """The lines shown for one device, already formatted (so an unchanged view costs nothing)."""
+    if status is None:
+        return [(name, "not open", "dim")]
+    rows = [(name, f"{status.state}  {status.backend}", f"bold {STATE_COLORS.get(status.state, '')}")]
+    if status.message:
+        rows.append(("", status.message, STATE_COLORS.get(status.state, "")))
+    slow = status.configured_rate_hz and status.measured_rate_hz < 0.9 * status.configured_rate_hz
+    rows.append(("rate", f"{status.measured_rate_hz:5.1f}/{status.configured_rate_hz:g} Hz",
+                 _AMBER if slow and status.state == "ok" else ""))
+    checksum = _first(status.details, _CHECKSUM_KEYS)
+    rows.append(("drops", f"{status.dropped}", f"bold {_RED}" if status.dropped else ""))
+    rows.append(("errors", f"{status.errors}" + (f" ({checksum} checksum)" if checksum is not None else ""),
+                 _AMBER if status.errors else ""))
+    offset, drift = _first(status.details, _OFFSET_KEYS), _first(status.details, _DRIFT_KEYS)
+    if offset is not None or drift is not None:
+        parts = ([f"{float(offset):+.1f} ms"] if offset is not None else []) + \
+                ([f"{float(drift):+.0f} ppm"] if drift is not None else [])
+        rows.append(("clock", " ".join(parts), ""))
+    if sync:
+        rows.append(("sync", f"{sync.get('p50_ms', 0):.1f} ms p99 {sync.get('p99_ms', 0):.1f}", ""))
+    return rows
+
+
+def event_row(event: DeviceEvent) -> Row:
+    style = f"bold {_RED}" if event.kind in ("lost", "error", "stall") else _AMBER
+    return ("", f"{event.device} {event.kind}: {event.message}", style)
+
+
+class DevicePanel(Widget):
+    """Camera and IMU status; redrawn only when what it shows changes."""
+
+    DEFAULT_CSS = """
+    DevicePanel { height: auto; }
+    """
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(**kwargs)
+        self._rows: list[Row] = []
+
+    def present(self, camera: DeviceStatus | None, imu: DeviceStatus | None, sync: dict,
+                last_event: DeviceEvent | None) -> None:
+        rows = device_rows("camera", camera) + device_rows("imu", imu, sync)
+        if last_event is not None:
+            rows.append(event_row(last_event))
+        if rows != self._rows:
+            relayout = len(rows) != len(self._rows)
+            self._rows = rows
+            self.refresh(layout=relayout)
+
+    def render(self) -> Table:
+        table = Table.grid(padding=(0, 1))
+        table.add_column(style="dim", no_wrap=True)
+        table.add_column(no_wrap=True, overflow="ellipsis")
+        for label, value, style in self._rows:
+            is_name = label in ("camera", "imu")
+            table.add_row(Text(label, style="bold" if is_name else ""), Text(value, style=style))
+        return table

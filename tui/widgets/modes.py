@@ -1,0 +1,50 @@
+"""Colours for the five modes and the device states, defined once for every widget."""
+from __future__ import annotations
+
+from rich.text import Text
+
+from devices.frames import MODES
+
+# Distinct hues that stay apart on dark and light themes and for the common colour-vision
+# deficiencies (no red/green pair carries meaning alone: every strip also has the letters).
+MODE_COLORS = {
+    "LG": "#4caf50",  # green
+    "US": "#2f7ff0",  # blue
+    "DS": "#00b8c4",  # cyan
+    "UR": "#f0a020",  # amber
+    "DR": "#d048c8",  # magenta
+}
+NO_MODE_COLOR = "#555555"
+
+STATE_COLORS = {
+    "ok": "#4caf50",
+    "degraded": "#f0a020",
+    "lost": "#e04040",
+    "stopped": "#888888",
+}
+
+
+def mode_name(mode: str | int | None) -> str | None:
+    """A mode as its two letters, from a letter code or an index into MODES."""
+    if mode is None or mode == "":
+        return None
+    if isinstance(mode, int):
+        return MODES[mode] if 0 <= mode < len(MODES) else None
+    return mode if mode in MODES else None
+
+
+def mode_color(mode: str | int | None) -> str:
+    name = mode_name(mode)
+    return MODE_COLORS[name] if name else NO_MODE_COLOR
+
+
+def mode_text(mode: str | int | None, *, bold: bool = True) -> Text:
+    """The two letters on the mode's colour, or a dash when there is none."""
+    name = mode_name(mode)
+    if name is None:
+        return Text("--", style="dim")
+    return Text(name, style=f"{'bold ' if bold else ''}#000000 on {MODE_COLORS[name]}")
+
+
+def state_text(state: str) -> Text:
+    return Text(state, style=f"bold {STATE_COLORS.get(state, '#888888')}")
