@@ -293,3 +293,12 @@ def test_an_existing_recording_is_never_overwritten(tmp_path):
     with pytest.raises(CaptureError, match="never overwritten"):
         Recorder(path, metadata={}).start()
     assert path.read_bytes() == b"precious"
+
+
+def test_bench_record_reports_the_recording_rate(tmp_path):
+    from capture.recorder import bench_record
+
+    r = bench_record(fps=15, seconds=1.0, folder=tmp_path)
+    assert r["state"] == "stopped" and r["dropped"] == 0 and r["frames"] == 15
+    assert r["mb_per_s"] == pytest.approx(r["bytes"] / 1e6) and r["bytes_per_frame"] > 0
+    assert max(r["mb_per_s_by_topic"], key=r["mb_per_s_by_topic"].get) == T.DEPTH
