@@ -66,6 +66,7 @@ class RecorderStats:
     chunks: int = 0
     errors: int = 0  # items that could not be encoded (logged)
     duration_s: float = 0.0  # span of the sensor data written
+    bytes_per_s: float = 0.0  # file growth over the last few chunks
 
 
 class _TrackedFile:
@@ -162,6 +163,7 @@ class Recorder:
         self._span: list[int] | None = None  # sensor log-time span of the open chunk
         self._open_messages = 0
         self._next_flush = 0.0
+        self._growth: collections.deque = collections.deque(maxlen=6)  # (wall s, bytes)
 
     # ---- life cycle (caller's thread) ---------------------------------------------------
 
@@ -279,12 +281,16 @@ class Recorder:
         span = 0.0
         if self._first_ns is not None and self._last_ns is not None:
             span = (self._last_ns - self._first_ns) * 1e-9
+        growth = list(self._growth)
+        rate = 0.0
+        if len(growth) > 1 and growth[-1][0] > growth[0][0]:
+            rate = (growth[-1][1] - growth[0][1]) / (growth[-1][0] - growth[0][0])
         return RecorderStats(
             path=str(self.path), state=self._state, message=self._message,
             bytes_written=self._file.position if self._file is not None else 0,
             messages=self._messages, dropped=sum(dropped.values()), dropped_by_kind=dropped,
             queue_depth=self._queue.qsize(), queue_size=self._queue_size, labels=self._labels,
-            chunks=self._chunks, errors=self._errors, duration_s=span,
+            chunks=self._chunks, errors=self._errors, duration_s=span, bytes_per_s=rate,
         )
 
     @property
@@ -403,6 +409,7 @@ class Recorder:
             self._file.fsync()
             self._chunks += 1
             self._good_offset = self._file.tell()
+        self._growth.append((time.monotonic(), self._good_offset))
         self._open_messages = 0
         self._span = None
         self._next_flush = time.monotonic() + self._chunk_interval_s

@@ -219,6 +219,11 @@ def test_chunks_close_every_second_of_data_and_by_the_wall_clock(tmp_path):
         time.sleep(0.05)
     seen = open_recording(live)  # still recording: read from disk, unfinished
     assert not seen.complete and seen.topics[T.DEPTH].count == 1
+    rec.write_frame(frame_at(1))
+    deadline = time.monotonic() + 3.0
+    while time.monotonic() < deadline and rec.stats().bytes_per_s == 0:
+        time.sleep(0.05)
+    assert rec.stats().bytes_per_s > 0 and rec.stats().chunks >= 2
     rec.close()
 
 
