@@ -1,0 +1,378 @@
+"""Training the terrain classifier, and measuring it.
+
+- Sessions are split into train / validation / test by session (stratified by preset), so
+  frames of one walk never sit on both sides.
+- Classes are balanced by sampling: each epoch draws frames with probability inversely
+  proportional to their class's frequency (level ground dominates every walk).
+- Augmentation imitates the sensor, on the occupied cells of the binary image: a small
+  rotation of the profile (IMU pitch error, mounting error), a small scale (depth scale,
+  camera height), missing returns, a stray cell; then the authors' shift of the minimum to
+  one cell, as the preprocessing does. No flips: left-right reverses up and down.
+- Adam with cross-entropy; the learning rate halves when the validation loss stalls, and
+  training stops after `patience` epochs without improvement, keeping the best weights.
+- Deterministic for a seed on one machine (one process, seeded generators, deterministic
+  algorithms); CPU by default, the GPU when there is one (device "auto").
+"""
+from __future__ import annotations
+
+import copy
+import logging
+import math
+import time
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from devices.frames import MODES
+from inference.dataset import LabeledSession, summarize
+from inference.errors import InferenceError
+from inference.model import (
+    DEFAULT_HIDDEN, Classifier, TerrainCNN, choose_device, images_to_tensor, save_model,
+)
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class TrainSettings:
+    epochs: int = 12
+    batch_size: int = 64
+    lr: float = 1e-3
+    weight_decay: float = 1e-4
+    patience: int = 3  # epochs without a better validation loss before stopping
+    val_fraction: float = 0.15  # of the sessions
+    test_fraction: float = 0.15
+    seed: int = 0
+    hidden: int = DEFAULT_HIDDEN
+    device: str = "auto"
+    augment: bool = True
+    balance: bool = True
+    samples_per_epoch: int = 0  # frames drawn per epoch; 0: as many as the training set
+    max_steps: int = 0  # stop after this many optimiser steps in total (0: no limit)
+    threads: int = 0  # torch intra-op threads; 0: leave as is
+
+
+@dataclass
+class GroupMetrics:
+    """Per-frame quality of one group of frames (all, indoor, outdoor)."""
+
+    frames: int
+    accuracy: float  # fraction of frames right
+    balanced_accuracy: float  # mean of the per-class accuracies present
+    per_class: dict  # mode -> accuracy (recall), None when the class is absent
+    confusion: list  # 5 x 5 counts, rows true mode, columns predicted mode
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
+class TrainResult:
+    net: TerrainCNN
+    history: list = field(default_factory=list)  # per epoch: losses, accuracies, lr
+    best_epoch: int = 0
+    split: dict = field(default_factory=dict)  # names of the sessions in each part
+    test_metrics: dict = field(default_factory=dict)  # group -> GroupMetrics
+    data: dict = field(default_factory=dict)  # summaries of each part
+    seconds: float = 0.0
+    stopped_early: bool = False
+
+
+# ---- split -------------------------------------------------------------------------------
+
+def split_by_session(sessions: list[LabeledSession], val_fraction: float, test_fraction: float,
+                     seed: int) -> tuple[list[LabeledSession], list[LabeledSession],
+                                         list[LabeledSession]]:
+    """Train, validation and test sessions; whole sessions, stratified by preset."""
+    if len(sessions) < 3:
+        raise InferenceError(f"need at least 3 sessions to split into train, validation "
+                             f"and test, got {len(sessions)}")
+    names = [s.name for s in sessions]
+    if len(set(names)) != len(names):
+        raise InferenceError("two sessions have the same name; a walk must not be split")
+    rng = np.random.default_rng(seed)
+    groups: dict[str, list[int]] = {}
+    for i, s in enumerate(sorted(sessions, key=lambda s: s.name)):
+        groups.setdefault(s.preset, []).append(i)
+    ordered = sorted(sessions, key=lambda s: s.name)
+    train, val, test = [], [], []
+    for preset in sorted(groups):
+        idx = list(rng.permutation(groups[preset]))
+        n = len(idx)
+        n_test = int(round(n * test_fraction)) if test_fraction > 0 else 0
+        n_val = int(round(n * val_fraction)) if val_fraction > 0 else 0
+        if n >= 3:
+            n_test = max(n_test, 1 if test_fraction > 0 else 0)
+            n_val = max(n_val, 1 if val_fraction > 0 else 0)
+        n_test = min(n_test, max(n - 1, 0))
+        n_val = min(n_val, max(n - 1 - n_test, 0))
+        test += [ordered[i] for i in idx[:n_test]]
+        val += [ordered[i] for i in idx[n_test:n_test + n_val]]
+        train += [ordered[i] for i in idx[n_test + n_val:]]
+    if not val and val_fraction > 0:  # tiny presets: borrow one training session
+        val.append(train.pop())
+    if not train:
+        raise InferenceError("no sessions left for training after the split")
+    return train, val, test
+
+
+# ---- augmentation ------------------------------------------------------------------------
+
+def augment_image(image: np.ndarray, rng: np.random.Generator, tilt_deg: float = 2.0,
+                  scale: float = 0.04, dropout: float = 0.15) -> np.ndarray:
+    """A plausible other view of the same terrain (see the module docstring).
+
+    Image convention (inference.preprocess): col = forward cells (0 nearest),
+    row 0 = highest; the profile's minimum sits in column 1 and the row above the last.
+    """
+    grid = image.shape[0]
+    rows, cols = np.nonzero(image)
+    if len(rows) < 3:
+        return image
+    # Two sub-cell samples per occupied cell so that rotation leaves no holes.
+    x = np.repeat(cols, 2) + rng.random(2 * len(cols))
+    z = np.repeat(grid - 1 - rows, 2) + rng.random(2 * len(rows))
+    angle = np.radians(rng.normal(0.0, tilt_deg))
+    s = 1.0 + rng.uniform(-scale, scale)
+    c, sn = math.cos(angle) * s, math.sin(angle) * s
+    x, z = c * x - sn * z, sn * x + c * z
+    keep = rng.random(len(x)) >= rng.uniform(0.0, dropout)  # missing returns
+    if keep.sum() < 3:
+        return image
+    x, z = x[keep], z[keep]
+    col = (x - x.min()).astype(np.int64) + 1  # the authors' shift: minimum in cell 1
+    up = (z - z.min()).astype(np.int64) + 1
+    ok = (col < grid) & (up < grid)
+    out = np.zeros_like(image)
+    out[grid - 1 - up[ok], col[ok]] = 1
+    if rng.random() < 0.2:  # a stray cell the outlier filter let through
+        r, q = rng.integers(0, grid, 2)
+        out[r, q] = 1
+    return out
+
+
+# ---- metrics ---------------------------------------------------------------------------------
+
+def group_metrics(labels: np.ndarray, predictions: np.ndarray) -> GroupMetrics:
+    from inference.evaluation import confusion_matrix
+
+    labels = np.asarray(labels)
+    predictions = np.asarray(predictions)
+    cm = confusion_matrix(predictions, labels)
+    totals = cm.sum(axis=1)
+    per_class = {m: (float(cm[i, i] / totals[i]) if totals[i] else None)
+                 for i, m in enumerate(MODES)}
+    present = [v for v in per_class.values() if v is not None]
+    frames = int(totals.sum())
+    return GroupMetrics(
+        frames=frames,
+        accuracy=float(np.trace(cm) / frames) if frames else float("nan"),
+        balanced_accuracy=float(np.mean(present)) if present else float("nan"),
+        per_class=per_class,
+        confusion=cm.tolist(),
+    )
+
+
+def evaluate_sessions(classifier: Classifier, sessions: list[LabeledSession]
+                      ) -> dict[str, GroupMetrics]:
+    """Per-frame quality, all frames and per preset ("all", "indoor", "outdoor", ...)."""
+    labels: dict[str, list[np.ndarray]] = {"all": []}
+    preds: dict[str, list[np.ndarray]] = {"all": []}
+    for s in sessions:
+        s = s.labelled()
+        if not len(s):
+            continue
+        p = np.argmax(classifier.predict_batch(s.images), axis=1)
+        for key in ("all", s.preset or "unknown"):
+            labels.setdefault(key, []).append(s.labels)
+            preds.setdefault(key, []).append(p)
+    if not labels["all"]:
+        raise InferenceError("no labelled frames to evaluate")
+    return {k: group_metrics(np.concatenate(labels[k]), np.concatenate(preds[k]))
+            for k in labels}
+
+
+def format_metrics(metrics: dict[str, GroupMetrics], title: str = "") -> str:
+    """A readable report: accuracy per group, per class, and the confusion matrices."""
+    lines = [title] if title else []
+    for group, m in metrics.items():
+        lines.append(f"{group}: {m.accuracy * 100:.2f} % of {m.frames} frames "
+                     f"(balanced {m.balanced_accuracy * 100:.2f} %)")
+        lines.append("  per class: " + "  ".join(
+            f"{k} {'-' if v is None else f'{v * 100:.1f}'}" for k, v in m.per_class.items()))
+        lines.append("  confusion (rows true, columns predicted):")
+        lines.append("        " + "".join(f"{k:>7}" for k in MODES))
+        for k, row in zip(MODES, m.confusion):
+            lines.append(f"    {k:>4}" + "".join(f"{v:>7}" for v in row))
+    return "\n".join(lines)
+
+
+# ---- training --------------------------------------------------------------------------------
+
+def _stack(sessions: list[LabeledSession]) -> tuple[np.ndarray, np.ndarray]:
+    parts = [s.labelled() for s in sessions]
+    parts = [p for p in parts if len(p)]
+    if not parts:
+        return np.zeros((0, 100, 100), np.uint8), np.zeros(0, np.int64)
+    return (np.concatenate([p.images for p in parts]),
+            np.concatenate([p.labels for p in parts]).astype(np.int64))
+
+
+def _epoch_indices(labels: np.ndarray, count: int, balance: bool,
+                   rng: np.random.Generator) -> np.ndarray:
+    if not balance:
+        return rng.permutation(len(labels))[:count] if count <= len(labels) else \
+            rng.integers(0, len(labels), count)
+    freq = np.bincount(labels, minlength=len(MODES)).astype(np.float64)
+    weights = 1.0 / freq[labels]
+    return rng.choice(len(labels), size=count, replace=True, p=weights / weights.sum())
+
+
+def _batches(images: np.ndarray, labels: np.ndarray, order: np.ndarray, batch_size: int,
+             augment: bool, rng: np.random.Generator):
+    for i in range(0, len(order), batch_size):
+        idx = order[i:i + batch_size]
+        batch = images[idx]
+        if augment:
+            batch = np.stack([augment_image(img, rng) for img in batch])
+        yield images_to_tensor(batch), torch.from_numpy(labels[idx])
+
+
+@torch.no_grad()
+def _validate(net: TerrainCNN, images: np.ndarray, labels: np.ndarray,
+              device: torch.device, batch_size: int = 256) -> tuple[float, float, float]:
+    """Mean loss with class weights (as the balanced training sees it), accuracy and
+    balanced accuracy."""
+    net.eval()
+    if not len(labels):
+        return float("nan"), float("nan"), float("nan")
+    freq = np.bincount(labels, minlength=len(MODES)).astype(np.float64)
+    weights = torch.tensor(np.where(freq > 0, freq.sum() / np.maximum(freq, 1) / len(MODES),
+                                    0.0), dtype=torch.float32, device=device)
+    loss_sum, weight_sum, preds = 0.0, 0.0, []
+    for i in range(0, len(labels), batch_size):
+        x = images_to_tensor(images[i:i + batch_size]).to(device)
+        y = torch.from_numpy(labels[i:i + batch_size]).to(device)
+        scores = net(x)
+        loss_sum += float(F.cross_entropy(scores, y, weight=weights, reduction="sum"))
+        weight_sum += float(weights[y].sum())
+        preds.append(scores.argmax(1).cpu().numpy())
+    m = group_metrics(labels, np.concatenate(preds))
+    return loss_sum / weight_sum, m.accuracy, m.balanced_accuracy
+
+
+def train(sessions: list[LabeledSession], settings: TrainSettings = TrainSettings(),
+          show_progress: bool = True) -> TrainResult:
+    """Train a TerrainCNN on sessions (split by session); see the module docstring."""
+    from tqdm import tqdm
+
+    started = time.perf_counter()
+    if settings.threads:
+        torch.set_num_threads(settings.threads)
+    torch.manual_seed(settings.seed)
+    torch.use_deterministic_algorithms(True, warn_only=True)
+    rng = np.random.default_rng(settings.seed)
+    device = choose_device(settings.device)
+
+    train_s, val_s, test_s = split_by_session(sessions, settings.val_fraction,
+                                              settings.test_fraction, settings.seed)
+    x_train, y_train = _stack(train_s)
+    x_val, y_val = _stack(val_s)
+    if not len(y_train):
+        raise InferenceError("the training sessions hold no labelled frames")
+    absent = [m for m, c in zip(MODES, np.bincount(y_train, minlength=len(MODES))) if c == 0]
+    if absent:
+        log.warning("no training frames of %s", ", ".join(absent))
+
+    net = TerrainCNN(hidden=settings.hidden).to(device, memory_format=torch.channels_last)
+    optimiser = torch.optim.Adam(net.parameters(), lr=settings.lr,
+                                 weight_decay=settings.weight_decay)
+    scheduler = torch.optim.lr_scheduler.ReduceLROnPlateau(optimiser, factor=0.5, patience=0)
+    per_epoch = settings.samples_per_epoch or len(y_train)
+    best_loss, best_state, best_epoch, stale = math.inf, None, 0, 0
+    history, steps, stopped_early = [], 0, False
+
+    for epoch in range(1, settings.epochs + 1):
+        net.train()
+        order = _epoch_indices(y_train, per_epoch, settings.balance, rng)
+        n_batches = math.ceil(len(order) / settings.batch_size)
+        loss_sum = correct = seen = 0
+        with tqdm(total=n_batches, desc=f"epoch {epoch}/{settings.epochs}", unit="batch",
+                  disable=not show_progress, leave=True, dynamic_ncols=True) as bar:
+            for x, y in _batches(x_train, y_train, order, settings.batch_size,
+                                 settings.augment, rng):
+                x, y = x.to(device), y.to(device)
+                scores = net(x)
+                loss = F.cross_entropy(scores, y)
+                optimiser.zero_grad(set_to_none=True)
+                loss.backward()
+                optimiser.step()
+                steps += 1
+                loss_sum += loss.item() * len(y)
+                correct += int((scores.argmax(1) == y).sum())
+                seen += len(y)
+                bar.set_postfix(loss=f"{loss_sum / seen:.3f}", acc=f"{correct / seen:.3f}")
+                bar.update(1)
+                if settings.max_steps and steps >= settings.max_steps:
+                    break
+            val_loss, val_acc, val_bal = _validate(net, x_val, y_val, device)
+            bar.set_postfix(loss=f"{loss_sum / seen:.3f}", acc=f"{correct / seen:.3f}",
+                            val_loss=f"{val_loss:.3f}", val_acc=f"{val_acc:.3f}")
+        lr = optimiser.param_groups[0]["lr"]
+        history.append({"epoch": epoch, "train_loss": loss_sum / seen,
+                        "train_accuracy": correct / seen, "val_loss": val_loss,
+                        "val_accuracy": val_acc, "val_balanced_accuracy": val_bal, "lr": lr})
+        improved = not math.isnan(val_loss) and val_loss < best_loss - 1e-4
+        if improved or best_state is None:
+            best_loss = val_loss if not math.isnan(val_loss) else best_loss
+            best_state, best_epoch, stale = copy.deepcopy(net.state_dict()), epoch, 0
+        else:
+            stale += 1
+        if not math.isnan(val_loss):
+            scheduler.step(val_loss)
+        if settings.max_steps and steps >= settings.max_steps:
+            break
+        if stale >= settings.patience:
+            stopped_early = True
+            log.info("early stop after epoch %d (best %d)", epoch, best_epoch)
+            break
+
+    net.load_state_dict(best_state)
+    net.eval()
+    result = TrainResult(
+        net=net.cpu(), history=history, best_epoch=best_epoch,
+        split={"train": [s.name for s in train_s], "validation": [s.name for s in val_s],
+               "test": [s.name for s in test_s]},
+        data={"train": summarize(train_s), "validation": summarize(val_s),
+              "test": summarize(test_s)},
+        stopped_early=stopped_early,
+    )
+    if test_s:
+        result.test_metrics = evaluate_sessions(Classifier(result.net), test_s)
+    result.seconds = time.perf_counter() - started
+    return result
+
+
+def training_metadata(result: TrainResult, settings: TrainSettings, preprocess: dict,
+                      sources: list[str], extra: dict | None = None) -> dict:
+    """The metadata file's content beyond what save_model adds."""
+    seeds = sorted({s for part in ("train", "validation") for s in result.split[part]})
+    return {
+        "preprocess": preprocess,
+        "data": {**result.data, "sources": sources, "sessions_seen_in_training": seeds},
+        "split": result.split,
+        "training": {**asdict(settings), "best_epoch": result.best_epoch,
+                     "epochs_run": len(result.history), "stopped_early": result.stopped_early,
+                     "seconds": round(result.seconds, 1), "history": result.history,
+                     "torch": torch.__version__},
+        "metrics": {"test": {k: v.to_dict() for k, v in result.test_metrics.items()},
+                    **(extra or {})},
+    }
+
+
+def save_result(result: TrainResult, path: str, settings: TrainSettings, preprocess: dict,
+                sources: list[str], extra: dict | None = None):
+    return save_model(result.net, path, training_metadata(result, settings, preprocess,
+                                                          sources, extra))

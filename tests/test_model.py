@@ -1,0 +1,193 @@
+"""The terrain CNN: architecture, initialisation, inference paths, safe files, errors."""
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from devices.frames import MODES
+from inference.errors import InferenceError
+from inference.model import (
+    BUNDLED_PATH, Classifier, TerrainCNN, bench_cnn, load_classifier, metadata_path,
+    save_model,
+)
+
+
+def _images(n: int, seed: int = 0) -> np.ndarray:
+    return (np.random.default_rng(seed).random((n, 100, 100)) < 0.05).astype(np.uint8)
+
+
+def _trained_looking(hidden: int = 8, seed: int = 0) -> TerrainCNN:
+    """A network with non-trivial batch-norm statistics, as after training."""
+    torch.manual_seed(seed)
+    net = TerrainCNN(hidden=hidden)
+    for bn in (net.bn1, net.bn2, net.bn3):
+        bn.running_mean.uniform_(-0.1, 0.1)
+        bn.running_var.uniform_(0.5, 2.0)
+        bn.weight.data.uniform_(0.5, 1.5)
+        bn.bias.data.uniform_(-0.2, 0.2)
+    for m in net.modules():  # larger weights so that the scores differ between images
+        if isinstance(m, (torch.nn.Conv2d, torch.nn.Linear)):
+            m.weight.data *= 20
+    return net.eval()
+
+
+def test_architecture_is_the_papers():
+    net = TerrainCNN(hidden=32)
+    convs = [net.conv1, net.conv2, net.conv3]
+    assert [c.out_channels for c in convs] == [16, 32, 64]
+    assert all(c.kernel_size == (3, 3) for c in convs)
+    assert [b.num_features for b in (net.bn1, net.bn2, net.bn3)] == [16, 32, 64]
+    assert net.fc1.in_features == 64 * 25 * 25  # two 2 x 2 pools: 100 -> 50 -> 25
+    assert net.fc2.out_features == len(MODES) == 5
+    assert net(torch.zeros(3, 1, 100, 100)).shape == (3, 5)
+    n_params = sum(p.numel() for p in net.parameters())
+    assert n_params * 4 < 8e6  # the bundled file must stay under 8 MB
+
+
+def test_initialisation_is_normal_0_001():
+    torch.manual_seed(0)
+    net = TerrainCNN(hidden=32)
+    w = torch.cat([net.conv3.weight.flatten(), net.fc1.weight.flatten()[:100_000]]).detach()
+    assert abs(float(w.mean())) < 1e-3 and float(w.std()) == pytest.approx(0.01, rel=0.05)
+    assert float(net.conv1.weight.detach().std()) < 0.03
+    for m in (net.conv1, net.conv2, net.conv3, net.fc1, net.fc2):
+        assert torch.count_nonzero(m.bias) == 0
+
+
+def test_fast_cpu_path_matches_the_network():
+    net = _trained_looking()
+    clf = Classifier(net)
+    images = _images(20)
+    probs = clf.predict_batch(images)
+    with torch.no_grad():
+        ref = torch.softmax(net(torch.from_numpy(images).float().unsqueeze(1)), 1).numpy()
+    assert probs.shape == (20, 5)
+    np.testing.assert_allclose(probs, ref, atol=1e-5)
+    assert np.ptp(probs[:, 0]) > 1e-3  # images are told apart
+    np.testing.assert_allclose(probs.sum(axis=1), 1.0)
+
+
+def test_predict_one_frame_equals_batched_and_checks_shapes():
+    clf = Classifier(_trained_looking())
+    images = _images(5, seed=1)
+    batch = clf.predict_batch(images, batch_size=2)
+    one = np.stack([clf.predict(img) for img in images])
+    assert one.shape == (5, 5) and one.dtype == np.float64
+    np.testing.assert_allclose(one, batch, atol=1e-6)
+    assert clf.predict(images[0].astype(bool)).shape == (5,)
+    with pytest.raises(InferenceError, match="100 x 100"):
+        clf.predict(np.zeros((50, 50)))
+    with pytest.raises(InferenceError, match="one image"):
+        clf.predict(images)
+    assert clf.predict_batch(np.zeros((0, 100, 100))).shape == (0, 5)
+
+
+def test_save_and_load_round_trip(tmp_path):
+    net = _trained_looking(hidden=8)
+    path = save_model(net, tmp_path / "m.pt", {"data": {"sessions": 3}})
+    meta = json.loads(metadata_path(path).read_text())
+    assert meta["classes"] == list(MODES) and meta["input_size"] == [100, 100]
+    assert meta["architecture"]["hidden"] == 8 and len(meta["weights_sha256"]) == 64
+    assert meta["data"] == {"sessions": 3}
+    clf = load_classifier(str(path), device="cpu")
+    images = _images(4)
+    np.testing.assert_allclose(clf.predict_batch(images), Classifier(net).predict_batch(images),
+                               atol=1e-6)
+    assert clf.metadata["weights_sha256"] == meta["weights_sha256"]
+    assert load_classifier(str(metadata_path(path))).path == str(path)  # the .json works too
+
+
+def _one_line(e: pytest.ExceptionInfo) -> str:
+    msg = str(e.value)
+    assert "\n" not in msg and msg
+    return msg
+
+
+def test_missing_file_is_one_clear_error(tmp_path):
+    with pytest.raises(InferenceError) as e:
+        load_classifier(str(tmp_path / "nowhere.pt"))
+    assert "not found" in _one_line(e)
+    path = save_model(_trained_looking(), tmp_path / "m.pt")
+    metadata_path(path).unlink()
+    with pytest.raises(InferenceError) as e:
+        load_classifier(str(path))
+    assert "metadata not found" in _one_line(e)
+
+
+def test_corrupt_file_is_one_clear_error(tmp_path):
+    path = save_model(_trained_looking(), tmp_path / "m.pt")
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    path.write_bytes(bytes(data))
+    with pytest.raises(InferenceError) as e:
+        load_classifier(str(path))
+    assert "corrupt" in _one_line(e)
+    # Garbage whose hash was (wrongly) recorded: torch cannot read it.
+    path.write_bytes(b"not a zip file at all")
+    meta = json.loads(metadata_path(path).read_text())
+    import hashlib
+
+    meta["weights_sha256"] = hashlib.sha256(path.read_bytes()).hexdigest()
+    metadata_path(path).write_text(json.dumps(meta))
+    with pytest.raises(InferenceError) as e:
+        load_classifier(str(path))
+    assert "corrupt" in _one_line(e)
+    metadata_path(path).write_text("{ not json")
+    with pytest.raises(InferenceError) as e:
+        load_classifier(str(path))
+    assert "corrupt" in _one_line(e)
+
+
+def test_pickled_code_is_refused(tmp_path):
+    """weights_only=True: a file that would run code on load is rejected, not executed."""
+    path = tmp_path / "evil.pt"
+
+    class Evil:
+        def __reduce__(self):
+            return (exec, ("import pathlib; pathlib.Path('pwned').touch()",))
+
+    torch.save({"x": Evil()}, path)
+    save_model(_trained_looking(), tmp_path / "ok.pt")
+    meta = json.loads((tmp_path / "ok.json").read_text())
+    import hashlib
+
+    meta["weights_sha256"] = hashlib.sha256(path.read_bytes()).hexdigest()
+    (tmp_path / "evil.json").write_text(json.dumps(meta))
+    with pytest.raises(InferenceError) as e:
+        load_classifier(str(path))
+    _one_line(e)
+    assert not (tmp_path / "pwned").exists()
+
+
+def test_mismatched_file_is_one_clear_error(tmp_path):
+    path = save_model(_trained_looking(hidden=8), tmp_path / "m.pt")
+    meta = json.loads(metadata_path(path).read_text())
+    # Metadata says 16 hidden units, the weights have 8.
+    metadata_path(path).write_text(json.dumps({**meta, "architecture": {"hidden": 16}}))
+    with pytest.raises(InferenceError) as e:
+        load_classifier(str(path))
+    assert "does not match" in _one_line(e)
+    metadata_path(path).write_text(json.dumps({**meta, "classes": ["A", "B"]}))
+    with pytest.raises(InferenceError) as e:
+        load_classifier(str(path))
+    assert "classifies" in _one_line(e)
+    metadata_path(path).write_text(json.dumps({**meta, "input_size": [64, 64]}))
+    with pytest.raises(InferenceError) as e:
+        load_classifier(str(path))
+    assert "64" in _one_line(e)
+    # A state dict of some other network.
+    torch.save({"weight": torch.zeros(3)}, path)
+    import hashlib
+
+    metadata_path(path).write_text(json.dumps(
+        {**meta, "weights_sha256": hashlib.sha256(path.read_bytes()).hexdigest()}))
+    with pytest.raises(InferenceError) as e:
+        load_classifier(str(path))
+    assert "does not match" in _one_line(e)
+
+
+def test_bench_cnn_reports_both_figures():
+    result = bench_cnn(frames=20)
+    assert set(result) == {"cnn_frame_ms", "cnn_batch_rate"}
+    assert result["cnn_frame_ms"] > 0 and result["cnn_batch_rate"] > 0

@@ -1,0 +1,182 @@
+"""Training: split by session, balancing, augmentation, metrics, determinism, learning.
+
+Images are simple drawn profiles per class (no simulator), so these run in seconds.
+"""
+import numpy as np
+import pytest
+import torch
+
+from devices.frames import MODES
+from inference.dataset import LabeledSession
+from inference.errors import InferenceError
+from inference.model import Classifier
+from inference.training import (
+    TrainSettings, _epoch_indices, augment_image, evaluate_sessions, format_metrics,
+    group_metrics, split_by_session, train,
+)
+
+
+def draw_profile(mode: str, rng: np.random.Generator, grid: int = 100) -> np.ndarray:
+    """A binary side view of the terrain ahead, as inference.preprocess draws it."""
+    x = np.arange(0, 95, 0.5)
+    if mode == "LG":
+        z = rng.normal(0, 0.4, len(x))
+    elif mode in ("UR", "DR"):
+        z = x * np.tan(np.radians(rng.uniform(10, 20))) * (1 if mode == "UR" else -1)
+    else:
+        start, riser, tread = rng.uniform(10, 30), rng.uniform(10, 20), rng.uniform(25, 35)
+        steps = np.floor(np.maximum(x - start, -1) / tread) + 1
+        z = steps * riser * (1 if mode == "US" else -1)
+    keep = rng.random(len(x)) > 0.1
+    x, z = x[keep], z[keep] + rng.normal(0, 0.3, keep.sum())
+    col = (x - x.min()).astype(int) + 1
+    up = (z - z.min()).astype(int) + 1
+    ok = (col < grid) & (up < grid)
+    image = np.zeros((grid, grid), np.uint8)
+    image[grid - 1 - up[ok], col[ok]] = 1
+    return image
+
+
+def drawn_session(name: str, preset: str, seed: int, per_class: int = 8,
+                  counts: dict | None = None) -> LabeledSession:
+    rng = np.random.default_rng(seed)
+    images, labels = [], []
+    for i, mode in enumerate(MODES):
+        for _ in range((counts or {}).get(mode, per_class)):
+            images.append(draw_profile(mode, rng))
+            labels.append(i)
+    return LabeledSession(name, np.array(images), np.array(labels), preset=preset,
+                          flags=np.array([""] * len(labels)))
+
+
+def drawn_sessions(count: int = 6, per_class: int = 8) -> list[LabeledSession]:
+    return [drawn_session(f"{'indoor' if i % 2 == 0 else 'outdoor'}-{i:06d}",
+                          "indoor" if i % 2 == 0 else "outdoor", i, per_class)
+            for i in range(count)]
+
+
+def test_split_keeps_every_session_whole_and_covers_both_presets():
+    sessions = drawn_sessions(10, per_class=1)
+    train_s, val_s, test_s = split_by_session(sessions, 0.2, 0.2, seed=3)
+    names = [[s.name for s in part] for part in (train_s, val_s, test_s)]
+    flat = sum(names, [])
+    assert sorted(flat) == sorted(s.name for s in sessions)  # each exactly once
+    assert len(set(flat)) == len(flat)
+    for part in (val_s, test_s):
+        assert {s.preset for s in part} == {"indoor", "outdoor"}
+    # Same seed, same split; the order of the input does not matter.
+    again = split_by_session(list(reversed(sessions)), 0.2, 0.2, seed=3)
+    assert [[s.name for s in part] for part in again] == names
+
+
+def test_split_refuses_too_few_or_duplicate_sessions():
+    with pytest.raises(InferenceError, match="at least 3"):
+        split_by_session(drawn_sessions(2, 1), 0.2, 0.2, 0)
+    s = drawn_sessions(3, 1)
+    s[1].name = s[0].name
+    with pytest.raises(InferenceError, match="same name"):
+        split_by_session(s, 0.2, 0.2, 0)
+
+
+def test_balanced_sampling_draws_classes_evenly():
+    labels = np.array([0] * 900 + [1] * 50 + [2] * 25 + [3] * 15 + [4] * 10)
+    idx = _epoch_indices(labels, 10_000, True, np.random.default_rng(0))
+    share = np.bincount(labels[idx], minlength=5) / len(idx)
+    assert np.all(np.abs(share - 0.2) < 0.03)
+    plain = _epoch_indices(labels, 1000, False, np.random.default_rng(0))
+    assert sorted(plain) == list(range(1000))
+
+
+def test_augmentation_keeps_a_plausible_binary_profile():
+    rng = np.random.default_rng(1)
+    image = draw_profile("US", rng)
+    out = [augment_image(image, rng) for _ in range(20)]
+    for a in out:
+        assert a.shape == image.shape and set(np.unique(a)) <= {0, 1}
+        rows, cols = np.nonzero(a)
+        assert cols.min() <= 2 and rows.max() >= 96  # the authors' shift, give a stray cell
+        assert abs(int(a.sum()) - int(image.sum())) < 0.5 * image.sum()
+    assert any(not np.array_equal(a, image) for a in out)
+    empty = np.zeros_like(image)
+    assert not augment_image(empty, rng).any()
+
+
+def test_group_metrics_and_report():
+    labels = np.array([0, 0, 0, 1, 1, 2])
+    preds = np.array([0, 0, 1, 1, 1, 0])
+    m = group_metrics(labels, preds)
+    assert m.frames == 6 and m.accuracy == pytest.approx(4 / 6)
+    assert m.per_class["LG"] == pytest.approx(2 / 3) and m.per_class["DS"] == 0.0
+    assert m.per_class["UR"] is None
+    assert m.balanced_accuracy == pytest.approx((2 / 3 + 1 + 0) / 3)
+    assert m.confusion[0] == [2, 1, 0, 0, 0] and m.confusion[2][0] == 1
+    text = format_metrics({"all": m})
+    assert "66.67 %" in text and "confusion" in text and "DS" in text
+
+
+def _tiny_settings(**kw) -> TrainSettings:
+    base = dict(epochs=2, batch_size=16, max_steps=4, hidden=8, device="cpu", threads=1,
+                val_fraction=0.2, test_fraction=0.2, seed=5, samples_per_epoch=32)
+    base.update(kw)
+    return TrainSettings(**base)
+
+
+def test_training_is_deterministic_for_a_seed():
+    sessions = drawn_sessions(6, per_class=3)
+    a = train(sessions, _tiny_settings(), show_progress=False)
+    b = train(sessions, _tiny_settings(), show_progress=False)
+    c = train(sessions, _tiny_settings(seed=6), show_progress=False)
+    for k, v in a.net.state_dict().items():
+        assert torch.equal(v, b.net.state_dict()[k]), k
+    assert a.split == b.split
+    assert any(not torch.equal(v, c.net.state_dict()[k]) for k, v in a.net.state_dict().items())
+    assert a.history and {"train_loss", "val_loss", "val_accuracy"} <= set(a.history[0])
+    assert set(a.test_metrics) >= {"all"}
+
+
+def test_training_learns_drawn_profiles_and_reports_unseen_sessions():
+    sessions = drawn_sessions(6, per_class=12)
+    settings = TrainSettings(epochs=8, batch_size=32, hidden=16, device="cpu", patience=8,
+                             samples_per_epoch=256, seed=0, lr=3e-3, threads=1)
+    result = train(sessions, settings, show_progress=False)
+    test = result.test_metrics
+    assert {"all", "indoor", "outdoor"} <= set(test)
+    assert test["all"].accuracy > 0.8, format_metrics(test)
+    # The test sessions were neither trained nor validated on.
+    assert not set(result.split["test"]) & set(result.split["train"] + result.split["validation"])
+    # A fresh session, never seen: still right.
+    fresh = drawn_session("fresh", "indoor", 99, per_class=10)
+    metrics = evaluate_sessions(Classifier(result.net), [fresh])
+    assert metrics["all"].accuracy > 0.8
+
+
+def test_early_stopping_restores_the_best_epoch(monkeypatch):
+    import inference.training as training
+
+    losses = iter([1.0, 0.5, 0.7, 0.8, 0.9, 1.0])
+    monkeypatch.setattr(training, "_validate",
+                        lambda net, x, y, device: (next(losses), 0.5, 0.5))
+    result = train(drawn_sessions(6, 2), _tiny_settings(epochs=6, patience=2, max_steps=0,
+                                                         samples_per_epoch=16),
+                   show_progress=False)
+    assert result.stopped_early and result.best_epoch == 2 and len(result.history) == 4
+
+
+def test_unbalanced_frames_are_balanced_in_training(monkeypatch):
+    import inference.training as training
+
+    seen = []
+    real = training._batches
+
+    def spy(images, labels, order, *a, **kw):
+        seen.extend(labels[order])
+        return real(images, labels, order, *a, **kw)
+
+    monkeypatch.setattr(training, "_batches", spy)
+    counts = {"LG": 40, "US": 4, "DS": 4, "UR": 4, "DR": 4}
+    sessions = [drawn_session(f"s{i}", "indoor", i, counts=counts) for i in range(4)]
+    train(sessions, _tiny_settings(max_steps=1, epochs=1, samples_per_epoch=2000,
+                                   batch_size=8, val_fraction=0.25, test_fraction=0.0),
+          show_progress=False)
+    share = np.bincount(seen, minlength=5) / len(seen)
+    assert share.max() < 0.3
