@@ -122,7 +122,11 @@ def _failure_message(e: BaseException, path: Path, seconds: float) -> str:
 
 
 class Recorder:
-    """An MCAP recording being written. `start()`, then `write_*` from any thread, `close()`."""
+    """An MCAP recording being written. `start()`, then `write_*` from any thread, `close()`.
+
+    `write_*` keep references to the arrays they are given (no copy on the caller's
+    thread): the caller must not modify them afterwards.
+    """
 
     def __init__(self, path: str | os.PathLike, *, metadata: dict[str, dict[str, str]] | None = None,
                  attachments: dict[str, bytes] | None = None, queue_size: int = 512,

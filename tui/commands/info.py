@@ -55,7 +55,7 @@ def describe(rec) -> list[str]:
         lines.append(f"  time        {_wall(rec, rec.start_ns)} -> {_wall(rec, rec.end_ns)}, "
                      f"{rec.duration_s:.1f} s")
     times = rec.log_times()
-    lines.append("  topics      messages    rate  schema")
+    lines.append("  topics      messages    rate  schema" if rec.topics else "  topics      none")
     for topic in sorted(rec.topics):
         info = rec.topics[topic]
         t = times.get(topic, [])
