@@ -1,12 +1,67 @@
-"""`walkcap synth`: write simulated sessions (training sets and recordings)"""
+"""`walkcap synth`: write simulated sessions (training sets and recordings)
+
+    walkcap synth --out DIR [--sessions N] [--preset indoor|outdoor|both] [--seed S]
+                  [--format dataset] [--frames N] [--workers N]
+
+`--format dataset` renders each session with the terrain-walk simulator at the camera's
+rate, levels every frame with a noisy IMU orientation, preprocesses it as the live
+pipeline does and writes one compressed .npz per session (images, true modes, flags,
+metadata) for `walkcap train`. Session i uses seed S + i; "both" alternates presets.
+"""
+from __future__ import annotations
+
+import argparse
+
 from tui.cli import NotYetAvailable
 
 HELP = "write simulated sessions (training sets and recordings)"
 
 
+def _positive(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
+    return value
+
+
 def add_arguments(parser) -> None:
-    parser.add_argument("rest", nargs="*", help="(not available yet)")
+    parser.add_argument("--out", metavar="DIR", required=True, help="output folder")
+    parser.add_argument("--sessions", type=_positive, default=1, metavar="N",
+                        help="number of sessions (default 1)")
+    parser.add_argument("--preset", choices=("indoor", "outdoor", "both"), default="both",
+                        help="course preset; both alternates indoor and outdoor (default)")
+    parser.add_argument("--seed", type=int, default=0, metavar="S",
+                        help="seed of the first session; session i uses S + i (default 0)")
+    parser.add_argument("--format", choices=("dataset", "recording"), default="dataset",
+                        help="dataset: .npz training sessions (default); recording: MCAP")
+    parser.add_argument("--frames", type=_positive, metavar="N",
+                        help="at most N frames per session (default: the whole walk)")
+    parser.add_argument("--workers", type=_positive, default=1, metavar="N",
+                        help="processes rendering sessions in parallel (default 1)")
+    parser.add_argument("--imu-noise-deg", type=float, default=None, metavar="DEG",
+                        help="per-frame IMU orientation noise, 1 sigma (default 0.7)")
+    parser.add_argument("--fixed-walker", action="store_true",
+                        help="use the [simulator] walker for every session instead of "
+                        "drawing speed, cadence, camera height and tilt per session")
 
 
 def run(args, config) -> int:
-    raise NotYetAvailable("not available yet: it lands with the [camera] issue")
+    if args.format == "recording":
+        raise NotYetAvailable("--format recording is not available yet: it lands with the "
+                              "[recording] issue")
+    from dataclasses import replace
+
+    from inference.dataset import SynthSettings, synth_dataset
+    from inference.preprocess import PreprocessParams
+
+    settings = SynthSettings(max_frames=args.frames or 0, vary_walker=not args.fixed_walker)
+    if args.imu_noise_deg is not None:
+        settings = replace(settings, imu_noise_deg=args.imu_noise_deg)
+    paths = synth_dataset(args.out, args.sessions, args.preset, args.seed,
+                          params=PreprocessParams.from_config(config), settings=settings,
+                          simulator_config=config.simulator, workers=args.workers)
+    print(f"wrote {len(paths)} session(s) to {args.out}")
+    return 0

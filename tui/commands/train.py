@@ -1,12 +1,103 @@
-"""`walkcap train`: train the terrain classifier"""
-from tui.cli import NotYetAvailable
+"""`walkcap train`: train the terrain classifier
+
+    walkcap train --data DIR|FILE ... [--out PATH] [--epochs N] [--seed S] ...
+
+Reads labelled sessions (`walkcap synth --format dataset` output; recordings with
+operator labels once recording lands), splits them by session into train / validation /
+test, trains with class balancing, augmentation and early stopping, writes the weights
+(PATH, a PyTorch state dict) and PATH.json (metadata), and prints per-class accuracy and
+the confusion matrix on the held-out test sessions, indoor and outdoor.
+"""
+from __future__ import annotations
+
+import argparse
 
 HELP = "train the terrain classifier"
 
 
+def _count(minimum: int):
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {value}")
+        return value
+    return parse
+
+
 def add_arguments(parser) -> None:
-    parser.add_argument("rest", nargs="*", help="(not available yet)")
+    from inference.training import TrainSettings
+
+    d = TrainSettings()
+    parser.add_argument("--data", nargs="+", required=True, metavar="PATH",
+                        help="session files or folders (.npz from `walkcap synth`)")
+    parser.add_argument("--out", default="runs/terrain_cnn.pt", metavar="PATH",
+                        help="weights file to write; metadata goes to PATH with .json "
+                        "(default runs/terrain_cnn.pt)")
+    parser.add_argument("--epochs", type=_count(1), default=d.epochs, metavar="N",
+                        help=f"at most N epochs (default {d.epochs})")
+    parser.add_argument("--batch-size", type=_count(1), default=d.batch_size, metavar="N")
+    parser.add_argument("--lr", type=float, default=d.lr, help=f"learning rate (default {d.lr})")
+    parser.add_argument("--patience", type=_count(1), default=d.patience, metavar="N",
+                        help=f"stop after N epochs without progress (default {d.patience})")
+    parser.add_argument("--seed", type=int, default=d.seed, metavar="S",
+                        help="seed of the split, sampling, augmentation and initialisation")
+    parser.add_argument("--hidden", type=_count(1), default=d.hidden, metavar="N",
+                        help=f"width of the hidden fully connected layer (default {d.hidden})")
+    parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default=None,
+                        help="default: [model] device (auto: the GPU when there is one)")
+    parser.add_argument("--samples-per-epoch", type=_count(1), default=None, metavar="N",
+                        help="frames drawn per epoch (default: the training set's size)")
+    parser.add_argument("--max-steps", type=_count(1), default=None, metavar="N",
+                        help="stop after N optimiser steps (quick checks)")
+    parser.add_argument("--threads", type=_count(1), default=None, metavar="N",
+                        help="CPU threads for torch (default: torch's choice)")
+    parser.add_argument("--val-fraction", type=float, default=d.val_fraction, metavar="F")
+    parser.add_argument("--test-fraction", type=float, default=d.test_fraction, metavar="F")
+    parser.add_argument("--no-augment", action="store_true", help="no augmentation")
+    parser.add_argument("--no-balance", action="store_true", help="no class balancing")
+    parser.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
 def run(args, config) -> int:
-    raise NotYetAvailable("not available yet: it lands with the [cnn] issue")
+    from inference.dataset import find_session_files, read_sessions
+    from inference.model import file_sha256
+    from inference.preprocess import PreprocessParams
+    from inference.training import TrainSettings, format_metrics, save_result, train
+
+    settings = TrainSettings(
+        epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, patience=args.patience,
+        seed=args.seed, hidden=args.hidden, device=args.device or config.model.device,
+        augment=not args.no_augment, balance=not args.no_balance,
+        samples_per_epoch=args.samples_per_epoch or 0, max_steps=args.max_steps or 0,
+        threads=args.threads or 0, val_fraction=args.val_fraction,
+        test_fraction=args.test_fraction)
+    files = find_session_files(args.data)
+    sessions = read_sessions(files)
+    frames = sum(len(s) for s in sessions)
+    print(f"{len(sessions)} sessions, {frames} frames from {', '.join(args.data)}")
+    preprocess = _preprocess_params(sessions) or PreprocessParams.from_config(config).to_dict()
+    result = train(sessions, settings, show_progress=not args.quiet)
+    path = save_result(result, args.out, settings, preprocess, [str(f) for f in files])
+    split = result.split
+    print(f"best epoch {result.best_epoch} of {len(result.history)}"
+          f"{' (early stop)' if result.stopped_early else ''}, {result.seconds:.0f} s; "
+          f"sessions: {len(split['train'])} train, {len(split['validation'])} validation, "
+          f"{len(split['test'])} test")
+    if result.test_metrics:
+        print(format_metrics(result.test_metrics, "test sessions (unseen in training):"))
+    else:
+        print("no test sessions (--test-fraction 0 or too few sessions)")
+    print(f"wrote {path} (sha256 {file_sha256(path)[:12]}) and {path.with_suffix('.json')}")
+    return 0
+
+
+def _preprocess_params(sessions) -> dict | None:
+    """The preprocessing the sessions were made with, without the per-session mounting."""
+    for s in sessions:
+        params = s.meta.get("preprocess")
+        if params:
+            return {k: v for k, v in params.items() if not k.startswith("mounting_")}
+    return None
