@@ -1,0 +1,257 @@
+"""The depth camera: one interface for every backend, and a registry of backends by name.
+
+    camera = open_camera(config.camera, config.simulator)   # constructed and opened
+    with camera:                                            # close() on the way out
+        camera.start()
+        frame = camera.recv(timeout=0.5)                    # DepthFrame or None
+        camera.status(); camera.poll_events()
+        camera.stop()
+
+A backend subclasses `Camera`, implements the hooks `_open`, `_start`, `_stop`, `_close`,
+and hands frames from its own thread (or the SDK's) to `_deliver`. The base class does the
+rest: a bounded buffer that drops the oldest frame when the consumer is slow (and counts
+it), the measured rate, stall detection, events, the life cycle and the context manager.
+Backends are named in `BACKENDS` and imported only when chosen, so a missing vendor SDK
+costs nothing until someone asks for that camera (as python-can does).
+"""
+from __future__ import annotations
+
+import importlib
+import threading
+from typing import Iterator
+
+from devices.base import (
+    DEGRADED, LOST, OK, STOPPED, BoundedBuffer, DeviceEvent, DeviceStatus, RateMeter,
+)
+from devices.clock import now_ns
+from devices.errors import DeviceNotAvailable
+from devices.frames import CameraGeometry, DepthFrame
+
+BACKENDS: dict[str, str] = {
+    "mock": "devices.simulator.camera:MockCamera",
+    "royale": "devices.royale:RoyaleCamera",
+    "replay": "devices.replay:ReplayCamera",
+}
+
+
+def camera_class(name: str) -> type["Camera"]:
+    """The backend class registered under `name`, its module imported now."""
+    try:
+        target = BACKENDS[name]
+    except KeyError:
+        known = ", ".join(sorted(BACKENDS))
+        raise DeviceNotAvailable(f"unknown camera backend {name!r} (known: {known})") from None
+    module_name, _, class_name = target.partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as e:
+        raise DeviceNotAvailable(f"camera backend {name!r} cannot be loaded: {e}") from None
+    return getattr(module, class_name)
+
+
+def open_camera(camera_config=None, simulator_config=None, **kw) -> "Camera":
+    """Construct the configured backend and open it (not started yet).
+
+    `camera_config` is a capture.config.CameraConfig (default: mock at 15 fps); the mock
+    backend also takes the SimulatorConfig; other keywords go to the backend.
+    """
+    if camera_config is None:
+        from capture.config import CameraConfig
+
+        camera_config = CameraConfig()
+    camera = camera_class(camera_config.backend).from_config(camera_config, simulator_config,
+                                                             **kw)
+    try:
+        camera.open()
+    except BaseException:
+        camera.close()
+        raise
+    return camera
+
+
+class Camera:
+    """Base of every depth camera backend. Thread-safe between one producer and consumers."""
+
+    backend = "camera"
+
+    def __init__(self, config=None, *, geometry: CameraGeometry | None = None) -> None:
+        if config is None:
+            from capture.config import CameraConfig
+
+            config = CameraConfig()
+        self.config = config
+        self.geometry = geometry or CameraGeometry()
+        self._buffer: BoundedBuffer[DepthFrame] = BoundedBuffer(max(1, config.buffer_frames))
+        self._events: BoundedBuffer[DeviceEvent] = BoundedBuffer(256)
+        self._rate = RateMeter()
+        self._lock = threading.Lock()
+        self._opened = False
+        self._running = False
+        self._state = STOPPED
+        self._message = "closed"
+        self._delivered = 0
+        self._errors = 0
+        self._last_frame_ns = 0
+        self._started_ns = 0
+        self._reported_drops = 0
+        self._drop_event_ns = 0
+        self._stalled = False
+        self.details: dict = {}  # backend facts for status(): camera name, use case, ...
+
+    @classmethod
+    def from_config(cls, camera_config, simulator_config=None, **kw) -> "Camera":
+        """Construct from the configuration; backends needing more override this."""
+        return cls(camera_config, **kw)
+
+    # ---- backend hooks ------------------------------------------------------------------
+
+    def _open(self) -> None:
+        """Connect and configure the device; raise DeviceError subclasses on failure."""
+
+    def _start(self) -> None:
+        """Begin producing frames (from a thread or an SDK callback) into `_deliver`."""
+
+    def _stop(self) -> None:
+        """Stop producing; after it returns no more `_deliver` calls come."""
+
+    def _close(self) -> None:
+        """Release the device."""
+
+    # ---- life cycle ---------------------------------------------------------------------
+
+    def open(self) -> None:
+        """Connect to the device. Idempotent."""
+        if self._opened:
+            return
+        self._open()
+        self._opened = True
+        self._message = "open"
+
+    def start(self) -> None:
+        """Start streaming (opens first if needed). Idempotent."""
+        self.open()
+        if self._running:
+            return
+        self._started_ns = now_ns()
+        self._last_frame_ns = 0
+        self._stalled = False
+        self._set_state(OK, "streaming")
+        self._running = True
+        try:
+            self._start()
+        except BaseException:
+            self._running = False
+            self._set_state(STOPPED, "failed to start")
+            raise
+
+    def stop(self) -> None:
+        """Stop streaming; frames already buffered can still be received. Idempotent."""
+        if self._running:
+            self._running = False
+            self._stop()
+        if self._state != STOPPED:
+            self._set_state(STOPPED, "stopped")
+
+    def close(self) -> None:
+        """Stop and release the device. Idempotent."""
+        try:
+            self.stop()
+        finally:
+            if self._opened:
+                self._opened = False
+                self._close()
+            self._message = "closed"
+
+    def __enter__(self) -> "Camera":
+        self.open()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    @property
+    def running(self) -> bool:
+        """Started and still producing (False after stop() or the end of a course)."""
+        return self._running and self._state != STOPPED
+
+    # ---- consumer side ------------------------------------------------------------------
+
+    def recv(self, timeout: float | None = None) -> DepthFrame | None:
+        """The oldest buffered frame, waiting up to `timeout` s; None when there is none."""
+        return self._buffer.get(timeout)
+
+    def __iter__(self) -> Iterator[DepthFrame]:
+        """Frames until the camera has stopped and its buffer is empty."""
+        while True:
+            frame = self.recv(0.1)
+            if frame is not None:
+                yield frame
+            elif self._state == STOPPED and len(self._buffer) == 0:
+                return
+
+    def status(self) -> DeviceStatus:
+        t = now_ns()
+        state, message = self._state, self._message
+        if state == OK:
+            since = self._last_frame_ns or self._started_ns
+            silent_s = (t - since) * 1e-9
+            if silent_s > self._stall_after_s():
+                state, message = DEGRADED, f"no frame for {silent_s:.1f} s"
+                if not self._stalled:
+                    self._stalled = True
+                    self._event("stall", message)
+        with self._lock:
+            rate = self._rate.rate(t)
+        return DeviceStatus(
+            backend=self.backend, state=state, message=message,
+            configured_rate_hz=float(self.config.fps), measured_rate_hz=rate,
+            delivered=self._delivered, dropped=self._buffer.dropped, errors=self._errors,
+            details=dict(self.details),
+        )
+
+    def poll_events(self) -> list[DeviceEvent]:
+        """Events since the last call (faults, gaps, drops, end of course), oldest first."""
+        events = []
+        while (e := self._events.get(0)) is not None:
+            events.append(e)
+        return events
+
+    # ---- producer side (backends) -------------------------------------------------------
+
+    def _stall_after_s(self) -> float:
+        return max(1.0, 5.0 / max(self.config.fps, 1e-3))
+
+    def _deliver(self, frame: DepthFrame) -> None:
+        """Hand a frame to consumers; never blocks (the oldest buffered frame is dropped)."""
+        with self._lock:
+            self._rate.tick(frame.host_time_ns)
+            self._delivered += 1
+            self._last_frame_ns = frame.host_time_ns
+        self._stalled = False
+        self._buffer.put(frame)
+        dropped = self._buffer.dropped
+        if dropped > self._reported_drops and frame.host_time_ns - self._drop_event_ns > 1e9:
+            self._event("drop", f"{dropped - self._reported_drops} frames dropped: the "
+                        "consumer is slower than the camera", dropped=dropped)
+            self._reported_drops = dropped
+            self._drop_event_ns = frame.host_time_ns
+
+    def _event(self, kind: str, message: str, **details) -> None:
+        self._events.put(DeviceEvent(now_ns(), "camera", kind, message, details))
+
+    def _set_state(self, state: str, message: str) -> None:
+        self._state, self._message = state, message
+
+    def _count_error(self, n: int = 1) -> None:
+        self._errors += n
+
+    def _finish(self, kind: str, message: str) -> None:
+        """The producer ended on its own (end of course or recording): stopped, one event."""
+        self._set_state(STOPPED, message)
+        self._event(kind, message)
+
+    def _fail(self, message: str) -> None:
+        """The device was lost while running."""
+        self._set_state(LOST, message)
+        self._event("lost", message)
+

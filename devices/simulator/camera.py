@@ -1,0 +1,125 @@
+"""The mock camera: the terrain-walk simulator behind the camera interface.
+
+It renders on its own thread. Frame k shows the walk at t = k / fps seconds;
+`device_time_ns = start_time_ns + t` (session clock), `host_time_ns` is when it was
+delivered. With `realtime` it paces frames at the configured fps (a late frame is skipped,
+counted and reported as a "gap"); otherwise it renders as fast as the consumer takes
+frames, never dropping one. At the end of the course it stops (state "stopped", event
+"end_of_course"), or starts the course again with `loop=True`.
+
+The IMU emulator must see the same walk on the same time base: give it
+`camera.orientation_at` (or `camera.simulator.thigh_quaternion` without looping), with t in
+seconds since `camera.start_time_ns`. Set `start_time_ns` before `start()` to share a
+start time chosen elsewhere; otherwise `start()` sets it.
+"""
+from __future__ import annotations
+
+import logging
+import threading
+import time
+
+import numpy as np
+
+from devices.camera import Camera
+from devices.clock import now_ns
+from devices.frames import CameraGeometry
+from devices.simulator.simulator import Simulator
+
+log = logging.getLogger(__name__)
+
+
+class MockCamera(Camera):
+    backend = "mock"
+
+    def __init__(self, config=None, simulator_config=None, *, simulator: Simulator | None = None,
+                 loop: bool = False, realtime: bool | None = None,
+                 geometry: CameraGeometry | None = None) -> None:
+        super().__init__(config, geometry=geometry)
+        if simulator is None:
+            if simulator_config is None:
+                from capture.config import SimulatorConfig
+
+                simulator_config = SimulatorConfig()
+            simulator = Simulator.from_config(simulator_config, self.geometry)
+            if realtime is None:
+                realtime = simulator_config.realtime
+        self.simulator = simulator
+        self.geometry = simulator.geometry
+        self.loop = loop
+        self.realtime = True if realtime is None else realtime
+        self.start_time_ns: int | None = None
+        self._halt = threading.Event()
+        self._thread: threading.Thread | None = None
+        course = simulator.course
+        self.details = {"course": course.preset, "seed": course.seed,
+                        "modes": "".join(m[0] + m[1].lower() for m in course.modes),
+                        "duration_s": round(simulator.duration_s, 2), "loop": loop,
+                        "realtime": self.realtime}
+
+    @classmethod
+    def from_config(cls, camera_config, simulator_config=None, **kw) -> "MockCamera":
+        return cls(camera_config, simulator_config, **kw)
+
+    def walk_time(self, t_s: float) -> float:
+        """Seconds since start -> time in the walk (wraps when looping)."""
+        duration = self.simulator.duration_s
+        return t_s % duration if self.loop and t_s >= 0 else t_s
+
+    def orientation_at(self, t_s: float) -> np.ndarray:
+        """The thigh orientation t_s seconds after start_time_ns (what the IMU should see)."""
+        return self.simulator.thigh_quaternion(self.walk_time(t_s))
+
+    def _start(self) -> None:
+        if self.start_time_ns is None:
+            self.start_time_ns = now_ns()
+        self._halt.clear()
+        self._thread = threading.Thread(target=self._run, name="walkcap-mock-camera",
+                                        daemon=True)
+        self._thread.start()
+
+    def _stop(self) -> None:
+        self._halt.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+            self._thread = None
+        self.start_time_ns = None  # a new start() begins a new walk
+
+    def _run(self) -> None:
+        try:
+            self._produce()
+        except Exception as e:  # a bug in the simulator must show, not hang the session
+            log.exception("mock camera")
+            self._fail(f"simulator failed: {type(e).__name__}: {e}")
+
+    def _produce(self) -> None:
+        period = 1.0 / self.config.fps
+        start = self.start_time_ns
+        k = 0
+        while not self._halt.is_set():
+            t = k * period
+            if t > self.simulator.duration_s and not self.loop:
+                self._finish("end_of_course", f"end of the course after {k} frames")
+                return
+            if self.realtime:
+                wait = (start + t * 1e9 - now_ns()) * 1e-9
+                if wait > 0 and self._halt.wait(wait):
+                    return
+                behind = int(-wait / period)
+                if behind >= 1:  # too late for this frame: skip to the current one
+                    self._count_error(behind)
+                    self._event("gap", f"{behind} frames skipped: the simulator is too slow",
+                                skipped=behind)
+                    k += behind
+                    continue
+            else:
+                while len(self._buffer) >= self._buffer_size and not self._halt.is_set():
+                    time.sleep(0.002)  # as fast as the consumer takes frames, losing none
+            frame = self.simulator.render(self.walk_time(t), index=k)
+            frame.device_time_ns = start + int(round(t * 1e9))
+            frame.host_time_ns = now_ns()
+            self._deliver(frame)
+            k += 1
+
+    @property
+    def _buffer_size(self) -> int:
+        return max(1, self.config.buffer_frames)

@@ -1,0 +1,148 @@
+"""The terrain-walk simulator: what a leg-worn ToF camera sees while its wearer walks a course.
+
+`Simulator(course).render(t)` gives the depth frame at t seconds into the walk, with the
+ground truth in `frame.truth`:
+- "mode": the mode of the course segment `lookahead_m` (default 0.8 m) ahead of the
+  camera along the course. The rule follows the walker, not the swinging view, so the
+  mode changes once per transition, as an operator keying the mode would change it.
+  0.8 m is about where the 1 m window the classifier sees is centred on average: of the
+  look-aheads 0.6-1.5 m it agrees best with what the camera sees (indoor and outdoor).
+- "view_mode": the mode covering most of the terrain actually seen in the central image
+  columns (the classifier's corridor), within 1 m of the nearest visible point; "" when
+  no terrain is seen; "view_share": the share of that terrain that has the true mode.
+  Around transitions they differ from "mode": a frame whose view_share is below ~0.2
+  does not show its true terrain and is genuinely ambiguous.
+- "camera_pose": camera -> world, 4x4 nested list; "thigh_quaternion": [w, x, y, z],
+  IMU (thigh) -> world, without sensor noise; "segment": index of the mode's segment;
+  "error": "" or the kind of error image ("swing_blur", "sky", "foot", "occlusion").
+
+Every frame is a pure function of (course, walker parameters, seed, t): deterministic.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from capture.errors import ConfigError
+from devices.frames import MODES, CameraGeometry, DepthFrame
+from devices.simulator.course import Course, make_course
+from devices.simulator.render import (
+    TerrainScene, ToFParams, ToFSensor, blend_swing, draw_foot, draw_occlusion,
+)
+from devices.simulator.walk import Walk
+
+CORRIDOR_PX = 9  # half-width of the central columns (~0.1 m at 1 m, the classifier's corridor)
+OUTDOOR_ERROR_RATE = 1.6  # error images outdoors relative to indoors
+
+
+class Simulator:
+    def __init__(self, course: Course, *, geometry: CameraGeometry = CameraGeometry(),
+                 speed_mps: float = 1.1, cadence_spm: float = 105.0,
+                 camera_height_m: float = 0.55, camera_tilt_deg: float = 35.0, seed: int = 0,
+                 lookahead_m: float = 0.8, error_rate: float | None = None,
+                 events=None) -> None:
+        """`error_rate` scales the error images (default 1 indoors, 1.6 outdoors); `events`
+        (ErrorEvent list) replaces their random schedule, e.g. [] for none."""
+        if error_rate is None:
+            error_rate = OUTDOOR_ERROR_RATE if course.outdoor else 1.0
+        self.course = course
+        self.geometry = geometry
+        self.seed = seed
+        self.lookahead_m = lookahead_m
+        self.walk = Walk(course, speed_mps=speed_mps, cadence_spm=cadence_spm,
+                         camera_height_m=camera_height_m, camera_tilt_deg=camera_tilt_deg,
+                         error_rate=error_rate, seed=seed, events=events)
+        self.scene = TerrainScene(course, geometry)
+        self.sensor = ToFSensor(geometry, ToFParams.for_course(course), seed)
+        c = int(round(geometry.cx))
+        cols = np.arange(max(0, c - CORRIDOR_PX), min(geometry.width, c + CORRIDOR_PX + 1))
+        self._corridor = (np.arange(geometry.height)[:, None] * geometry.width + cols).ravel()
+
+    @classmethod
+    def from_config(cls, config, geometry: CameraGeometry | None = None) -> "Simulator":
+        """From a capture.config.SimulatorConfig (course preset, seed, walker, camera)."""
+        try:
+            course = make_course(config.course, config.seed)
+            return cls(course, geometry=geometry or CameraGeometry(),
+                       speed_mps=config.speed_mps, cadence_spm=config.cadence_spm,
+                       camera_height_m=config.camera_height_m,
+                       camera_tilt_deg=config.camera_tilt_deg, seed=config.seed)
+        except ValueError as e:
+            raise ConfigError(f"simulator: {e}") from None
+
+    @property
+    def duration_s(self) -> float:
+        return self.walk.duration_s
+
+    def thigh_quaternion(self, t_s: float) -> np.ndarray:
+        """IMU (thigh) -> world orientation at t_s, [w, x, y, z], without sensor noise."""
+        return self.walk.thigh_quaternion(t_s)
+
+    def camera_pose(self, t_s: float) -> np.ndarray:
+        return self.walk.camera_pose(t_s)
+
+    def truth_segment(self, t_s: float, pose: np.ndarray | None = None) -> int:
+        """Index of the segment whose mode is the ground truth at t_s (see module doc)."""
+        pose = self.walk.camera_pose(t_s) if pose is None else pose
+        return int(self.course.segment_index(pose[0, 3] + self.lookahead_m))
+
+    def render(self, t_s: float, index: int = 0) -> DepthFrame:
+        """The frame at t_s seconds into the walk; times are t_s on the walk's own clock."""
+        quaternion, pose = self.walk.pose(t_s)
+        rng = np.random.default_rng([self.seed, int(round(max(t_s, 0.0) * 1e6))])
+        hits = self.scene.cast(pose)
+        segment = self.truth_segment(t_s, pose)
+        mode = self.course.segments[segment].mode
+        view_mode, view_share = self._view(hits, pose, mode)
+        event = self.walk.event_at(t_s)
+        noise_scale = 1.0
+        if event is not None:
+            shape_rng = np.random.default_rng(event.seed)  # one shape for the whole event
+            if event.kind == "swing_blur":
+                delta = self.walk.flexion_rate(t_s) * (0.05 + 0.05 * event.strength)
+                other = self.scene.cast(self.walk.camera_pose(t_s, extra_flexion=delta))
+                hits = blend_swing(hits, other, rng)
+                noise_scale = 2.0
+            elif event.kind == "foot":
+                progress = (t_s - event.t0) / (event.t1 - event.t0)
+                draw_foot(hits, self.geometry, progress, event.strength, shape_rng)
+            elif event.kind == "occlusion":
+                draw_occlusion(hits, self.sensor.rays_cam, self.geometry, event.strength,
+                               shape_rng)
+        xyz, confidence, gray = self.sensor.apply(hits, rng, noise_scale)
+        truth = {
+            "mode": mode,
+            "view_mode": view_mode,
+            "view_share": view_share,
+            "camera_pose": pose.tolist(),
+            "thigh_quaternion": quaternion.tolist(),
+            "segment": segment,
+            "error": event.kind if event is not None else "",
+        }
+        t_ns = int(round(t_s * 1e9))
+        return DepthFrame(index, t_ns, t_ns, xyz, confidence, gray, self.geometry, truth)
+
+    def _view(self, hits, pose: np.ndarray, mode: str) -> tuple[str, float]:
+        """(mode seen most, share of the true mode) in the classifier's corridor window."""
+        label = hits.label[self._corridor]
+        t = hits.t[self._corridor]
+        seen = (label >= 0) & (t <= self.geometry.max_range_m)
+        if not seen.any():
+            return "", 0.0
+        forward = t[seen] * (self.sensor.rays_cam[self._corridor[seen]] @ pose[0, :3])
+        near = forward <= forward.min() + 1.0
+        counts = np.bincount(label[seen][near], minlength=len(MODES))
+        return MODES[int(np.argmax(counts))], float(counts[MODES.index(mode)] / counts.sum())
+
+
+def bench_sim_frame(frames: int = 200) -> float:
+    """Median milliseconds per rendered 224 x 171 frame (indoor course, seed 0, 15 fps)."""
+    sim = Simulator(make_course("indoor", 0))
+    times = []
+    for k in range(frames):
+        t = (k / 15.0) % sim.duration_s
+        t0 = time.perf_counter()
+        sim.render(t, index=k)
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times) * 1e3)

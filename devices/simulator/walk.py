@@ -1,0 +1,213 @@
+"""The walker: where the thigh, and so the IMU and the camera on it, is at any time.
+
+A walker crosses the course at a speed and cadence that the terrain changes (slower on
+stairs). The thigh swings with the gait: its flexion angle is mean + amplitude * sin(phase),
+about 8 +- 24 degrees on level ground, more flexion going up, less going down. The IMU
+body frame is the thigh's (x forward, y left, z up when standing), so its orientation is
+roll, pitch = -flexion, yaw (flexion lifts the knee and tilts the camera up). The camera
+sits on the front of the thigh, `camera_height_m` above the ground when standing, tilted
+down by `camera_tilt_deg`: camera -> world = thigh -> world @ mounting_matrix(0, tilt, 0).
+
+Error images (the paper: "the camera may capture error images when the leg swings
+quickly") are scheduled per stride at the gait phase where they happen:
+- swing_blur: at peak angular velocity; the image mixes two poses (ToF motion artefacts);
+- sky: a high knee lift (extra 25-35 degrees of flexion) at peak flexion;
+- foot: the other foot passing in front of the camera at full extension;
+- occlusion: something close in front of the lens (a hand, a bag, a passer-by), any time.
+
+Everything is precomputed on a 1 cm grid along the course at construction, so any time
+can be asked in any order (the camera and the IMU emulator ask independently), and the
+same seed gives the same walk.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from devices.rotations import mounting_matrix, quat_from_euler
+from devices.simulator.course import Course
+
+# Per mode: speed factor, cadence factor, mean flexion (deg), flexion amplitude (deg).
+GAIT = {
+    "LG": (1.0, 1.0, 8.0, 24.0),
+    "US": (0.5, 0.85, 18.0, 22.0),
+    "DS": (0.5, 0.85, 2.0, 16.0),
+    "UR": (0.9, 0.95, 13.0, 24.0),
+    "DR": (0.9, 0.95, 4.0, 22.0),
+}
+ERROR_KINDS = ("swing_blur", "sky", "foot", "occlusion")
+# Per kind: probability per stride (indoors), gait phase (rad; None = any), duration (s).
+ERROR_SCHEDULE = {
+    "swing_blur": (0.10, 0.0, (0.06, 0.14)),
+    "sky": (0.03, np.pi / 2, (0.20, 0.35)),
+    "foot": (0.05, 3 * np.pi / 2, (0.12, 0.28)),
+    "occlusion": (0.03, None, (0.12, 0.40)),
+}
+GRID_M = 0.01
+
+
+@dataclass(frozen=True)
+class ErrorEvent:
+    kind: str  # one of ERROR_KINDS
+    t0: float  # seconds since the start of the walk
+    t1: float
+    strength: float  # kind-specific size in [0, 1)
+    seed: int  # for the event's own random shape
+
+
+def _euler_matrix(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """quat_to_matrix(quat_from_euler(roll, pitch, yaw)) for scalars, without the overhead:
+    Rz(yaw) @ Ry(pitch) @ Rx(roll)."""
+    cr, sr = math.cos(roll), math.sin(roll)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    return np.array([
+        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+        [-sp, cp * sr, cp * cr],
+    ])
+
+
+def _smooth(values: np.ndarray, window_m: float) -> np.ndarray:
+    n = max(1, int(round(window_m / GRID_M)))
+    padded = np.pad(values, (n, n), mode="edge")
+    return np.convolve(padded, np.ones(n) / n, mode="same")[n:-n]
+
+
+class Walk:
+    """A walker on a course; every method is a pure function of time (seconds)."""
+
+    def __init__(self, course: Course, *, speed_mps: float = 1.1, cadence_spm: float = 105.0,
+                 camera_height_m: float = 0.55, camera_tilt_deg: float = 35.0,
+                 hip_height_m: float = 0.90, camera_forward_m: float = 0.07,
+                 hip_lateral_m: float = -0.10, error_rate: float = 1.0, seed: int = 0,
+                 events: list[ErrorEvent] | tuple[ErrorEvent, ...] | None = None) -> None:
+        if not 0.1 < camera_height_m < hip_height_m:
+            raise ValueError(f"camera height {camera_height_m} m must be between 0.1 m and "
+                             f"the hip ({hip_height_m} m)")
+        if speed_mps <= 0 or cadence_spm <= 0:
+            raise ValueError("speed and cadence must be positive")
+        self.course = course
+        self.camera_tilt_deg = camera_tilt_deg
+        self.hip_height_m = hip_height_m
+        self.hip_lateral_m = hip_lateral_m
+        self.mounting = mounting_matrix(0.0, camera_tilt_deg, 0.0)
+        # the camera on the thigh, relative to the hip joint, in the thigh frame
+        self.camera_offset = np.array([camera_forward_m, 0.0, camera_height_m - hip_height_m])
+        rng = np.random.default_rng([seed, 7, int(course.outdoor)])
+        self.amp_scale = float(rng.uniform(0.9, 1.1))
+        self.mean_offset = float(np.radians(rng.uniform(-2.0, 2.0)))
+        self.roll_offset = float(np.radians(rng.uniform(-2.0, 2.0)))
+        self.wander = [(float(rng.uniform(5, 12)), float(rng.uniform(0, 2 * np.pi)))
+                       for _ in range(2)]
+
+        self.start_x = min(0.5, course.length_m / 4)
+        self.end_x = course.length_m - min(1.5, course.length_m / 4)
+        x = np.arange(self.start_x, self.end_x + GRID_M / 2, GRID_M)
+        params = np.array([GAIT[m] for m in course.modes])[course.segment_index(x)]
+        speed = speed_mps * _smooth(params[:, 0], 0.6)
+        stride_hz = cadence_spm / 120.0 * _smooth(params[:, 1], 0.6)
+        self._x = x
+        self._t = np.concatenate([[0.0], np.cumsum(GRID_M / speed[:-1])])
+        self._phase = np.concatenate([[0.0], np.cumsum(2 * np.pi * stride_hz[:-1] * GRID_M
+                                                       / speed[:-1])])
+        self._flex_mean = np.radians(_smooth(params[:, 2], 0.6)) + self.mean_offset
+        self._flex_amp = np.radians(_smooth(params[:, 3], 0.6)) * self.amp_scale
+        self._ground = _smooth(course.height_at(x), 0.6)
+        self.duration_s = float(self._t[-1])
+        if events is None:
+            events = self._schedule_errors(rng, error_rate)
+        self.events = tuple(sorted(events, key=lambda e: e.t0))
+        self._event_t0 = np.array([e.t0 for e in self.events])
+        self._sky = [e for e in self.events if e.kind == "sky"]
+
+    # ---- scheduling ---------------------------------------------------------------------
+
+    def _schedule_errors(self, rng: np.random.Generator, rate: float):
+        strides = int(self._phase[-1] // (2 * np.pi))
+        events: list[ErrorEvent] = []
+        for k in range(strides):
+            for kind in ERROR_KINDS:
+                p, phase, (d0, d1) = ERROR_SCHEDULE[kind]
+                if rng.random() >= p * rate:
+                    continue
+                at = rng.uniform(0, 2 * np.pi) if phase is None else phase + rng.normal(0, 0.3)
+                tc = float(np.interp(2 * np.pi * k + at, self._phase, self._t))
+                d = float(rng.uniform(d0, d1))
+                ev = ErrorEvent(kind, tc - d / 2, tc + d / 2, float(rng.random()),
+                                int(rng.integers(2**31)))
+                if ev.t0 > 0 and ev.t1 < self.duration_s and not any(
+                        ev.t0 < e.t1 and e.t0 < ev.t1 for e in events):
+                    events.append(ev)
+        return sorted(events, key=lambda e: e.t0)
+
+    def event_at(self, t: float) -> ErrorEvent | None:
+        i = int(np.searchsorted(self._event_t0, t, side="right")) - 1
+        if i >= 0 and t < self.events[i].t1:
+            return self.events[i]
+        return None
+
+    # ---- kinematics (scalar or array t; np.interp holds the ends, so t is clamped) --------
+
+    def _clamp(self, t):
+        return np.interp(t, (0.0, self.duration_s), (0.0, self.duration_s))
+
+    def position(self, t):
+        """Hip position along the course (m)."""
+        return np.interp(t, self._t, self._x)
+
+    def phase(self, t):
+        return np.interp(t, self._t, self._phase)
+
+    def flexion(self, t):
+        """Thigh flexion (rad): positive lifts the knee forward and the camera up."""
+        flex = (np.interp(t, self._t, self._flex_mean)
+                + np.interp(t, self._t, self._flex_amp) * np.sin(self.phase(t)))
+        for e in self._sky:  # a high knee lift: a smooth bump of 25-35 degrees
+            u = np.interp(t, (e.t0, e.t1), (0.0, 1.0))
+            flex = flex + np.radians(25 + 10 * e.strength) * np.sin(np.pi * u) ** 2
+        return flex
+
+    def thigh_angles(self, t):
+        """(roll, pitch, yaw) of the thigh in radians; pitch = -flexion."""
+        t = self._clamp(t)
+        phi = self.phase(t)
+        roll = self.roll_offset + np.radians(2.0) * np.sin(phi + 1.2)
+        yaw = np.radians(3.0) * np.sin(phi + 0.3)
+        for period, offset in self.wander:
+            yaw = yaw + np.radians(1.0) * np.sin(2 * np.pi * t / period + offset)
+        return roll, -self.flexion(t), yaw
+
+    def thigh_quaternion(self, t) -> np.ndarray:
+        """Thigh (IMU body) -> world orientation, [w, x, y, z] (shape (..., 4))."""
+        q = quat_from_euler(*self.thigh_angles(t))
+        return np.moveaxis(q, 0, -1)
+
+    def flexion_rate(self, t: float, dt: float = 0.005) -> float:
+        return float((self.flexion(t + dt) - self.flexion(t - dt)) / (2 * dt))
+
+    def hip_position(self, t: float) -> np.ndarray:
+        t = self._clamp(t)
+        x = np.interp(t, self._t, self._x)
+        phi = self.phase(t)
+        ground = np.interp(t, self._t, self._ground)
+        return np.array([x, self.hip_lateral_m + 0.015 * np.sin(phi),
+                         ground + self.hip_height_m + 0.01 * np.cos(2 * phi)])
+
+    def pose(self, t: float, extra_flexion: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """(thigh quaternion [w, x, y, z], camera -> world 4x4) at t; `extra_flexion` (rad)
+        gives a pose the thigh swings through a moment later."""
+        roll, pitch, yaw = (float(a) for a in self.thigh_angles(t))
+        pitch -= extra_flexion
+        q = quat_from_euler(roll, pitch, yaw)
+        thigh = _euler_matrix(roll, pitch, yaw)
+        pose = np.eye(4)
+        pose[:3, :3] = thigh @ self.mounting
+        pose[:3, 3] = self.hip_position(t) + thigh @ self.camera_offset
+        return q, pose
+
+    def camera_pose(self, t: float, extra_flexion: float = 0.0) -> np.ndarray:
+        """Camera -> world as a 4x4 matrix (rotation and position)."""
+        return self.pose(t, extra_flexion)[1]
