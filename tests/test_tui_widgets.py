@@ -100,6 +100,8 @@ def test_bars_and_letters():
 def test_feature_rows_format_known_and_unknown():
     rows = feature_rows({"slope_deg": 12.34, "riser_m": 0.1612, "width": 0.5, "none": None})
     assert rows == [("slope", "+12.3°"), ("riser", "0.161 m"), ("width", "0.5")]
+    rows = feature_rows({"kind": "stairs", "direction": "down", "steps": 2, "inlier_fraction": 0.9})
+    assert rows == [("", "stairs down, 2 steps"), ("fit", "90%")]
 
 
 def test_small_formatters():
@@ -142,3 +144,38 @@ def test_last_session_is_remembered_under_home(tmp_path):
     assert load_last_session() == SubjectInfo()  # a broken file never blocks the session
     path.write_text(json.dumps({"subject": "bad name!", "trial": 2}))
     assert load_last_session() == SubjectInfo()
+
+
+def test_write_rate_and_recording_rows():
+    from capture.recorder import RecorderStats
+    from tui.widgets.recording_panel import ByteRate, recording_rows
+
+    rate = ByteRate(window_s=2.0)
+    assert rate.add(0, 0) is None
+    assert rate.add(1_000_000_000, 500_000) == pytest.approx(500_000)
+    assert rate.add(4_000_000_000, 3_500_000) == pytest.approx(1_000_000)  # the old reading aged out
+    assert rate.add(5_000_000_000, 100) is None  # a new file starts over
+    stats = RecorderStats(path="/r/S01_indoor_t01.mcap", state="failed", message="disk full",
+                          bytes_written=2_000_000, queue_depth=1500, queue_size=2048, dropped=7)
+    rows = {label: (value, style) for label, value, style in recording_rows(stats, 61.0, None, "", 1e6)}
+    assert rows["● REC"][0] == "0:01:01" and rows["FAILED"][0] == "disk full"
+    assert rows["file"][0] == "S01_indoor_t01.mcap" and rows["write"][0] == "1.0 MB/s"
+    assert rows["queue"] == ("1500/2048", "bold #f0a020") and rows["dropped"][0] == "7"
+    assert recording_rows(None, None, None, "r: record trial 3")[1][0] == "r: record trial 3"
+
+
+def test_device_rows_show_state_rates_errors_clock():
+    from devices.base import DeviceStatus
+    from tui.widgets.device_panel import device_rows
+
+    imu = DeviceStatus("serial", "degraded", "3 packets missing", 100.0, 80.0, dropped=1, errors=5,
+                       details={"offset_ms": -2.5, "drift_ppm": 51.0, "checksum_errors": 2,
+                                "missing_packets": 3})
+    rows = {label: value for label, value, _ in device_rows("imu", imu, {"p50_ms": 0.5, "p99_ms": 2.0})}
+    assert rows["imu"] == "degraded  serial" and rows[""] == "3 packets missing"
+    assert rows["rate"] == " 80.0/100 Hz" and rows["drops"] == "1"
+    assert rows["errors"] == "5 (2 checksum, 3 missing)"
+    assert rows["clock"] == "-2.5 ms +51 ppm" and rows["sync"] == "0.5 ms p99 2.0"
+    assert device_rows("camera", None) == [("camera", "not open", "dim")]
+    imu.details["offset_ms"] = -363984801.48
+    assert dict((r[0], r[1]) for r in device_rows("imu", imu))["clock"] == "-363984.801 s +51 ppm"

@@ -10,6 +10,7 @@ import numpy as np
 
 from capture.errors import CaptureError
 from capture.pipeline import FrameResult
+from capture.recorder import RecorderStats
 from capture.session import LabelChange, Snapshot, SubjectInfo, TimelineEntry
 from devices.base import DeviceEvent, DeviceStatus
 from devices.clock import now_ns
@@ -29,12 +30,12 @@ def stairs_profile() -> np.ndarray:
 
 
 def image_from_profile(profile: np.ndarray) -> np.ndarray:
-    """The 100 x 100 binary image: row 0 is the lowest height, column 0 the nearest point."""
+    """The 100 x 100 binary image as inference.preprocess makes it: row 0 highest, column 0 nearest."""
     img = np.zeros((100, 100), dtype=np.uint8)
     p = profile - profile.min(axis=0) + 0.01
     cols, rows = (p[:, 0] / 0.01).astype(int), (p[:, 1] / 0.01).astype(int)
     keep = (cols < 100) & (rows < 100)
-    img[rows[keep], cols[keep]] = 1
+    img[99 - rows[keep], cols[keep]] = 1
     return img
 
 
@@ -70,6 +71,7 @@ class FakeSession:
         self.snapshots = 0
         self._label: str | None = "US"
         self._recording_path: Path | None = None
+        self.recorder_state, self.recorder_message = "recording", ""
         self.camera = DeviceStatus(backend="mock", state="ok", configured_rate_hz=15.0,
                                    measured_rate_hz=14.9, delivered=4500, dropped=0, errors=0)
         self.imu = DeviceStatus(backend="mock", state="ok", configured_rate_hz=100.0,
@@ -85,7 +87,8 @@ class FakeSession:
             flag="", probabilities=np.array([0.05, 0.82, 0.03, 0.07, 0.03]), cnn_decision=1,
             fused=SimpleNamespace(frame_index=1298, decision=1, posterior=[0.02, 0.9, 0.02, 0.04, 0.02],
                                   voted=1, voted_frame_index=1297),
-            features={"riser_m": 0.162, "tread_m": 0.305, "slope_deg": None}, done_ns=NOW_NS + 12_000_000)
+            features={"kind": "stairs", "direction": "up", "steps": 3, "riser_m": 0.162, "tread_m": 0.305,
+                      "slope_deg": None, "inlier_fraction": 0.93, "residual_m": 0.004}, done_ns=NOW_NS + 12_000_000)
 
     # ---- life cycle
     def start(self) -> None:
@@ -140,7 +143,7 @@ class FakeSession:
             return None
         path, self._recording_path = self._recording_path, None
         self.recordings_stopped += 1
-        return SimpleNamespace(path=path, bytes_written=12_345_678, messages=4321, queue_depth=0)
+        return RecorderStats(path=str(path), state="stopped", bytes_written=12_345_678, messages=4321)
 
     # ---- what the UI reads
     def snapshot(self) -> Snapshot:
@@ -148,8 +151,9 @@ class FakeSession:
         recording = None
         started = None
         if self._recording_path is not None:
-            recording = SimpleNamespace(path=self._recording_path, bytes_written=3_456_789,
-                                        write_rate_bps=1_234_567.0, queue_depth=3, messages=2100)
+            recording = RecorderStats(path=str(self._recording_path), state=self.recorder_state,
+                                      message=self.recorder_message, bytes_written=3_456_789,
+                                      messages=2100, queue_depth=3, queue_size=2048)
             started = NOW_NS - 75_000_000_000
         return Snapshot(
             time_ns=NOW_NS, running=True, camera=self.camera, imu=self.imu,

@@ -119,8 +119,8 @@ class WalkcapApp(App):
     def on_session_failed(self, message: messages.SessionFailed) -> None:
         self._start_failed = True
         self.start_error = message.error
-        self._set_status(f"device start failed: {message.error} (q quits)", error=True)
-        self.notify(message.error, title="device start failed", severity="error", timeout=30)
+        self._set_status(f"could not start: {message.error} (q quits)", error=True)
+        self.notify(message.error, title="could not start", severity="error", timeout=30)
         if self._quitting:
             self.exit(return_code=1)
 
@@ -236,9 +236,17 @@ class WalkcapApp(App):
         # the next trial of the same subject: advance and remember, even if the app dies now
         self.subject = dataclasses.replace(self.subject, trial=self.subject.trial + 1)
         save_last_session(self.subject)
-        name = message.path.name if message.path else "recording"
-        size = getattr(message.stats, "bytes_written", None) or getattr(message.stats, "bytes", None)
-        self.notify(f"saved {name}" + (f" ({human_bytes(size)})" if size else ""), timeout=6)
+        stats = message.stats
+        name = Path(getattr(stats, "path", "") or message.path or "recording").name
+        if getattr(stats, "state", "") == "failed":
+            self.notify(f"{name}: {stats.message} (what reached the disk is readable)",
+                        title="recording failed", severity="error", timeout=30)
+        else:
+            size = getattr(stats, "bytes_written", None)
+            dropped = getattr(stats, "dropped", 0)
+            self.notify(f"saved {name}" + (f" ({human_bytes(size)})" if size else "")
+                        + (f", {dropped} messages dropped" if dropped else ""),
+                        severity="warning" if dropped else "information", timeout=6)
         self._refresh_live()
 
     def on_recording_failed(self, message: messages.RecordingFailed) -> None:

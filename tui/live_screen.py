@@ -79,6 +79,7 @@ class LiveScreen(Screen):
         self._fused: int | None = None
         self._last_event_ns: int | None = None
         self._topbar = Text()
+        self._failure_shown = False
 
     def compose(self) -> ComposeResult:
         yield Static("", id="topbar")
@@ -87,7 +88,8 @@ class LiveScreen(Screen):
                 yield DevicePanel(id="devices")
                 yield RecordingPanel(id="recording")
             yield BinaryImage(id="image")
-            yield ProfilePlot(id="profile")
+            pre = self.app.config.preprocess
+            yield ProfilePlot(forward_m=(pre.min_forward_m, pre.max_forward_m), id="profile")
             with Vertical(id="right"):
                 yield DecisionDisplay(id="decision")
                 yield ProbabilityBars(id="probabilities")
@@ -151,7 +153,12 @@ class LiveScreen(Screen):
         info = app.subject
         key = key_label(app.config.keys.record)
         idle = f"{key}: record trial {info.trial}"
-        self._w[RecordingPanel].present(snap.recording, elapsed, app.recording_path, idle)
+        self._w[RecordingPanel].present(snap.recording, elapsed, app.recording_path, idle, snap.time_ns)
+        failed = getattr(snap.recording, "state", "") == "failed"
+        if failed and not self._failure_shown:
+            self.notify(f"{getattr(snap.recording, 'message', '')} — press "
+                        f"{key} to close the file", title="recording failed", severity="error", timeout=30)
+        self._failure_shown = failed
 
     def _notify_new_events(self, snap: Snapshot) -> None:
         """A device fault shows at once, as a notification as well as in the device panel."""

@@ -11,7 +11,8 @@ from tui.widgets.raster import fit_binary_image
 class BinaryImage(Widget):
     """Half-blocks when the full image fits, braille (pooled if need be) otherwise.
 
-    The image's row 0 is the lowest height bin, so it is drawn flipped: up is up.
+    Drawn as inference.preprocess makes it: row 0 highest, column 0 nearest (seen from
+    the walker's left side), so up is up and the walker looks to the right.
     """
 
     DEFAULT_CSS = """
@@ -36,7 +37,7 @@ class BinaryImage(Widget):
         if self._image is None:
             return Text("no frame yet", style="dim")
         cols, rows = self.size.width, self.size.height - 1
-        lines, factor, style = fit_binary_image(np.flipud(self._image), cols, rows)
+        lines, factor, style = fit_binary_image(self._image, cols, rows)
         text = Text("\n".join(lines))
         caption = f"{self._image.shape[1]}x{self._image.shape[0]} {style}"
         if factor > 1:

@@ -11,7 +11,7 @@ from tui.widgets.modes import STATE_COLORS
 # Backends name their clock figures slightly differently; the first key present is shown.
 _OFFSET_KEYS = ("clock_offset_ms", "offset_ms")
 _DRIFT_KEYS = ("clock_drift_ppm", "drift_ppm")
-_CHECKSUM_KEYS = ("checksum_errors",)
+_ERROR_PARTS = (("checksum_errors", "checksum"), ("missing_packets", "missing"), ("reconnects", "reconnects"))
 _RED, _AMBER = STATE_COLORS["lost"], STATE_COLORS["degraded"]
 
 Row = tuple[str, str, str]  # label, value, style of the value
@@ -24,6 +24,12 @@ def _first(details: dict, keys: tuple[str, ...]):
     return None
 
 
+def offset_text(offset_ms: float) -> str:
+    """A device clock offset: milliseconds when small, seconds when the device counts from
+    its own power-up (then only its steadiness matters, shown by the drift)."""
+    return f"{offset_ms:+.1f} ms" if abs(offset_ms) < 1000 else f"{offset_ms / 1000:+.3f} s"
+
+
 def device_rows(name: str, status: DeviceStatus | None, sync: dict | None = None) -> list[Row]:
     """The lines shown for one device, already formatted (so an unchanged view costs nothing)."""
     if status is None:
@@ -34,13 +40,13 @@ def device_rows(name: str, status: DeviceStatus | None, sync: dict | None = None
     slow = status.configured_rate_hz and status.measured_rate_hz < 0.9 * status.configured_rate_hz
     rows.append(("rate", f"{status.measured_rate_hz:5.1f}/{status.configured_rate_hz:g} Hz",
                  _AMBER if slow and status.state == "ok" else ""))
-    checksum = _first(status.details, _CHECKSUM_KEYS)
     rows.append(("drops", f"{status.dropped}", f"bold {_RED}" if status.dropped else ""))
-    rows.append(("errors", f"{status.errors}" + (f" ({checksum} checksum)" if checksum is not None else ""),
+    parts = [f"{status.details[k]} {name}" for k, name in _ERROR_PARTS if status.details.get(k)]
+    rows.append(("errors", f"{status.errors}" + (f" ({', '.join(parts)})" if parts else ""),
                  _AMBER if status.errors else ""))
     offset, drift = _first(status.details, _OFFSET_KEYS), _first(status.details, _DRIFT_KEYS)
     if offset is not None or drift is not None:
-        parts = ([f"{float(offset):+.1f} ms"] if offset is not None else []) + \
+        parts = ([offset_text(float(offset))] if offset is not None else []) + \
                 ([f"{float(drift):+.0f} ppm"] if drift is not None else [])
         rows.append(("clock", " ".join(parts), ""))
     if sync:

@@ -9,17 +9,24 @@ from textual.widget import Widget
 _FORMATS = {
     "slope_deg": ("slope", "{:+.1f}°"),
     "riser_m": ("riser", "{:.3f} m"),
-    "riser_height_m": ("riser", "{:.3f} m"),
     "tread_m": ("tread", "{:.3f} m"),
-    "tread_depth_m": ("tread", "{:.3f} m"),
-    "distance_m": ("ahead", "{:.2f} m"),
+    "inlier_fraction": ("fit", "{:.0%}"),
+    "residual_m": ("rms", "{:.3f} m"),
 }
+_HEADLINE = ("kind", "direction", "steps")
 
 
 def feature_rows(features: dict) -> list[tuple[str, str]]:
+    """(name, value) lines: what the terrain is first ("stairs up, 3 steps"), then numbers."""
     rows = []
+    kind = features.get("kind")
+    if kind:
+        head = f"{kind} {features.get('direction') or ''}".strip()
+        if features.get("steps"):
+            head += f", {features['steps']} steps"
+        rows.append(("", head))
     for key, value in features.items():
-        if value is None:
+        if value is None or key in _HEADLINE:
             continue
         name, fmt = _FORMATS.get(key, (key.replace("_", " "), "{}"))
         if isinstance(value, float) and fmt == "{}":

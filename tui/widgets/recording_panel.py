@@ -1,26 +1,17 @@
 """The trial being recorded: file, elapsed time, size, write rate, writer queue."""
 from __future__ import annotations
 
+import collections
 from pathlib import Path
 
 from rich.table import Table
 from rich.text import Text
 from textual.widget import Widget
 
-# RecorderStats field names, with fallbacks so the panel reads any version of the stats.
-_SIZE = ("bytes_written", "bytes", "size_bytes")
-_RATE = ("write_rate_bps", "bytes_per_s", "write_rate")
-_QUEUE = ("queue_depth", "queue", "queued")
-_MESSAGES = ("messages", "messages_written")
-_DROPPED = ("dropped", "messages_dropped")
 
-
-def _stat(stats: object, names: tuple[str, ...]):
-    for n in names:
-        value = getattr(stats, n, None)
-        if value is not None:
-            return value
-    return None
+def _stat(stats: object, name: str, default=None):
+    value = getattr(stats, name, None)
+    return default if value is None else value
 
 
 def human_bytes(n: float) -> str:
@@ -36,28 +27,49 @@ def clock_text(seconds: float) -> str:
     return f"{s // 3600:d}:{s // 60 % 60:02d}:{s % 60:02d}"
 
 
+class ByteRate:
+    """Bytes per second over the last few seconds, from (time, total bytes) readings."""
+
+    def __init__(self, window_s: float = 3.0) -> None:
+        self._window_ns = int(window_s * 1e9)
+        self._readings: collections.deque[tuple[int, int]] = collections.deque()
+
+    def add(self, time_ns: int, total: int) -> float | None:
+        if self._readings and (total < self._readings[-1][1] or time_ns < self._readings[-1][0]):
+            self._readings.clear()  # a new file
+        if not self._readings or time_ns > self._readings[-1][0]:
+            self._readings.append((time_ns, total))
+        while len(self._readings) > 2 and time_ns - self._readings[0][0] > self._window_ns:
+            self._readings.popleft()
+        (t0, b0), (t1, b1) = self._readings[0], self._readings[-1]
+        return (b1 - b0) / ((t1 - t0) * 1e-9) if t1 > t0 else None
+
+
 def recording_rows(stats: object | None, elapsed_s: float | None, path: Path | None,
-                   next_trial: str = "") -> list[tuple[str, str, str]]:
-    """(label, value, style) lines for the panel, formatted."""
+                   next_trial: str = "", write_rate: float | None = None) -> list[tuple[str, str, str]]:
+    """(label, value, style) lines for the panel, formatted. `stats`: RecorderStats."""
     if elapsed_s is None:
         return [("○ not recording", "", "bold")] + ([(next_trial, "", "dim")] if next_trial else [])
     rows = [("● REC", clock_text(elapsed_s), "bold")]
-    file = path or _stat(stats, ("path",))
+    if _stat(stats, "state") == "failed":
+        rows.append(("FAILED", _stat(stats, "message", "") or "the recording stopped", "bold #e04040"))
+    file = path or _stat(stats, "path")
     if file is not None:
         rows.append(("file", Path(file).name, ""))
-    size, rate = _stat(stats, _SIZE), _stat(stats, _RATE)
+    size = _stat(stats, "bytes_written")
     if size is not None:
         rows.append(("size", human_bytes(size), ""))
-    if rate is not None:
-        rows.append(("write", f"{human_bytes(rate)}/s", ""))
-    queue = _stat(stats, _QUEUE)
-    if queue is not None:
-        rows.append(("queue", str(queue), "bold #f0a020" if queue > 100 else ""))
-    messages, dropped = _stat(stats, _MESSAGES), _stat(stats, _DROPPED)
+    rows.append(("write", f"{human_bytes(write_rate)}/s" if write_rate is not None else "—", ""))
+    depth, capacity = _stat(stats, "queue_depth"), _stat(stats, "queue_size")
+    if depth is not None:
+        busy = bool(capacity) and depth > capacity / 2
+        rows.append(("queue", f"{depth}/{capacity}" if capacity else str(depth),
+                     "bold #f0a020" if busy else ""))
+    messages, dropped = _stat(stats, "messages"), _stat(stats, "dropped")
     if messages is not None:
         rows.append(("msgs", str(messages), ""))
     if dropped:
-        rows.append(("lost", str(dropped), "bold #e04040"))
+        rows.append(("dropped", str(dropped), "bold #e04040"))
     return rows
 
 
@@ -69,11 +81,16 @@ class RecordingPanel(Widget):
     def __init__(self, **kwargs) -> None:
         super().__init__(**kwargs)
         self._rows: list[tuple[str, str, str]] = []
+        self._rate = ByteRate()
 
     def present(self, stats: object | None, elapsed_s: float | None, path: Path | None,
-                next_trial: str = "") -> None:
+                next_trial: str = "", now_ns: int = 0) -> None:
         """`next_trial` describes what the record key would start (shown while idle)."""
-        rows = recording_rows(stats, elapsed_s, path, next_trial)
+        size = _stat(stats, "bytes_written")
+        rate = self._rate.add(now_ns, size) if size is not None else None
+        if rate is None:
+            rate = _stat(stats, "bytes_per_s") or None
+        rows = recording_rows(stats, elapsed_s, path, next_trial, rate)
         if rows != self._rows:
             relayout = len(rows) != len(self._rows)
             self._rows = rows
