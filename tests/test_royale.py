@@ -1,0 +1,311 @@
+"""The royale backend against a stand-in module shaped like pmd's roypy binding."""
+import threading
+import time
+import types
+
+import numpy as np
+import pytest
+
+from capture.config import CameraConfig
+from devices.camera import open_camera
+from devices.errors import DeviceInitError, DeviceNotAvailable
+from devices.royale import RoyaleCamera, choose_use_case, use_case_fps
+
+USE_CASES = ["MODE_9_5FPS_2000", "MODE_9_10FPS_1000", "MODE_9_15FPS_700", "MODE_9_25FPS_450",
+             "MODE_5_35FPS_600", "MODE_5_45FPS_500"]
+W, H = 224, 171
+
+
+class FakeData:
+    """One royale DepthData: the SDK owns `points` and overwrites it for the next frame."""
+
+    def __init__(self, points, time_stamp_us, channels):
+        self.width, self.height = W, H
+        self.timeStamp = time_stamp_us
+        self._points = points
+        self._channels = channels
+
+    def npoints(self):
+        return self._points
+
+
+def sdk_points(k: int, channels: int = 6) -> np.ndarray:
+    """x, y, z, [noise,] gray, confidence of frame k: a wall at 1 + k/100 m, one bad row."""
+    p = np.zeros((H, W, channels), np.float32)
+    p[..., 0] = np.linspace(-1, 1, W)[None, :]
+    p[..., 1] = np.linspace(-0.7, 0.7, H)[:, None]
+    p[..., 2] = 1.0 + k / 100
+    p[..., -2] = 300 + k  # gray
+    p[..., -1] = 200  # confidence
+    p[0, :, -1] = 0  # an invalid row; royale leaves xyz as they are here only in this fake
+    return p
+
+
+class FakeDevice:
+    def __init__(self, sdk, source):
+        self.sdk, self.source = sdk, source
+        self.use_case = None
+        self.listener = None
+        self.capturing = threading.Event()
+        self.initialized = False
+        self.callback_s = []
+        self.stamps_us = []
+
+    def initialize(self):
+        self.initialized = True
+
+    def getUseCases(self):
+        return list(USE_CASES)
+
+    def setUseCase(self, name):
+        if name not in USE_CASES:
+            raise RuntimeError("INVALID_VALUE")
+        self.use_case = name
+
+    def getCameraName(self):
+        return "PICOFLEXX"
+
+    def getId(self):
+        return self.source if not self.source.endswith(".rrf") else "0005-1203-0034-2011"
+
+    def getMaxSensorWidth(self):
+        return W
+
+    def getMaxSensorHeight(self):
+        return H
+
+    def getLensParameters(self):
+        if self.sdk.lens_style == "royale5":
+            return {"fx": 210.0, "fy": 211.0, "cx": 113.0, "cy": 84.5, "k1": 0.1}
+        return {"principalPoint": (113.0, 84.5), "focalLength": (210.0, 211.0),
+                "distortionTangential": (0.0, 0.0), "distortionRadial": (0.1, 0.0, 0.0)}
+
+    def registerDataListener(self, listener):
+        assert isinstance(listener, self.sdk.IDepthDataListener)
+        self.listener = listener
+
+    def asReplay(self):
+        sdk = self.sdk
+
+        class Replay:
+            def loop(self, on):
+                sdk.replay_loop = on
+
+            def frameCount(self):
+                return sdk.frames
+
+        return Replay()
+
+    def startCapture(self):
+        self.capturing.set()
+        threading.Thread(target=self._produce, daemon=True).start()
+
+    def stopCapture(self):
+        self.capturing.clear()
+
+    def _produce(self):
+        buffer = sdk_points(0, self.sdk.channels)  # one buffer, reused like the SDK does
+        for k in range(self.sdk.frames):
+            if not self.capturing.is_set():
+                return
+            buffer[...] = sdk_points(k, self.sdk.channels)
+            stamp = time.monotonic_ns() // 1000 - 5_000_000  # the camera's clock: 5 s behind
+            self.stamps_us.append(stamp)
+            data = FakeData(buffer, stamp, self.sdk.channels)
+            t0 = time.perf_counter()
+            self.listener.onNewData(data)
+            self.callback_s.append(time.perf_counter() - t0)
+            time.sleep(0.002)
+
+
+def make_roypy(cameras=("0005-1203-0034-2011",), frames=5, channels=6, lens_style="royale4"):
+    sdk = types.ModuleType("roypy")
+    sdk.frames, sdk.channels, sdk.lens_style = frames, channels, lens_style
+    sdk.devices = []
+
+    class IDepthDataListener:
+        def __init__(self):
+            pass
+
+    class CameraManager:
+        def getConnectedCameraList(self):
+            return list(cameras)
+
+        def createCamera(self, source):
+            device = FakeDevice(sdk, source)
+            sdk.devices.append(device)
+            return device
+
+    sdk.IDepthDataListener = IDepthDataListener
+    sdk.CameraManager = CameraManager
+    return sdk
+
+
+@pytest.fixture
+def roypy(monkeypatch):
+    sdk = make_roypy()
+    monkeypatch.setitem(__import__("sys").modules, "roypy", sdk)
+    return sdk
+
+
+def royale(**kw) -> CameraConfig:
+    return CameraConfig(backend="royale", **kw)
+
+
+def frames_from(cam, n, timeout=2.0):
+    frames = []
+    deadline = time.monotonic() + timeout
+    while len(frames) < n and time.monotonic() < deadline:
+        f = cam.recv(0.1)
+        if f is not None:
+            frames.append(f)
+    return frames
+
+
+# ---- without the SDK -----------------------------------------------------------------------
+
+def test_without_roypy_choosing_royale_fails_with_one_line(monkeypatch):
+    monkeypatch.setitem(__import__("sys").modules, "roypy", None)  # import roypy fails
+    with pytest.raises(DeviceNotAvailable) as e:
+        open_camera(royale())
+    message = str(e.value)
+    assert "\n" not in message
+    assert "roypy" in message and "royale SDK" in message and "PYTHONPATH" in message
+
+
+def test_the_cli_shows_it_as_one_line(monkeypatch, tmp_path, capsys):
+    """What a user sees when a command opens the camera: one line naming the fix."""
+    from tui.cli import main
+
+    monkeypatch.setitem(__import__("sys").modules, "roypy", None)
+    (tmp_path / "walkcap.toml").write_text('[camera]\nbackend = "royale"\n')
+    assert main(["calibrate", "--dry-run"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "PYTHONPATH" in err and "Traceback" not in err
+
+
+# ---- use cases -----------------------------------------------------------------------------
+
+def test_use_case_names_carry_the_frame_rate():
+    assert use_case_fps("MODE_9_15FPS_700") == 15.0
+    assert use_case_fps("Low_Noise_Extended") is None
+
+
+@pytest.mark.parametrize("fps, expected", [(15, "MODE_9_15FPS_700"), (45, "MODE_5_45FPS_500"),
+                                           (5, "MODE_9_5FPS_2000"), (30, "MODE_5_35FPS_600"),
+                                           (60, "MODE_5_45FPS_500")])
+def test_the_use_case_nearest_the_configured_fps_is_chosen(fps, expected):
+    assert choose_use_case(USE_CASES, fps) == expected
+
+
+def test_a_use_case_the_camera_lacks_is_an_error_listing_the_offered():
+    with pytest.raises(DeviceInitError, match="MODE_X.*offered: MODE_9_5FPS_2000"):
+        choose_use_case(USE_CASES, 15, "MODE_X")
+
+
+# ---- a live camera -------------------------------------------------------------------------
+
+def test_opens_the_first_camera_with_the_use_case_for_15_fps(roypy):
+    cam = open_camera(royale(fps=15))
+    try:
+        device = roypy.devices[0]
+        assert device.initialized and device.source == "0005-1203-0034-2011"
+        assert device.use_case == "MODE_9_15FPS_700"
+        g = cam.geometry
+        assert (g.width, g.height, g.fx, g.fy, g.cx, g.cy) == (W, H, 210.0, 211.0, 113.0, 84.5)
+        assert g.name == "PICOFLEXX" and g.serial == "0005-1203-0034-2011"
+        assert cam.status().details["use_case"] == "MODE_9_15FPS_700"
+    finally:
+        cam.close()
+
+
+def test_royale5_lens_parameters_are_understood(monkeypatch):
+    monkeypatch.setitem(__import__("sys").modules, "roypy", make_roypy(lens_style="royale5"))
+    with open_camera(royale()) as cam:
+        assert (cam.geometry.fx, cam.geometry.cy) == (210.0, 84.5)
+
+
+def test_frames_are_copied_out_of_the_sdk_buffer(roypy):
+    cam = open_camera(royale())
+    try:
+        cam.start()
+        frames = frames_from(cam, 5)
+        device = roypy.devices[0]
+    finally:
+        cam.close()
+    assert [f.index for f in frames] == [0, 1, 2, 3, 4]
+    for k, f in enumerate(frames):  # the SDK overwrote its buffer after each callback
+        assert f.xyz.dtype == np.float32 and f.xyz.shape == (H, W, 3)
+        np.testing.assert_allclose(f.xyz[1:, :, 2], 1.0 + k / 100)
+        assert f.gray.dtype == np.uint16 and f.gray[5, 5] == 300 + k
+        assert f.confidence.dtype == np.uint8 and f.confidence[5, 5] == 200
+        assert np.all(f.confidence[0] == 0) and np.all(f.xyz[0] == 0)  # invalid: xyz 0
+    # the camera's timestamps (us), mapped onto the session clock by one offset
+    mapped = np.array([f.device_time_ns for f in frames]) - np.array(device.stamps_us) * 1000
+    assert np.ptp(mapped) < 2e6
+    assert all(0 <= f.host_time_ns - f.device_time_ns < 5e6 for f in frames)
+    assert max(device.callback_s) < 0.05  # onNewData copies and returns
+    assert not device.capturing.is_set()  # stopCapture was called
+
+
+def test_five_channel_points_of_royale5(monkeypatch):
+    monkeypatch.setitem(__import__("sys").modules, "roypy", make_roypy(channels=5, frames=2))
+    cam = open_camera(royale())
+    try:
+        cam.start()
+        f = frames_from(cam, 2)[1]
+    finally:
+        cam.close()
+    assert f.gray[5, 5] == 301 and f.confidence[5, 5] == 200
+
+
+def test_a_slow_consumer_costs_counted_frames_not_a_blocked_sdk(monkeypatch):
+    monkeypatch.setitem(__import__("sys").modules, "roypy", make_roypy(frames=30))
+    cam = open_camera(royale(buffer_frames=4))
+    try:
+        cam.start()
+        time.sleep(0.3)  # nobody receives
+        status = cam.status()
+    finally:
+        cam.close()
+    assert status.delivered == 30 and status.dropped == 26
+
+
+def test_a_camera_id_that_is_not_connected_lists_the_connected(roypy):
+    with pytest.raises(DeviceNotAvailable, match="'nope' is not connected.*0005-1203"):
+        open_camera(royale(camera_id="nope"))
+
+
+def test_no_camera_connected(monkeypatch):
+    monkeypatch.setitem(__import__("sys").modules, "roypy", make_roypy(cameras=()))
+    with pytest.raises(DeviceNotAvailable, match="no pmd camera connected"):
+        open_camera(royale())
+
+
+def test_a_use_case_the_camera_refuses_is_an_init_error(roypy):
+    with pytest.raises(DeviceInitError, match="MODE_9_99FPS"):
+        open_camera(royale(use_case="MODE_9_99FPS"))
+
+
+# ---- a recording ---------------------------------------------------------------------------
+
+def test_plays_an_rrf_recording_through_the_sdk(roypy, tmp_path):
+    rrf = tmp_path / "stairs.rrf"
+    rrf.write_bytes(b"\0")
+    cam = RoyaleCamera(royale(camera_id=str(rrf)))
+    with cam:
+        device = roypy.devices[0]
+        assert device.source == str(rrf) and device.use_case is None  # no use case on replay
+        assert roypy.replay_loop is False
+        cam.start()
+        frames = frames_from(cam, 5)
+        deadline = time.monotonic() + 2
+        while cam.status().state != "stopped" and time.monotonic() < deadline:
+            time.sleep(0.01)
+    assert len(frames) == 5
+    assert "end_of_recording" in [e.kind for e in cam.poll_events()]
+
+
+def test_a_missing_recording_is_named(roypy, tmp_path):
+    with pytest.raises(DeviceNotAvailable, match="recording not found: .*gone.rrf"):
+        open_camera(royale(camera_id=str(tmp_path / "gone.rrf")))
