@@ -61,7 +61,8 @@ class WalkcapApp(App):
 
     def __init__(self, config: Config | None = None, session=None,
                  session_factory: Callable[[Config], object] | None = None, *,
-                 subject: SubjectInfo | None = None, ask_subject: bool = True) -> None:
+                 subject: SubjectInfo | None = None, ask_subject: bool = True,
+                 start_status: str = "starting devices…") -> None:
         """`session`: a ready-made source (tests pass a fake); otherwise `session_factory`
         (default: capture.session.Session) builds one from the configuration in a worker."""
         super().__init__()
@@ -70,6 +71,7 @@ class WalkcapApp(App):
         self.session_factory = session_factory or default_session_factory
         self.subject = subject or load_last_session()
         self.ask_subject = ask_subject
+        self.start_status = start_status
         self.ready = False  # the session started: snapshots and commands go to it
         self.status_is_error = False
         self.recording_path: Path | None = None
@@ -89,7 +91,7 @@ class WalkcapApp(App):
         self.push_screen(LiveScreen())
         if self.ask_subject:
             self.push_screen(SessionScreen(self.subject), self._on_subject)
-        self._set_status("starting devices…")
+        self._set_status(self.start_status)
         self.start_session()
 
     def _set_status(self, text: str, error: bool = False) -> None:
@@ -112,6 +114,9 @@ class WalkcapApp(App):
 
     def on_session_started(self, _: messages.SessionStarted) -> None:
         self.ready = True
+        info = getattr(self.session, "subject_info", None)  # a replay shows its recording's
+        if info is not None:
+            self.subject = info
         self._set_status("")
         if self._quitting:  # quit was asked while the devices were opening
             self.stop_session()
@@ -130,6 +135,10 @@ class WalkcapApp(App):
             return  # already stopping
         if self.session is not None and self.ready and self.session.recording:
             self.push_screen(QuitDialog(), lambda yes: self.stop_session() if yes else None)
+        elif self.ready and getattr(self.session, "unsaved", False):
+            self.push_screen(QuitDialog("The label corrections are not saved (w saves them). Quit anyway?",
+                                        yes="Quit without saving (y)", no="Stay (n)"),
+                             lambda yes: self.stop_session() if yes else None)
         else:
             self.stop_session()
 
@@ -254,6 +263,30 @@ class WalkcapApp(App):
         self._set_status("")
         self.notify(message.error, title="recording", severity="error", timeout=15)
         self._refresh_live()
+
+    # ---- replay: corrections into a new file ------------------------------------------
+
+    def save_corrections(self) -> None:
+        if self.source is None or self._busy_recording:
+            return
+        self._busy_recording = True
+        self._set_status("writing the corrected file…")
+        self._save_corrections()
+
+    @work(thread=True, group="recording")
+    def _save_corrections(self) -> None:
+        try:
+            path = self.session.save_corrections()
+        except Exception as e:
+            log.exception("saving corrections")
+            self.post_message(messages.RecordingFailed(describe_error(e)))
+            return
+        self.post_message(messages.CorrectionsSaved(Path(path)))
+
+    def on_corrections_saved(self, message: messages.CorrectionsSaved) -> None:
+        self._busy_recording = False
+        self._set_status("")
+        self.notify(f"saved {message.path.name} (the original is unchanged)", timeout=8)
 
     def _refresh_live(self) -> None:
         for screen in self.screen_stack:

@@ -7,6 +7,7 @@ commands that only touch memory: nothing here waits on a device or the disk.
 from __future__ import annotations
 
 import logging
+from pathlib import Path
 
 from rich.text import Text
 from textual.app import ComposeResult
@@ -52,6 +53,7 @@ class LiveScreen(Screen):
         _binding("question_mark", "help", "help", "help"),
         _binding("q", "quit", "quit", "quit"),
         Binding("s", "session_form", "session", show=False),
+        Binding("w", "save_corrections", "save labels"),
         Binding("p", "play", "play/pause"),
         Binding("left", "seek(-1)", "-5 s"),
         Binding("right", "seek(1)", "+5 s"),
@@ -66,6 +68,7 @@ class LiveScreen(Screen):
         "help": "this help",
         "quit": "quit (asks first while recording; the file is finalised)",
         "session_form": "the session form (subject, condition, trial); not while recording",
+        "save_corrections": "replay: write the labels with your corrections to a new file",
         "play": "replay: play / pause",
         "seek(-1)": "replay: back 5 s",
         "seek(1)": "replay: forward 5 s",
@@ -152,6 +155,16 @@ class LiveScreen(Screen):
             elapsed = (snap.time_ns - snap.recording_started_ns) * 1e-9
         info = app.subject
         key = key_label(app.config.keys.record)
+        source = app.source
+        if isinstance(source, Playback):  # a replay records nothing: it saves corrections
+            n = len(getattr(source, "corrections", []))
+            saved = getattr(source, "saved_path", None)
+            hint = f"w: save {n} correction{'s' if n != 1 else ''} to a new file" if n else \
+                "1-5: correct labels"
+            if saved is not None and not getattr(source, "unsaved", False):
+                hint = f"saved {saved.name}"
+            self._w[RecordingPanel].present(None, None, None, hint, snap.time_ns, idle="▶ replay")
+            return
         idle = f"{key}: record trial {info.trial}"
         self._w[RecordingPanel].present(snap.recording, elapsed, app.recording_path, idle, snap.time_ns)
         failed = getattr(snap.recording, "state", "") == "failed"
@@ -190,6 +203,7 @@ class LiveScreen(Screen):
         source = app.source
         if isinstance(source, Playback):
             pos, duration = source.position()
+            bar.append(f"{getattr(source, 'path', Path('')).name}  ", style="bold")
             bar.append(f"{'▶' if source.playing else '⏸'} {clock_text(pos)} / {clock_text(duration)}  ",
                        style="bold")
         if self.frozen:
@@ -204,8 +218,12 @@ class LiveScreen(Screen):
     # ---- keys -------------------------------------------------------------------------
 
     def check_action(self, action: str, parameters: tuple) -> bool | None:
-        if action in ("play", "seek"):
-            return isinstance(self.app.source, Playback)
+        """Replay keys only in a replay; recording and the session form only live."""
+        replay = isinstance(self.app.session, Playback)
+        if action in ("play", "seek", "save_corrections"):
+            return replay
+        if action in ("record", "session_form"):
+            return not replay
         return True
 
     def _source_or_warn(self):
@@ -271,6 +289,9 @@ class LiveScreen(Screen):
 
     def action_session_form(self) -> None:
         self.app.open_session_form()
+
+    def action_save_corrections(self) -> None:
+        self.app.save_corrections()
 
     def action_play(self) -> None:
         source = self.app.source

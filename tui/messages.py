@@ -41,3 +41,9 @@ class RecordingFailed(Message):
 
 class SessionStopped(Message):
     """The session stopped (devices closed, any recording finalised): the app may exit."""
+
+
+class CorrectionsSaved(Message):
+    def __init__(self, path: Path) -> None:
+        super().__init__()
+        self.path = path

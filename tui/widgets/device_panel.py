@@ -82,7 +82,7 @@ class DevicePanel(Widget):
 
     def render(self) -> Table:
         table = Table.grid(padding=(0, 1))
-        table.add_column(style="dim", no_wrap=True)
+        table.add_column(style="dim", no_wrap=True, min_width=6)
         table.add_column(no_wrap=True, overflow="ellipsis")
         for label, value, style in self._rows:
             is_name = label in ("camera", "imu")

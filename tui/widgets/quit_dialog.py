@@ -22,16 +22,17 @@ class QuitDialog(ModalScreen[bool]):
         Binding("n,escape", "answer(False)", "No"),
     ]
 
-    def __init__(self, question: str = "A trial is recording. Stop it, save the file and quit?") -> None:
+    def __init__(self, question: str = "A trial is recording. Stop it, save the file and quit?",
+                 yes: str = "Stop and quit (y)", no: str = "Keep recording (n)") -> None:
         super().__init__()
-        self.question = question
+        self.question, self.yes, self.no = question, yes, no
 
     def compose(self) -> ComposeResult:
         with Vertical():
             yield Label(self.question)
             with Horizontal():
-                yield Button("Stop and quit (y)", variant="error", id="yes")
-                yield Button("Keep recording (n)", variant="primary", id="no")
+                yield Button(self.yes, variant="error", id="yes")
+                yield Button(self.no, variant="primary", id="no")
 
     def on_mount(self) -> None:
         self.query_one("#no", Button).focus()

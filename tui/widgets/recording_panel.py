@@ -46,10 +46,11 @@ class ByteRate:
 
 
 def recording_rows(stats: object | None, elapsed_s: float | None, path: Path | None,
-                   next_trial: str = "", write_rate: float | None = None) -> list[tuple[str, str, str]]:
+                   next_trial: str = "", write_rate: float | None = None,
+                   idle: str = "○ not recording") -> list[tuple[str, str, str]]:
     """(label, value, style) lines for the panel, formatted. `stats`: RecorderStats."""
     if elapsed_s is None:
-        return [("○ not recording", "", "bold")] + ([(next_trial, "", "dim")] if next_trial else [])
+        return [(idle, "", "bold")] + ([(next_trial, "", "dim")] if next_trial else [])
     rows = [("● REC", clock_text(elapsed_s), "bold")]
     if _stat(stats, "state") == "failed":
         rows.append(("FAILED", _stat(stats, "message", "") or "the recording stopped", "bold #e04040"))
@@ -84,13 +85,13 @@ class RecordingPanel(Widget):
         self._rate = ByteRate()
 
     def present(self, stats: object | None, elapsed_s: float | None, path: Path | None,
-                next_trial: str = "", now_ns: int = 0) -> None:
+                next_trial: str = "", now_ns: int = 0, idle: str = "○ not recording") -> None:
         """`next_trial` describes what the record key would start (shown while idle)."""
         size = _stat(stats, "bytes_written")
         rate = self._rate.add(now_ns, size) if size is not None else None
         if rate is None:
             rate = _stat(stats, "bytes_per_s") or None
-        rows = recording_rows(stats, elapsed_s, path, next_trial, rate)
+        rows = recording_rows(stats, elapsed_s, path, next_trial, rate, idle)
         if rows != self._rows:
             relayout = len(rows) != len(self._rows)
             self._rows = rows
@@ -98,7 +99,7 @@ class RecordingPanel(Widget):
 
     def render(self) -> Table:
         table = Table.grid(padding=(0, 1))
-        table.add_column(style="dim", no_wrap=True)
+        table.add_column(style="dim", no_wrap=True, min_width=5)
         table.add_column(no_wrap=True, overflow="ellipsis")
         for i, (label, value, style) in enumerate(self._rows):
             if i == 0:
