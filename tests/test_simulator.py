@@ -224,7 +224,9 @@ def test_truth_mode_follows_the_walker_once_per_transition(indoor):
     assert sorted(set(segments)) == list(range(len(indoor.course.segments)))
     f = indoor.render(9.0)
     pose = np.array(f.truth["camera_pose"])
-    assert f.truth["mode"] == indoor.course.mode_at(pose[0, 3] + indoor.lookahead_m)
+    x = pose[0, 3]
+    assert f.truth["mode"] == indoor.course.mode_at(x + indoor.lookahead_m(x))
+    assert 0.6 <= indoor.lookahead_m(x) <= 1.1
 
 
 def test_few_frames_are_ambiguous_or_wrong_looking(indoor):

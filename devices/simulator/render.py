@@ -166,7 +166,7 @@ def draw_occlusion(hits: Hits, rays_cam: np.ndarray, geometry: CameraGeometry,
     """Something flat close in front of the lens, over one side and the centre."""
     rays = rays_cam.reshape(geometry.height, geometry.width, 3)
     cols = np.arange(geometry.width)
-    edge = geometry.width * (0.45 + 0.35 * strength)
+    edge = geometry.width * (0.55 + 0.3 * strength)  # always over the centre
     covered = cols < edge if rng.random() < 0.5 else cols >= geometry.width - edge
     d0 = rng.uniform(0.3, 0.9)
     a, b = rng.uniform(-0.3, 0.3, size=2)  # the plane's tilt

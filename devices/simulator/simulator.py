@@ -2,11 +2,13 @@
 
 `Simulator(course).render(t)` gives the depth frame at t seconds into the walk, with the
 ground truth in `frame.truth`:
-- "mode": the mode of the course segment `lookahead_m` (default 0.8 m) ahead of the
-  camera along the course. The rule follows the walker, not the swinging view, so the
-  mode changes once per transition, as an operator keying the mode would change it.
-  0.8 m is about where the 1 m window the classifier sees is centred on average: of the
-  look-aheads 0.6-1.5 m it agrees best with what the camera sees (indoor and outdoor).
+- "mode": the mode of the course segment a look-ahead distance in front of the camera
+  along the course. The look-ahead depends on the terrain under the camera (LOOKAHEAD_M,
+  blended over 1 m): it is where the 1 m window the classifier sees lies on average,
+  the distance that agreed best with what the camera sees, measured over indoor and
+  outdoor courses (0.6 m walking down a ramp, 1.1 m down stairs). The rule follows the
+  walker, not the swinging view, so the mode changes once per transition (the camera
+  only moves forward), as an operator keying the mode would change it.
 - "view_mode": the mode covering most of the terrain actually seen in the central image
   columns (the classifier's corridor), within 1 m of the nearest visible point; "" when
   no terrain is seen; "view_share": the share of that terrain that has the true mode.
@@ -30,8 +32,10 @@ from devices.simulator.course import Course, make_course
 from devices.simulator.render import (
     TerrainScene, ToFParams, ToFSensor, blend_swing, draw_foot, draw_occlusion,
 )
-from devices.simulator.walk import Walk
+from devices.simulator.walk import GRID_M, Walk, smooth
 
+# Look-ahead (m) of the truth rule per terrain under the camera (see the module docstring).
+LOOKAHEAD_M = {"LG": 0.75, "US": 0.7, "DS": 1.1, "UR": 0.75, "DR": 0.6}
 CORRIDOR_PX = 9  # half-width of the central columns (~0.1 m at 1 m, the classifier's corridor)
 OUTDOOR_ERROR_RATE = 1.6  # error images outdoors relative to indoors
 
@@ -40,24 +44,27 @@ class Simulator:
     def __init__(self, course: Course, *, geometry: CameraGeometry = CameraGeometry(),
                  speed_mps: float = 1.1, cadence_spm: float = 105.0,
                  camera_height_m: float = 0.55, camera_tilt_deg: float = 35.0, seed: int = 0,
-                 lookahead_m: float = 0.8, error_rate: float | None = None,
-                 events=None) -> None:
-        """`error_rate` scales the error images (default 1 indoors, 1.6 outdoors); `events`
+                 camera_offset_m: float = 0.07, error_rate: float | None = None, events=None) -> None:
+        """`camera_offset_m`: the camera's distance in front of the thigh's axis;
+        `error_rate` scales the error images (default 1 indoors, 1.6 outdoors); `events`
         (ErrorEvent list) replaces their random schedule, e.g. [] for none."""
         if error_rate is None:
             error_rate = OUTDOOR_ERROR_RATE if course.outdoor else 1.0
         self.course = course
         self.geometry = geometry
         self.seed = seed
-        self.lookahead_m = lookahead_m
         self.walk = Walk(course, speed_mps=speed_mps, cadence_spm=cadence_spm,
                          camera_height_m=camera_height_m, camera_tilt_deg=camera_tilt_deg,
-                         error_rate=error_rate, seed=seed, events=events)
+                         camera_forward_m=camera_offset_m, error_rate=error_rate, seed=seed,
+                         events=events)
         self.scene = TerrainScene(course, geometry)
         self.sensor = ToFSensor(geometry, ToFParams.for_course(course), seed)
         c = int(round(geometry.cx))
         cols = np.arange(max(0, c - CORRIDOR_PX), min(geometry.width, c + CORRIDOR_PX + 1))
         self._corridor = (np.arange(geometry.height)[:, None] * geometry.width + cols).ravel()
+        x = np.arange(-1.0, course.length_m + 1.0, GRID_M)
+        ahead = np.array([LOOKAHEAD_M[m] for m in course.modes])[course.segment_index(x)]
+        self._lookahead = (x, smooth(ahead, 1.0))
 
     @classmethod
     def from_config(cls, config, geometry: CameraGeometry | None = None) -> "Simulator":
@@ -82,10 +89,14 @@ class Simulator:
     def camera_pose(self, t_s: float) -> np.ndarray:
         return self.walk.camera_pose(t_s)
 
+    def lookahead_m(self, x: float) -> float:
+        """Look-ahead of the truth rule for a camera at course position x."""
+        return float(np.interp(x, *self._lookahead))
+
     def truth_segment(self, t_s: float, pose: np.ndarray | None = None) -> int:
         """Index of the segment whose mode is the ground truth at t_s (see module doc)."""
-        pose = self.walk.camera_pose(t_s) if pose is None else pose
-        return int(self.course.segment_index(pose[0, 3] + self.lookahead_m))
+        x = (self.walk.camera_pose(t_s) if pose is None else pose)[0, 3]
+        return int(self.course.segment_index(x + self.lookahead_m(x)))
 
     def render(self, t_s: float, index: int = 0) -> DepthFrame:
         """The frame at t_s seconds into the walk; times are t_s on the walk's own clock."""

@@ -35,7 +35,7 @@ GAIT = {
     "US": (0.5, 0.85, 18.0, 22.0),
     "DS": (0.5, 0.85, 2.0, 16.0),
     "UR": (0.9, 0.95, 13.0, 24.0),
-    "DR": (0.9, 0.95, 4.0, 22.0),
+    "DR": (0.9, 0.95, 0.0, 20.0),
 }
 ERROR_KINDS = ("swing_blur", "sky", "foot", "occlusion")
 # Per kind: probability per stride (indoors), gait phase (rad; None = any), duration (s).
@@ -70,7 +70,8 @@ def _euler_matrix(roll: float, pitch: float, yaw: float) -> np.ndarray:
     ])
 
 
-def _smooth(values: np.ndarray, window_m: float) -> np.ndarray:
+def smooth(values: np.ndarray, window_m: float) -> np.ndarray:
+    """Moving average over window_m of values sampled every GRID_M (ends held)."""
     n = max(1, int(round(window_m / GRID_M)))
     padded = np.pad(values, (n, n), mode="edge")
     return np.convolve(padded, np.ones(n) / n, mode="same")[n:-n]
@@ -107,15 +108,15 @@ class Walk:
         self.end_x = course.length_m - min(1.5, course.length_m / 4)
         x = np.arange(self.start_x, self.end_x + GRID_M / 2, GRID_M)
         params = np.array([GAIT[m] for m in course.modes])[course.segment_index(x)]
-        speed = speed_mps * _smooth(params[:, 0], 0.6)
-        stride_hz = cadence_spm / 120.0 * _smooth(params[:, 1], 0.6)
+        speed = speed_mps * smooth(params[:, 0], 0.6)
+        stride_hz = cadence_spm / 120.0 * smooth(params[:, 1], 0.6)
         self._x = x
         self._t = np.concatenate([[0.0], np.cumsum(GRID_M / speed[:-1])])
         self._phase = np.concatenate([[0.0], np.cumsum(2 * np.pi * stride_hz[:-1] * GRID_M
                                                        / speed[:-1])])
-        self._flex_mean = np.radians(_smooth(params[:, 2], 0.6)) + self.mean_offset
-        self._flex_amp = np.radians(_smooth(params[:, 3], 0.6)) * self.amp_scale
-        self._ground = _smooth(course.height_at(x), 0.6)
+        self._flex_mean = np.radians(smooth(params[:, 2], 0.6)) + self.mean_offset
+        self._flex_amp = np.radians(smooth(params[:, 3], 0.6)) * self.amp_scale
+        self._ground = smooth(course.height_at(x), 0.6)
         self.duration_s = float(self._t[-1])
         if events is None:
             events = self._schedule_errors(rng, error_rate)
