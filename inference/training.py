@@ -52,6 +52,7 @@ class TrainSettings:
     samples_per_epoch: int = 0  # frames drawn per epoch; 0: as many as the training set
     max_steps: int = 0  # stop after this many optimiser steps in total (0: no limit)
     threads: int = 0  # torch intra-op threads; 0: leave as is
+    max_seconds: float = 0.0  # wall-clock budget; the epoch running out of it ends early
 
 
 @dataclass
@@ -263,6 +264,26 @@ def _validate(net: TerrainCNN, images: np.ndarray, labels: np.ndarray,
     return loss_sum / weight_sum, m.accuracy, m.balanced_accuracy
 
 
+@torch.no_grad()
+def _warm_start_batch_norm(net: TerrainCNN, images: np.ndarray, device: torch.device,
+                           rng: np.random.Generator, count: int = 256) -> None:
+    """Set the batch-norm running statistics from a first batch of data.
+
+    With weights from N(0, 0.01) the activations' variance is ~1e-4, while PyTorch starts
+    the running variance at 1; at momentum 0.1 it takes a few hundred steps to forget
+    that, and a model evaluated before then is wrong in eval mode only.
+    """
+    idx = rng.choice(len(images), size=min(count, len(images)), replace=False)
+    norms = [m for m in net.modules() if isinstance(m, torch.nn.BatchNorm2d)]
+    momenta = [m.momentum for m in norms]
+    for m in norms:
+        m.momentum = 1.0
+    net.train()
+    net(images_to_tensor(images[np.sort(idx)]).to(device))
+    for m, momentum in zip(norms, momenta):
+        m.momentum = momentum
+
+
 def train(sessions: list[LabeledSession], settings: TrainSettings = TrainSettings(),
           show_progress: bool = True) -> TrainResult:
     """Train a TerrainCNN on sessions (split by session); see the module docstring."""
@@ -290,9 +311,10 @@ def train(sessions: list[LabeledSession], settings: TrainSettings = TrainSetting
     optimiser = torch.optim.Adam(net.parameters(), lr=settings.lr,
                                  weight_decay=settings.weight_decay)
     scheduler = torch.optim.lr_scheduler.ReduceLROnPlateau(optimiser, factor=0.5, patience=0)
+    _warm_start_batch_norm(net, x_train, device, rng)
     per_epoch = settings.samples_per_epoch or len(y_train)
     best_loss, best_state, best_epoch, stale = math.inf, None, 0, 0
-    history, steps, stopped_early = [], 0, False
+    history, steps, stopped_early, out_of_time = [], 0, False, False
 
     for epoch in range(1, settings.epochs + 1):
         net.train()
@@ -317,6 +339,9 @@ def train(sessions: list[LabeledSession], settings: TrainSettings = TrainSetting
                 bar.update(1)
                 if settings.max_steps and steps >= settings.max_steps:
                     break
+                if settings.max_seconds and time.perf_counter() - started > settings.max_seconds:
+                    out_of_time = True
+                    break
             val_loss, val_acc, val_bal = _validate(net, x_val, y_val, device)
             bar.set_postfix(loss=f"{loss_sum / seen:.3f}", acc=f"{correct / seen:.3f}",
                             val_loss=f"{val_loss:.3f}", val_acc=f"{val_acc:.3f}")
@@ -332,7 +357,7 @@ def train(sessions: list[LabeledSession], settings: TrainSettings = TrainSetting
             stale += 1
         if not math.isnan(val_loss):
             scheduler.step(val_loss)
-        if settings.max_steps and steps >= settings.max_steps:
+        if (settings.max_steps and steps >= settings.max_steps) or out_of_time:
             break
         if stale >= settings.patience:
             stopped_early = True

@@ -180,3 +180,22 @@ def test_unbalanced_frames_are_balanced_in_training(monkeypatch):
           show_progress=False)
     share = np.bincount(seen, minlength=5) / len(seen)
     assert share.max() < 0.3
+
+
+def test_time_budget_ends_training():
+    result = train(drawn_sessions(6, 2), _tiny_settings(max_steps=0, epochs=50,
+                                                         max_seconds=1e-6),
+                   show_progress=False)
+    assert len(result.history) == 1 and result.history[0]["epoch"] == 1
+
+
+def test_batch_norm_statistics_fit_the_data_from_the_first_step():
+    """N(0, 0.01) weights make tiny activations; the running variance must not start at 1."""
+    sessions = drawn_sessions(6, 3)
+    result = train(sessions, _tiny_settings(max_steps=1, epochs=1), show_progress=False)
+    net = result.net
+    x = torch.from_numpy(np.concatenate([s.images for s in sessions])).float().unsqueeze(1)
+    with torch.no_grad():
+        var = net.conv1(x).var(dim=(0, 2, 3))
+    ratio = net.bn1.running_var / var
+    assert torch.all((ratio > 0.3) & (ratio < 3)), ratio

@@ -52,6 +52,8 @@ def add_arguments(parser) -> None:
                         help="frames drawn per epoch (default: the training set's size)")
     parser.add_argument("--max-steps", type=_count(1), default=None, metavar="N",
                         help="stop after N optimiser steps (quick checks)")
+    parser.add_argument("--max-minutes", type=float, default=None, metavar="M",
+                        help="wall-clock budget: stop training after M minutes")
     parser.add_argument("--threads", type=_count(1), default=None, metavar="N",
                         help="CPU threads for torch (default: torch's choice)")
     parser.add_argument("--val-fraction", type=float, default=d.val_fraction, metavar="F")
@@ -72,7 +74,8 @@ def run(args, config) -> int:
         seed=args.seed, hidden=args.hidden, device=args.device or config.model.device,
         augment=not args.no_augment, balance=not args.no_balance,
         samples_per_epoch=args.samples_per_epoch or 0, max_steps=args.max_steps or 0,
-        threads=args.threads or 0, val_fraction=args.val_fraction,
+        threads=args.threads or 0, max_seconds=(args.max_minutes or 0) * 60,
+        val_fraction=args.val_fraction,
         test_fraction=args.test_fraction)
     files = find_session_files(args.data)
     sessions = read_sessions(files)
