@@ -111,7 +111,7 @@ class Course:
     preset: str = "indoor"
     seed: int = 0
     half_width_m: float = 3.0  # terrain extends this far either side of the centre line
-    bump_m: float = 0.0  # amplitude of uneven ground
+    bump_m: float = 0.0  # RMS height of uneven ground (outdoors)
     boxes: tuple[Box, ...] = ()  # walls and clutter
     bump_waves: tuple[tuple[float, float, float, float], ...] = field(default=(), repr=False)
 
@@ -206,13 +206,12 @@ def make_course(preset: str = "indoor", seed: int = 0,
             seg = _ramp(mode, x, z, rng)
         segments.append(seg)
         x, z = seg.x1, seg.z1
-    course = Course(tuple(segments), preset, seed)
+    bare = Course(tuple(segments), preset, seed)
     if outdoor:
-        waves = tuple(_bump_waves(rng, 0.012))
-        boxes = tuple(_clutter(course, rng))
-        return Course(course.segments, preset, seed, bump_m=0.012, boxes=boxes,
-                      bump_waves=waves)
-    return Course(course.segments, preset, seed, boxes=tuple(_walls(course, rng)))
+        return Course(bare.segments, preset, seed, bump_m=0.012,
+                      boxes=tuple(_clutter(bare, rng)),
+                      bump_waves=tuple(_bump_waves(rng, 0.012)))
+    return Course(bare.segments, preset, seed, boxes=tuple(_walls(bare, rng)))
 
 
 def _turns(before: str, after: str) -> bool:
@@ -222,7 +221,7 @@ def _turns(before: str, after: str) -> bool:
 
 
 def _bump_waves(rng: np.random.Generator, amplitude: float):
-    """Six plane waves of 0.5-2 m wavelength whose sum peaks near `amplitude`."""
+    """Six plane waves of 0.5-2 m wavelength whose sum has an RMS of `amplitude`."""
     n = 6
     for _ in range(n):
         k = 2 * np.pi / rng.uniform(0.5, 2.0)

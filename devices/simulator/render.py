@@ -31,7 +31,7 @@ class Hits:
     """Per ray (flattened image): distance along the unit ray, label, |cos incidence|."""
 
     t: np.ndarray  # float32, inf where nothing was hit
-    label: np.ndarray  # int32: segment index, OBSTACLE or NOTHING
+    label: np.ndarray  # int32: terrain mode (index in MODES), OBSTACLE or NOTHING
     cos_inc: np.ndarray  # float32
     albedo: np.ndarray  # float32
 

@@ -44,7 +44,8 @@ class Simulator:
     def __init__(self, course: Course, *, geometry: CameraGeometry = CameraGeometry(),
                  speed_mps: float = 1.1, cadence_spm: float = 105.0,
                  camera_height_m: float = 0.55, camera_tilt_deg: float = 35.0, seed: int = 0,
-                 camera_offset_m: float = 0.07, error_rate: float | None = None, events=None) -> None:
+                 camera_offset_m: float = 0.07, error_rate: float | None = None,
+                 events=None) -> None:
         """`camera_offset_m`: the camera's distance in front of the thigh's axis;
         `error_rate` scales the error images (default 1 indoors, 1.6 outdoors); `events`
         (ErrorEvent list) replaces their random schedule, e.g. [] for none."""
