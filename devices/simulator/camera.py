@@ -52,7 +52,7 @@ class MockCamera(Camera):
         self._thread: threading.Thread | None = None
         course = simulator.course
         self.details = {"course": course.preset, "seed": course.seed,
-                        "modes": "".join(m[0] + m[1].lower() for m in course.modes),
+                        "modes": " ".join(course.modes),
                         "duration_s": round(simulator.duration_s, 2), "loop": loop,
                         "realtime": self.realtime}
 

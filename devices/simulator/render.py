@@ -134,7 +134,8 @@ def _pool() -> ThreadPoolExecutor:
 class TerrainScene:
     """The course as an Open3D RaycastingScene, cast from a camera pose, one ray per pixel."""
 
-    def __init__(self, course: Course, geometry: CameraGeometry) -> None:
+    def __init__(self, course: Course, rays_cam: np.ndarray) -> None:
+        """`rays_cam`: unit ray per pixel in the camera frame, (n, 3) float32."""
         import open3d as o3d
 
         self._o3d = o3d
@@ -142,8 +143,6 @@ class TerrainScene:
         self.scene = o3d.t.geometry.RaycastingScene()
         self.scene.add_triangles(o3d.core.Tensor(vertices.astype(np.float32)),
                                  o3d.core.Tensor(triangles.astype(np.uint32)))
-        self.geometry = geometry
-        self.rays_cam = geometry.rays().reshape(-1, 3)
         self.triangle_count = n = len(triangles)
         # per-triangle tables with one more entry for "no hit" (primitive ids are clamped)
         self._labels = np.append(labels, NOTHING).astype(np.int32)
@@ -151,10 +150,9 @@ class TerrainScene:
         self._albedo = np.append(self._albedo, 0.0).astype(np.float32)
         self._no_hit = np.uint32(n)
         # rays = [1, direction] @ [[origin, 0], [0, R^T]]: origin and direction in one product
-        self._homogeneous = np.hstack([np.ones((len(self.rays_cam), 1), np.float32),
-                                       self.rays_cam])
+        self._homogeneous = np.hstack([np.ones((len(rays_cam), 1), np.float32), rays_cam])
         self._transform = np.zeros((4, 6), np.float32)
-        bounds = np.linspace(0, len(self.rays_cam), CAST_THREADS + 1).astype(int)
+        bounds = np.linspace(0, len(rays_cam), CAST_THREADS + 1).astype(int)
         self._bands = [slice(a, b) for a, b in zip(bounds, bounds[1:])]
         # the first cast commits the scene: do it here, not in racing threads
         self.scene.cast_rays(o3d.core.Tensor(np.zeros((1, 6), np.float32)))

@@ -58,8 +58,8 @@ class Simulator:
                          camera_height_m=camera_height_m, camera_tilt_deg=camera_tilt_deg,
                          camera_forward_m=camera_offset_m, error_rate=error_rate, seed=seed,
                          events=events)
-        self.scene = TerrainScene(course, geometry)
         self.sensor = ToFSensor(geometry, ToFParams.for_course(course), seed)
+        self.scene = TerrainScene(course, self.sensor.rays_cam)
         c = int(round(geometry.cx))
         cols = np.arange(max(0, c - CORRIDOR_PX), min(geometry.width, c + CORRIDOR_PX + 1))
         self._corridor = (np.arange(geometry.height)[:, None] * geometry.width + cols).ravel()
