@@ -5,6 +5,7 @@ No threads and no I/O here: the live session, replay and the benchmarks run the 
 from __future__ import annotations
 
 import collections
+import dataclasses
 import threading
 from dataclasses import dataclass, field
 
@@ -112,6 +113,9 @@ class Pipeline:
         self.params = params
         self.classifier = classifier
         self.fusion = fusion
+        # fusion counts pushes; decisions name camera frames: remember which is which
+        self._pushed = 0
+        self._frame_of_push: dict[int, int] = {}
 
     def process(self, frame: DepthFrame, quaternion: np.ndarray | None,
                 time_ns: int | None = None) -> FrameResult:
@@ -122,7 +126,7 @@ class Pipeline:
             quaternion = np.full(4, np.nan)
         pre = preprocess(frame.xyz, frame.confidence, quaternion, self.params)
         probs = np.asarray(self.classifier.predict(pre.image), dtype=np.float64)
-        fused = self.fusion.push(probs)
+        fused = self._push(frame.index, probs)
         hint = MODES[fused.decision] if fused is not None else MODES[int(np.argmax(probs))]
         feats = terrain_features(pre.profile, hint) if pre.ok else None
         return FrameResult(
@@ -142,10 +146,25 @@ class Pipeline:
         )
 
 
+    def _push(self, frame_index: int, probs: np.ndarray):
+        """Push to the fusion; its output with push numbers turned into frame indices."""
+        self._frame_of_push[self._pushed] = frame_index
+        self._frame_of_push.pop(self._pushed - 256, None)
+        self._pushed += 1
+        out = self.fusion.push(probs)
+        if out is None:
+            return None
+        frame_of = self._frame_of_push.get
+        return dataclasses.replace(
+            out,
+            frame=frame_of(out.frame) if out.frame is not None else None,
+            posterior_frame=frame_of(out.posterior_frame) if out.posterior_frame is not None else None,
+            voted_frame=frame_of(out.voted_frame) if out.voted_frame is not None else None,
+        )
+
+
 def _features_dict(feats) -> dict:
     if feats is None:
         return {}
-    import dataclasses
-
     return {k: v for k, v in dataclasses.asdict(feats).items()
             if v is None or isinstance(v, (int, float, str, bool))}

@@ -160,12 +160,10 @@ class Session:
         self.pipeline = Pipeline(PreprocessParams.from_config(cfg), self._classifier, fusion)
         if self._camera is None:
             self._camera = open_camera(cfg.camera, cfg.simulator)
-        simulator = getattr(self._camera, "simulator", None)
         try:
             self._camera.open()
             if self._imu is None:
-                orientation_at = simulator.thigh_quaternion if simulator is not None else None
-                self._imu = open_imu(cfg.imu, orientation_at=orientation_at)
+                self._imu = self._open_imu(open_imu)
             self._imu.open()
             self._imu.start()
             self._camera.start()
@@ -175,6 +173,19 @@ class Session:
         self._spawn(self._imu_loop, "imu")
         self._spawn(self._frame_loop, "pipeline")
         self._spawn(self._monitor_loop, "monitor")
+
+    def _open_imu(self, open_imu):
+        """The IMU; on a mock walk, the emulator feels the same thigh the camera rides on."""
+        camera = self._camera
+        if not hasattr(camera, "orientation_at"):
+            return open_imu(self.config.imu)
+        camera.start_time_ns = now_ns()  # both devices count walk time from here
+        offset = {"s": 0.0}  # emulator start - camera start, known once the emulator runs
+        imu = open_imu(self.config.imu, orientation_at=lambda t: camera.orientation_at(t + offset["s"]))
+        emulator = getattr(imu, "emulator", None)
+        if emulator is not None and emulator.start_time_ns is not None:
+            offset["s"] = (emulator.start_time_ns - camera.start_time_ns) * 1e-9
+        return imu
 
     def _spawn(self, target, name: str) -> None:
         t = threading.Thread(target=target, name=f"walkcap-{name}", daemon=True)
@@ -444,6 +455,7 @@ def _fused_dict(r: FrameResult) -> dict:
         "frame_index": f.frame_index,
         "decision": MODES[f.decision],
         "posterior": [float(p) for p in f.posterior],
+        "posterior_frame_index": f.posterior_frame,
         "voted": MODES[f.voted] if f.voted is not None else None,
         "voted_frame_index": f.voted_frame_index,
     }

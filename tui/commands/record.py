@@ -1,12 +1,102 @@
-"""`walkcap record`: record a session headless into an MCAP file"""
-from tui.cli import NotYetAvailable
+"""`walkcap record`: record one trial headless (mock devices by default)."""
+from __future__ import annotations
+
+import signal
+import sys
+import time
 
 HELP = "record a session headless into an MCAP file"
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("rest", nargs="*", help="(not available yet)")
+    parser.add_argument("--camera", metavar="BACKEND", help="mock | royale")
+    parser.add_argument("--imu", metavar="BACKEND", help="mock | serial")
+    parser.add_argument("--port", help="IMU serial port (backend serial)")
+    parser.add_argument("--duration", type=float, metavar="S",
+                        help="seconds to record (default: until the mock course ends, or Ctrl-C)")
+    parser.add_argument("--fps", type=float, help="camera frame rate")
+    parser.add_argument("--imu-rate", type=int, metavar="HZ", help="IMU output rate")
+    parser.add_argument("--out", metavar="DIR", help="recordings folder")
+    parser.add_argument("--course", choices=("indoor", "outdoor"), help="mock walk preset")
+    parser.add_argument("--seed", type=int, help="mock walk seed")
+    parser.add_argument("--fast", action="store_true",
+                        help="mock camera as fast as the pipeline runs (not real time)")
+    parser.add_argument("--auto-label", action="store_true",
+                        help="labels from the simulator's truth (unattended mock runs)")
+    parser.add_argument("--model", metavar="PATH", help="classifier weights (default: bundled)")
+    g = parser.add_argument_group("session metadata")
+    g.add_argument("--subject", default="S01", help="pseudonymous subject id")
+    g.add_argument("--condition", help="e.g. indoor / outdoor (default: the course)")
+    g.add_argument("--trial", type=int, default=1)
+    g.add_argument("--height", type=float, metavar="M", dest="height_m")
+    g.add_argument("--weight", type=float, metavar="KG", dest="weight_kg")
+    g.add_argument("--age", type=int)
+    g.add_argument("--sex", default="", choices=("", "female", "male", "other"))
+    g.add_argument("--amputee", action="store_true")
+    g.add_argument("--side", default="", choices=("", "left", "right"))
+    g.add_argument("--residual-limb", type=float, metavar="CM", dest="residual_limb_cm")
+    g.add_argument("--notes", default="")
+
+
+def apply_device_flags(args, config) -> None:
+    """Flags shared by record and tui: they override the configuration file."""
+    from capture.config import override
+
+    for flag, key in (("camera", "camera.backend"), ("imu", "imu.backend"), ("port", "imu.port"),
+                      ("fps", "camera.fps"), ("imu_rate", "imu.rate_hz"), ("out", "session.recordings"),
+                      ("course", "simulator.course"), ("seed", "simulator.seed"), ("model", "model.path")):
+        value = getattr(args, flag, None)
+        if value is not None:
+            override(config, key, value)
+    if getattr(args, "fast", False):
+        config.simulator.realtime = False
 
 
 def run(args, config) -> int:
-    raise NotYetAvailable("not available yet: it lands with the [recording] issue")
+    from capture.session import Session, SubjectInfo
+
+    apply_device_flags(args, config)
+    info = SubjectInfo(
+        subject=args.subject, height_m=args.height_m, weight_kg=args.weight_kg, age=args.age,
+        sex=args.sex, amputee=args.amputee, side=args.side,
+        residual_limb_cm=args.residual_limb_cm,
+        condition=args.condition or _default_condition(config),
+        trial=args.trial, notes=args.notes,
+    )
+    info.validate()
+    session = Session(config, auto_label=args.auto_label)
+    # SIGTERM finalises the file like Ctrl-C does
+    signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
+    stats = None
+    try:
+        session.start()
+        path = session.start_recording(info)
+        print(f"recording {path}", file=sys.stderr)
+        deadline = time.monotonic() + args.duration if args.duration else None
+        while not session.finished.is_set():
+            if deadline is not None and time.monotonic() >= deadline:
+                break
+            rec = session.snapshot().recording
+            if rec is not None and rec.state == "failed":
+                break
+            time.sleep(0.05)
+    except KeyboardInterrupt:
+        print("stopping: finalising the recording", file=sys.stderr)
+    finally:
+        stats = session.stop()
+    if stats is None:
+        return 1
+    snap_lat = session.snapshot().latency_ms
+    print(f"{stats.messages} messages, {stats.bytes_written / 1e6:.1f} MB, dropped {stats.dropped}"
+          + (f", latency p50 {snap_lat['p50']:.1f} ms p99 {snap_lat['p99']:.1f} ms" if snap_lat else ""),
+          file=sys.stderr)
+    if stats.state == "failed":
+        print(f"walkcap record: error: {stats.message}", file=sys.stderr)
+        print(stats.path)
+        return 1
+    print(stats.path)
+    return 0
+
+
+def _default_condition(config) -> str:
+    return config.simulator.course if config.camera.backend == "mock" else "session"
