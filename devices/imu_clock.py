@@ -38,7 +38,8 @@ class DeviceClock:
 
     def __init__(self, tick_ns: int = TICK_NS, wrap: int = WRAP, window_s: float = 30.0,
                  bucket_s: float = 0.25, max_drift_ppm: float = 1000.0,
-                 jump_ms: float = 50.0, max_delay_s: float = 1.0) -> None:
+                 jump_ms: float = 50.0, max_delay_s: float = 1.0,
+                 min_span_s: float = 2.0) -> None:
         self.tick_ns = tick_ns
         self.wrap = wrap
         self.window_ns = int(window_s * 1e9)
@@ -46,6 +47,8 @@ class DeviceClock:
         self.max_slope = max_drift_ppm * 1e-6
         self.jump_ns = jump_ms * 1e6  # arriving this much before the envelope: clock jumped
         self.max_delay_ns = max_delay_s * 1e9  # this late for long: the device clock restarted
+        # Over a shorter span jitter dominates the slope: assume no drift until then.
+        self.min_span_ns = int(min_span_s * 1e9)
         self.resets = 0  # fits forgotten because the device clock jumped or restarted
         self._clear()
 
@@ -116,8 +119,9 @@ class DeviceClock:
             buckets.append((key, x, y))
             while x - buckets[0][1] > self.window_ns:
                 buckets.popleft()
+        short = buckets[-1][1] - buckets[0][1] < self.min_span_ns
         self._a, self._b = lower_envelope([p[1] for p in buckets], [p[2] for p in buckets],
-                                          self._b, self.max_slope)
+                                          self._b, 0.0 if short else self.max_slope)
 
     # ---- mapping ----------------------------------------------------------------------
 

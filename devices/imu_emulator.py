@@ -50,8 +50,20 @@ _COUNTERS = frozenset({"packet_counter", "sample_time_fine", "sample_time_coarse
 # Requests a device in measurement mode accepts; the rest need GoToConfig first.
 _MEASUREMENT_OK = frozenset({MID.GOTO_CONFIG, MID.GOTO_MEASUREMENT, MID.RESET, MID.REQ_DID,
                              MID.WAKEUP_ACK})
-_SPIN_NS = 300_000  # the last moments before a send are waited for by spinning
+_SPIN_NS = 200_000
 _BAUD_CODE = {baud: code for code, baud in sorted(xbus.BAUD_CODES.items(), reverse=True)}
+
+
+def _precise_timers() -> None:
+    """Wake this thread on time: Linux lets a sleep overrun by its timer slack (50 us by
+    default); a device sends on its own clock, so the emulator asks for 1 us."""
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(29, 1000, 0, 0, 0)  # PR_SET_TIMERSLACK, this thread only
+    except (OSError, AttributeError):
+        pass
 
 
 def gait_orientation(t: float) -> np.ndarray:
@@ -94,6 +106,7 @@ class ImuEmulator:
         self._stopping = threading.Event()
         self._dir: str | None = None
         self.port: str | None = None
+        self.start_time_ns: int | None = None  # session clock at start()
         self._master: int | None = None
         self._slave: int | None = None
         self._queue: collections.deque[tuple[int, bytes]] = collections.deque()  # (send at, bytes)
@@ -110,7 +123,7 @@ class ImuEmulator:
             return self.port  # type: ignore[return-value]
         self._dir = tempfile.mkdtemp(prefix="walkcap-imu-")
         self.port = os.path.join(self._dir, "ttyIMU")
-        self._t0 = now_ns()
+        self._t0 = self.start_time_ns = now_ns()  # orientation_at(0) is this instant
         self._epoch_ticks = self._start_ticks  # device ticks at _t0
         self._power_up(self._t0)
         self._plug()
@@ -223,6 +236,7 @@ class ImuEmulator:
         return self._master is not None
 
     def _run(self) -> None:
+        _precise_timers()
         try:
             while not self._stopping.is_set():
                 self._step()
@@ -254,8 +268,7 @@ class ImuEmulator:
         timeout = 0.02
         if self._queue:
             due = self._queue[0][0]
-            # select() wakes up late by the timer slack and more: wake early, then spin.
-            if due - now_ns() < _SPIN_NS:
+            if due - now_ns() < _SPIN_NS:  # the last moments are waited for by spinning
                 while now_ns() < due:
                     pass
                 return
@@ -323,7 +336,7 @@ class ImuEmulator:
             self.sent += 1
 
     def _mtdata2(self, index: int, counter: int, ticks: int, taken_at: int) -> bytes:
-        t = (taken_at - self._t0) * 1e-9
+        t = (taken_at - self.start_time_ns) * 1e-9
         dt = 1.0 / self._rate
         q = quat_normalize(np.asarray(self.orientation_at(t), dtype=np.float64))
         rot = quat_to_matrix(q)
