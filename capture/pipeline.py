@@ -105,6 +105,20 @@ class FrameResult:
     def latency_ms(self) -> float:
         return (self.done_ns - self.host_time_ns) * 1e-6
 
+    def fused_dict(self) -> dict:
+        """The fused output as recorded on /inference/fused (empty before the first)."""
+        f = self.fused
+        if f is None:
+            return {}
+        return {
+            "frame_index": f.frame,
+            "decision": MODES[f.decision] if f.decision is not None else None,
+            "posterior": list(f.probabilities) if f.probabilities is not None else None,
+            "posterior_frame_index": f.posterior_frame,
+            "voted": MODES[f.voted] if f.voted is not None else None,
+            "voted_frame_index": f.voted_frame,
+        }
+
 
 class Pipeline:
     """Preprocess -> classify -> fuse -> features, one frame at a time."""

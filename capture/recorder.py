@@ -131,7 +131,7 @@ class Recorder:
     def __init__(self, path: str | os.PathLike, *, metadata: dict[str, dict[str, str]] | None = None,
                  attachments: dict[str, bytes] | None = None, queue_size: int = 512,
                  chunk_interval_s: float = 1.0, gray: bool = False,
-                 cloud_max_points: int = 4096) -> None:
+                 cloud_max_points: int = 4096, blocking: bool = False) -> None:
         self.path = Path(path)
         self.journal_path = journal_path(self.path)
         self._metadata = {name: {str(k): str(v) for k, v in values.items()}
@@ -143,6 +143,9 @@ class Recorder:
         self._chunk_interval_s = chunk_interval_s
         self._gray = gray
         self._cloud_max_points = cloud_max_points
+        # Offline writers (replay, synth) wait for the disk instead of dropping: nothing live
+        # is waiting on them.
+        self._blocking = blocking
         self._state = IDLE
         self._message = ""
         self._accepting = False
@@ -306,8 +309,16 @@ class Recorder:
     def _put(self, kind: str, item: tuple) -> None:
         if self._accepting:
             try:
-                self._queue.put_nowait((kind, item))
-                return
+                if self._blocking:
+                    while self._accepting and self._state == RECORDING:
+                        try:
+                            self._queue.put((kind, item), timeout=0.5)
+                            return
+                        except queue.Full:
+                            continue
+                else:
+                    self._queue.put_nowait((kind, item))
+                    return
             except queue.Full:
                 pass
         if self._state in (RECORDING, FAILED):

@@ -286,7 +286,7 @@ class Session:
     def _record(self, rec, frame: DepthFrame, r: FrameResult) -> None:
         rec.write_frame(frame)
         rec.write_processed(r.index, r.time_ns, r.host_time_ns, r.cloud, r.image, r.quaternion, r.flag)
-        rec.write_inference(r.index, r.time_ns, r.done_ns, r.probabilities, _fused_dict(r))
+        rec.write_inference(r.index, r.time_ns, r.done_ns, r.probabilities, r.fused_dict())
         if r.features:
             rec.write_features(r.index, r.time_ns, r.features)
         if frame.truth:
@@ -445,17 +445,3 @@ class Session:
         rec = self._recorder
         snap.recording = rec.stats() if rec is not None else None
         return snap
-
-
-def _fused_dict(r: FrameResult) -> dict:
-    f = r.fused
-    if f is None:
-        return {}
-    return {
-        "frame_index": f.frame_index,
-        "decision": MODES[f.decision],
-        "posterior": [float(p) for p in f.posterior],
-        "posterior_frame_index": f.posterior_frame,
-        "voted": MODES[f.voted] if f.voted is not None else None,
-        "voted_frame_index": f.voted_frame_index,
-    }

@@ -1,0 +1,129 @@
+"""The live session on mock devices, end to end: devices -> pipeline -> recording -> replay.
+
+A stand-in classifier keeps these tests independent of the bundled weights; the devices,
+preprocessing, fusion and recorder are the real ones.
+"""
+import time
+
+import numpy as np
+import pytest
+
+from capture.config import Config
+from capture.errors import CaptureError
+from capture.reader import open_recording, read_trial
+from capture.replay import replay
+from capture.session import Session, SubjectInfo
+from devices.frames import MODES
+
+
+class StandInClassifier:
+    """Scores from the image's column profile: deterministic, cheap, image-dependent."""
+
+    metadata = {"hash": "stand-in"}
+
+    def predict(self, image):
+        cols = image.any(axis=0).sum()
+        p = np.full(5, 0.05)
+        p[int(cols) % 5] = 0.8
+        return p
+
+
+def config(tmp_path, fps=15.0) -> Config:
+    c = Config()
+    c.session.recordings = str(tmp_path / "recordings")
+    c.camera.fps = fps
+    return c
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory):
+    """One 4-second mock trial, recorded with simulator labels."""
+    tmp = tmp_path_factory.mktemp("session")
+    session = Session(config(tmp), classifier=StandInClassifier(), auto_label=True)
+    session.start()
+    try:
+        path = session.start_recording(SubjectInfo(subject="S07", condition="indoor", trial=3))
+        time.sleep(0.5)
+        session.add_marker("subject paused")
+        session.set_label("US")
+        session.undo_label()
+        time.sleep(3.5)
+        snap = session.snapshot()
+    finally:
+        stats = session.stop()
+    return path, stats, snap
+
+
+def test_recording_is_named_from_the_session_and_complete(recorded):
+    path, stats, _ = recorded
+    assert path.name.startswith("S07_indoor_t03_") and path.suffix == ".mcap"
+    assert stats.state == "stopped" and stats.dropped == 0
+    rec = open_recording(path)
+    for topic in ("/camera/depth", "/camera/cloud", "/camera/binary_image", "/tf", "/imu",
+                  "/labels", "/events", "/inference/cnn", "/inference/fused", "/sim/truth"):
+        assert topic in rec.topics, topic
+    assert rec.metadata["session"]["subject"] == "S07"
+    assert rec.metadata["software"]["model_hash"] == "stand-in"
+    assert "walkcap.toml" in rec.attachments
+
+
+def test_rates_match_the_configuration(recorded):
+    path, _, snap = recorded
+    rec = open_recording(path)
+    frames = rec.topics["/camera/depth"].count
+    imu = rec.topics["/imu"].count
+    assert 45 <= frames <= 70  # ~4 s at 15 fps
+    assert 6 <= imu / frames <= 7.5  # 100 Hz IMU against 15 fps
+    assert snap.camera.state == "ok" and snap.imu.state == "ok"
+
+
+def test_labels_markers_and_undo_are_recorded(recorded):
+    path, _, _ = recorded
+    trial = read_trial(path)
+    sources = [c[2] for c in trial["label_changes"]]
+    assert "operator" in sources and any(s.startswith("undo") for s in sources)
+    assert "simulator" in sources or "start" in sources
+    events = [m.data for m in open_recording(path).messages(["/events"])]
+    assert any(e["kind"] == "marker" and e["message"] == "subject paused" for e in events)
+
+
+def test_fused_decisions_refer_to_earlier_frames(recorded):
+    path, _, _ = recorded
+    fused = [m.data for m in open_recording(path).messages(["/inference/fused"])]
+    cnn = {m.data["frame_index"]: m.sequence for m in open_recording(path).messages(["/inference/cnn"])}
+    assert fused
+    first = min(cnn)  # frames before the recording started are decided in it too
+    for f in fused:
+        assert f["frame_index"] in cnn or f["frame_index"] < first  # camera frame indices
+        assert f["frame_index"] < max(cnn)
+        assert f["decision"] in MODES
+
+
+def test_imu_is_aligned_with_frames_on_the_session_clock(recorded):
+    _, _, snap = recorded
+    # the emulator knows when it really sampled: the mapped times are close to that
+    assert snap.sync and snap.sync["p50_ms"] < 1.0
+
+
+def test_replay_reproduces_the_trial_into_a_new_file(recorded, tmp_path):
+    path, _, _ = recorded
+    before = path.read_bytes()
+    report = replay(path, Config(), output=tmp_path / "again.mcap", classifier=StandInClassifier())
+    assert path.read_bytes() == before  # the original is never modified
+    a, b = read_trial(path), read_trial(report.output)
+    assert len(a["frame_index"]) == len(b["frame_index"]) == report.frames
+    np.testing.assert_array_equal(a["frame_index"], b["frame_index"])
+    assert [c[:2] for c in a["label_changes"]] == [c[:2] for c in b["label_changes"]]
+    assert report.speedup > 1.0
+
+
+def test_replay_refuses_to_overwrite_its_source(recorded):
+    path, _, _ = recorded
+    with pytest.raises(CaptureError, match="new file"):
+        replay(path, Config(), output=path, classifier=StandInClassifier())
+
+
+def test_unknown_label_is_refused():
+    session = Session(Config(), classifier=StandInClassifier())
+    with pytest.raises(CaptureError, match="unknown mode"):
+        session.set_label("XX")
