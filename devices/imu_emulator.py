@@ -113,6 +113,7 @@ class ImuEmulator:
         self._out = bytearray()  # bytes due but not yet taken by the pty
         self.sent = 0  # MTData2 messages written
         self.dropped_on_wire = 0  # bytes lost because nobody read the pty
+        self.overflowed = 0  # messages lost because the baud rate cannot carry them
         self.requests: list[int] = []  # MIDs received, for tests and `--verbose`
 
     # ---- life cycle -------------------------------------------------------------------
@@ -329,10 +330,7 @@ class ImuEmulator:
                 frame[:0] = self._garbage
                 self._garbage = b""
             jitter = self._rng.uniform(0, self.jitter_ms * 1e6) if self.jitter_ms > 0 else 0
-            send_at = taken_at + xbus.wire_time_ns(len(frame), self.baudrate) + int(jitter)
-            send_at = max(send_at, self._last_send)  # a UART never reorders
-            self._last_send = send_at
-            self._queue.append((send_at, bytes(frame)))
+            self._transmit(bytes(frame), taken_at + int(jitter))
             self.sent += 1
 
     def _mtdata2(self, index: int, counter: int, ticks: int, taken_at: int) -> bytes:
@@ -402,10 +400,18 @@ class ImuEmulator:
 
     # ---- the wire ---------------------------------------------------------------------
 
+    def _transmit(self, frame: bytes, ready_at: int) -> None:
+        """Send a frame from ready_at, after the one before it: the host has it all one wire
+        time later. More than the line carries piles up, then overflows the device."""
+        if len(self._queue) >= 64:  # the device's output buffer is full: the frame is lost
+            self.overflowed += 1
+            return
+        start = max(ready_at, self._last_send)
+        self._last_send = start + xbus.wire_time_ns(len(frame), self.baudrate)
+        self._queue.append((self._last_send, frame))
+
     def _send_now(self, frame: bytes, t: int) -> None:
-        send_at = max(t + xbus.wire_time_ns(len(frame), self.baudrate), self._last_send)
-        self._last_send = send_at
-        self._queue.append((send_at, frame))
+        self._transmit(frame, t)
 
     def _flush(self, t: int) -> None:
         while self._queue and self._queue[0][0] <= t:
