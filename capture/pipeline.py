@@ -141,7 +141,9 @@ class Pipeline:
         pre = preprocess(frame.xyz, frame.confidence, quaternion, self.params)
         probs = np.asarray(self.classifier.predict(pre.image), dtype=np.float64)
         fused = self._push(frame.index, probs)
-        hint = MODES[fused.decision] if fused is not None else MODES[int(np.argmax(probs))]
+        done_ns = now_ns()  # the decision is out; features are for display and recording
+        hint = MODES[fused.decision] if fused is not None and fused.decision is not None \
+            else MODES[int(np.argmax(probs))]
         feats = terrain_features(pre.profile, hint) if pre.ok else None
         return FrameResult(
             index=frame.index,
@@ -156,7 +158,7 @@ class Pipeline:
             cnn_decision=int(np.argmax(probs)),
             fused=fused,
             features=_features_dict(feats),
-            done_ns=now_ns(),
+            done_ns=done_ns,
         )
 
 

@@ -30,7 +30,9 @@ from devices.frames import MODES, DepthFrame
 log = logging.getLogger(__name__)
 
 TIMELINE_S = 20.0
-IMU_WAIT_S = 0.012  # how long a frame waits for the IMU sample after it, to interpolate
+# A frame waits for the IMU sample after its time, to interpolate rather than hold, for
+# at most one IMU period plus transport jitter.
+IMU_JITTER_S = 0.002
 
 
 @dataclass
@@ -139,6 +141,7 @@ class Session:
         self.pipeline: Pipeline | None = None
         self.model_metadata: dict = {}
         self.finished = threading.Event()  # the camera ran out of frames (end of a mock course)
+        self._imu_wait_s = 1.0 / max(config.imu.rate_hz, 1) + IMU_JITTER_S
 
     # ---- life cycle -------------------------------------------------------------------
 
@@ -270,7 +273,7 @@ class Session:
 
     def process_frame(self, frame: DepthFrame) -> FrameResult:
         t = frame.device_time_ns
-        self.track.wait_until(t, IMU_WAIT_S)
+        self.track.wait_until(t, self._imu_wait_s)
         quaternion, _ = self.track.at(t)
         result = self.pipeline.process(frame, quaternion, t)
         truth_mode = frame.truth.get("mode") if frame.truth else None

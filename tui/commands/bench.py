@@ -1,12 +1,75 @@
-"""`walkcap bench`: measure speed, latency and size on mock devices"""
-from tui.cli import NotYetAvailable
+"""`walkcap bench`: speed, latency and size on mock devices, each figure against its goal."""
+from __future__ import annotations
+
+import json
+import sys
 
 HELP = "measure speed, latency and size on mock devices"
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("rest", nargs="*", help="(not available yet)")
+    parser.add_argument("--json", action="store_true", help="machine-readable results")
+    parser.add_argument("--seconds", type=float, default=15.0,
+                        help="length of each mock session run (default 15)")
+    parser.add_argument("--soak", type=float, metavar="MINUTES",
+                        help="instead: a full mock session at 45 fps for MINUTES; "
+                        "memory and latency over time, drops")
 
 
 def run(args, config) -> int:
-    raise NotYetAvailable("not available yet: it lands with the [bench] issue")
+    from capture import bench
+    from capture.errors import CaptureError
+
+    if args.seconds <= 0 or (args.soak is not None and args.soak <= 0):
+        raise CaptureError("durations must be positive")
+    say = (lambda line: None) if args.json else (lambda line: print(f"… {line}", file=sys.stderr))
+    if args.soak is not None:
+        return _soak(bench, args.soak, args.json)
+    results = bench.run_all(args.seconds, progress=say)
+    machine = bench.machine()
+    if args.json:
+        print(json.dumps({"machine": machine, "results": [r.to_dict() for r in results]}, indent=2))
+        return 0
+    print(f"machine: {machine['cpu']}, {machine['cores']} cores, {machine['memory_gib']} GiB, "
+          f"Python {machine['python']}, torch {machine['torch']}, load {machine['load_avg_1min']}")
+    print(f"{'benchmark':32} {'value':>12} {'unit':10} {'goal':>12}  ")
+    for r in results:
+        goal = "" if r.goal is None else ("<= " if r.better == "lower" else ">= ") + f"{r.goal:g}"
+        mark = {True: "ok", False: "MISSED", None: ""}[r.met]
+        print(f"{r.name:32} {r.value:12.4g} {r.unit:10} {goal:>12}  {mark} {r.note}")
+    return 0
+
+
+def _soak(bench, minutes: float, as_json: bool) -> int:
+    import tempfile
+
+    import numpy as np
+
+    rows = []
+
+    def sample(snap, memory):
+        lat = snap.latency_ms or {}
+        row = {"t_s": memory[0], "rss_mib": memory[1], "frames": snap.frames,
+               "latency_p50_ms": round(lat.get("p50", float("nan")), 2),
+               "latency_p99_ms": round(lat.get("p99", float("nan")), 2),
+               "camera_dropped": snap.camera.dropped + snap.camera.errors if snap.camera else 0,
+               "recorder_dropped": snap.recording.dropped if snap.recording else 0}
+        rows.append(row)
+        if not as_json:
+            print("  ".join(f"{k} {v}" for k, v in row.items()), flush=True)
+
+    with tempfile.TemporaryDirectory() as tmp:
+        run = bench.session_run(45.0, 400, minutes * 60, tmp, sample_every_s=10.0, on_sample=sample)
+    lat = run.latency_ms
+    summary = {"minutes": minutes, "frames": run.frames, "dropped": run.dropped,
+               "latency_p50_ms": float(np.median(lat)) if len(lat) else None,
+               "latency_p99_ms": float(np.percentile(lat, 99)) if len(lat) else None,
+               "rss_start_mib": run.rss_mib[0][1] if run.rss_mib else None,
+               "rss_end_mib": run.rss_mib[-1][1] if run.rss_mib else None,
+               "record_mb_per_s": run.record_bytes / max(run.record_seconds, 1e-9) / 1e6}
+    if as_json:
+        print(json.dumps({"machine": bench.machine(), "samples": rows, "summary": summary}, indent=2))
+    else:
+        print("summary: " + ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}"
+                                      for k, v in summary.items()))
+    return 0

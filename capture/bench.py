@@ -1,0 +1,199 @@
+"""`walkcap bench`: every figure the issues set a goal for, measured on mock devices.
+
+Each function measures one thing and returns plain numbers; `run_all` collects them as
+results with their goals. Numbers depend on the machine: the report says which it was.
+"""
+from __future__ import annotations
+
+import os
+import platform
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from capture.config import Config
+
+
+@dataclass
+class Result:
+    name: str
+    value: float
+    unit: str
+    goal: float | None
+    better: str  # lower | higher
+    note: str = ""
+
+    @property
+    def met(self) -> bool | None:
+        if self.goal is None or not np.isfinite(self.value):
+            return None
+        return self.value <= self.goal if self.better == "lower" else self.value >= self.goal
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "value": round(float(self.value), 4), "unit": self.unit,
+                "goal": self.goal, "better": self.better}
+
+
+def machine() -> dict:
+    import torch
+
+    cpu = platform.processor() or ""
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    mem_gb = 0.0
+    try:
+        mem_gb = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
+    except (ValueError, OSError):
+        pass
+    return {"cpu": cpu, "cores": os.cpu_count(), "memory_gib": round(mem_gb, 1),
+            "python": platform.python_version(), "torch": torch.__version__,
+            "platform": platform.platform(), "load_avg_1min": round(os.getloadavg()[0], 2)}
+
+
+def rss_mib() -> float:
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    return float("nan")
+
+
+def classifier(path: str | None = None):
+    """The bundled model; an untrained network of the same shape (same cost) without it."""
+    from inference.errors import InferenceError
+    from inference.model import load_classifier
+
+    try:
+        return load_classifier(path or None)
+    except InferenceError:
+        import torch
+
+        from inference.model import Classifier, TerrainCNN
+
+        return Classifier(TerrainCNN(), {}, torch.device("cpu"))
+
+
+@dataclass
+class SessionRun:
+    fps: float
+    imu_hz: int
+    seconds: float
+    frames: int
+    latency_ms: np.ndarray
+    dropped: int  # camera buffer + recorder queue + frames skipped by the simulator
+    record_bytes: int
+    record_seconds: float
+    path: str
+    sync_p99_ms: float
+    rss_mib: list  # (elapsed s, MiB)
+
+
+def session_run(fps: float, imu_hz: int, seconds: float, folder: str, *, clf=None,
+                sample_every_s: float = 0.0, on_sample=None) -> SessionRun:
+    """A real mock session (devices, pipeline, recorder) for `seconds`, recording."""
+    from capture.session import Session, SubjectInfo
+
+    cfg = Config()
+    cfg.camera.fps = fps
+    cfg.imu.rate_hz = imu_hz
+    cfg.imu.baudrate = 921600 if imu_hz > 100 else cfg.imu.baudrate
+    cfg.session.recordings = folder
+    session = Session(cfg, classifier=clf or classifier(), auto_label=True)
+    session.start()
+    session._latencies = __import__("collections").deque(maxlen=10**6)
+    memory = []
+    try:
+        session.start_recording(SubjectInfo(subject="BENCH", condition="bench"))
+        t0 = time.monotonic()
+        next_sample = t0
+        while time.monotonic() - t0 < seconds and not session.finished.is_set():
+            if sample_every_s and time.monotonic() >= next_sample:
+                memory.append((round(time.monotonic() - t0, 1), round(rss_mib(), 1)))
+                if on_sample is not None:
+                    on_sample(session.snapshot(), memory[-1])
+                next_sample += sample_every_s
+            time.sleep(0.05)
+        snap = session.snapshot()
+        latencies = np.array(session._latencies)
+    finally:
+        stats = session.stop()
+    cam = snap.camera
+    return SessionRun(
+        fps=fps, imu_hz=imu_hz, seconds=seconds, frames=snap.frames, latency_ms=latencies,
+        dropped=(cam.dropped + cam.errors if cam else 0) + (stats.dropped if stats else 0),
+        record_bytes=stats.bytes_written if stats else 0,
+        record_seconds=stats.duration_s if stats else 0.0, path=stats.path if stats else "",
+        sync_p99_ms=snap.sync.get("p99_ms", float("nan")), rss_mib=memory)
+
+
+def replay_speedup(path: str, clf=None) -> float:
+    from capture.replay import replay
+
+    with tempfile.TemporaryDirectory() as tmp:
+        report = replay(path, Config(), output=Path(tmp) / "replay.mcap", classifier=clf or classifier())
+    return report.speedup
+
+
+def run_all(seconds: float = 15.0, progress=print) -> list[Result]:
+    """Every benchmark, in order; `progress` gets a line per step."""
+    from capture.recorder import bench_record
+    from devices.simulator import bench_sim_frame
+    from devices.xbus import bench_parse_rate
+    from inference.fusion import bench_fusion
+    from inference.model import bench_cnn
+    from inference.preprocess import bench_preprocess
+
+    results: list[Result] = []
+    progress("Xbus parser")
+    results.append(Result("xbus_parse_rate", bench_parse_rate(2.0), "messages/s", 200_000, "higher"))
+    progress("simulator")
+    results.append(Result("sim_frame", bench_sim_frame(200), "ms", 5.0, "lower"))
+    progress("preprocessing")
+    pre = bench_preprocess(200)
+    results.append(Result("preprocess_frame", pre["numpy_median_ms"], "ms", 2.0, "lower",
+                          f"Open3D backend {pre.get('open3d_median_ms', float('nan')):.2f} ms"))
+    progress("CNN")
+    cnn = bench_cnn(500)
+    results.append(Result("cnn_frame", cnn["cnn_frame_ms"], "ms", 1.0, "lower"))
+    results.append(Result("cnn_batch_rate", cnn["cnn_batch_rate"], "frames/s", 2000, "higher"))
+    progress("fusion")
+    fusion = bench_fusion(20000)
+    results.append(Result("fusion_update", fusion["fusion_update_us"], "us", 5.0, "lower"))
+    results.append(Result("fusion_speedup_vs_paper_loop", fusion["speedup"], "x", None, "higher",
+                          f"numpy transcription {fusion['paper_loop_us']:.1f} us"))
+    clf = classifier()
+    with tempfile.TemporaryDirectory() as tmp:
+        for fps, imu_hz in ((15.0, 100), (45.0, 400)):
+            progress(f"mock session {fps:g} fps, IMU {imu_hz} Hz, {seconds:g} s")
+            run = session_run(fps, imu_hz, seconds, tmp, clf=clf)
+            lat = run.latency_ms
+            tag = f"{fps:g}fps"
+            results.append(Result(f"latency_p50_{tag}", float(np.median(lat)), "ms", None, "lower"))
+            results.append(Result(f"latency_p99_{tag}", float(np.percentile(lat, 99)), "ms", 10.0, "lower"))
+            results.append(Result(f"dropped_{tag}", run.dropped, "frames", 0, "lower"))
+            if fps == 45.0:
+                results.append(Result("sync_error_p99_45fps", run.sync_p99_ms, "ms", 1.0, "lower"))
+                rate = run.record_bytes / max(run.record_seconds, 1e-9) / 1e6
+                results.append(Result("record_rate_45fps", rate, "MB/s", 2.5, "lower"))
+                results.append(Result("record_bytes_per_frame", run.record_bytes / max(run.frames, 1),
+                                      "bytes", None, "lower"))
+            else:
+                progress("replay --fast of the 15 fps recording")
+                results.append(Result("replay_speedup", replay_speedup(run.path, clf), "x", 20, "higher"))
+    progress("recorder alone (synthetic frames)")
+    rec = bench_record(45, 10)
+    results.append(Result("record_rate_synthetic_45fps", rec.get("mb_per_s", float("nan")), "MB/s", 2.5,
+                          "lower"))
+    return results
