@@ -183,7 +183,6 @@ class XbusImu(Imu):
         self._lost_at_ns: int | None = None
         self._next_retry_ns = 0
         self._last_counter: int | None = None
-        self._clock_resets = 0
         self.missing_packets = 0
         self.reconnects = 0
         self.device_errors = 0

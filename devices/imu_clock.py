@@ -7,7 +7,10 @@ clock rate ratio (drift) and whose intercept is the offset. The estimator fits t
 lower envelope over a sliding window: the minimum per short bucket of device time, the
 lower convex hull of those minima, and the hull edge under the middle of the window (the
 line below every point closest to them on average). Jitter only ever lifts points above
-the envelope, so it is rejected rather than averaged in.
+the envelope, so it is rejected rather than averaged in. Until the window spans two
+seconds the slope is held at zero: over a shorter span jitter would dominate it.
+The host times given are receive times minus the message's wire time (the driver knows
+the baud rate), so the offset holds only the unknowable fixed part of the latency.
 
 Pure and single-threaded: the IMU reader thread owns one.
 """
