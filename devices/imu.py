@@ -522,9 +522,13 @@ class EmulatedImu(XbusImu):
                  noise: bool = True, baudrate: int = 115200, **driver: Any) -> None:
         from devices.imu_emulator import ImuEmulator
 
-        self.emulator = ImuEmulator(rate_hz=rate_hz, drift_ppm=drift_ppm, jitter_ms=jitter_ms,
-                                    seed=seed, orientation_at=orientation_at, noise=noise,
-                                    baudrate=baudrate)
+        try:
+            self.emulator = ImuEmulator(rate_hz=rate_hz, drift_ppm=drift_ppm,
+                                        jitter_ms=jitter_ms, seed=seed,
+                                        orientation_at=orientation_at, noise=noise,
+                                        baudrate=baudrate)
+        except ValueError as e:
+            raise DeviceInitError(str(e)) from None
         port = self.emulator.start()
         try:
             super().__init__(port, baudrate, rate_hz, **driver)

@@ -141,10 +141,11 @@ class XbusParser:
         self.max_data = max_data
         self.decode = decode
         self._buf = bytearray()
-        self._in_sync = True
+        # Bytes before the first good message are a start mid-stream, not a loss of sync.
+        self._in_sync = False
         self.messages = 0
         self.checksum_errors = 0
-        self.resyncs = 0  # times sync was lost (garbage, bad header or bad checksum)
+        self.resyncs = 0  # times sync was lost after a good message (garbage, bad checksum)
         self.discarded_bytes = 0
         self.unknown_ids = 0  # MTData2 packets skipped (unknown XDI or unexpected size)
         self.malformed = 0  # MTData2 payloads whose packets ran past their end
@@ -229,7 +230,7 @@ class XbusParser:
     def clear(self) -> None:
         """Drop buffered bytes without counting them (a port reopened)."""
         self._buf.clear()
-        self._in_sync = True
+        self._in_sync = False
 
     @property
     def buffered(self) -> int:

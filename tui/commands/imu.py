@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import os
 import sys
 import time
 
@@ -223,6 +224,8 @@ def _decode(args, config) -> int:
                 print(json.dumps(obj))
         else:
             _decode_table(decode_capture(source))
+    except BrokenPipeError:  # `walkcap imu decode FILE | head`: the reader has had enough
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
     finally:
         if source is not sys.stdin.buffer:
             source.close()
