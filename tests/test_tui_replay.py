@@ -181,7 +181,10 @@ def test_replay_screen_snapshot(recording, snap_compare):
                 break
             await pilot.pause(0.02)
         source.seek(2.2)
-        pilot.app.screen.refresh_view()
+        for _ in range(100):  # the image and the profile redraw at most 10 times a second
+            await pilot.pause(0.05)
+            if pilot.app.screen.settled() and pilot.app.screen._snapshot.latest.index == 33:
+                break
         await pilot.pause()
 
     app = WalkcapApp(Config(), session=source, ask_subject=False, start_status="loading…")

@@ -17,7 +17,10 @@ async def _until_live(pilot) -> None:
         if app.ready and isinstance(app.screen, LiveScreen):
             break
         await pilot.pause(0.02)
-    app.screen.refresh_view()
+    for _ in range(100):
+        await pilot.pause(0.05)
+        if app.screen.settled():
+            break
     await pilot.pause()
 
 

@@ -75,16 +75,19 @@ def test_strip_cells_bins_the_last_span():
                for i in range(20)]
     cells = strip_cells(entries, "label", now, 20)
     assert cells[1:11] == ["LG"] * 10 and cells[11:] == ["US"] * 9
-    assert cells[0] is None  # exactly 20 s ago falls off the left edge
+    assert cells[0] == ""  # exactly 20 s ago falls off the left edge: before the first frame
     assert strip_cells(entries, "cnn", now, 20)[5] == "DR"  # entry 4 (cnn 4) falls in column 5
     old = [TimelineEntry(0, now - 30_000_000_000, "DR", 4)]
-    assert strip_cells(old, "label", now, 10) == [None] * 10
+    assert strip_cells(old, "label", now, 10) == [None] * 10  # frames before: all gaps
+    assert strip_cells([], "label", now, 3) == ["", "", ""]
+    gap = [entries[0], entries[5]]
+    assert strip_cells(gap, "label", now, 20)[:7] == ["", "LG", None, None, None, None, "LG"]
 
 
 def test_strip_text_letters_each_run():
-    text = strip_text(["LG"] * 5 + [None] * 2 + ["US"] * 2)
-    assert text.plain == "LG   ··  "
-    assert MODE_COLORS["LG"] in str(text.spans[0].style)
+    text = strip_text([""] + ["LG"] * 5 + [None] * 2 + ["US"] * 2)
+    assert text.plain == " LG   ··  "
+    assert MODE_COLORS["LG"] in str(text.spans[0].style) and text.spans[0].start == 1
 
 
 def test_bars_and_letters():
@@ -173,8 +176,8 @@ def test_device_rows_show_state_rates_errors_clock():
                                 "missing_packets": 3})
     rows = {label: value for label, value, _ in device_rows("imu", imu, {"p50_ms": 0.5, "p99_ms": 2.0})}
     assert rows["imu"] == "degraded  serial" and rows[""] == "3 packets missing"
-    assert rows["rate"] == " 80.0/100 Hz" and rows["drops"] == "1"
-    assert rows["errors"] == "5 (2 checksum, 3 missing)"
+    assert rows["rate"] == " 80.0/100 Hz"
+    assert rows["drops"] == "1  errors 5 (2 checksum, 3 missing)"
     assert rows["clock"] == "-2.5 ms +51 ppm" and rows["sync"] == "0.5 ms p99 2.0"
     assert device_rows("camera", None) == [("camera", "not open", "dim")]
     imu.details["offset_ms"] = -363984801.48

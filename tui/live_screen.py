@@ -14,7 +14,7 @@ from textual.app import ComposeResult
 from textual.binding import Binding
 from textual.containers import Horizontal, Vertical
 from textual.screen import Screen
-from textual.widgets import Footer, Static
+from textual.widgets import Footer
 
 from capture.session import Snapshot
 from devices.frames import MODE_NAMES, MODES
@@ -30,6 +30,7 @@ from tui.widgets.probability_bars import ProbabilityBars
 from tui.widgets.profile_plot import ProfilePlot
 from tui.widgets.recording_panel import RecordingPanel, clock_text
 from tui.widgets.timeline import TimelineStrips
+from tui.widgets.top_bar import TopBar
 
 log = logging.getLogger(__name__)
 
@@ -41,6 +42,14 @@ SEEK_S = 5.0
 def _binding(key: str, action: str, description: str, field: str, **kw) -> Binding:
     """A binding whose key config.keys.<field> can change (see WalkcapApp.keymap)."""
     return Binding(key, action, description, id=f"walkcap.{field}", **kw)
+
+
+def pipeline_rows(snap: Snapshot) -> list[tuple[str, str, str]]:
+    """Frames processed and the frame-to-decision latency, for the device panel."""
+    text = f"{snap.frames}"
+    if snap.latency_ms:  # frame received -> fused decision ready
+        text += f"  {snap.latency_ms.get('p50', 0):.0f} ms p99 {snap.latency_ms.get('p99', 0):.0f}"
+    return [("frames", text, "")]
 
 
 class LiveScreen(Screen):
@@ -81,11 +90,10 @@ class LiveScreen(Screen):
         self._snapshot: Snapshot | None = None
         self._fused: int | None = None
         self._last_event_ns: int | None = None
-        self._topbar = Text()
         self._failure_shown = False
 
     def compose(self) -> ComposeResult:
-        yield Static("", id="topbar")
+        yield TopBar(id="topbar")
         with Horizontal(id="main"):
             with Vertical(id="left"):
                 yield DevicePanel(id="devices")
@@ -106,7 +114,7 @@ class LiveScreen(Screen):
                   "features": "terrain", "timeline": "last 20 s"}
         for wid, title in titles.items():
             self.query_one(f"#{wid}").border_title = title
-        self._w = {type(w): w for w in self.query("#main *, #timeline") if hasattr(w, "present")}
+        self._w = {type(w): w for w in self.query("#main *, #timeline, #topbar") if hasattr(w, "present")}
         self._timer = self.set_interval(1 / REFRESH_HZ, self.refresh_view)
         self.watch(self.app, "status", lambda _: self._show_topbar())
         self.refresh_view()
@@ -143,10 +151,18 @@ class LiveScreen(Screen):
         self._w[TimelineStrips].present(snap.timeline, snap.time_ns)
         faults = [e for e in snap.events if e.device != "operator"]
         self._w[DevicePanel].present(snap.camera, snap.imu, snap.sync,
-                                            faults[-1] if faults else None)
+                                            faults[-1] if faults else None, pipeline_rows(snap))
         self._show_recording(snap)
         self._notify_new_events(snap)
         self._show_topbar()
+
+    def settled(self) -> bool:
+        """The paced widgets show the latest snapshot's frame (for tests and screenshots)."""
+        snap = self._snapshot
+        if snap is None or snap.latest is None:
+            return snap is not None
+        index = snap.latest.index
+        return self._w[BinaryImage].shown_key == index and self._w[ProfilePlot].shown_key == index
 
     def _show_recording(self, snap: Snapshot) -> None:
         app = self.app
@@ -192,11 +208,6 @@ class LiveScreen(Screen):
         label = snap.label if snap is not None else None
         bar.append_text(Text.assemble("true ", mode_text(label), "  "))
         if snap is not None:
-            bar.append(f"frame {snap.frames}", style="dim")
-            if snap.latency_ms:
-                bar.append(f" · latency {snap.latency_ms.get('p50', 0):.0f}/"
-                           f"{snap.latency_ms.get('p99', 0):.0f} ms", style="dim")
-            bar.append("  ")
             if snap.recording_started_ns is not None:
                 bar.append(f"● REC {clock_text((snap.time_ns - snap.recording_started_ns) * 1e-9)}  ",
                            style="bold #e04040")
@@ -211,9 +222,7 @@ class LiveScreen(Screen):
             bar.append("  ")
         if app.status:
             bar.append(app.status, style="bold #e04040" if app.status_is_error else "italic")
-        if bar != self._topbar:
-            self._topbar = bar
-            self.query_one("#topbar", Static).update(bar)
+        self._w[TopBar].present(bar) if hasattr(self, "_w") else None
 
     # ---- keys -------------------------------------------------------------------------
 

@@ -115,6 +115,7 @@ class SessionScreen(Screen[SubjectInfo | None]):
     BINDINGS = [
         Binding("ctrl+s", "confirm", "Start", priority=True),
         Binding("escape", "cancel", "Back"),
+        Binding("ctrl+q", "app.quit", "Quit", priority=True),
     ]
 
     def __init__(self, info: SubjectInfo, *, can_cancel: bool = False) -> None:
@@ -177,6 +178,9 @@ class SessionScreen(Screen[SubjectInfo | None]):
             return
         save_last_session(info)
         self.dismiss(info)
+
+    def check_action(self, action: str, parameters: tuple) -> bool | None:
+        return self.can_cancel if action == "cancel" else True
 
     def action_cancel(self) -> None:
         if self.can_cancel:

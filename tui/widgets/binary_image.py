@@ -2,13 +2,17 @@
 from __future__ import annotations
 
 import numpy as np
-from rich.text import Text
-from textual.widget import Widget
+from rich.style import Style
 
+from tui.widgets.lines import CachedLines, Line
+from tui.widgets.pacing import IMAGE_HZ, Pacer
 from tui.widgets.raster import fit_binary_image
 
+_DIM = Style(dim=True)
+_FLAG = Style(bold=True, color="#f0a020")
 
-class BinaryImage(Widget):
+
+class BinaryImage(CachedLines):
     """Half-blocks when the full image fits, braille (pooled if need be) otherwise.
 
     Drawn as inference.preprocess makes it: row 0 highest, column 0 nearest (seen from
@@ -24,25 +28,28 @@ class BinaryImage(Widget):
         self._image: np.ndarray | None = None
         self._flag = ""
         self._key: object = None
+        self._pacer = Pacer(IMAGE_HZ)
 
     def present(self, image: np.ndarray | None, flag: str = "", key: object = None) -> None:
         """`key` identifies the frame: the same key again costs nothing."""
         if key is not None and key == self._key:
             return
+        if key is not None and not self._pacer.due(urgent=self._key is None):
+            return  # a new frame again within 1/10 s: the next one will show
         self._key = key
         self._image, self._flag = image, flag
-        self.refresh()
+        self.invalidate()
 
-    def render(self) -> Text:
+    @property
+    def shown_key(self) -> object:
+        """The frame the widget shows (it lags a new frame by at most 1/IMAGE_HZ)."""
+        return self._key
+
+    def build_lines(self, width: int, height: int) -> list[Line]:
         if self._image is None:
-            return Text("no frame yet", style="dim")
-        cols, rows = self.size.width, self.size.height - 1
-        lines, factor, style = fit_binary_image(self._image, cols, rows)
-        text = Text("\n".join(lines))
-        caption = f"{self._image.shape[1]}x{self._image.shape[0]} {style}"
-        if factor > 1:
-            caption += f" 1:{factor}"
-        text.append("\n" + caption, style="dim")
-        if self._flag:
-            text.append(f"  {self._flag}", style="bold #f0a020")
-        return text
+            return [[("no frame yet", _DIM)]]
+        lines, factor, style = fit_binary_image(self._image, width, height - 1)
+        out: list[Line] = [[(line, None)] for line in lines]
+        caption = f"{self._image.shape[1]}x{self._image.shape[0]} {style}" + (f" 1:{factor}" if factor > 1 else "")
+        out.append([(caption, _DIM), (f"  {self._flag}" if self._flag else "", _FLAG)])
+        return out

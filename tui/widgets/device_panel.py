@@ -7,6 +7,7 @@ from textual.widget import Widget
 
 from devices.base import DeviceEvent, DeviceStatus
 from tui.widgets.modes import STATE_COLORS
+from tui.widgets.pacing import Pacer
 
 # Backends name their clock figures slightly differently; the first key present is shown.
 _OFFSET_KEYS = ("clock_offset_ms", "offset_ms")
@@ -35,15 +36,15 @@ def device_rows(name: str, status: DeviceStatus | None, sync: dict | None = None
     if status is None:
         return [(name, "not open", "dim")]
     rows = [(name, f"{status.state}  {status.backend}", f"bold {STATE_COLORS.get(status.state, '')}")]
-    if status.message:
+    if status.message and status.state != "ok":  # "streaming" says nothing the state does not
         rows.append(("", status.message, STATE_COLORS.get(status.state, "")))
     slow = status.configured_rate_hz and status.measured_rate_hz < 0.9 * status.configured_rate_hz
     rows.append(("rate", f"{status.measured_rate_hz:5.1f}/{status.configured_rate_hz:g} Hz",
                  _AMBER if slow and status.state == "ok" else ""))
-    rows.append(("drops", f"{status.dropped}", f"bold {_RED}" if status.dropped else ""))
     parts = [f"{status.details[k]} {name}" for k, name in _ERROR_PARTS if status.details.get(k)]
-    rows.append(("errors", f"{status.errors}" + (f" ({', '.join(parts)})" if parts else ""),
-                 _AMBER if status.errors else ""))
+    errors = f"{status.errors}" + (f" ({', '.join(parts)})" if parts else "")
+    style = f"bold {_RED}" if status.dropped else (_AMBER if status.errors else "")
+    rows.append(("drops", f"{status.dropped}  errors {errors}", style))
     offset, drift = _first(status.details, _OFFSET_KEYS), _first(status.details, _DRIFT_KEYS)
     if offset is not None or drift is not None:
         parts = ([offset_text(float(offset))] if offset is not None else []) + \
@@ -59,26 +60,38 @@ def event_row(event: DeviceEvent) -> Row:
     return ("", f"{event.device} {event.kind}: {event.message}", style)
 
 
+_PACED = ("rate", "clock", "sync", "frames")
+
+
+def _significant(rows: list[Row]) -> list[Row]:
+    return [r for r in rows if r[0] not in _PACED]
+
+
 class DevicePanel(Widget):
     """Camera and IMU status; redrawn only when what it shows changes."""
 
     DEFAULT_CSS = """
-    DevicePanel { height: auto; }
+    DevicePanel { height: 1fr; }
     """
 
     def __init__(self, **kwargs) -> None:
         super().__init__(**kwargs)
         self._rows: list[Row] = []
+        self._pacer = Pacer()
 
     def present(self, camera: DeviceStatus | None, imu: DeviceStatus | None, sync: dict,
-                last_event: DeviceEvent | None) -> None:
+                last_event: DeviceEvent | None, pipeline: list[Row] | None = None) -> None:
         rows = device_rows("camera", camera) + device_rows("imu", imu, sync)
-        if last_event is not None:
+        if last_event is not None:  # before the pipeline line: a small terminal cuts the end
             rows.append(event_row(last_event))
-        if rows != self._rows:
-            relayout = len(rows) != len(self._rows)
+        rows += pipeline or []
+        if rows == self._rows:
+            return
+        # states, messages, drops, errors and faults at once; rates and clocks when paced
+        urgent = _significant(rows) != _significant(self._rows)
+        if self._pacer.due(urgent):
             self._rows = rows
-            self.refresh(layout=relayout)
+            self.refresh()  # fixed height: no relayout (it would redraw the whole screen)
 
     def render(self) -> Table:
         table = Table.grid(padding=(0, 1))

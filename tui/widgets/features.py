@@ -1,9 +1,10 @@
 """Terrain features of the current profile (slope, riser height, tread depth, ...)."""
 from __future__ import annotations
 
-from rich.table import Table
 from rich.text import Text
 from textual.widget import Widget
+
+from tui.widgets.pacing import IMAGE_HZ, Pacer
 
 # How each known feature reads; unknown ones are shown by name with their raw value.
 _FORMATS = {
@@ -40,25 +41,29 @@ def feature_rows(features: dict) -> list[tuple[str, str]]:
 
 class FeaturesPanel(Widget):
     DEFAULT_CSS = """
-    FeaturesPanel { height: auto; }
+    FeaturesPanel { height: 1fr; }
     """
 
     def __init__(self, **kwargs) -> None:
         super().__init__(**kwargs)
         self._rows: list[tuple[str, str]] = []
+        self._pacer = Pacer(IMAGE_HZ)
 
     def present(self, features: dict | None) -> None:
         rows = feature_rows(features or {})
-        if rows != self._rows:
+        if rows == self._rows:
+            return
+        kind_changed = (rows[:1] != self._rows[:1])  # what the terrain is: at once
+        if self._pacer.due(kind_changed):
             self._rows = rows
-            self.refresh(layout=True)
+            self.refresh()  # fixed height: no relayout (it would redraw the whole screen)
 
-    def render(self) -> Table | Text:
+    def render(self) -> Text:
         if not self._rows:
             return Text("no terrain features", style="dim")
-        table = Table.grid(padding=(0, 1))
-        table.add_column(style="dim", no_wrap=True)
-        table.add_column(no_wrap=True)
-        for name, value in self._rows:
-            table.add_row(name, value)
-        return table
+        width = max(len(name) for name, _ in self._rows)
+        text = Text(no_wrap=True, overflow="ellipsis")
+        for i, (name, value) in enumerate(self._rows):
+            text.append(f"{name:<{width}} ", style="dim")
+            text.append(value + ("\n" if i < len(self._rows) - 1 else ""))
+        return text

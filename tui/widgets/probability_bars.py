@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import numpy as np
-from rich.table import Table
 from rich.text import Text
 from textual.widget import Widget
 
@@ -38,17 +37,18 @@ class ProbabilityBars(Widget):
         self._probs = probs
         self.refresh()
 
-    def render(self) -> Table:
+    def render(self) -> Text:
         width = max(4, self.size.width - 9)
-        table = Table.grid(padding=(0, 1))
-        table.add_column(no_wrap=True)
-        table.add_column(no_wrap=True)
-        table.add_column(no_wrap=True, justify="right")
-        best = int(np.argmax(self._probs)) if self._probs is not None else -1
+        finite = self._probs is not None and np.isfinite(self._probs).any()
+        best = int(np.nanargmax(self._probs)) if finite else -1
+        text = Text(no_wrap=True)
         for i, mode in enumerate(MODES):
             p = float(self._probs[i]) if self._probs is not None else 0.0
-            style = f"bold {MODE_COLORS[mode]}" if i == best else MODE_COLORS[mode]
-            table.add_row(Text(mode, style="bold" if i == best else ""),
-                          Text(bar(p, width), style=style),
-                          Text(f"{p:.2f}"[1:] if p < 1 else "1.0", style="bold" if i == best else "dim"))
-        return table
+            p = p if np.isfinite(p) else 0.0
+            strong = i == best
+            text.append(f"{mode} ", style="bold" if strong else "")
+            text.append(bar(p, width), style=f"bold {MODE_COLORS[mode]}" if strong else MODE_COLORS[mode])
+            text.append(" " + (f"{p:.2f}"[1:] if p < 1 else "1.0"), style="bold" if strong else "dim")
+            if i < len(MODES) - 1:
+                text.append("\n")
+        return text

@@ -2,10 +2,13 @@
 from __future__ import annotations
 
 import numpy as np
-from rich.text import Text
-from textual.widget import Widget
+from rich.style import Style
 
+from tui.widgets.lines import CachedLines, Line
+from tui.widgets.pacing import IMAGE_HZ, Pacer
 from tui.widgets.raster import plot_points
+
+_DIM = Style(dim=True)
 
 FORWARD_M = (0.0, 1.5)  # what the corridor keeps by default (preprocess.max_forward_m)
 
@@ -25,7 +28,7 @@ def profile_ranges(points: np.ndarray, cols: int, rows: int,
     return (x0, x1), (mid - span / 2, mid + span / 2)
 
 
-class ProfilePlot(Widget):
+class ProfilePlot(CachedLines):
     DEFAULT_CSS = """
     ProfilePlot { color: $accent; }
     """
@@ -35,22 +38,29 @@ class ProfilePlot(Widget):
         self.forward_m = forward_m
         self._points: np.ndarray | None = None
         self._key: object = None
+        self._pacer = Pacer(IMAGE_HZ)
 
     def present(self, profile: np.ndarray | None, key: object = None) -> None:
         if key is not None and key == self._key:
             return
+        if key is not None and not self._pacer.due(urgent=self._key is None):
+            return  # a new frame again within 1/10 s: the next one will show
         self._key = key
         self._points = None if profile is None else np.asarray(profile, dtype=np.float64).reshape(-1, 2)
-        self.refresh()
+        self.invalidate()
 
-    def render(self) -> Text:
+    @property
+    def shown_key(self) -> object:
+        return self._key
+
+    def build_lines(self, width: int, height: int) -> list[Line]:
         if self._points is None:
-            return Text("no profile yet", style="dim")
-        cols, rows = self.size.width, self.size.height - 1
-        if cols < 4 or rows < 2:
-            return Text("")
-        xr, yr = profile_ranges(self._points, cols, rows, self.forward_m)
-        text = Text("\n".join(plot_points(self._points, cols, rows, xr, yr)))
+            return [[("no profile yet", _DIM)]]
+        rows = height - 1
+        if width < 4 or rows < 2:
+            return []
+        xr, yr = profile_ranges(self._points, width, rows, self.forward_m)
+        out: list[Line] = [[(line, None)] for line in plot_points(self._points, width, rows, xr, yr)]
         right = f"{xr[1]:.1f} m ahead"
-        text.append("\n" + f"0 m{' ' * max(1, cols - 3 - len(right))}{right}"[:cols], style="dim")
-        return text
+        out.append([(f"0 m{' ' * max(1, width - 3 - len(right))}{right}"[:width], _DIM)])
+        return out

@@ -8,6 +8,8 @@ from rich.table import Table
 from rich.text import Text
 from textual.widget import Widget
 
+from tui.widgets.pacing import Pacer
+
 
 def _stat(stats: object, name: str, default=None):
     value = getattr(stats, name, None)
@@ -66,9 +68,7 @@ def recording_rows(stats: object | None, elapsed_s: float | None, path: Path | N
         busy = bool(capacity) and depth > capacity / 2
         rows.append(("queue", f"{depth}/{capacity}" if capacity else str(depth),
                      "bold #f0a020" if busy else ""))
-    messages, dropped = _stat(stats, "messages"), _stat(stats, "dropped")
-    if messages is not None:
-        rows.append(("msgs", str(messages), ""))
+    dropped = _stat(stats, "dropped")
     if dropped:
         rows.append(("dropped", str(dropped), "bold #e04040"))
     return rows
@@ -76,13 +76,14 @@ def recording_rows(stats: object | None, elapsed_s: float | None, path: Path | N
 
 class RecordingPanel(Widget):
     DEFAULT_CSS = """
-    RecordingPanel { height: auto; }
+    RecordingPanel { height: 1fr; }
     """
 
     def __init__(self, **kwargs) -> None:
         super().__init__(**kwargs)
         self._rows: list[tuple[str, str, str]] = []
         self._rate = ByteRate()
+        self._pacer = Pacer()
 
     def present(self, stats: object | None, elapsed_s: float | None, path: Path | None,
                 next_trial: str = "", now_ns: int = 0, idle: str = "○ not recording") -> None:
@@ -92,10 +93,13 @@ class RecordingPanel(Widget):
         if rate is None:
             rate = _stat(stats, "bytes_per_s") or None
         rows = recording_rows(stats, elapsed_s, path, next_trial, rate, idle)
-        if rows != self._rows:
-            relayout = len(rows) != len(self._rows)
+        if rows == self._rows:
+            return
+        urgent = [r for r in rows if r[0] not in ("size", "write", "queue")] != \
+            [r for r in self._rows if r[0] not in ("size", "write", "queue")]
+        if self._pacer.due(urgent):
             self._rows = rows
-            self.refresh(layout=relayout)
+            self.refresh()  # fixed height: no relayout (it would redraw the whole screen)
 
     def render(self) -> Table:
         table = Table.grid(padding=(0, 1))

@@ -17,13 +17,19 @@ def strip_cells(entries: Sequence, field: str, now_ns: int, width: int,
                 span_s: float = SPAN_S) -> list[str | None]:
     """The mode shown in each of `width` columns; a column covers span_s / width seconds.
 
-    The latest entry in a column wins; a column without a frame (a gap) is None.
+    The latest entry in a column wins; a column without a frame (a gap) or whose frame has
+    no value is None; columns before the first frame are "" (nothing happened yet).
     """
     cells: list[str | None] = [None] * width
     if width <= 0:
         return cells
     start = now_ns - int(span_s * 1e9)
     per_col = span_s * 1e9 / width
+    if entries:
+        first = int((entries[0].time_ns - start) // per_col)
+        cells[:max(0, min(first, width))] = [""] * max(0, min(first, width))
+    else:
+        cells = [""] * width
     for e in entries:
         col = int((e.time_ns - start) // per_col)
         if 0 <= col < width:
@@ -42,7 +48,9 @@ def strip_text(cells: list[str | None]) -> Text:
         while j < len(cells) and cells[j] == cells[i]:
             j += 1
         mode, n = cells[i], j - i
-        if mode is None:
+        if mode == "":
+            text.append(" " * n)
+        elif mode is None:
             text.append("·" * n, style="#444444")
         else:
             body = (mode + " " * (n - 2)) if n >= 3 else " " * n

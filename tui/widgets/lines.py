@@ -1,0 +1,42 @@
+"""A widget drawn line by line from cached strips (Textual's line API).
+
+The image and the profile change with every frame; building their few dozen lines as
+plain segments costs a fraction of rendering the same text through Rich every time.
+"""
+from __future__ import annotations
+
+from rich.segment import Segment
+from rich.style import Style
+from textual.geometry import Size
+from textual.strip import Strip
+from textual.widget import Widget
+
+Line = list[tuple[str, Style | None]]  # (text, style) runs; None: the widget's own style
+
+
+class CachedLines(Widget):
+    def __init__(self, **kwargs) -> None:
+        super().__init__(**kwargs)
+        self._strips: list[Strip] | None = None
+        self._built_for: Size | None = None
+
+    def build_lines(self, width: int, height: int) -> list[Line]:
+        raise NotImplementedError
+
+    def invalidate(self) -> None:
+        """The content changed: rebuild on the next draw."""
+        self._strips = None
+        self.refresh()
+
+    def render_line(self, y: int) -> Strip:
+        size = self.size
+        if self._strips is None or self._built_for != size:
+            base = self.rich_style
+            strips = []
+            for line in self.build_lines(size.width, size.height)[: size.height]:
+                segments = [Segment(text, base + style if style else base) for text, style in line if text]
+                strips.append(Strip(segments).adjust_cell_length(size.width, base))
+            self._strips, self._built_for = strips, size
+        if y < len(self._strips):
+            return self._strips[y]
+        return Strip.blank(size.width, self.rich_style)
