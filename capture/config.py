@@ -54,6 +54,7 @@ class SimulatorConfig:
     camera_height_m: float = 0.55  # thigh mount height when standing
     camera_tilt_deg: float = 35.0  # downward tilt relative to the thigh
     realtime: bool = True
+    stand: bool = False  # the walker stands still at the start (calibration on mock devices)
 
 
 @dataclass

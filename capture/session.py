@@ -112,6 +112,42 @@ class Snapshot:
     latency_ms: dict
 
 
+def open_devices(config: config_mod.Config, camera=None, imu=None):
+    """The configured camera and IMU, opened and configured, not yet started.
+
+    On a mock walk the IMU emulator feels the same thigh the camera rides on: both count
+    walk time from one instant, as a real sensor pair on one leg would.
+    """
+    from devices.camera import open_camera
+    from devices.imu import open_imu
+
+    if camera is None:
+        camera = open_camera(config.camera, config.simulator)
+    try:
+        camera.open()
+        if imu is None:
+            if hasattr(camera, "orientation_at"):
+                camera.start_time_ns = now_ns()
+                offset = {"s": 0.0}  # emulator start - camera start, known once it runs
+                imu = open_imu(config.imu,
+                               orientation_at=lambda t: camera.orientation_at(t + offset["s"]))
+                emulator = getattr(imu, "emulator", None)
+                if emulator is not None and emulator.start_time_ns is not None:
+                    offset["s"] = (emulator.start_time_ns - camera.start_time_ns) * 1e-9
+            else:
+                imu = open_imu(config.imu)
+        imu.open()
+    except BaseException:
+        for device in (imu, camera):
+            if device is not None:
+                try:
+                    device.close()
+                except Exception as e:
+                    log.warning("closing %s: %s", type(device).__name__, e)
+        raise
+    return camera, imu
+
+
 class Session:
     """Open devices, run the pipeline, record trials, serve snapshots and commands."""
 
@@ -147,8 +183,6 @@ class Session:
 
     def start(self) -> None:
         """Load the model, open both devices and start the threads."""
-        from devices.camera import open_camera
-        from devices.imu import open_imu
         from inference.fusion import make_fusion
         from inference.model import load_classifier
         from inference.preprocess import PreprocessParams
@@ -161,13 +195,9 @@ class Session:
                              vote_delay=cfg.fusion.vote_delay,
                              transition=np.asarray(cfg.fusion.transition))
         self.pipeline = Pipeline(PreprocessParams.from_config(cfg), self._classifier, fusion)
-        if self._camera is None:
-            self._camera = open_camera(cfg.camera, cfg.simulator)
+        if self._camera is None or self._imu is None:
+            self._camera, self._imu = open_devices(cfg, self._camera, self._imu)
         try:
-            self._camera.open()
-            if self._imu is None:
-                self._imu = self._open_imu(open_imu)
-            self._imu.open()
             self._imu.start()
             self._camera.start()
         except BaseException:
@@ -176,19 +206,6 @@ class Session:
         self._spawn(self._imu_loop, "imu")
         self._spawn(self._frame_loop, "pipeline")
         self._spawn(self._monitor_loop, "monitor")
-
-    def _open_imu(self, open_imu):
-        """The IMU; on a mock walk, the emulator feels the same thigh the camera rides on."""
-        camera = self._camera
-        if not hasattr(camera, "orientation_at"):
-            return open_imu(self.config.imu)
-        camera.start_time_ns = now_ns()  # both devices count walk time from here
-        offset = {"s": 0.0}  # emulator start - camera start, known once the emulator runs
-        imu = open_imu(self.config.imu, orientation_at=lambda t: camera.orientation_at(t + offset["s"]))
-        emulator = getattr(imu, "emulator", None)
-        if emulator is not None and emulator.start_time_ns is not None:
-            offset["s"] = (emulator.start_time_ns - camera.start_time_ns) * 1e-9
-        return imu
 
     def _spawn(self, target, name: str) -> None:
         t = threading.Thread(target=target, name=f"walkcap-{name}", daemon=True)

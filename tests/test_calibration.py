@@ -196,3 +196,19 @@ def test_calibrate_dry_run_and_write_elsewhere(devices, tmp_path, capsys):
     other = tmp_path / "rig.toml"
     assert cli.main(["calibrate", "--seconds", "0.2", "--write", str(other)]) == 0
     assert cfg.load(other).mounting.pitch_deg == pytest.approx(38.5, abs=0.1)
+
+
+def test_calibrate_on_mock_devices_recovers_the_simulated_mounting(tmp_path, capsys):
+    """End to end: the mock walker stands, the IMU emulator feels its thigh, the floor
+    gives back the simulator's camera tilt; the config file gets [mounting]."""
+    from capture import config as config_mod
+    from tui import cli
+
+    path = tmp_path / "walkcap.toml"
+    path.write_text("[mounting]\npitch_deg = 20.0\n[simulator]\ncamera_tilt_deg = 32.0\n")
+    assert cli.main(["--config", str(path), "calibrate", "--seconds", "1.5"]) == 0
+    written = config_mod.load(path)
+    assert abs(written.mounting.pitch_deg - 32.0) < 1.0
+    assert abs(written.mounting.roll_deg) < 1.0
+    assert written.simulator.camera_tilt_deg == 32.0  # the rest of the file is kept
+    assert not written.simulator.stand  # standing is for the calibration only

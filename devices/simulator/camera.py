@@ -46,6 +46,7 @@ class MockCamera(Camera):
         self.simulator = simulator
         self.geometry = simulator.geometry
         self.loop = loop
+        self.stand = bool(getattr(simulator_config, "stand", False))
         self.realtime = True if realtime is None else realtime
         self.start_time_ns: int | None = None
         self._halt = threading.Event()
@@ -61,7 +62,9 @@ class MockCamera(Camera):
         return cls(camera_config, simulator_config, **kw)
 
     def walk_time(self, t_s: float) -> float:
-        """Seconds since start -> time in the walk (wraps when looping)."""
+        """Seconds since start -> time in the walk (wraps when looping; 0 when standing)."""
+        if self.stand:
+            return 0.0  # the start of the course: level ground, thigh at its mean angle
         duration = self.simulator.duration_s
         return t_s % duration if self.loop and t_s >= 0 else t_s
 

@@ -6,7 +6,7 @@ the camera's roll and pitch relative to the IMU (inference.calibration). The com
 prints old -> new and writes [mounting] to the configuration file; it refuses, writing
 nothing, when the floor is not found or the subject moved.
 
-The mock camera's walker never stands still, so on mock devices the command refuses.
+On mock devices the simulated walker stands at the start of its course.
 """
 from __future__ import annotations
 
@@ -79,24 +79,15 @@ def run(args, config) -> int:
 
 
 def open_devices(config):
-    """The configured camera and IMU, opened (not started), as a session opens them."""
-    from devices.camera import open_camera
-    from devices.errors import DeviceNotAvailable
+    """The configured camera and IMU, opened as a session opens them; a mock walker stands."""
+    import copy
 
-    try:
-        from devices.imu import open_imu
-    except ImportError as e:
-        raise DeviceNotAvailable(f"the IMU driver is not available: {e}") from None
-    camera = open_camera(config.camera, config.simulator)
-    try:
-        simulator = getattr(camera, "simulator", None)
-        orientation_at = simulator.thigh_quaternion if simulator is not None else None
-        imu = open_imu(config.imu, orientation_at=orientation_at)
-        imu.open()
-    except BaseException:
-        close_devices(camera, None)
-        raise
-    return camera, imu
+    from capture.session import open_devices as open_session_devices
+
+    if config.camera.backend == "mock":
+        config = copy.deepcopy(config)  # standing is for this run, never saved
+        config.simulator.stand = True
+    return open_session_devices(config)
 
 
 def close_devices(camera, imu) -> None:
