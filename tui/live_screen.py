@@ -35,7 +35,9 @@ from tui.widgets.top_bar import TopBar
 log = logging.getLogger(__name__)
 
 REFRESH_HZ = 20
-FAULT_KINDS = {"lost": "error", "error": "error", "stall": "error", "reconnected": "information"}
+# Events that also pop up (all of them show in the device panel); gaps and drops only there.
+FAULT_KINDS = {"lost": "error", "error": "error", "device_error": "error", "stall": "warning",
+               "device_restarted": "warning", "end_of_course": "warning", "reconnected": "information"}
 SEEK_S = 5.0
 
 
