@@ -2,8 +2,9 @@
 
 - Sessions are split into train / validation / test by session (stratified by preset), so
   frames of one walk never sit on both sides.
-- Classes are balanced by sampling: each epoch draws frames with probability inversely
-  proportional to their class's frequency (level ground dominates every walk).
+- Classes are balanced by sampling: each epoch draws frames with probability
+  proportional to their class's frequency to the power -balance_power (level ground
+  dominates every walk; 1 is full balance, the default 0.5 half-way).
 - Augmentation imitates the sensor, on the occupied cells of the binary image: a small
   rotation of the profile (IMU pitch error, mounting error), a small scale (depth scale,
   camera height), missing returns, a stray cell; then the authors' shift of the minimum to
@@ -49,6 +50,12 @@ class TrainSettings:
     device: str = "auto"
     augment: bool = True
     balance: bool = True
+    # Sampling weight of a frame: class frequency ** -balance_power. 1 draws every class
+    # equally often (softmax ~ likelihood); 0.5 meets halfway, so level ground (the most
+    # frequent mode) keeps part of its prior and per-frame accuracy does not suffer.
+    balance_power: float = 0.5
+    augment_probability: float = 0.5  # share of training frames that are augmented
+    bf16: bool = True  # bfloat16 autocast on CPUs with native support (1.7x faster here)
     samples_per_epoch: int = 0  # frames drawn per epoch; 0: as many as the training set
     max_steps: int = 0  # stop after this many optimiser steps in total (0: no limit)
     threads: int = 0  # torch intra-op threads; 0: leave as is
@@ -222,22 +229,24 @@ def _stack(sessions: list[LabeledSession]) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _epoch_indices(labels: np.ndarray, count: int, balance: bool,
-                   rng: np.random.Generator) -> np.ndarray:
-    if not balance:
+                   rng: np.random.Generator, power: float = 1.0) -> np.ndarray:
+    if not balance or power == 0:
         return rng.permutation(len(labels))[:count] if count <= len(labels) else \
             rng.integers(0, len(labels), count)
     freq = np.bincount(labels, minlength=len(MODES)).astype(np.float64)
-    weights = 1.0 / freq[labels]
+    weights = freq[labels] ** -power
     return rng.choice(len(labels), size=count, replace=True, p=weights / weights.sum())
 
 
 def _batches(images: np.ndarray, labels: np.ndarray, order: np.ndarray, batch_size: int,
-             augment: bool, rng: np.random.Generator):
+             augment: float, rng: np.random.Generator):
+    """Batches in `order`; each frame augmented with probability `augment`."""
     for i in range(0, len(order), batch_size):
         idx = order[i:i + batch_size]
         batch = images[idx]
-        if augment:
-            batch = np.stack([augment_image(img, rng) for img in batch])
+        if augment > 0:
+            batch = np.stack([augment_image(img, rng) if rng.random() < augment else img
+                              for img in batch])
         yield images_to_tensor(batch), torch.from_numpy(labels[idx])
 
 
@@ -262,6 +271,13 @@ def _validate(net: TerrainCNN, images: np.ndarray, labels: np.ndarray,
         preds.append(scores.argmax(1).cpu().numpy())
     m = group_metrics(labels, np.concatenate(preds))
     return loss_sum / weight_sum, m.accuracy, m.balanced_accuracy
+
+
+def _native_bf16() -> bool:
+    try:
+        return bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
+    except (AttributeError, RuntimeError):
+        return False
 
 
 @torch.no_grad()
@@ -313,21 +329,25 @@ def train(sessions: list[LabeledSession], settings: TrainSettings = TrainSetting
     scheduler = torch.optim.lr_scheduler.ReduceLROnPlateau(optimiser, factor=0.5, patience=0)
     _warm_start_batch_norm(net, x_train, device, rng)
     per_epoch = settings.samples_per_epoch or len(y_train)
+    bf16 = settings.bf16 and device.type == "cpu" and _native_bf16()
     best_loss, best_state, best_epoch, stale = math.inf, None, 0, 0
     history, steps, stopped_early, out_of_time = [], 0, False, False
 
     for epoch in range(1, settings.epochs + 1):
         net.train()
-        order = _epoch_indices(y_train, per_epoch, settings.balance, rng)
+        order = _epoch_indices(y_train, per_epoch, settings.balance, rng,
+                               settings.balance_power)
         n_batches = math.ceil(len(order) / settings.batch_size)
         loss_sum = correct = seen = 0
         with tqdm(total=n_batches, desc=f"epoch {epoch}/{settings.epochs}", unit="batch",
                   disable=not show_progress, leave=True, dynamic_ncols=True) as bar:
             for x, y in _batches(x_train, y_train, order, settings.batch_size,
-                                 settings.augment, rng):
+                                 settings.augment_probability if settings.augment else 0.0,
+                                 rng):
                 x, y = x.to(device), y.to(device)
-                scores = net(x)
-                loss = F.cross_entropy(scores, y)
+                with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
+                    scores = net(x)
+                loss = F.cross_entropy(scores.float(), y)
                 optimiser.zero_grad(set_to_none=True)
                 loss.backward()
                 optimiser.step()

@@ -175,11 +175,17 @@ def test_unbalanced_frames_are_balanced_in_training(monkeypatch):
     monkeypatch.setattr(training, "_batches", spy)
     counts = {"LG": 40, "US": 4, "DS": 4, "UR": 4, "DR": 4}
     sessions = [drawn_session(f"s{i}", "indoor", i, counts=counts) for i in range(4)]
-    train(sessions, _tiny_settings(max_steps=1, epochs=1, samples_per_epoch=2000,
-                                   batch_size=8, val_fraction=0.25, test_fraction=0.0),
-          show_progress=False)
-    share = np.bincount(seen, minlength=5) / len(seen)
-    assert share.max() < 0.3
+    shares = []
+    for power in (1.0, 0.5):
+        seen.clear()
+        train(sessions, _tiny_settings(max_steps=1, epochs=1, samples_per_epoch=2000,
+                                       batch_size=8, val_fraction=0.25, test_fraction=0.0,
+                                       balance_power=power),
+              show_progress=False)
+        shares.append(np.bincount(seen, minlength=5) / len(seen))
+    assert shares[0].max() < 0.3  # full balance
+    assert 0.3 < shares[1][0] < 0.55  # half-way: level ground 44 %, not its 71 %
+    assert np.all(shares[1][1:] > 0.1)
 
 
 def test_time_budget_ends_training():

@@ -60,6 +60,11 @@ def add_arguments(parser) -> None:
     parser.add_argument("--test-fraction", type=float, default=d.test_fraction, metavar="F")
     parser.add_argument("--no-augment", action="store_true", help="no augmentation")
     parser.add_argument("--no-balance", action="store_true", help="no class balancing")
+    parser.add_argument("--balance-power", type=float, default=d.balance_power, metavar="P",
+                        help="sample frames with weight class_frequency**-P: 1 balances "
+                        f"fully, 0 not at all (default {d.balance_power})")
+    parser.add_argument("--no-bf16", action="store_true",
+                        help="train in float32 even where the CPU has native bfloat16")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
@@ -73,6 +78,7 @@ def run(args, config) -> int:
         epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, patience=args.patience,
         seed=args.seed, hidden=args.hidden, device=args.device or config.model.device,
         augment=not args.no_augment, balance=not args.no_balance,
+        balance_power=args.balance_power, bf16=not args.no_bf16,
         samples_per_epoch=args.samples_per_epoch or 0, max_steps=args.max_steps or 0,
         threads=args.threads or 0, max_seconds=(args.max_minutes or 0) * 60,
         val_fraction=args.val_fraction,
