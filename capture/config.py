@@ -55,6 +55,7 @@ class SimulatorConfig:
     camera_tilt_deg: float = 35.0  # downward tilt relative to the thigh
     realtime: bool = True
     stand: bool = False  # the walker stands still at the start (calibration on mock devices)
+    loop: bool = False  # walk the course again at its end (the UI loops; `record` stops)
 
 
 @dataclass

@@ -362,8 +362,10 @@ class Session:
             rec.write_label(change.time_ns, previous or "", f"undo:{undone.mode}")
         return change
 
-    def add_marker(self, note: str = "") -> None:
-        self._event(DeviceEvent(now_ns(), "operator", "marker", note or "marker"))
+    def add_marker(self, note: str = "", time_ns: int | None = None) -> None:
+        """A marker at `time_ns` (the key press; default now), with the operator's note."""
+        self._event(DeviceEvent(now_ns() if time_ns is None else time_ns, "operator", "marker",
+                                note or "marker"))
 
     @property
     def label(self) -> str | None:

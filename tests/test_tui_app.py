@@ -143,10 +143,14 @@ async def test_marker_with_a_note_and_cancelled():
     app = WalkcapApp(Config(), session=fake)
     async with app.run_test(size=SIZE) as pilot:
         await open_live(pilot)
+        pressed = now_ns()
         await pilot.press("m")
         assert isinstance(app.screen, MarkerDialog)
+        await pilot.pause(0.2)  # the operator types slowly
+        typed = now_ns()
         await pilot.press(*"tripped", "enter")
         assert [note for _, note in fake.markers] == ["tripped"]
+        assert pressed <= fake.markers[0][0] < typed  # stamped at the key press
         assert isinstance(app.screen, LiveScreen)
         await pilot.press("m", "escape")
         assert len(fake.markers) == 1

@@ -119,8 +119,8 @@ class FakeSession:
         self._label = self.labels[-1].mode if self.labels else None
         return LabelChange(now_ns(), self._label or "", "undo")
 
-    def add_marker(self, note: str = "") -> None:
-        self.markers.append((now_ns(), note))
+    def add_marker(self, note: str = "", time_ns: int | None = None) -> None:
+        self.markers.append((now_ns() if time_ns is None else time_ns, note))
 
     @property
     def label(self) -> str | None:

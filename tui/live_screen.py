@@ -17,6 +17,7 @@ from textual.screen import Screen
 from textual.widgets import Footer
 
 from capture.session import Snapshot
+from devices.clock import now_ns
 from devices.frames import MODE_NAMES, MODES
 from tui.source import Playback
 from tui.widgets.binary_image import BinaryImage
@@ -264,10 +265,12 @@ class LiveScreen(Screen):
         if source is None:
             return
 
+        pressed_ns = now_ns()  # the marker is where the operator pressed, not where they typed
+
         def place(note: str | None) -> None:
             if note is None:
                 return
-            source.add_marker(note)
+            source.add_marker(note, time_ns=pressed_ns)
             self.notify(f"marker{': ' + note if note else ''}", timeout=3)
 
         self.app.push_screen(MarkerDialog(), place)

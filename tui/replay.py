@@ -252,8 +252,8 @@ class ReplaySource:
         self._unsaved = bool(self.corrections or self.markers)
         return undone
 
-    def add_marker(self, note: str = "") -> None:
-        _, t = self._cursor()
+    def add_marker(self, note: str = "", time_ns: int | None = None) -> None:
+        _, t = self._cursor()  # in replay a marker sits at the playback position
         self.markers.append(DeviceEvent(t, "operator", "marker", note or "marker",
                                         {"added_in_replay": True}))
         self._unsaved = True

@@ -45,7 +45,7 @@ class MockCamera(Camera):
                 realtime = simulator_config.realtime
         self.simulator = simulator
         self.geometry = simulator.geometry
-        self.loop = loop
+        self.loop = loop or bool(getattr(simulator_config, "loop", False))
         self.stand = bool(getattr(simulator_config, "stand", False))
         self.realtime = True if realtime is None else realtime
         self.start_time_ns: int | None = None
@@ -54,7 +54,7 @@ class MockCamera(Camera):
         course = simulator.course
         self.details = {"course": course.preset, "seed": course.seed,
                         "modes": " ".join(course.modes),
-                        "duration_s": round(simulator.duration_s, 2), "loop": loop,
+                        "duration_s": round(simulator.duration_s, 2), "loop": self.loop,
                         "realtime": self.realtime}
 
     @classmethod

@@ -47,6 +47,7 @@ def run(args, config) -> int:
         override(config, "imu.backend", args.imu)
     if args.port:
         override(config, "imu.port", args.port)
+    config.simulator.loop = True  # a mock subject keeps walking until the operator quits
     app = WalkcapApp(config)
     with logging_to_file(log_path()):
         try:
