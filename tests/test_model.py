@@ -191,3 +191,18 @@ def test_bench_cnn_reports_both_figures():
     result = bench_cnn(frames=20)
     assert set(result) == {"cnn_frame_ms", "cnn_batch_rate"}
     assert result["cnn_frame_ms"] > 0 and result["cnn_batch_rate"] > 0
+
+
+def test_the_bundled_model_is_small_loads_safely_and_is_the_default():
+    assert BUNDLED_PATH.is_file() and BUNDLED_PATH.stat().st_size < 8e6
+    clf = load_classifier(None, device="cpu")
+    assert clf.path == str(BUNDLED_PATH) and load_classifier("").path == str(BUNDLED_PATH)
+    meta = clf.metadata
+    assert meta["data"]["train"]["sessions"] > 0
+    assert {"indoor", "outdoor"} <= set(meta["metrics"]["test"])
+    probs = clf.predict(np.zeros((100, 100), np.uint8))
+    assert probs.shape == (5,) and probs.sum() == pytest.approx(1.0)
+    # A level floor seen from the side is level ground.
+    floor = np.zeros((100, 100), np.uint8)
+    floor[97:99, 1:90] = 1
+    assert MODES[int(np.argmax(clf.predict(floor)))] == "LG"
