@@ -106,13 +106,23 @@ def _fold(conv: nn.Conv2d, bn: nn.BatchNorm2d) -> tuple[torch.Tensor, torch.Tens
 
 
 class _FoldedCNN:
-    """The trained network for CPU inference: batch norm folded into the convolutions,
-    pool before ReLU (they commute), channels-last after the first layer. Same scores
-    as TerrainCNN.eval() to float precision, about twice as fast."""
+    """The trained network for CPU inference, the same scores as TerrainCNN.eval() to
+    float precision, two to four times as fast:
+    - batch norm folded into the convolutions; pool before ReLU (they commute);
+    - the first block (conv, BN, pool, ReLU) as a table: on a binary image each pooled
+      output depends only on a 4 x 4 input patch, so its 16 values are looked up by the
+      patch's 16-bit code (65536 x 16 floats, built once from the folded conv1);
+    - channels-last memory format for the other convolutions.
+    """
 
     def __init__(self, net: TerrainCNN) -> None:
         cl = torch.channels_last
-        self.w1, self.b1 = _fold(net.conv1, net.bn1)
+        w1, b1 = _fold(net.conv1, net.bn1)
+        self.w1, self.b1 = w1, b1
+        with torch.inference_mode():
+            codes = torch.arange(1 << 16)
+            patches = ((codes[:, None] >> torch.arange(16)) & 1).float().view(-1, 1, 4, 4)
+            self.table = F.conv2d(patches, w1, b1).amax(dim=(2, 3)).relu_().contiguous()
         w2, self.b2 = _fold(net.conv2, net.bn2)
         w3, self.b3 = _fold(net.conv3, net.bn3)
         self.w2 = w2.contiguous(memory_format=cl)
@@ -120,9 +130,19 @@ class _FoldedCNN:
         self.fc1_w, self.fc1_b = net.fc1.weight.detach().clone(), net.fc1.bias.detach().clone()
         self.fc2_w, self.fc2_b = net.fc2.weight.detach().clone(), net.fc2.bias.detach().clone()
 
+    def first_block(self, x: torch.Tensor) -> torch.Tensor:
+        """relu(pool(bn(conv1(x)))) of a binary (N, 1, H, W) batch, by table lookup."""
+        n, _, h, w = x.shape
+        padded = F.pad(x[:, 0] != 0, (1, 1, 1, 1)).to(torch.int32)
+        code = torch.zeros(n, h // 2, w // 2, dtype=torch.int32)
+        for a in range(4):  # bit 4a + b: the patch cell at row a, column b
+            for b in range(4):
+                code |= padded[:, a:a + h:2, b:b + w:2] << (4 * a + b)
+        out = self.table[code.view(-1)].view(n, h // 2, w // 2, -1)
+        return out.permute(0, 3, 1, 2)  # (N, C, H/2, W/2), channels-last in memory
+
     def __call__(self, x: torch.Tensor) -> torch.Tensor:
-        y = max_pool_2x2(F.conv2d(x, self.w1, self.b1, padding=1)).relu_()
-        y = y.contiguous(memory_format=torch.channels_last)
+        y = self.first_block(x)
         y = max_pool_2x2(F.conv2d(y, self.w2, self.b2, padding=1)).relu_()
         y = F.conv2d(y, self.w3, self.b3, padding=1).relu_()
         y = F.linear(y.flatten(1), self.fc1_w, self.fc1_b).relu_()
@@ -141,11 +161,12 @@ def choose_device(device: str = "auto") -> torch.device:
 
 
 def images_to_tensor(images: np.ndarray) -> torch.Tensor:
-    """(N, H, W) or (H, W) 0/1 images (uint8 or bool) -> (N, 1, H, W) float32."""
+    """(N, H, W) or (H, W) binary images (any nonzero cell is occupied) -> (N, 1, H, W)
+    float32 of 0 and 1."""
     a = np.asarray(images)
     if a.ndim == 2:
         a = a[None]
-    return torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32)).unsqueeze(1)
+    return torch.from_numpy((a != 0).astype(np.float32)).unsqueeze(1)
 
 
 @dataclass

@@ -75,7 +75,8 @@ def test_predict_one_frame_equals_batched_and_checks_shapes():
     one = np.stack([clf.predict(img) for img in images])
     assert one.shape == (5, 5) and one.dtype == np.float64
     np.testing.assert_allclose(one, batch, atol=1e-6)
-    assert clf.predict(images[0].astype(bool)).shape == (5,)
+    np.testing.assert_allclose(clf.predict(images[0].astype(bool)), one[0], atol=1e-9)
+    np.testing.assert_allclose(clf.predict(images[0] * 255), one[0], atol=1e-9)
     with pytest.raises(InferenceError, match="100 x 100"):
         clf.predict(np.zeros((50, 50)))
     with pytest.raises(InferenceError, match="one image"):
