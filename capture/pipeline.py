@@ -179,6 +179,11 @@ class Pipeline:
         )
 
 
+def model_hash(classifier) -> str:
+    """The weights' SHA-256 from the model's metadata: which model made these decisions."""
+    return str((getattr(classifier, "metadata", None) or {}).get("weights_sha256", ""))
+
+
 def _features_dict(feats) -> dict:
     if feats is None:
         return {}

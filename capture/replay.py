@@ -16,7 +16,7 @@ import numpy as np
 
 from capture import topics as T
 from capture.errors import CaptureError
-from capture.pipeline import OrientationTrack, Pipeline
+from capture.pipeline import OrientationTrack, Pipeline, model_hash
 from devices.frames import ImuSample
 
 IMU_LOOKAHEAD_NS = 20_000_000  # samples recorded up to this long after a frame may be used
@@ -93,7 +93,7 @@ def replay(source: str | Path, config, *, output: str | Path | None = None, spee
     software.update({
         "replay_of": source.name,
         "model_path": config.model.path or "bundled",
-        "model_hash": str(getattr(classifier, "metadata", {}).get("hash", "")),
+        "model_hash": model_hash(classifier),
         "fusion_window": str(cfg.window), "fusion_vote_delay": str(cfg.vote_delay),
         "fusion_transition": json.dumps(cfg.transition),
         "preprocess": json.dumps(pipeline.params.to_dict()),

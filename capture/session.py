@@ -22,7 +22,7 @@ import numpy as np
 from capture import __version__
 from capture import config as config_mod
 from capture.errors import CaptureError
-from capture.pipeline import FrameResult, OrientationTrack, Pipeline
+from capture.pipeline import FrameResult, OrientationTrack, Pipeline, model_hash
 from devices.base import DeviceEvent, DeviceStatus
 from devices.clock import now_ns
 from devices.frames import MODES, DepthFrame
@@ -422,7 +422,7 @@ class Session:
         software = {
             "walkcap_version": __version__,
             "model_path": cfg.model.path or "bundled",
-            "model_hash": str(self.model_metadata.get("hash", "")),
+            "model_hash": model_hash(self._classifier),
             "fusion_window": str(cfg.fusion.window),
             "fusion_vote_delay": str(cfg.fusion.vote_delay),
             "fusion_transition": json.dumps(cfg.fusion.transition),

@@ -200,3 +200,54 @@ def test_corrupted_bytes_inside_a_file_never_give_a_traceback(garbage_and_cut, c
     assert "Traceback" not in out.stderr
     if out.returncode != 0:
         one_clear_line(out)
+
+
+def test_kill_9_while_recording_then_recover_loses_at_most_a_second_and_no_label(tmp_path):
+    """A real `walkcap record` process killed with SIGKILL, as a power loss would."""
+    import json
+    import signal
+
+    from capture import recovery
+
+    proc = subprocess.Popen([sys.executable, "-m", "tui.cli", "record", "--out", str(tmp_path),
+                             "--auto-label", "--duration", "60"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = proc.stderr.readline()  # "recording PATH"
+        assert line.startswith("recording "), line + proc.stderr.read()
+        path = tmp_path / os.path.basename(line.split(" ", 1)[1].strip())
+        time.sleep(4.0)
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(10)
+    killed_at = time.monotonic_ns()
+    journal = [json.loads(x) for x in open(str(path) + ".journal.jsonl") if x.strip()]
+    labels_journaled = [(e["time_ns"], e["mode"]) for e in journal if e.get("type") == "label"]
+    assert labels_journaled
+
+    out = run_cli("recover", str(path))
+    assert out.returncode == 0, out.stderr
+    fixed = path.with_suffix(".recovered.mcap")
+    assert fixed.name in out.stdout + out.stderr
+    rec = open_recording(fixed)
+    assert rec.topics["/camera/depth"].count >= 3 * 15 - 16  # at most ~1 s of 4 s lost
+    depth_end = max(m.log_time_ns for m in rec.messages(["/camera/depth"]))
+    assert killed_at - depth_end < 1.5e9
+    labels = [(c[0], c[1]) for c in read_trial(fixed)["label_changes"]]
+    for label in labels_journaled:
+        assert label in labels
+
+
+def test_a_bad_model_file_is_one_clear_line(tmp_path):
+    bad = tmp_path / "broken.pt"
+    bad.write_bytes(b"not a torch file at all")
+    line = one_clear_line(run_cli("record", "--duration", "1", "--out", str(tmp_path),
+                                  "--model", str(bad)))
+    assert "broken.pt" in line
+
+
+def test_a_bad_configuration_stops_record_before_any_device_opens(tmp_path):
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[imu]\nrate_hz = 'fast'\n")
+    line = one_clear_line(run_cli("--config", str(cfg), "record", "--duration", "1"))
+    assert "imu.rate_hz" in line

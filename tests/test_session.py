@@ -19,7 +19,7 @@ from devices.frames import MODES
 class StandInClassifier:
     """Scores from the image's column profile: deterministic, cheap, image-dependent."""
 
-    metadata = {"hash": "stand-in"}
+    metadata = {"weights_sha256": "stand-in"}
 
     def predict(self, image):
         cols = image.any(axis=0).sum()
