@@ -252,15 +252,16 @@ def _batches(images: np.ndarray, labels: np.ndarray, order: np.ndarray, batch_si
 
 @torch.no_grad()
 def _validate(net: TerrainCNN, images: np.ndarray, labels: np.ndarray,
-              device: torch.device, batch_size: int = 256) -> tuple[float, float, float]:
-    """Mean loss with class weights (as the balanced training sees it), accuracy and
-    balanced accuracy."""
+              device: torch.device, power: float = 1.0,
+              batch_size: int = 256) -> tuple[float, float, float]:
+    """Mean loss with the class weights the balanced sampling gives (frequency ** -power),
+    accuracy and balanced accuracy."""
     net.eval()
     if not len(labels):
         return float("nan"), float("nan"), float("nan")
     freq = np.bincount(labels, minlength=len(MODES)).astype(np.float64)
-    weights = torch.tensor(np.where(freq > 0, freq.sum() / np.maximum(freq, 1) / len(MODES),
-                                    0.0), dtype=torch.float32, device=device)
+    weights = torch.tensor(np.where(freq > 0, np.maximum(freq, 1) ** -power, 0.0),
+                           dtype=torch.float32, device=device)
     loss_sum, weight_sum, preds = 0.0, 0.0, []
     for i in range(0, len(labels), batch_size):
         x = images_to_tensor(images[i:i + batch_size]).to(device)
@@ -362,7 +363,8 @@ def train(sessions: list[LabeledSession], settings: TrainSettings = TrainSetting
                 if settings.max_seconds and time.perf_counter() - started > settings.max_seconds:
                     out_of_time = True
                     break
-            val_loss, val_acc, val_bal = _validate(net, x_val, y_val, device)
+            val_loss, val_acc, val_bal = _validate(
+                net, x_val, y_val, device, settings.balance_power if settings.balance else 0.0)
             bar.set_postfix(loss=f"{loss_sum / seen:.3f}", acc=f"{correct / seen:.3f}",
                             val_loss=f"{val_loss:.3f}", val_acc=f"{val_acc:.3f}")
         lr = optimiser.param_groups[0]["lr"]
