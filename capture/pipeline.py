@@ -179,6 +179,24 @@ class Pipeline:
         )
 
 
+def record_result(recorder, frame: DepthFrame, r: FrameResult,
+                  decided_ns: int | None = None) -> None:
+    """Everything one frame produced, onto the recorder's topics (non-blocking writes).
+
+    `decided_ns`: log time of the inference; live, when the decision was ready; offline
+    (replay, synth) the frame's own receive time, so the file stays on one timeline.
+    """
+    recorder.write_frame(frame, r.time_ns)
+    recorder.write_processed(r.index, r.time_ns, r.host_time_ns, r.cloud, r.image, r.quaternion,
+                             r.flag)
+    recorder.write_inference(r.index, r.time_ns, r.done_ns if decided_ns is None else decided_ns,
+                             r.probabilities, r.fused_dict())
+    if r.features:
+        recorder.write_features(r.index, r.time_ns, r.features)
+    if frame.truth:
+        recorder.write_truth(r.index, r.time_ns, frame.truth)
+
+
 def model_hash(classifier) -> str:
     """The weights' SHA-256 from the model's metadata: which model made these decisions."""
     return str((getattr(classifier, "metadata", None) or {}).get("weights_sha256", ""))

@@ -16,7 +16,7 @@ import numpy as np
 
 from capture import topics as T
 from capture.errors import CaptureError
-from capture.pipeline import OrientationTrack, Pipeline, model_hash
+from capture.pipeline import OrientationTrack, Pipeline, model_hash, record_result
 from devices.frames import ImuSample
 
 IMU_LOOKAHEAD_NS = 20_000_000  # samples recorded up to this long after a frame may be used
@@ -130,14 +130,7 @@ def replay(source: str | Path, config, *, output: str | Path | None = None, spee
                 recorder.write_imu(s)
                 i_imu += 1
             q, _ = track.at(t)
-            r = pipeline.process(frame, q, t)
-            recorder.write_frame(frame)
-            recorder.write_processed(r.index, t, frame.host_time_ns, r.cloud, r.image, r.quaternion, r.flag)
-            recorder.write_inference(r.index, t, frame.host_time_ns, r.probabilities, r.fused_dict())
-            if r.features:
-                recorder.write_features(r.index, t, r.features)
-            if frame.truth:
-                recorder.write_truth(r.index, t, frame.truth)
+            record_result(recorder, frame, pipeline.process(frame, q, t), frame.host_time_ns)
             frames += 1
             if progress is not None:
                 progress(frames)

@@ -22,7 +22,7 @@ import numpy as np
 from capture import __version__
 from capture import config as config_mod
 from capture.errors import CaptureError
-from capture.pipeline import FrameResult, OrientationTrack, Pipeline, model_hash
+from capture.pipeline import FrameResult, OrientationTrack, Pipeline, model_hash, record_result
 from devices.base import DeviceEvent, DeviceStatus
 from devices.clock import now_ns
 from devices.frames import MODES, DepthFrame
@@ -299,18 +299,9 @@ class Session:
         self._last_truth_mode = truth_mode
         rec = self._recorder
         if rec is not None:
-            self._record(rec, frame, result)
+            record_result(rec, frame, result)
         self._publish(result, truth_mode)
         return result
-
-    def _record(self, rec, frame: DepthFrame, r: FrameResult) -> None:
-        rec.write_frame(frame)
-        rec.write_processed(r.index, r.time_ns, r.host_time_ns, r.cloud, r.image, r.quaternion, r.flag)
-        rec.write_inference(r.index, r.time_ns, r.done_ns, r.probabilities, r.fused_dict())
-        if r.features:
-            rec.write_features(r.index, r.time_ns, r.features)
-        if frame.truth:
-            rec.write_truth(r.index, r.time_ns, frame.truth)
 
     def _publish(self, r: FrameResult, truth_mode: str | None) -> None:
         entry = TimelineEntry(r.index, r.time_ns, self._label, r.cnn_decision, truth=truth_mode)
