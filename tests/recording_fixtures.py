@@ -75,6 +75,7 @@ def write_recording(path: str | Path, seconds: float = 2.0, *, chunk_interval_s:
                     queue_size: int = 100_000, close: bool = True, gray: bool = False) -> Recorder:
     """Every topic, in the order a session writes them; returns the (closed) recorder."""
     rec = Recorder(path, metadata=METADATA, attachments=ATTACHMENTS, queue_size=queue_size,
+                   cloud_voxel_m=0.0,  # exact clouds, to compare what comes back
                    chunk_interval_s=chunk_interval_s, gray=gray)
     rec.start()
     labels = label_schedule(seconds)

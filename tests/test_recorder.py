@@ -307,3 +307,19 @@ def test_bench_record_reports_the_recording_rate(tmp_path):
     assert r["state"] == "stopped" and r["dropped"] == 0 and r["frames"] == 15
     assert r["mb_per_s"] == pytest.approx(r["bytes"] / 1e6) and r["bytes_per_frame"] > 0
     assert max(r["mb_per_s_by_topic"], key=r["mb_per_s_by_topic"].get) == T.DEPTH
+
+
+def test_clouds_are_thinned_to_one_point_per_centimetre_voxel(tmp_path):
+    from capture.reader import open_recording
+
+    rng = np.random.default_rng(3)
+    dense = np.column_stack([rng.uniform(0, 1, 20000), rng.uniform(-0.05, 0.05, 20000),
+                             np.zeros(20000)]).astype(np.float32)  # a floor, densely sampled
+    path = tmp_path / "c.mcap"
+    with Recorder(path, metadata={}) as rec:
+        rec.write_processed(0, 1000, 1000, dense, np.zeros((100, 100), np.uint8), None, "")
+    (msg,) = open_recording(path).read("/camera/cloud")
+    assert 900 <= len(msg.data) <= 1000  # 100 x 10 cells of 1 cm
+    cells = np.floor(msg.data / 0.01).astype(int)
+    # one point per voxel (storage rounds to 1/1024 m, so a few land in a neighbour)
+    assert len(np.unique(cells, axis=0)) >= 0.9 * len(cells)
