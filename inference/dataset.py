@@ -324,10 +324,3 @@ def _synth_job(job) -> tuple[str, int]:
     write_session(path, session, extra["time_ns"], extra["extra"])
     return path, len(session)
 
-
-def synth_sessions(count: int, preset: str, base_seed: int, params=None,
-                   settings: SynthSettings = SynthSettings(), simulator_config=None
-                   ) -> list[LabeledSession]:
-    """Sessions rendered in memory (for evaluation on unseen seeds)."""
-    return [render_synth_session(p, s, params, settings, simulator_config)[0]
-            for p, s in session_plan(count, preset, base_seed)]
