@@ -590,8 +590,9 @@ class Recorder:
         if self._cloud_voxel_m > 0 and n:
             # One point per 1 cm voxel (the classifier's cell): the profile's shape at about
             # half the bytes. The cloud is derived data; the depth is kept exactly.
-            cells = np.floor(points / self._cloud_voxel_m).astype(np.int32)
-            _, first = np.unique(cells, axis=0, return_index=True)
+            cells = np.floor(points / self._cloud_voxel_m).astype(np.int64) + (1 << 20)
+            key = (cells[:, 0] << 42) | (cells[:, 1] << 21) | cells[:, 2]  # one int per voxel
+            _, first = np.unique(key, return_index=True)
             points = points[np.sort(first)]
         if len(points) > self._cloud_max_points:  # decimated evenly
             points = points[np.linspace(0, len(points) - 1, self._cloud_max_points).astype(int)]

@@ -29,6 +29,7 @@ import shutil
 import struct
 import tempfile
 import threading
+import time
 import tty
 from typing import Callable
 
@@ -271,7 +272,7 @@ class ImuEmulator:
             due = self._queue[0][0]
             if due - now_ns() < _SPIN_NS:  # the last moments are waited for by spinning
                 while now_ns() < due:
-                    pass
+                    time.sleep(0)  # yields the GIL: a bare spin would stall the host's threads
                 return
             timeout = min(timeout, (due - now_ns() - _SPIN_NS) * 1e-9)
         if self._measuring:
