@@ -332,6 +332,37 @@ def read_trial(path: str | os.PathLike) -> dict:
     }
 
 
+def labeled_session(path: str | os.PathLike, reference: str = "labels"):
+    """The recording as a training session (inference.dataset.LabeledSession): every
+    classifier input image, labelled with the operator's mode at its time (`reference`
+    "labels"), or with the simulator's truth ("truth"); -1 where there is none."""
+    from inference.dataset import LabeledSession
+
+    rec = open_recording(path)
+    images: dict[int, np.ndarray] = {}
+    times: dict[int, int] = {}
+    for m in rec.messages([T.BINARY_IMAGE]):
+        images[m.sequence] = (np.asarray(m.data) > 0).astype(np.uint8)
+        times[m.sequence] = m.publish_time_ns
+    if not images:
+        raise CaptureError(f"{rec.path}: no classifier images (/camera/binary_image) to train on")
+    index = sorted(images)
+    t = np.array([times[i] for i in index], dtype=np.int64)
+    if reference == "truth":
+        truth = {int(m.data["frame_index"]): mode_index(m.data.get("mode"))
+                 for m in rec.messages([T.TRUTH])}
+        labels = np.array([truth.get(i, -1) for i in index], dtype=np.int64)
+    else:
+        changes = sorted(((int(m.data["time_ns"]), m.data.get("mode", ""), m.data.get("source", ""))
+                          for m in rec.messages([T.LABELS])), key=lambda c: c[0])
+        labels = labels_at(t, changes).astype(np.int64)
+    session = rec.metadata.get("session", {})
+    return LabeledSession(name=Path(rec.path).stem, images=np.stack([images[i] for i in index]),
+                          labels=labels, preset=session.get("condition", ""), source="recording",
+                          meta={"path": str(rec.path), "session": dict(session),
+                                "reference": reference})
+
+
 def labels_at(times_ns: np.ndarray, changes: list[tuple[int, str, str]]) -> np.ndarray:
     """The mode index in force at each time: the last change at or before it (-1: none)."""
     out = np.full(len(times_ns), -1, dtype=int)

@@ -5,9 +5,9 @@ A `LabeledSession` is one walk: its preprocessed 100 x 100 images, a mode index 
 see LabeledSessions, whatever wrote them:
 - synthesized sessions (`walkcap synth --format dataset`): one compressed .npz per walk,
   written by `render_synth_session` + `write_session`, read by `read_session`;
-- recordings with operator labels (.mcap): read by a reader registered with
-  `register_reader(".mcap", fn)` by the recording code; until then they are refused with
-  one clear line.
+- recordings with operator labels (.mcap): `capture.reader.labeled_session` (the
+  recorded /camera/binary_image, labelled with the operator's mode in force at each
+  frame; frames before the first label are unlabelled).
 
 The .npz layout (format "walkcap-dataset", version 1): `images` (N, 1250) uint8 from
 np.packbits of the flattened 0/1 images, `labels` (N,) int8 mode indices (MODES order),
@@ -124,9 +124,15 @@ def register_reader(suffix: str, reader: Callable[[Path], LabeledSession]) -> No
     READERS[suffix.lower()] = reader
 
 
-def _recording_reader_missing(path: Path) -> LabeledSession:
-    raise InferenceError(f"{path}: training from recordings is not available yet "
-                         "(it lands with the recording issue); use `walkcap synth` sessions")
+def _read_recording(path: Path) -> LabeledSession:
+    """A walkcap recording: its classifier inputs, labelled by the operator's mode."""
+    from capture.errors import CaptureError
+    from capture.reader import labeled_session  # capture reads files; inference stays pure
+
+    try:
+        return labeled_session(path)
+    except CaptureError as e:
+        raise InferenceError(str(e)) from None
 
 
 def find_session_files(paths: list[str | os.PathLike]) -> list[Path]:
@@ -151,7 +157,7 @@ def read_sessions(paths: list[str | os.PathLike]) -> list[LabeledSession]:
     sessions = []
     for f in find_session_files(paths):
         reader = READERS.get(f.suffix.lower(),
-                             _recording_reader_missing if f.suffix.lower() == ".mcap" else None)
+                             _read_recording if f.suffix.lower() == ".mcap" else None)
         if reader is None:
             raise InferenceError(f"{f}: unknown session file type {f.suffix!r}")
         sessions.append(reader(f))

@@ -20,12 +20,6 @@ def _drawn_sessions(count=6, per_class=3):
     return drawn_sessions(count, per_class)
 
 
-def test_synth_recording_format_is_not_yet_available(capsys):
-    assert cli.main(["synth", "--out", "x", "--format", "recording"]) == 2
-    err = capsys.readouterr().err
-    assert "not available yet" in err and len(err.strip().splitlines()) == 1
-
-
 def test_session_plan_alternates_presets_with_consecutive_seeds():
     assert session_plan(3, "both", 10) == [("indoor", 10), ("outdoor", 11), ("indoor", 12)]
     assert session_plan(2, "outdoor", 0) == [("outdoor", 0), ("outdoor", 1)]
@@ -72,7 +66,7 @@ def test_dataset_files_round_trip_and_bad_files_are_one_line(tmp_path):
     with pytest.raises(InferenceError, match="not a readable dataset"):
         read_session(tmp_path / "junk.npz")
     (tmp_path / "walk.mcap").write_bytes(b"")
-    with pytest.raises(InferenceError, match="recordings is not available yet"):
+    with pytest.raises(InferenceError, match="walk.mcap is empty"):
         read_sessions([tmp_path / "walk.mcap"])
     with pytest.raises(InferenceError, match="no sessions"):
         (tmp_path / "empty").mkdir()

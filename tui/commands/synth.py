@@ -3,6 +3,8 @@
     walkcap synth --out DIR [--sessions N] [--preset indoor|outdoor|both] [--seed S]
                   [--format dataset] [--frames N] [--workers N]
 
+`--format recording` writes each session as a walkcap recording (MCAP, every topic of a
+live mock session, labels from the simulator's truth), for eval, train and replay.
 `--format dataset` renders each session with the terrain-walk simulator at the camera's
 rate, levels every frame with a noisy IMU orientation, preprocesses it as the live
 pipeline does and writes one compressed .npz per session (images, true modes, flags,
@@ -11,8 +13,6 @@ metadata) for `walkcap train`. Session i uses seed S + i; "both" alternates pres
 from __future__ import annotations
 
 import argparse
-
-from tui.cli import NotYetAvailable
 
 HELP = "write simulated sessions (training sets and recordings)"
 
@@ -50,8 +50,7 @@ def add_arguments(parser) -> None:
 
 def run(args, config) -> int:
     if args.format == "recording":
-        raise NotYetAvailable("--format recording is not available yet: it lands with the "
-                              "[recording] issue")
+        return _recordings(args, config)
     from dataclasses import replace
 
     from inference.dataset import SynthSettings, synth_dataset
@@ -64,4 +63,36 @@ def run(args, config) -> int:
                           params=PreprocessParams.from_config(config), settings=settings,
                           simulator_config=config.simulator, workers=args.workers)
     print(f"wrote {len(paths)} session(s) to {args.out}")
+    return 0
+
+
+def _recordings(args, config) -> int:
+    """One MCAP per session, as a live mock session would record it, with simulator labels."""
+    import sys
+    from pathlib import Path
+
+    from tqdm import tqdm
+
+    from capture.synth import synth_recording
+    from inference.dataset import session_plan
+    from inference.model import load_classifier
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    classifier = load_classifier(config.model.path or None)
+    written = []
+    for i, (preset, seed) in enumerate(session_plan(args.sessions, args.preset, args.seed)):
+        path = out / f"SIM_{preset}_t{i + 1:02d}_seed{seed}.mcap"
+        with tqdm(desc=path.name, unit="frame", file=sys.stderr,
+                  disable=not sys.stderr.isatty()) as bar:
+            stats = synth_recording(path, config, classifier, preset=preset, seed=seed,
+                                    trial=i + 1, max_frames=args.frames or 0,
+                                    progress=bar.update)
+        if stats.state == "failed":
+            from capture.errors import CaptureError
+
+            raise CaptureError(f"{path}: {stats.message}")
+        written.append(path)
+        print(path)
+    print(f"wrote {len(written)} recording(s) to {out}", file=sys.stderr)
     return 0
