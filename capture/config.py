@@ -17,17 +17,9 @@ from pathlib import Path
 from typing import Any
 
 from capture.errors import ConfigError
+from inference.fusion import PAPER_TRANSITION  # the authors' matrix, defined once
 
 DEFAULT_PATH = Path("walkcap.toml")
-
-# The authors' transition matrix (rows: from, columns: to; LG, US, DS, UR, DR).
-PAPER_TRANSITION = [
-    [0.80, 0.05, 0.05, 0.05, 0.05],
-    [0.15, 0.80, 0.01, 0.03, 0.01],
-    [0.15, 0.01, 0.80, 0.01, 0.03],
-    [0.15, 0.03, 0.01, 0.80, 0.01],
-    [0.15, 0.01, 0.03, 0.01, 0.80],
-]
 
 
 @dataclass
@@ -104,7 +96,7 @@ class ModelConfig:
 class FusionConfig:
     window: int = 5  # l_w, smoothing window (frames)
     vote_delay: int = 1  # l_v, voting half-window (frames)
-    transition: list[list[float]] = field(default_factory=lambda: [r[:] for r in PAPER_TRANSITION])
+    transition: list[list[float]] = field(default_factory=lambda: PAPER_TRANSITION.tolist())
 
 
 @dataclass

@@ -38,8 +38,8 @@ from inference.errors import InferenceError
 
 N_MODES = len(MODES)
 
-# The authors' transition matrix (rows: from, columns: to; LG, US, DS, UR, DR); the
-# same values as capture.config.PAPER_TRANSITION and ../shared/paper/README.md.
+# The authors' transition matrix (rows: from, columns: to; LG, US, DS, UR, DR), as in
+# ../shared/paper/README.md; the configuration's default.
 PAPER_TRANSITION = np.array([
     [0.80, 0.05, 0.05, 0.05, 0.05],
     [0.15, 0.80, 0.01, 0.03, 0.01],
