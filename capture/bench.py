@@ -72,11 +72,12 @@ def rss_mib() -> float:
 
 def classifier(path: str | None = None):
     """The bundled model; an untrained network of the same shape (same cost) without it."""
+    from capture.pipeline import CNN_THREADS
     from inference.errors import InferenceError
     from inference.model import load_classifier
 
     try:
-        return load_classifier(path or None)
+        return load_classifier(path or None, threads=CNN_THREADS)
     except InferenceError:
         import torch
 

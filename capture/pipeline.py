@@ -16,6 +16,11 @@ from devices.frames import MODES, DepthFrame
 from devices.rotations import quat_slerp
 
 
+# One torch thread for the per-frame CNN: the pipeline shares the cores with the devices and
+# the recorder, and torch's thread pool spinning against them costs far more than it gains.
+CNN_THREADS = 1
+
+
 class OrientationTrack:
     """Recent IMU orientations on the session clock, interpolated at any time inside them.
 

@@ -16,7 +16,7 @@ import numpy as np
 
 from capture import topics as T
 from capture.errors import CaptureError
-from capture.pipeline import OrientationTrack, Pipeline, model_hash, record_result
+from capture.pipeline import CNN_THREADS, OrientationTrack, Pipeline, model_hash, record_result
 from devices.frames import ImuSample
 
 IMU_LOOKAHEAD_NS = 20_000_000  # samples recorded up to this long after a frame may be used
@@ -76,7 +76,7 @@ def replay(source: str | Path, config, *, output: str | Path | None = None, spee
     output = Path(output) if output else default_output(source)
     if output.resolve() == source.resolve():
         raise CaptureError("the replay must go to a new file; the original is never modified")
-    classifier = classifier or load_classifier(config.model.path or None)
+    classifier = classifier or load_classifier(config.model.path or None, threads=CNN_THREADS)
     cfg = config.fusion
     fusion = make_fusion("hmm+voting", window=cfg.window, vote_delay=cfg.vote_delay,
                          transition=np.asarray(cfg.transition))

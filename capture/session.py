@@ -22,7 +22,8 @@ import numpy as np
 from capture import __version__
 from capture import config as config_mod
 from capture.errors import CaptureError
-from capture.pipeline import FrameResult, OrientationTrack, Pipeline, model_hash, record_result
+from capture.pipeline import (CNN_THREADS, FrameResult, OrientationTrack, Pipeline, model_hash,
+                              record_result)
 from devices.base import DeviceEvent, DeviceStatus
 from devices.clock import now_ns
 from devices.frames import MODES, DepthFrame
@@ -189,7 +190,7 @@ class Session:
 
         cfg = self.config
         if self._classifier is None:
-            self._classifier = load_classifier(cfg.model.path or None)
+            self._classifier = load_classifier(cfg.model.path or None, threads=CNN_THREADS)
         self.model_metadata = dict(getattr(self._classifier, "metadata", {}) or {})
         fusion = make_fusion("hmm+voting", window=cfg.fusion.window,
                              vote_delay=cfg.fusion.vote_delay,

@@ -73,13 +73,14 @@ def _recordings(args, config) -> int:
 
     from tqdm import tqdm
 
+    from capture.pipeline import CNN_THREADS
     from capture.synth import synth_recording
     from inference.dataset import session_plan
     from inference.model import load_classifier
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    classifier = load_classifier(config.model.path or None)
+    classifier = load_classifier(config.model.path or None, threads=CNN_THREADS)
     written = []
     for i, (preset, seed) in enumerate(session_plan(args.sessions, args.preset, args.seed)):
         path = out / f"SIM_{preset}_t{i + 1:02d}_seed{seed}.mcap"
