@@ -72,8 +72,9 @@ def test_rates_match_the_configuration(recorded):
     rec = open_recording(path)
     frames = rec.topics["/camera/depth"].count
     imu = rec.topics["/imu"].count
-    assert 45 <= frames <= 70  # ~4 s at 15 fps
-    assert 6 <= imu / frames <= 7.5  # 100 Hz IMU against 15 fps
+    imu_hz = imu / (frames / 15.0)
+    assert 40 <= frames <= 70  # ~4 s at 15 fps (a loaded machine may skip a few frames)
+    assert 80 <= imu_hz <= 120  # the IMU at 100 Hz alongside
     assert snap.camera.state == "ok" and snap.imu.state == "ok"
 
 
