@@ -2,18 +2,23 @@
 
 `Simulator(course).render(t)` gives the depth frame at t seconds into the walk, with the
 ground truth in `frame.truth`:
-- "mode": the mode of the course segment a look-ahead distance in front of the camera
-  along the course. The look-ahead depends on the terrain under the camera (LOOKAHEAD_M,
-  blended over 1 m): it is where the 1 m window the classifier sees lies on average,
-  the distance that agreed best with what the camera sees, measured over indoor and
-  outdoor courses (0.6 m walking down a ramp, 1.1 m down stairs). The rule follows the
-  walker, not the swinging view, so the mode changes once per transition (the camera
-  only moves forward), as an operator keying the mode would change it.
+- "mode": the mode of the terrain the camera looks at. Every 1/30 s of the walk (VOTE_DT_S,
+  whatever the frame rate) votes for the course segment covering most (> half) of the
+  terrain seen in the central image columns (the classifier's corridor) within 1 m of the
+  nearest visible point, cast without the error images drawn in (a foot, an occlusion or
+  blur hides the terrain, it does not change it); a moment whose corridor is less than
+  MIN_SEEN_SHARE terrain (sky, walls) votes for the fallback, the segment a look-ahead
+  distance in front of the camera (LOOKAHEAD_M per terrain under the camera, blended over
+  1 m: where the 1 m window lies on average). The truth is the sequence of segments
+  that never goes back (the camera only moves forward) and disagrees with the fewest
+  votes (`switch_once`): the mode switches once per transition, where the view has
+  mostly moved on to the new terrain, not at a single glance ahead nor back and forth
+  while the swinging thigh looks back at the old one - as an operator would key it.
 - "view_mode": the mode covering most of the terrain actually seen in the central image
-  columns (the classifier's corridor), within 1 m of the nearest visible point; "" when
-  no terrain is seen; "view_share": the share of that terrain that has the true mode.
-  Around transitions they differ from "mode": a frame whose view_share is below ~0.2
-  does not show its true terrain and is genuinely ambiguous.
+  columns within 1 m of the nearest visible point in this very frame; "" when no terrain
+  is seen; "view_share": the share of that terrain that has the true mode. They differ
+  from "mode" only around transitions, on frames glancing at the other terrain, and on
+  frames seeing no terrain.
 - "camera_pose": camera -> world, 4x4 nested list; "thigh_quaternion": [w, x, y, z],
   IMU (thigh) -> world, without sensor noise; "segment": index of the mode's segment;
   "error": "" or the kind of error image ("swing_blur", "sky", "foot", "occlusion").
@@ -34,9 +39,11 @@ from devices.simulator.render import (
 )
 from devices.simulator.walk import GRID_M, Walk, smooth
 
-# Look-ahead (m) of the truth rule per terrain under the camera (see the module docstring).
+# Look-ahead (m) of the truth rule's fallback per terrain under the camera (module doc).
 LOOKAHEAD_M = {"LG": 0.75, "US": 0.7, "DS": 1.1, "UR": 0.75, "DR": 0.6}
 CORRIDOR_PX = 9  # half-width of the central columns (~0.1 m at 1 m, the classifier's corridor)
+VOTE_DT_S = 1 / 30  # the truth rule's time step, independent of the frame rate asked for
+MIN_SEEN_SHARE = 0.25  # share of the corridor that must be terrain for a moment to vote
 OUTDOOR_ERROR_RATE = 1.6  # error images outdoors relative to indoors
 
 
@@ -66,6 +73,8 @@ class Simulator:
         x = np.arange(-1.0, course.length_m + 1.0, GRID_M)
         ahead = np.array([LOOKAHEAD_M[m] for m in course.modes])[course.segment_index(x)]
         self._lookahead = (x, smooth(ahead, 1.0))
+        self._corridor_scene = TerrainScene(course, self.sensor.rays_cam[self._corridor])
+        self._truth: np.ndarray | None = None  # truth segment per VOTE_DT_S, when first asked
 
     @classmethod
     def from_config(cls, config, geometry: CameraGeometry | None = None) -> "Simulator":
@@ -94,10 +103,37 @@ class Simulator:
         """Look-ahead of the truth rule for a camera at course position x."""
         return float(np.interp(x, *self._lookahead))
 
-    def truth_segment(self, t_s: float, pose: np.ndarray | None = None) -> int:
-        """Index of the segment whose mode is the ground truth at t_s (see module doc)."""
+    def lookahead_segment(self, t_s: float, pose: np.ndarray | None = None) -> int:
+        """The fallback: the segment a look-ahead distance in front of the camera at t_s."""
         x = (self.walk.camera_pose(t_s) if pose is None else pose)[0, 3]
         return int(self.course.segment_index(x + self.lookahead_m(x)))
+
+    def view_segment(self, t_s: float) -> int | None:
+        """The segment covering most of the terrain in the corridor window at t_s (no error
+        image drawn in); None when no segment has a majority; the look-ahead segment when
+        under MIN_SEEN_SHARE of the corridor is terrain."""
+        pose = self.walk.camera_pose(t_s)
+        hits = self._corridor_scene.cast(pose)
+        seen = (hits.label >= 0) & (hits.t <= self.geometry.max_range_m)
+        if seen.mean() < MIN_SEEN_SHARE:
+            return self.lookahead_segment(t_s, pose)
+        rays = self.sensor.rays_cam[self._corridor[seen]]
+        forward = hits.t[seen] * (rays @ pose[0, :3])
+        near = forward <= forward.min() + 1.0
+        x = pose[0, 3] + forward[near]
+        counts = np.bincount(self.course.segment_index(x), minlength=len(self.course.segments))
+        best = int(np.argmax(counts))
+        return best if counts[best] * 2 > counts.sum() else None
+
+    def truth_segment(self, t_s: float, pose: np.ndarray | None = None) -> int:
+        """Index of the segment whose mode is the ground truth at t_s (see module doc).
+        `pose` is accepted for compatibility; the rule depends on t_s only."""
+        if self._truth is None:  # the whole walk's votes, once
+            n = int(np.floor(self.duration_s / VOTE_DT_S)) + 1
+            votes = [self.view_segment(k * VOTE_DT_S) for k in range(n)]
+            self._truth = switch_once(votes, len(self.course.segments))
+        k = int(np.clip(np.floor(t_s / VOTE_DT_S + 1e-9), 0, len(self._truth) - 1))
+        return int(self._truth[k])
 
     def render(self, t_s: float, index: int = 0) -> DepthFrame:
         """The frame at t_s seconds into the walk; times are t_s on the walk's own clock."""
@@ -146,6 +182,28 @@ class Simulator:
         near = forward <= forward.min() + 1.0
         counts = np.bincount(label[seen][near], minlength=len(MODES))
         return MODES[int(np.argmax(counts))], float(counts[MODES.index(mode)] / counts.sum())
+
+
+def switch_once(votes: list[int | None], segments: int) -> np.ndarray:
+    """The non-decreasing segment sequence that disagrees with the fewest votes (None: no
+    vote); on a tie the switch comes at the earliest moment. Dynamic programming over
+    (moment, segment): cost of the best sequence ending there."""
+    n = len(votes)
+    cost = np.zeros(segments)
+    best_before = np.empty((n, segments), np.int64)  # best previous segment <= s
+    index = np.arange(segments)
+    for k, vote in enumerate(votes):
+        # running minimum over s' <= s, the largest s' on a tie (the earliest switch)
+        running = np.minimum.accumulate(cost)
+        last_min = np.maximum.accumulate(np.where(cost == running, index, 0))
+        best_before[k] = last_min
+        cost = running + (0.0 if vote is None else (index != vote))
+    path = np.empty(n, np.int64)
+    s = int(np.flatnonzero(cost == cost.min())[-1])
+    for k in range(n - 1, -1, -1):
+        path[k] = s
+        s = int(best_before[k][s])
+    return path
 
 
 def bench_sim_frame(frames: int = 200) -> float:
