@@ -13,12 +13,15 @@ import numpy as np
 
 from devices.clock import now_ns
 from devices.frames import MODES, DepthFrame
-from devices.rotations import quat_slerp
+from devices.rotations import quat_multiply, quat_slerp
 
 
 # One torch thread for the per-frame CNN: the pipeline shares the cores with the devices and
 # the recorder, and torch's thread pool spinning against them costs far more than it gains.
 CNN_THREADS = 1
+# How far past the newest IMU sample its rate of turn carries the orientation (a few sample
+# periods); beyond that the sample is held, and the frame's orientation is stale.
+EXTRAPOLATE_NS = 50_000_000
 
 
 class OrientationTrack:
@@ -31,15 +34,17 @@ class OrientationTrack:
         self._times: collections.deque[int] = collections.deque()
         self._quats: collections.deque[np.ndarray] = collections.deque()
         self._span_ns = int(span_s * 1e9)
+        self._rate: np.ndarray | None = None  # body rate of turn at the newest sample, rad/s
         self._lock = threading.Lock()
         self._new = threading.Condition(self._lock)
 
-    def add(self, time_ns: int, quaternion: np.ndarray) -> None:
+    def add(self, time_ns: int, quaternion: np.ndarray, rate_of_turn: np.ndarray | None = None) -> None:
         with self._new:
             if self._times and time_ns <= self._times[-1]:
                 return  # out of order or repeated: the clock estimator already smooths
             self._times.append(time_ns)
             self._quats.append(np.asarray(quaternion, dtype=np.float64))
+            self._rate = None if rate_of_turn is None else np.asarray(rate_of_turn, dtype=np.float64)
             while self._times and time_ns - self._times[0] > self._span_ns:
                 self._times.popleft()
                 self._quats.popleft()
@@ -59,14 +64,19 @@ class OrientationTrack:
     def at(self, time_ns: int) -> tuple[np.ndarray | None, int]:
         """Orientation at `time_ns` and the distance (ns) to the nearest sample used.
 
-        Between two samples: slerp. Outside the track: the nearest sample held.
+        Between two samples: slerp. Just after the newest: rotated on by its rate of turn
+        (a frame need not wait for the next IMU sample). Otherwise the nearest sample held.
         """
         with self._lock:
             if not self._times:
                 return None, 0
             times = self._times
             if time_ns >= times[-1]:
-                return self._quats[-1], time_ns - times[-1]
+                ahead_ns = time_ns - times[-1]
+                q = self._quats[-1]
+                if self._rate is not None and ahead_ns <= EXTRAPOLATE_NS:
+                    q = quat_multiply(q, _rotation(self._rate * ahead_ns * 1e-9))
+                return q, ahead_ns
             if time_ns <= times[0]:
                 return self._quats[0], times[0] - time_ns
             # the track is short (a few hundred samples): bisect on a list copy is cheap
@@ -75,6 +85,14 @@ class OrientationTrack:
             w = (time_ns - t0) / (t1 - t0)
             q = quat_slerp(self._quats[i - 1], self._quats[i], w)
             return q, min(time_ns - t0, t1 - time_ns)
+
+
+def _rotation(rotation_vector: np.ndarray) -> np.ndarray:
+    """Quaternion of a rotation by |v| radians about v."""
+    angle = float(np.linalg.norm(rotation_vector))
+    if angle < 1e-12:
+        return np.array([1.0, 0.0, 0.0, 0.0])
+    return np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * rotation_vector / angle])
 
 
 def _bisect(times: collections.deque[int], t: int) -> int:

@@ -126,7 +126,7 @@ def replay(source: str | Path, config, *, output: str | Path | None = None, spee
                 if ts > t + IMU_LOOKAHEAD_NS:
                     break
                 if s.quaternion is not None:
-                    track.add(ts, s.quaternion)
+                    track.add(ts, s.quaternion, s.rate_of_turn)
                 recorder.write_imu(s)
                 i_imu += 1
             q, _ = track.at(t)

@@ -31,9 +31,6 @@ from devices.frames import MODES, DepthFrame
 log = logging.getLogger(__name__)
 
 TIMELINE_S = 20.0
-# A frame waits for the IMU sample after its time, to interpolate rather than hold, for
-# at most one IMU period plus transport jitter.
-IMU_JITTER_S = 0.002
 
 
 @dataclass
@@ -178,7 +175,6 @@ class Session:
         self.pipeline: Pipeline | None = None
         self.model_metadata: dict = {}
         self.finished = threading.Event()  # the camera ran out of frames (end of a mock course)
-        self._imu_wait_s = 1.0 / max(config.imu.rate_hz, 1) + IMU_JITTER_S
 
     # ---- life cycle -------------------------------------------------------------------
 
@@ -249,7 +245,7 @@ class Session:
                 continue
             t = sample.time_ns if sample.time_ns is not None else sample.host_time_ns
             if sample.quaternion is not None:
-                self.track.add(t, sample.quaternion)
+                self.track.add(t, sample.quaternion, sample.rate_of_turn)
             truth = getattr(self._imu, "true_time_ns", None)
             if truth is not None and sample.sample_time_fine is not None:
                 self._sync_errors.append(abs(t - truth(sample.sample_time_fine)) * 1e-6)
@@ -291,8 +287,7 @@ class Session:
 
     def process_frame(self, frame: DepthFrame) -> FrameResult:
         t = frame.device_time_ns
-        self.track.wait_until(t, self._imu_wait_s)
-        quaternion, _ = self.track.at(t)
+        quaternion, _ = self.track.at(t)  # interpolated, or carried on by the rate of turn
         result = self.pipeline.process(frame, quaternion, t)
         truth_mode = frame.truth.get("mode") if frame.truth else None
         if self.auto_label and truth_mode and truth_mode != self._last_truth_mode:

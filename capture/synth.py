@@ -91,7 +91,7 @@ def synth_recording(path: str | Path, config: config_mod.Config, classifier, *, 
         for k in range(n):
             t = t0 + int(round(k / cfg.camera.fps * 1e9))
             while pending is not None and pending.time_ns <= t + TRANSPORT_NS:
-                track.add(pending.time_ns, pending.quaternion)
+                track.add(pending.time_ns, pending.quaternion, pending.rate_of_turn)
                 recorder.write_imu(pending)
                 pending = next(imu, None)
             frame = simulator.render(k / cfg.camera.fps, index=k)

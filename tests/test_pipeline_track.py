@@ -60,3 +60,14 @@ def test_amputee_needs_a_side():
     with pytest.raises(CaptureError, match="side"):
         SubjectInfo(amputee=True).validate()
     SubjectInfo(amputee=True, side="left", residual_limb_cm=30).validate()
+
+
+def test_past_the_newest_sample_the_rate_of_turn_carries_the_orientation_on():
+    track = OrientationTrack()
+    rate = np.array([0.0, 2.0, 0.0])  # 2 rad/s about the body's y axis (a thigh swing)
+    track.add(0, quat_from_euler(0, 0.1, 0), rate)
+    q, ahead = track.at(10_000_000)  # 10 ms later: 0.02 rad further
+    np.testing.assert_allclose(quat_to_euler(q), [0, 0.12, 0], atol=1e-9)
+    assert ahead == 10_000_000
+    q, _ = track.at(1_000_000_000)  # far beyond: held, not flung on
+    np.testing.assert_allclose(quat_to_euler(q), [0, 0.1, 0], atol=1e-9)

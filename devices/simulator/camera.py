@@ -72,6 +72,11 @@ class MockCamera(Camera):
         """The thigh orientation t_s seconds after start_time_ns (what the IMU should see)."""
         return self.simulator.thigh_quaternion(self.walk_time(t_s))
 
+    def _open(self) -> None:
+        # The walk's ground truth is worked out once for the whole course (about a second):
+        # here, while the device opens, not in the first frame of a real-time stream.
+        self.simulator.truth_segment(0.0)
+
     def _start(self) -> None:
         if self.start_time_ns is None:
             self.start_time_ns = now_ns()
