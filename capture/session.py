@@ -192,6 +192,10 @@ class Session:
                              vote_delay=cfg.fusion.vote_delay,
                              transition=np.asarray(cfg.fusion.transition))
         self.pipeline = Pipeline(PreprocessParams.from_config(cfg), self._classifier, fusion)
+        # First calls are slow (torch's lazy set-up, numpy caches): pay for them before the
+        # camera runs, not in the first frames of a trial.
+        for _ in range(3):
+            self._classifier.predict(np.zeros((100, 100), np.uint8))
         if self._camera is None or self._imu is None:
             self._camera, self._imu = open_devices(cfg, self._camera, self._imu)
         try:
