@@ -15,6 +15,7 @@ import logging
 import math
 
 from tui.cli import NotYetAvailable
+from tui.commands import count
 
 HELP = "evaluate classifiers and fusion on score files or recordings"
 
@@ -22,18 +23,6 @@ log = logging.getLogger(__name__)
 
 DEFAULT_METHODS = "cnn,cnn+voting,hmm,hmm+voting"
 SWEEP_DEFAULT = 6  # frames; the paper's trade-off figure reaches 6
-
-
-def _count(minimum: int):
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {value}")
-        return value
-    return parse
 
 
 def _methods(text: str) -> list[str]:
@@ -48,19 +37,19 @@ def _methods(text: str) -> list[str]:
 
 
 def _common_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--window", type=_count(1), metavar="N",
+    p.add_argument("--window", type=count(1), metavar="N",
                    help="l_w, the HMM's smoothing window in frames (default: [fusion] window, 5)")
-    p.add_argument("--vote-delay", type=_count(0), metavar="N",
+    p.add_argument("--vote-delay", type=count(0), metavar="N",
                    help="l_v, voting half-window in frames (default: [fusion] vote_delay, 1)")
     p.add_argument("--methods", type=_methods, default=DEFAULT_METHODS,
                    metavar="LIST", help=f"comma-separated methods (default: {DEFAULT_METHODS}; "
                    "also forward, fixed-lag: standard HMM filter and smoother)")
-    p.add_argument("--lag", type=_count(0), default=1, metavar="N",
+    p.add_argument("--lag", type=count(0), default=1, metavar="N",
                    help="lag of the fixed-lag smoother (default: 1)")
     p.add_argument("--transition", choices=("config", "paper", "estimated"), default="config",
                    help="transition matrix: [fusion] transition (default: the authors'), the "
                    "authors', or counted from the other files' labels (leave one out)")
-    p.add_argument("--sweep-delay", type=_count(0), nargs="?", const=SWEEP_DEFAULT, metavar="N",
+    p.add_argument("--sweep-delay", type=count(0), nargs="?", const=SWEEP_DEFAULT, metavar="N",
                    help=f"also accuracy against 0..N delayed frames (default N: {SWEEP_DEFAULT})")
     p.add_argument("--plot", metavar="DIR", help="write the paper's figures as PNG into DIR")
     p.add_argument("--json", action="store_true", help="print JSON instead of tables")

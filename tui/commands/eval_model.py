@@ -9,21 +9,13 @@ per-class accuracy and confusion matrix per preset. Registered by tui/commands/e
 """
 from __future__ import annotations
 
-import argparse
 import json
+
+from tui.commands import count
 
 HELP = "the CNN's per-frame accuracy on unseen synthetic sessions"
 UNSEEN_SEED = 100_000  # synthetic training sets use small seeds
-
-
-def _positive(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
-    return value
+_positive = count(1)
 
 
 def add_arguments(parser) -> None:

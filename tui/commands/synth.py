@@ -12,19 +12,10 @@ metadata) for `walkcap train`. Session i uses seed S + i; "both" alternates pres
 """
 from __future__ import annotations
 
-import argparse
+from tui.commands import count
 
 HELP = "write simulated sessions (training sets and recordings)"
-
-
-def _positive(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
-    return value
+_positive = count(1)
 
 
 def add_arguments(parser) -> None:

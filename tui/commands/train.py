@@ -10,21 +10,9 @@ the confusion matrix on the held-out test sessions, indoor and outdoor.
 """
 from __future__ import annotations
 
-import argparse
+from tui.commands import count
 
 HELP = "train the terrain classifier"
-
-
-def _count(minimum: int):
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {value}")
-        return value
-    return parse
 
 
 def add_arguments(parser) -> None:
@@ -36,25 +24,25 @@ def add_arguments(parser) -> None:
     parser.add_argument("--out", default="runs/terrain_cnn.pt", metavar="PATH",
                         help="weights file to write; metadata goes to PATH with .json "
                         "(default runs/terrain_cnn.pt)")
-    parser.add_argument("--epochs", type=_count(1), default=d.epochs, metavar="N",
+    parser.add_argument("--epochs", type=count(1), default=d.epochs, metavar="N",
                         help=f"at most N epochs (default {d.epochs})")
-    parser.add_argument("--batch-size", type=_count(1), default=d.batch_size, metavar="N")
+    parser.add_argument("--batch-size", type=count(1), default=d.batch_size, metavar="N")
     parser.add_argument("--lr", type=float, default=d.lr, help=f"learning rate (default {d.lr})")
-    parser.add_argument("--patience", type=_count(1), default=d.patience, metavar="N",
+    parser.add_argument("--patience", type=count(1), default=d.patience, metavar="N",
                         help=f"stop after N epochs without progress (default {d.patience})")
     parser.add_argument("--seed", type=int, default=d.seed, metavar="S",
                         help="seed of the split, sampling, augmentation and initialisation")
-    parser.add_argument("--hidden", type=_count(1), default=d.hidden, metavar="N",
+    parser.add_argument("--hidden", type=count(1), default=d.hidden, metavar="N",
                         help=f"width of the hidden fully connected layer (default {d.hidden})")
     parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default=None,
                         help="default: [model] device (auto: the GPU when there is one)")
-    parser.add_argument("--samples-per-epoch", type=_count(1), default=None, metavar="N",
+    parser.add_argument("--samples-per-epoch", type=count(1), default=None, metavar="N",
                         help="frames drawn per epoch (default: the training set's size)")
-    parser.add_argument("--max-steps", type=_count(1), default=None, metavar="N",
+    parser.add_argument("--max-steps", type=count(1), default=None, metavar="N",
                         help="stop after N optimiser steps (quick checks)")
     parser.add_argument("--max-minutes", type=float, default=None, metavar="M",
                         help="wall-clock budget: stop training after M minutes")
-    parser.add_argument("--threads", type=_count(1), default=None, metavar="N",
+    parser.add_argument("--threads", type=count(1), default=None, metavar="N",
                         help="CPU threads for torch (default: torch's choice)")
     parser.add_argument("--val-fraction", type=float, default=d.val_fraction, metavar="F")
     parser.add_argument("--test-fraction", type=float, default=d.test_fraction, metavar="F")
