@@ -62,3 +62,16 @@ def test_internal_errors_go_to_a_crash_log(monkeypatch, capsys, tmp_path):
     err = capsys.readouterr().err
     assert "internal error" in err and "Traceback" not in err
     assert "ZeroDivisionError" in (tmp_path / ".cache" / "walkcap" / "crash.log").read_text()
+
+
+def test_a_closed_pipe_is_not_an_error(tmp_path):
+    """`walkcap info FILE | head -1`: the reader leaves early; no error message."""
+    from recording_fixtures import write_recording
+
+    path = tmp_path / "r.mcap"
+    write_recording(path, seconds=1.0)
+    many = " ".join([f"'{path}'"] * 400)  # far more output than a pipe holds
+    out = subprocess.run(f"'{sys.executable}' -m tui.cli info {many} | head -1", shell=True,
+                         capture_output=True, text=True, timeout=120)
+    assert out.stdout.strip() == str(path)
+    assert "error" not in out.stderr.lower() and "Traceback" not in out.stderr

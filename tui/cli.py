@@ -76,6 +76,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("walkcap: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # `walkcap info FILE | head`: the reader left, nothing is wrong
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except Exception as e:
         if isinstance(e, _user_errors()):
             if isinstance(e, NotYetAvailable):
