@@ -136,14 +136,21 @@ def open_devices(config: config_mod.Config, camera=None, imu=None):
                 imu = open_imu(config.imu)
         imu.open()
     except BaseException:
-        for device in (imu, camera):
-            if device is not None:
-                try:
-                    device.close()
-                except Exception as e:
-                    log.warning("closing %s: %s", type(device).__name__, e)
+        close_devices(imu, camera)
         raise
     return camera, imu
+
+
+def close_devices(*devices) -> None:
+    """Stop and close each device; one failing (a lost device) never keeps another open."""
+    for device in devices:
+        if device is None:
+            continue
+        for step in ("stop", "close"):
+            try:
+                getattr(device, step)()
+            except Exception as e:
+                log.warning("%s %s: %s", step, type(device).__name__, e)
 
 
 class Session:
@@ -202,7 +209,7 @@ class Session:
             self._imu.start()
             self._camera.start()
         except BaseException:
-            self._close_devices()
+            close_devices(self._camera, self._imu)
             raise
         self._spawn(self._imu_loop, "imu")
         self._spawn(self._frame_loop, "pipeline")
@@ -220,18 +227,8 @@ class Session:
             t.join(timeout=3.0)
         self._threads.clear()
         stats = self.stop_recording() if self._recorder is not None else None
-        self._close_devices()
+        close_devices(self._camera, self._imu)
         return stats
-
-    def _close_devices(self) -> None:
-        for device in (self._camera, self._imu):
-            if device is None:
-                continue
-            for step in ("stop", "close"):
-                try:
-                    getattr(device, step)()
-                except Exception as e:  # a lost device must not stop the others closing
-                    log.warning("closing %s: %s", type(device).__name__, e)
 
     def __enter__(self) -> "Session":
         self.start()
@@ -443,7 +440,7 @@ class Session:
                 sync={},
                 label=self._label,
                 latest=self._latest,
-                timeline=[dataclasses.replace(e) for e in self._timeline],
+                timeline=list(self._timeline),  # entries only gain a late fused decision
                 events=list(self._events),
                 recording=None,
                 recording_started_ns=self._recording_started_ns,

@@ -14,3 +14,15 @@ def count(minimum: int):
             raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {value}")
         return value
     return parse
+
+
+def finish_recording(command: str, stats, path) -> int:
+    """Print the file path last (scripts take it); a failed recording is one error line."""
+    import sys
+
+    if stats.state == "failed":
+        print(f"walkcap {command}: error: {stats.message}", file=sys.stderr)
+        print(path)
+        return 1
+    print(path)
+    return 0

@@ -10,14 +10,12 @@ On mock devices the simulated walker stands at the start of its course.
 """
 from __future__ import annotations
 
-import logging
 import threading
 import time
 from pathlib import Path
 
 import numpy as np
 
-log = logging.getLogger(__name__)
 
 HELP = "estimate the camera mounting from standing on level ground"
 MAX_FRAMES = 30  # evenly spread over the collection: plenty for a plane and a mean
@@ -37,6 +35,7 @@ def add_arguments(parser) -> None:
 
 def run(args, config) -> int:
     from capture import config as config_mod
+    from capture.session import close_devices
     from inference.calibration import CalibrationError, estimate_mounting
 
     if not args.seconds > 0:
@@ -88,17 +87,6 @@ def open_devices(config):
         config = copy.deepcopy(config)  # standing is for this run, never saved
         config.simulator.stand = True
     return open_session_devices(config)
-
-
-def close_devices(camera, imu) -> None:
-    for device in (camera, imu):
-        if device is None:
-            continue
-        for step in ("stop", "close"):
-            try:
-                getattr(device, step)()
-            except Exception as e:  # one device failing to close must not keep the other open
-                log.warning("closing %s: %s", type(device).__name__, e)
 
 
 def collect(camera, imu, seconds: float) -> tuple[list, list[np.ndarray]]:

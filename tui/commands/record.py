@@ -5,6 +5,8 @@ import signal
 import sys
 import time
 
+from tui.commands import finish_recording
+
 HELP = "record a session headless into an MCAP file"
 
 
@@ -90,12 +92,7 @@ def run(args, config) -> int:
     print(f"{stats.messages} messages, {stats.bytes_written / 1e6:.1f} MB, dropped {stats.dropped}"
           + (f", latency p50 {snap_lat['p50']:.1f} ms p99 {snap_lat['p99']:.1f} ms" if snap_lat else ""),
           file=sys.stderr)
-    if stats.state == "failed":
-        print(f"walkcap record: error: {stats.message}", file=sys.stderr)
-        print(stats.path)
-        return 1
-    print(stats.path)
-    return 0
+    return finish_recording("record", stats, stats.path)
 
 
 def _default_condition(config) -> str:

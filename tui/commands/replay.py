@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import sys
 
+from tui.commands import finish_recording
+
 HELP = "run the pipeline again on a recording into a new recording (or view it with --tui)"
 
 
@@ -46,9 +48,4 @@ def run(args, config) -> int:
     stats = report.stats
     print(f"{report.frames} frames, {report.seconds_recorded:.1f} s recorded in "
           f"{report.seconds_taken:.1f} s ({report.speedup:.1f}x real time)", file=sys.stderr)
-    if stats.state == "failed":
-        print(f"walkcap replay: error: {stats.message}", file=sys.stderr)
-        print(report.output)
-        return 1
-    print(report.output)
-    return 0
+    return finish_recording("replay", stats, report.output)
