@@ -48,6 +48,9 @@ class SimulatorConfig:
     realtime: bool = True
     stand: bool = False  # the walker stands still at the start (calibration on mock devices)
     loop: bool = False  # walk the course again at its end (the UI loops; `record` stops)
+    # Real time: camera renderer and IMU emulator in a child process, costing the session's
+    # threads nothing, as real sensors would (devices/simulator/rig.py)
+    process: bool = True
 
 
 @dataclass
@@ -77,7 +80,7 @@ class MountingConfig:
 class PreprocessConfig:
     corridor_width_m: float = 0.1  # across the walking direction (authors: 0.1 m)
     min_forward_m: float = 0.0
-    max_forward_m: float = 1.5
+    max_forward_m: float = 2.5  # see inference.preprocess.PreprocessParams
     grid_size: int = 100  # 100 x 100 cells
     cell_m: float = 0.01  # 1 cm cells
     min_confidence: int = 1

@@ -548,6 +548,10 @@ class EmulatedImu(XbusImu):
         """When the emulator really took that sample (for sync-accuracy checks)."""
         return self.emulator.true_time_ns(sample_time_fine)
 
+    def inject(self, fault: str, **kw) -> None:
+        """A fault of the emulated device (see ImuEmulator.inject)."""
+        self.emulator.inject(fault, **kw)
+
     def close(self) -> None:
         super().close()
         self.emulator.stop()

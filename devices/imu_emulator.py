@@ -19,6 +19,7 @@ Runs in a daemon thread of the calling process (tests, the mock backend) or stan
 from __future__ import annotations
 
 import collections
+import dataclasses
 import errno
 import fcntl
 import logging
@@ -75,6 +76,30 @@ def gait_orientation(t: float) -> np.ndarray:
     return quat_from_euler(roll, -flexion, 0.0)
 
 
+@dataclasses.dataclass(frozen=True)
+class EmulatorClock:
+    """The emulator's device clock against the session clock (10 kHz ticks, drifting).
+
+    A value, so the host can check sync against it from another process (the mock rig).
+    """
+
+    t0_ns: int  # session time at ...
+    epoch_ticks: int  # ... which the device clock read this many ticks
+    drift_ppm: float
+
+    def ticks_at(self, t_ns: int) -> float:
+        """Device clock (SampleTimeFine ticks, unwrapped) at a session time."""
+        return self.epoch_ticks + (t_ns - self.t0_ns) * (1 + self.drift_ppm * 1e-6) / 1e5
+
+    def time_of_ticks(self, ticks: float) -> int:
+        return self.t0_ns + round((ticks - self.epoch_ticks) * 1e5 / (1 + self.drift_ppm * 1e-6))
+
+    def true_time_ns(self, sample_time_fine: int, now: int) -> int:
+        """When the sample stamped sample_time_fine (wrapping) was taken, seen at `now`."""
+        wraps = round((self.ticks_at(now) - sample_time_fine) / 2 ** 32)
+        return self.time_of_ticks(sample_time_fine + wraps * 2 ** 32)
+
+
 class ImuEmulator:
     """An MTi on a pty. `start()` returns the port path; see the module docstring."""
 
@@ -125,9 +150,9 @@ class ImuEmulator:
             return self.port  # type: ignore[return-value]
         self._dir = tempfile.mkdtemp(prefix="walkcap-imu-")
         self.port = os.path.join(self._dir, "ttyIMU")
-        self._t0 = self.start_time_ns = now_ns()  # orientation_at(0) is this instant
-        self._epoch_ticks = self._start_ticks  # device ticks at _t0
-        self._power_up(self._t0)
+        self.start_time_ns = now_ns()  # orientation_at(0) is this instant
+        self.clock = EmulatorClock(self.start_time_ns, self._start_ticks, self.drift_ppm)
+        self._power_up(self.start_time_ns)
         self._plug()
         self._thread = threading.Thread(target=self._run, name="walkcap-imu-emulator",
                                         daemon=True)
@@ -166,23 +191,20 @@ class ImuEmulator:
     # ---- time -------------------------------------------------------------------------
 
     def _ticks_at(self, t_ns: int) -> float:
-        """Device clock (SampleTimeFine ticks, unwrapped) at a session time."""
-        return self._epoch_ticks + (t_ns - self._t0) * (1 + self.drift_ppm * 1e-6) / 1e5
+        return self.clock.ticks_at(t_ns)
 
     def _time_of_ticks(self, ticks: float) -> int:
-        return self._t0 + round((ticks - self._epoch_ticks) * 1e5 / (1 + self.drift_ppm * 1e-6))
+        return self.clock.time_of_ticks(ticks)
 
     def true_time_ns(self, sample_time_fine: int) -> int:
         """When the emulator took the sample stamped sample_time_fine (session clock)."""
-        now_ticks = self._ticks_at(now_ns())
-        wraps = round((now_ticks - sample_time_fine) / 2 ** 32)
-        return self._time_of_ticks(sample_time_fine + wraps * 2 ** 32)
+        return self.clock.true_time_ns(sample_time_fine, now_ns())
 
     # ---- the device -------------------------------------------------------------------
 
     def _power_up(self, t: int, restart_clock: bool = False) -> None:
         if restart_clock:  # a real power cycle: clock and counter start again
-            self._t0, self._epoch_ticks = t, 0
+            self.clock = EmulatorClock(t, 0, self.drift_ppm)
         self._counter = 0
         self._measuring = False
         self._wakeup_until = t + int(self.wakeup_s * 1e9)

@@ -51,6 +51,7 @@ class MockCamera(Camera):
         self.start_time_ns: int | None = None
         self._halt = threading.Event()
         self._thread: threading.Thread | None = None
+        self._stall_until_ns = 0
         course = simulator.course
         self.details = {"course": course.preset, "seed": course.seed,
                         "modes": " ".join(course.modes),
@@ -67,6 +68,12 @@ class MockCamera(Camera):
             return 0.0  # the start of the course: level ground, thigh at its mean angle
         duration = self.simulator.duration_s
         return t_s % duration if self.loop and t_s >= 0 else t_s
+
+    def inject(self, fault: str, seconds: float = 2.0) -> None:
+        """A fault for tests and drills: "stall" delivers no frame for `seconds`."""
+        if fault != "stall":
+            raise ValueError(f"unknown camera fault {fault!r} (known: stall)")
+        self._stall_until_ns = now_ns() + int(seconds * 1e9)
 
     def orientation_at(self, t_s: float) -> np.ndarray:
         """The thigh orientation t_s seconds after start_time_ns (what the IMU should see)."""
@@ -125,7 +132,8 @@ class MockCamera(Camera):
             frame = self.simulator.render(self.walk_time(t), index=k)
             frame.device_time_ns = start + int(round(t * 1e9))
             frame.host_time_ns = now_ns()
-            self._deliver(frame)
+            if frame.host_time_ns >= self._stall_until_ns:  # a stalled camera sends nothing
+                self._deliver(frame)
             k += 1
 
     @property

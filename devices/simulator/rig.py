@@ -1,0 +1,389 @@
+"""The mock subject in a process of its own: the simulated walk with both sensors on it.
+
+Real sensors cost the host nothing: the camera computes depth on its own chip, the IMU
+clocks its samples on its own. Run in the host's process, the simulator's renderer and the
+IMU emulator compete with the pipeline for Python's GIL, and at 45 fps with a 400 Hz IMU
+that shows as latency spikes of 100 ms that no real device would cause. The rig runs both
+in a child process; the host sees what it sees of hardware: frames arriving (over a pipe,
+stamped on receipt, as the royale callback would be), and Xbus bytes on a serial port (the
+emulator's pseudo-terminal, read by the real driver).
+
+    rig = MockRig(config.camera, config.simulator, config.imu)   # the child is running
+    camera, imu = rig.camera(), rig.imu()                        # RigCamera, RigImu
+    imu.open(); camera.start(); imu.start() ...                  # like any backend
+    imu.inject("disconnect"); camera.inject("stall", seconds=2)   # faults, as in-process
+
+The subject stands at the start of the course until the camera starts, then walks; the
+IMU feels the same thigh all along. Closing both devices ends the child; so does the
+host's death (the pipe breaks).
+"""
+from __future__ import annotations
+
+import logging
+import os
+import socket
+import subprocess
+import sys
+import threading
+import time
+from multiprocessing.connection import Connection
+from typing import Any
+
+import numpy as np
+
+from devices.camera import Camera
+from devices.clock import now_ns
+from devices.errors import DeviceInitError
+from devices.frames import DepthFrame
+from devices.imu import XbusImu
+
+log = logging.getLogger(__name__)
+
+START_TIMEOUT_S = 60.0  # a spawned interpreter imports Open3D and works out the course truth
+REPLY_TIMEOUT_S = 5.0
+
+
+class MockRig:
+    """The child process and the pipe to it; shared by one RigCamera and one RigImu."""
+
+    def __init__(self, camera_config, simulator_config, imu_config) -> None:
+        self.camera_config = camera_config
+        self.imu_config = imu_config
+        self._send_lock = threading.Lock()
+        self._replies: dict[int, Any] = {}
+        self._replied = threading.Condition()
+        self._next_id = 0
+        self._users = 0
+        self._closed = False
+        self.camera_device: RigCamera | None = None
+        # A fresh interpreter (not multiprocessing's spawn, which re-runs the caller's main
+        # script) joined by a socket pair; its end of the socket closes when the host dies.
+        host_end, child_end = socket.socketpair()
+        code = (f"import sys; sys.path[:0] = {sys.path!r}; "
+                f"from devices.simulator.rig import _main; _main({child_end.fileno()})")
+        quiet = not os.environ.get("WALKCAP_DEBUG")  # its stderr would garble the UI
+        self._process = subprocess.Popen(
+            [sys.executable, "-c", code], pass_fds=[child_end.fileno()],
+            stdin=subprocess.DEVNULL, stderr=subprocess.DEVNULL if quiet else None)
+        child_end.close()
+        self._conn = Connection(host_end.detach())
+        self._conn.send((camera_config, simulator_config, imu_config))
+        ready = self._conn.poll(START_TIMEOUT_S) and self._receive_quietly()
+        if not ready or ready[0] != "ready":
+            message = ready[1] if ready else "no answer"
+            self._kill()
+            raise DeviceInitError(f"mock devices failed to start: {message}")
+        info = ready[1]
+        self.port: str = info["port"]
+        self.geometry = info["geometry"]
+        self.details: dict = info["details"]
+        self.imu_clock = info["clock"]  # devices.imu_emulator.EmulatorClock
+        self._reader = threading.Thread(target=self._read, name="walkcap-rig-reader", daemon=True)
+        self._reader.start()
+
+    # ---- the two devices ------------------------------------------------------------------
+
+    def camera(self) -> "RigCamera":
+        self._users += 1
+        self.camera_device = RigCamera(self)
+        return self.camera_device
+
+    def imu(self) -> "RigImu":
+        self._users += 1
+        cfg = self.imu_config
+        return RigImu(self, self.port, cfg.baudrate, cfg.rate_hz)
+
+    def release(self) -> None:
+        """One device closed; the last one ends the child."""
+        self._users -= 1
+        if self._users <= 0:
+            self.close()
+
+    # ---- commands -------------------------------------------------------------------------
+
+    def inject_imu(self, fault: str, **kw) -> None:
+        """A fault of the IMU emulator (see ImuEmulator.inject)."""
+        self.imu_clock = self._request("inject_imu", fault, kw)
+
+    def inject_camera(self, fault: str, **kw) -> None:
+        """A fault of the mock camera (see MockCamera.inject)."""
+        self._request("inject_camera", fault, kw)
+
+    def true_time_ns(self, sample_time_fine: int) -> int:
+        """When the emulator really took that sample (for sync-accuracy checks)."""
+        return self.imu_clock.true_time_ns(sample_time_fine, now_ns())
+
+    def command(self, name: str) -> None:
+        self._request(name)
+
+    def _request(self, *message) -> Any:
+        with self._replied:
+            self._next_id += 1
+            request_id = self._next_id
+        self._send(("request", request_id) + message)
+        with self._replied:
+            if not self._replied.wait_for(lambda: request_id in self._replies or self._closed,
+                                          REPLY_TIMEOUT_S) or request_id not in self._replies:
+                raise DeviceInitError(f"mock devices did not answer {message[0]!r}")
+            ok, value = self._replies.pop(request_id)
+        if not ok:
+            raise DeviceInitError(f"mock devices: {value}")
+        return value
+
+    def _send(self, message) -> None:
+        try:
+            with self._send_lock:
+                self._conn.send(message)
+        except (OSError, ValueError):
+            raise DeviceInitError("the mock devices' process has ended") from None
+
+    # ---- what the child sends -------------------------------------------------------------
+
+    def _receive_quietly(self):
+        try:
+            return self._conn.recv()
+        except (EOFError, OSError):
+            return None
+
+    def _read(self) -> None:
+        try:
+            while True:
+                message = self._conn.recv()
+                kind = message[0]
+                if kind == "frame":
+                    self._frame(message[1])
+                elif kind == "reply":
+                    with self._replied:
+                        self._replies[message[1]] = (message[2], message[3])
+                        self._replied.notify_all()
+                elif kind == "camera_event" and self.camera_device is not None:
+                    self.camera_device.on_event(*message[1:])
+        except (EOFError, OSError) as e:
+            log.debug("mock rig: %s", e)
+        finally:
+            with self._replied:
+                closing = self._closed
+                self._closed = True
+                self._replied.notify_all()
+            if not closing and self.camera_device is not None:
+                self.camera_device.on_event("lost", "the mock devices' process ended", {})
+
+    def _frame(self, header: dict) -> None:
+        arrays = {}
+        for name, dtype, shape in header.pop("arrays"):
+            buffer = bytearray(int(np.prod(shape)) * np.dtype(dtype).itemsize)
+            self._conn.recv_bytes_into(buffer)
+            arrays[name] = np.frombuffer(buffer, dtype=dtype).reshape(shape)
+        if self.camera_device is not None:
+            self.camera_device.on_frame(DepthFrame(
+                index=header["index"], device_time_ns=header["device_time_ns"],
+                host_time_ns=now_ns(), geometry=self.geometry, truth=header["truth"], **arrays))
+
+    # ---- end ------------------------------------------------------------------------------
+
+    def close(self) -> None:
+        """End the child (idempotent)."""
+        with self._replied:
+            if self._closed and self._process.poll() is not None:
+                return
+            self._closed = True
+        try:
+            with self._send_lock:
+                self._conn.send(("quit",))
+        except (OSError, ValueError):
+            pass
+        try:
+            self._process.wait(timeout=5.0)
+        except subprocess.TimeoutExpired:
+            pass
+        self._kill()
+
+    def _kill(self) -> None:
+        if self._process.poll() is None:
+            self._process.kill()
+            self._process.wait(timeout=2.0)
+        self._conn.close()
+
+
+class RigCamera(Camera):
+    """The mock camera as the host sees it: frames arriving from the rig."""
+
+    backend = "mock"
+
+    def __init__(self, rig: MockRig) -> None:
+        super().__init__(rig.camera_config, geometry=rig.geometry)
+        self.rig = rig
+        self.details = dict(rig.details, process="rig")
+        self._rig_drops = 0  # frames the rig's own buffer dropped (cumulative, as reported)
+
+    def _start(self) -> None:
+        self.rig.command("start_camera")
+
+    def _stop(self) -> None:
+        try:
+            self.rig.command("stop_camera")
+        except DeviceInitError:
+            pass  # the child is gone: nothing to stop
+
+    def _close(self) -> None:
+        self.rig.release()
+
+    def inject(self, fault: str, **kw) -> None:
+        self.rig.inject_camera(fault, **kw)
+
+    def on_frame(self, frame: DepthFrame) -> None:
+        if self._running:
+            self._deliver(frame)
+
+    def on_event(self, kind: str, message: str, details: dict) -> None:
+        if kind == "end_of_course":
+            self._finish(kind, message)
+        elif kind == "lost":
+            if self._running:
+                self._fail(message)
+        else:
+            if kind == "gap":
+                self._count_error(int(details.get("skipped", 1)))
+            elif kind == "drop":  # the rig could not send fast enough: lost frames too
+                dropped = int(details.get("dropped", 0))
+                self._count_error(max(0, dropped - self._rig_drops))
+                self._rig_drops = max(dropped, self._rig_drops)
+            self._event(kind, message, **details)
+
+
+class RigImu(XbusImu):
+    """The real Xbus driver on the rig's emulator port."""
+
+    backend = "mock"
+
+    def __init__(self, rig: MockRig, port: str, baudrate: int, rate_hz: int) -> None:
+        super().__init__(port, baudrate, rate_hz)
+        self.rig = rig
+        self._released = False
+
+    def inject(self, fault: str, **kw) -> None:
+        """A fault of the emulated device (see ImuEmulator.inject)."""
+        self.rig.inject_imu(fault, **kw)
+
+    def true_time_ns(self, sample_time_fine: int) -> int:
+        """When the emulator really took that sample (for sync-accuracy checks)."""
+        return self.rig.true_time_ns(sample_time_fine)
+
+    def close(self) -> None:
+        try:
+            super().close()
+        finally:
+            if not self._released:
+                self._released = True
+                self.rig.release()
+
+
+# ---- the child process ---------------------------------------------------------------------
+
+def _main(fd: int) -> None:
+    conn = Connection(fd)
+    try:
+        configs = conn.recv()
+    except (EOFError, OSError):
+        return
+    _serve(conn, *configs)
+
+
+def _serve(conn, camera_config, simulator_config, imu_config) -> None:
+    """The rig's main: build the walk, camera and IMU emulator; answer requests; stream."""
+    logging.basicConfig(level=logging.WARNING)
+    send_lock = threading.Lock()
+
+    def send(message, *buffers) -> None:
+        with send_lock:
+            conn.send(message)
+            for b in buffers:
+                conn.send_bytes(b)
+
+    try:
+        from devices.imu_emulator import ImuEmulator
+        from devices.simulator.camera import MockCamera
+
+        camera = MockCamera(camera_config, simulator_config)
+        camera.open()
+
+        def thigh(t_s: float) -> np.ndarray:
+            # the subject stands at the start until the camera starts, then walks
+            start = camera.start_time_ns
+            if start is None:
+                return camera.orientation_at(0.0)
+            return camera.orientation_at(max(0.0, (emulator.start_time_ns - start) * 1e-9 + t_s))
+
+        emulator = ImuEmulator(rate_hz=imu_config.rate_hz, drift_ppm=imu_config.drift_ppm,
+                               jitter_ms=imu_config.jitter_ms, seed=getattr(imu_config, "seed", 0),
+                               orientation_at=thigh, baudrate=imu_config.baudrate)
+        port = emulator.start()
+    except Exception as e:
+        conn.send(("failed", f"{type(e).__name__}: {e}"))
+        return
+    stopping = threading.Event()
+    send(("ready", {"port": port, "geometry": camera.geometry, "details": camera.details,
+                    "clock": emulator.clock}))
+    streamer = threading.Thread(target=_stream, args=(camera, send, stopping), daemon=True)
+    streamer.start()
+    try:
+        while True:
+            message = conn.recv()
+            if message[0] == "quit":
+                break
+            _, request_id, name, *args = message
+            try:
+                value = _handle(name, args, camera, emulator)
+                send(("reply", request_id, True, value))
+            except Exception as e:
+                send(("reply", request_id, False, f"{type(e).__name__}: {e}"))
+    except (EOFError, OSError):
+        pass  # the host is gone
+    finally:
+        stopping.set()
+        streamer.join(timeout=2.0)
+        camera.close()
+        emulator.stop()
+
+
+def _handle(name: str, args: list, camera, emulator):
+    if name == "start_camera":
+        camera.start()
+    elif name == "stop_camera":
+        camera.stop()
+    elif name == "inject_imu":
+        fault, kw = args
+        emulator.inject(fault, **kw)
+        return emulator.clock  # a power cycle restarts the device clock
+    elif name == "inject_camera":
+        fault, kw = args
+        camera.inject(fault, **kw)
+    else:
+        raise ValueError(f"unknown request {name!r}")
+    return None
+
+
+def _stream(camera, send, stopping: threading.Event) -> None:
+    """Frames and camera events to the host while the rig runs."""
+    try:
+        while not stopping.is_set():
+            frame = camera.recv(0.05)
+            for event in camera.poll_events():
+                send(("camera_event", event.kind, event.message, dict(event.details)))
+            if frame is None:
+                continue
+            arrays = [(name, getattr(frame, name)) for name in ("xyz", "confidence", "gray")]
+            header = {"index": frame.index, "device_time_ns": frame.device_time_ns,
+                      "truth": frame.truth,
+                      "arrays": [(n, a.dtype.str, a.shape) for n, a in arrays]}
+            # flat bytes: Connection.send_bytes takes len() of a memoryview, rows for 2-D
+            send(("frame", header), *(np.ascontiguousarray(a).reshape(-1).view(np.uint8)
+                                      for _, a in arrays))
+    except (OSError, ValueError):
+        pass  # the host is gone
+    except Exception as e:  # a simulator bug shows on the host as a lost camera
+        try:
+            send(("camera_event", "lost", f"simulator failed: {type(e).__name__}: {e}", {}))
+        except (OSError, ValueError):
+            pass
+        time.sleep(0.1)
