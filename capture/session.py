@@ -13,6 +13,7 @@ import datetime as dt
 import json
 import logging
 import re
+import sys
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,6 +32,7 @@ from devices.frames import MODES, DepthFrame
 log = logging.getLogger(__name__)
 
 TIMELINE_S = 20.0
+SWITCH_INTERVAL_S = 0.0005
 
 
 @dataclass
@@ -114,11 +116,16 @@ def open_devices(config: config_mod.Config, camera=None, imu=None):
     """The configured camera and IMU, opened and configured, not yet started.
 
     On a mock walk the IMU emulator feels the same thigh the camera rides on: both count
-    walk time from one instant, as a real sensor pair on one leg would.
+    walk time from one instant, as a real sensor pair on one leg would. In real time (the
+    default) both run in a child process, the mock rig, as hardware runs outside the host.
     """
     from devices.camera import open_camera
     from devices.imu import open_imu
 
+    sim = config.simulator
+    if camera is None and imu is None and config.camera.backend == "mock" \
+            and config.imu.backend == "mock" and sim.realtime and sim.process:
+        return _open_rig(config)
     if camera is None:
         camera = open_camera(config.camera, config.simulator)
     try:
@@ -137,6 +144,22 @@ def open_devices(config: config_mod.Config, camera=None, imu=None):
         imu.open()
     except BaseException:
         close_devices(imu, camera)
+        raise
+    return camera, imu
+
+
+def _open_rig(config: config_mod.Config):
+    from devices.simulator.rig import MockRig
+
+    rig = MockRig(config.camera, config.simulator, config.imu)
+    camera = imu = None
+    try:
+        camera, imu = rig.camera(), rig.imu()
+        camera.open()
+        imu.open()
+    except BaseException:
+        close_devices(imu, camera)
+        rig.close()
         raise
     return camera, imu
 
@@ -199,10 +222,17 @@ class Session:
                              vote_delay=cfg.fusion.vote_delay,
                              transition=np.asarray(cfg.fusion.transition))
         self.pipeline = Pipeline(PreprocessParams.from_config(cfg), self._classifier, fusion)
-        # First calls are slow (torch's lazy set-up, numpy caches): pay for them before the
-        # camera runs, not in the first frames of a trial.
+        # First calls are slow (torch's lazy set-up, numpy caches, the recorder's schema
+        # modules): pay for them before the camera runs, not in the first frames of a trial.
         for _ in range(3):
             self._classifier.predict(np.zeros((100, 100), np.uint8))
+        import capture.recorder  # noqa: F401  (mcap, protobuf: a second of imports)
+
+        # The pipeline thread gives the GIL up hundreds of times a frame (numpy, torch) and
+        # each time may wait a whole switch interval behind the IMU's or the recorder's
+        # Python code to get it back: at the default 5 ms that is p99 latencies of 20-70 ms
+        # at 45 fps for 4 ms of work. A 0.5 ms interval bounds that wait (process-wide).
+        sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
         if self._camera is None or self._imu is None:
             self._camera, self._imu = open_devices(cfg, self._camera, self._imu)
         try:
