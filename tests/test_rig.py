@@ -49,7 +49,7 @@ def rig_devices():
 def test_real_time_mock_devices_run_in_the_rig(rig_devices):
     camera, imu = rig_devices
     assert isinstance(camera, RigCamera) and isinstance(imu, RigImu)
-    assert camera.rig._process.pid != os.getpid()
+    assert camera.rig._child.pid != os.getpid()
     imu.start()
     camera.start()
     frames = [f for f in (camera.recv(1.0) for _ in range(10)) if f is not None]
@@ -71,7 +71,7 @@ def test_real_time_mock_devices_run_in_the_rig(rig_devices):
 
 def test_the_rig_ends_with_its_devices(rig_devices):
     camera, imu = rig_devices
-    process = camera.rig._process
+    process = camera.rig._child.process
     close_devices(camera)
     assert process.poll() is None  # the IMU still needs its emulator
     close_devices(imu)
@@ -85,7 +85,7 @@ def test_the_rig_ends_when_the_host_dies(tmp_path):
         "from capture.config import Config\n"
         "from capture.session import open_devices\n"
         "camera, imu = open_devices(Config())\n"
-        "print(camera.rig._process.pid, flush=True)\n"
+        "print(camera.rig._child.pid, flush=True)\n"
         "time.sleep(60)\n")
     host = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True,
                             env={**os.environ, "PYTHONPATH": os.getcwd()})

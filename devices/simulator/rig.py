@@ -20,18 +20,14 @@ host's death (the pipe breaks).
 from __future__ import annotations
 
 import logging
-import os
-import socket
-import subprocess
-import sys
 import threading
 import time
-from multiprocessing.connection import Connection
 from typing import Any
 
 import numpy as np
 
 from devices.camera import Camera
+from devices.child import Child
 from devices.clock import now_ns
 from devices.errors import DeviceInitError
 from devices.frames import DepthFrame
@@ -56,18 +52,9 @@ class MockRig:
         self._users = 0
         self._closed = False
         self.camera_device: RigCamera | None = None
-        # A fresh interpreter (not multiprocessing's spawn, which re-runs the caller's main
-        # script) joined by a socket pair; its end of the socket closes when the host dies.
-        host_end, child_end = socket.socketpair()
-        code = (f"import sys; sys.path[:0] = {sys.path!r}; "
-                f"from devices.simulator.rig import _main; _main({child_end.fileno()})")
-        quiet = not os.environ.get("WALKCAP_DEBUG")  # its stderr would garble the UI
-        self._process = subprocess.Popen(
-            [sys.executable, "-c", code], pass_fds=[child_end.fileno()],
-            stdin=subprocess.DEVNULL, stderr=subprocess.DEVNULL if quiet else None)
-        child_end.close()
-        self._conn = Connection(host_end.detach())
-        self._conn.send((camera_config, simulator_config, imu_config))
+        self._child = Child("devices.simulator.rig:_serve", camera_config, simulator_config,
+                            imu_config)
+        self._conn = self._child.conn
         ready = self._conn.poll(START_TIMEOUT_S) and self._receive_quietly()
         if not ready or ready[0] != "ready":
             message = ready[1] if ready else "no answer"
@@ -184,7 +171,7 @@ class MockRig:
     def close(self) -> None:
         """End the child (idempotent)."""
         with self._replied:
-            if self._closed and self._process.poll() is not None:
+            if self._closed and not self._child.running():
                 return
             self._closed = True
         try:
@@ -192,17 +179,10 @@ class MockRig:
                 self._conn.send(("quit",))
         except (OSError, ValueError):
             pass
-        try:
-            self._process.wait(timeout=5.0)
-        except subprocess.TimeoutExpired:
-            pass
-        self._kill()
+        self._child.end()
 
     def _kill(self) -> None:
-        if self._process.poll() is None:
-            self._process.kill()
-            self._process.wait(timeout=2.0)
-        self._conn.close()
+        self._child.end(timeout_s=0)
 
 
 class RigCamera(Camera):
@@ -279,15 +259,6 @@ class RigImu(XbusImu):
 
 
 # ---- the child process ---------------------------------------------------------------------
-
-def _main(fd: int) -> None:
-    conn = Connection(fd)
-    try:
-        configs = conn.recv()
-    except (EOFError, OSError):
-        return
-    _serve(conn, *configs)
-
 
 def _serve(conn, camera_config, simulator_config, imu_config) -> None:
     """The rig's main: build the walk, camera and IMU emulator; answer requests; stream."""
