@@ -15,6 +15,7 @@ Messages are decoded with the schema stored in the file (protobuf descriptors, J
 """
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import os
@@ -81,12 +82,13 @@ class Recording:
             topics = [topics]
         wanted = None if topics is None else set(topics)
         decoders = _Decoders()
-        for schema, channel, message in _iter_raw(self.path, self.complete, wanted):
-            decoded = decoders.decode(schema, channel, message.data)
-            if not raw:
-                decoded = convert(channel.topic, decoded)
-            yield RecordedMessage(channel.topic, message.log_time, message.publish_time,
-                                  message.sequence, decoded)
+        with _damage_is_an_error(self.path):
+            for schema, channel, message in _iter_raw(self.path, self.complete, wanted):
+                decoded = decoders.decode(schema, channel, message.data)
+                if not raw:
+                    decoded = convert(channel.topic, decoded)
+                yield RecordedMessage(channel.topic, message.log_time, message.publish_time,
+                                      message.sequence, decoded)
 
     def read(self, topic: str, *, raw: bool = False) -> list[RecordedMessage]:
         return list(self.messages([topic], raw=raw))
@@ -94,7 +96,8 @@ class Recording:
     def log_times(self) -> dict[str, np.ndarray]:
         """Sorted log times of every topic, from the index when there is one (no decoding)."""
         if self._log_times is None:
-            self._log_times = _log_times(self.path, self.complete)
+            with _damage_is_an_error(self.path):
+                self._log_times = _log_times(self.path, self.complete)
         return self._log_times
 
     def rays(self) -> np.ndarray:
@@ -113,6 +116,19 @@ class Recording:
             if name in camera:
                 kwargs[name] = type(getattr(CameraGeometry(), name))(camera[name])
         return CameraGeometry(**kwargs)
+
+
+@contextlib.contextmanager
+def _damage_is_an_error(path: Path):
+    """Bytes damaged inside a finished file (a bad disk, a bad copy) surface from the mcap,
+    zstd and protobuf libraries as their own exceptions: one clear error instead."""
+    try:
+        yield
+    except CaptureError:
+        raise
+    except Exception as e:
+        raise CaptureError(f"{path}: the file is damaged ({type(e).__name__}: {e}); "
+                           "copy what is readable with `walkcap recover`") from None
 
 
 def convert(topic: str, decoded: Any) -> Any:
@@ -182,6 +198,13 @@ def open_recording(path: str | os.PathLike) -> Recording:
     if not p.exists():
         raise CaptureError(f"{p}: no such file")
     check_magic(p)
+    with _damage_is_an_error(p):
+        return _open(p)
+
+
+def _open(p: Path) -> Recording:
+    from mcap.reader import make_reader
+
     size = p.stat().st_size
     with open(p, "rb") as f:
         try:
@@ -261,6 +284,8 @@ def _log_times(path: Path, complete: bool) -> dict[str, np.ndarray]:
             if not chunk.message_index_offsets:  # no index: read the chunk itself
                 return {k: v for k, v in _scan_times(path).items()}
             for cid, offset in chunk.message_index_offsets.items():
+                if cid not in summary.channels:  # a damaged index: read the messages instead
+                    return _scan_times(path)
                 f.seek(offset + 9)
                 index = MessageIndex.read(ReadDataStream(f))
                 times[summary.channels[cid].topic].extend(t for t, _ in index.records)
