@@ -154,15 +154,26 @@ class Pipeline:
         self._pushed = 0
         self._frame_of_push: dict[int, int] = {}
 
-    def process(self, frame: DepthFrame, quaternion: np.ndarray | None,
-                time_ns: int | None = None) -> FrameResult:
-        from inference.features import terrain_features
+    def prepare(self, frame: DepthFrame, quaternion: np.ndarray | None):
+        """The preprocessing step alone (inference.preprocess.Preprocessed)."""
         from inference.preprocess import preprocess
 
         if quaternion is None:
             quaternion = np.full(4, np.nan)
-        pre = preprocess(frame.xyz, frame.confidence, quaternion, self.params)
-        probs = np.asarray(self.classifier.predict(pre.image), dtype=np.float64)
+        return preprocess(frame.xyz, frame.confidence, quaternion, self.params)
+
+    def process(self, frame: DepthFrame, quaternion: np.ndarray | None,
+                time_ns: int | None = None, *, prepared=None,
+                probabilities: np.ndarray | None = None) -> FrameResult:
+        """The whole frame; `prepared` and `probabilities` when worked out ahead (replay
+        preprocesses in another process and classifies in batches)."""
+        from inference.features import terrain_features
+
+        if quaternion is None:
+            quaternion = np.full(4, np.nan)
+        pre = prepared if prepared is not None else self.prepare(frame, quaternion)
+        probs = np.asarray(probabilities if probabilities is not None
+                           else self.classifier.predict(pre.image), dtype=np.float64)
         fused = self._push(frame.index, probs)
         done_ns = now_ns()  # the decision is out; features are for display and recording
         hint = MODES[fused.decision] if fused is not None and fused.decision is not None \

@@ -1,25 +1,31 @@
 """Replay: the pipeline run again on a recording's depth and IMU, into a new recording.
 
-Deterministic and single-threaded: frames in order, each with the IMU samples recorded
-up to just after its time in the orientation track, exactly as the live session would
-have had them. The original file is only read.
+Deterministic: frames in order, each with the IMU samples recorded up to just after its
+time in the orientation track, exactly as the live session would have had them. The
+original file is only read.
+
+As fast as possible (`speed=None`), the work is split over two processes, since one
+Python process cannot use a second core: a reader process decodes the frames, levels and
+preprocesses them; this one classifies them in batches, fuses, measures the terrain and
+records. Paced replays (`speed=X`) run in this process alone.
 """
 from __future__ import annotations
 
-import dataclasses
 import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 
 from capture import topics as T
 from capture.errors import CaptureError
 from capture.pipeline import CNN_THREADS, OrientationTrack, Pipeline, model_hash, record_result
-from devices.frames import ImuSample
+from devices.frames import DepthFrame, ImuSample
 
 IMU_LOOKAHEAD_NS = 20_000_000  # samples recorded up to this long after a frame may be used
+BATCH = 16  # frames classified at once when replaying as fast as possible
 
 
 @dataclass
@@ -59,14 +65,91 @@ def default_output(source: Path, folder: Path | None = None) -> Path:
         k += 1
 
 
+def recorded_imu(rec) -> list[ImuSample]:
+    """The recording's IMU samples in sample-time order."""
+    imu = [_imu_sample(m.data) for m in rec.messages([T.IMU])]
+    imu.sort(key=_sample_time)
+    return imu
+
+
+def _sample_time(s: ImuSample) -> int:
+    return s.time_ns if s.time_ns is not None else s.host_time_ns
+
+
+def prepared_frames(source: str | Path, params) -> Iterator[tuple[DepthFrame, np.ndarray | None, object]]:
+    """(frame, orientation, Preprocessed) for every recorded frame, in order."""
+    from capture.reader import depth_frames, open_recording
+    from inference.preprocess import preprocess
+
+    imu = recorded_imu(open_recording(source))
+    track = OrientationTrack(span_s=5.0)
+    i = 0
+    for frame in depth_frames(source):
+        t = frame.device_time_ns
+        while i < len(imu) and _sample_time(imu[i]) <= t + IMU_LOOKAHEAD_NS:
+            if imu[i].quaternion is not None:
+                track.add(_sample_time(imu[i]), imu[i].quaternion, imu[i].rate_of_turn)
+            i += 1
+        q, _ = track.at(t)
+        level = q if q is not None else np.full(4, np.nan)
+        yield frame, q, preprocess(frame.xyz, frame.confidence, level, params)
+
+
+class _ReaderProcess:
+    """prepared_frames() run in a child process, read back in order."""
+
+    def __init__(self, source: Path, params) -> None:
+        from devices.child import Child
+
+        self._child = Child("capture.replay:_serve_prepared", str(source), params)
+
+    def __iter__(self):
+        conn = self._child.conn
+        while True:
+            try:
+                message = conn.recv()
+            except (EOFError, OSError):
+                raise CaptureError("replay: the frame reader process ended unexpectedly") from None
+            if message[0] == "end":
+                return
+            if message[0] == "error":
+                raise CaptureError(message[1])
+            yield message[1]
+
+    def close(self) -> None:
+        self._child.conn.close()  # a reader still sending sees the pipe break and ends
+        self._child.end(timeout_s=2.0)
+
+
+def _serve_prepared(conn, source: str, params) -> None:
+    try:
+        for item in prepared_frames(source, params):
+            conn.send(("frame", item))
+        conn.send(("end",))
+    except (BrokenPipeError, ConnectionResetError):
+        pass  # the replay was stopped
+    except CaptureError as e:
+        conn.send(("error", str(e)))
+    except Exception as e:  # a corrupt file: one message on the other side
+        conn.send(("error", f"{source}: {type(e).__name__}: {e}"))
+
+
+def _blocks(items, size: int):
+    block = []
+    for item in items:
+        block.append(item)
+        if len(block) == size:
+            yield block
+            block = []
+    if block:
+        yield block
+
+
 def replay(source: str | Path, config, *, output: str | Path | None = None, speed: float | None = None,
            classifier=None, progress=None) -> ReplayReport:
     """Run the pipeline on `source` into `output`. speed None: as fast as possible;
     else paced at `speed` x the recorded rate."""
-    from capture.reader import depth_frames, open_recording
-    from capture.recorder import Recorder
-    from inference.fusion import make_fusion
-    from inference.model import load_classifier
+    from capture.reader import open_recording
     from inference.preprocess import PreprocessParams
 
     source = Path(source)
@@ -76,14 +159,30 @@ def replay(source: str | Path, config, *, output: str | Path | None = None, spee
     output = Path(output) if output else default_output(source)
     if output.resolve() == source.resolve():
         raise CaptureError("the replay must go to a new file; the original is never modified")
+    params = PreprocessParams.from_config(config)
+    fast = not speed
+    # the reader process starts first: its imports overlap with loading the model here
+    frames_in = _ReaderProcess(source, params) if fast else None
+    try:
+        return _replay(source, rec, output, config, params, speed, classifier, progress,
+                       frames_in if fast else prepared_frames(source, params))
+    finally:
+        if frames_in is not None:
+            frames_in.close()
+
+
+def _replay(source, rec, output, config, params, speed, classifier, progress, prepared) -> ReplayReport:
+    from capture.recorder import Recorder
+    from inference.fusion import make_fusion
+    from inference.model import load_classifier
+
     classifier = classifier or load_classifier(config.model.path or None, threads=CNN_THREADS)
     cfg = config.fusion
     fusion = make_fusion("hmm+voting", window=cfg.window, vote_delay=cfg.vote_delay,
                          transition=np.asarray(cfg.transition))
-    pipeline = Pipeline(PreprocessParams.from_config(config), classifier, fusion)
+    pipeline = Pipeline(params, classifier, fusion)
 
-    imu = [_imu_sample(m.data) for m in rec.messages([T.IMU])]
-    imu.sort(key=lambda s: s.time_ns if s.time_ns is not None else s.host_time_ns)
+    imu = recorded_imu(rec)
     labels = [m.data for m in rec.messages([T.LABELS])]
     events = [m.data for m in rec.messages([T.EVENTS])]
 
@@ -102,7 +201,7 @@ def replay(source: str | Path, config, *, output: str | Path | None = None, spee
     attachments = {name: data for name, data in rec.attachments.items()}
     recorder = Recorder(output, metadata=metadata, attachments=attachments, blocking=True)
     recorder.start()
-    track = OrientationTrack(span_s=5.0)
+    batch = getattr(classifier, "predict_batch", None)
     i_imu = 0
     frames = 0
     first_t = last_t = None
@@ -112,28 +211,25 @@ def replay(source: str | Path, config, *, output: str | Path | None = None, spee
             recorder.write_label(int(lab["time_ns"]), lab.get("mode", ""), lab.get("source", ""))
         for ev in events:
             recorder.write_event(dict(ev))
-        for frame in depth_frames(source):
-            t = frame.device_time_ns
-            first_t = t if first_t is None else first_t
-            last_t = t
-            if speed:  # recorded pace, scaled
-                wait = (t - first_t) * 1e-9 / speed - (time.monotonic() - wall0)
-                if wait > 0:
-                    time.sleep(wait)
-            while i_imu < len(imu):
-                s = imu[i_imu]
-                ts = s.time_ns if s.time_ns is not None else s.host_time_ns
-                if ts > t + IMU_LOOKAHEAD_NS:
-                    break
-                if s.quaternion is not None:
-                    track.add(ts, s.quaternion, s.rate_of_turn)
-                recorder.write_imu(s)
-                i_imu += 1
-            q, _ = track.at(t)
-            record_result(recorder, frame, pipeline.process(frame, q, t), frame.host_time_ns)
-            frames += 1
-            if progress is not None:
-                progress(frames)
+        for block in _blocks(prepared, 1 if speed else BATCH):
+            probs = batch(np.stack([pre.image for _, _, pre in block])) if batch is not None \
+                else [classifier.predict(pre.image) for _, _, pre in block]
+            for (frame, q, pre), p in zip(block, probs):
+                t = frame.device_time_ns
+                first_t = t if first_t is None else first_t
+                last_t = t
+                if speed:  # recorded pace, scaled
+                    wait = (t - first_t) * 1e-9 / speed - (time.monotonic() - wall0)
+                    if wait > 0:
+                        time.sleep(wait)
+                while i_imu < len(imu) and _sample_time(imu[i_imu]) <= t + IMU_LOOKAHEAD_NS:
+                    recorder.write_imu(imu[i_imu])
+                    i_imu += 1
+                result = pipeline.process(frame, q, t, prepared=pre, probabilities=p)
+                record_result(recorder, frame, result, frame.host_time_ns)
+                frames += 1
+                if progress is not None:
+                    progress(frames)
         for s in imu[i_imu:]:
             recorder.write_imu(s)
     finally:

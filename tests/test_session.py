@@ -128,3 +128,15 @@ def test_unknown_label_is_refused():
     session = Session(Config(), classifier=StandInClassifier())
     with pytest.raises(CaptureError, match="unknown mode"):
         session.set_label("XX")
+
+
+def test_fast_replay_in_two_processes_matches_a_paced_one(recorded, tmp_path):
+    """The reader process and batched classification change nothing but the speed."""
+    path, _, _ = recorded
+    fast = replay(path, Config(), output=tmp_path / "fast.mcap", classifier=StandInClassifier())
+    paced = replay(path, Config(), output=tmp_path / "paced.mcap", speed=50.0,
+                   classifier=StandInClassifier())
+    a, b = read_trial(fast.output), read_trial(paced.output)
+    assert fast.frames == paced.frames > 30
+    for key in ("frame_index", "probabilities", "cnn_decisions", "decisions", "voted"):
+        np.testing.assert_array_equal(a[key], b[key])
