@@ -441,7 +441,7 @@ def _frame(index: int, entry: dict, rays: np.ndarray, geometry: CameraGeometry,
         truth = {k: v for k, v in truth.items() if k != "time_ns"}
     return DepthFrame(index=index, device_time_ns=entry["pub"], host_time_ns=entry["log"],
                       xyz=T.xyz_from_range(depth, rays), confidence=confidence, gray=gray,
-                      geometry=geometry, truth=truth)
+                      geometry=geometry, truth=truth, range_mm=depth)
 
 
 def find_gaps(times_ns: np.ndarray, factor: float = 2.5) -> list[tuple[int, float]]:

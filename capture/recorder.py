@@ -539,7 +539,9 @@ class Recorder:
         self._remember(frame.index, t, log_time)
         if frame.geometry != self._geometry:
             self._write_geometry(frame)
-        depth = T.range_mm(frame.xyz, frame.confidence)
+        depth = frame.range_mm  # a recording's own millimetres when replayed: exactly kept
+        if depth is None:
+            depth = T.range_mm(frame.xyz, frame.confidence)
         out = [
             (T.DEPTH, log_time, t, T.raw_image(depth, t, "16UC1").SerializeToString(),
              frame.index, True),

@@ -63,6 +63,7 @@ class DepthFrame:
     gray: np.ndarray  # (height, width) uint16 amplitude
     geometry: CameraGeometry = field(default_factory=CameraGeometry)
     truth: dict | None = None  # simulator only: {"mode": "LG", "pose": 4x4 list, ...}
+    range_mm: np.ndarray | None = None  # read from a recording: its depth, rewritten as is
 
 
 @dataclass
