@@ -59,9 +59,9 @@ def machine() -> dict:
             "platform": platform.platform(), "load_avg_1min": round(os.getloadavg()[0], 2)}
 
 
-def rss_mib() -> float:
+def rss_mib(pid: int | str = "self") -> float:
     try:
-        with open("/proc/self/status") as f:
+        with open(f"/proc/{pid}/status") as f:
             for line in f:
                 if line.startswith("VmRSS:"):
                     return int(line.split()[1]) / 1024
@@ -98,7 +98,7 @@ class SessionRun:
     record_seconds: float
     path: str
     sync_p99_ms: float
-    rss_mib: list  # (elapsed s, MiB)
+    rss_mib: list  # (elapsed s, MiB of this process, MiB of the mock rig's process)
 
 
 def session_run(fps: float, imu_hz: int, seconds: float, folder: str, *, clf=None,
@@ -116,15 +116,20 @@ def session_run(fps: float, imu_hz: int, seconds: float, folder: str, *, clf=Non
     session.start()
     session._latencies = __import__("collections").deque(maxlen=10**6)
     memory = []
+    rig = getattr(getattr(session._camera, "rig", None), "_child", None)
     try:
         session.start_recording(SubjectInfo(subject="BENCH", condition="bench"))
         t0 = time.monotonic()
         next_sample = t0
+        seen = 0
         while time.monotonic() - t0 < seconds and not session.finished.is_set():
             if sample_every_s and time.monotonic() >= next_sample:
-                memory.append((round(time.monotonic() - t0, 1), round(rss_mib(), 1)))
+                memory.append((round(time.monotonic() - t0, 1), round(rss_mib(), 1),
+                               round(rss_mib(rig.pid), 1) if rig is not None else float("nan")))
                 if on_sample is not None:
-                    on_sample(session.snapshot(), memory[-1])
+                    recent = list(session._latencies)[seen:]  # since the last sample
+                    seen += len(recent)
+                    on_sample(session.snapshot(), memory[-1], np.asarray(recent))
                 next_sample += sample_every_s
             time.sleep(0.05)
         snap = session.snapshot()

@@ -47,11 +47,13 @@ def _soak(bench, minutes: float, as_json: bool) -> int:
 
     rows = []
 
-    def sample(snap, memory):
-        lat = snap.latency_ms or {}
-        row = {"t_s": memory[0], "rss_mib": memory[1], "frames": snap.frames,
-               "latency_p50_ms": round(lat.get("p50", float("nan")), 2),
-               "latency_p99_ms": round(lat.get("p99", float("nan")), 2),
+    def sample(snap, memory, recent):
+        def pct(q):  # over the frames since the last sample
+            return round(float(np.percentile(recent, q)), 2) if len(recent) else float("nan")
+
+        row = {"t_s": memory[0], "rss_mib": memory[1], "rig_rss_mib": memory[2],
+               "frames": snap.frames, "latency_p50_ms": pct(50), "latency_p99_ms": pct(99),
+               "latency_max_ms": pct(100),
                "camera_dropped": snap.camera.dropped + snap.camera.errors if snap.camera else 0,
                "recorder_dropped": snap.recording.dropped if snap.recording else 0}
         rows.append(row)
@@ -64,8 +66,11 @@ def _soak(bench, minutes: float, as_json: bool) -> int:
     summary = {"minutes": minutes, "frames": run.frames, "dropped": run.dropped,
                "latency_p50_ms": float(np.median(lat)) if len(lat) else None,
                "latency_p99_ms": float(np.percentile(lat, 99)) if len(lat) else None,
+               "latency_max_ms": float(np.max(lat)) if len(lat) else None,
                "rss_start_mib": run.rss_mib[0][1] if run.rss_mib else None,
                "rss_end_mib": run.rss_mib[-1][1] if run.rss_mib else None,
+               "rig_rss_start_mib": run.rss_mib[0][2] if run.rss_mib else None,
+               "rig_rss_end_mib": run.rss_mib[-1][2] if run.rss_mib else None,
                "record_mb_per_s": run.record_bytes / max(run.record_seconds, 1e-9) / 1e6}
     if as_json:
         print(json.dumps({"machine": bench.machine(), "samples": rows, "summary": summary}, indent=2))
