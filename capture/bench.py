@@ -109,7 +109,6 @@ def session_run(fps: float, imu_hz: int, seconds: float, folder: str, *, clf=Non
     cfg = Config()
     cfg.camera.fps = fps
     cfg.imu.rate_hz = imu_hz
-    cfg.imu.baudrate = 921600 if imu_hz > 100 else cfg.imu.baudrate
     cfg.session.recordings = folder
     cfg.simulator.loop = True  # the walk repeats for as long as the run lasts
     session = Session(cfg, classifier=clf or classifier(), auto_label=True)

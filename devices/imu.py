@@ -512,6 +512,14 @@ class XbusImu(Imu):
             })
 
 
+def mock_baudrate(config: Any) -> int:
+    """The emulated line's speed: as configured, raised to 921600 baud above 100 Hz, which
+    115200 baud cannot carry (about 157 messages/s of the default outputs). A real MTi's
+    baud rate is whatever it was set to; only a mock can choose."""
+    baudrate = int(getattr(config, "baudrate", 115200))
+    return max(baudrate, 921600) if getattr(config, "rate_hz", 100) > 100 else baudrate
+
+
 class EmulatedImu(XbusImu):
     """The mock backend: the Xbus driver against an ImuEmulator on a pty it owns."""
 
@@ -542,7 +550,7 @@ class EmulatedImu(XbusImu):
                    drift_ppm=getattr(config, "drift_ppm", 0.0),
                    jitter_ms=getattr(config, "jitter_ms", 0.0),
                    seed=getattr(config, "seed", 0), orientation_at=orientation_at,
-                   baudrate=getattr(config, "baudrate", 115200))
+                   baudrate=mock_baudrate(config))
 
     def true_time_ns(self, sample_time_fine: int) -> int:
         """When the emulator really took that sample (for sync-accuracy checks)."""

@@ -123,3 +123,16 @@ def test_a_rig_that_cannot_start_is_one_clear_error():
     config.imu.rate_hz = 5000  # beyond the emulator
     with pytest.raises(DeviceInitError, match="mock devices failed to start: .*rate 5000"):
         open_devices(config)
+
+
+def test_a_fast_mock_imu_gets_a_line_that_carries_it():
+    config = Config()
+    config.imu.rate_hz = 400  # 115200 baud carries about 157 messages/s
+    camera, imu = open_devices(config)
+    try:
+        imu.start()
+        time.sleep(1.2)
+        assert 360 <= imu.status().measured_rate_hz <= 440
+        assert imu.missing_packets == 0
+    finally:
+        close_devices(camera, imu)

@@ -31,7 +31,7 @@ from devices.child import Child
 from devices.clock import now_ns
 from devices.errors import DeviceInitError
 from devices.frames import DepthFrame
-from devices.imu import XbusImu
+from devices.imu import XbusImu, mock_baudrate
 
 log = logging.getLogger(__name__)
 
@@ -78,7 +78,7 @@ class MockRig:
     def imu(self) -> "RigImu":
         self._users += 1
         cfg = self.imu_config
-        return RigImu(self, self.port, cfg.baudrate, cfg.rate_hz)
+        return RigImu(self, self.port, mock_baudrate(cfg), cfg.rate_hz)
 
     def release(self) -> None:
         """One device closed; the last one ends the child."""
@@ -287,7 +287,7 @@ def _serve(conn, camera_config, simulator_config, imu_config) -> None:
 
         emulator = ImuEmulator(rate_hz=imu_config.rate_hz, drift_ppm=imu_config.drift_ppm,
                                jitter_ms=imu_config.jitter_ms, seed=getattr(imu_config, "seed", 0),
-                               orientation_at=thigh, baudrate=imu_config.baudrate)
+                               orientation_at=thigh, baudrate=mock_baudrate(imu_config))
         port = emulator.start()
     except Exception as e:
         conn.send(("failed", f"{type(e).__name__}: {e}"))
