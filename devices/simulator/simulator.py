@@ -5,7 +5,11 @@ ground truth in `frame.truth`:
 - "mode": the mode of the terrain the camera looks at. Every 1/30 s of the walk (VOTE_DT_S,
   whatever the frame rate) votes for the course segment covering most (> half) of the
   terrain seen in the central image columns (the classifier's corridor) within 1 m of the
-  nearest visible point, cast without the error images drawn in (a foot, an occlusion or
+  nearest visible point (and 2.5 m of the camera, the image's crop), measured as the
+  classifier's binary image shows it: 1 cm columns along the forward distance, not pixels
+  (the near terrain has many more pixels per metre; counting pixels switched the truth
+  up to a second after the image was mostly the new terrain). Cast without the error
+  images drawn in (a foot, an occlusion or
   blur hides the terrain, it does not change it); a moment whose corridor is less than
   MIN_SEEN_SHARE terrain (sky, walls) votes for the fallback, the segment a look-ahead
   distance in front of the camera (LOOKAHEAD_M per terrain under the camera, blended over
@@ -14,8 +18,8 @@ ground truth in `frame.truth`:
   votes (`switch_once`): the mode switches once per transition, where the view has
   mostly moved on to the new terrain, not at a single glance ahead nor back and forth
   while the swinging thigh looks back at the old one - as an operator would key it.
-- "view_mode": the mode covering most of the terrain actually seen in the central image
-  columns within 1 m of the nearest visible point in this very frame; "" when no terrain
+- "view_mode": the mode covering most (1 cm columns, as above) of the terrain actually
+  seen in the central image columns of this very frame's window; "" when no terrain
   is seen; "view_share": the share of that terrain that has the true mode. They differ
   from "mode" only around transitions, on frames glancing at the other terrain, and on
   frames seeing no terrain.
@@ -45,6 +49,9 @@ CORRIDOR_PX = 9  # half-width of the central columns (~0.1 m at 1 m, the classif
 VOTE_DT_S = 1 / 30  # the truth rule's time step, independent of the frame rate asked for
 MIN_SEEN_SHARE = 0.25  # share of the corridor that must be terrain for a moment to vote
 OUTDOOR_ERROR_RATE = 1.6  # error images outdoors relative to indoors
+# The classifier's image (inference.preprocess): 1 cm columns over 1 m from the nearest
+# corridor point, cropped 2.5 m ahead of the camera (PreprocessParams.max_forward_m).
+CELL_M, IMAGE_M, IMAGE_FORWARD_M = 0.01, 1.0, 2.5
 
 
 class Simulator:
@@ -119,9 +126,9 @@ class Simulator:
             return self.lookahead_segment(t_s, pose)
         rays = self.sensor.rays_cam[self._corridor[seen]]
         forward = hits.t[seen] * (rays @ pose[0, :3])
-        near = forward <= forward.min() + 1.0
-        x = pose[0, 3] + forward[near]
-        counts = np.bincount(self.course.segment_index(x), minlength=len(self.course.segments))
+        window = _image_window(forward)
+        counts = _cover(pose[0, 3] + forward[window], forward[window],
+                        self.course.segment_index, len(self.course.segments))
         best = int(np.argmax(counts))
         return best if counts[best] * 2 > counts.sum() else None
 
@@ -179,9 +186,28 @@ class Simulator:
         if not seen.any():
             return "", 0.0
         forward = t[seen] * (self.sensor.rays_cam[self._corridor[seen]] @ pose[0, :3])
-        near = forward <= forward.min() + 1.0
-        counts = np.bincount(label[seen][near], minlength=len(MODES))
+        window = _image_window(forward)
+        counts = _cover(label[seen][window], forward[window], lambda m: m, len(MODES))
         return MODES[int(np.argmax(counts))], float(counts[MODES.index(mode)] / counts.sum())
+
+
+def _image_window(forward: np.ndarray) -> np.ndarray:
+    """Mask of the points the classifier's image holds: within IMAGE_M of the nearest one,
+    and no farther than IMAGE_FORWARD_M ahead while any point is that near."""
+    near = forward <= forward.min() + IMAGE_M
+    inside = near & (forward <= IMAGE_FORWARD_M)
+    return inside if inside.any() else near
+
+
+def _cover(keys: np.ndarray, forward: np.ndarray, index, count: int) -> np.ndarray:
+    """How much of the image each key (segment or mode) covers: the number of CELL_M
+    columns along the forward distance it occupies, as the binary image shows it (a
+    column of dense near pixels counts no more than a column of sparse far ones)."""
+    ids = np.asarray(index(keys), np.int64)
+    cells = np.floor(forward / CELL_M).astype(np.int64)
+    cells -= cells.min()
+    occupied = np.unique(ids * (int(cells.max()) + 1) + cells) // (int(cells.max()) + 1)
+    return np.bincount(occupied, minlength=count)
 
 
 def switch_once(votes: list[int | None], segments: int) -> np.ndarray:
