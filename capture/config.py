@@ -80,7 +80,7 @@ class MountingConfig:
 class PreprocessConfig:
     corridor_width_m: float = 0.1  # across the walking direction (authors: 0.1 m)
     min_forward_m: float = 0.0
-    max_forward_m: float = 1.5
+    max_forward_m: float = 2.5  # see inference.preprocess.PreprocessParams
     grid_size: int = 100  # 100 x 100 cells
     cell_m: float = 0.01  # 1 cm cells
     min_confidence: int = 1

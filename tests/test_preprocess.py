@@ -30,7 +30,7 @@ def test_level_ground_is_flat_at_camera_height(pose, backend):
     assert abs(np.median(z) + 0.5) < 0.003
     assert np.percentile(np.abs(z + 0.5), 99) < 0.008  # flat: only the noise remains
     assert np.all(np.abs(out.cloud[:, 1]) <= 0.05 + 1e-6)
-    assert out.cloud[:, 0].min() >= 0 and out.cloud[:, 0].max() <= 1.5 + 1e-6
+    assert out.cloud[:, 0].min() >= 0 and out.cloud[:, 0].max() <= 2.5 + 1e-6
     assert out.cloud.dtype == np.float32 and out.profile.dtype == np.float32
     np.testing.assert_array_equal(out.profile, out.cloud[:, [0, 2]])
 
@@ -113,7 +113,10 @@ def test_backends_agree(terrain):
     b = preprocess(xyz, conf, q, PreprocessParams(backend="open3d"))
     assert a.ok and b.ok
     assert iou(a.image, b.image) > 0.85
-    assert abs(len(a.cloud) - len(b.cloud)) < 0.1 * len(a.cloud)
+    # compared in the image's 1 m: beyond it, at 2-2.5 m, points are sparse and the 3-D
+    # radius filter drops more of them than the sagittal cell filter does
+    na, nb = (int(np.sum(p.cloud[:, 0] < p.origin_m[0] + 1.0)) for p in (a, b))
+    assert abs(na - nb) < 0.1 * na
 
 
 def with_stray_points(xyz, conf, points_cam):
