@@ -10,6 +10,7 @@ socket closes when this process dies, so a child blocked on it ends too.
 from __future__ import annotations
 
 import os
+import pickle
 import socket
 import subprocess
 import sys
@@ -21,6 +22,7 @@ class Child:
 
     def __init__(self, target: str, *args, quiet: bool | None = None) -> None:
         module, _, function = target.partition(":")
+        payload = pickle.dumps(args)  # before the process starts: unpicklable is our error
         host_end, child_end = socket.socketpair()
         code = (f"import sys; sys.path[:0] = {sys.path!r}; "
                 f"from devices.child import _run; _run({module!r}, {function!r}, "
@@ -32,7 +34,7 @@ class Child:
             stdin=subprocess.DEVNULL, stderr=subprocess.DEVNULL if quiet else None)
         child_end.close()
         self.conn = Connection(host_end.detach())
-        self.conn.send(args)
+        self.conn.send_bytes(payload)
 
     @property
     def pid(self) -> int:
