@@ -223,12 +223,17 @@ def record_result(recorder, frame: DepthFrame, r: FrameResult,
     recorder.write_frame(frame, r.time_ns)
     recorder.write_processed(r.index, r.time_ns, r.host_time_ns, r.cloud, r.image, r.quaternion,
                              r.flag)
+    record_decisions(recorder, r, decided_ns)
+    if frame.truth:
+        recorder.write_truth(r.index, r.time_ns, frame.truth)
+
+
+def record_decisions(recorder, r: FrameResult, decided_ns: int | None = None) -> None:
+    """The CNN, fused and terrain outputs of a frame (record_result without the sensor data)."""
     recorder.write_inference(r.index, r.time_ns, r.done_ns if decided_ns is None else decided_ns,
                              r.probabilities, r.fused_dict())
     if r.features:
         recorder.write_features(r.index, r.time_ns, r.features)
-    if frame.truth:
-        recorder.write_truth(r.index, r.time_ns, frame.truth)
 
 
 def model_hash(classifier) -> str:

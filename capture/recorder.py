@@ -41,6 +41,9 @@ from capture.errors import CaptureError
 from capture.journal import Journal, fsync_directory, journal_path
 from devices.clock import now_ns
 
+CLOUD_VOXEL_M = 0.02  # /camera/cloud: one point per voxel of this size (see encode_processed)
+CLOUD_MAX_POINTS = 4096
+
 log = logging.getLogger(__name__)
 
 IDLE, RECORDING, STOPPED, FAILED = "idle", "recording", "stopped", "failed"
@@ -131,7 +134,7 @@ class Recorder:
     def __init__(self, path: str | os.PathLike, *, metadata: dict[str, dict[str, str]] | None = None,
                  attachments: dict[str, bytes] | None = None, queue_size: int = 512,
                  chunk_interval_s: float = 1.0, gray: bool = False,
-                 cloud_max_points: int = 4096, cloud_voxel_m: float = 0.02,
+                 cloud_max_points: int = CLOUD_MAX_POINTS, cloud_voxel_m: float = CLOUD_VOXEL_M,
                  blocking: bool = False) -> None:
         self.path = Path(path)
         self.journal_path = journal_path(self.path)
@@ -351,6 +354,13 @@ class Recorder:
     def write_truth(self, frame_index: int, time_ns: int, truth: dict) -> None:
         self._put("truth", (frame_index, time_ns, truth))
 
+    def write_encoded(self, frame_index: int, time_ns: int, log_time_ns: int,
+                      messages: list) -> None:
+        """One frame's messages encoded elsewhere (encode_depth, encode_processed,
+        encode_truth: replay's reader process), written as given. The camera's rays must be
+        among the attachments: no depth frame passes here to take them from."""
+        self._put("encoded", (frame_index, time_ns, log_time_ns, messages))
+
     def write_label(self, time_ns: int, mode: str, source: str) -> None:
         """The operator's mode from `time_ns` on. Journaled (on disk) before this returns."""
         entry = T.label_json(time_ns, mode, source)
@@ -539,21 +549,7 @@ class Recorder:
         self._remember(frame.index, t, log_time)
         if frame.geometry != self._geometry:
             self._write_geometry(frame)
-        depth = frame.range_mm  # a recording's own millimetres when replayed: exactly kept
-        if depth is None:
-            depth = T.range_mm(frame.xyz, frame.confidence)
-        out = [
-            (T.DEPTH, log_time, t, T.raw_image(depth, t, "16UC1").SerializeToString(),
-             frame.index, True),
-            (T.CONFIDENCE, log_time, t,
-             T.raw_image(np.asarray(frame.confidence, np.uint8), t, "mono8").SerializeToString(),
-             frame.index, True),
-        ]
-        if self._gray and frame.gray is not None:
-            gray = np.asarray(frame.gray).astype("<u2")
-            out.append((T.GRAY, log_time, t, T.raw_image(gray, t, "16UC1").SerializeToString(),
-                        frame.index, True))
-        return out
+        return encode_depth(frame, t, log_time, self._gray)
 
     def _write_geometry(self, frame) -> None:
         """The rays (once per camera) that turn /camera/depth back into xyz."""
@@ -587,34 +583,8 @@ class Recorder:
 
     def _encode_processed(self, index, time_ns, log_time, cloud, image, quaternion, flag) -> list:
         self._remember(index, time_ns, log_time)
-        points = np.asarray(cloud, dtype=np.float32).reshape(-1, 3)
-        n = len(points)
-        if self._cloud_voxel_m > 0 and n:
-            # One point per 2 cm voxel: steps, ramps and curbs stay plain in Foxglove at a
-            # quarter of the bytes (0.12 MB/s at 45 fps, a 1 cm voxel 0.27: the difference
-            # between meeting the 2.5 MB/s budget or not). The cloud is derived data (depth,
-            # /tf and the preprocessing parameters rebuild it); the depth is kept exactly.
-            cells = np.floor(points / self._cloud_voxel_m).astype(np.int64) + (1 << 20)
-            key = (cells[:, 0] << 42) | (cells[:, 1] << 21) | cells[:, 2]  # one int per voxel
-            _, first = np.unique(key, return_index=True)
-            points = points[np.sort(first)]
-        if len(points) > self._cloud_max_points:  # decimated evenly
-            points = points[np.linspace(0, len(points) - 1, self._cloud_max_points).astype(int)]
-        image_u8 = T.binary_image_u8(image)
-        oriented = quaternion is not None and bool(np.all(np.isfinite(quaternion)))
-        out = [
-            (T.CLOUD, log_time, time_ns, T.cloud_message(points, time_ns).SerializeToString(),
-             index, False),
-            (T.BINARY_IMAGE, log_time, time_ns,
-             T.raw_image(image_u8, time_ns, "mono8", frame_id="").SerializeToString(), index, False),
-            (T.PREPROCESS, log_time, time_ns,
-             T.encode_json(T.preprocess_json(index, time_ns, flag, oriented, n, len(points))),
-             index, False),
-        ]
-        if oriented:
-            out.append((T.TF, log_time, time_ns,
-                        T.transform_message(quaternion, time_ns).SerializeToString(), index, False))
-        return out
+        return encode_processed(index, time_ns, log_time, cloud, image, quaternion, flag,
+                                self._cloud_voxel_m, self._cloud_max_points)
 
     def _encode_inference(self, index, time_ns, log_time, probs, fused) -> list:
         out = [(T.CNN, log_time, time_ns, T.encode_json(T.cnn_json(index, time_ns, probs)),
@@ -629,13 +599,75 @@ class Recorder:
                  T.encode_json(T.features_json(index, time_ns, features)), index, False)]
 
     def _encode_truth(self, index, time_ns, truth) -> list:
-        return [(T.TRUTH, self._log_time(index, time_ns), time_ns,
-                 T.encode_json(T.truth_json(index, time_ns, truth)), index, False)]
+        return encode_truth(index, time_ns, self._log_time(index, time_ns), truth)
+
+    def _encode_encoded(self, index, time_ns, log_time, messages) -> list:
+        self._remember(index, time_ns, log_time)
+        return messages
 
     def _encode_event(self, event) -> list:
         entry = T.event_json(event)
         t = entry["time_ns"]
         return [(T.EVENTS, t, t, T.encode_json(entry), 0, False)]
+
+
+# ---- encoders: one frame's data -> [(topic, log_time, publish_time, bytes, sequence, sensor)]
+# Pure, so another process can run them (replay's reader).
+
+
+def encode_depth(frame, t: int, log_time: int, gray: bool = False) -> list:
+    depth = frame.range_mm  # a recording's own millimetres when replayed: exactly kept
+    if depth is None:
+        depth = T.range_mm(frame.xyz, frame.confidence)
+    out = [
+        (T.DEPTH, log_time, t, T.raw_image(depth, t, "16UC1").SerializeToString(),
+         frame.index, True),
+        (T.CONFIDENCE, log_time, t,
+         T.raw_image(np.asarray(frame.confidence, np.uint8), t, "mono8").SerializeToString(),
+         frame.index, True),
+    ]
+    if gray and frame.gray is not None:
+        out.append((T.GRAY, log_time, t,
+                    T.raw_image(np.asarray(frame.gray).astype("<u2"), t, "16UC1").SerializeToString(),
+                    frame.index, True))
+    return out
+
+
+def encode_processed(index: int, time_ns: int, log_time: int, cloud, image, quaternion, flag: str,
+                     voxel_m: float = CLOUD_VOXEL_M, max_points: int = CLOUD_MAX_POINTS) -> list:
+    points = np.asarray(cloud, dtype=np.float32).reshape(-1, 3)
+    n = len(points)
+    if voxel_m > 0 and n:
+        # One point per 2 cm voxel: steps, ramps and curbs stay plain in Foxglove at a
+        # quarter of the bytes (0.12 MB/s at 45 fps, a 1 cm voxel 0.27: the difference
+        # between meeting the 2.5 MB/s budget or not). The cloud is derived data (depth,
+        # /tf and the preprocessing parameters rebuild it); the depth is kept exactly.
+        cells = np.floor(points / voxel_m).astype(np.int64) + (1 << 20)
+        key = (cells[:, 0] << 42) | (cells[:, 1] << 21) | cells[:, 2]  # one int per voxel
+        _, first = np.unique(key, return_index=True)
+        points = points[np.sort(first)]
+    if len(points) > max_points:  # decimated evenly
+        points = points[np.linspace(0, len(points) - 1, max_points).astype(int)]
+    image_u8 = T.binary_image_u8(image)
+    oriented = quaternion is not None and bool(np.all(np.isfinite(quaternion)))
+    out = [
+        (T.CLOUD, log_time, time_ns, T.cloud_message(points, time_ns).SerializeToString(),
+         index, False),
+        (T.BINARY_IMAGE, log_time, time_ns,
+         T.raw_image(image_u8, time_ns, "mono8", frame_id="").SerializeToString(), index, False),
+        (T.PREPROCESS, log_time, time_ns,
+         T.encode_json(T.preprocess_json(index, time_ns, flag, oriented, n, len(points))),
+         index, False),
+    ]
+    if oriented:
+        out.append((T.TF, log_time, time_ns,
+                    T.transform_message(quaternion, time_ns).SerializeToString(), index, False))
+    return out
+
+
+def encode_truth(index: int, time_ns: int, log_time: int, truth: dict) -> list:
+    return [(T.TRUTH, log_time, time_ns, T.encode_json(T.truth_json(index, time_ns, truth)),
+             index, False)]
 
 
 # ---- benchmark ----------------------------------------------------------------------------

@@ -6,11 +6,13 @@ original file is only read.
 
 As fast as possible (`speed=None`), the work is split over two processes, since one
 Python process cannot use a second core: a reader process decodes the frames, levels and
-preprocesses them; this one classifies them in batches, fuses, measures the terrain and
+preprocesses them and encodes what the new recording keeps of them (depth, cloud, image,
+orientation, truth); this one classifies them in batches, fuses, measures the terrain and
 records. Paced replays (`speed=X`) run in this process alone.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from dataclasses import dataclass
@@ -21,7 +23,8 @@ import numpy as np
 
 from capture import topics as T
 from capture.errors import CaptureError
-from capture.pipeline import CNN_THREADS, OrientationTrack, Pipeline, model_hash, record_result
+from capture.pipeline import (CNN_THREADS, OrientationTrack, Pipeline, model_hash,
+                              record_decisions, record_result)
 from devices.frames import DepthFrame, ImuSample
 
 IMU_LOOKAHEAD_NS = 20_000_000  # samples recorded up to this long after a frame may be used
@@ -123,8 +126,8 @@ class _ReaderProcess:
 
 def _serve_prepared(conn, source: str, params) -> None:
     try:
-        for item in prepared_frames(source, params):
-            conn.send(("frame", item))
+        for frame, q, pre in prepared_frames(source, params):
+            conn.send(("frame", _encoded(frame, q, pre)))
         conn.send(("end",))
     except (BrokenPipeError, ConnectionResetError):
         pass  # the replay was stopped
@@ -132,6 +135,23 @@ def _serve_prepared(conn, source: str, params) -> None:
         conn.send(("error", str(e)))
     except Exception as e:  # a corrupt file: one message on the other side
         conn.send(("error", f"{source}: {type(e).__name__}: {e}"))
+
+
+def _encoded(frame: DepthFrame, q, pre):
+    """What the recording needs of a frame that fusion does not change, encoded here in the
+    reader process; the frame and its Preprocessed without the bulky arrays travel along."""
+    from capture.recorder import encode_depth, encode_processed, encode_truth
+
+    t, log_time = frame.device_time_ns, frame.host_time_ns
+    oriented = q if q is not None and np.all(np.isfinite(q)) else None
+    messages = encode_depth(frame, t, log_time) + encode_processed(
+        frame.index, t, log_time, pre.cloud, pre.image, oriented, pre.flag)
+    if frame.truth:
+        messages += encode_truth(frame.index, t, log_time, frame.truth)
+    none = np.zeros((0, 0), np.uint8)
+    slim = dataclasses.replace(frame, xyz=np.zeros((0, 0, 3), np.float32), confidence=none,
+                               gray=none, range_mm=None)
+    return slim, q, dataclasses.replace(pre, cloud=np.zeros((0, 3), np.float32)), messages
 
 
 def _blocks(items, size: int):
@@ -165,7 +185,8 @@ def replay(source: str | Path, config, *, output: str | Path | None = None, spee
     frames_in = _ReaderProcess(source, params) if fast else None
     try:
         return _replay(source, rec, output, config, params, speed, classifier, progress,
-                       frames_in if fast else prepared_frames(source, params))
+                       frames_in if fast else ((frame, q, pre, None)  # encoded here
+                                               for frame, q, pre in prepared_frames(source, params)))
     finally:
         if frames_in is not None:
             frames_in.close()
@@ -212,9 +233,9 @@ def _replay(source, rec, output, config, params, speed, classifier, progress, pr
         for ev in events:
             recorder.write_event(dict(ev))
         for block in _blocks(prepared, 1 if speed else BATCH):
-            probs = batch(np.stack([pre.image for _, _, pre in block])) if batch is not None \
-                else [classifier.predict(pre.image) for _, _, pre in block]
-            for (frame, q, pre), p in zip(block, probs):
+            probs = batch(np.stack([pre.image for _, _, pre, _ in block])) if batch is not None \
+                else [classifier.predict(pre.image) for _, _, pre, _ in block]
+            for (frame, q, pre, encoded), p in zip(block, probs):
                 t = frame.device_time_ns
                 first_t = t if first_t is None else first_t
                 last_t = t
@@ -226,7 +247,11 @@ def _replay(source, rec, output, config, params, speed, classifier, progress, pr
                     recorder.write_imu(imu[i_imu])
                     i_imu += 1
                 result = pipeline.process(frame, q, t, prepared=pre, probabilities=p)
-                record_result(recorder, frame, result, frame.host_time_ns)
+                if encoded is None:
+                    record_result(recorder, frame, result, frame.host_time_ns)
+                else:  # the sensor data came encoded from the reader process
+                    recorder.write_encoded(frame.index, t, frame.host_time_ns, encoded)
+                    record_decisions(recorder, result, frame.host_time_ns)
                 frames += 1
                 if progress is not None:
                     progress(frames)
