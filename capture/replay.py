@@ -68,30 +68,49 @@ def default_output(source: Path, folder: Path | None = None) -> Path:
         k += 1
 
 
-def recorded_imu(rec) -> list[ImuSample]:
-    """The recording's IMU samples in sample-time order."""
-    imu = [_imu_sample(m.data) for m in rec.messages([T.IMU])]
+def recorded(rec) -> tuple[list[ImuSample], list[dict], list[dict]]:
+    """The recording's IMU samples (in sample-time order), labels and events: one pass."""
+    imu, labels, events = [], [], []
+    for m in rec.messages([T.IMU, T.LABELS, T.EVENTS]):
+        if m.topic == T.IMU:
+            imu.append(_imu_sample(m.data))
+        else:
+            (labels if m.topic == T.LABELS else events).append(m.data)
     imu.sort(key=_sample_time)
-    return imu
+    return imu, labels, events
 
 
 def _sample_time(s: ImuSample) -> int:
     return s.time_ns if s.time_ns is not None else s.host_time_ns
 
 
-def prepared_frames(source: str | Path, params) -> Iterator[tuple[DepthFrame, np.ndarray | None, object]]:
-    """(frame, orientation, Preprocessed) for every recorded frame, in order."""
+def orientations(imu: list[ImuSample]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(times ns, quaternions N x 4, rates of turn N x 3, NaN where absent) of the samples
+    that carry an orientation: what the orientation track needs, compact to hand over."""
+    kept = [s for s in imu if s.quaternion is not None]
+    times = np.array([_sample_time(s) for s in kept], dtype=np.int64)
+    quats = np.array([s.quaternion for s in kept], dtype=np.float64).reshape(-1, 4)
+    rates = np.array([s.rate_of_turn if s.rate_of_turn is not None else np.full(3, np.nan)
+                      for s in kept], dtype=np.float64).reshape(-1, 3)
+    return times, quats, rates
+
+
+def prepared_frames(source: str | Path, params, imu_orientations=None
+                    ) -> Iterator[tuple[DepthFrame, np.ndarray | None, object]]:
+    """(frame, orientation, Preprocessed) for every recorded frame, in order.
+    `imu_orientations`: orientations() of the recording's IMU, if already read."""
     from capture.reader import depth_frames, open_recording
     from inference.preprocess import preprocess
 
-    imu = recorded_imu(open_recording(source))
+    if imu_orientations is None:
+        imu_orientations = orientations(recorded(open_recording(source))[0])
+    times, quats, rates = imu_orientations
     track = OrientationTrack(span_s=5.0)
     i = 0
     for frame in depth_frames(source):
         t = frame.device_time_ns
-        while i < len(imu) and _sample_time(imu[i]) <= t + IMU_LOOKAHEAD_NS:
-            if imu[i].quaternion is not None:
-                track.add(_sample_time(imu[i]), imu[i].quaternion, imu[i].rate_of_turn)
+        while i < len(times) and times[i] <= t + IMU_LOOKAHEAD_NS:
+            track.add(int(times[i]), quats[i], rates[i] if np.isfinite(rates[i, 0]) else None)
             i += 1
         q, _ = track.at(t)
         level = q if q is not None else np.full(4, np.nan)
@@ -101,10 +120,11 @@ def prepared_frames(source: str | Path, params) -> Iterator[tuple[DepthFrame, np
 class _ReaderProcess:
     """prepared_frames() run in a child process, read back in order."""
 
-    def __init__(self, source: Path, params) -> None:
+    def __init__(self, source: Path, params, imu_orientations) -> None:
         from devices.child import Child
 
-        self._child = Child("capture.replay:_serve_prepared", str(source), params)
+        self._child = Child("capture.replay:_serve_prepared", str(source), params,
+                            imu_orientations)
 
     def __iter__(self):
         conn = self._child.conn
@@ -124,9 +144,9 @@ class _ReaderProcess:
         self._child.end(timeout_s=2.0)
 
 
-def _serve_prepared(conn, source: str, params) -> None:
+def _serve_prepared(conn, source: str, params, imu_orientations) -> None:
     try:
-        for frame, q, pre in prepared_frames(source, params):
+        for frame, q, pre in prepared_frames(source, params, imu_orientations):
             conn.send(("frame", _encoded(frame, q, pre)))
         conn.send(("end",))
     except (BrokenPipeError, ConnectionResetError):
@@ -180,19 +200,23 @@ def replay(source: str | Path, config, *, output: str | Path | None = None, spee
     if output.resolve() == source.resolve():
         raise CaptureError("the replay must go to a new file; the original is never modified")
     params = PreprocessParams.from_config(config)
+    imu, labels, events = recorded(rec)
     fast = not speed
-    # the reader process starts first: its imports overlap with loading the model here
-    frames_in = _ReaderProcess(source, params) if fast else None
+    # the reader process starts before the model loads here: its imports overlap with it
+    frames_in = _ReaderProcess(source, params, orientations(imu)) if fast else None
     try:
         return _replay(source, rec, output, config, params, speed, classifier, progress,
                        frames_in if fast else ((frame, q, pre, None)  # encoded here
-                                               for frame, q, pre in prepared_frames(source, params)))
+                                               for frame, q, pre in prepared_frames(
+                                                   source, params, orientations(imu))),
+                       (imu, labels, events))
     finally:
         if frames_in is not None:
             frames_in.close()
 
 
-def _replay(source, rec, output, config, params, speed, classifier, progress, prepared) -> ReplayReport:
+def _replay(source, rec, output, config, params, speed, classifier, progress, prepared,
+            recorded_streams) -> ReplayReport:
     from capture.recorder import Recorder
     from inference.fusion import make_fusion
     from inference.model import load_classifier
@@ -203,9 +227,7 @@ def _replay(source, rec, output, config, params, speed, classifier, progress, pr
                          transition=np.asarray(cfg.transition))
     pipeline = Pipeline(params, classifier, fusion)
 
-    imu = recorded_imu(rec)
-    labels = [m.data for m in rec.messages([T.LABELS])]
-    events = [m.data for m in rec.messages([T.EVENTS])]
+    imu, labels, events = recorded_streams
 
     metadata = {name: dict(values) for name, values in rec.metadata.items()
                 if name in ("session", "devices", "camera")}
