@@ -2,8 +2,9 @@
 
 It renders on its own thread. Frame k shows the walk at t = k / fps seconds;
 `device_time_ns = start_time_ns + t` (session clock), `host_time_ns` is when it was
-delivered. With `realtime` it paces frames at the configured fps (a late frame is skipped,
-counted and reported as a "gap"); otherwise it renders as fast as the consumer takes
+delivered. With `realtime` it paces frames at the configured fps (a frame late by a
+little is sent late; CATCH_UP_FRAMES late, frames are skipped, counted and reported as a
+"gap"); otherwise it renders as fast as the consumer takes
 frames, never dropping one. At the end of the course it stops (state "stopped", event
 "end_of_course"), or starts the course again with `loop=True`.
 
@@ -26,6 +27,11 @@ from devices.frames import CameraGeometry
 from devices.simulator.simulator import Simulator
 
 log = logging.getLogger(__name__)
+
+# A frame rendered late (the host busy a moment) is still sent, stamped with its own time,
+# and the renderer catches up (5 ms a frame against 22 ms at 45 fps); only this far behind
+# are frames skipped, as a camera's own buffer would overflow.
+CATCH_UP_FRAMES = 3
 
 
 class MockCamera(Camera):
@@ -120,7 +126,7 @@ class MockCamera(Camera):
                 if wait > 0 and self._halt.wait(wait):
                     return
                 behind = int(-wait / period)
-                if behind >= 1:  # too late for this frame: skip to the current one
+                if behind >= CATCH_UP_FRAMES:  # too late: skip to the current frame
                     self._count_error(behind)
                     self._event("gap", f"{behind} frames skipped: the simulator is too slow",
                                 skipped=behind)

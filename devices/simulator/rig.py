@@ -20,6 +20,7 @@ host's death (the pipe breaks).
 from __future__ import annotations
 
 import logging
+import sys
 import threading
 import time
 from typing import Any
@@ -263,6 +264,9 @@ class RigImu(XbusImu):
 def _serve(conn, camera_config, simulator_config, imu_config) -> None:
     """The rig's main: build the walk, camera and IMU emulator; answer requests; stream."""
     logging.basicConfig(level=logging.WARNING)
+    # The renderer, the emulator and the frame sender share this process's GIL: a short
+    # switch interval keeps each one's wait for it short (frames and samples on time).
+    sys.setswitchinterval(0.0005)
     send_lock = threading.Lock()
 
     def send(message, *buffers) -> None:
