@@ -120,11 +120,14 @@ def prepared_frames(source: str | Path, params, imu_orientations=None
 class _ReaderProcess:
     """prepared_frames() run in a child process, read back in order."""
 
-    def __init__(self, source: Path, params, imu_orientations) -> None:
+    def __init__(self, source: Path, params) -> None:
         from devices.child import Child
 
-        self._child = Child("capture.replay:_serve_prepared", str(source), params,
-                            imu_orientations)
+        self._child = Child("capture.replay:_serve_prepared", str(source), params)
+
+    def start(self, imu_orientations) -> None:
+        """The IMU's orientations, read meanwhile in this process: frames start coming."""
+        self._child.conn.send(imu_orientations)
 
     def __iter__(self):
         conn = self._child.conn
@@ -144,12 +147,16 @@ class _ReaderProcess:
         self._child.end(timeout_s=2.0)
 
 
-def _serve_prepared(conn, source: str, params, imu_orientations) -> None:
+def _serve_prepared(conn, source: str, params) -> None:
+    from capture.reader import depth_frames  # noqa: F401  (imported while the host reads)
+    from capture.recorder import encode_depth  # noqa: F401
+
     try:
+        imu_orientations = conn.recv()
         for frame, q, pre in prepared_frames(source, params, imu_orientations):
             conn.send(("frame", _encoded(frame, q, pre)))
         conn.send(("end",))
-    except (BrokenPipeError, ConnectionResetError):
+    except (BrokenPipeError, ConnectionResetError, EOFError):
         pass  # the replay was stopped
     except CaptureError as e:
         conn.send(("error", str(e)))
@@ -200,11 +207,13 @@ def replay(source: str | Path, config, *, output: str | Path | None = None, spee
     if output.resolve() == source.resolve():
         raise CaptureError("the replay must go to a new file; the original is never modified")
     params = PreprocessParams.from_config(config)
-    imu, labels, events = recorded(rec)
     fast = not speed
-    # the reader process starts before the model loads here: its imports overlap with it
-    frames_in = _ReaderProcess(source, params, orientations(imu)) if fast else None
+    # the reader process starts first: its imports overlap with reading the IMU here
+    frames_in = _ReaderProcess(source, params) if fast else None
     try:
+        imu, labels, events = recorded(rec)
+        if frames_in is not None:
+            frames_in.start(orientations(imu))
         return _replay(source, rec, output, config, params, speed, classifier, progress,
                        frames_in if fast else ((frame, q, pre, None)  # encoded here
                                                for frame, q, pre in prepared_frames(
