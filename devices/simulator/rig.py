@@ -58,7 +58,10 @@ class MockRig:
         self._conn = self._child.conn
         ready = self._conn.poll(START_TIMEOUT_S) and self._receive_quietly()
         if not ready or ready[0] != "ready":
-            message = ready[1] if ready else "no answer"
+            code = self._child.process.poll()
+            message = ready[1] if ready else (
+                "no answer" if code is None else
+                f"its process exited with code {code} (WALKCAP_DEBUG=1 shows its errors)")
             self._kill()
             raise DeviceInitError(f"mock devices failed to start: {message}")
         info = ready[1]
@@ -148,6 +151,8 @@ class MockRig:
                     self.camera_device.on_event(*message[1:])
         except (EOFError, OSError) as e:
             log.debug("mock rig: %s", e)
+        except Exception:  # a bug here must show as a lost camera, not a silent stall
+            log.exception("mock rig reader")
         finally:
             with self._replied:
                 closing = self._closed
