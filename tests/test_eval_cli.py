@@ -203,3 +203,24 @@ def test_real_recording_end_to_end(capsys, tmp_path):
     truth = json.loads(out)["files"][0]["accuracy"]
     assert truth["cnn"] == pytest.approx(np.mean(
         np.argmax(recorded["probabilities"], axis=1) == recorded["truth"]))
+
+
+def test_a_folder_stands_for_its_recordings(capsys, monkeypatch, tmp_path):
+    trials = {}
+    for i in range(2):
+        t = ev.synthetic_trial(30 + i)
+        path = tmp_path / f"S1_indoor_t0{i + 1}.mcap"
+        path.write_bytes(b"")  # read through the stand-in reader below
+        trials[str(path)] = {
+            "probabilities": t.probabilities, "labels": [MODES[r] for r in t.reference],
+            "truth": None, "metadata": {"subject": "S1", "condition": "indoor"}}
+    reader = types.ModuleType("capture.reader")
+    reader.read_trial = lambda path: trials[str(path)]
+    monkeypatch.setitem(sys.modules, "capture.reader", reader)
+    code, out, err = run(capsys, "eval", "recordings", str(tmp_path), "--json")
+    assert code == 0, err
+    assert len(json.loads(out)["files"]) == 2
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    code, _, err = run(capsys, "eval", "recordings", str(empty))
+    assert code == 1 and "no .mcap recordings" in err

@@ -81,7 +81,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p = verbs.add_parser("recordings", help="the recorded CNN outputs of MCAP recordings",
                          description="Evaluate recordings against operator labels (or "
                          "simulator truth), grouped by subject and condition.")
-    p.add_argument("files", nargs="+", metavar="FILE.mcap")
+    p.add_argument("files", nargs="+", metavar="FILE.mcap",
+                   help="recordings, or folders of them")
     p.add_argument("--reference", choices=("auto", "labels", "truth"), default="auto",
                    help="what is true: operator labels, simulator truth, or auto (labels "
                    "when the recording has any)")
@@ -122,7 +123,7 @@ def run(args, config) -> int:
         trials = [ev.read_scores(path) for path in args.files]
     else:
         try:
-            trials = ev.load_trials_from_recordings(args.files, args.reference)
+            trials = ev.load_trials_from_recordings(_recordings(args.files), args.reference)
         except ev.RecordingsUnavailable as e:
             raise NotYetAvailable(f"recordings: {e}") from None
     per_trial = params
@@ -213,3 +214,22 @@ def format_report(data: dict, methods: list[str]) -> str:
 def _mean_sd(entry: dict, method: str) -> str:
     mean, sd = entry["mean"][method], entry["sd"][method]
     return _pct(mean) if sd is None else f"{_pct(mean)} ± {_pct(sd)}"
+
+
+def _recordings(paths: list[str]) -> list[str]:
+    """Files as given; a folder stands for the recordings in it (replays included)."""
+    from pathlib import Path
+
+    from inference.errors import InferenceError
+
+    out = []
+    for p in paths:
+        folder = Path(p)
+        if folder.is_dir():
+            found = sorted(str(f) for f in folder.glob("*.mcap"))
+            if not found:
+                raise InferenceError(f"{folder}: no .mcap recordings in this folder")
+            out += found
+        else:
+            out.append(p)
+    return out
