@@ -236,7 +236,8 @@ class Session:
         sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
         # A full garbage collection walks every object of torch, Open3D and the UI: 50-100 ms
         # with every thread stopped, a few times a minute (dropped frames, the p99). Objects
-        # alive now live for the session: freeze them out of the collector's walks.
+        # alive now live for the session: freeze them out of the collector's walks (until
+        # stop()).
         gc.collect()
         gc.freeze()
         if self._camera is None or self._imu is None:
@@ -264,6 +265,7 @@ class Session:
         self._threads.clear()
         stats = self.stop_recording() if self._recorder is not None else None
         close_devices(self._camera, self._imu)
+        gc.unfreeze()  # what the session held may be collected again (the UI runs on)
         return stats
 
     def __enter__(self) -> "Session":
