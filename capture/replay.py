@@ -24,7 +24,7 @@ import numpy as np
 from capture import topics as T
 from capture.errors import CaptureError
 from capture.pipeline import (CNN_THREADS, OrientationTrack, Pipeline, model_hash,
-                              record_decisions, record_result)
+                              record_decisions)
 from devices.frames import DepthFrame, ImuSample
 
 IMU_LOOKAHEAD_NS = 20_000_000  # samples recorded up to this long after a frame may be used
@@ -165,8 +165,9 @@ def _serve_prepared(conn, source: str, params) -> None:
 
 
 def _encoded(frame: DepthFrame, q, pre):
-    """What the recording needs of a frame that fusion does not change, encoded here in the
-    reader process; the frame and its Preprocessed without the bulky arrays travel along."""
+    """What the recording needs of a frame that fusion does not change, encoded (in the
+    reader process when replaying fast); the frame and its Preprocessed go on without
+    their bulky arrays. The rays come with the source's attachments."""
     from capture.recorder import encode_depth, encode_processed, encode_truth
 
     t, log_time = frame.device_time_ns, frame.host_time_ns
@@ -215,9 +216,9 @@ def replay(source: str | Path, config, *, output: str | Path | None = None, spee
         if frames_in is not None:
             frames_in.start(orientations(imu))
         return _replay(source, rec, output, config, params, speed, classifier, progress,
-                       frames_in if fast else ((frame, q, pre, None)  # encoded here
-                                               for frame, q, pre in prepared_frames(
-                                                   source, params, orientations(imu))),
+                       frames_in if fast else (_encoded(frame, q, pre) for frame, q, pre
+                                               in prepared_frames(source, params,
+                                                                  orientations(imu))),
                        (imu, labels, events))
     finally:
         if frames_in is not None:
@@ -278,11 +279,8 @@ def _replay(source, rec, output, config, params, speed, classifier, progress, pr
                     recorder.write_imu(imu[i_imu])
                     i_imu += 1
                 result = pipeline.process(frame, q, t, prepared=pre, probabilities=p)
-                if encoded is None:
-                    record_result(recorder, frame, result, frame.host_time_ns)
-                else:  # the sensor data came encoded from the reader process
-                    recorder.write_encoded(frame.index, t, frame.host_time_ns, encoded)
-                    record_decisions(recorder, result, frame.host_time_ns)
+                recorder.write_encoded(frame.index, t, frame.host_time_ns, encoded)
+                record_decisions(recorder, result, frame.host_time_ns)
                 frames += 1
                 if progress is not None:
                     progress(frames)
