@@ -19,6 +19,7 @@ import contextlib
 import io
 import json
 import os
+import struct
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Iterator
@@ -167,13 +168,11 @@ class _Decoders:
 
 def _iter_raw(path: Path, complete: bool, topics: set[str] | None):
     """(schema, channel, message) in file order."""
-    from mcap.reader import make_reader
     from mcap.records import Channel, Message, Schema
 
     with open(path, "rb") as f:
         if complete:
-            reader = make_reader(f)
-            yield from reader.iter_messages(topics=topics, log_time_order=False)
+            yield from _iter_indexed(f, topics)
             return
         schemas: dict[int, Schema] = {}
         channels: dict[int, Channel] = {}
@@ -187,6 +186,76 @@ def _iter_raw(path: Path, complete: bool, topics: set[str] | None):
                 if channel is None or (topics is not None and channel.topic not in topics):
                     continue
                 yield schemas.get(channel.schema_id), channel, record
+
+
+_CHUNK_HEAD = struct.Struct("<QQQIi")  # start, end, uncompressed size, crc, compression length
+_RECORD_HEAD = struct.Struct("<BQ")  # opcode, length
+_MESSAGE_HEAD = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
+_MESSAGE_OPCODE = 0x05
+
+
+def _iter_indexed(f, topics: set[str] | None):
+    """A finished file's messages chunk by chunk, in file order, through its index:
+    chunks without a wanted channel are not read, and one chunk is in memory at a time
+    (the mcap library's file-order iteration opens every chunk before the first message:
+    a whole long recording in memory, and a wait before anything comes)."""
+    from mcap.reader import make_reader
+    from mcap.records import Message
+
+    summary = make_reader(f).get_summary()
+    wanted = {cid for cid, c in summary.channels.items() if topics is None or c.topic in topics}
+    if not wanted:
+        return
+    for index in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
+        if index.message_index_offsets and wanted.isdisjoint(index.message_index_offsets):
+            continue
+        for cid, sequence, log_time, publish_time, data in _chunk_messages(
+                f, index.chunk_start_offset, index.chunk_length, wanted):
+            channel = summary.channels[cid]
+            yield (summary.schemas.get(channel.schema_id), channel,
+                   Message(channel_id=cid, sequence=sequence, log_time=log_time,
+                           publish_time=publish_time, data=data))
+
+
+def _chunk_messages(f, offset: int, length: int, wanted: set[int]):
+    """(channel id, sequence, log time, publish time, data) of the chunk record at
+    `offset`, for the wanted channels. Damage raises (ValueError, zstd's errors)."""
+    f.seek(offset)
+    record = f.read(length)
+    if len(record) != length or record[0] != 0x06:
+        raise ValueError(f"no chunk at byte {offset}")
+    _, _, size, _, name_length = _CHUNK_HEAD.unpack_from(record, 9)
+    at = 9 + _CHUNK_HEAD.size
+    compression = record[at:at + name_length].decode()
+    at += name_length
+    (data_length,) = struct.unpack_from("<Q", record, at)
+    data = memoryview(record)[at + 8:at + 8 + data_length]
+    if compression == "zstd":
+        import zstandard
+
+        records = zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
+    elif compression == "lz4":
+        import lz4.frame
+
+        records = lz4.frame.decompress(data)
+    elif compression == "":
+        records = bytes(data)
+    else:
+        raise ValueError(f"unknown chunk compression {compression!r}")
+    if len(records) != size:
+        raise ValueError(f"chunk at byte {offset}: {len(records)} bytes, not {size}")
+    at, end = 0, len(records)
+    while at < end:
+        opcode, body_length = _RECORD_HEAD.unpack_from(records, at)
+        at += _RECORD_HEAD.size
+        if at + body_length > end:
+            raise ValueError(f"chunk at byte {offset}: a record runs past its end")
+        if opcode == _MESSAGE_OPCODE:
+            cid, sequence, log_time, publish_time = _MESSAGE_HEAD.unpack_from(records, at)
+            if cid in wanted:
+                yield (cid, sequence, log_time, publish_time,
+                       records[at + _MESSAGE_HEAD.size:at + body_length])
+        at += body_length
 
 
 def open_recording(path: str | os.PathLike) -> Recording:
@@ -410,20 +479,28 @@ def depth_frames(path: str | os.PathLike) -> Iterator[DepthFrame]:
         return
     rays = rec.rays()
     geometry = rec.geometry()
-    truth = {}
-    if T.TRUTH in rec.topics:
-        for m in rec.messages([T.TRUTH]):
-            t = dict(m.data)
-            truth[int(t.pop("frame_index"))] = t
     parts = (T.DEPTH, T.CONFIDENCE) + ((T.GRAY,) if T.GRAY in rec.topics else ())
-    pending: dict[int, dict] = {}
-    for m in rec.messages(parts):
-        entry = pending.setdefault(m.sequence, {"log": m.log_time_ns, "pub": m.publish_time_ns})
-        entry[m.topic] = m.data
-        if all(p in entry for p in parts):
-            del pending[m.sequence]
-            yield _frame(m.sequence, entry, rays, geometry, truth.get(m.sequence))
-    for index, entry in sorted(pending.items()):  # a part lost (a cut file): best effort
+    with_truth = T.TRUTH in rec.topics
+    pending: dict[int, dict] = {}  # frames still missing a part
+    whole: dict[int, dict] = {}  # frames waiting for their truth
+    truth: dict[int, dict] = {}
+    last_truth = -1
+    # One pass: a frame's truth is written next to its depth; a frame goes out once its
+    # truth is read, or once a later frame's truth shows that it has none.
+    for m in rec.messages(parts + ((T.TRUTH,) if with_truth else ())):
+        if m.topic == T.TRUTH:
+            t = dict(m.data)
+            index = int(t.pop("frame_index"))
+            truth[index] = t
+            last_truth = max(last_truth, index)
+        else:
+            entry = pending.setdefault(m.sequence, {"log": m.log_time_ns, "pub": m.publish_time_ns})
+            entry[m.topic] = m.data
+            if all(p in entry for p in parts):
+                whole[m.sequence] = pending.pop(m.sequence)
+        for index in sorted(i for i in whole if not with_truth or i in truth or i < last_truth):
+            yield _frame(index, whole.pop(index), rays, geometry, truth.pop(index, None))
+    for index, entry in sorted({**whole, **pending}.items()):  # a cut file: best effort
         if T.DEPTH in entry:
             yield _frame(index, entry, rays, geometry, truth.get(index))
 

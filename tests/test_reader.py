@@ -108,6 +108,33 @@ def test_an_unfinished_file_reads_up_to_its_cut(recording, tmp_path):
     assert len(trial["frame_index"]) > 0
 
 
+def test_a_finished_file_is_read_one_chunk_at_a_time(tmp_path):
+    """Messages of the first chunk come before a later chunk is even opened (a long
+    recording is never all in memory): damage in the last chunk shows only once reached."""
+    from mcap.reader import make_reader
+
+    path = tmp_path / "long.mcap"
+    write_recording(path, seconds=2.0, chunk_interval_s=0.25)
+    with open(path, "rb") as f:
+        chunks = sorted(make_reader(f).get_summary().chunk_indexes,
+                        key=lambda c: c.chunk_start_offset)
+    assert len(chunks) >= 4
+    data = bytearray(path.read_bytes())
+    last = chunks[-1]
+    middle = last.chunk_start_offset + last.chunk_length // 2
+    data[middle:middle + 64] = bytes(64)  # zeros inside the last chunk's compressed data
+    path.write_bytes(bytes(data))
+    frames = depth_frames(path)
+    first = next(frames)
+    assert first.index == 0 and first.truth["mode"] == truth_mode(0)
+    with pytest.raises(CaptureError, match="damaged"):
+        list(frames)
+    # chunks without a wanted topic are skipped, not opened: the labels come out whole
+    rec = open_recording(path)
+    assert [m.data["mode"] for m in rec.messages(T.LABELS)] == \
+        [mode for _, mode, _ in label_schedule(2.0)]
+
+
 def test_missing_and_foreign_files_are_one_line_errors(tmp_path):
     with pytest.raises(CaptureError, match="no such file"):
         open_recording(tmp_path / "nope.mcap")
