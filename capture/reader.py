@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import contextlib
 import io
-import json
 import os
 import struct
 from dataclasses import dataclass, field
@@ -25,6 +24,7 @@ from pathlib import Path
 from typing import Any, Iterable, Iterator
 
 import numpy as np
+import orjson
 
 from capture import topics as T
 from capture.errors import CaptureError
@@ -156,7 +156,7 @@ class _Decoders:
         decoder = self._by_channel.get(channel.id)
         if decoder is None:
             if channel.message_encoding == "json":
-                decoder = json.loads
+                decoder = orjson.loads
             else:
                 decoder = self._protobuf.decoder_for(channel.message_encoding, schema)
                 if decoder is None:
