@@ -14,6 +14,10 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
+import queue
+import socket
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -118,24 +122,46 @@ def prepared_frames(source: str | Path, params, imu_orientations=None
 
 
 class _ReaderProcess:
-    """prepared_frames() run in a child process, read back in order."""
+    """prepared_frames() run in a child process, read back in order. A thread here takes
+    the frames off the socket as they come: the socket holds about one frame, so without
+    it the reader would stop while this process classifies a batch, and the two would
+    take turns instead of working at once."""
+
+    AHEAD = 64  # frames received and not yet taken (~10 MB)
 
     def __init__(self, source: Path, params) -> None:
         from devices.child import Child
 
         self._child = Child("capture.replay:_serve_prepared", str(source), params)
+        self._received: queue.Queue = queue.Queue(maxsize=self.AHEAD)
+        self._closed = threading.Event()
+        self._receiver = threading.Thread(target=self._receive, name="walkcap-replay-receiver",
+                                          daemon=True)
 
     def start(self, imu_orientations) -> None:
         """The IMU's orientations, read meanwhile in this process: frames start coming."""
         self._child.conn.send(imu_orientations)
+        self._receiver.start()
 
-    def __iter__(self):
+    def _receive(self) -> None:
         conn = self._child.conn
-        while True:
+        while not self._closed.is_set():
             try:
                 message = conn.recv()
             except (EOFError, OSError):
-                raise CaptureError("replay: the frame reader process ended unexpectedly") from None
+                message = ("error", "replay: the frame reader process ended unexpectedly")
+            while not self._closed.is_set():
+                try:
+                    self._received.put(message, timeout=0.2)
+                    break
+                except queue.Full:
+                    continue
+            if message[0] != "frame":
+                return
+
+    def __iter__(self):
+        while True:
+            message = self._received.get()
             if message[0] == "end":
                 return
             if message[0] == "error":
@@ -143,7 +169,16 @@ class _ReaderProcess:
             yield message[1]
 
     def close(self) -> None:
-        self._child.conn.close()  # a reader still sending sees the pipe break and ends
+        self._closed.set()
+        # Shut the socket down rather than close it under the receiving thread: its recv
+        # returns, and a reader still sending sees the connection break and ends.
+        try:
+            with socket.socket(fileno=os.dup(self._child.conn.fileno())) as end:
+                end.shutdown(socket.SHUT_RDWR)
+        except OSError:
+            pass
+        if self._receiver.is_alive():
+            self._receiver.join(timeout=2.0)
         self._child.end(timeout_s=2.0)
 
 

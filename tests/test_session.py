@@ -123,6 +123,38 @@ def test_replay_reproduces_the_trial_into_a_new_file(recorded, tmp_path):
         np.testing.assert_array_equal(x, y)  # the recorded millimetres, not a re-encoding
 
 
+def test_a_fast_replay_stopped_by_an_error_ends_its_reader(recorded, tmp_path, monkeypatch):
+    """The reader process is still sending when this side fails: it ends at once, and
+    what was recorded up to there stays readable."""
+    import capture.replay as R
+
+    readers = []
+
+    class Kept(R._ReaderProcess):
+        def __init__(self, *args):
+            super().__init__(*args)
+            readers.append(self)
+
+    monkeypatch.setattr(R, "_ReaderProcess", Kept)
+
+    class Failing(StandInClassifier):
+        def predict(self, image):
+            if len(calls) == 40:  # in the third block of 16
+                raise RuntimeError("classifier broke")
+            calls.append(1)
+            return super().predict(image)
+
+    calls: list = []
+    path, _, _ = recorded
+    started = time.monotonic()
+    with pytest.raises(RuntimeError, match="classifier broke"):
+        replay(path, Config(), output=tmp_path / "cut.mcap", classifier=Failing())
+    assert time.monotonic() - started < 10
+    (reader,) = readers
+    assert not reader._child.running() and not reader._receiver.is_alive()
+    assert open_recording(tmp_path / "cut.mcap").topics["/camera/depth"].count >= 1
+
+
 def test_replay_refuses_to_overwrite_its_source(recorded):
     path, _, _ = recorded
     with pytest.raises(CaptureError, match="new file"):
