@@ -21,6 +21,7 @@ raw points (total least squares, trimmed). Then:
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -77,7 +78,7 @@ class _Segment:
         return abs(self.angle_deg) <= FLAT_MAX_DEG or (
             rise <= FLAT_SHORT_RISE_M and abs(self.angle_deg) <= FLAT_SHORT_MAX_DEG)
 
-    @property
+    @functools.cached_property
     def level(self) -> float:
         return float(np.median(self.points[:, 1]))
 
@@ -89,10 +90,15 @@ def terrain_features(profile: np.ndarray, mode_hint: str | None = None) -> Terra
     the evidence needed for the matching kind.
     """
     pts = np.asarray(profile, dtype=np.float64).reshape(-1, 2)
-    pts = pts[np.all(np.isfinite(pts), axis=1) & (pts[:, 0] > 0)]
-    if len(pts) < MIN_POINTS:
+    x, z = pts[:, 0], pts[:, 1]
+    keep = (x > 0) & (x < np.inf) & np.isfinite(z)  # per column: all(axis=1) costs more
+    x, z = x[keep], z[keep]
+    if len(x) < MIN_POINTS:
         return TerrainFeatures()
-    angle = np.arctan2(pts[:, 1], pts[:, 0])
+    angle = np.arctan2(z, x)
+    by_angle = np.argsort(angle, kind="stable")  # a segment's own points: one slice
+    angle = angle[by_angle]
+    pts = np.column_stack((x[by_angle], z[by_angle]))
     segments = [s for run in _polyline_runs(pts, angle) for s in _fit_segments(run, pts, angle)]
     if not segments:
         return TerrainFeatures()
@@ -116,10 +122,12 @@ def _polyline_runs(pts: np.ndarray, angle: np.ndarray) -> list[np.ndarray]:
 
     Each run is (K, 4): x, z, bin low angle, bin high angle (radians).
     """
-    rng = np.hypot(pts[:, 0], pts[:, 1])
+    x, z = pts[:, 0], pts[:, 1]
+    rng = np.sqrt(x * x + z * z)
     width = np.radians(ANGLE_BIN_DEG)
     index = np.floor(angle / width).astype(np.int64)
-    order = np.lexsort((rng, index))
+    # By bin, then by range within it: one sort of a combined key (ranges < 100 m)
+    order = np.argsort(index * 128.0 + np.minimum(rng, 100.0), kind="stable")
     index, rng_sorted = index[order], rng[order]
     starts = np.flatnonzero(np.r_[True, index[1:] != index[:-1]])
     counts = np.diff(np.r_[starts, len(index)])
@@ -161,16 +169,17 @@ def _fit_segments(run: np.ndarray, pts: np.ndarray, angle: np.ndarray) -> list[_
         if hi - lo < 2:  # two vertices say nothing about a surface
             continue
         # A shared corner vertex belongs to both neighbours; their own points do not.
-        mine = np.flatnonzero((angle >= run[lo, 2]) & (angle < run[hi, 3]))
-        seg = _fit_line(pts, mine)
+        first, stop = np.searchsorted(angle, (run[lo, 2], run[hi, 3]))
+        seg = _fit_line(pts, np.arange(first, stop))
         if seg is not None:
             segments.append(seg)
     return segments
 
 
 def _fit_line(pts: np.ndarray, index: np.ndarray) -> _Segment | None:
-    """Total least squares line, refit once without the points beyond FIT_TRIM_M."""
-    points = pts[index]
+    """Total least squares line, refit once without the points beyond FIT_TRIM_M.
+    `index`: consecutive indices of the segment's points in `pts`."""
+    points = pts[index[0]:index[-1] + 1] if len(index) else pts[:0]
     for _ in range(2):
         if len(points) < 5:
             return None
