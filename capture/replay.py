@@ -263,6 +263,7 @@ def replay(source: str | Path, config, *, output: str | Path | None = None, spee
 def _replay(source, rec, output, config, params, speed, classifier, progress, prepared,
             recorded_streams) -> ReplayReport:
     from capture.recorder import Recorder
+    from inference import features  # noqa: F401  (imported now, not in the first frame's time)
     from inference.fusion import make_fusion
     from inference.model import load_classifier
 
