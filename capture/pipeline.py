@@ -244,5 +244,6 @@ def model_hash(classifier) -> str:
 def _features_dict(feats) -> dict:
     if feats is None:
         return {}
-    return {k: v for k, v in dataclasses.asdict(feats).items()
-            if v is None or isinstance(v, (int, float, str, bool))}
+    values = ((f.name, getattr(feats, f.name)) for f in dataclasses.fields(feats))
+    # the scalars only; asdict() would deep-copy the segment list first
+    return {k: v for k, v in values if v is None or isinstance(v, (int, float, str, bool))}
