@@ -199,7 +199,9 @@ class RigCamera(Camera):
     def __init__(self, rig: MockRig) -> None:
         super().__init__(rig.camera_config, geometry=rig.geometry)
         self.rig = rig
-        self.details = dict(rig.details, process="rig")
+        # frames the renderer skipped because it fell behind (a real camera has no
+        # renderer: counted apart from frames lost on their way, see `walkcap bench --soak`)
+        self.details = dict(rig.details, process="rig", renderer_skipped=0)
         self._rig_drops = 0  # frames the rig's own buffer dropped (cumulative, as reported)
 
     def _start(self) -> None:
@@ -229,7 +231,9 @@ class RigCamera(Camera):
                 self._fail(message)
         else:
             if kind == "gap":
-                self._count_error(int(details.get("skipped", 1)))
+                skipped = int(details.get("skipped", 1))
+                self._count_error(skipped)
+                self.details["renderer_skipped"] += skipped
             elif kind == "drop":  # the rig could not send fast enough: lost frames too
                 dropped = int(details.get("dropped", 0))
                 self._count_error(max(0, dropped - self._rig_drops))

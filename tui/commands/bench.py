@@ -40,6 +40,11 @@ def run(args, config) -> int:
     return 0
 
 
+def _skipped(camera) -> int:
+    """Frames the mock camera's renderer skipped when it fell behind (of the camera's errors)."""
+    return int((camera.details or {}).get("renderer_skipped", 0)) if camera else 0
+
+
 def _soak(bench, minutes: float, as_json: bool) -> int:
     import tempfile
 
@@ -54,7 +59,9 @@ def _soak(bench, minutes: float, as_json: bool) -> int:
         row = {"t_s": memory[0], "rss_mib": memory[1], "rig_rss_mib": memory[2],
                "frames": snap.frames, "latency_p50_ms": pct(50), "latency_p99_ms": pct(99),
                "latency_max_ms": pct(100),
-               "camera_dropped": snap.camera.dropped + snap.camera.errors if snap.camera else 0,
+               "camera_dropped": (snap.camera.dropped + snap.camera.errors - _skipped(snap.camera)
+                                  if snap.camera else 0),
+               "renderer_skipped": _skipped(snap.camera),
                "recorder_dropped": snap.recording.dropped if snap.recording else 0}
         rows.append(row)
         if not as_json:
