@@ -470,6 +470,9 @@ def labels_at(times_ns: np.ndarray, changes: list[tuple[int, str, str]]) -> np.n
     return out
 
 
+_TRUTH_WAIT_FRAMES = 64  # frames held back waiting for their truth, at most
+
+
 def depth_frames(path: str | os.PathLike) -> Iterator[DepthFrame]:
     """The recorded depth frames with xyz rebuilt from range and rays (within 0.5 mm along
     each ray), confidence as recorded, gray if recorded (else zeros), truth if present.
@@ -498,7 +501,10 @@ def depth_frames(path: str | os.PathLike) -> Iterator[DepthFrame]:
             entry[m.topic] = m.data
             if all(p in entry for p in parts):
                 whole[m.sequence] = pending.pop(m.sequence)
-        for index in sorted(i for i in whole if not with_truth or i in truth or i < last_truth):
+        ready = [i for i in whole if not with_truth or i in truth or i < last_truth]
+        if len(whole) > _TRUTH_WAIT_FRAMES:  # the truth stopped: wait no longer
+            ready = list(whole)
+        for index in sorted(ready):
             yield _frame(index, whole.pop(index), rays, geometry, truth.pop(index, None))
     for index, entry in sorted({**whole, **pending}.items()):  # a cut file: best effort
         if T.DEPTH in entry:

@@ -150,6 +150,8 @@ class _ReaderProcess:
                 message = conn.recv()
             except (EOFError, OSError):
                 message = ("error", "replay: the frame reader process ended unexpectedly")
+            except Exception as e:  # never leave the consumer waiting for nothing
+                message = ("error", f"replay: unreadable data from the frame reader ({e})")
             while not self._closed.is_set():
                 try:
                     self._received.put(message, timeout=0.2)

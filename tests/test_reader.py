@@ -9,7 +9,7 @@ from capture.errors import CaptureError
 from capture.reader import (depth_frames, find_gaps, labels_at, open_recording, read_trial)
 from capture.recorder import Recorder
 from devices.frames import MODES
-from recording_fixtures import (FPS, T0, frame_at, frame_time, label_schedule, probabilities,
+from recording_fixtures import (ATTACHMENTS, FPS, T0, frame_at, frame_time, label_schedule, probabilities,
                                 truth_mode, write_recording)
 
 
@@ -133,6 +133,36 @@ def test_a_finished_file_is_read_one_chunk_at_a_time(tmp_path):
     rec = open_recording(path)
     assert [m.data["mode"] for m in rec.messages(T.LABELS)] == \
         [mode for _, mode, _ in label_schedule(2.0)]
+
+
+def test_frames_after_the_truth_stops_come_out_as_they_are_read(tmp_path, monkeypatch):
+    """A frame waits for its truth only so long: where the truth stops, frames still
+    stream (damage at the end of the file shows after them, not before)."""
+    import capture.reader as reader
+    from mcap.reader import make_reader
+
+    monkeypatch.setattr(reader, "_TRUTH_WAIT_FRAMES", 4)
+    path = tmp_path / "half.mcap"
+    n = int(2 * FPS)
+    with Recorder(path, metadata={}, attachments=dict(ATTACHMENTS), chunk_interval_s=0.25) as rec:
+        for i in range(n):
+            frame = frame_at(i)
+            rec.write_frame(frame)
+            if i < 8:
+                rec.write_truth(i, frame.device_time_ns, frame.truth)
+    with open(path, "rb") as f:
+        last = max(make_reader(f).get_summary().chunk_indexes, key=lambda c: c.chunk_start_offset)
+    data = bytearray(path.read_bytes())
+    middle = last.chunk_start_offset + last.chunk_length // 2
+    data[middle:middle + 64] = bytes(64)
+    path.write_bytes(bytes(data))
+    frames = []
+    with pytest.raises(CaptureError, match="damaged"):
+        for frame in depth_frames(path):
+            frames.append(frame)
+    assert [f.index for f in frames] == list(range(len(frames))) and len(frames) > 16
+    assert all(f.truth["mode"] == truth_mode(f.index) for f in frames[:8])
+    assert all(f.truth is None for f in frames[8:])
 
 
 def test_missing_and_foreign_files_are_one_line_errors(tmp_path):
