@@ -234,14 +234,10 @@ def _chunk_messages(f, offset: int, length: int, wanted: set[int]):
         import zstandard
 
         records = zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
-    elif compression == "lz4":
-        import lz4.frame
-
-        records = lz4.frame.decompress(data)
     elif compression == "":
         records = bytes(data)
     else:
-        raise ValueError(f"unknown chunk compression {compression!r}")
+        raise ValueError(f"chunk compression {compression!r}: walkcap reads zstd or none")
     if len(records) != size:
         raise ValueError(f"chunk at byte {offset}: {len(records)} bytes, not {size}")
     at, end = 0, len(records)

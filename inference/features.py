@@ -170,16 +170,16 @@ def _fit_segments(run: np.ndarray, pts: np.ndarray, angle: np.ndarray) -> list[_
             continue
         # A shared corner vertex belongs to both neighbours; their own points do not.
         first, stop = np.searchsorted(angle, (run[lo, 2], run[hi, 3]))
-        seg = _fit_line(pts, np.arange(first, stop))
+        seg = _fit_line(pts, int(first), int(stop))
         if seg is not None:
             segments.append(seg)
     return segments
 
 
-def _fit_line(pts: np.ndarray, index: np.ndarray) -> _Segment | None:
-    """Total least squares line, refit once without the points beyond FIT_TRIM_M.
-    `index`: consecutive indices of the segment's points in `pts`."""
-    points = pts[index[0]:index[-1] + 1] if len(index) else pts[:0]
+def _fit_line(pts: np.ndarray, first: int, stop: int) -> _Segment | None:
+    """Total least squares line through pts[first:stop], refit once without the points
+    beyond FIT_TRIM_M."""
+    points, index = pts[first:stop], np.arange(first, stop)
     for _ in range(2):
         if len(points) < 5:
             return None
