@@ -162,13 +162,35 @@ class _ReaderProcess:
                 return
 
     def __iter__(self):
+        for batch in self.batches(1):
+            yield batch[0]
+
+    def batches(self, size: int):
+        """Lists of up to `size` frames: the first frame received, then those already
+        waiting. Classifying what has come rather than waiting for `size` keeps this
+        process busy from the first frame on; when it falls behind, batches fill up."""
+        batch: list = []
         while True:
-            message = self._received.get()
-            if message[0] == "end":
+            message = self._received.get() if not batch else self._waiting()
+            if message is None or message[0] != "frame":
+                if batch:
+                    yield batch
+                    batch = []
+                if message is None:
+                    continue
+                if message[0] == "error":
+                    raise CaptureError(message[1])
                 return
-            if message[0] == "error":
-                raise CaptureError(message[1])
-            yield message[1]
+            batch.append(message[1])
+            if len(batch) == size:
+                yield batch
+                batch = []
+
+    def _waiting(self):
+        try:
+            return self._received.get_nowait()
+        except queue.Empty:
+            return None
 
     def close(self) -> None:
         self._closed.set()
@@ -302,7 +324,9 @@ def _replay(source, rec, output, config, params, speed, classifier, progress, pr
             recorder.write_label(int(lab["time_ns"]), lab.get("mode", ""), lab.get("source", ""))
         for ev in events:
             recorder.write_event(dict(ev))
-        for block in _blocks(prepared, 1 if speed else BATCH):
+        blocks = prepared.batches(BATCH) if hasattr(prepared, "batches") else \
+            _blocks(prepared, 1 if speed else BATCH)
+        for block in blocks:
             probs = batch(np.stack([pre.image for _, _, pre, _ in block])) if batch is not None \
                 else [classifier.predict(pre.image) for _, _, pre, _ in block]
             for (frame, q, pre, encoded), p in zip(block, probs):

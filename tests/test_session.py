@@ -177,3 +177,24 @@ def test_fast_replay_in_two_processes_matches_a_paced_one(recorded, tmp_path):
     assert fast.frames == paced.frames > 30
     for key in ("frame_index", "probabilities", "cnn_decisions", "decisions", "voted"):
         np.testing.assert_array_equal(a[key], b[key])
+
+
+def test_fast_replay_classifies_what_has_come_without_waiting_for_a_full_batch():
+    """The first frame is classified as soon as it arrives; frames already waiting join
+    its batch (up to the size), and an error still gives the frames before it first."""
+    import queue
+
+    import capture.replay as R
+
+    reader = R._ReaderProcess.__new__(R._ReaderProcess)  # its queue alone, no process
+    reader._received = queue.Queue()
+    reader._received.put(("frame", 0))
+    batches = reader.batches(4)
+    assert next(batches) == [0]
+    for k in range(1, 7):
+        reader._received.put(("frame", k))
+    reader._received.put(("error", "the recording is damaged"))
+    assert next(batches) == [1, 2, 3, 4]
+    assert next(batches) == [5, 6]
+    with pytest.raises(CaptureError, match="damaged"):
+        next(batches)
