@@ -20,7 +20,6 @@ host's death (the pipe breaks).
 from __future__ import annotations
 
 import logging
-import os
 import sys
 import threading
 import time
@@ -39,7 +38,6 @@ log = logging.getLogger(__name__)
 
 START_TIMEOUT_S = 60.0  # a spawned interpreter imports Open3D and works out the course truth
 REPLY_TIMEOUT_S = 5.0
-RIG_NICE = 10  # the mock hardware yields the CPU to the session (see _serve)
 
 
 class MockRig:
@@ -275,10 +273,6 @@ class RigImu(XbusImu):
 def _serve(conn, camera_config, simulator_config, imu_config) -> None:
     """The rig's main: build the walk, camera and IMU emulator; answer requests; stream."""
     logging.basicConfig(level=logging.WARNING)
-    # Real sensors take no CPU from the host: where the rig and the session both want a
-    # core, the session goes first (its p99 latency at 45 fps drops by ~1 ms on 2 cores,
-    # the tail by half). Frames are stamped when the host receives them either way.
-    os.nice(RIG_NICE)
     # The renderer, the emulator and the frame sender share this process's GIL: a short
     # switch interval keeps each one's wait for it short (frames and samples on time).
     sys.setswitchinterval(0.0005)
