@@ -17,8 +17,8 @@ test: install
 
 install: system-deps $(STAMP) bytecode
 
-# Compiled once here: where PYTHONDONTWRITEBYTECODE is set (as on some lab machines and
-# CI), every process would otherwise compile walkcap's sources again at start, and
+# Compiled once here: where PYTHONDONTWRITEBYTECODE is set (as on the development
+# machines), every process would otherwise compile walkcap's sources again at start, and
 # replay's reader process would start 40-80 ms later. Up-to-date files are skipped.
 bytecode: $(STAMP)
 	@$(BIN)/python -m compileall -q capture devices inference tui >/dev/null

@@ -161,10 +161,6 @@ class _ReaderProcess:
             if message[0] != "frame":
                 return
 
-    def __iter__(self):
-        for batch in self.batches(1):
-            yield batch[0]
-
     def batches(self, size: int):
         """Lists of up to `size` frames: the first frame received, then those already
         waiting. Classifying what has come rather than waiting for `size` keeps this
