@@ -28,7 +28,7 @@ import orjson
 
 from capture import topics as T
 from capture.errors import CaptureError
-from capture.recovery import ScanResult, check_magic, scan
+from capture.recovery import RECORD_HEAD, ScanResult, check_magic, scan
 from devices.frames import MODES, CameraGeometry, DepthFrame
 
 
@@ -188,10 +188,7 @@ def _iter_raw(path: Path, complete: bool, topics: set[str] | None):
                 yield schemas.get(channel.schema_id), channel, record
 
 
-_CHUNK_HEAD = struct.Struct("<QQQIi")  # start, end, uncompressed size, crc, compression length
-_RECORD_HEAD = struct.Struct("<BQ")  # opcode, length
 _MESSAGE_HEAD = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
-_MESSAGE_OPCODE = 0x05
 
 
 def _iter_indexed(f, topics: set[str] | None):
@@ -219,34 +216,37 @@ def _iter_indexed(f, topics: set[str] | None):
 
 def _chunk_messages(f, offset: int, length: int, wanted: set[int]):
     """(channel id, sequence, log time, publish time, data) of the chunk record at
-    `offset`, for the wanted channels. Damage raises (ValueError, zstd's errors)."""
+    `offset`, for the wanted channels. Damage raises (ValueError, zstd's errors). The
+    records inside are walked here rather than by mcap's breakup_chunk, which builds an
+    object for every message: most are IMU samples a frame reader skips."""
+    from mcap.data_stream import ReadDataStream
+    from mcap.opcode import Opcode
+    from mcap.records import Chunk
+
     f.seek(offset)
     record = f.read(length)
-    if len(record) != length or record[0] != 0x06:
+    if len(record) != length or record[0] != Opcode.CHUNK:
         raise ValueError(f"no chunk at byte {offset}")
-    _, _, size, _, name_length = _CHUNK_HEAD.unpack_from(record, 9)
-    at = 9 + _CHUNK_HEAD.size
-    compression = record[at:at + name_length].decode()
-    at += name_length
-    (data_length,) = struct.unpack_from("<Q", record, at)
-    data = memoryview(record)[at + 8:at + 8 + data_length]
-    if compression == "zstd":
+    chunk = Chunk.read(ReadDataStream(io.BytesIO(memoryview(record)[RECORD_HEAD.size:])))
+    if chunk.compression == "zstd":
         import zstandard
 
-        records = zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
-    elif compression == "":
-        records = bytes(data)
+        records = zstandard.ZstdDecompressor().decompress(
+            chunk.data, max_output_size=chunk.uncompressed_size)
+    elif chunk.compression == "":
+        records = chunk.data
     else:
-        raise ValueError(f"chunk compression {compression!r}: walkcap reads zstd or none")
-    if len(records) != size:
-        raise ValueError(f"chunk at byte {offset}: {len(records)} bytes, not {size}")
+        raise ValueError(f"chunk compression {chunk.compression!r}: walkcap reads zstd or none")
+    if len(records) != chunk.uncompressed_size:
+        raise ValueError(f"chunk at byte {offset}: {len(records)} bytes, "
+                         f"not {chunk.uncompressed_size}")
     at, end = 0, len(records)
     while at < end:
-        opcode, body_length = _RECORD_HEAD.unpack_from(records, at)
-        at += _RECORD_HEAD.size
+        opcode, body_length = RECORD_HEAD.unpack_from(records, at)
+        at += RECORD_HEAD.size
         if at + body_length > end:
             raise ValueError(f"chunk at byte {offset}: a record runs past its end")
-        if opcode == _MESSAGE_OPCODE:
+        if opcode == Opcode.MESSAGE:
             cid, sequence, log_time, publish_time = _MESSAGE_HEAD.unpack_from(records, at)
             if cid in wanted:
                 yield (cid, sequence, log_time, publish_time,

@@ -31,7 +31,7 @@ from capture.journal import journal_path, read_journal
 log = logging.getLogger(__name__)
 
 MAGIC = bytes([137, 77, 67, 65, 80, 48, 13, 10])
-_HEADER = struct.Struct("<BQ")
+RECORD_HEAD = struct.Struct("<BQ")  # opcode, length: before every record
 _KNOWN_OPCODES = {int(op) for op in Opcode}
 _RECORD_LIMIT = 1 << 31  # no walkcap record comes near 2 GiB: a bigger length is garbage
 
@@ -81,11 +81,11 @@ def scan(stream: BinaryIO, result: ScanResult | None = None) -> Iterator[McapRec
     offset = len(MAGIC)
     result.valid_end = offset
     while True:
-        head = stream.read(_HEADER.size)
-        if len(head) < _HEADER.size:
+        head = stream.read(RECORD_HEAD.size)
+        if len(head) < RECORD_HEAD.size:
             result.reason = f"cut off at byte {offset}" if head else "ends without a footer"
             return
-        opcode, length = _HEADER.unpack(head)
+        opcode, length = RECORD_HEAD.unpack(head)
         if opcode not in _KNOWN_OPCODES and opcode < 0x80 or length > _RECORD_LIMIT:
             result.reason = f"unreadable data from byte {offset} (opcode {opcode:#x})"
             return
@@ -98,7 +98,7 @@ def scan(stream: BinaryIO, result: ScanResult | None = None) -> Iterator[McapRec
         except Exception as e:  # damaged: stop here, everything before is good
             result.reason = f"damaged record at byte {offset}: {e}"
             return
-        offset += _HEADER.size + length
+        offset += RECORD_HEAD.size + length
         if opcode == Opcode.FOOTER:
             result.complete = stream.read(len(MAGIC)) == MAGIC
             if not result.complete:

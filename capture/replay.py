@@ -226,26 +226,14 @@ def _encoded(frame: DepthFrame, q, pre):
     from capture.recorder import encode_depth, encode_processed, encode_truth
 
     t, log_time = frame.device_time_ns, frame.host_time_ns
-    oriented = q if q is not None and np.all(np.isfinite(q)) else None
     messages = encode_depth(frame, t, log_time) + encode_processed(
-        frame.index, t, log_time, pre.cloud, pre.image, oriented, pre.flag)
+        frame.index, t, log_time, pre.cloud, pre.image, q, pre.flag)
     if frame.truth:
         messages += encode_truth(frame.index, t, log_time, frame.truth)
     none = np.zeros((0, 0), np.uint8)
     slim = dataclasses.replace(frame, xyz=np.zeros((0, 0, 3), np.float32), confidence=none,
                                gray=none, range_mm=None)
     return slim, q, dataclasses.replace(pre, cloud=np.zeros((0, 3), np.float32)), messages
-
-
-def _blocks(items, size: int):
-    block = []
-    for item in items:
-        block.append(item)
-        if len(block) == size:
-            yield block
-            block = []
-    if block:
-        yield block
 
 
 def replay(source: str | Path, config, *, output: str | Path | None = None, speed: float | None = None,
@@ -270,17 +258,19 @@ def replay(source: str | Path, config, *, output: str | Path | None = None, spee
         imu, labels, events = recorded(rec)
         if frames_in is not None:
             frames_in.start(orientations(imu))
+        if fast:  # classified in batches as they come
+            blocks = frames_in.batches(BATCH)
+        else:  # one by one, at the recorded pace
+            blocks = ([_encoded(frame, q, pre)] for frame, q, pre
+                      in prepared_frames(source, params, orientations(imu)))
         return _replay(source, rec, output, config, params, speed, classifier, progress,
-                       frames_in if fast else (_encoded(frame, q, pre) for frame, q, pre
-                                               in prepared_frames(source, params,
-                                                                  orientations(imu))),
-                       (imu, labels, events))
+                       blocks, (imu, labels, events))
     finally:
         if frames_in is not None:
             frames_in.close()
 
 
-def _replay(source, rec, output, config, params, speed, classifier, progress, prepared,
+def _replay(source, rec, output, config, params, speed, classifier, progress, blocks,
             recorded_streams) -> ReplayReport:
     from capture.recorder import Recorder
     from inference import features  # noqa: F401  (imported now, not in the first frame's time)
@@ -320,8 +310,6 @@ def _replay(source, rec, output, config, params, speed, classifier, progress, pr
             recorder.write_label(int(lab["time_ns"]), lab.get("mode", ""), lab.get("source", ""))
         for ev in events:
             recorder.write_event(dict(ev))
-        blocks = prepared.batches(BATCH) if hasattr(prepared, "batches") else \
-            _blocks(prepared, 1 if speed else BATCH)
         for block in blocks:
             probs = batch(np.stack([pre.image for _, _, pre, _ in block])) if batch is not None \
                 else [classifier.predict(pre.image) for _, _, pre, _ in block]
