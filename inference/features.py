@@ -95,11 +95,14 @@ def terrain_features(profile: np.ndarray, mode_hint: str | None = None) -> Terra
     x, z = x[keep], z[keep]
     if len(x) < MIN_POINTS:
         return TerrainFeatures()
-    angle = np.arctan2(z, x)
-    by_angle = np.argsort(angle, kind="stable")  # a segment's own points: one slice
-    angle = angle[by_angle]
-    pts = np.column_stack((x[by_angle], z[by_angle]))
-    segments = [s for run in _polyline_runs(pts, angle) for s in _fit_segments(run, pts, angle)]
+    # Sorted by angle bin, then by range within the bin (ranges < 100 m): the polyline's
+    # medians are the middle of each bin, and a segment's own points are one slice.
+    rng = np.sqrt(x * x + z * z)
+    bins = np.floor(np.arctan2(z, x) * (1.0 / np.radians(ANGLE_BIN_DEG))).astype(np.int64)
+    order = np.argsort(bins * 128.0 + np.minimum(rng, 100.0), kind="stable")
+    pts = np.column_stack((x[order], z[order]))
+    bins, rng = bins[order], rng[order]
+    segments = [s for run in _polyline_runs(bins, rng) for s in _fit_segments(run, pts, bins)]
     if not segments:
         return TerrainFeatures()
     explained = np.zeros(len(pts), bool)
@@ -117,31 +120,26 @@ def terrain_features(profile: np.ndarray, mode_hint: str | None = None) -> Terra
     return result
 
 
-def _polyline_runs(pts: np.ndarray, angle: np.ndarray) -> list[np.ndarray]:
-    """Median range per elevation-angle bin, near to far, cut at range jumps.
+def _polyline_runs(bins: np.ndarray, rng: np.ndarray) -> list[np.ndarray]:
+    """Median range per elevation-angle bin, near to far, cut at range jumps. `bins` and
+    `rng` are sorted by bin, then by range.
 
-    Each run is (K, 4): x, z, bin low angle, bin high angle (radians).
+    Each run is (K, 4): x, z, first bin, bin after the last (the vertex's own bin).
     """
-    x, z = pts[:, 0], pts[:, 1]
-    rng = np.sqrt(x * x + z * z)
     width = np.radians(ANGLE_BIN_DEG)
-    index = np.floor(angle / width).astype(np.int64)
-    # By bin, then by range within it: one sort of a combined key (ranges < 100 m)
-    order = np.argsort(index * 128.0 + np.minimum(rng, 100.0), kind="stable")
-    index, rng_sorted = index[order], rng[order]
-    starts = np.flatnonzero(np.r_[True, index[1:] != index[:-1]])
-    counts = np.diff(np.r_[starts, len(index)])
+    starts = np.flatnonzero(np.r_[True, bins[1:] != bins[:-1]])
+    counts = np.diff(np.r_[starts, len(bins)])
     keep = counts >= MIN_BIN_POINTS
     starts, counts = starts[keep], counts[keep]
-    median_rng = rng_sorted[starts + counts // 2]  # sorted by range within each bin
-    bins = index[starts]
-    centre = (bins + 0.5) * width
+    median_rng = rng[starts + counts // 2]
+    own = bins[starts]
+    centre = (own + 0.5) * width
     vertices = np.stack([median_rng * np.cos(centre), median_rng * np.sin(centre),
-                         bins * width, (bins + 1) * width], axis=1)
+                         own, own + 1], axis=1)
     if len(vertices) < 2:
         return []
     step = np.hypot(*np.diff(vertices[:, :2], axis=0).T)
-    cuts = np.flatnonzero((step > BREAK_GAP_M) | (np.diff(bins) > 3)) + 1
+    cuts = np.flatnonzero((step > BREAK_GAP_M) | (np.diff(own) > 3)) + 1
     return [run for run in np.split(vertices, cuts) if len(run) >= 3]
 
 
@@ -161,7 +159,7 @@ def _split(vertices: np.ndarray, lo: int, hi: int, out: list[tuple[int, int]]) -
     out.append((lo, hi))
 
 
-def _fit_segments(run: np.ndarray, pts: np.ndarray, angle: np.ndarray) -> list[_Segment]:
+def _fit_segments(run: np.ndarray, pts: np.ndarray, bins: np.ndarray) -> list[_Segment]:
     pieces: list[tuple[int, int]] = []
     _split(run, 0, len(run) - 1, pieces)
     segments = []
@@ -169,7 +167,7 @@ def _fit_segments(run: np.ndarray, pts: np.ndarray, angle: np.ndarray) -> list[_
         if hi - lo < 2:  # two vertices say nothing about a surface
             continue
         # A shared corner vertex belongs to both neighbours; their own points do not.
-        first, stop = np.searchsorted(angle, (run[lo, 2], run[hi, 3]))
+        first, stop = np.searchsorted(bins, (run[lo, 2], run[hi, 3]))
         seg = _fit_line(pts, int(first), int(stop))
         if seg is not None:
             segments.append(seg)
