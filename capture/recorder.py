@@ -2,7 +2,7 @@
 
 Callers (the session's threads) hand data to `write_*`; each call only puts a reference
 into a bounded queue and returns. The writer thread encodes (capture.topics), writes zstd
-chunks and closes a chunk at least every `chunk_interval_s`, by the wall clock and by the
+chunks (level 3; replays level 1, see ZSTD_LEVEL_FAST) and closes a chunk at least every `chunk_interval_s`, by the wall clock and by the
 data's own time span (so replayed or synthetic data is chunked the same way), then fsyncs.
 A kill loses at most the open chunk: about a second. If the queue is full the item is
 dropped, counted, and the count written to /events at the next chunk: never silently.
@@ -49,6 +49,38 @@ log = logging.getLogger(__name__)
 IDLE, RECORDING, STOPPED, FAILED = "idle", "recording", "stopped", "failed"
 _STOP = object()
 _OPERATOR_KINDS = ("marker", "note")
+
+ZSTD_LEVEL = 3  # zstandard's default: the live recording's size goal (2.5 MB/s at 45 fps)
+ZSTD_LEVEL_FAST = 1  # replay: 20 % larger files for a third of the compression time
+
+
+class _ZstdAtLevel(threading.local):
+    """Stands in for the zstandard module inside mcap's writer, which compresses every
+    chunk with `zstandard.compress(data)` at level 3 and has no setting for the level
+    (mcap 1.6). Each recorder's writer thread sets its own level here; any other use
+    goes to the real module. Should mcap stop calling `zstandard.compress`, chunks are
+    simply written at mcap's own level."""
+
+    level = ZSTD_LEVEL
+
+    def __init__(self, module) -> None:
+        self._module = module
+
+    def compress(self, data: bytes) -> bytes:
+        return self._module.ZstdCompressor(level=self.level).compress(data)
+
+    def __getattr__(self, name: str):
+        return getattr(self._module, name)
+
+
+def _zstd_levels() -> _ZstdAtLevel:
+    """The stand-in, installed in mcap's writer on first use."""
+    import mcap.writer
+
+    if not isinstance(mcap.writer.zstandard, _ZstdAtLevel):
+        mcap.writer.zstandard = _ZstdAtLevel(mcap.writer.zstandard)
+    return mcap.writer.zstandard
+
 
 MEDIA_TYPES = {".toml": "application/toml", ".json": "application/json",
                ".npy": "application/x-npy", ".txt": "text/plain", ".yaml": "application/yaml"}
@@ -135,7 +167,7 @@ class Recorder:
                  attachments: dict[str, bytes] | None = None, queue_size: int = 512,
                  chunk_interval_s: float = 1.0, gray: bool = False,
                  cloud_max_points: int = CLOUD_MAX_POINTS, cloud_voxel_m: float = CLOUD_VOXEL_M,
-                 blocking: bool = False) -> None:
+                 blocking: bool = False, zstd_level: int = ZSTD_LEVEL) -> None:
         self.path = Path(path)
         self.journal_path = journal_path(self.path)
         self._metadata = {name: {str(k): str(v) for k, v in values.items()}
@@ -151,6 +183,7 @@ class Recorder:
         # Offline writers (replay, synth) wait for the disk instead of dropping: nothing live
         # is waiting on them.
         self._blocking = blocking
+        self._zstd_level = zstd_level
         self._state = IDLE
         self._message = ""
         self._accepting = False
@@ -400,6 +433,7 @@ class Recorder:
     # ---- the writer thread --------------------------------------------------------------
 
     def _run(self) -> None:
+        _zstd_levels().level = self._zstd_level  # every chunk is compressed on this thread
         try:
             while True:
                 self._drain_priority()

@@ -272,7 +272,7 @@ def replay(source: str | Path, config, *, output: str | Path | None = None, spee
 
 def _replay(source, rec, output, config, params, speed, classifier, progress, blocks,
             recorded_streams) -> ReplayReport:
-    from capture.recorder import Recorder
+    from capture.recorder import ZSTD_LEVEL_FAST, Recorder
     from inference import features  # noqa: F401  (imported now, not in the first frame's time)
     from inference.fusion import make_fusion
     from inference.model import load_classifier
@@ -298,7 +298,8 @@ def _replay(source, rec, output, config, params, speed, classifier, progress, bl
     })
     metadata["software"] = software
     attachments = {name: data for name, data in rec.attachments.items()}
-    recorder = Recorder(output, metadata=metadata, attachments=attachments, blocking=True)
+    recorder = Recorder(output, metadata=metadata, attachments=attachments, blocking=True,
+                        zstd_level=ZSTD_LEVEL_FAST)
     recorder.start()
     batch = getattr(classifier, "predict_batch", None)
     i_imu = 0

@@ -72,11 +72,12 @@ def label_schedule(seconds: float) -> list[tuple[int, str, str]]:
 
 
 def write_recording(path: str | Path, seconds: float = 2.0, *, chunk_interval_s: float = 1.0,
-                    queue_size: int = 100_000, close: bool = True, gray: bool = False) -> Recorder:
+                    queue_size: int = 100_000, close: bool = True, gray: bool = False,
+                    zstd_level: int = 3) -> Recorder:
     """Every topic, in the order a session writes them; returns the (closed) recorder."""
     rec = Recorder(path, metadata=METADATA, attachments=ATTACHMENTS, queue_size=queue_size,
                    cloud_voxel_m=0.0,  # exact clouds, to compare what comes back
-                   chunk_interval_s=chunk_interval_s, gray=gray)
+                   chunk_interval_s=chunk_interval_s, gray=gray, zstd_level=zstd_level)
     rec.start()
     labels = label_schedule(seconds)
     n_frames = int(seconds * FPS)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import errno
 import json
 import os
+import threading
 import time
 
 import jsonschema
@@ -225,6 +226,23 @@ def test_chunks_close_every_second_of_data_and_by_the_wall_clock(tmp_path):
         time.sleep(0.05)
     assert rec.stats().bytes_per_s > 0 and rec.stats().chunks >= 2
     rec.close()
+
+
+def test_each_recorder_compresses_at_its_own_level(tmp_path):
+    # Two recorders at once, as a replay might run beside a live session's recording.
+    fast, small = tmp_path / "fast.mcap", tmp_path / "small.mcap"
+    threads = [threading.Thread(target=write_recording, args=(path,),
+                                kwargs={"seconds": 2.0, "zstd_level": level})
+               for path, level in ((fast, 1), (small, 19))]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert fast.stat().st_size > 1.1 * small.stat().st_size
+    a, b = decode_all(fast), decode_all(small)
+    assert a.keys() == b.keys()
+    for topic in a:
+        assert [m.data for m, _ in a[topic]] == [m.data for m, _ in b[topic]], topic
 
 
 def disk_full_after(budget: int):
