@@ -46,7 +46,9 @@ class MockCamera(Camera):
                 from capture.config import SimulatorConfig
 
                 simulator_config = SimulatorConfig()
-            simulator = Simulator.from_config(simulator_config, self.geometry)
+            # One thread per frame's ray cast: the session's pipeline keeps the other core,
+            # as beside a real camera (all cores only cut the cast's wall time).
+            simulator = Simulator.from_config(simulator_config, self.geometry, cast_threads=1)
             if realtime is None:
                 realtime = simulator_config.realtime
         self.simulator = simulator

@@ -15,9 +15,6 @@ analytically in the camera frame, so the scene never changes per frame.
 """
 from __future__ import annotations
 
-import os
-import threading
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -116,26 +113,12 @@ def _subdivide(x, z, labels, step):
     return np.array(out_x), np.array(out_z), np.array(out_l, dtype=np.int32)
 
 
-_POOL: ThreadPoolExecutor | None = None
-_POOL_LOCK = threading.Lock()
-CAST_THREADS = max(1, min(4, os.cpu_count() or 1))
-
-
-def _pool() -> ThreadPoolExecutor:
-    """Threads shared by every scene: Open3D releases the GIL while casting, and its own
-    threading does not speed up one image's rays, so image bands are cast in parallel."""
-    global _POOL
-    with _POOL_LOCK:
-        if _POOL is None:
-            _POOL = ThreadPoolExecutor(CAST_THREADS, thread_name_prefix="walkcap-raycast")
-        return _POOL
-
-
 class TerrainScene:
     """The course as an Open3D RaycastingScene, cast from a camera pose, one ray per pixel."""
 
-    def __init__(self, course: Course, rays_cam: np.ndarray) -> None:
-        """`rays_cam`: unit ray per pixel in the camera frame, (n, 3) float32."""
+    def __init__(self, course: Course, rays_cam: np.ndarray, threads: int = 0) -> None:
+        """`rays_cam`: unit ray per pixel in the camera frame, (n, 3) float32; `threads`:
+        Open3D's threads per cast, 0 for all cores."""
         import open3d as o3d
 
         self._o3d = o3d
@@ -152,8 +135,7 @@ class TerrainScene:
         # rays = [1, direction] @ [[origin, 0], [0, R^T]]: origin and direction in one product
         self._homogeneous = np.hstack([np.ones((len(rays_cam), 1), np.float32), rays_cam])
         self._transform = np.zeros((4, 6), np.float32)
-        bounds = np.linspace(0, len(rays_cam), CAST_THREADS + 1).astype(int)
-        self._bands = [slice(a, b) for a, b in zip(bounds, bounds[1:])]
+        self._threads = threads
         # the first cast commits the scene: do it here, not in racing threads
         self.scene.cast_rays(o3d.core.Tensor(np.zeros((1, 6), np.float32)))
 
@@ -162,26 +144,12 @@ class TerrainScene:
         self._transform[0, :3] = pose[:3, 3]
         self._transform[1:, 3:] = pose[:3, :3].T
         rays = self._homogeneous @ self._transform
-        n = len(rays)
-        hits = Hits(np.empty(n, np.float32), np.empty(n, np.int32), np.empty(n, np.float32),
-                    np.empty(n, np.float32))
-        if len(self._bands) == 1:
-            self._cast_band(rays, hits, self._bands[0])
-        else:
-            for job in [_pool().submit(self._cast_band, rays, hits, band)
-                        for band in self._bands]:
-                job.result()
-        return hits
-
-    def _cast_band(self, rays: np.ndarray, hits: Hits, band: slice) -> None:
-        ans = self.scene.cast_rays(self._o3d.core.Tensor.from_numpy(rays[band]))
-        hits.t[band] = ans["t_hit"].numpy()
+        ans = self.scene.cast_rays(self._o3d.core.Tensor.from_numpy(rays), nthreads=self._threads)
         # a miss has primitive id INVALID_ID (2**32 - 1): clamp it to the extra entry
         index = np.minimum(ans["primitive_ids"].numpy(), self._no_hit)
-        hits.label[band] = self._labels[index]
-        hits.albedo[band] = self._albedo[index]
-        cos_inc = np.einsum("ij,ij->i", ans["primitive_normals"].numpy(), rays[band, 3:])
-        np.abs(cos_inc, out=hits.cos_inc[band])
+        cos_inc = np.einsum("ij,ij->i", ans["primitive_normals"].numpy(), rays[:, 3:])
+        return Hits(t=ans["t_hit"].numpy().copy(), label=self._labels[index],
+                    cos_inc=np.abs(cos_inc), albedo=self._albedo[index])
 
 
 def draw_foot(hits: Hits, geometry: CameraGeometry, progress: float, strength: float,

@@ -59,10 +59,11 @@ class Simulator:
                  speed_mps: float = 1.1, cadence_spm: float = 105.0,
                  camera_height_m: float = 0.55, camera_tilt_deg: float = 35.0, seed: int = 0,
                  camera_offset_m: float = 0.07, error_rate: float | None = None,
-                 events=None) -> None:
+                 events=None, cast_threads: int = 0) -> None:
         """`camera_offset_m`: the camera's distance in front of the thigh's axis;
         `error_rate` scales the error images (default 1 indoors, 1.6 outdoors); `events`
-        (ErrorEvent list) replaces their random schedule, e.g. [] for none."""
+        (ErrorEvent list) replaces their random schedule, e.g. [] for none; `cast_threads`:
+        threads per ray cast (0: all cores)."""
         if error_rate is None:
             error_rate = OUTDOOR_ERROR_RATE if course.outdoor else 1.0
         self.course = course
@@ -73,7 +74,7 @@ class Simulator:
                          camera_forward_m=camera_offset_m, error_rate=error_rate, seed=seed,
                          events=events)
         self.sensor = ToFSensor(geometry, ToFParams.for_course(course), seed)
-        self.scene = TerrainScene(course, self.sensor.rays_cam)
+        self.scene = TerrainScene(course, self.sensor.rays_cam, cast_threads)
         c = int(round(geometry.cx))
         cols = np.arange(max(0, c - CORRIDOR_PX), min(geometry.width, c + CORRIDOR_PX + 1))
         self._corridor = (np.arange(geometry.height)[:, None] * geometry.width + cols).ravel()
@@ -84,14 +85,16 @@ class Simulator:
         self._truth: np.ndarray | None = None  # truth segment per VOTE_DT_S, when first asked
 
     @classmethod
-    def from_config(cls, config, geometry: CameraGeometry | None = None) -> "Simulator":
+    def from_config(cls, config, geometry: CameraGeometry | None = None,
+                    cast_threads: int = 0) -> "Simulator":
         """From a capture.config.SimulatorConfig (course preset, seed, walker, camera)."""
         try:
             course = make_course(config.course, config.seed)
             return cls(course, geometry=geometry or CameraGeometry(),
                        speed_mps=config.speed_mps, cadence_spm=config.cadence_spm,
                        camera_height_m=config.camera_height_m,
-                       camera_tilt_deg=config.camera_tilt_deg, seed=config.seed)
+                       camera_tilt_deg=config.camera_tilt_deg, seed=config.seed,
+                       cast_threads=cast_threads)
         except ValueError as e:
             raise ConfigError(f"simulator: {e}") from None
 
