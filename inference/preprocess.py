@@ -220,17 +220,20 @@ def _corridor_numpy(xyz: np.ndarray, confidence: np.ndarray, level: np.ndarray,
                     params: PreprocessParams) -> np.ndarray:
     flat = xyz.reshape(-1, 3)
     rows = level.astype(np.float32)
-    # Crop on x and y before computing z: most pixels leave here. NaNs fail every test.
+    # Crop on y (and confidence) before computing x and z: nine pixels in ten leave here.
+    # NaNs fail every test.
     with np.errstate(invalid="ignore", over="ignore"):
         y = flat @ rows[1]
-        x = flat @ rows[0]
     half = params.corridor_width_m / 2
-    mask = (confidence.reshape(-1) >= params.min_confidence) & (np.abs(y) <= half)
-    mask &= (x >= params.min_forward_m) & (x <= params.max_forward_m)
+    keep = np.flatnonzero((np.abs(y) <= half)
+                          & (confidence.reshape(-1) >= params.min_confidence))
+    near = flat[keep]
     with np.errstate(invalid="ignore", over="ignore"):
-        z = flat[mask] @ rows[2]
-    cloud = np.stack([x[mask], y[mask], z], axis=1)
-    cloud = cloud[(z >= params.min_height_m) & (z <= params.max_height_m)]
+        x = near @ rows[0]
+        z = near @ rows[2]
+    inside = ((x >= params.min_forward_m) & (x <= params.max_forward_m)
+              & (z >= params.min_height_m) & (z <= params.max_height_m))
+    cloud = np.stack([x[inside], y[keep[inside]], z[inside]], axis=1)
     if params.outlier_min_points > 1 and len(cloud):
         cloud = cloud[_dense_cells(cloud[:, 0], cloud[:, 2], params.outlier_cell_m,
                                    params.outlier_min_points)]
