@@ -176,15 +176,17 @@ def test_replay_screen_snapshot(recording, snap_compare):
     source = ReplaySource(recording, play=False)
 
     async def at_stairs(pilot):
-        for _ in range(100):
+        # Generous bounds: a loaded CI machine may take seconds to load and redraw.
+        for _ in range(1500):
             if pilot.app.ready:
                 break
             await pilot.pause(0.02)
         source.seek(2.2)
-        for _ in range(100):  # the image and the profile redraw at most 10 times a second
+        for _ in range(600):  # the image and the profile redraw at most 10 times a second
             await pilot.pause(0.05)
             if pilot.app.screen.settled() and pilot.app.screen._snapshot.latest.index == 33:
                 break
+        assert pilot.app.screen._snapshot.latest.index == 33, "the replay did not reach frame 33"
         await pilot.pause()
 
     app = WalkcapApp(Config(), session=source, ask_subject=False, start_status="loading…")

@@ -13,11 +13,12 @@ from tui_fake_session import FakeSession
 
 async def _until_live(pilot) -> None:
     app = pilot.app
-    for _ in range(200):
+    # Generous bounds: a loaded CI machine may take seconds to start and redraw.
+    for _ in range(1500):
         if app.ready and isinstance(app.screen, LiveScreen):
             break
         await pilot.pause(0.02)
-    for _ in range(100):
+    for _ in range(600):
         await pilot.pause(0.05)
         if app.screen.settled():
             break

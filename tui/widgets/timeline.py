@@ -93,14 +93,21 @@ class TimelineStrips(Widget):
         if key == self._key:
             return
         self._key = key
+        rows = len(self._rows())
         self._entries, self._now_ns = list(entries), now_ns
-        self.refresh()
+        # The height follows the rows: a new one (the simulator's truth) needs a new layout,
+        # or the time axis below it is cut off.
+        self.refresh(layout=len(self._rows()) != rows)
 
-    def render(self) -> Text:
-        width = max(1, self.size.width - _NAME_WIDTH)
+    def _rows(self) -> list[tuple[str, str]]:
         rows = list(self.ROWS)
         if any(getattr(e, "truth", None) for e in self._entries):
             rows.append(("sim", "truth"))
+        return rows
+
+    def render(self) -> Text:
+        width = max(1, self.size.width - _NAME_WIDTH)
+        rows = self._rows()
         text = Text(no_wrap=True)
         for name, field in rows:
             text.append(f"{name:<{_NAME_WIDTH}}", style="bold")
