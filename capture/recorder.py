@@ -2,8 +2,9 @@
 
 Callers (the session's threads) hand data to `write_*`; each call only puts a reference
 into a bounded queue and returns. The writer thread encodes (capture.topics), writes zstd
-chunks (level 3; replays level 1, see ZSTD_LEVEL_FAST) and closes a chunk at least every `chunk_interval_s`, by the wall clock and by the
-data's own time span (so replayed or synthetic data is chunked the same way), then fsyncs.
+chunks (level 3; replays level 1, see ZSTD_LEVEL_FAST) and closes a chunk at least every
+`chunk_interval_s`, by the wall clock and by the data's own time span (so replayed or
+synthetic data is chunked the same way), then fsyncs.
 A kill loses at most the open chunk: about a second. If the queue is full the item is
 dropped, counted, and the count written to /events at the next chunk: never silently.
 
