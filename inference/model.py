@@ -111,9 +111,9 @@ BUSY = 0.12  # above this share of occupied 4 x 4 patches dense convolutions are
 def _patch_codes(images: np.ndarray) -> np.ndarray:
     """The 16-bit code of every 4 x 4 patch, stride 2, of (N, H, W) binary images zero-padded
     by one cell (conv1's padding): bit 4k + 2r + c is cell (r, c) of 2 x 2 block k (top-left,
-    top-right, bottom-left, bottom-right). (N, H/2, W/2) int64."""
+    top-right, bottom-left, bottom-right). (N, H/2, W/2) int32 (int64 takes twice as long)."""
     n, h, w = images.shape
-    padded = np.zeros((n, h + 2, w + 2), np.int64)
+    padded = np.zeros((n, h + 2, w + 2), np.int32)
     padded[:, 1:-1, 1:-1] = images != 0
     cells = padded.reshape(n, h // 2 + 1, 2, w // 2 + 1, 2)
     block = cells[:, :, 0, :, 0] | cells[:, :, 0, :, 1] << 1 | cells[:, :, 1, :, 0] << 2 \
@@ -173,6 +173,7 @@ class _FoldedCNN:
             self.conv2_bg = _nhwc(F.pad(conv2, (1, 1, 1, 1)))
             self.conv3_bg = _nhwc(F.pad(conv3, (1, 1, 1, 1)))
             self.pooled_bg = _nhwc(self.pooled_bg)
+        self.reach2, self.reach3 = _reach(s2 + 2), _reach(net.input_size // 4 + 2)
 
     def __call__(self, images: np.ndarray) -> torch.Tensor:
         """(N, H, W) binary images -> (N, 5) scores."""
@@ -196,26 +197,32 @@ class _FoldedCNN:
         """The convolutions as background plus change; (N, H/4, W/4, C) activations."""
         n = len(code)
         y = _conv_of_change(self.conv2_bg, n, occupied, self.change[code.view(-1)[occupied]],
-                            self.taps2)
+                            self.taps2, self.reach2)
         y = max_pool_2x2(y.permute(0, 3, 1, 2)).relu_().permute(0, 2, 3, 1)
         change = (y - self.pooled_bg).view(-1, y.shape[-1])
         changed = torch.nonzero(torch.count_nonzero(change, 1)).squeeze(1)
-        return _conv_of_change(self.conv3_bg, n, changed, change[changed], self.taps3).relu_()
+        return _conv_of_change(self.conv3_bg, n, changed, change[changed], self.taps3,
+                               self.reach3).relu_()
+
+
+def _reach(p: int) -> torch.Tensor:
+    """Where each tap (kr, kc) of an input at (row, col) lands, as a flat offset in a map
+    padded to p x p: the output at (row + 1 - kr, col + 1 - kc), (row + 2 - kr, col + 2 - kc)
+    padded."""
+    return torch.tensor([(2 - kr) * p + 2 - kc for kr in range(3) for kc in range(3)])
 
 
 def _conv_of_change(background: torch.Tensor, n: int, cells: torch.Tensor,
-                    change: torch.Tensor, taps: torch.Tensor) -> torch.Tensor:
+                    change: torch.Tensor, taps: torch.Tensor, reach: torch.Tensor) -> torch.Tensor:
     """conv(background input + change) of n images, channels last. A convolution is linear,
     so it is conv(background) (given, padded by one cell: (1, S+2, S+2, C_out)) plus each
-    changed cell's value times each tap's weights, added at the neighbour that tap reaches.
-    cells: flat indices into (n, S, S); change: their (K, C_in) values. (n, S, S, C_out)."""
+    changed cell's value times each tap's weights, added at the neighbour that tap reaches
+    (`reach`, from _reach). cells: flat indices into (n, S, S); change: their (K, C_in)
+    values. (n, S, S, C_out)."""
     _, p, _, c_out = background.shape
     s = p - 2
     out = background.repeat(n, 1, 1, 1).view(-1, c_out)
     image, row, col = cells // (s * s), cells // s % s, cells % s
-    # Tap (kr, kc) of an input at (row, col) feeds the output at (row + 1 - kr, col + 1 - kc),
-    # which is (row + 2 - kr, col + 2 - kc) in the padded map.
-    reach = torch.tensor([(2 - kr) * p + 2 - kc for kr in range(3) for kc in range(3)])
     target = ((image * p * p + row * p + col)[:, None] + reach).view(-1)
     out.index_add_(0, target, (change @ taps).view(-1, c_out))
     return out.view(n, p, p, c_out)[:, 1:-1, 1:-1]
