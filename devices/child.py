@@ -29,8 +29,8 @@ class Child:
                 f"{child_end.fileno()})")
         if quiet is None:  # a child's stderr would garble a terminal UI
             quiet = not os.environ.get("WALKCAP_DEBUG")
-        # A child is one worker beside this process: one BLAS thread. OpenBLAS starts a
-        # thread per core at import (~0.1 s of CPU) and they spin after every call.
+        # A child is one worker beside this process: one BLAS thread. OpenBLAS otherwise
+        # starts a thread per core at import (~0.1 s more CPU).
         env = {"OPENBLAS_NUM_THREADS": "1", **os.environ}
         self.process = subprocess.Popen(
             [sys.executable, "-c", code], pass_fds=[child_end.fileno()], env=env,
