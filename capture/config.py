@@ -26,6 +26,9 @@ DEFAULT_PATH = Path("walkcap.toml")
 class SessionConfig:
     recordings: str = "recordings"  # output folder
     operator: str = ""
+    # The pipeline thread's SCHED_FIFO priority (1-99; 0: normal scheduling), where the
+    # system allows it (root, CAP_SYS_NICE or an rtprio limit); otherwise it runs normally.
+    realtime_priority: int = 10
 
 
 @dataclass

@@ -13,6 +13,7 @@ import datetime as dt
 import gc
 import json
 import logging
+import os
 import re
 import sys
 import threading
@@ -23,7 +24,7 @@ import numpy as np
 
 from capture import __version__
 from capture import config as config_mod
-from capture.errors import CaptureError
+from capture.errors import CaptureError, ConfigError
 from capture.pipeline import (CNN_THREADS, FrameResult, OrientationTrack, Pipeline, model_hash,
                               record_result)
 from devices.base import DeviceEvent, DeviceStatus
@@ -34,6 +35,24 @@ log = logging.getLogger(__name__)
 
 TIMELINE_S = 20.0
 SWITCH_INTERVAL_S = 0.0005
+NORMAL_PRIORITY = "normal"
+
+
+def realtime_priority(thread_id: int, priority: int) -> str:
+    """Schedule the thread `thread_id` (a native id) as SCHED_FIFO at `priority`, where the
+    system allows it; how it runs afterwards, in words (for the metadata and the bench).
+
+    A thread of the real-time class runs as soon as it is ready: a frame is not kept
+    waiting while the mock rig, the recorder's compression or another program holds both
+    cores. It sleeps between frames, so it takes little from the others."""
+    if priority == 0:
+        return NORMAL_PRIORITY
+    try:
+        os.sched_setscheduler(thread_id, os.SCHED_FIFO, os.sched_param(priority))
+    except (AttributeError, OSError) as e:  # not Linux, or not permitted
+        log.info("pipeline thread at normal priority: %s", e)
+        return f"{NORMAL_PRIORITY} (real-time priority not permitted)"
+    return f"SCHED_FIFO {priority}"
 
 
 @dataclass
@@ -204,6 +223,7 @@ class Session:
         self._frames = 0
         self._last_truth_mode: str | None = None
         self.pipeline: Pipeline | None = None
+        self.pipeline_priority = NORMAL_PRIORITY  # how the pipeline thread is scheduled
         self.model_metadata: dict = {}
         self.finished = threading.Event()  # the camera ran out of frames (end of a mock course)
 
@@ -216,6 +236,9 @@ class Session:
         from inference.preprocess import PreprocessParams
 
         cfg = self.config
+        if not 0 <= cfg.session.realtime_priority <= 99:
+            raise ConfigError(f"session.realtime_priority: 1-99, or 0 for normal scheduling; "
+                              f"got {cfg.session.realtime_priority}")
         if self._classifier is None:
             self._classifier = load_classifier(cfg.model.path or None, threads=CNN_THREADS)
         self.model_metadata = dict(getattr(self._classifier, "metadata", {}) or {})
@@ -249,13 +272,16 @@ class Session:
             close_devices(self._camera, self._imu)
             raise
         self._spawn(self._imu_loop, "imu")
-        self._spawn(self._frame_loop, "pipeline")
+        pipeline = self._spawn(self._frame_loop, "pipeline")
+        self.pipeline_priority = realtime_priority(pipeline.native_id,
+                                                   cfg.session.realtime_priority)
         self._spawn(self._monitor_loop, "monitor")
 
-    def _spawn(self, target, name: str) -> None:
+    def _spawn(self, target, name: str) -> threading.Thread:
         t = threading.Thread(target=target, name=f"walkcap-{name}", daemon=True)
         t.start()
         self._threads.append(t)
+        return t
 
     def stop(self):
         """Stop the threads and devices; finalise a recording in progress. Idempotent."""
@@ -453,6 +479,7 @@ class Session:
             "fusion_vote_delay": str(cfg.fusion.vote_delay),
             "fusion_transition": json.dumps(cfg.fusion.transition),
             "preprocess": json.dumps(self.pipeline.params.to_dict() if self.pipeline else {}),
+            "pipeline_priority": self.pipeline_priority,
         }
         session = info.to_metadata()
         session["operator"] = cfg.session.operator

@@ -3,16 +3,18 @@
 A stand-in classifier keeps these tests independent of the bundled weights; the devices,
 preprocessing, fusion and recorder are the real ones.
 """
+import os
+import threading
 import time
 
 import numpy as np
 import pytest
 
 from capture.config import Config
-from capture.errors import CaptureError
+from capture.errors import CaptureError, ConfigError
 from capture.reader import open_recording, read_trial
 from capture.replay import replay
-from capture.session import Session, SubjectInfo
+from capture.session import Session, SubjectInfo, realtime_priority
 from devices.frames import MODES
 
 
@@ -49,13 +51,16 @@ def recorded(tmp_path_factory):
         session.undo_label()
         time.sleep(3.5)
         snap = session.snapshot()
+        pipeline = next(t for t in session._threads if t.name == "walkcap-pipeline")
+        if session.pipeline_priority.startswith("SCHED_FIFO"):  # as it says, while it runs
+            assert os.sched_getscheduler(pipeline.native_id) == os.SCHED_FIFO
     finally:
         stats = session.stop()
-    return path, stats, snap
+    return path, stats, snap, session.pipeline_priority
 
 
 def test_recording_is_named_from_the_session_and_complete(recorded):
-    path, stats, _ = recorded
+    path, stats, _, priority = recorded
     assert path.name.startswith("S07_indoor_t03_") and path.suffix == ".mcap"
     assert stats.state == "stopped" and stats.dropped == 0
     rec = open_recording(path)
@@ -64,11 +69,12 @@ def test_recording_is_named_from_the_session_and_complete(recorded):
         assert topic in rec.topics, topic
     assert rec.metadata["session"]["subject"] == "S07"
     assert rec.metadata["software"]["model_hash"] == "stand-in"
+    assert rec.metadata["software"]["pipeline_priority"] == priority
     assert "walkcap.toml" in rec.attachments
 
 
 def test_rates_match_the_configuration(recorded):
-    path, _, snap = recorded
+    path, _, snap, _ = recorded
     rec = open_recording(path)
     frames = rec.topics["/camera/depth"].count
     imu = rec.topics["/imu"].count
@@ -79,7 +85,7 @@ def test_rates_match_the_configuration(recorded):
 
 
 def test_labels_markers_and_undo_are_recorded(recorded):
-    path, _, _ = recorded
+    path, _, _, _ = recorded
     trial = read_trial(path)
     sources = [c[2] for c in trial["label_changes"]]
     assert "operator" in sources and any(s.startswith("undo") for s in sources)
@@ -89,7 +95,7 @@ def test_labels_markers_and_undo_are_recorded(recorded):
 
 
 def test_fused_decisions_refer_to_earlier_frames(recorded):
-    path, _, _ = recorded
+    path, _, _, _ = recorded
     fused = [m.data for m in open_recording(path).messages(["/inference/fused"])]
     cnn = {m.data["frame_index"]: m.sequence for m in open_recording(path).messages(["/inference/cnn"])}
     assert fused
@@ -101,13 +107,13 @@ def test_fused_decisions_refer_to_earlier_frames(recorded):
 
 
 def test_imu_is_aligned_with_frames_on_the_session_clock(recorded):
-    _, _, snap = recorded
+    _, _, snap, _ = recorded
     # the emulator knows when it really sampled: the mapped times are close to that
     assert snap.sync and snap.sync["p50_ms"] < 1.0
 
 
 def test_replay_reproduces_the_trial_into_a_new_file(recorded, tmp_path):
-    path, _, _ = recorded
+    path, _, _, _ = recorded
     before = path.read_bytes()
     report = replay(path, Config(), output=tmp_path / "again.mcap", classifier=StandInClassifier())
     assert path.read_bytes() == before  # the original is never modified
@@ -145,7 +151,7 @@ def test_a_fast_replay_stopped_by_an_error_ends_its_reader(recorded, tmp_path, m
             return super().predict(image)
 
     calls: list = []
-    path, _, _ = recorded
+    path, _, _, _ = recorded
     started = time.monotonic()
     with pytest.raises(RuntimeError, match="classifier broke"):
         replay(path, Config(), output=tmp_path / "cut.mcap", classifier=Failing())
@@ -156,9 +162,41 @@ def test_a_fast_replay_stopped_by_an_error_ends_its_reader(recorded, tmp_path, m
 
 
 def test_replay_refuses_to_overwrite_its_source(recorded):
-    path, _, _ = recorded
+    path, _, _, _ = recorded
     with pytest.raises(CaptureError, match="new file"):
         replay(path, Config(), output=path, classifier=StandInClassifier())
+
+
+def test_the_pipeline_thread_alone_is_given_realtime_priority_where_permitted(monkeypatch):
+    waiting = threading.Event()
+    thread = threading.Thread(target=waiting.wait)
+    thread.start()
+    try:
+        assert realtime_priority(thread.native_id, 0) == "normal"
+        said = realtime_priority(thread.native_id, 10)
+        if os.geteuid() == 0:  # root may; CI and the bench run as root
+            assert said == "SCHED_FIFO 10"
+        expected = os.SCHED_FIFO if said.startswith("SCHED_FIFO") else os.SCHED_OTHER
+        assert os.sched_getscheduler(thread.native_id) == expected
+        assert os.sched_getscheduler(threading.get_native_id()) == os.SCHED_OTHER
+
+        def refused(*args):
+            raise PermissionError(1, "Operation not permitted")
+        monkeypatch.setattr(os, "sched_setscheduler", refused)
+        assert realtime_priority(thread.native_id, 10) == \
+            "normal (real-time priority not permitted)"
+    finally:
+        waiting.set()
+        thread.join()
+
+
+def test_a_priority_out_of_range_is_refused_before_any_device_opens():
+    cfg = Config()
+    cfg.session.realtime_priority = 120
+    session = Session(cfg, classifier=StandInClassifier())
+    with pytest.raises(ConfigError, match="realtime_priority"):
+        session.start()
+    assert session._camera is None and not session._threads
 
 
 def test_unknown_label_is_refused():
@@ -169,7 +207,7 @@ def test_unknown_label_is_refused():
 
 def test_fast_replay_in_two_processes_matches_a_paced_one(recorded, tmp_path):
     """The reader process and batched classification change nothing but the speed."""
-    path, _, _ = recorded
+    path, _, _, _ = recorded
     fast = replay(path, Config(), output=tmp_path / "fast.mcap", classifier=StandInClassifier())
     paced = replay(path, Config(), output=tmp_path / "paced.mcap", speed=50.0,
                    classifier=StandInClassifier())

@@ -74,7 +74,10 @@ def _soak(bench, minutes: float, as_json: bool) -> int:
                "latency_p50_ms": float(np.median(lat)) if len(lat) else None,
                "latency_p99_ms": float(np.percentile(lat, 99)) if len(lat) else None,
                "latency_max_ms": float(np.max(lat)) if len(lat) else None,
+               "pipeline": run.pipeline_priority,
                "rss_start_mib": run.rss_mib[0][1] if run.rss_mib else None,
+               # after the first minute: what warm-up allocates is in, growth is what is left
+               "rss_1min_mib": next((m for t, m, _ in run.rss_mib if t >= 60), None),
                "rss_end_mib": run.rss_mib[-1][1] if run.rss_mib else None,
                "rig_rss_start_mib": run.rss_mib[0][2] if run.rss_mib else None,
                "rig_rss_end_mib": run.rss_mib[-1][2] if run.rss_mib else None,
