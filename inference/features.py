@@ -127,8 +127,8 @@ def _polyline_runs(bins: np.ndarray, rng: np.ndarray) -> list[np.ndarray]:
     Each run is (K, 4): x, z, first bin, bin after the last (the vertex's own bin).
     """
     width = np.radians(ANGLE_BIN_DEG)
-    starts = np.flatnonzero(np.r_[True, bins[1:] != bins[:-1]])
-    counts = np.diff(np.r_[starts, len(bins)])
+    starts = np.flatnonzero(np.concatenate(([True], bins[1:] != bins[:-1])))
+    counts = np.diff(starts, append=len(bins))
     keep = counts >= MIN_BIN_POINTS
     starts, counts = starts[keep], counts[keep]
     median_rng = rng[starts + counts // 2]
@@ -181,14 +181,17 @@ def _fit_line(pts: np.ndarray, first: int, stop: int) -> _Segment | None:
     for _ in range(2):
         if len(points) < 5:
             return None
-        centre = points.mean(axis=0)
-        direction, normal = _principal_axes(points - centre)
-        dist = (points - centre) @ normal
+        centre = points.sum(axis=0) / len(points)  # = mean(axis=0), without its overhead
+        centred = points - centre
+        direction, normal = _principal_axes(centred)
+        dist = centred @ normal
         inside = np.abs(dist) <= FIT_TRIM_M
         if inside.all():
             break
-        points, index = points[inside], index[inside]
-    along = (points - centre) @ direction
+        points, index, centred = points[inside], index[inside], centred[inside]
+    if not len(points):
+        return None
+    along = centred @ direction
     start, end = centre + along.min() * direction, centre + along.max() * direction
     # Travel direction from near to far: farther along the elevation angle.
     if np.arctan2(start[1], start[0]) > np.arctan2(end[1], end[0]):
