@@ -8,7 +8,8 @@ As fast as possible (`speed=None`), the work is split over two processes, since 
 Python process cannot use a second core: a reader process decodes the frames, levels and
 preprocesses them and encodes what the new recording keeps of them (depth, cloud, image,
 orientation, truth); this one classifies them in batches, fuses, measures the terrain and
-records. Paced replays (`speed=X`) run in this process alone.
+records. While the reader process starts, this one prepares the first frames itself.
+Paced replays (`speed=X`) run in this process alone.
 """
 from __future__ import annotations
 
@@ -99,10 +100,10 @@ def orientations(imu: list[ImuSample]) -> tuple[np.ndarray, np.ndarray, np.ndarr
     return times, quats, rates
 
 
-def prepared_frames(source: str | Path, params, imu_orientations=None
+def prepared_frames(source: str | Path, params, imu_orientations=None, skip: int = 0
                     ) -> Iterator[tuple[DepthFrame, np.ndarray | None, object]]:
-    """(frame, orientation, Preprocessed) for every recorded frame, in order.
-    `imu_orientations`: orientations() of the recording's IMU, if already read."""
+    """(frame, orientation, Preprocessed) for every recorded frame, in order, after the
+    first `skip`. `imu_orientations`: orientations() of the recording's IMU, if already read."""
     from capture.reader import depth_frames, open_recording
     from inference.preprocess import preprocess
 
@@ -111,7 +112,9 @@ def prepared_frames(source: str | Path, params, imu_orientations=None
     times, quats, rates = imu_orientations
     track = OrientationTrack(span_s=5.0)
     i = 0
-    for frame in depth_frames(source):
+    for k, frame in enumerate(depth_frames(source)):
+        if k < skip:
+            continue
         t = frame.device_time_ns
         while i < len(times) and times[i] <= t + IMU_LOOKAHEAD_NS:
             track.add(int(times[i]), quats[i], rates[i] if np.isfinite(rates[i, 0]) else None)
@@ -125,7 +128,9 @@ class _ReaderProcess:
     """prepared_frames() run in a child process, read back in order. A thread here takes
     the frames off the socket as they come: the socket holds about one frame, so without
     it the reader would stop while this process classifies a batch, and the two would
-    take turns instead of working at once."""
+    take turns instead of working at once. The child says when it is ready (`ready`) and
+    is then told how many frames to skip (`start_at`): those this process has done itself
+    meanwhile."""
 
     AHEAD = 64  # frames received and not yet taken (~10 MB)
 
@@ -135,6 +140,7 @@ class _ReaderProcess:
         self._child = Child("capture.replay:_serve_prepared", str(source), params)
         self._received: queue.Queue = queue.Queue(maxsize=self.AHEAD)
         self._closed = threading.Event()
+        self.ready = threading.Event()  # set at the child's first message
         self._receiver = threading.Thread(target=self._receive, name="walkcap-replay-receiver",
                                           daemon=True)
 
@@ -152,6 +158,9 @@ class _ReaderProcess:
                 message = ("error", "replay: the frame reader process ended unexpectedly")
             except Exception as e:  # never leave the consumer waiting for nothing
                 message = ("error", f"replay: unreadable data from the frame reader ({e})")
+            self.ready.set()  # or it failed before it was: nothing more to wait for
+            if message[0] == "ready":
+                continue
             while not self._closed.is_set():
                 try:
                     self._received.put(message, timeout=0.2)
@@ -160,6 +169,13 @@ class _ReaderProcess:
                     continue
             if message[0] != "frame":
                 return
+
+    def start_at(self, skip: int) -> None:
+        """Frames from number `skip` on (the child waits for this after `ready`)."""
+        try:
+            self._child.conn.send(skip)
+        except OSError:
+            pass  # it has ended: its error, if any, is already queued
 
     def batches(self, size: int):
         """Lists of up to `size` frames: the first frame received, then those already
@@ -208,7 +224,9 @@ def _serve_prepared(conn, source: str, params) -> None:
 
     try:
         imu_orientations = conn.recv()
-        for frame, q, pre in prepared_frames(source, params, imu_orientations):
+        conn.send(("ready",))
+        skip = conn.recv()
+        for frame, q, pre in prepared_frames(source, params, imu_orientations, skip):
             conn.send(("frame", _encoded(frame, q, pre)))
         conn.send(("end",))
     except (BrokenPipeError, ConnectionResetError, EOFError):
@@ -256,18 +274,37 @@ def replay(source: str | Path, config, *, output: str | Path | None = None, spee
     frames_in = _ReaderProcess(source, params) if fast else None
     try:
         imu, labels, events = recorded(rec)
-        if frames_in is not None:
-            frames_in.start(orientations(imu))
+        imu_orientations = orientations(imu)
         if fast:  # classified in batches as they come
-            blocks = frames_in.batches(BATCH)
+            frames_in.start(imu_orientations)
+            blocks = _head_start(source, params, imu_orientations, frames_in)
         else:  # one by one, at the recorded pace
             blocks = ([_encoded(frame, q, pre)] for frame, q, pre
-                      in prepared_frames(source, params, orientations(imu)))
+                      in prepared_frames(source, params, imu_orientations))
         return _replay(source, rec, output, config, params, speed, classifier, progress,
                        blocks, (imu, labels, events))
     finally:
         if frames_in is not None:
             frames_in.close()
+
+
+def _head_start(source, params, imu_orientations, frames_in: _ReaderProcess):
+    """Blocks of frames: prepared here, one at a time, until the reader process is ready
+    (its start, a Python with numpy, mcap and protobuf, takes 0.1-0.2 s: a seventh of a
+    15 s recording's replay); then the reader's batches, from the next frame on."""
+    done = 0
+    if not frames_in.ready.is_set():
+        own = prepared_frames(source, params, imu_orientations)
+        try:
+            for frame, q, pre in own:
+                yield [_encoded(frame, q, pre)]
+                done += 1
+                if frames_in.ready.is_set():
+                    break
+        finally:
+            own.close()
+    frames_in.start_at(done)
+    yield from frames_in.batches(BATCH)
 
 
 def _replay(source, rec, output, config, params, speed, classifier, progress, blocks,

@@ -236,3 +236,39 @@ def test_fast_replay_classifies_what_has_come_without_waiting_for_a_full_batch()
     assert next(batches) == [5, 6]
     with pytest.raises(CaptureError, match="damaged"):
         next(batches)
+
+
+def test_fast_replay_prepares_frames_itself_until_its_reader_process_is_ready(recorded):
+    """The frames done here while the reader starts, then the reader's from the next on:
+    each frame once, in order, the same as the reader would have made them."""
+    import capture.replay as R
+    from inference.preprocess import PreprocessParams
+
+    path, _, _, _ = recorded
+    params = PreprocessParams.from_config(Config())
+    imu = R.orientations(R.recorded(open_recording(path))[0])
+
+    class Reader:  # stands in for the reader process
+        ready = threading.Event()
+        skip = None
+
+        def start_at(self, skip):
+            self.skip = skip
+
+        def batches(self, size):
+            for frame, q, pre in R.prepared_frames(path, params, imu, self.skip):
+                yield [R._encoded(frame, q, pre)]
+
+    reader = Reader()
+    frames = []
+    for block in R._head_start(path, params, imu, reader):
+        frames += [frame.index for frame, _, _, _ in block]
+        if len(frames) == 3:
+            reader.ready.set()  # the reader process says it is ready
+    every = [frame.index for frame, _, _ in R.prepared_frames(path, params, imu)]
+    assert reader.skip == 3
+    assert frames == every and len(every) > 30
+    skipped = R.prepared_frames(path, params, imu, skip=5)
+    first, q, _ = next(skipped)
+    _, q5, _ = list(R.prepared_frames(path, params, imu))[5]
+    assert first.index == every[5] and np.array_equal(q, q5)
