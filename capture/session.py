@@ -13,7 +13,6 @@ import datetime as dt
 import gc
 import json
 import logging
-import os
 import re
 import sys
 import threading
@@ -29,30 +28,13 @@ from capture.pipeline import (CNN_THREADS, FrameResult, OrientationTrack, Pipeli
                               record_result)
 from devices.base import DeviceEvent, DeviceStatus
 from devices.clock import now_ns
+from devices.scheduling import NORMAL_PRIORITY, realtime_priority
 from devices.frames import MODES, DepthFrame
 
 log = logging.getLogger(__name__)
 
 TIMELINE_S = 20.0
 SWITCH_INTERVAL_S = 0.0005
-NORMAL_PRIORITY = "normal"
-
-
-def realtime_priority(thread_id: int, priority: int) -> str:
-    """Schedule the thread `thread_id` (a native id) as SCHED_FIFO at `priority`, where the
-    system allows it; how it runs afterwards, in words (for the metadata and the bench).
-
-    A thread of the real-time class runs as soon as it is ready: a frame is not kept
-    waiting while the mock rig, the recorder's compression or another program holds both
-    cores. It sleeps between frames, so it takes little from the others."""
-    if priority == 0:
-        return NORMAL_PRIORITY
-    try:
-        os.sched_setscheduler(thread_id, os.SCHED_FIFO, os.sched_param(priority))
-    except (AttributeError, OSError) as e:  # not Linux, or not permitted
-        log.info("pipeline thread at normal priority: %s", e)
-        return f"{NORMAL_PRIORITY} (real-time priority not permitted)"
-    return f"SCHED_FIFO {priority}"
 
 
 @dataclass

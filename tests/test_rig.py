@@ -46,6 +46,20 @@ def rig_devices():
     close_devices(camera, imu)
 
 
+def test_the_rigs_threads_run_at_real_time_priority_where_permitted(rig_devices):
+    """Below the session's pipeline thread, above everything else: as hardware would."""
+    camera, imu = rig_devices
+    camera.start()
+    assert wait_for(lambda: camera.recv(0.2) is not None)
+    pid = camera.rig._child.pid
+    policies = {os.sched_getscheduler(int(tid)) for tid in os.listdir(f"/proc/{pid}/task")}
+    said = camera.rig.details["scheduling"]
+    if os.geteuid() == 0:
+        assert said == "SCHED_FIFO 5"
+    assert policies == ({os.SCHED_FIFO} if said.startswith("SCHED_FIFO") else {os.SCHED_OTHER})
+    assert os.sched_getscheduler(0) == os.SCHED_OTHER  # not this process
+
+
 def test_real_time_mock_devices_run_in_the_rig(rig_devices):
     camera, imu = rig_devices
     assert isinstance(camera, RigCamera) and isinstance(imu, RigImu)

@@ -33,9 +33,14 @@ from devices.clock import now_ns
 from devices.errors import DeviceInitError
 from devices.frames import DepthFrame
 from devices.imu import XbusImu, mock_baudrate
+from devices.scheduling import realtime_priority
 
 log = logging.getLogger(__name__)
 
+# The rig's threads (renderer, IMU emulator, sender) at real-time priority where permitted,
+# as hardware runs on its own: the host's load does not make the camera skip frames. Below
+# the session's pipeline thread (10 by default), which preempts them.
+RIG_PRIORITY = 5
 START_TIMEOUT_S = 60.0  # a spawned interpreter imports Open3D and works out the course truth
 REPLY_TIMEOUT_S = 5.0
 
@@ -273,6 +278,7 @@ class RigImu(XbusImu):
 def _serve(conn, camera_config, simulator_config, imu_config) -> None:
     """The rig's main: build the walk, camera and IMU emulator; answer requests; stream."""
     logging.basicConfig(level=logging.WARNING)
+    scheduling = realtime_priority(0, RIG_PRIORITY)  # every thread started here inherits it
     # The renderer, the emulator and the frame sender share this process's GIL: a short
     # switch interval keeps each one's wait for it short (frames and samples on time).
     sys.setswitchinterval(0.0005)
@@ -306,7 +312,8 @@ def _serve(conn, camera_config, simulator_config, imu_config) -> None:
         conn.send(("failed", f"{type(e).__name__}: {e}"))
         return
     stopping = threading.Event()
-    send(("ready", {"port": port, "geometry": camera.geometry, "details": camera.details,
+    send(("ready", {"port": port, "geometry": camera.geometry,
+                    "details": {**camera.details, "scheduling": scheduling},
                     "clock": emulator.clock}))
     streamer = threading.Thread(target=_stream, args=(camera, send, stopping), daemon=True)
     streamer.start()
