@@ -28,8 +28,8 @@ from capture.pipeline import (CNN_THREADS, FrameResult, OrientationTrack, Pipeli
                               record_result)
 from devices.base import DeviceEvent, DeviceStatus
 from devices.clock import now_ns
-from devices.scheduling import NORMAL_PRIORITY, realtime_priority
 from devices.frames import MODES, DepthFrame
+from devices.scheduling import NORMAL_PRIORITY, realtime_priority
 
 log = logging.getLogger(__name__)
 
