@@ -70,6 +70,20 @@ def rss_mib(pid: int | str = "self") -> float:
     return float("nan")
 
 
+def rss_growth_mib_per_min(samples: list, after_s: float = 60.0) -> tuple[float, float]:
+    """Slope (least squares) of the host's RSS in (elapsed s, MiB, ...) samples after the
+    first `after_s` (warm-up allocates), and the slope over the last half of those alone:
+    memory that levels off shows a second figure near 0, a leak shows two alike."""
+    def slope(rows):
+        if len(rows) < 3:
+            return float("nan")
+        t, m = np.array([r[0] for r in rows]) / 60.0, np.array([r[1] for r in rows])
+        return float(np.polyfit(t, m, 1)[0])
+
+    settled = [r for r in samples if r[0] >= after_s]
+    return slope(settled), slope(settled[len(settled) // 2:])
+
+
 def classifier(path: str | None = None):
     """The bundled model; an untrained network of the same shape (same cost) without it."""
     from capture.pipeline import CNN_THREADS
@@ -84,6 +98,33 @@ def classifier(path: str | None = None):
         from inference.model import Classifier, TerrainCNN
 
         return Classifier(TerrainCNN(), {}, torch.device("cpu"))
+
+
+class LatencyLog:
+    """Every frame's latency in one float64 array, allocated (and touched) up front for the
+    frames expected: the soak measures the session's memory, so the bench's own record must
+    not grow with it (a deque of Python floats grew 86 KiB a minute at 45 fps).
+    Stands in for the session's bounded deque: append under the session's lock."""
+
+    def __init__(self, expected_frames: int) -> None:
+        self._values = np.full(max(int(expected_frames), 1024), np.nan)
+        self._n = 0
+
+    def append(self, ms: float) -> None:
+        if self._n == len(self._values):  # longer than expected: grow rarely, by doubling
+            self._values = np.concatenate([self._values, np.full(len(self._values), np.nan)])
+        self._values[self._n] = ms
+        self._n += 1
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __array__(self, dtype=None, copy=None) -> np.ndarray:
+        return self.since(0) if dtype is None else self.since(0).astype(dtype)
+
+    def since(self, k: int) -> np.ndarray:
+        """A copy of the latencies from the k-th frame on."""
+        return self._values[k:self._n].copy()
 
 
 @dataclass
@@ -114,7 +155,9 @@ def session_run(fps: float, imu_hz: int, seconds: float, folder: str, *, clf=Non
     cfg.simulator.loop = True  # the walk repeats for as long as the run lasts
     session = Session(cfg, classifier=clf or classifier(), auto_label=True)
     session.start()
-    session._latencies = __import__("collections").deque(maxlen=10**6)
+    log = LatencyLog(seconds * fps * 1.2)
+    with session._lock:
+        session._latencies = log
     memory = []
     rig = getattr(getattr(session._camera, "rig", None), "_child", None)
     try:
@@ -127,13 +170,15 @@ def session_run(fps: float, imu_hz: int, seconds: float, folder: str, *, clf=Non
                 memory.append((round(time.monotonic() - t0, 1), round(rss_mib(), 1),
                                round(rss_mib(rig.pid), 1) if rig is not None else float("nan")))
                 if on_sample is not None:
-                    recent = list(session._latencies)[seen:]  # since the last sample
+                    with session._lock:
+                        recent = log.since(seen)  # since the last sample
                     seen += len(recent)
-                    on_sample(session.snapshot(), memory[-1], np.asarray(recent))
+                    on_sample(session.snapshot(), memory[-1], recent)
                 next_sample += sample_every_s
             time.sleep(0.05)
         snap = session.snapshot()
-        latencies = np.array(session._latencies)
+        with session._lock:
+            latencies = log.since(0)
     finally:
         stats = session.stop()
     cam = snap.camera

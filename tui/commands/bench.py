@@ -70,6 +70,7 @@ def _soak(bench, minutes: float, as_json: bool) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         run = bench.session_run(45.0, 400, minutes * 60, tmp, sample_every_s=10.0, on_sample=sample)
     lat = run.latency_ms
+    growth, growth_late = bench.rss_growth_mib_per_min(run.rss_mib)
     summary = {"minutes": minutes, "frames": run.frames, "dropped": run.dropped,
                "latency_p50_ms": float(np.median(lat)) if len(lat) else None,
                "latency_p99_ms": float(np.percentile(lat, 99)) if len(lat) else None,
@@ -79,6 +80,8 @@ def _soak(bench, minutes: float, as_json: bool) -> int:
                # after the first minute: what warm-up allocates is in, growth is what is left
                "rss_1min_mib": next((m for t, m, _ in run.rss_mib if t >= 60), None),
                "rss_end_mib": run.rss_mib[-1][1] if run.rss_mib else None,
+               "rss_growth_mib_per_min": round(growth, 3),
+               "rss_growth_last_half_mib_per_min": round(growth_late, 3),
                "rig_rss_start_mib": run.rss_mib[0][2] if run.rss_mib else None,
                "rig_rss_end_mib": run.rss_mib[-1][2] if run.rss_mib else None,
                "record_mb_per_s": run.record_bytes / max(run.record_seconds, 1e-9) / 1e6}
