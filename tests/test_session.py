@@ -10,6 +10,7 @@ import time
 import numpy as np
 import pytest
 
+from capture import topics as T
 from capture.config import Config
 from capture.errors import CaptureError, ConfigError
 from capture.reader import open_recording, read_trial
@@ -215,6 +216,13 @@ def test_fast_replay_in_two_processes_matches_a_paced_one(recorded, tmp_path):
     assert fast.frames == paced.frames > 30
     for key in ("frame_index", "probabilities", "cnn_decisions", "decisions", "voted"):
         np.testing.assert_array_equal(a[key], b[key])
+
+    def features(p):  # measured from the terrain the reader process prepared, or this one
+        return [(m.sequence, m.data) for m in open_recording(p).messages([T.FEATURES])]
+
+    assert len(features(fast.output)) > 30
+    assert features(fast.output) == features(paced.output)
+    assert sum(d["kind"] != "unknown" for _, d in features(fast.output)) > 10
 
 
 def test_fast_replay_classifies_what_has_come_without_waiting_for_a_full_batch():
