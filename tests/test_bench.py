@@ -53,3 +53,20 @@ def test_a_session_run_records_one_latency_per_frame(tmp_path):
     assert sum(samples) <= run.frames and len(samples) >= 2
     assert np.all(np.isfinite(run.latency_ms)) and np.all(run.latency_ms > 0)
     assert len(run.rss_mib) == len(samples)
+
+
+def test_soak_prints_strict_json_with_its_summary(capsys):
+    import json
+
+    from tui import cli
+
+    assert cli.main(["bench", "--soak", "0.05", "--json"]) == 0
+
+    def no_nan(name):
+        raise AssertionError(f"{name} is not JSON")
+
+    report = json.loads(capsys.readouterr().out, parse_constant=no_nan)
+    summary = report["summary"]
+    assert summary["frames"] > 50 and summary["latency_p99_ms"] > 0
+    assert summary["rss_growth_mib_per_min"] is None  # 3 s cannot tell a slope
+    assert report["samples"][0]["rss_mib"] > 0

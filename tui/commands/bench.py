@@ -45,6 +45,11 @@ def _skipped(camera) -> int:
     return int((camera.details or {}).get("renderer_skipped", 0)) if camera else 0
 
 
+def _known(value: float) -> float | None:
+    """NaN (not measured) as None: JSON has no NaN."""
+    return None if value != value else value
+
+
 def _soak(bench, minutes: float, as_json: bool) -> int:
     import tempfile
 
@@ -54,9 +59,9 @@ def _soak(bench, minutes: float, as_json: bool) -> int:
 
     def sample(snap, memory, recent):
         def pct(q):  # over the frames since the last sample
-            return round(float(np.percentile(recent, q)), 2) if len(recent) else float("nan")
+            return round(float(np.percentile(recent, q)), 2) if len(recent) else None
 
-        row = {"t_s": memory[0], "rss_mib": memory[1], "rig_rss_mib": memory[2],
+        row = {"t_s": memory[0], "rss_mib": _known(memory[1]), "rig_rss_mib": _known(memory[2]),
                "frames": snap.frames, "latency_p50_ms": pct(50), "latency_p99_ms": pct(99),
                "latency_max_ms": pct(100),
                "camera_dropped": (snap.camera.dropped + snap.camera.errors - _skipped(snap.camera)
@@ -80,10 +85,11 @@ def _soak(bench, minutes: float, as_json: bool) -> int:
                # after the first minute: what warm-up allocates is in, growth is what is left
                "rss_1min_mib": next((m for t, m, _ in run.rss_mib if t >= 60), None),
                "rss_end_mib": run.rss_mib[-1][1] if run.rss_mib else None,
-               "rss_growth_mib_per_min": round(growth, 3),
-               "rss_growth_last_half_mib_per_min": round(growth_late, 3),
-               "rig_rss_start_mib": run.rss_mib[0][2] if run.rss_mib else None,
-               "rig_rss_end_mib": run.rss_mib[-1][2] if run.rss_mib else None,
+               # None when the run is too short to tell (under about 2 minutes)
+               "rss_growth_mib_per_min": _known(round(growth, 3)),
+               "rss_growth_last_half_mib_per_min": _known(round(growth_late, 3)),
+               "rig_rss_start_mib": _known(run.rss_mib[0][2]) if run.rss_mib else None,
+               "rig_rss_end_mib": _known(run.rss_mib[-1][2]) if run.rss_mib else None,
                "record_mb_per_s": run.record_bytes / max(run.record_seconds, 1e-9) / 1e6}
     if as_json:
         print(json.dumps({"machine": bench.machine(), "samples": rows, "summary": summary}, indent=2))
