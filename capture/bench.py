@@ -103,7 +103,8 @@ def classifier(path: str | None = None):
 class LatencyLog:
     """Every frame's latency in one float64 array, allocated (and touched) up front for the
     frames expected: the soak measures the session's memory, so the bench's own record must
-    not grow with it (a deque of Python floats grew 86 KiB a minute at 45 fps).
+    not grow with it (8 bytes a frame: a deque of Python floats took about 32, an estimated
+86 KiB a minute at 45 fps).
     Stands in for the session's bounded deque: append under the session's lock."""
 
     def __init__(self, expected_frames: int) -> None:
