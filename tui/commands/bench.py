@@ -77,6 +77,8 @@ def _soak(bench, minutes: float, as_json: bool) -> int:
     lat = run.latency_ms
     growth, growth_late = bench.rss_growth_mib_per_min(run.rss_mib)
     summary = {"minutes": minutes, "frames": run.frames, "dropped": run.dropped,
+               # of those, the mock rig's renderer's (it fell behind), not the capture path's
+               "renderer_skipped": run.renderer_skipped,
                "latency_p50_ms": float(np.median(lat)) if len(lat) else None,
                "latency_p99_ms": float(np.percentile(lat, 99)) if len(lat) else None,
                "latency_max_ms": float(np.max(lat)) if len(lat) else None,
