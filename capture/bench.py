@@ -70,6 +70,12 @@ def rss_mib(pid: int | str = "self") -> float:
     return float("nan")
 
 
+def renderer_skipped(camera) -> int:
+    """Frames the mock rig's renderer skipped when it fell behind (counted among the
+    camera's errors), from the camera's status; 0 for other cameras."""
+    return int((camera.details or {}).get("renderer_skipped", 0)) if camera else 0
+
+
 def rss_growth_mib_per_min(samples: list, after_s: float = 60.0) -> tuple[float, float]:
     """Slope (least squares) of the host's RSS in (elapsed s, MiB, ...) samples after the
     first `after_s` (warm-up allocates), and the slope over the last half of those alone:
@@ -187,7 +193,7 @@ def session_run(fps: float, imu_hz: int, seconds: float, folder: str, *, clf=Non
     return SessionRun(
         fps=fps, imu_hz=imu_hz, seconds=seconds, frames=snap.frames, latency_ms=latencies,
         dropped=(cam.dropped + cam.errors if cam else 0) + (stats.dropped if stats else 0),
-        renderer_skipped=int((cam.details or {}).get("renderer_skipped", 0)) if cam else 0,
+        renderer_skipped=renderer_skipped(cam),
         record_bytes=stats.bytes_written if stats else 0,
         record_seconds=stats.duration_s if stats else 0.0, path=stats.path if stats else "",
         sync_p99_ms=snap.sync.get("p99_ms", float("nan")), rss_mib=memory,

@@ -158,7 +158,8 @@ class _ReaderProcess:
                 message = ("error", "replay: the frame reader process ended unexpectedly")
             except Exception as e:  # never leave the consumer waiting for nothing
                 message = ("error", f"replay: unreadable data from the frame reader ({e})")
-            self.ready.set()  # or it failed before it was: nothing more to wait for
+            if not self.ready.is_set():  # or it failed before it was: nothing more to wait for
+                self.ready.set()
             if message[0] == "ready":
                 continue
             while not self._closed.is_set():

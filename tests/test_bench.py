@@ -69,5 +69,4 @@ def test_soak_prints_strict_json_with_its_summary(capsys):
     summary = report["summary"]
     assert summary["frames"] > 50 and summary["latency_p99_ms"] > 0
     assert summary["rss_growth_mib_per_min"] is None  # 3 s cannot tell a slope
-    assert 0 <= summary["renderer_skipped"] <= summary["dropped"]
     assert report["samples"][0]["rss_mib"] > 0

@@ -155,12 +155,12 @@ def test_a_fast_mock_imu_gets_a_line_that_carries_it():
 def test_frames_the_renderer_skipped_are_told_apart_from_frames_lost(rig_devices):
     """Both are missing frames (errors); the skipped ones are the simulator's own doing
     (its renderer fell behind on a busy machine), which `walkcap bench --soak` shows apart."""
-    from tui.commands.bench import _skipped
+    from capture.bench import renderer_skipped
 
     camera, _ = rig_devices
     camera.on_event("gap", "4 frames skipped: the simulator is too slow", {"skipped": 4})
     camera.on_event("drop", "2 frames dropped", {"dropped": 2})
     status = camera.status()
     assert status.errors == 6
-    assert _skipped(status) == 4
-    assert status.dropped + status.errors - _skipped(status) == 2
+    assert renderer_skipped(status) == 4
+    assert status.dropped + status.errors - renderer_skipped(status) == 2

@@ -15,8 +15,9 @@ from capture.config import Config
 from capture.errors import CaptureError, ConfigError
 from capture.reader import open_recording, read_trial
 from capture.replay import replay
-from capture.session import Session, SubjectInfo, realtime_priority
+from capture.session import Session, SubjectInfo
 from devices.frames import MODES
+from devices.scheduling import realtime_priority
 
 
 class StandInClassifier:
@@ -168,7 +169,7 @@ def test_replay_refuses_to_overwrite_its_source(recorded):
         replay(path, Config(), output=path, classifier=StandInClassifier())
 
 
-def test_the_pipeline_thread_alone_is_given_realtime_priority_where_permitted(monkeypatch):
+def test_realtime_priority_goes_to_the_given_thread_alone_where_permitted(monkeypatch):
     waiting = threading.Event()
     thread = threading.Thread(target=waiting.wait)
     thread.start()

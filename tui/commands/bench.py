@@ -40,11 +40,6 @@ def run(args, config) -> int:
     return 0
 
 
-def _skipped(camera) -> int:
-    """Frames the mock camera's renderer skipped when it fell behind (of the camera's errors)."""
-    return int((camera.details or {}).get("renderer_skipped", 0)) if camera else 0
-
-
 def _known(value: float) -> float | None:
     """NaN (not measured) as None: JSON has no NaN."""
     return None if value != value else value
@@ -61,12 +56,12 @@ def _soak(bench, minutes: float, as_json: bool) -> int:
         def pct(q):  # over the frames since the last sample
             return round(float(np.percentile(recent, q)), 2) if len(recent) else None
 
+        cam, skipped = snap.camera, bench.renderer_skipped(snap.camera)
         row = {"t_s": memory[0], "rss_mib": _known(memory[1]), "rig_rss_mib": _known(memory[2]),
                "frames": snap.frames, "latency_p50_ms": pct(50), "latency_p99_ms": pct(99),
                "latency_max_ms": pct(100),
-               "camera_dropped": (snap.camera.dropped + snap.camera.errors - _skipped(snap.camera)
-                                  if snap.camera else 0),
-               "renderer_skipped": _skipped(snap.camera),
+               "camera_dropped": cam.dropped + cam.errors - skipped if cam else 0,
+               "renderer_skipped": skipped,
                "recorder_dropped": snap.recording.dropped if snap.recording else 0}
         rows.append(row)
         if not as_json:
