@@ -47,6 +47,10 @@ class LabeledSession:
     source: str = "synth"  # "synth" | "recording"
     flags: np.ndarray | None = None  # (N,) str, preprocessing flag ("" when fine)
     meta: dict = field(default_factory=dict)
+    # Simulator truth for diagnostics (synthesized sessions only), (N,) str each: the mode
+    # the frame's view mostly shows ("" for none) and its error image kind ("" for none).
+    view_modes: np.ndarray | None = None
+    errors: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.labels)
@@ -54,8 +58,13 @@ class LabeledSession:
     def labelled(self) -> LabeledSession:
         """Only the frames that carry a label."""
         keep = self.labels >= 0
+
+        def part(values):
+            return None if values is None else values[keep]
+
         return replace(self, images=self.images[keep], labels=self.labels[keep],
-                       flags=None if self.flags is None else self.flags[keep])
+                       flags=part(self.flags), view_modes=part(self.view_modes),
+                       errors=part(self.errors))
 
 
 # ---- files ---------------------------------------------------------------------------------
@@ -101,6 +110,8 @@ def read_session(path: str | os.PathLike) -> LabeledSession:
             packed = z["images"]
             images = np.unpackbits(packed, axis=1, count=h * w).reshape(len(packed), h, w)
             flags = z["flags"]
+            view_modes = z["view_modes"] if "view_modes" in z.files else None
+            errors = z["errors"] if "errors" in z.files else None
     except InferenceError:
         raise
     except FileNotFoundError:
@@ -108,11 +119,12 @@ def read_session(path: str | os.PathLike) -> LabeledSession:
     except Exception as e:  # zip, JSON, key and shape errors all mean a broken file
         raise InferenceError(f"{path} is not a readable dataset session: "
                              f"{type(e).__name__}: {e}") from None
-    if len(images) != len(labels) or labels.max(initial=-1) >= len(MODES):
+    if (len(images) != len(labels) or labels.max(initial=-1) >= len(MODES)
+            or any(v is not None and len(v) != len(labels) for v in (view_modes, errors))):
         raise InferenceError(f"{path}: images and labels do not match")
     return LabeledSession(name=meta.get("name") or path.stem, images=images, labels=labels,
                           preset=meta.get("preset", ""), source=meta.get("source", "synth"),
-                          flags=flags, meta=meta)
+                          flags=flags, meta=meta, view_modes=view_modes, errors=errors)
 
 
 # Readers by file suffix. The recording code registers ".mcap" (frames' images and the
@@ -294,9 +306,9 @@ def render_synth_session(preset: str, seed: int, params=None, settings: SynthSet
             "course": [[s.mode, round(float(s.length_m), 3)] for s in course.segments]}
     session = LabeledSession(name=f"{preset}-{seed:06d}", images=images, labels=labels,
                              preset=preset, source="synth", flags=np.array(flags, dtype=str),
-                             meta=meta)
-    extra = {"view_modes": np.array(view_modes, dtype=str),
-             "errors": np.array(errors, dtype=str)}
+                             meta=meta, view_modes=np.array(view_modes, dtype=str),
+                             errors=np.array(errors, dtype=str))
+    extra = {"view_modes": session.view_modes, "errors": session.errors}
     return session, {"time_ns": time_ns, "extra": extra}
 
 

@@ -73,6 +73,9 @@ class GroupMetrics:
     balanced_accuracy: float  # mean of the per-class accuracies present
     per_class: dict  # mode -> accuracy (recall), None when the class is absent
     confusion: list  # 5 x 5 counts, rows true mode, columns predicted mode
+    # Where the errors fall, when the sessions carry the simulator's truth (see
+    # error_breakdown); None otherwise.
+    breakdown: dict | None = None
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -189,11 +192,57 @@ def group_metrics(labels: np.ndarray, predictions: np.ndarray) -> GroupMetrics:
     )
 
 
+# Where a classifier's errors fall, on synthesized sessions (their simulator truth says what
+# each frame's view mostly shows and which frames are error images). The truth rule switches
+# the mode once per transition, so near a change some frames show the other mode: there a
+# classifier that reports the view is wrong, and the "view oracle" (the view's mode as the
+# answer) is the accuracy of that. Groups, first match wins:
+BREAKDOWN_GROUPS = ("error image", "near a mode change, the view shows another mode",
+                    "near a mode change, the view shows the mode", "elsewhere")
+NEAR_CHANGE_S = 1.0  # "near a mode change": within this long of one
+
+
+def frame_groups(labels: np.ndarray, view_modes: np.ndarray, errors: np.ndarray,
+                 near_frames: int) -> np.ndarray:
+    """Each frame's index in BREAKDOWN_GROUPS; one walk's labelled frames, in order."""
+    labels = np.asarray(labels)
+    n = len(labels)
+    changes = np.flatnonzero(np.diff(labels)) + 1  # first frame of each new mode
+    near = np.zeros(n, bool)
+    if len(changes):
+        i = np.arange(n)
+        after = np.clip(np.searchsorted(changes, i), 0, len(changes) - 1)
+        before = np.clip(after - 1, 0, len(changes) - 1)
+        distance = np.minimum(np.abs(i - changes[after]), np.abs(i - changes[before]))
+        near = distance < near_frames
+    shows = np.asarray(view_modes) == np.asarray(MODES)[labels]
+    return np.where(np.asarray(errors) != "", 0, np.where(near, np.where(shows, 2, 1), 3))
+
+
+def error_breakdown(groups: np.ndarray, right: np.ndarray, view_right: np.ndarray,
+                    near_frames: int) -> dict:
+    """Share of frames, accuracy and points of accuracy lost per group; the view oracle."""
+    total = len(groups)
+    parts = {}
+    for g, name in enumerate(BREAKDOWN_GROUPS):
+        mask = groups == g
+        n = int(mask.sum())
+        parts[name] = {"frames": n, "accuracy": float(right[mask].mean()) if n else None,
+                       "points_lost": float((mask & ~right).sum() / total * 100)}
+    return {"near_frames": near_frames, "view_accuracy": float(view_right.mean()),
+            "groups": parts}
+
+
 def evaluate_sessions(classifier: Classifier, sessions: list[LabeledSession]
                       ) -> dict[str, GroupMetrics]:
-    """Per-frame quality, all frames and per preset ("all", "indoor", "outdoor", ...)."""
+    """Per-frame quality, all frames and per preset ("all", "indoor", "outdoor", ...);
+    with the error breakdown when every session carries the simulator's truth."""
     labels: dict[str, list[np.ndarray]] = {"all": []}
     preds: dict[str, list[np.ndarray]] = {"all": []}
+    groups: dict[str, list[np.ndarray]] = {"all": []}
+    views: dict[str, list[np.ndarray]] = {"all": []}
+    near_frames = 0
+    with_truth = all(s.view_modes is not None and s.errors is not None for s in sessions)
     for s in sessions:
         s = s.labelled()
         if not len(s):
@@ -202,10 +251,23 @@ def evaluate_sessions(classifier: Classifier, sessions: list[LabeledSession]
         for key in ("all", s.preset or "unknown"):
             labels.setdefault(key, []).append(s.labels)
             preds.setdefault(key, []).append(p)
+        if with_truth:
+            near_frames = max(1, int(round(NEAR_CHANGE_S * s.meta.get("fps", 15))))
+            g = frame_groups(s.labels, s.view_modes, s.errors, near_frames)
+            view_right = s.view_modes == np.asarray(MODES)[s.labels]
+            for key in ("all", s.preset or "unknown"):
+                groups.setdefault(key, []).append(g)
+                views.setdefault(key, []).append(view_right)
     if not labels["all"]:
         raise InferenceError("no labelled frames to evaluate")
-    return {k: group_metrics(np.concatenate(labels[k]), np.concatenate(preds[k]))
-            for k in labels}
+    out = {}
+    for k in labels:
+        y, p = np.concatenate(labels[k]), np.concatenate(preds[k])
+        out[k] = group_metrics(y, p)
+        if with_truth:
+            out[k].breakdown = error_breakdown(np.concatenate(groups[k]), p == y,
+                                               np.concatenate(views[k]), near_frames)
+    return out
 
 
 def format_metrics(metrics: dict[str, GroupMetrics], title: str = "") -> str:
@@ -220,7 +282,21 @@ def format_metrics(metrics: dict[str, GroupMetrics], title: str = "") -> str:
         lines.append("        " + "".join(f"{k:>7}" for k in MODES))
         for k, row in zip(MODES, m.confusion):
             lines.append(f"    {k:>4}" + "".join(f"{v:>7}" for v in row))
+        if m.breakdown:
+            lines += _format_breakdown(m.breakdown, m.frames)
     return "\n".join(lines)
+
+
+def _format_breakdown(b: dict, frames: int) -> list[str]:
+    lines = [f"  where the errors are (near: within {b['near_frames']} frames of a change of "
+             f"the true mode):"]
+    for name, part in b["groups"].items():
+        right = "-" if part["accuracy"] is None else f"{part['accuracy'] * 100:.1f} %"
+        lines.append(f"    {name:<48} {part['frames'] / frames * 100:5.1f} % of frames, "
+                     f"{right:>7} right, {part['points_lost']:.2f} points lost")
+    lines.append(f"  view oracle (answering the mode each view mostly shows): "
+                 f"{b['view_accuracy'] * 100:.2f} %")
+    return lines
 
 
 # ---- training --------------------------------------------------------------------------------

@@ -11,8 +11,8 @@ from inference.dataset import LabeledSession
 from inference.errors import InferenceError
 from inference.model import Classifier
 from inference.training import (
-    TrainSettings, _epoch_indices, augment_image, evaluate_sessions, format_metrics,
-    group_metrics, split_by_session, train,
+    BREAKDOWN_GROUPS, TrainSettings, _epoch_indices, augment_image, evaluate_sessions,
+    format_metrics, frame_groups, group_metrics, split_by_session, train,
 )
 
 
@@ -205,3 +205,57 @@ def test_batch_norm_statistics_fit_the_data_from_the_first_step():
         var = net.conv1(x).var(dim=(0, 2, 3))
     ratio = net.bn1.running_var / var
     assert torch.all((ratio > 0.3) & (ratio < 3)), ratio
+
+
+def test_frame_groups_error_images_first_then_near_a_change_by_what_the_view_shows():
+    labels = np.array([0] * 6 + [1] * 6)  # LG, then US from frame 6
+    views = np.array(["LG"] * 4 + ["US", "LG", "LG"] + ["US"] * 5)
+    errors = np.array([""] * 11 + ["sky"])
+    g = frame_groups(labels, views, errors, near_frames=3)  # frames 4-8 are near
+    names = [BREAKDOWN_GROUPS[i] for i in g]
+    assert names[11] == "error image"
+    assert names[0:4] == ["elsewhere"] * 4 and names[9:11] == ["elsewhere"] * 2
+    assert names[4] == "near a mode change, the view shows another mode"  # sees US early
+    assert names[6] == "near a mode change, the view shows another mode"  # looks back at LG
+    assert names[5] == names[7] == names[8] == "near a mode change, the view shows the mode"
+    assert set(frame_groups(np.zeros(5, int), np.array(["LG"] * 5), np.array([""] * 5),
+                            3)) == {3}  # no change: nothing is near one
+
+
+class _FixedAnswers:
+    """A classifier that answers from a list, to know exactly where it is wrong."""
+
+    def __init__(self, answers):
+        self.answers = list(answers)
+
+    def predict_batch(self, images):
+        out = np.zeros((len(images), len(MODES)), np.float32)
+        out[np.arange(len(images)), self.answers[:len(images)]] = 1
+        del self.answers[:len(images)]
+        return out
+
+
+def test_evaluation_breaks_the_errors_down_when_sessions_carry_the_truth():
+    labels = np.array([0] * 6 + [1] * 6)
+    views = np.array(["LG"] * 4 + ["US", "LG", "LG"] + ["US"] * 5)
+    errors = np.array([""] * 11 + ["sky"])
+    session = LabeledSession("indoor-000001", np.zeros((12, 100, 100), np.uint8), labels,
+                             preset="indoor", meta={"fps": 3}, view_modes=views,
+                             errors=errors)
+    answers = [0] * 4 + [1, 0, 0, 1] + [1] * 3 + [0]  # wrong on 4, 6 and the error image
+    m = evaluate_sessions(_FixedAnswers(answers), [session])["indoor"]
+    b = m.breakdown
+    assert b["near_frames"] == 3  # one second at 3 frames a second
+    assert b["view_accuracy"] == pytest.approx(10 / 12)  # the view misses frames 4 and 6
+    groups = b["groups"]
+    assert groups["error image"] == {"frames": 1, "accuracy": 0.0,
+                                     "points_lost": pytest.approx(100 / 12)}
+    assert groups["near a mode change, the view shows another mode"]["accuracy"] == 0.0
+    assert groups["near a mode change, the view shows the mode"]["accuracy"] == 1.0
+    lost = sum(g["points_lost"] for g in groups.values())
+    assert lost == pytest.approx((1 - m.accuracy) * 100)
+    assert "view oracle" in format_metrics({"indoor": m})
+    # Without the simulator's truth (a recording) there is nothing to break down.
+    plain = LabeledSession("rec", session.images, labels, preset="indoor")
+    m = evaluate_sessions(_FixedAnswers(answers), [plain])["indoor"]
+    assert m.breakdown is None and "view oracle" not in format_metrics({"indoor": m})

@@ -5,7 +5,10 @@
 
 Without --data it renders N fresh synthetic sessions (default 4, alternating indoor and
 outdoor, seeds from 100000: never used for the bundled model's training) and prints the
-per-class accuracy and confusion matrix per preset. Registered by tui/commands/eval.py.
+per-class accuracy and confusion matrix per preset. Synthesized sessions carry the
+simulator's truth, so the report also says where the errors are (error images, frames near
+a mode change by what their view shows, elsewhere) and what an oracle that answers each
+view's mode would score. Registered by tui/commands/eval.py.
 """
 from __future__ import annotations
 
