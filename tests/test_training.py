@@ -2,6 +2,9 @@
 
 Images are simple drawn profiles per class (no simulator), so these run in seconds.
 """
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 import torch
@@ -259,3 +262,30 @@ def test_evaluation_breaks_the_errors_down_when_sessions_carry_the_truth():
     plain = LabeledSession("rec", session.images, labels, preset="indoor")
     m = evaluate_sessions(_FixedAnswers(answers), [plain])["indoor"]
     assert m.breakdown is None and "view oracle" not in format_metrics({"indoor": m})
+
+
+_KEPT_SCRIPT = """
+import sys
+import numpy as np
+from inference.training import keep_freed_memory
+if sys.argv[1] == "keep":
+    assert keep_freed_memory()
+def resident_mb():
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * 4096 / 1e6
+block = np.ones(41_000_000, np.uint8)  # as large as conv1's output for a batch of 64
+held = resident_mb()
+del block
+print(held - resident_mb())
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's allocator")
+def test_a_training_process_keeps_the_memory_of_its_last_batch():
+    def released_mb(mode: str) -> float:
+        out = subprocess.run([sys.executable, "-c", _KEPT_SCRIPT, mode], check=True,
+                             capture_output=True, text=True).stdout
+        return float(out.split()[-1])
+
+    assert released_mb("default") > 35  # handed back to the system at once
+    assert released_mb("keep") < 5  # kept for the next batch: no pages to zero again

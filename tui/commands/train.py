@@ -60,7 +60,9 @@ def run(args, config) -> int:
     from inference.dataset import find_session_files, read_sessions
     from inference.model import file_sha256
     from inference.preprocess import PreprocessParams
-    from inference.training import TrainSettings, format_metrics, save_result, train
+    from inference.training import (
+        TrainSettings, format_metrics, keep_freed_memory, save_result, train,
+    )
 
     settings = TrainSettings(
         epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, patience=args.patience,
@@ -71,6 +73,7 @@ def run(args, config) -> int:
         threads=args.threads or 0, max_seconds=(args.max_minutes or 0) * 60,
         val_fraction=args.val_fraction,
         test_fraction=args.test_fraction)
+    keep_freed_memory()  # this process only trains
     files = find_session_files(args.data)
     sessions = read_sessions(files)
     frames = sum(len(s) for s in sessions)
