@@ -97,13 +97,16 @@ def test_recording_reader_hook_feeds_the_same_code_path(tmp_path):
         dataset.READERS.update(old)
 
 
-def test_train_and_eval_model_commands(tmp_path, capsys):
+def test_train_and_eval_model_commands(tmp_path, capsys, monkeypatch):
     data = tmp_path / "data"
     for s in _drawn_sessions(6):
         write_session(data / f"{s.name}.npz", s)
     model = tmp_path / "m.pt"
+    kept = []  # the command keeps its freed memory; the test process must not
+    monkeypatch.setattr("inference.training.keep_freed_memory", lambda: kept.append(1))
     assert cli.main(["train", "--data", str(data), "--out", str(model), "--epochs", "1",
                      "--max-steps", "2", "--hidden", "4", "--threads", "1", "--quiet"]) == 0
+    assert kept == [1]
     out = capsys.readouterr().out
     assert "6 sessions" in out and "test sessions" in out and "confusion" in out
     assert "indoor:" in out and "outdoor:" in out
