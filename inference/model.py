@@ -137,9 +137,15 @@ class _FoldedCNN:
     - sparse convolutions: a terrain image is mostly empty, and every empty patch gives the
       same first-block output. The activations of an all-empty image (the background) are
       computed once; a frame adds only the change its occupied patches make, at those
-      cells and their 3 x 3 neighbours. A walk occupies about 7 % of the patches, so conv2
-      and conv3 cost a fraction of the dense ones; busier images (over BUSY) take the dense
-      convolutions in channels-last memory format.
+      cells and their 3 x 3 neighbours;
+    - the band: the terrain ahead fills a band of rows (a fifth of the image for a walk),
+      and outside it every layer keeps its background value. So the pool, conv3 and fc1
+      work on the band's rows only: fc1 is its background output plus the band's change
+      times the band's rows of weights (a fifth of its 5 MB).
+    Busier images (over BUSY) take the dense convolutions in channels-last memory format.
+    The sparse path does its index arithmetic and slicing in numpy (about a microsecond an
+    operation, torch's take four, and one frame has dozens) and its products in torch
+    (which keeps to the thread count the session sets).
     """
 
     def __init__(self, net: TerrainCNN) -> None:
@@ -150,7 +156,7 @@ class _FoldedCNN:
             bits = (codes[:, None] >> torch.arange(16)) & 1
             patches = bits.view(-1, 2, 2, 2, 2).permute(0, 1, 3, 2, 4).reshape(-1, 1, 4, 4)
             self.table = F.conv2d(patches.float(), w1, b1).amax(dim=(2, 3)).relu_()
-            self.change = self.table - self.table[0]  # what an occupied patch adds
+            self.change = (self.table - self.table[0]).numpy()  # what an occupied patch adds
             w2, self.b2 = _fold(net.conv2, net.bn2)
             w3, self.b3 = _fold(net.conv3, net.bn3)
             self.w2 = w2.contiguous(memory_format=cl)
@@ -163,28 +169,32 @@ class _FoldedCNN:
             self.fc1_w = _nhwc(net.fc1.weight.detach().view(-1, c3, s4, s4)).view(
                 net.fc1.out_features, -1)
             self.fc1_b = net.fc1.bias.detach().clone()
+            self.fc1_rows = self.fc1_w.t().contiguous()  # a band of rows is one slice
             self.fc2_w, self.fc2_b = net.fc2.weight.detach().clone(), net.fc2.bias.detach().clone()
             # The background, padded by one cell where a convolution follows.
             s2 = net.input_size // 2
             empty = self.table[0].view(1, -1, 1, 1).expand(1, -1, s2, s2)
             conv2 = F.conv2d(empty, w2, self.b2, padding=1)
-            self.pooled_bg = max_pool_2x2(conv2).relu_()
-            conv3 = F.conv2d(self.pooled_bg, w3, self.b3, padding=1)
-            self.conv2_bg = _nhwc(F.pad(conv2, (1, 1, 1, 1)))
-            self.conv3_bg = _nhwc(F.pad(conv3, (1, 1, 1, 1)))
-            self.pooled_bg = _nhwc(self.pooled_bg)
-        self.reach2, self.reach3 = _reach(s2 + 2), _reach(net.input_size // 4 + 2)
+            pooled = max_pool_2x2(conv2).relu_()
+            conv3 = F.conv2d(pooled, w3, self.b3, padding=1)
+            self.conv2_bg = _nhwc(F.pad(conv2, (1, 1, 1, 1)))[0].numpy()
+            self.conv3_bg = _nhwc(F.pad(conv3, (1, 1, 1, 1)))[0].numpy()
+            self.pooled_bg = _nhwc(pooled)[0].numpy()
+            self.out_bg = self.conv3_bg[1:-1, 1:-1].clip(min=0)
+            self.fc1_bg = F.linear(torch.from_numpy(self.out_bg).reshape(1, -1), self.fc1_w,
+                                   self.fc1_b)
+        self.reach2, self.reach3 = _reach(s2 + 2), _reach(s4 + 2)
 
     def __call__(self, images: np.ndarray) -> torch.Tensor:
         """(N, H, W) binary images -> (N, 5) scores."""
-        code = torch.from_numpy(_patch_codes(images))
-        occupied = torch.nonzero(code.view(-1)).squeeze(1)
-        if len(occupied) > BUSY * code.numel():
-            y = self._dense(code)
+        code = _patch_codes(images)
+        occupied = np.flatnonzero(code)
+        if len(occupied) > BUSY * code.size:
+            y = self._dense(torch.from_numpy(code))
+            hidden = F.linear(y.reshape(len(y), -1), self.fc1_w, self.fc1_b)
         else:
-            y = self._sparse(code, occupied)
-        y = F.linear(y.reshape(len(y), -1), self.fc1_w, self.fc1_b).relu_()
-        return F.linear(y, self.fc2_w, self.fc2_b)
+            hidden = self._sparse(code, occupied)
+        return F.linear(hidden.relu_(), self.fc2_w, self.fc2_b)
 
     def _dense(self, code: torch.Tensor) -> torch.Tensor:
         """The convolutions on whole images; (N, H/4, W/4, C) activations."""
@@ -193,39 +203,60 @@ class _FoldedCNN:
         y = max_pool_2x2(F.conv2d(y, self.w2, self.b2, padding=1)).relu_()
         return F.conv2d(y, self.w3, self.b3, padding=1).relu_().permute(0, 2, 3, 1)
 
-    def _sparse(self, code: torch.Tensor, occupied: torch.Tensor) -> torch.Tensor:
-        """The convolutions as background plus change; (N, H/4, W/4, C) activations."""
-        n = len(code)
-        y = _conv_of_change(self.conv2_bg, n, occupied, self.change[code.view(-1)[occupied]],
-                            self.taps2, self.reach2)
-        y = max_pool_2x2(y.permute(0, 3, 1, 2)).relu_().permute(0, 2, 3, 1)
-        change = (y - self.pooled_bg).view(-1, y.shape[-1])
-        changed = torch.nonzero(torch.count_nonzero(change, 1)).squeeze(1)
-        return _conv_of_change(self.conv3_bg, n, changed, change[changed], self.taps3,
-                               self.reach3).relu_()
+    def _sparse(self, code: np.ndarray, occupied: np.ndarray) -> torch.Tensor:
+        """fc1's output (N, hidden), before its ReLU, as background plus the change the
+        occupied patches (flat indices into code, (N, S, S)) make within their band of rows
+        (the union over the images)."""
+        n, s2 = len(code), code.shape[1]
+        s4 = s2 // 2
+        if len(occupied) == 0:
+            return self.fc1_bg.repeat(n, 1)
+        image, cell = np.divmod(occupied, s2 * s2)
+        row, col = np.divmod(cell, s2)
+        r0, r1 = int(row.min()), int(row.max())
+        # conv2 changes rows r0-1..r1+1; the pool takes whole pairs of them: pooled rows
+        # pa..pb. The padded buffer's rows b0..b1-1 take every tap that lands.
+        pa, pb = max(r0 - 1, 0) // 2, min(r1 + 1, s2 - 1) // 2
+        b0, b1 = min(r0, 2 * pa + 1), max(r1 + 3, 2 * pb + 3)
+        conv2 = _add_taps(self.conv2_bg[b0:b1], n, image, row - b0, col,
+                          self.change[code.reshape(-1)[occupied]], self.taps2, self.reach2)
+        y = conv2[:, 2 * pa + 1 - b0:2 * pb + 3 - b0, 1:-1]
+        pooled = np.maximum(np.maximum(y[:, 0::2, 0::2], y[:, 0::2, 1::2]),
+                            np.maximum(y[:, 1::2, 0::2], y[:, 1::2, 1::2]))
+        change = (pooled.clip(min=0) - self.pooled_bg[pa:pb + 1]).reshape(-1, pooled.shape[-1])
+        changed = np.flatnonzero(change.any(1))
+        image, cell = np.divmod(changed, (pb + 1 - pa) * s4)
+        row, col = np.divmod(cell, s4)
+        conv3 = _add_taps(self.conv3_bg[pa:pb + 3], n, image, row, col, change[changed],
+                          self.taps3, self.reach3)
+        q0, q1 = max(pa - 1, 0), min(pb + 2, s4)  # the rows conv3 changed
+        out = conv3[:, q0 + 1 - pa:q1 + 1 - pa, 1:-1].clip(min=0) - self.out_bg[q0:q1]
+        band = self.fc1_rows[q0 * s4 * out.shape[-1]:q1 * s4 * out.shape[-1]]
+        return torch.addmm(self.fc1_bg, torch.from_numpy(out.reshape(n, -1)), band)
 
 
-def _reach(p: int) -> torch.Tensor:
+def _reach(p: int) -> np.ndarray:
     """Where each tap (kr, kc) of an input at (row, col) lands, as a flat offset in a map
-    padded to p x p: the output at (row + 1 - kr, col + 1 - kc), (row + 2 - kr, col + 2 - kc)
+    padded to width p: the output at (row + 1 - kr, col + 1 - kc), (row + 2 - kr, col + 2 - kc)
     padded."""
-    return torch.tensor([(2 - kr) * p + 2 - kc for kr in range(3) for kc in range(3)])
+    return np.array([(2 - kr) * p + 2 - kc for kr in range(3) for kc in range(3)])
 
 
-def _conv_of_change(background: torch.Tensor, n: int, cells: torch.Tensor,
-                    change: torch.Tensor, taps: torch.Tensor, reach: torch.Tensor) -> torch.Tensor:
-    """conv(background input + change) of n images, channels last. A convolution is linear,
-    so it is conv(background) (given, padded by one cell: (1, S+2, S+2, C_out)) plus each
-    changed cell's value times each tap's weights, added at the neighbour that tap reaches
-    (`reach`, from _reach). cells: flat indices into (n, S, S); change: their (K, C_in)
-    values. (n, S, S, C_out)."""
-    _, p, _, c_out = background.shape
-    s = p - 2
-    out = background.repeat(n, 1, 1, 1).view(-1, c_out)
-    image, row, col = cells // (s * s), cells // s % s, cells % s
-    target = ((image * p * p + row * p + col)[:, None] + reach).view(-1)
-    out.index_add_(0, target, (change @ taps).view(-1, c_out))
-    return out.view(n, p, p, c_out)[:, 1:-1, 1:-1]
+def _add_taps(background: np.ndarray, n: int, image: np.ndarray, row: np.ndarray,
+              col: np.ndarray, change: np.ndarray, taps: torch.Tensor,
+              reach: np.ndarray) -> np.ndarray:
+    """A 3 x 3 convolution of (background input + change), channels last, for one band of
+    rows of several images. A convolution is linear, so it is conv(background) (given: the
+    band's rows of the padded (R, S+2, C_out) output) plus each changed cell's value times
+    each tap's weights, added where that tap lands (`reach`, from _reach). The changed
+    cells of the n images: image, row (within the band) and col, and their (K, C_in)
+    values. (n, R, S+2, C_out), padded."""
+    r, p, c_out = background.shape
+    out = np.tile(background, (n, 1, 1, 1))
+    target = (((image * r + row) * p + col)[:, None] + reach).reshape(-1)
+    torch.from_numpy(out).view(-1, c_out).index_add_(
+        0, torch.from_numpy(target), (torch.from_numpy(change) @ taps).view(-1, c_out))
+    return out
 
 
 def choose_device(device: str = "auto") -> torch.device:
@@ -284,7 +315,8 @@ class Classifier:
         a = self._check(image)
         if a.ndim != 2:
             raise InferenceError(f"predict takes one image (H, W), got shape {a.shape}")
-        return self.predict_batch(a[None])[0]
+        with torch.inference_mode():
+            return _softmax(self._scores(a[None]).cpu().numpy())[0]
 
     def predict_batch(self, images: np.ndarray, batch_size: int = 16) -> np.ndarray:
         """(N, H, W) binary images -> (N, 5) probabilities. Small batches are fastest on
@@ -295,12 +327,16 @@ class Classifier:
         out = np.empty((len(a), len(MODES)), dtype=np.float64)
         with torch.inference_mode():
             for i in range(0, len(a), batch_size):
-                scores = self._scores(a[i:i + batch_size])
-                out[i:i + batch_size] = torch.softmax(scores.double(), 1).cpu().numpy()
+                out[i:i + batch_size] = _softmax(self._scores(a[i:i + batch_size]).cpu().numpy())
         return out
 
 
-# ---- files -------------------------------------------------------------------------------
+def _softmax(scores: np.ndarray) -> np.ndarray:
+    """(N, 5) scores -> probabilities, in float64 (the HMM multiplies many of them)."""
+    s = scores.astype(np.float64)
+    e = np.exp(s - s.max(axis=1, keepdims=True))
+    return e / e.sum(axis=1, keepdims=True)
+
 
 def metadata_path(weights: str | os.PathLike) -> Path:
     return Path(weights).with_suffix(".json")

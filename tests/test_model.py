@@ -85,6 +85,36 @@ def test_fast_cpu_paths_match_the_network(monkeypatch, busy):
     np.testing.assert_allclose(probs.sum(axis=1), 1.0)
 
 
+def _band(first: int, last: int, seed: int = 0) -> np.ndarray:
+    """A sparse image whose occupied cells lie in rows first..last only, touching both."""
+    rng = np.random.default_rng(seed)
+    img = np.zeros((100, 100), np.uint8)
+    rows = np.arange(first, last + 1)
+    img[rows, rng.integers(0, 100, len(rows))] = 1  # every row of the band
+    img[rng.integers(first, last + 1, 30), rng.integers(0, 100, 30)] = 1
+    return img
+
+
+def _network_probs(net: TerrainCNN, images: np.ndarray) -> np.ndarray:
+    with torch.no_grad():
+        return torch.softmax(net(torch.from_numpy(images).float().unsqueeze(1)), 1).numpy()
+
+
+def test_the_sparse_path_works_on_the_band_of_rows_an_image_occupies():
+    """The sparse path computes only the rows the occupied band changes: bands at the top
+    and bottom edges, one row, odd and even ends, alone and in batches of unlike bands."""
+    net = _trained_looking()
+    clf = Classifier(net)
+    bands = [(0, 0), (0, 7), (99, 99), (93, 99), (41, 41), (40, 43), (25, 80), (1, 98)]
+    images = np.stack([_band(a, b, seed=i) for i, (a, b) in enumerate(bands)]
+                      + [np.zeros((100, 100), np.uint8)])
+    ref = _network_probs(net, images)
+    one = np.stack([clf.predict(img) for img in images])
+    np.testing.assert_allclose(one, ref, atol=1e-5)
+    np.testing.assert_allclose(clf.predict_batch(images, batch_size=4), ref, atol=1e-5)
+    assert np.ptp(ref[:, 0]) > 1e-3  # the bands give different scores
+
+
 def test_predict_one_frame_equals_batched_and_checks_shapes():
     clf = Classifier(_trained_looking())
     images = _images(5, seed=1)
