@@ -20,7 +20,8 @@ def add_arguments(parser) -> None:
 
     d = TrainSettings()
     parser.add_argument("--data", nargs="+", required=True, metavar="PATH",
-                        help="session files or folders (.npz from `walkcap synth`)")
+                        help="session files or folders: .npz from `walkcap synth`, .mcap "
+                        "recordings (labelled by the operator)")
     parser.add_argument("--out", default="runs/terrain_cnn.pt", metavar="PATH",
                         help="weights file to write; metadata goes to PATH with .json "
                         "(default runs/terrain_cnn.pt)")
