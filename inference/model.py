@@ -164,12 +164,12 @@ class _FoldedCNN:
             # Per-tap weights (C_in, 9 * C_out), tap kr * 3 + kc, for the sparse path.
             self.taps2 = w2.permute(1, 2, 3, 0).reshape(w2.shape[1], -1).contiguous()
             self.taps3 = w3.permute(1, 2, 3, 0).reshape(w3.shape[1], -1).contiguous()
-            # fc1 reads the last activations in (H, W, C) order, as channels-last stores them.
+            # fc1 reads the last activations in (H, W, C) order, as channels-last stores them,
+            # its weights as (H * W * C, hidden): a band of rows is one slice.
             s4, c3 = net.input_size // 4, w3.shape[0]
-            self.fc1_w = _nhwc(net.fc1.weight.detach().view(-1, c3, s4, s4)).view(
-                net.fc1.out_features, -1)
+            self.fc1_rows = net.fc1.weight.detach().view(-1, c3, s4, s4).permute(
+                2, 3, 1, 0).reshape(-1, net.fc1.out_features).contiguous()
             self.fc1_b = net.fc1.bias.detach().clone()
-            self.fc1_rows = self.fc1_w.t().contiguous()  # a band of rows is one slice
             self.fc2_w, self.fc2_b = net.fc2.weight.detach().clone(), net.fc2.bias.detach().clone()
             # The background, padded by one cell where a convolution follows.
             s2 = net.input_size // 2
@@ -181,8 +181,8 @@ class _FoldedCNN:
             self.conv3_bg = _nhwc(F.pad(conv3, (1, 1, 1, 1)))[0].numpy()
             self.pooled_bg = _nhwc(pooled)[0].numpy()
             self.out_bg = self.conv3_bg[1:-1, 1:-1].clip(min=0)
-            self.fc1_bg = F.linear(torch.from_numpy(self.out_bg).reshape(1, -1), self.fc1_w,
-                                   self.fc1_b)
+            self.fc1_bg = torch.addmm(self.fc1_b, torch.from_numpy(self.out_bg).reshape(1, -1),
+                                      self.fc1_rows)
         self.reach2, self.reach3 = _reach(s2 + 2), _reach(s4 + 2)
 
     def __call__(self, images: np.ndarray) -> torch.Tensor:
@@ -191,7 +191,7 @@ class _FoldedCNN:
         occupied = np.flatnonzero(code)
         if len(occupied) > BUSY * code.size:
             y = self._dense(torch.from_numpy(code))
-            hidden = F.linear(y.reshape(len(y), -1), self.fc1_w, self.fc1_b)
+            hidden = torch.addmm(self.fc1_b, y.reshape(len(y), -1), self.fc1_rows)
         else:
             hidden = self._sparse(code, occupied)
         return F.linear(hidden.relu_(), self.fc2_w, self.fc2_b)
