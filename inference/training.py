@@ -77,6 +77,8 @@ class GroupMetrics:
     # Where the errors fall, when the sessions carry the simulator's truth (see
     # error_breakdown); None otherwise.
     breakdown: dict | None = None
+    # Each session's own accuracy (evaluate_sessions): how far one walk's figure strays.
+    session_accuracy: list | None = None
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -240,6 +242,7 @@ def evaluate_sessions(classifier: Classifier, sessions: list[LabeledSession]
     with the error breakdown when every session carries the simulator's truth."""
     labels: dict[str, list[np.ndarray]] = {"all": []}
     preds: dict[str, list[np.ndarray]] = {"all": []}
+    per_session: dict[str, list[float]] = {"all": []}
     groups: dict[str, list[np.ndarray]] = {"all": []}
     views: dict[str, list[np.ndarray]] = {"all": []}
     near_frames = 0
@@ -252,6 +255,7 @@ def evaluate_sessions(classifier: Classifier, sessions: list[LabeledSession]
         for key in ("all", s.preset or "unknown"):
             labels.setdefault(key, []).append(s.labels)
             preds.setdefault(key, []).append(p)
+            per_session.setdefault(key, []).append(float(np.mean(p == s.labels)))
         if with_truth:
             near_frames = max(1, int(round(NEAR_CHANGE_S * s.meta.get("fps", 15))))
             g = frame_groups(s.labels, s.view_modes, s.errors, near_frames)
@@ -265,6 +269,7 @@ def evaluate_sessions(classifier: Classifier, sessions: list[LabeledSession]
     for k in labels:
         y, p = np.concatenate(labels[k]), np.concatenate(preds[k])
         out[k] = group_metrics(y, p)
+        out[k].session_accuracy = per_session[k]
         if with_truth:
             out[k].breakdown = error_breakdown(np.concatenate(groups[k]), p == y,
                                                np.concatenate(views[k]), near_frames)
@@ -273,10 +278,18 @@ def evaluate_sessions(classifier: Classifier, sessions: list[LabeledSession]
 
 def format_metrics(metrics: dict[str, GroupMetrics], title: str = "") -> str:
     """A readable report: accuracy per group, per class, and the confusion matrices."""
+    from inference.evaluation import mean_sd
+
     lines = [title] if title else []
     for group, m in metrics.items():
         lines.append(f"{group}: {m.accuracy * 100:.2f} % of {m.frames} frames "
                      f"(balanced {m.balanced_accuracy * 100:.2f} %)")
+        if m.session_accuracy and len(m.session_accuracy) > 1:
+            mean, sd = mean_sd(m.session_accuracy)
+            lines.append(f"  per session: mean {mean * 100:.2f} %, SD {sd * 100:.2f} points, "
+                         f"{min(m.session_accuracy) * 100:.1f}-"
+                         f"{max(m.session_accuracy) * 100:.1f} % over "
+                         f"{len(m.session_accuracy)} sessions")
         lines.append("  per class: " + "  ".join(
             f"{k} {'-' if v is None else f'{v * 100:.1f}'}" for k, v in m.per_class.items()))
         lines.append("  confusion (rows true, columns predicted):")

@@ -264,6 +264,23 @@ def test_evaluation_breaks_the_errors_down_when_sessions_carry_the_truth():
     assert m.breakdown is None and "view oracle" not in format_metrics({"indoor": m})
 
 
+def test_evaluation_gives_each_sessions_accuracy_and_their_spread():
+    """The pooled figure hides how much one walk strays: each session's accuracy is kept,
+    per preset, and the report gives their mean, SD and range."""
+    def session(name, preset):
+        return LabeledSession(name, np.zeros((4, 100, 100), np.uint8), np.zeros(4, np.int64),
+                              preset=preset)
+    sessions = [session("a", "indoor"), session("b", "indoor"), session("c", "outdoor")]
+    answers = [0, 0, 0, 0] + [0, 1, 1, 1] + [0, 0, 1, 0]  # right on 4, 1 and 3 frames of 4
+    m = evaluate_sessions(_FixedAnswers(answers), sessions)
+    assert m["indoor"].session_accuracy == [1.0, 0.25]
+    assert m["outdoor"].session_accuracy == [0.75]
+    assert m["all"].session_accuracy == [1.0, 0.25, 0.75]
+    text = format_metrics({"indoor": m["indoor"], "outdoor": m["outdoor"]})
+    assert "per session: mean 62.50 %, SD 53.03 points, 25.0-100.0 % over 2 sessions" in text
+    assert text.count("per session") == 1  # one session has no spread
+
+
 _KEPT_SCRIPT = """
 import sys
 import numpy as np
