@@ -235,7 +235,9 @@ def run_all(seconds: float = 15.0, progress=print) -> list[Result]:
     progress("CNN")
     cnn = bench_cnn(500)
     results.append(Result("cnn_frame", cnn["cnn_frame_ms"], "ms", 1.0, "lower",
-                          f"noise images {cnn['cnn_frame_busy_ms']:.2f} ms"))
+                          f"walk: {cnn['walk_patches_occupied']:.0%} of patches, a band of "
+                          f"{cnn['walk_band_rows']:.0%} of rows; noise images "
+                          f"{cnn['cnn_frame_busy_ms']:.2f} ms"))
     results.append(Result("cnn_batch_rate", cnn["cnn_batch_rate"], "frames/s", 2000, "higher"))
     progress("fusion")
     fusion = bench_fusion(20000)

@@ -495,4 +495,10 @@ def bench_cnn(frames: int = 500, path: str | None = None, threads: int = 1) -> d
         rate = frames / (time.perf_counter() - t)
     finally:
         torch.set_num_threads(before)
-    return {"cnn_frame_ms": frame_ms, "cnn_frame_busy_ms": busy_ms, "cnn_batch_rate": float(rate)}
+    # What sets the sparse path's cost: the share of occupied patches and of occupied rows.
+    occupied = _patch_codes(images) != 0
+    rows = occupied.any(axis=2)
+    span = [np.ptp(np.flatnonzero(r)) + 1 if r.any() else 0 for r in rows]
+    return {"cnn_frame_ms": frame_ms, "cnn_frame_busy_ms": busy_ms, "cnn_batch_rate": float(rate),
+            "walk_patches_occupied": float(np.median(occupied.mean(axis=(1, 2)))),
+            "walk_band_rows": float(np.median(span) / rows.shape[1])}

@@ -8,7 +8,7 @@ import torch
 from devices.frames import MODES
 from inference.errors import InferenceError
 from inference.model import (
-    BUNDLED_PATH, Classifier, TerrainCNN, bench_cnn, load_classifier, metadata_path,
+    BUNDLED_PATH, BUSY, Classifier, TerrainCNN, bench_cnn, load_classifier, metadata_path,
     save_model,
 )
 
@@ -237,8 +237,11 @@ def test_mismatched_file_is_one_clear_error(tmp_path):
 
 def test_bench_cnn_reports_its_figures():
     result = bench_cnn(frames=20)
-    assert set(result) == {"cnn_frame_ms", "cnn_frame_busy_ms", "cnn_batch_rate"}
+    assert set(result) == {"cnn_frame_ms", "cnn_frame_busy_ms", "cnn_batch_rate",
+                           "walk_patches_occupied", "walk_band_rows"}
     assert min(result.values()) > 0
+    # A walk's images are sparse and fill a band: what the sparse path's cost rests on.
+    assert result["walk_patches_occupied"] < BUSY and result["walk_band_rows"] < 0.5
 
 
 def test_the_bundled_model_is_small_loads_safely_and_is_the_default():
