@@ -7,13 +7,19 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 TORCH := torch==2.13.0
 
-.PHONY: run test install system-deps bytecode clean
+.PHONY: run test lint install system-deps bytecode clean
 
 run: install
 	$(BIN)/walkcap tui
 
-test: install
+test: install lint
 	$(BIN)/python -m pytest -q
+
+# Style and the one-way imports (devices -> inference -> capture -> tui), as CI runs them.
+lint: install
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+	$(BIN)/lint-imports
 
 install: system-deps $(STAMP) bytecode
 

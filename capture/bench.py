@@ -3,6 +3,7 @@
 Each function measures one thing and returns plain numbers; `run_all` collects them as
 results with their goals. Numbers depend on the machine: the report says which it was.
 """
+
 from __future__ import annotations
 
 import os
@@ -33,8 +34,13 @@ class Result:
         return self.value <= self.goal if self.better == "lower" else self.value >= self.goal
 
     def to_dict(self) -> dict:
-        return {"name": self.name, "value": round(float(self.value), 4), "unit": self.unit,
-                "goal": self.goal, "better": self.better}
+        return {
+            "name": self.name,
+            "value": round(float(self.value), 4),
+            "unit": self.unit,
+            "goal": self.goal,
+            "better": self.better,
+        }
 
 
 def machine() -> dict:
@@ -54,9 +60,15 @@ def machine() -> dict:
         mem_gb = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
     except (ValueError, OSError):
         pass
-    return {"cpu": cpu, "cores": os.cpu_count(), "memory_gib": round(mem_gb, 1),
-            "python": platform.python_version(), "torch": torch.__version__,
-            "platform": platform.platform(), "load_avg_1min": round(os.getloadavg()[0], 2)}
+    return {
+        "cpu": cpu,
+        "cores": os.cpu_count(),
+        "memory_gib": round(mem_gb, 1),
+        "python": platform.python_version(),
+        "torch": torch.__version__,
+        "platform": platform.platform(),
+        "load_avg_1min": round(os.getloadavg()[0], 2),
+    }
 
 
 def rss_mib(pid: int | str = "self") -> float:
@@ -80,6 +92,7 @@ def rss_growth_mib_per_min(samples: list, after_s: float = 60.0) -> tuple[float,
     """Slope (least squares) of the host's RSS in (elapsed s, MiB, ...) samples after the
     first `after_s` (warm-up allocates), and the slope over the last half of those alone:
     memory that levels off shows a second figure near 0, a leak shows two alike."""
+
     def slope(rows):
         if len(rows) < 3:
             return float("nan")
@@ -87,7 +100,7 @@ def rss_growth_mib_per_min(samples: list, after_s: float = 60.0) -> tuple[float,
         return float(np.polyfit(t, m, 1)[0])
 
     settled = [r for r in samples if r[0] >= after_s]
-    return slope(settled), slope(settled[len(settled) // 2:])
+    return slope(settled), slope(settled[len(settled) // 2 :])
 
 
 def classifier(path: str | None = None):
@@ -108,10 +121,10 @@ def classifier(path: str | None = None):
 
 class LatencyLog:
     """Every frame's latency in one float64 array, allocated (and touched) up front for the
-    frames expected: the soak measures the session's memory, so the bench's own record must
-    not grow with it (8 bytes a frame: a deque of Python floats took about 32, an estimated
-86 KiB a minute at 45 fps).
-    Stands in for the session's bounded deque: append under the session's lock."""
+        frames expected: the soak measures the session's memory, so the bench's own record must
+        not grow with it (8 bytes a frame: a deque of Python floats took about 32, an estimated
+    86 KiB a minute at 45 fps).
+        Stands in for the session's bounded deque: append under the session's lock."""
 
     def __init__(self, expected_frames: int) -> None:
         self._values = np.full(max(int(expected_frames), 1024), np.nan)
@@ -131,7 +144,7 @@ class LatencyLog:
 
     def since(self, k: int) -> np.ndarray:
         """A copy of the latencies from the k-th frame on."""
-        return self._values[k:self._n].copy()
+        return self._values[k : self._n].copy()
 
 
 @dataclass
@@ -151,8 +164,16 @@ class SessionRun:
     pipeline_priority: str = ""  # how the pipeline thread was scheduled
 
 
-def session_run(fps: float, imu_hz: int, seconds: float, folder: str, *, clf=None,
-                sample_every_s: float = 0.0, on_sample=None) -> SessionRun:
+def session_run(
+    fps: float,
+    imu_hz: int,
+    seconds: float,
+    folder: str,
+    *,
+    clf=None,
+    sample_every_s: float = 0.0,
+    on_sample=None,
+) -> SessionRun:
     """A real mock session (devices, pipeline, recorder) for `seconds`, recording."""
     from capture.session import Session, SubjectInfo
 
@@ -175,8 +196,13 @@ def session_run(fps: float, imu_hz: int, seconds: float, folder: str, *, clf=Non
         seen = 0
         while time.monotonic() - t0 < seconds and not session.finished.is_set():
             if sample_every_s and time.monotonic() >= next_sample:
-                memory.append((round(time.monotonic() - t0, 1), round(rss_mib(), 1),
-                               round(rss_mib(rig.pid), 1) if rig is not None else float("nan")))
+                memory.append(
+                    (
+                        round(time.monotonic() - t0, 1),
+                        round(rss_mib(), 1),
+                        round(rss_mib(rig.pid), 1) if rig is not None else float("nan"),
+                    )
+                )
                 if on_sample is not None:
                     with session._lock:
                         recent = log.since(seen)  # since the last sample
@@ -191,13 +217,20 @@ def session_run(fps: float, imu_hz: int, seconds: float, folder: str, *, clf=Non
         stats = session.stop()
     cam = snap.camera
     return SessionRun(
-        fps=fps, imu_hz=imu_hz, seconds=seconds, frames=snap.frames, latency_ms=latencies,
+        fps=fps,
+        imu_hz=imu_hz,
+        seconds=seconds,
+        frames=snap.frames,
+        latency_ms=latencies,
         dropped=(cam.dropped + cam.errors if cam else 0) + (stats.dropped if stats else 0),
         renderer_skipped=renderer_skipped(cam),
         record_bytes=stats.bytes_written if stats else 0,
-        record_seconds=stats.duration_s if stats else 0.0, path=stats.path if stats else "",
-        sync_p99_ms=snap.sync.get("p99_ms", float("nan")), rss_mib=memory,
-        pipeline_priority=session.pipeline_priority)
+        record_seconds=stats.duration_s if stats else 0.0,
+        path=stats.path if stats else "",
+        sync_p99_ms=snap.sync.get("p99_ms", float("nan")),
+        rss_mib=memory,
+        pipeline_priority=session.pipeline_priority,
+    )
 
 
 def replay_speedup(path: str, clf=None, runs: int = 3) -> float:
@@ -225,25 +258,51 @@ def run_all(seconds: float = 15.0, progress=print) -> list[Result]:
 
     results: list[Result] = []
     progress("Xbus parser")
-    results.append(Result("xbus_parse_rate", bench_parse_rate(2.0), "messages/s", 200_000, "higher"))
+    results.append(
+        Result("xbus_parse_rate", bench_parse_rate(2.0), "messages/s", 200_000, "higher")
+    )
     progress("simulator")
     results.append(Result("sim_frame", bench_sim_frame(200), "ms", 5.0, "lower"))
     progress("preprocessing")
     pre = bench_preprocess(200)
-    results.append(Result("preprocess_frame", pre["numpy_median_ms"], "ms", 2.0, "lower",
-                          f"Open3D backend {pre.get('open3d_median_ms', float('nan')):.2f} ms"))
+    results.append(
+        Result(
+            "preprocess_frame",
+            pre["numpy_median_ms"],
+            "ms",
+            2.0,
+            "lower",
+            f"Open3D backend {pre.get('open3d_median_ms', float('nan')):.2f} ms",
+        )
+    )
     progress("CNN")
     cnn = bench_cnn(500)
-    results.append(Result("cnn_frame", cnn["cnn_frame_ms"], "ms", 1.0, "lower",
-                          f"walk: {cnn['walk_patches_occupied']:.0%} of patches, a band of "
-                          f"{cnn['walk_band_rows']:.0%} of rows; noise images "
-                          f"{cnn['cnn_frame_busy_ms']:.2f} ms"))
+    results.append(
+        Result(
+            "cnn_frame",
+            cnn["cnn_frame_ms"],
+            "ms",
+            1.0,
+            "lower",
+            f"walk: {cnn['walk_patches_occupied']:.0%} of patches, a band of "
+            f"{cnn['walk_band_rows']:.0%} of rows; noise images "
+            f"{cnn['cnn_frame_busy_ms']:.2f} ms",
+        )
+    )
     results.append(Result("cnn_batch_rate", cnn["cnn_batch_rate"], "frames/s", 2000, "higher"))
     progress("fusion")
     fusion = bench_fusion(20000)
     results.append(Result("fusion_update", fusion["fusion_update_us"], "us", 5.0, "lower"))
-    results.append(Result("fusion_speedup_vs_paper_loop", fusion["speedup"], "x", None, "higher",
-                          f"numpy transcription {fusion['paper_loop_us']:.1f} us"))
+    results.append(
+        Result(
+            "fusion_speedup_vs_paper_loop",
+            fusion["speedup"],
+            "x",
+            None,
+            "higher",
+            f"numpy transcription {fusion['paper_loop_us']:.1f} us",
+        )
+    )
     clf = classifier()
     with tempfile.TemporaryDirectory() as tmp:
         for fps, imu_hz in ((15.0, 100), (45.0, 400)):
@@ -252,22 +311,45 @@ def run_all(seconds: float = 15.0, progress=print) -> list[Result]:
             lat = run.latency_ms
             tag = f"{fps:g}fps"
             results.append(Result(f"latency_p50_{tag}", float(np.median(lat)), "ms", None, "lower"))
-            results.append(Result(f"latency_p99_{tag}", float(np.percentile(lat, 99)), "ms", 10.0, "lower",
-                                  f"pipeline thread {run.pipeline_priority}"))
-            skipped = f"{run.renderer_skipped} skipped by the mock renderer" \
-                if run.renderer_skipped else ""
+            results.append(
+                Result(
+                    f"latency_p99_{tag}",
+                    float(np.percentile(lat, 99)),
+                    "ms",
+                    10.0,
+                    "lower",
+                    f"pipeline thread {run.pipeline_priority}",
+                )
+            )
+            skipped = (
+                f"{run.renderer_skipped} skipped by the mock renderer"
+                if run.renderer_skipped
+                else ""
+            )
             results.append(Result(f"dropped_{tag}", run.dropped, "frames", 0, "lower", skipped))
             if fps == 45.0:
                 results.append(Result("sync_error_p99_45fps", run.sync_p99_ms, "ms", 1.0, "lower"))
                 rate = run.record_bytes / max(run.record_seconds, 1e-9) / 1e6
                 results.append(Result("record_rate_45fps", rate, "MB/s", 2.5, "lower"))
-                results.append(Result("record_bytes_per_frame", run.record_bytes / max(run.frames, 1),
-                                      "bytes", None, "lower"))
+                results.append(
+                    Result(
+                        "record_bytes_per_frame",
+                        run.record_bytes / max(run.frames, 1),
+                        "bytes",
+                        None,
+                        "lower",
+                    )
+                )
             else:
                 progress("replay --fast of the 15 fps recording")
-                results.append(Result("replay_speedup", replay_speedup(run.path, clf), "x", 20, "higher"))
+                results.append(
+                    Result("replay_speedup", replay_speedup(run.path, clf), "x", 20, "higher")
+                )
     progress("recorder alone (synthetic frames)")
     rec = bench_record(45, 10)
-    results.append(Result("record_rate_synthetic_45fps", rec.get("mb_per_s", float("nan")), "MB/s", 2.5,
-                          "lower"))
+    results.append(
+        Result(
+            "record_rate_synthetic_45fps", rec.get("mb_per_s", float("nan")), "MB/s", 2.5, "lower"
+        )
+    )
     return results

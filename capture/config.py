@@ -5,6 +5,7 @@ it exists, else the defaults. An unknown key or a value of the wrong type is a
 ConfigError naming the key (`camera.fps: expected a number, got "fast"`).
 Sections extend by adding a field to their dataclass below: the loader validates by type.
 """
+
 from __future__ import annotations
 
 import dataclasses

@@ -6,6 +6,7 @@ labels must survive anything, so each one is also appended as a line of JSON to
 the journal back into the recording. A crash can cut only the last line, which the reader
 skips.
 """
+
 from __future__ import annotations
 
 import json
@@ -55,7 +56,7 @@ class Journal:
                 raise OSError(f"journal {self.path} is closed")
             view = memoryview(line)
             while view:
-                view = view[os.write(self._fd, view):]
+                view = view[os.write(self._fd, view) :]
             os.fsync(self._fd)
             self.entries += 1
 

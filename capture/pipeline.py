@@ -2,6 +2,7 @@
 
 No threads and no I/O here: the live session, replay and the benchmarks run the same code.
 """
+
 from __future__ import annotations
 
 import collections
@@ -14,7 +15,6 @@ import numpy as np
 from devices.clock import now_ns
 from devices.frames import MODES, DepthFrame
 from devices.rotations import quat_multiply, quat_slerp
-
 
 # One torch thread for the per-frame CNN: the pipeline shares the cores with the devices and
 # the recorder, and torch's thread pool spinning against them costs far more than it gains.
@@ -38,13 +38,17 @@ class OrientationTrack:
         self._lock = threading.Lock()
         self._new = threading.Condition(self._lock)
 
-    def add(self, time_ns: int, quaternion: np.ndarray, rate_of_turn: np.ndarray | None = None) -> None:
+    def add(
+        self, time_ns: int, quaternion: np.ndarray, rate_of_turn: np.ndarray | None = None
+    ) -> None:
         with self._new:
             if self._times and time_ns <= self._times[-1]:
                 return  # out of order or repeated: the clock estimator already smooths
             self._times.append(time_ns)
             self._quats.append(np.asarray(quaternion, dtype=np.float64))
-            self._rate = None if rate_of_turn is None else np.asarray(rate_of_turn, dtype=np.float64)
+            self._rate = (
+                None if rate_of_turn is None else np.asarray(rate_of_turn, dtype=np.float64)
+            )
             while self._times and time_ns - self._times[0] > self._span_ns:
                 self._times.popleft()
                 self._quats.popleft()
@@ -58,8 +62,9 @@ class OrientationTrack:
     def wait_until(self, time_ns: int, timeout_s: float) -> bool:
         """Wait until a sample at or after `time_ns` arrived (so we interpolate, not hold)."""
         with self._new:
-            return self._new.wait_for(lambda: bool(self._times) and self._times[-1] >= time_ns,
-                                      timeout_s)
+            return self._new.wait_for(
+                lambda: bool(self._times) and self._times[-1] >= time_ns, timeout_s
+            )
 
     def at(self, time_ns: int) -> tuple[np.ndarray | None, int]:
         """Orientation at `time_ns` and the distance (ns) to the nearest sample used.
@@ -162,9 +167,15 @@ class Pipeline:
             quaternion = np.full(4, np.nan)
         return preprocess(frame.xyz, frame.confidence, quaternion, self.params)
 
-    def process(self, frame: DepthFrame, quaternion: np.ndarray | None,
-                time_ns: int | None = None, *, prepared=None,
-                probabilities: np.ndarray | None = None) -> FrameResult:
+    def process(
+        self,
+        frame: DepthFrame,
+        quaternion: np.ndarray | None,
+        time_ns: int | None = None,
+        *,
+        prepared=None,
+        probabilities: np.ndarray | None = None,
+    ) -> FrameResult:
         """The whole frame; `prepared` and `probabilities` when worked out ahead (replay
         preprocesses in another process and classifies in batches)."""
         from inference.features import terrain_features
@@ -172,12 +183,17 @@ class Pipeline:
         if quaternion is None:
             quaternion = np.full(4, np.nan)
         pre = prepared if prepared is not None else self.prepare(frame, quaternion)
-        probs = np.asarray(probabilities if probabilities is not None
-                           else self.classifier.predict(pre.image), dtype=np.float64)
+        probs = np.asarray(
+            probabilities if probabilities is not None else self.classifier.predict(pre.image),
+            dtype=np.float64,
+        )
         fused = self._push(frame.index, probs)
         done_ns = now_ns()  # the decision is out; features are for display and recording
-        hint = MODES[fused.decision] if fused is not None and fused.decision is not None \
+        hint = (
+            MODES[fused.decision]
+            if fused is not None and fused.decision is not None
             else MODES[int(np.argmax(probs))]
+        )
         feats = terrain_features(pre.profile, hint) if pre.ok else None
         return FrameResult(
             index=frame.index,
@@ -195,7 +211,6 @@ class Pipeline:
             done_ns=done_ns,
         )
 
-
     def _push(self, frame_index: int, probs: np.ndarray):
         """Push to the fusion; its output with push numbers turned into frame indices."""
         self._frame_of_push[self._pushed] = frame_index
@@ -208,21 +223,25 @@ class Pipeline:
         return dataclasses.replace(
             out,
             frame=frame_of(out.frame) if out.frame is not None else None,
-            posterior_frame=frame_of(out.posterior_frame) if out.posterior_frame is not None else None,
+            posterior_frame=frame_of(out.posterior_frame)
+            if out.posterior_frame is not None
+            else None,
             voted_frame=frame_of(out.voted_frame) if out.voted_frame is not None else None,
         )
 
 
-def record_result(recorder, frame: DepthFrame, r: FrameResult,
-                  decided_ns: int | None = None) -> None:
+def record_result(
+    recorder, frame: DepthFrame, r: FrameResult, decided_ns: int | None = None
+) -> None:
     """Everything one frame produced, onto the recorder's topics (non-blocking writes).
 
     `decided_ns`: log time of the inference; live, when the decision was ready; offline
     (replay, synth) the frame's own receive time, so the file stays on one timeline.
     """
     recorder.write_frame(frame, r.time_ns)
-    recorder.write_processed(r.index, r.time_ns, r.host_time_ns, r.cloud, r.image, r.quaternion,
-                             r.flag)
+    recorder.write_processed(
+        r.index, r.time_ns, r.host_time_ns, r.cloud, r.image, r.quaternion, r.flag
+    )
     record_decisions(recorder, r, decided_ns)
     if frame.truth:
         recorder.write_truth(r.index, r.time_ns, frame.truth)
@@ -230,8 +249,13 @@ def record_result(recorder, frame: DepthFrame, r: FrameResult,
 
 def record_decisions(recorder, r: FrameResult, decided_ns: int | None = None) -> None:
     """The CNN, fused and terrain outputs of a frame (record_result without the sensor data)."""
-    recorder.write_inference(r.index, r.time_ns, r.done_ns if decided_ns is None else decided_ns,
-                             r.probabilities, r.fused_dict())
+    recorder.write_inference(
+        r.index,
+        r.time_ns,
+        r.done_ns if decided_ns is None else decided_ns,
+        r.probabilities,
+        r.fused_dict(),
+    )
     if r.features:
         recorder.write_features(r.index, r.time_ns, r.features)
 

@@ -13,15 +13,17 @@ read record by record up to where they stop (capture.recovery.scan), so everythi
 reached the disk is readable without `walkcap recover`.
 Messages are decoded with the schema stored in the file (protobuf descriptors, JSON).
 """
+
 from __future__ import annotations
 
 import contextlib
 import io
 import os
 import struct
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Iterator
+from typing import Any
 
 import numpy as np
 import orjson
@@ -75,8 +77,9 @@ class Recording:
         value = self.metadata.get("recording", {}).get("unix_offset_ns")
         return int(value) if value else None
 
-    def messages(self, topics: Iterable[str] | str | None = None, *,
-                 raw: bool = False) -> Iterator[RecordedMessage]:
+    def messages(
+        self, topics: Iterable[str] | str | None = None, *, raw: bool = False
+    ) -> Iterator[RecordedMessage]:
         """Messages in file order (which is time order per topic), decoded with the file's
         schemas; `raw=True` gives the protobuf objects and JSON dicts without conversion."""
         if isinstance(topics, str):
@@ -88,8 +91,9 @@ class Recording:
                 decoded = decoders.decode(schema, channel, message.data)
                 if not raw:
                     decoded = convert(channel.topic, decoded)
-                yield RecordedMessage(channel.topic, message.log_time, message.publish_time,
-                                      message.sequence, decoded)
+                yield RecordedMessage(
+                    channel.topic, message.log_time, message.publish_time, message.sequence, decoded
+                )
 
     def read(self, topic: str, *, raw: bool = False) -> list[RecordedMessage]:
         return list(self.messages([topic], raw=raw))
@@ -113,7 +117,7 @@ class Recording:
         if not camera:
             return CameraGeometry()
         kwargs = {}
-        for name, f in CameraGeometry.__dataclass_fields__.items():
+        for name in CameraGeometry.__dataclass_fields__:
             if name in camera:
                 kwargs[name] = type(getattr(CameraGeometry(), name))(camera[name])
         return CameraGeometry(**kwargs)
@@ -128,8 +132,10 @@ def _damage_is_an_error(path: Path):
     except CaptureError:
         raise
     except Exception as e:
-        raise CaptureError(f"{path}: the file is damaged ({type(e).__name__}: {e}); "
-                           "copy what is readable with `walkcap recover`") from None
+        raise CaptureError(
+            f"{path}: the file is damaged ({type(e).__name__}: {e}); "
+            "copy what is readable with `walkcap recover`"
+        ) from None
 
 
 def convert(topic: str, decoded: Any) -> Any:
@@ -160,8 +166,10 @@ class _Decoders:
             else:
                 decoder = self._protobuf.decoder_for(channel.message_encoding, schema)
                 if decoder is None:
-                    raise CaptureError(f"{channel.topic}: cannot decode {channel.message_encoding} "
-                                       f"messages with schema {schema.name if schema else None}")
+                    raise CaptureError(
+                        f"{channel.topic}: cannot decode {channel.message_encoding} "
+                        f"messages with schema {schema.name if schema else None}"
+                    )
             self._by_channel[channel.id] = decoder
         return decoder(data)
 
@@ -207,11 +215,20 @@ def _iter_indexed(f, topics: set[str] | None):
         if index.message_index_offsets and wanted.isdisjoint(index.message_index_offsets):
             continue
         for cid, sequence, log_time, publish_time, data in _chunk_messages(
-                f, index.chunk_start_offset, index.chunk_length, wanted):
+            f, index.chunk_start_offset, index.chunk_length, wanted
+        ):
             channel = summary.channels[cid]
-            yield (summary.schemas.get(channel.schema_id), channel,
-                   Message(channel_id=cid, sequence=sequence, log_time=log_time,
-                           publish_time=publish_time, data=data))
+            yield (
+                summary.schemas.get(channel.schema_id),
+                channel,
+                Message(
+                    channel_id=cid,
+                    sequence=sequence,
+                    log_time=log_time,
+                    publish_time=publish_time,
+                    data=data,
+                ),
+            )
 
 
 def _chunk_messages(f, offset: int, length: int, wanted: set[int]):
@@ -227,19 +244,21 @@ def _chunk_messages(f, offset: int, length: int, wanted: set[int]):
     record = f.read(length)
     if len(record) != length or record[0] != Opcode.CHUNK:
         raise ValueError(f"no chunk at byte {offset}")
-    chunk = Chunk.read(ReadDataStream(io.BytesIO(memoryview(record)[RECORD_HEAD.size:])))
+    chunk = Chunk.read(ReadDataStream(io.BytesIO(memoryview(record)[RECORD_HEAD.size :])))
     if chunk.compression == "zstd":
         import zstandard
 
         records = zstandard.ZstdDecompressor().decompress(
-            chunk.data, max_output_size=chunk.uncompressed_size)
+            chunk.data, max_output_size=chunk.uncompressed_size
+        )
     elif chunk.compression == "":
         records = chunk.data
     else:
         raise ValueError(f"chunk compression {chunk.compression!r}: walkcap reads zstd or none")
     if len(records) != chunk.uncompressed_size:
-        raise ValueError(f"chunk at byte {offset}: {len(records)} bytes, "
-                         f"not {chunk.uncompressed_size}")
+        raise ValueError(
+            f"chunk at byte {offset}: {len(records)} bytes, not {chunk.uncompressed_size}"
+        )
     at, end = 0, len(records)
     while at < end:
         opcode, body_length = RECORD_HEAD.unpack_from(records, at)
@@ -249,15 +268,19 @@ def _chunk_messages(f, offset: int, length: int, wanted: set[int]):
         if opcode == Opcode.MESSAGE:
             cid, sequence, log_time, publish_time = _MESSAGE_HEAD.unpack_from(records, at)
             if cid in wanted:
-                yield (cid, sequence, log_time, publish_time,
-                       records[at + _MESSAGE_HEAD.size:at + body_length])
+                yield (
+                    cid,
+                    sequence,
+                    log_time,
+                    publish_time,
+                    records[at + _MESSAGE_HEAD.size : at + body_length],
+                )
         at += body_length
 
 
 def open_recording(path: str | os.PathLike) -> Recording:
     """Open a recording: metadata, attachments and topic counts, finished or not.
     Raises CaptureError (one line) for a missing file or one that is not MCAP."""
-    from mcap.reader import make_reader
 
     p = Path(path)
     if not p.exists():
@@ -286,14 +309,29 @@ def _open(p: Path) -> Recording:
             for cid, channel in summary.channels.items():
                 schema = summary.schemas.get(channel.schema_id)
                 topics[channel.topic] = TopicInfo(
-                    channel.topic, stats.channel_message_counts.get(cid, 0),
-                    schema.name if schema else "", channel.message_encoding,
-                    channel.metadata.get("description", ""))
+                    channel.topic,
+                    stats.channel_message_counts.get(cid, 0),
+                    schema.name if schema else "",
+                    channel.message_encoding,
+                    channel.metadata.get("description", ""),
+                )
             library = reader.get_header().library
             start = stats.message_start_time if stats.message_count else None
             end = stats.message_end_time if stats.message_count else None
-            return Recording(p, True, "", size, library, dict(records), records, attachments,
-                             sizes, topics, start, end)
+            return Recording(
+                p,
+                True,
+                "",
+                size,
+                library,
+                dict(records),
+                records,
+                attachments,
+                sizes,
+                topics,
+                start,
+                end,
+            )
     return _open_unfinished(p, size)
 
 
@@ -324,14 +362,30 @@ def _open_unfinished(p: Path, size: int) -> Recording:
     topics, log_times = {}, {}
     for cid, channel in channels.items():
         schema = schemas.get(channel.schema_id)
-        topics[channel.topic] = TopicInfo(channel.topic, counts.get(cid, 0),
-                                          schema.name if schema else "", channel.message_encoding,
-                                          channel.metadata.get("description", ""))
+        topics[channel.topic] = TopicInfo(
+            channel.topic,
+            counts.get(cid, 0),
+            schema.name if schema else "",
+            channel.message_encoding,
+            channel.metadata.get("description", ""),
+        )
         log_times[channel.topic] = np.sort(np.asarray(times.get(cid, []), dtype=np.int64))
     every = [t for ts in log_times.values() for t in (ts[:1].tolist() + ts[-1:].tolist())]
-    return Recording(p, False, result.reason or "no summary", size, library, dict(records),
-                     records, attachments, {k: len(v) for k, v in attachments.items()}, topics,
-                     min(every) if every else None, max(every) if every else None, log_times)
+    return Recording(
+        p,
+        False,
+        result.reason or "no summary",
+        size,
+        library,
+        dict(records),
+        records,
+        attachments,
+        {k: len(v) for k, v in attachments.items()},
+        topics,
+        min(every) if every else None,
+        max(every) if every else None,
+        log_times,
+    )
 
 
 def _log_times(path: Path, complete: bool) -> dict[str, np.ndarray]:
@@ -403,8 +457,10 @@ def read_trial(path: str | os.PathLike) -> dict:
             truth[int(d["frame_index"])] = mode_index(d.get("mode"))
     index = np.array(sorted(cnn), dtype=np.int64)
     times = np.array([int(cnn[i]["time_ns"]) for i in index], dtype=np.int64)
-    probs = np.array([[np.nan if p is None else p for p in cnn[i]["probabilities"]]
-                      for i in index], dtype=np.float64).reshape(-1, len(MODES))
+    probs = np.array(
+        [[np.nan if p is None else p for p in cnn[i]["probabilities"]] for i in index],
+        dtype=np.float64,
+    ).reshape(-1, len(MODES))
     changes.sort(key=lambda c: c[0])  # stable: same-time changes keep their file order
     return {
         "frame_index": index,
@@ -414,8 +470,11 @@ def read_trial(path: str | os.PathLike) -> dict:
         "decisions": np.array([fused.get(int(i), -1) for i in index], dtype=int),
         "voted": np.array([voted.get(int(i), -1) for i in index], dtype=int),
         "labels": labels_at(times, changes),
-        "truth": (np.array([truth.get(int(i), -1) for i in index], dtype=int)
-                  if T.TRUTH in rec.topics else None),
+        "truth": (
+            np.array([truth.get(int(i), -1) for i in index], dtype=int)
+            if T.TRUTH in rec.topics
+            else None
+        ),
         "label_changes": changes,
         "metadata": rec.metadata,
         "modes": MODES,
@@ -439,18 +498,29 @@ def labeled_session(path: str | os.PathLike, reference: str = "labels"):
     index = sorted(images)
     t = np.array([times[i] for i in index], dtype=np.int64)
     if reference == "truth":
-        truth = {int(m.data["frame_index"]): mode_index(m.data.get("mode"))
-                 for m in rec.messages([T.TRUTH])}
+        truth = {
+            int(m.data["frame_index"]): mode_index(m.data.get("mode"))
+            for m in rec.messages([T.TRUTH])
+        }
         labels = np.array([truth.get(i, -1) for i in index], dtype=np.int64)
     else:
-        changes = sorted(((int(m.data["time_ns"]), m.data.get("mode", ""), m.data.get("source", ""))
-                          for m in rec.messages([T.LABELS])), key=lambda c: c[0])
+        changes = sorted(
+            (
+                (int(m.data["time_ns"]), m.data.get("mode", ""), m.data.get("source", ""))
+                for m in rec.messages([T.LABELS])
+            ),
+            key=lambda c: c[0],
+        )
         labels = labels_at(t, changes).astype(np.int64)
     session = rec.metadata.get("session", {})
-    return LabeledSession(name=Path(rec.path).stem, images=np.stack([images[i] for i in index]),
-                          labels=labels, preset=session.get("condition", ""), source="recording",
-                          meta={"path": str(rec.path), "session": dict(session),
-                                "reference": reference})
+    return LabeledSession(
+        name=Path(rec.path).stem,
+        images=np.stack([images[i] for i in index]),
+        labels=labels,
+        preset=session.get("condition", ""),
+        source="recording",
+        meta={"path": str(rec.path), "session": dict(session), "reference": reference},
+    )
 
 
 def labels_at(times_ns: np.ndarray, changes: list[tuple[int, str, str]]) -> np.ndarray:
@@ -507,8 +577,9 @@ def depth_frames(path: str | os.PathLike) -> Iterator[DepthFrame]:
             yield _frame(index, entry, rays, geometry, truth.get(index))
 
 
-def _frame(index: int, entry: dict, rays: np.ndarray, geometry: CameraGeometry,
-           truth: dict | None) -> DepthFrame:
+def _frame(
+    index: int, entry: dict, rays: np.ndarray, geometry: CameraGeometry, truth: dict | None
+) -> DepthFrame:
     depth = entry[T.DEPTH]
     confidence = entry.get(T.CONFIDENCE)
     if confidence is None:
@@ -518,9 +589,17 @@ def _frame(index: int, entry: dict, rays: np.ndarray, geometry: CameraGeometry,
         gray = np.zeros(depth.shape, np.uint16)
     if truth is not None:
         truth = {k: v for k, v in truth.items() if k != "time_ns"}
-    return DepthFrame(index=index, device_time_ns=entry["pub"], host_time_ns=entry["log"],
-                      xyz=T.xyz_from_range(depth, rays), confidence=confidence, gray=gray,
-                      geometry=geometry, truth=truth, range_mm=depth)
+    return DepthFrame(
+        index=index,
+        device_time_ns=entry["pub"],
+        host_time_ns=entry["log"],
+        xyz=T.xyz_from_range(depth, rays),
+        confidence=confidence,
+        gray=gray,
+        geometry=geometry,
+        truth=truth,
+        range_mm=depth,
+    )
 
 
 def find_gaps(times_ns: np.ndarray, factor: float = 2.5) -> list[tuple[int, float]]:

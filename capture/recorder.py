@@ -20,6 +20,7 @@ to the end of the last complete chunk, the state becomes "failed" with a one-lin
 and what was written stays readable (capture.reader reads unfinished files; `walkcap
 recover` rebuilds the index).
 """
+
 from __future__ import annotations
 
 import collections
@@ -32,7 +33,6 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -86,8 +86,13 @@ def _zstd_levels() -> _ZstdAtLevel:
     return mcap.writer.zstandard
 
 
-MEDIA_TYPES = {".toml": "application/toml", ".json": "application/json",
-               ".npy": "application/x-npy", ".txt": "text/plain", ".yaml": "application/yaml"}
+MEDIA_TYPES = {
+    ".toml": "application/toml",
+    ".json": "application/json",
+    ".npy": "application/x-npy",
+    ".txt": "text/plain",
+    ".yaml": "application/yaml",
+}
 
 
 @dataclass
@@ -167,15 +172,26 @@ class Recorder:
     thread): the caller must not modify them afterwards.
     """
 
-    def __init__(self, path: str | os.PathLike, *, metadata: dict[str, dict[str, str]] | None = None,
-                 attachments: dict[str, bytes] | None = None, queue_size: int = 512,
-                 chunk_interval_s: float = 1.0, gray: bool = False,
-                 cloud_max_points: int = CLOUD_MAX_POINTS, cloud_voxel_m: float = CLOUD_VOXEL_M,
-                 blocking: bool = False, zstd_level: int = ZSTD_LEVEL) -> None:
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        *,
+        metadata: dict[str, dict[str, str]] | None = None,
+        attachments: dict[str, bytes] | None = None,
+        queue_size: int = 512,
+        chunk_interval_s: float = 1.0,
+        gray: bool = False,
+        cloud_max_points: int = CLOUD_MAX_POINTS,
+        cloud_voxel_m: float = CLOUD_VOXEL_M,
+        blocking: bool = False,
+        zstd_level: int = ZSTD_LEVEL,
+    ) -> None:
         self.path = Path(path)
         self.journal_path = journal_path(self.path)
-        self._metadata = {name: {str(k): str(v) for k, v in values.items()}
-                          for name, values in (metadata or {}).items()}
+        self._metadata = {
+            name: {str(k): str(v) for k, v in values.items()}
+            for name, values in (metadata or {}).items()
+        }
         self._attachments = dict(attachments or {})
         self._queue: queue.Queue = queue.Queue(maxsize=queue_size)
         self._queue_size = queue_size
@@ -237,8 +253,9 @@ class Recorder:
         self._file = _TrackedFile(fd)
         try:
             self._journal = Journal(self.journal_path)
-            self._writer = Writer(self._file, chunk_size=64 * 1024 * 1024,
-                                  compression=CompressionType.ZSTD)
+            self._writer = Writer(
+                self._file, chunk_size=64 * 1024 * 1024, compression=CompressionType.ZSTD
+            )
             self._writer.start(profile="", library=f"walkcap {__version__}; {LIBRARY_IDENTIFIER}")
             for name, values in self._recording_metadata().items():
                 self._writer.add_metadata(name, values)
@@ -249,8 +266,14 @@ class Recorder:
             self._file.fsync()
             fsync_directory(folder)
             self._good_offset = self._file.tell()
-            self._journal.append({"type": "start", "recording": self.path.name,
-                                  "time_ns": now_ns(), "unix_time_ns": created})
+            self._journal.append(
+                {
+                    "type": "start",
+                    "recording": self.path.name,
+                    "time_ns": now_ns(),
+                    "unix_time_ns": created,
+                }
+            )
         except OSError as e:
             self._abandon_start()
             self._set_failed(f"cannot write the recording {self.path}: {e.strerror or e}")
@@ -286,7 +309,7 @@ class Recorder:
             "unix_offset_ns": str(unix_offset),  # add to a log time for Unix time
             "chunk_interval_s": str(self._chunk_interval_s),
             "depth": "range along each pixel's ray in mm (16UC1) x attachment "
-                     f"{T.RAYS_ATTACHMENT} = xyz; within 0.5 mm",
+            f"{T.RAYS_ATTACHMENT} = xyz; within 0.5 mm",
             "cloud_quantum_m": repr(T.CLOUD_QUANTUM_M),
             "cloud_max_points": str(self._cloud_max_points),
             "cloud_voxel_m": str(self._cloud_voxel_m),
@@ -310,15 +333,21 @@ class Recorder:
             self._thread = None
         if self._journal is not None:
             try:
-                self._journal.append({"type": "end", "time_ns": now_ns(), "state": self._state,
-                                      "message": self._message})
+                self._journal.append(
+                    {
+                        "type": "end",
+                        "time_ns": now_ns(),
+                        "state": self._state,
+                        "message": self._message,
+                    }
+                )
             except OSError as e:
                 log.warning("journal %s: %s", self.journal_path, e)
             self._journal.close()
             self._journal = None
         return self.stats()
 
-    def __enter__(self) -> "Recorder":
+    def __enter__(self) -> Recorder:
         self.start()
         return self
 
@@ -336,11 +365,20 @@ class Recorder:
         if len(growth) > 1 and growth[-1][0] > growth[0][0]:
             rate = (growth[-1][1] - growth[0][1]) / (growth[-1][0] - growth[0][0])
         return RecorderStats(
-            path=str(self.path), state=self._state, message=self._message,
+            path=str(self.path),
+            state=self._state,
+            message=self._message,
             bytes_written=self._file.position if self._file is not None else 0,
-            messages=self._messages, dropped=sum(dropped.values()), dropped_by_kind=dropped,
-            queue_depth=self._queue.qsize(), queue_size=self._queue_size, labels=self._labels,
-            chunks=self._chunks, errors=self._errors, duration_s=span, bytes_per_s=rate,
+            messages=self._messages,
+            dropped=sum(dropped.values()),
+            dropped_by_kind=dropped,
+            queue_depth=self._queue.qsize(),
+            queue_size=self._queue_size,
+            labels=self._labels,
+            chunks=self._chunks,
+            errors=self._errors,
+            duration_s=span,
+            bytes_per_s=rate,
         )
 
     @property
@@ -375,13 +413,22 @@ class Recorder:
     def write_imu(self, sample) -> None:
         self._put("imu", (sample,))
 
-    def write_processed(self, frame_index: int, time_ns: int, log_time_ns: int, cloud: np.ndarray,
-                        image: np.ndarray, quaternion, flag: str) -> None:
+    def write_processed(
+        self,
+        frame_index: int,
+        time_ns: int,
+        log_time_ns: int,
+        cloud: np.ndarray,
+        image: np.ndarray,
+        quaternion,
+        flag: str,
+    ) -> None:
         """Leveled cloud, classifier input image, camera orientation (None: unknown), flag."""
         self._put("processed", (frame_index, time_ns, log_time_ns, cloud, image, quaternion, flag))
 
-    def write_inference(self, frame_index: int, time_ns: int, log_time_ns: int, cnn_probs,
-                        fused: dict | None) -> None:
+    def write_inference(
+        self, frame_index: int, time_ns: int, log_time_ns: int, cnn_probs, fused: dict | None
+    ) -> None:
         """CNN probabilities of this frame; `fused` (may be empty) refers to an earlier frame."""
         self._put("inference", (frame_index, time_ns, log_time_ns, cnn_probs, fused))
 
@@ -391,8 +438,9 @@ class Recorder:
     def write_truth(self, frame_index: int, time_ns: int, truth: dict) -> None:
         self._put("truth", (frame_index, time_ns, truth))
 
-    def write_encoded(self, frame_index: int, time_ns: int, log_time_ns: int,
-                      messages: list) -> None:
+    def write_encoded(
+        self, frame_index: int, time_ns: int, log_time_ns: int, messages: list
+    ) -> None:
         """One frame's messages encoded elsewhere (encode_depth, encode_processed,
         encode_truth: replay's reader process), written as given. The camera's rays must be
         among the attachments: no depth frame passes here to take them from."""
@@ -465,7 +513,9 @@ class Recorder:
     def _flush_due(self) -> bool:
         if time.monotonic() >= self._next_flush:
             return True
-        return self._span is not None and self._span[1] - self._span[0] >= self._chunk_interval_s * 1e9
+        return (
+            self._span is not None and self._span[1] - self._span[0] >= self._chunk_interval_s * 1e9
+        )
 
     def _flush(self) -> None:
         self._report_drops()
@@ -482,9 +532,14 @@ class Recorder:
 
     def _finish(self) -> None:
         self._flush()  # the last chunk first: a file cut during finish() still has it
-        end = {"messages": str(self._messages), "chunks": str(self._chunks),
-               "dropped": str(sum(self._dropped.values())), "errors": str(self._errors),
-               "labels": str(self._labels), "closed_unix_time_ns": str(time.time_ns())}
+        end = {
+            "messages": str(self._messages),
+            "chunks": str(self._chunks),
+            "dropped": str(sum(self._dropped.values())),
+            "errors": str(self._errors),
+            "labels": str(self._labels),
+            "closed_unix_time_ns": str(time.time_ns()),
+        }
         self._writer.add_metadata("recording_end", end)
         self._writer.finish()
         self._file.fsync()
@@ -495,8 +550,7 @@ class Recorder:
         seconds = (self._last_ns - self._first_ns) * 1e-9 if self._first_ns is not None else 0.0
         self._accepting = False
         self._set_failed(_failure_message(e, self.path, seconds))
-        log.error("recording %s: %s", self.path, self._message,
-                  exc_info=not isinstance(e, OSError))
+        log.error("recording %s: %s", self.path, self._message, exc_info=not isinstance(e, OSError))
         if self._file is not None:
             try:  # cut the half-written chunk: the file ends with the last complete one
                 self._file.truncate(self._good_offset)
@@ -527,26 +581,40 @@ class Recorder:
         n = sum(new.values())
         what = ", ".join(f"{k} {v}" for k, v in sorted(new.items()))
         t = now_ns()
-        event = {"time_ns": t, "device": "recorder", "kind": "drop",
-                 "message": f"recorder fell behind: {n} items dropped ({what})",
-                 "details": dict(new)}
+        event = {
+            "time_ns": t,
+            "device": "recorder",
+            "kind": "drop",
+            "message": f"recorder fell behind: {n} items dropped ({what})",
+            "details": dict(new),
+        }
         self._add(T.EVENTS, t, t, T.encode_json(event))
 
     def _channel(self, topic: str) -> int:
         channel = self._channels.get(topic)
         if channel is None:
             spec = T.topic_spec(topic)
-            schema = self._writer.register_schema(spec.schema_name, spec.schema_encoding,
-                                                  spec.schema_data)
-            channel = self._writer.register_channel(topic, spec.message_encoding, schema,
-                                                    {"description": T.DESCRIPTIONS[topic]})
+            schema = self._writer.register_schema(
+                spec.schema_name, spec.schema_encoding, spec.schema_data
+            )
+            channel = self._writer.register_channel(
+                topic, spec.message_encoding, schema, {"description": T.DESCRIPTIONS[topic]}
+            )
             self._channels[topic] = channel
         return channel
 
-    def _add(self, topic: str, log_time: int, publish_time: int, data: bytes,
-             sequence: int = 0, sensor: bool = False) -> None:
-        self._writer.add_message(self._channel(topic), int(log_time), data, int(publish_time),
-                                 int(sequence) & 0xFFFFFFFF)
+    def _add(
+        self,
+        topic: str,
+        log_time: int,
+        publish_time: int,
+        data: bytes,
+        sequence: int = 0,
+        sensor: bool = False,
+    ) -> None:
+        self._writer.add_message(
+            self._channel(topic), int(log_time), data, int(publish_time), int(sequence) & 0xFFFFFFFF
+        )
         self._messages += 1
         self._open_messages += 1
         if sensor:
@@ -597,8 +665,13 @@ class Recorder:
         rays = np.ascontiguousarray(g.rays(), dtype=np.float32)
         buf = io.BytesIO()
         np.save(buf, rays)
-        self._writer.add_attachment(time.time_ns(), frame.host_time_ns, T.RAYS_ATTACHMENT,
-                                    "application/x-npy", buf.getvalue())
+        self._writer.add_attachment(
+            time.time_ns(),
+            frame.host_time_ns,
+            T.RAYS_ATTACHMENT,
+            "application/x-npy",
+            buf.getvalue(),
+        )
         camera = {k: str(v) for k, v in dataclasses.asdict(g).items()}
         camera["rays_attachment"] = T.RAYS_ATTACHMENT
         camera["from_frame_index"] = str(frame.index)
@@ -607,10 +680,14 @@ class Recorder:
         off_ray = T.ray_error_m(frame.xyz, rays, frame.confidence)
         if off_ray > 0.0005:  # the rays do not fit royale's points: say so in the file
             t = frame.host_time_ns
-            event = {"time_ns": t, "device": "recorder", "kind": "rays_mismatch",
-                     "message": f"points lie up to {off_ray * 1000:.1f} mm off the camera's "
-                                "rays: depth rebuilds are approximate",
-                     "details": {"max_off_ray_m": off_ray}}
+            event = {
+                "time_ns": t,
+                "device": "recorder",
+                "kind": "rays_mismatch",
+                "message": f"points lie up to {off_ray * 1000:.1f} mm off the camera's "
+                "rays: depth rebuilds are approximate",
+                "details": {"max_off_ray_m": off_ray},
+            }
             self._add(T.EVENTS, t, t, T.encode_json(event))
             log.warning("recording %s: %s", self.path, event["message"])
 
@@ -621,20 +698,45 @@ class Recorder:
 
     def _encode_processed(self, index, time_ns, log_time, cloud, image, quaternion, flag) -> list:
         self._remember(index, time_ns, log_time)
-        return encode_processed(index, time_ns, log_time, cloud, image, quaternion, flag,
-                                self._cloud_voxel_m, self._cloud_max_points)
+        return encode_processed(
+            index,
+            time_ns,
+            log_time,
+            cloud,
+            image,
+            quaternion,
+            flag,
+            self._cloud_voxel_m,
+            self._cloud_max_points,
+        )
 
     def _encode_inference(self, index, time_ns, log_time, probs, fused) -> list:
-        out = [(T.CNN, log_time, time_ns, T.encode_json(T.cnn_json(index, time_ns, probs)),
-                index, False)]
+        out = [
+            (
+                T.CNN,
+                log_time,
+                time_ns,
+                T.encode_json(T.cnn_json(index, time_ns, probs)),
+                index,
+                False,
+            )
+        ]
         if fused:
             msg = T.fused_json(index, time_ns, fused)
             out.append((T.FUSED, log_time, time_ns, T.encode_json(msg), index, False))
         return out
 
     def _encode_features(self, index, time_ns, features) -> list:
-        return [(T.FEATURES, self._log_time(index, time_ns), time_ns,
-                 T.encode_json(T.features_json(index, time_ns, features)), index, False)]
+        return [
+            (
+                T.FEATURES,
+                self._log_time(index, time_ns),
+                time_ns,
+                T.encode_json(T.features_json(index, time_ns, features)),
+                index,
+                False,
+            )
+        ]
 
     def _encode_truth(self, index, time_ns, truth) -> list:
         return encode_truth(index, time_ns, self._log_time(index, time_ns), truth)
@@ -658,21 +760,48 @@ def encode_depth(frame, t: int, log_time: int, gray: bool = False) -> list:
     if depth is None:
         depth = T.range_mm(frame.xyz, frame.confidence)
     out = [
-        (T.DEPTH, log_time, t, T.raw_image(depth, t, "16UC1").SerializeToString(),
-         frame.index, True),
-        (T.CONFIDENCE, log_time, t,
-         T.raw_image(np.asarray(frame.confidence, np.uint8), t, "mono8").SerializeToString(),
-         frame.index, True),
+        (
+            T.DEPTH,
+            log_time,
+            t,
+            T.raw_image(depth, t, "16UC1").SerializeToString(),
+            frame.index,
+            True,
+        ),
+        (
+            T.CONFIDENCE,
+            log_time,
+            t,
+            T.raw_image(np.asarray(frame.confidence, np.uint8), t, "mono8").SerializeToString(),
+            frame.index,
+            True,
+        ),
     ]
     if gray and frame.gray is not None:
-        out.append((T.GRAY, log_time, t,
-                    T.raw_image(np.asarray(frame.gray).astype("<u2"), t, "16UC1").SerializeToString(),
-                    frame.index, True))
+        out.append(
+            (
+                T.GRAY,
+                log_time,
+                t,
+                T.raw_image(np.asarray(frame.gray).astype("<u2"), t, "16UC1").SerializeToString(),
+                frame.index,
+                True,
+            )
+        )
     return out
 
 
-def encode_processed(index: int, time_ns: int, log_time: int, cloud, image, quaternion, flag: str,
-                     voxel_m: float = CLOUD_VOXEL_M, max_points: int = CLOUD_MAX_POINTS) -> list:
+def encode_processed(
+    index: int,
+    time_ns: int,
+    log_time: int,
+    cloud,
+    image,
+    quaternion,
+    flag: str,
+    voxel_m: float = CLOUD_VOXEL_M,
+    max_points: int = CLOUD_MAX_POINTS,
+) -> list:
     points = np.asarray(cloud, dtype=np.float32).reshape(-1, 3)
     n = len(points)
     if voxel_m > 0 and n:
@@ -689,30 +818,62 @@ def encode_processed(index: int, time_ns: int, log_time: int, cloud, image, quat
     image_u8 = T.binary_image_u8(image)
     oriented = quaternion is not None and bool(np.all(np.isfinite(quaternion)))
     out = [
-        (T.CLOUD, log_time, time_ns, T.cloud_message(points, time_ns).SerializeToString(),
-         index, False),
-        (T.BINARY_IMAGE, log_time, time_ns,
-         T.raw_image(image_u8, time_ns, "mono8", frame_id="").SerializeToString(), index, False),
-        (T.PREPROCESS, log_time, time_ns,
-         T.encode_json(T.preprocess_json(index, time_ns, flag, oriented, n, len(points))),
-         index, False),
+        (
+            T.CLOUD,
+            log_time,
+            time_ns,
+            T.cloud_message(points, time_ns).SerializeToString(),
+            index,
+            False,
+        ),
+        (
+            T.BINARY_IMAGE,
+            log_time,
+            time_ns,
+            T.raw_image(image_u8, time_ns, "mono8", frame_id="").SerializeToString(),
+            index,
+            False,
+        ),
+        (
+            T.PREPROCESS,
+            log_time,
+            time_ns,
+            T.encode_json(T.preprocess_json(index, time_ns, flag, oriented, n, len(points))),
+            index,
+            False,
+        ),
     ]
     if oriented:
-        out.append((T.TF, log_time, time_ns,
-                    T.transform_message(quaternion, time_ns).SerializeToString(), index, False))
+        out.append(
+            (
+                T.TF,
+                log_time,
+                time_ns,
+                T.transform_message(quaternion, time_ns).SerializeToString(),
+                index,
+                False,
+            )
+        )
     return out
 
 
 def encode_truth(index: int, time_ns: int, log_time: int, truth: dict) -> list:
-    return [(T.TRUTH, log_time, time_ns, T.encode_json(T.truth_json(index, time_ns, truth)),
-             index, False)]
+    return [
+        (
+            T.TRUTH,
+            log_time,
+            time_ns,
+            T.encode_json(T.truth_json(index, time_ns, truth)),
+            index,
+            False,
+        )
+    ]
 
 
 # ---- benchmark ----------------------------------------------------------------------------
 
 
-def synthetic_frame(index: int, time_ns: int, noise: float = 0.01, seed: int = 0,
-                    geometry=None):
+def synthetic_frame(index: int, time_ns: int, noise: float = 0.01, seed: int = 0, geometry=None):
     """A depth frame like the pico flexx gives on a thigh while walking: level ground and a
     step ahead, range noise `noise` x range (the sensor's ~1 %), confidence 0 where invalid."""
     from devices.frames import CameraGeometry, DepthFrame
@@ -736,9 +897,16 @@ def synthetic_frame(index: int, time_ns: int, noise: float = 0.01, seed: int = 0
     xyz = (rays * t[:, None]).astype(np.float32).reshape(g.height, g.width, 3)
     confidence = np.where(valid, 255, 0).astype(np.uint8).reshape(g.height, g.width)
     gray = (np.where(valid, 4000 / np.maximum(t, 0.1) ** 2, 0)).astype(np.uint16)
-    return DepthFrame(index=index, device_time_ns=time_ns, host_time_ns=time_ns + 2_000_000,
-                      xyz=xyz, confidence=confidence, gray=gray.reshape(g.height, g.width),
-                      geometry=g, truth={"mode": "LG", "pose": np.eye(4)})
+    return DepthFrame(
+        index=index,
+        device_time_ns=time_ns,
+        host_time_ns=time_ns + 2_000_000,
+        xyz=xyz,
+        confidence=confidence,
+        gray=gray.reshape(g.height, g.width),
+        geometry=g,
+        truth={"mode": "LG", "pose": np.eye(4)},
+    )
 
 
 def corridor_cloud(frame, corridor_m: float = 0.1, forward_m: float = 1.5) -> np.ndarray:
@@ -749,12 +917,18 @@ def corridor_cloud(frame, corridor_m: float = 0.1, forward_m: float = 1.5) -> np
     swing = np.radians(20.0) * np.sin(2 * np.pi * frame.index / 45.0)
     level = quat_to_matrix(quat_from_euler(0.0, swing, 0.0)) @ mounting_matrix(0, 35, 0)
     points = frame.xyz[frame.confidence > 0].astype(np.float64) @ level.T
-    keep = (np.abs(points[:, 1]) <= corridor_m / 2) & (points[:, 0] >= 0) & (points[:, 0] <= forward_m)
+    keep = (
+        (np.abs(points[:, 1]) <= corridor_m / 2) & (points[:, 0] >= 0) & (points[:, 0] <= forward_m)
+    )
     return (points[keep] - [0.0, 0.0, 0.55]).astype(np.float32)
 
 
-def bench_record(fps: float = 45.0, seconds: float = 10.0, imu_hz: float = 100.0,
-                 folder: str | os.PathLike | None = None) -> dict:
+def bench_record(
+    fps: float = 45.0,
+    seconds: float = 10.0,
+    imu_hz: float = 100.0,
+    folder: str | os.PathLike | None = None,
+) -> dict:
     """Record `seconds` of synthetic data at `fps` as fast as possible; report the file's
     size per second of data and per frame (all topics: depth with 1 % range noise,
     confidence, corridor cloud, image, transform, inference, features, IMU at `imu_hz`)."""
@@ -768,8 +942,11 @@ def bench_record(fps: float = 45.0, seconds: float = 10.0, imu_hz: float = 100.0
     clouds = [corridor_cloud(f) for f in frames]
     with tempfile.TemporaryDirectory(dir=folder) as tmp:
         path = Path(tmp) / "bench.mcap"
-        rec = Recorder(path, metadata={"session": {"subject": "BENCH"}},
-                       queue_size=n_frames * 8 + int(imu_hz * seconds) + 16)
+        rec = Recorder(
+            path,
+            metadata={"session": {"subject": "BENCH"}},
+            queue_size=n_frames * 8 + int(imu_hz * seconds) + 16,
+        )
         rec.start()
         t0 = now_ns()
         wall = time.perf_counter()
@@ -778,36 +955,66 @@ def bench_record(fps: float = 45.0, seconds: float = 10.0, imu_hz: float = 100.0
         for i in range(n_frames):
             t = t0 + int(i * 1e9 / fps)
             while next_imu <= t:
-                rec.write_imu(ImuSample(host_time_ns=next_imu + 1_000_000, time_ns=next_imu,
-                                        packet_counter=(next_imu - t0) // imu_period,
-                                        sample_time_fine=int((next_imu - t0) // 100_000),
-                                        quaternion=np.array([1.0, 0, 0, 0]) + rng.normal(0, 1e-3, 4),
-                                        acceleration=np.array([0, 0, 9.81]) + rng.normal(0, 0.05, 3),
-                                        rate_of_turn=rng.normal(0, 0.01, 3), status_word=3))
+                rec.write_imu(
+                    ImuSample(
+                        host_time_ns=next_imu + 1_000_000,
+                        time_ns=next_imu,
+                        packet_counter=(next_imu - t0) // imu_period,
+                        sample_time_fine=int((next_imu - t0) // 100_000),
+                        quaternion=np.array([1.0, 0, 0, 0]) + rng.normal(0, 1e-3, 4),
+                        acceleration=np.array([0, 0, 9.81]) + rng.normal(0, 0.05, 3),
+                        rate_of_turn=rng.normal(0, 0.01, 3),
+                        status_word=3,
+                    )
+                )
                 next_imu += imu_period
             f = frames[i % len(frames)]
-            f = type(f)(index=i, device_time_ns=t, host_time_ns=t + 2_000_000, xyz=f.xyz,
-                        confidence=f.confidence, gray=f.gray, geometry=f.geometry, truth=f.truth)
+            f = type(f)(
+                index=i,
+                device_time_ns=t,
+                host_time_ns=t + 2_000_000,
+                xyz=f.xyz,
+                confidence=f.confidence,
+                gray=f.gray,
+                geometry=f.geometry,
+                truth=f.truth,
+            )
             rec.write_frame(f)
             cloud = clouds[i % len(frames)]
             image = np.zeros((100, 100), np.uint8)
-            image[60 + int(10 * np.sin(i / 20)):, :] = 1
+            image[60 + int(10 * np.sin(i / 20)) :, :] = 1
             rec.write_processed(i, t, t + 2_000_000, cloud, image, np.array([1.0, 0, 0, 0]), "")
             probs = rng.dirichlet(np.ones(5))
-            rec.write_inference(i, t, t + 8_000_000, probs, {
-                "frame_index": max(0, i - 2), "decision": "LG", "posterior": probs,
-                "voted": "LG", "voted_frame_index": max(0, i - 3)})
+            rec.write_inference(
+                i,
+                t,
+                t + 8_000_000,
+                probs,
+                {
+                    "frame_index": max(0, i - 2),
+                    "decision": "LG",
+                    "posterior": probs,
+                    "voted": "LG",
+                    "voted_frame_index": max(0, i - 3),
+                },
+            )
             rec.write_features(i, t, {"riser_m": 0.17, "tread_m": 0.3, "slope_deg": 0.0})
         stats = rec.close()
         elapsed = time.perf_counter() - wall
         size = path.stat().st_size
         by_topic = _compressed_by_topic(path)
     return {
-        "fps": fps, "seconds": seconds, "frames": n_frames,
+        "fps": fps,
+        "seconds": seconds,
+        "frames": n_frames,
         "cloud_points": float(np.mean([len(c) for c in clouds])),
-        "bytes": size, "mb_per_s": size / seconds / 1e6, "bytes_per_frame": size / n_frames,
-        "write_s": elapsed, "realtime_factor": seconds / elapsed if elapsed else float("inf"),
-        "dropped": stats.dropped, "state": stats.state,
+        "bytes": size,
+        "mb_per_s": size / seconds / 1e6,
+        "bytes_per_frame": size / n_frames,
+        "write_s": elapsed,
+        "realtime_factor": seconds / elapsed if elapsed else float("inf"),
+        "dropped": stats.dropped,
+        "state": stats.state,
         "mb_per_s_by_topic": {k: round(v / seconds / 1e6, 4) for k, v in by_topic.items()},
     }
 
@@ -822,8 +1029,11 @@ def _compressed_by_topic(path: Path) -> dict[str, int]:
     groups: dict[tuple[str, int], list[bytes]] = collections.defaultdict(list)
     rec = open_recording(path)
     for m in rec.messages(raw=True):
-        data = m.data.SerializeToString() if hasattr(m.data, "SerializeToString") else \
-            T.encode_json(m.data)
+        data = (
+            m.data.SerializeToString()
+            if hasattr(m.data, "SerializeToString")
+            else T.encode_json(m.data)
+        )
         groups[(m.topic, (m.log_time_ns - (rec.start_ns or 0)) // 1_000_000_000)].append(data)
     out: dict[str, int] = collections.Counter()
     for (topic, _), items in groups.items():

@@ -7,6 +7,7 @@ first one that is incomplete or damaged (a chunk whose CRC or decompression fail
 `recover` writes what the scan found into a new, indexed file and merges the journal:
 labels and operator markers missing from the file are added.
 """
+
 from __future__ import annotations
 
 import io
@@ -14,14 +15,25 @@ import logging
 import os
 import struct
 import zlib
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import BinaryIO, Iterator
+from typing import BinaryIO
 
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
-from mcap.records import (Attachment, Channel, Chunk, DataEnd, Footer, Header, McapRecord,
-                          Message, Metadata, Schema)
+from mcap.records import (
+    Attachment,
+    Channel,
+    Chunk,
+    DataEnd,
+    Footer,
+    Header,
+    McapRecord,
+    Message,
+    Metadata,
+    Schema,
+)
 from mcap.stream_reader import breakup_chunk
 
 from capture import topics as T
@@ -127,9 +139,15 @@ def _parse(opcode: int, body: bytes) -> list[McapRecord]:
         return breakup_chunk(chunk, validate_crc=True)
     if opcode == Opcode.MESSAGE:
         return [Message.read(stream, len(body))]
-    reader = {Opcode.HEADER: Header, Opcode.SCHEMA: Schema, Opcode.CHANNEL: Channel,
-              Opcode.METADATA: Metadata, Opcode.ATTACHMENT: Attachment,
-              Opcode.DATA_END: DataEnd, Opcode.FOOTER: Footer}.get(opcode)
+    reader = {
+        Opcode.HEADER: Header,
+        Opcode.SCHEMA: Schema,
+        Opcode.CHANNEL: Channel,
+        Opcode.METADATA: Metadata,
+        Opcode.ATTACHMENT: Attachment,
+        Opcode.DATA_END: DataEnd,
+        Opcode.FOOTER: Footer,
+    }.get(opcode)
     if reader is None:
         return []  # indexes and statistics: rebuilt by whoever needs them
     record = reader.read(stream)
@@ -168,8 +186,13 @@ def default_output(path: str | os.PathLike) -> Path:
     return p.with_name(p.stem + ".recovered" + p.suffix)
 
 
-def recover(path: str | os.PathLike, output: str | os.PathLike | None = None, *,
-            journal: str | os.PathLike | None = None, overwrite: bool = False) -> RecoveryReport:
+def recover(
+    path: str | os.PathLike,
+    output: str | os.PathLike | None = None,
+    *,
+    journal: str | os.PathLike | None = None,
+    overwrite: bool = False,
+) -> RecoveryReport:
     """Write every complete record of `path` into a new indexed MCAP file, with the labels
     and markers of the journal that the file lacks. The source is never modified."""
     from mcap.writer import CompressionType, Writer
@@ -205,21 +228,26 @@ def recover(path: str | os.PathLike, output: str | os.PathLike | None = None, *,
                 started = True
             if isinstance(record, Schema):
                 if record.id not in schema_ids:
-                    schema_ids[record.id] = writer.register_schema(record.name, record.encoding,
-                                                                   record.data)
+                    schema_ids[record.id] = writer.register_schema(
+                        record.name, record.encoding, record.data
+                    )
             elif isinstance(record, Channel):
                 if record.id not in channel_ids:
                     channel_ids[record.id] = writer.register_channel(
-                        record.topic, record.message_encoding,
-                        schema_ids.get(record.schema_id, 0), record.metadata)
+                        record.topic,
+                        record.message_encoding,
+                        schema_ids.get(record.schema_id, 0),
+                        record.metadata,
+                    )
                     topics_by_channel[record.id] = record.topic
             elif isinstance(record, Message):
                 channel = channel_ids.get(record.channel_id)
                 if channel is None:
                     continue  # its channel record was lost: undecodable
                 topic = topics_by_channel[record.channel_id]
-                writer.add_message(channel, record.log_time, record.data, record.publish_time,
-                                   record.sequence)
+                writer.add_message(
+                    channel, record.log_time, record.data, record.publish_time, record.sequence
+                )
                 counts[topic] = counts.get(topic, 0) + 1
                 if topic in seen:
                     seen[topic].add(_key(topic, record.data))
@@ -229,28 +257,44 @@ def recover(path: str | os.PathLike, output: str | os.PathLike | None = None, *,
             elif isinstance(record, Metadata):
                 writer.add_metadata(record.name, record.metadata)
             elif isinstance(record, Attachment):
-                writer.add_attachment(record.create_time, record.log_time, record.name,
-                                      record.media_type, record.data)
+                writer.add_attachment(
+                    record.create_time, record.log_time, record.name, record.media_type, record.data
+                )
         if not started:
             writer.start()
-        labels_added, events_added = _merge_journal(writer, entries, seen, topics_by_channel,
-                                                    channel_ids, counts)
-        writer.add_metadata("recovery", {
-            "source": source.name, "source_bytes": str(result.size),
-            "valid_bytes": str(result.valid_end), "source_complete": str(result.complete),
-            "reason": result.reason, "journal": jpath.name if entries else "",
-            "labels_added_from_journal": str(labels_added),
-            "events_added_from_journal": str(events_added),
-        })
+        labels_added, events_added = _merge_journal(
+            writer, entries, seen, topics_by_channel, channel_ids, counts
+        )
+        writer.add_metadata(
+            "recovery",
+            {
+                "source": source.name,
+                "source_bytes": str(result.size),
+                "valid_bytes": str(result.valid_end),
+                "source_complete": str(result.complete),
+                "reason": result.reason,
+                "journal": jpath.name if entries else "",
+                "labels_added_from_journal": str(labels_added),
+                "events_added_from_journal": str(events_added),
+            },
+        )
         writer.finish()
         g.flush()
         os.fsync(g.fileno())
     os.replace(tmp, out)
     return RecoveryReport(
-        source=str(source), output=str(out), complete=result.complete, reason=result.reason,
-        valid_bytes=result.valid_end, lost_bytes=result.lost_bytes,
-        messages=sum(counts.values()), topics=counts, first_ns=first, last_ns=last,
-        labels_added=labels_added, events_added=events_added,
+        source=str(source),
+        output=str(out),
+        complete=result.complete,
+        reason=result.reason,
+        valid_bytes=result.valid_end,
+        lost_bytes=result.lost_bytes,
+        messages=sum(counts.values()),
+        topics=counts,
+        first_ns=first,
+        last_ns=last,
+        labels_added=labels_added,
+        events_added=events_added,
         journal=str(jpath) if entries else "",
     )
 
@@ -264,17 +308,26 @@ def _key(topic: str, data: bytes | dict) -> tuple:
     return (int(m.get("time_ns", 0)), m.get("device", ""), m.get("kind", ""), m.get("message", ""))
 
 
-def _merge_journal(writer, entries: list[dict], seen: dict[str, set],
-                   topics_by_channel: dict[int, str], channel_ids: dict[int, int],
-                   counts: dict[str, int]) -> tuple[int, int]:
+def _merge_journal(
+    writer,
+    entries: list[dict],
+    seen: dict[str, set],
+    topics_by_channel: dict[int, str],
+    channel_ids: dict[int, int],
+    counts: dict[str, int],
+) -> tuple[int, int]:
     """Add the journal's labels and markers that the file does not have."""
     by_topic = {topics_by_channel[old]: new for old, new in channel_ids.items()}
     added = {T.LABELS: 0, T.EVENTS: 0}
     for entry in entries:
         kind = entry.get("type")
         if kind == "label":
-            topic, message = T.LABELS, T.label_json(entry.get("time_ns", 0),
-                                                     entry.get("mode", ""), entry.get("source", ""))
+            topic, message = (
+                T.LABELS,
+                T.label_json(
+                    entry.get("time_ns", 0), entry.get("mode", ""), entry.get("source", "")
+                ),
+            )
         elif kind == "event":
             topic = T.EVENTS
             message = T.event_json({k: v for k, v in entry.items() if k != "type"})
@@ -287,10 +340,12 @@ def _merge_journal(writer, entries: list[dict], seen: dict[str, set],
         channel = by_topic.get(topic)
         if channel is None:
             spec = T.topic_spec(topic)
-            schema = writer.register_schema(spec.schema_name, spec.schema_encoding,
-                                            spec.schema_data)
-            channel = writer.register_channel(topic, spec.message_encoding, schema,
-                                              {"description": T.DESCRIPTIONS[topic]})
+            schema = writer.register_schema(
+                spec.schema_name, spec.schema_encoding, spec.schema_data
+            )
+            channel = writer.register_channel(
+                topic, spec.message_encoding, schema, {"description": T.DESCRIPTIONS[topic]}
+            )
             by_topic[topic] = channel
         t = message["time_ns"]
         writer.add_message(channel, t, T.encode_json(message), t, 0)

@@ -11,6 +11,7 @@ orientation, truth); this one classifies them in batches, fuses, measures the te
 records. While the reader process starts, this one prepares the first frames itself.
 Paced replays (`speed=X`) run in this process alone.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -20,16 +21,15 @@ import queue
 import socket
 import threading
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 
 from capture import topics as T
 from capture.errors import CaptureError
-from capture.pipeline import (CNN_THREADS, OrientationTrack, Pipeline, model_hash,
-                              record_decisions)
+from capture.pipeline import CNN_THREADS, OrientationTrack, Pipeline, model_hash, record_decisions
 from devices.frames import DepthFrame, ImuSample
 
 IMU_LOOKAHEAD_NS = 20_000_000  # samples recorded up to this long after a frame may be used
@@ -47,7 +47,9 @@ class ReplayReport:
 
     @property
     def speedup(self) -> float:
-        return self.seconds_recorded / self.seconds_taken if self.seconds_taken > 0 else float("inf")
+        return (
+            self.seconds_recorded / self.seconds_taken if self.seconds_taken > 0 else float("inf")
+        )
 
 
 def _imu_sample(d: dict) -> ImuSample:
@@ -55,11 +57,17 @@ def _imu_sample(d: dict) -> ImuSample:
         v = d.get(key)
         return None if v is None else np.asarray(v, dtype=np.float64)
 
-    return ImuSample(host_time_ns=int(d["host_time_ns"]), time_ns=d.get("time_ns"),
-                     packet_counter=d.get("packet_counter"),
-                     sample_time_fine=d.get("sample_time_fine"), quaternion=arr("quaternion"),
-                     acceleration=arr("acceleration"), rate_of_turn=arr("rate_of_turn"),
-                     status_word=d.get("status_word"), extra=d.get("extra") or {})
+    return ImuSample(
+        host_time_ns=int(d["host_time_ns"]),
+        time_ns=d.get("time_ns"),
+        packet_counter=d.get("packet_counter"),
+        sample_time_fine=d.get("sample_time_fine"),
+        quaternion=arr("quaternion"),
+        acceleration=arr("acceleration"),
+        rate_of_turn=arr("rate_of_turn"),
+        status_word=d.get("status_word"),
+        extra=d.get("extra") or {},
+    )
 
 
 def default_output(source: Path, folder: Path | None = None) -> Path:
@@ -95,13 +103,16 @@ def orientations(imu: list[ImuSample]) -> tuple[np.ndarray, np.ndarray, np.ndarr
     kept = [s for s in imu if s.quaternion is not None]
     times = np.array([_sample_time(s) for s in kept], dtype=np.int64)
     quats = np.array([s.quaternion for s in kept], dtype=np.float64).reshape(-1, 4)
-    rates = np.array([s.rate_of_turn if s.rate_of_turn is not None else np.full(3, np.nan)
-                      for s in kept], dtype=np.float64).reshape(-1, 3)
+    rates = np.array(
+        [s.rate_of_turn if s.rate_of_turn is not None else np.full(3, np.nan) for s in kept],
+        dtype=np.float64,
+    ).reshape(-1, 3)
     return times, quats, rates
 
 
-def prepared_frames(source: str | Path, params, imu_orientations=None, skip: int = 0
-                    ) -> Iterator[tuple[DepthFrame, np.ndarray | None, object]]:
+def prepared_frames(
+    source: str | Path, params, imu_orientations=None, skip: int = 0
+) -> Iterator[tuple[DepthFrame, np.ndarray | None, object]]:
     """(frame, orientation, Preprocessed) for every recorded frame, in order, after the
     first `skip`. `imu_orientations`: orientations() of the recording's IMU, if already read."""
     from capture.reader import depth_frames, open_recording
@@ -141,8 +152,9 @@ class _ReaderProcess:
         self._received: queue.Queue = queue.Queue(maxsize=self.AHEAD)
         self._closed = threading.Event()
         self.ready = threading.Event()  # set at the child's first message
-        self._receiver = threading.Thread(target=self._receive, name="walkcap-replay-receiver",
-                                          daemon=True)
+        self._receiver = threading.Thread(
+            target=self._receive, name="walkcap-replay-receiver", daemon=True
+        )
 
     def start(self, imu_orientations) -> None:
         """The IMU's orientations, read meanwhile in this process: frames start coming."""
@@ -246,17 +258,26 @@ def _encoded(frame: DepthFrame, q, pre):
 
     t, log_time = frame.device_time_ns, frame.host_time_ns
     messages = encode_depth(frame, t, log_time) + encode_processed(
-        frame.index, t, log_time, pre.cloud, pre.image, q, pre.flag)
+        frame.index, t, log_time, pre.cloud, pre.image, q, pre.flag
+    )
     if frame.truth:
         messages += encode_truth(frame.index, t, log_time, frame.truth)
     none = np.zeros((0, 0), np.uint8)
-    slim = dataclasses.replace(frame, xyz=np.zeros((0, 0, 3), np.float32), confidence=none,
-                               gray=none, range_mm=None)
+    slim = dataclasses.replace(
+        frame, xyz=np.zeros((0, 0, 3), np.float32), confidence=none, gray=none, range_mm=None
+    )
     return slim, q, dataclasses.replace(pre, cloud=np.zeros((0, 3), np.float32)), messages
 
 
-def replay(source: str | Path, config, *, output: str | Path | None = None, speed: float | None = None,
-           classifier=None, progress=None) -> ReplayReport:
+def replay(
+    source: str | Path,
+    config,
+    *,
+    output: str | Path | None = None,
+    speed: float | None = None,
+    classifier=None,
+    progress=None,
+) -> ReplayReport:
     """Run the pipeline on `source` into `output`. speed None: as fast as possible;
     else paced at `speed` x the recorded rate."""
     from capture.reader import open_recording
@@ -280,10 +301,22 @@ def replay(source: str | Path, config, *, output: str | Path | None = None, spee
             frames_in.start(imu_orientations)
             blocks = _head_start(source, params, imu_orientations, frames_in)
         else:  # one by one, at the recorded pace
-            blocks = ([_encoded(frame, q, pre)] for frame, q, pre
-                      in prepared_frames(source, params, imu_orientations))
-        return _replay(source, rec, output, config, params, speed, classifier, progress,
-                       blocks, (imu, labels, events))
+            blocks = (
+                [_encoded(frame, q, pre)]
+                for frame, q, pre in prepared_frames(source, params, imu_orientations)
+            )
+        return _replay(
+            source,
+            rec,
+            output,
+            config,
+            params,
+            speed,
+            classifier,
+            progress,
+            blocks,
+            (imu, labels, events),
+        )
     finally:
         if frames_in is not None:
             frames_in.close()
@@ -309,8 +342,9 @@ def _head_start(source, params, imu_orientations, frames_in: _ReaderProcess):
     yield from frames_in.batches(BATCH)
 
 
-def _replay(source, rec, output, config, params, speed, classifier, progress, blocks,
-            recorded_streams) -> ReplayReport:
+def _replay(
+    source, rec, output, config, params, speed, classifier, progress, blocks, recorded_streams
+) -> ReplayReport:
     from capture.recorder import ZSTD_LEVEL_FAST, Recorder
     from inference import features  # noqa: F401  (imported now, not in the first frame's time)
     from inference.fusion import make_fusion
@@ -318,27 +352,42 @@ def _replay(source, rec, output, config, params, speed, classifier, progress, bl
 
     classifier = classifier or load_classifier(config.model.path or None, threads=CNN_THREADS)
     cfg = config.fusion
-    fusion = make_fusion("hmm+voting", window=cfg.window, vote_delay=cfg.vote_delay,
-                         transition=np.asarray(cfg.transition))
+    fusion = make_fusion(
+        "hmm+voting",
+        window=cfg.window,
+        vote_delay=cfg.vote_delay,
+        transition=np.asarray(cfg.transition),
+    )
     pipeline = Pipeline(params, classifier, fusion)
 
     imu, labels, events = recorded_streams
 
-    metadata = {name: dict(values) for name, values in rec.metadata.items()
-                if name in ("session", "devices", "camera")}
+    metadata = {
+        name: dict(values)
+        for name, values in rec.metadata.items()
+        if name in ("session", "devices", "camera")
+    }
     software = dict(rec.metadata.get("software", {}))
-    software.update({
-        "replay_of": source.name,
-        "model_path": config.model.path or "bundled",
-        "model_hash": model_hash(classifier),
-        "fusion_window": str(cfg.window), "fusion_vote_delay": str(cfg.vote_delay),
-        "fusion_transition": json.dumps(cfg.transition),
-        "preprocess": json.dumps(pipeline.params.to_dict()),
-    })
+    software.update(
+        {
+            "replay_of": source.name,
+            "model_path": config.model.path or "bundled",
+            "model_hash": model_hash(classifier),
+            "fusion_window": str(cfg.window),
+            "fusion_vote_delay": str(cfg.vote_delay),
+            "fusion_transition": json.dumps(cfg.transition),
+            "preprocess": json.dumps(pipeline.params.to_dict()),
+        }
+    )
     metadata["software"] = software
     attachments = {name: data for name, data in rec.attachments.items()}
-    recorder = Recorder(output, metadata=metadata, attachments=attachments, blocking=True,
-                        zstd_level=ZSTD_LEVEL_FAST)
+    recorder = Recorder(
+        output,
+        metadata=metadata,
+        attachments=attachments,
+        blocking=True,
+        zstd_level=ZSTD_LEVEL_FAST,
+    )
     recorder.start()
     batch = getattr(classifier, "predict_batch", None)
     i_imu = 0
@@ -351,8 +400,11 @@ def _replay(source, rec, output, config, params, speed, classifier, progress, bl
         for ev in events:
             recorder.write_event(dict(ev))
         for block in blocks:
-            probs = batch(np.stack([pre.image for _, _, pre, _ in block])) if batch is not None \
+            probs = (
+                batch(np.stack([pre.image for _, _, pre, _ in block]))
+                if batch is not None
                 else [classifier.predict(pre.image) for _, _, pre, _ in block]
+            )
             for (frame, q, pre, encoded), p in zip(block, probs):
                 t = frame.device_time_ns
                 first_t = t if first_t is None else first_t

@@ -5,6 +5,7 @@ camera frames through the pipeline; the recorder writes on its own thread. Nothi
 waits on the UI or the disk: the UI pulls `snapshot()` at its own pace and sends commands
 (`set_label`, `add_marker`, `start_recording`, ...) that only touch memory and queues.
 """
+
 from __future__ import annotations
 
 import collections
@@ -16,7 +17,7 @@ import logging
 import re
 import sys
 import threading
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -24,8 +25,14 @@ import numpy as np
 from capture import __version__
 from capture import config as config_mod
 from capture.errors import CaptureError, ConfigError
-from capture.pipeline import (CNN_THREADS, FrameResult, OrientationTrack, Pipeline, model_hash,
-                              record_result)
+from capture.pipeline import (
+    CNN_THREADS,
+    FrameResult,
+    OrientationTrack,
+    Pipeline,
+    model_hash,
+    record_result,
+)
 from devices.base import DeviceEvent, DeviceStatus
 from devices.clock import now_ns
 from devices.frames import MODES, DepthFrame
@@ -55,7 +62,9 @@ class SubjectInfo:
 
     def validate(self) -> None:
         if not re.fullmatch(r"[A-Za-z0-9_-]{1,32}", self.subject):
-            raise CaptureError("subject id: 1-32 letters, digits, '-' or '_' (pseudonymous, no names)")
+            raise CaptureError(
+                "subject id: 1-32 letters, digits, '-' or '_' (pseudonymous, no names)"
+            )
         if self.height_m is not None and not 0.5 <= self.height_m <= 2.5:
             raise CaptureError("height: expected metres between 0.5 and 2.5")
         if self.weight_kg is not None and not 20 <= self.weight_kg <= 300:
@@ -125,8 +134,14 @@ def open_devices(config: config_mod.Config, camera=None, imu=None):
     from devices.imu import open_imu
 
     sim = config.simulator
-    if camera is None and imu is None and config.camera.backend == "mock" \
-            and config.imu.backend == "mock" and sim.realtime and sim.process:
+    if (
+        camera is None
+        and imu is None
+        and config.camera.backend == "mock"
+        and config.imu.backend == "mock"
+        and sim.realtime
+        and sim.process
+    ):
         return _open_rig(config)
     if camera is None:
         camera = open_camera(config.camera, config.simulator)
@@ -136,8 +151,9 @@ def open_devices(config: config_mod.Config, camera=None, imu=None):
             if hasattr(camera, "orientation_at"):
                 camera.start_time_ns = now_ns()
                 offset = {"s": 0.0}  # emulator start - camera start, known once it runs
-                imu = open_imu(config.imu,
-                               orientation_at=lambda t: camera.orientation_at(t + offset["s"]))
+                imu = open_imu(
+                    config.imu, orientation_at=lambda t: camera.orientation_at(t + offset["s"])
+                )
                 emulator = getattr(imu, "emulator", None)
                 if emulator is not None and emulator.start_time_ns is not None:
                     offset["s"] = (emulator.start_time_ns - camera.start_time_ns) * 1e-9
@@ -181,8 +197,15 @@ def close_devices(*devices) -> None:
 class Session:
     """Open devices, run the pipeline, record trials, serve snapshots and commands."""
 
-    def __init__(self, config: config_mod.Config, *, camera=None, imu=None, classifier=None,
-                 auto_label: bool = False) -> None:
+    def __init__(
+        self,
+        config: config_mod.Config,
+        *,
+        camera=None,
+        imu=None,
+        classifier=None,
+        auto_label: bool = False,
+    ) -> None:
         self.config = config
         self._camera = camera
         self._imu = imu
@@ -219,14 +242,19 @@ class Session:
 
         cfg = self.config
         if not 0 <= cfg.session.realtime_priority <= 99:
-            raise ConfigError(f"session.realtime_priority: 1-99, or 0 for normal scheduling; "
-                              f"got {cfg.session.realtime_priority}")
+            raise ConfigError(
+                f"session.realtime_priority: 1-99, or 0 for normal scheduling; "
+                f"got {cfg.session.realtime_priority}"
+            )
         if self._classifier is None:
             self._classifier = load_classifier(cfg.model.path or None, threads=CNN_THREADS)
         self.model_metadata = dict(getattr(self._classifier, "metadata", {}) or {})
-        fusion = make_fusion("hmm+voting", window=cfg.fusion.window,
-                             vote_delay=cfg.fusion.vote_delay,
-                             transition=np.asarray(cfg.fusion.transition))
+        fusion = make_fusion(
+            "hmm+voting",
+            window=cfg.fusion.window,
+            vote_delay=cfg.fusion.vote_delay,
+            transition=np.asarray(cfg.fusion.transition),
+        )
         self.pipeline = Pipeline(PreprocessParams.from_config(cfg), self._classifier, fusion)
         # First calls are slow (torch's lazy set-up, numpy caches, the recorder's schema
         # modules): pay for them before the camera runs, not in the first frames of a trial.
@@ -255,8 +283,9 @@ class Session:
             raise
         self._spawn(self._imu_loop, "imu")
         pipeline = self._spawn(self._frame_loop, "pipeline")
-        self.pipeline_priority = realtime_priority(pipeline.native_id,
-                                                   cfg.session.realtime_priority)
+        self.pipeline_priority = realtime_priority(
+            pipeline.native_id, cfg.session.realtime_priority
+        )
         self._spawn(self._monitor_loop, "monitor")
 
     def _spawn(self, target, name: str) -> threading.Thread:
@@ -276,7 +305,7 @@ class Session:
         gc.unfreeze()  # what the session held may be collected again (the UI runs on)
         return stats
 
-    def __enter__(self) -> "Session":
+    def __enter__(self) -> Session:
         self.start()
         return self
 
@@ -369,7 +398,9 @@ class Session:
 
     # ---- commands (from the UI or the CLI) --------------------------------------------
 
-    def set_label(self, mode: str, source: str = "operator", time_ns: int | None = None) -> LabelChange:
+    def set_label(
+        self, mode: str, source: str = "operator", time_ns: int | None = None
+    ) -> LabelChange:
         """The true mode from now on. Stamped here, at the key press, not at the next frame."""
         if mode not in MODES:
             raise CaptureError(f"unknown mode {mode!r} (one of {', '.join(MODES)})")
@@ -398,8 +429,11 @@ class Session:
 
     def add_marker(self, note: str = "", time_ns: int | None = None) -> None:
         """A marker at `time_ns` (the key press; default now), with the operator's note."""
-        self._event(DeviceEvent(now_ns() if time_ns is None else time_ns, "operator", "marker",
-                                note or "marker"))
+        self._event(
+            DeviceEvent(
+                now_ns() if time_ns is None else time_ns, "operator", "marker", note or "marker"
+            )
+        )
 
     @property
     def label(self) -> str | None:
@@ -420,7 +454,9 @@ class Session:
         try:
             folder.mkdir(parents=True, exist_ok=True)
         except OSError as e:
-            raise CaptureError(f"cannot create the recordings folder {folder}: {e.strerror}") from None
+            raise CaptureError(
+                f"cannot create the recordings folder {folder}: {e.strerror}"
+            ) from None
         stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
         path = folder / f"{info.subject}_{info.condition}_t{info.trial:02d}_{stamp}.mcap"
         recorder = Recorder(path, metadata=self._metadata(info), attachments=self._attachments())
@@ -492,8 +528,12 @@ class Session:
                 recording=None,
                 recording_started_ns=self._recording_started_ns,
                 frames=self._frames,
-                latency_ms={} if latencies is None else {
-                    "p50": float(np.median(latencies)), "p99": float(np.percentile(latencies, 99))},
+                latency_ms={}
+                if latencies is None
+                else {
+                    "p50": float(np.median(latencies)),
+                    "p99": float(np.percentile(latencies, 99)),
+                },
             )
         snap.camera = self._camera.status() if self._camera else None
         snap.imu = self._imu.status() if self._imu else None

@@ -6,6 +6,7 @@ there is no real time to keep), the pipeline runs as live, labels come from the 
 truth, and a blocking recorder loses nothing. The file has the same topics as a live
 recording, so eval, train and replay read both alike.
 """
+
 from __future__ import annotations
 
 import copy
@@ -27,8 +28,9 @@ TRANSPORT_NS = 3_000_000  # a USB-serial hop: samples arrive ~3 ms after they ar
 FRAME_TRANSFER_NS = 5_000_000  # a ToF frame arrives ~5 ms after its exposure
 
 
-def imu_samples(simulator, rate_hz: float, rng: np.random.Generator, t0_ns: int,
-                noise_deg: float = 0.3):
+def imu_samples(
+    simulator, rate_hz: float, rng: np.random.Generator, t0_ns: int, noise_deg: float = 0.3
+):
     """The thigh's IMU at `rate_hz`: orientation with noise, gravity, rate of turn."""
     n = int(simulator.duration_s * rate_hz) + 1
     t = np.arange(n) / rate_hz
@@ -41,18 +43,33 @@ def imu_samples(simulator, rate_hz: float, rng: np.random.Generator, t0_ns: int,
         dq = quat_multiply(quat_conjugate(q), nxt)  # body-frame rotation to the next sample
         gyro = 2 * dq[1:] * rate_hz * np.sign(dq[0] or 1.0) + rng.normal(0, 0.01, 3)
         time_ns = t0_ns + int(round(t[k] * 1e9))
-        yield ImuSample(host_time_ns=time_ns + TRANSPORT_NS, time_ns=time_ns,
-                        packet_counter=k % 65536, sample_time_fine=int(t[k] * 1e4) % 2**32,
-                        quaternion=noisy, acceleration=accel, rate_of_turn=gyro,
-                        status_word=0b11)
+        yield ImuSample(
+            host_time_ns=time_ns + TRANSPORT_NS,
+            time_ns=time_ns,
+            packet_counter=k % 65536,
+            sample_time_fine=int(t[k] * 1e4) % 2**32,
+            quaternion=noisy,
+            acceleration=accel,
+            rate_of_turn=gyro,
+            status_word=0b11,
+        )
 
 
-def synth_recording(path: str | Path, config: config_mod.Config, classifier, *, preset: str,
-                    seed: int, subject: str = "SIM", trial: int = 1, max_frames: int = 0,
-                    progress=None):
+def synth_recording(
+    path: str | Path,
+    config: config_mod.Config,
+    classifier,
+    *,
+    preset: str,
+    seed: int,
+    subject: str = "SIM",
+    trial: int = 1,
+    max_frames: int = 0,
+    progress=None,
+):
     """Walk one simulated course into the recording at `path`; returns its RecorderStats."""
     from capture.recorder import Recorder
-    from devices.simulator import Simulator, make_course
+    from devices.simulator import Simulator
     from inference.fusion import make_fusion
     from inference.preprocess import PreprocessParams
 
@@ -60,24 +77,43 @@ def synth_recording(path: str | Path, config: config_mod.Config, classifier, *, 
     cfg.simulator.course, cfg.simulator.seed = preset, seed
     simulator = Simulator.from_config(cfg.simulator)
     rng = np.random.default_rng([seed, 4242])
-    fusion = make_fusion("hmm+voting", window=cfg.fusion.window, vote_delay=cfg.fusion.vote_delay,
-                         transition=np.asarray(cfg.fusion.transition))
+    fusion = make_fusion(
+        "hmm+voting",
+        window=cfg.fusion.window,
+        vote_delay=cfg.fusion.vote_delay,
+        transition=np.asarray(cfg.fusion.transition),
+    )
     pipeline = Pipeline(PreprocessParams.from_config(cfg), classifier, fusion)
     metadata = {
-        "session": {"subject": subject, "condition": preset, "trial": str(trial),
-                    "notes": f"simulated: preset {preset}, seed {seed}"},
-        "devices": {"camera_backend": "mock", "camera_fps": str(cfg.camera.fps),
-                    "imu_backend": "synthetic", "imu_rate_hz": str(cfg.imu.rate_hz),
-                    "simulator": json.dumps(dataclasses.asdict(cfg.simulator))},
-        "software": {"walkcap_version": __version__, "model_path": cfg.model.path or "bundled",
-                     "model_hash": model_hash(classifier),
-                     "fusion_window": str(cfg.fusion.window),
-                     "fusion_vote_delay": str(cfg.fusion.vote_delay),
-                     "fusion_transition": json.dumps(cfg.fusion.transition),
-                     "preprocess": json.dumps(pipeline.params.to_dict())},
+        "session": {
+            "subject": subject,
+            "condition": preset,
+            "trial": str(trial),
+            "notes": f"simulated: preset {preset}, seed {seed}",
+        },
+        "devices": {
+            "camera_backend": "mock",
+            "camera_fps": str(cfg.camera.fps),
+            "imu_backend": "synthetic",
+            "imu_rate_hz": str(cfg.imu.rate_hz),
+            "simulator": json.dumps(dataclasses.asdict(cfg.simulator)),
+        },
+        "software": {
+            "walkcap_version": __version__,
+            "model_path": cfg.model.path or "bundled",
+            "model_hash": model_hash(classifier),
+            "fusion_window": str(cfg.fusion.window),
+            "fusion_vote_delay": str(cfg.fusion.vote_delay),
+            "fusion_transition": json.dumps(cfg.fusion.transition),
+            "preprocess": json.dumps(pipeline.params.to_dict()),
+        },
     }
-    recorder = Recorder(path, metadata=metadata, blocking=True,
-                        attachments={"walkcap.toml": config_mod.dumps(cfg).encode()})
+    recorder = Recorder(
+        path,
+        metadata=metadata,
+        blocking=True,
+        attachments={"walkcap.toml": config_mod.dumps(cfg).encode()},
+    )
     recorder.start()
     t0 = now_ns()
     track = OrientationTrack(span_s=5.0)

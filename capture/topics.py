@@ -22,6 +22,7 @@ Times: log_time is the host receive time, publish_time the sample time, both int
 nanoseconds on the session clock (devices.clock.now_ns, monotonic). Message `timestamp`
 fields carry the publish time on the same clock.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -72,12 +73,12 @@ _MODE_OR_EMPTY = {"type": "string", "enum": [*MODES, ""]}
 _MODE_OR_NULL = {"type": ["string", "null"], "enum": [*MODES, None]}
 _VEC3 = {"type": ["array", "null"], "items": _NUMBER_OR_NULL, "minItems": 3, "maxItems": 3}
 _QUAT = {"type": ["array", "null"], "items": _NUMBER_OR_NULL, "minItems": 4, "maxItems": 4}
-_PROBS = {"type": "array", "items": _NUMBER_OR_NULL, "minItems": len(MODES),
-          "maxItems": len(MODES)}
+_PROBS = {"type": "array", "items": _NUMBER_OR_NULL, "minItems": len(MODES), "maxItems": len(MODES)}
 
 
-def _object(title: str, description: str, properties: dict, required: list[str],
-            extra: bool = False) -> dict:
+def _object(
+    title: str, description: str, properties: dict, required: list[str], extra: bool = False
+) -> dict:
     return {
         "$schema": "https://json-schema.org/draft/2020-12/schema",
         "title": title,
@@ -104,8 +105,15 @@ JSON_SCHEMAS: dict[str, dict] = {
             "status_word": _INT_OR_NULL,
             "extra": {"type": "object"},
         },
-        ["host_time_ns", "time_ns", "packet_counter", "quaternion", "acceleration",
-         "rate_of_turn", "status_word"],
+        [
+            "host_time_ns",
+            "time_ns",
+            "packet_counter",
+            "quaternion",
+            "acceleration",
+            "rate_of_turn",
+            "status_word",
+        ],
     ),
     LABELS: _object(
         "walkcap.Label",
@@ -116,15 +124,26 @@ JSON_SCHEMAS: dict[str, dict] = {
     EVENTS: _object(
         "walkcap.Event",
         "A marker, note, device fault, gap or recorder drop.",
-        {"time_ns": _INT, "device": {"type": "string"}, "kind": {"type": "string"},
-         "message": {"type": "string"}, "details": {"type": "object"}},
+        {
+            "time_ns": _INT,
+            "device": {"type": "string"},
+            "kind": {"type": "string"},
+            "message": {"type": "string"},
+            "details": {"type": "object"},
+        },
         ["time_ns", "device", "kind", "message", "details"],
     ),
     PREPROCESS: _object(
         "walkcap.Preprocess",
         "How a frame became the classifier input: why the image is empty (flag), cloud size.",
-        {"frame_index": _INT, "time_ns": _INT, "flag": {"type": "string"},
-         "oriented": {"type": "boolean"}, "cloud_points": _INT, "cloud_points_recorded": _INT},
+        {
+            "frame_index": _INT,
+            "time_ns": _INT,
+            "flag": {"type": "string"},
+            "oriented": {"type": "boolean"},
+            "cloud_points": _INT,
+            "cloud_points_recorded": _INT,
+        },
         ["frame_index", "time_ns", "flag", "oriented", "cloud_points", "cloud_points_recorded"],
     ),
     CNN: _object(
@@ -137,9 +156,15 @@ JSON_SCHEMAS: dict[str, dict] = {
         "walkcap.FusedOutput",
         "HMM fusion output produced at source_frame_index; it refers to frame_index (and the "
         "vote to voted_frame_index), earlier frames because of the smoothing window.",
-        {"source_frame_index": _INT, "time_ns": _INT, "frame_index": _INT,
-         "decision": _MODE, "posterior": _PROBS, "voted": _MODE_OR_NULL,
-         "voted_frame_index": _INT_OR_NULL},
+        {
+            "source_frame_index": _INT,
+            "time_ns": _INT,
+            "frame_index": _INT,
+            "decision": _MODE,
+            "posterior": _PROBS,
+            "voted": _MODE_OR_NULL,
+            "voted_frame_index": _INT_OR_NULL,
+        },
         ["source_frame_index", "time_ns", "frame_index", "decision", "posterior"],
         extra=True,
     ),
@@ -153,8 +178,12 @@ JSON_SCHEMAS: dict[str, dict] = {
     TRUTH: _object(
         "walkcap.SimTruth",
         "Simulator ground truth of one frame: the true mode and the camera pose (4x4, world).",
-        {"frame_index": _INT, "time_ns": _INT, "mode": _MODE_OR_NULL,
-         "pose": {"type": ["array", "null"]}},
+        {
+            "frame_index": _INT,
+            "time_ns": _INT,
+            "mode": _MODE_OR_NULL,
+            "pose": {"type": ["array", "null"]},
+        },
         ["frame_index", "time_ns", "mode"],
         extra=True,
     ),
@@ -202,15 +231,39 @@ def topic_spec(topic: str) -> TopicSpec:
         from mcap_protobuf.schema import build_file_descriptor_set
 
         cls = PROTOBUF_TYPES[topic]
-        return TopicSpec(topic, "protobuf", cls.DESCRIPTOR.full_name, "protobuf",
-                         build_file_descriptor_set(cls).SerializeToString())
+        return TopicSpec(
+            topic,
+            "protobuf",
+            cls.DESCRIPTOR.full_name,
+            "protobuf",
+            build_file_descriptor_set(cls).SerializeToString(),
+        )
     schema = JSON_SCHEMAS[topic]
-    return TopicSpec(topic, "json", schema["title"], "jsonschema",
-                     json.dumps(schema, separators=(",", ":")).encode())
+    return TopicSpec(
+        topic,
+        "json",
+        schema["title"],
+        "jsonschema",
+        json.dumps(schema, separators=(",", ":")).encode(),
+    )
 
 
-TOPICS: tuple[str, ...] = (DEPTH, CONFIDENCE, GRAY, CLOUD, BINARY_IMAGE, PREPROCESS, TF, IMU,
-                           LABELS, EVENTS, CNN, FUSED, FEATURES, TRUTH)
+TOPICS: tuple[str, ...] = (
+    DEPTH,
+    CONFIDENCE,
+    GRAY,
+    CLOUD,
+    BINARY_IMAGE,
+    PREPROCESS,
+    TF,
+    IMU,
+    LABELS,
+    EVENTS,
+    CNN,
+    FUSED,
+    FEATURES,
+    TRUTH,
+)
 
 # ---- helpers ------------------------------------------------------------------------------
 
@@ -278,12 +331,20 @@ def ray_error_m(xyz: np.ndarray, rays: np.ndarray, confidence: np.ndarray) -> fl
     return float(np.max(np.linalg.norm(p - along, axis=1)))
 
 
-def raw_image(image: np.ndarray, time_ns: int, encoding: str,
-              frame_id: str = CAMERA_FRAME) -> RawImage:
+def raw_image(
+    image: np.ndarray, time_ns: int, encoding: str, frame_id: str = CAMERA_FRAME
+) -> RawImage:
     image = np.ascontiguousarray(image)
     h, w = image.shape[:2]
-    return RawImage(timestamp=timestamp(time_ns), frame_id=frame_id, width=w, height=h,
-                    encoding=encoding, step=w * image.itemsize, data=image.tobytes())
+    return RawImage(
+        timestamp=timestamp(time_ns),
+        frame_id=frame_id,
+        width=w,
+        height=h,
+        encoding=encoding,
+        step=w * image.itemsize,
+        data=image.tobytes(),
+    )
 
 
 def image_from_message(msg: RawImage) -> np.ndarray:
@@ -304,8 +365,10 @@ def binary_image_u8(image: np.ndarray) -> np.ndarray:
 
 # ---- cloud and transform ------------------------------------------------------------------
 
-_XYZ_FIELDS = [PackedElementField(name=n, offset=4 * i, type=PackedElementField.FLOAT32)
-               for i, n in enumerate("xyz")]
+_XYZ_FIELDS = [
+    PackedElementField(name=n, offset=4 * i, type=PackedElementField.FLOAT32)
+    for i, n in enumerate("xyz")
+]
 
 
 def cloud_message(cloud: np.ndarray, time_ns: int, frame_id: str = WORLD_FRAME) -> PointCloud:
@@ -315,24 +378,34 @@ def cloud_message(cloud: np.ndarray, time_ns: int, frame_id: str = WORLD_FRAME) 
     points = points[np.all(np.isfinite(points), axis=1)]
     points = points[np.argsort(points[:, 0], kind="stable")]
     q = (np.rint(points / CLOUD_QUANTUM_M) * CLOUD_QUANTUM_M).astype("<f4")
-    return PointCloud(timestamp=timestamp(time_ns), frame_id=frame_id, point_stride=12,
-                      fields=_XYZ_FIELDS, data=q.tobytes())
+    return PointCloud(
+        timestamp=timestamp(time_ns),
+        frame_id=frame_id,
+        point_stride=12,
+        fields=_XYZ_FIELDS,
+        data=q.tobytes(),
+    )
 
 
 def cloud_from_message(msg: PointCloud) -> np.ndarray:
     """(N, 3) float32 metres from a PointCloud with float32 x, y, z fields."""
     offsets = {f.name: f.offset for f in msg.fields}
     raw = np.frombuffer(msg.data, dtype=np.uint8).reshape(-1, msg.point_stride)
-    return np.stack([raw[:, offsets[n]: offsets[n] + 4].copy().view("<f4")[:, 0] for n in "xyz"],
-                    axis=1)
+    return np.stack(
+        [raw[:, offsets[n] : offsets[n] + 4].copy().view("<f4")[:, 0] for n in "xyz"], axis=1
+    )
 
 
 def transform_message(quaternion: np.ndarray, time_ns: int) -> FrameTransform:
     """Camera orientation: walkcap's [w, x, y, z] (camera -> world) into Foxglove's x, y, z, w."""
     w, x, y, z = (float(v) for v in quaternion)
-    return FrameTransform(timestamp=timestamp(time_ns), parent_frame_id=WORLD_FRAME,
-                          child_frame_id=CAMERA_FRAME, translation=Vector3(x=0, y=0, z=0),
-                          rotation=Quaternion(x=x, y=y, z=z, w=w))
+    return FrameTransform(
+        timestamp=timestamp(time_ns),
+        parent_frame_id=WORLD_FRAME,
+        child_frame_id=CAMERA_FRAME,
+        translation=Vector3(x=0, y=0, z=0),
+        rotation=Quaternion(x=x, y=y, z=z, w=w),
+    )
 
 
 def quaternion_from_transform(msg: FrameTransform) -> np.ndarray:
@@ -365,17 +438,30 @@ def event_json(event) -> dict:
     """A devices.base.DeviceEvent or a dict with the same keys (time_ns defaults to 0)."""
     if isinstance(event, dict):
         e = dict(event)
-        return {"time_ns": int(e.pop("time_ns", 0)), "device": str(e.pop("device", "")),
-                "kind": str(e.pop("kind", "")), "message": str(e.pop("message", "")),
-                "details": {**e.pop("details", {}), **e}}
-    return {"time_ns": int(event.time_ns), "device": event.device, "kind": event.kind,
-            "message": event.message, "details": event.details or {}}
+        return {
+            "time_ns": int(e.pop("time_ns", 0)),
+            "device": str(e.pop("device", "")),
+            "kind": str(e.pop("kind", "")),
+            "message": str(e.pop("message", "")),
+            "details": {**e.pop("details", {}), **e},
+        }
+    return {
+        "time_ns": int(event.time_ns),
+        "device": event.device,
+        "kind": event.kind,
+        "message": event.message,
+        "details": event.details or {},
+    }
 
 
 def cnn_json(frame_index: int, time_ns: int, probabilities) -> dict:
     p = np.asarray(probabilities, dtype=np.float64).reshape(-1)
-    return {"frame_index": int(frame_index), "time_ns": int(time_ns), "probabilities": p,
-            "decision": MODES[int(np.nanargmax(p))] if np.isfinite(p).any() else MODES[0]}
+    return {
+        "frame_index": int(frame_index),
+        "time_ns": int(time_ns),
+        "probabilities": p,
+        "decision": MODES[int(np.nanargmax(p))] if np.isfinite(p).any() else MODES[0],
+    }
 
 
 def fused_json(frame_index: int, time_ns: int, fused: dict) -> dict:
@@ -400,8 +486,19 @@ def truth_json(frame_index: int, time_ns: int, truth: dict) -> dict:
     return out
 
 
-def preprocess_json(frame_index: int, time_ns: int, flag: str, oriented: bool,
-                    cloud_points: int, cloud_points_recorded: int) -> dict:
-    return {"frame_index": int(frame_index), "time_ns": int(time_ns), "flag": flag or "",
-            "oriented": bool(oriented), "cloud_points": int(cloud_points),
-            "cloud_points_recorded": int(cloud_points_recorded)}
+def preprocess_json(
+    frame_index: int,
+    time_ns: int,
+    flag: str,
+    oriented: bool,
+    cloud_points: int,
+    cloud_points_recorded: int,
+) -> dict:
+    return {
+        "frame_index": int(frame_index),
+        "time_ns": int(time_ns),
+        "flag": flag or "",
+        "oriented": bool(oriented),
+        "cloud_points": int(cloud_points),
+        "cloud_points_recorded": int(cloud_points_recorded),
+    }

@@ -4,6 +4,7 @@ Backends produce on their own thread and call `_deliver`; consumers call `recv`.
 The buffer never blocks the producer: when full, the oldest item is dropped and counted,
 so a slow consumer costs data that is accounted for, never a stalled device.
 """
+
 from __future__ import annotations
 
 import collections

@@ -14,14 +14,22 @@ it), the measured rate, stall detection, events, the life cycle and the context 
 Backends are named in `BACKENDS` and imported only when chosen, so a missing vendor SDK
 costs nothing until someone asks for that camera (as python-can does).
 """
+
 from __future__ import annotations
 
 import importlib
 import threading
-from typing import Iterator
+from collections.abc import Iterator
 
 from devices.base import (
-    DEGRADED, LOST, OK, STOPPED, BoundedBuffer, DeviceEvent, DeviceStatus, RateMeter,
+    DEGRADED,
+    LOST,
+    OK,
+    STOPPED,
+    BoundedBuffer,
+    DeviceEvent,
+    DeviceStatus,
+    RateMeter,
 )
 from devices.clock import now_ns
 from devices.errors import DeviceNotAvailable
@@ -34,7 +42,7 @@ BACKENDS: dict[str, str] = {
 }
 
 
-def camera_class(name: str) -> type["Camera"]:
+def camera_class(name: str) -> type[Camera]:
     """The backend class registered under `name`, its module imported now."""
     try:
         target = BACKENDS[name]
@@ -49,7 +57,7 @@ def camera_class(name: str) -> type["Camera"]:
     return getattr(module, class_name)
 
 
-def open_camera(camera_config=None, simulator_config=None, **kw) -> "Camera":
+def open_camera(camera_config=None, simulator_config=None, **kw) -> Camera:
     """Construct the configured backend and open it (not started yet).
 
     `camera_config` is a capture.config.CameraConfig (default: mock at 15 fps); the mock
@@ -59,8 +67,7 @@ def open_camera(camera_config=None, simulator_config=None, **kw) -> "Camera":
         from capture.config import CameraConfig
 
         camera_config = CameraConfig()
-    camera = camera_class(camera_config.backend).from_config(camera_config, simulator_config,
-                                                             **kw)
+    camera = camera_class(camera_config.backend).from_config(camera_config, simulator_config, **kw)
     try:
         camera.open()
     except BaseException:
@@ -99,7 +106,7 @@ class Camera:
         self.details: dict = {}  # backend facts for status(): camera name, use case, ...
 
     @classmethod
-    def from_config(cls, camera_config, simulator_config=None, **kw) -> "Camera":
+    def from_config(cls, camera_config, simulator_config=None, **kw) -> Camera:
         """Construct from the configuration; backends needing more override this."""
         return cls(camera_config, **kw)
 
@@ -162,7 +169,7 @@ class Camera:
                 self._close()
             self._message = "closed"
 
-    def __enter__(self) -> "Camera":
+    def __enter__(self) -> Camera:
         self.open()
         return self
 
@@ -203,9 +210,14 @@ class Camera:
         with self._lock:
             rate = self._rate.rate(t)
         return DeviceStatus(
-            backend=self.backend, state=state, message=message,
-            configured_rate_hz=float(self.config.fps), measured_rate_hz=rate,
-            delivered=self._delivered, dropped=self._buffer.dropped, errors=self._errors,
+            backend=self.backend,
+            state=state,
+            message=message,
+            configured_rate_hz=float(self.config.fps),
+            measured_rate_hz=rate,
+            delivered=self._delivered,
+            dropped=self._buffer.dropped,
+            errors=self._errors,
             details=dict(self.details),
         )
 
@@ -231,8 +243,12 @@ class Camera:
         self._buffer.put(frame)
         dropped = self._buffer.dropped
         if dropped > self._reported_drops and frame.host_time_ns - self._drop_event_ns > 1e9:
-            self._event("drop", f"{dropped - self._reported_drops} frames dropped: the "
-                        "consumer is slower than the camera", dropped=dropped)
+            self._event(
+                "drop",
+                f"{dropped - self._reported_drops} frames dropped: the "
+                "consumer is slower than the camera",
+                dropped=dropped,
+            )
             self._reported_drops = dropped
             self._drop_event_ns = frame.host_time_ns
 
@@ -254,4 +270,3 @@ class Camera:
         """The device was lost while running."""
         self._set_state(LOST, message)
         self._event("lost", message)
-

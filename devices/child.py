@@ -7,6 +7,7 @@ child is `python -c` importing `target` ("package.module:function") and calling 
 `multiprocessing.connection.Connection` and the pickled arguments. The child's end of the
 socket closes when this process dies, so a child blocked on it ends too.
 """
+
 from __future__ import annotations
 
 import os
@@ -24,17 +25,23 @@ class Child:
         module, _, function = target.partition(":")
         payload = pickle.dumps(args)  # before the process starts: unpicklable is our error
         host_end, child_end = socket.socketpair()
-        code = (f"import sys; sys.path[:0] = {sys.path!r}; "
-                f"from devices.child import _run; _run({module!r}, {function!r}, "
-                f"{child_end.fileno()})")
+        code = (
+            f"import sys; sys.path[:0] = {sys.path!r}; "
+            f"from devices.child import _run; _run({module!r}, {function!r}, "
+            f"{child_end.fileno()})"
+        )
         if quiet is None:  # a child's stderr would garble a terminal UI
             quiet = not os.environ.get("WALKCAP_DEBUG")
         # A child is one worker beside this process: one BLAS thread. OpenBLAS otherwise
         # starts a thread per core at import (~0.1 s more CPU).
         env = {"OPENBLAS_NUM_THREADS": "1", **os.environ}
         self.process = subprocess.Popen(
-            [sys.executable, "-c", code], pass_fds=[child_end.fileno()], env=env,
-            stdin=subprocess.DEVNULL, stderr=subprocess.DEVNULL if quiet else None)
+            [sys.executable, "-c", code],
+            pass_fds=[child_end.fileno()],
+            env=env,
+            stdin=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL if quiet else None,
+        )
         child_end.close()
         self.conn = Connection(host_end.detach())
         self.conn.send_bytes(payload)

@@ -3,6 +3,7 @@
 Host times are `time.monotonic_ns()`: steady, never stepped by NTP, shared by every
 thread of the process. Device times are mapped onto it (see the IMU clock estimator).
 """
+
 from __future__ import annotations
 
 import time

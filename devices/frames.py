@@ -10,6 +10,7 @@ Conventions (every module relies on them):
   y left, z up (gravity is -z).
 - IMU body frame on the thigh of a person standing upright: x forward, y left, z up.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field

@@ -12,19 +12,29 @@ always sensor -> ENU world (z up), whatever coordinate system the device reports
 A vanished or silent port is reported within a second, retried until it returns, and the
 gap reported; the reader thread never dies with the device.
 """
+
 from __future__ import annotations
 
 import importlib
 import logging
 import threading
 import time
-from typing import Any, Callable, Iterator
+from collections.abc import Callable, Iterator
+from typing import Any
 
 import numpy as np
 
 from devices import xbus
-from devices.base import DEGRADED, LOST, OK, STOPPED, BoundedBuffer, DeviceEvent, DeviceStatus, \
-    RateMeter
+from devices.base import (
+    DEGRADED,
+    LOST,
+    OK,
+    STOPPED,
+    BoundedBuffer,
+    DeviceEvent,
+    DeviceStatus,
+    RateMeter,
+)
 from devices.clock import now_ns
 from devices.errors import DeviceError, DeviceInitError, DeviceNotAvailable
 from devices.frames import ImuSample
@@ -41,21 +51,23 @@ BACKENDS = {
 }
 
 # sensor -> ENU = (frame -> ENU) * (sensor -> frame)
-_FRAME_TO_ENU = {name: matrix_to_quat(np.array(m, dtype=np.float64).T)
-                 for name, m in xbus.FRAME_FROM_ENU.items()}
+_FRAME_TO_ENU = {
+    name: matrix_to_quat(np.array(m, dtype=np.float64).T) for name, m in xbus.FRAME_FROM_ENU.items()
+}
 _VECTOR_OUTPUTS = ("acceleration", "rate_of_turn")
 _EVENT_INTERVAL_NS = 1_000_000_000  # repeated faults of one kind: one event a second
 
 
-def open_imu(config: Any, orientation_at: Callable[[float], np.ndarray] | None = None) -> "Imu":
+def open_imu(config: Any, orientation_at: Callable[[float], np.ndarray] | None = None) -> Imu:
     """The IMU a configuration asks for (an ImuConfig or anything with its attributes).
 
     Not yet opened: call open() (or start(), or use it as a context manager).
     """
     backend = getattr(config, "backend", "mock")
     if backend not in BACKENDS:
-        raise DeviceNotAvailable(f"unknown IMU backend {backend!r} "
-                                 f"(known: {', '.join(sorted(BACKENDS))})")
+        raise DeviceNotAvailable(
+            f"unknown IMU backend {backend!r} (known: {', '.join(sorted(BACKENDS))})"
+        )
     module_name, class_name = BACKENDS[backend]
     cls = getattr(importlib.import_module(module_name), class_name)
     return cls.from_config(config, orientation_at=orientation_at)
@@ -99,7 +111,7 @@ class Imu:
             events, self._events = self._events, []
         return events
 
-    def __enter__(self) -> "Imu":
+    def __enter__(self) -> Imu:
         self.open()
         self.start()
         return self
@@ -140,18 +152,29 @@ class XbusImu(Imu):
 
     backend = "serial"
 
-    def __init__(self, port: str, baudrate: int = 115200, rate_hz: int = 100,
-                 outputs: tuple[str, ...] | None = xbus.DEFAULT_OUTPUTS, *,
-                 precision: int = xbus.FLOAT32, coordinate_system: str = "ENU",
-                 request_timeout_s: float = 1.0,
-                 config_timeout_s: float = 2.0, silence_s: float | None = None,
-                 retry_s: float = 0.5, buffer_size: int = 1024,
-                 raw_sink: Callable[[bytes], None] | None = None) -> None:
+    def __init__(
+        self,
+        port: str,
+        baudrate: int = 115200,
+        rate_hz: int = 100,
+        outputs: tuple[str, ...] | None = xbus.DEFAULT_OUTPUTS,
+        *,
+        precision: int = xbus.FLOAT32,
+        coordinate_system: str = "ENU",
+        request_timeout_s: float = 1.0,
+        config_timeout_s: float = 2.0,
+        silence_s: float | None = None,
+        retry_s: float = 0.5,
+        buffer_size: int = 1024,
+        raw_sink: Callable[[bytes], None] | None = None,
+    ) -> None:
         """outputs None: keep the device's output configuration (read it, do not set it)."""
         super().__init__(buffer_size)
         if not port:
-            raise DeviceNotAvailable("no IMU serial port given (set [imu] port, e.g. "
-                                     "/dev/ttyUSB0, or use the mock backend)")
+            raise DeviceNotAvailable(
+                "no IMU serial port given (set [imu] port, e.g. "
+                "/dev/ttyUSB0, or use the mock backend)"
+            )
         self.port = port
         self.baudrate = int(baudrate)
         self.rate_hz = int(rate_hz)
@@ -159,16 +182,19 @@ class XbusImu(Imu):
             raise DeviceInitError(f"IMU rate {rate_hz} Hz is out of range (1..2000)")
         self.outputs = tuple(outputs) if outputs is not None else None
         try:
-            self._settings = xbus.output_settings(outputs, self.rate_hz, precision,
-                                                  coordinate_system) \
-                if outputs is not None else None
+            self._settings = (
+                xbus.output_settings(outputs, self.rate_hz, precision, coordinate_system)
+                if outputs is not None
+                else None
+            )
         except (ValueError, KeyError) as e:
             raise DeviceInitError(f"IMU outputs: {e}") from None
         self.request_timeout_s = request_timeout_s
         self.config_timeout_s = config_timeout_s
         # Silence longer than this is a lost device: half a second, or 3 periods when slow.
-        self.silence_ns = int((silence_s if silence_s is not None
-                               else max(0.5, 3.0 / max(self.rate_hz, 1))) * 1e9)
+        self.silence_ns = int(
+            (silence_s if silence_s is not None else max(0.5, 3.0 / max(self.rate_hz, 1))) * 1e9
+        )
         self.retry_ns = int(retry_s * 1e9)
         self.raw_sink = raw_sink
         self.configured_rate_hz = float(self.rate_hz)
@@ -193,9 +219,12 @@ class XbusImu(Imu):
         self._started_ns = now_ns()
 
     @classmethod
-    def from_config(cls, config: Any, orientation_at=None) -> "XbusImu":
-        return cls(getattr(config, "port", ""), getattr(config, "baudrate", 115200),
-                   getattr(config, "rate_hz", 100))
+    def from_config(cls, config: Any, orientation_at=None) -> XbusImu:
+        return cls(
+            getattr(config, "port", ""),
+            getattr(config, "baudrate", 115200),
+            getattr(config, "rate_hz", 100),
+        )
 
     # ---- connection -------------------------------------------------------------------
 
@@ -233,20 +262,25 @@ class XbusImu(Imu):
         product = self._request(ser, MID.REQ_PRODUCT_CODE, reply=MID.PRODUCT_CODE)
         firmware = self._request(ser, MID.REQ_FW_REV, reply=MID.FIRMWARE_REV)
         request = xbus.encode_output_configuration(self._settings) if self._settings else b""
-        reply = self._request(ser, MID.SET_OUTPUT_CONFIGURATION, request,
-                              reply=MID.OUTPUT_CONFIGURATION)
+        reply = self._request(
+            ser, MID.SET_OUTPUT_CONFIGURATION, request, reply=MID.OUTPUT_CONFIGURATION
+        )
         try:
             settings = xbus.decode_output_configuration(reply)
         except ValueError as e:
             raise DeviceInitError(f"IMU on {self.port}: bad OutputConfiguration: {e}") from None
         if self._settings and settings != self._settings:
-            log.warning("IMU on %s adjusted the output configuration: %s", self.port,
-                        [s.describe() for s in settings])
+            log.warning(
+                "IMU on %s adjusted the output configuration: %s",
+                self.port,
+                [s.describe() for s in settings],
+            )
         self._request(ser, MID.GOTO_MEASUREMENT, reply=MID.GOTO_MEASUREMENT_ACK)
         rates = [s.rate_hz for s in settings if s.rate_hz != xbus.EVERY_PACKET]
         self.configured_rate_hz = float(max(rates)) if rates else float(self.rate_hz)
         self.info = {
-            "device_id": f"{int.from_bytes(device_id[:4], 'big'):08X}" if len(device_id) >= 4
+            "device_id": f"{int.from_bytes(device_id[:4], 'big'):08X}"
+            if len(device_id) >= 4
             else device_id.hex(),
             "product_code": product.decode("ascii", "replace").strip("\x00 "),
             "firmware": _firmware_text(firmware),
@@ -264,17 +298,20 @@ class XbusImu(Imu):
             self._write(ser, xbus.build(MID.GOTO_CONFIG), "GoToConfig")
             if self._await(ser, MID.GOTO_CONFIG_ACK, "GoToConfig", 0.25) is not None:
                 return
-        raise DeviceInitError(f"IMU on {self.port}: no answer to GoToConfig within "
-                              f"{self.config_timeout_s:g} s (is an Xsens device on it, at "
-                              f"{self.baudrate} baud?)")
+        raise DeviceInitError(
+            f"IMU on {self.port}: no answer to GoToConfig within "
+            f"{self.config_timeout_s:g} s (is an Xsens device on it, at "
+            f"{self.baudrate} baud?)"
+        )
 
     def _request(self, ser, mid: int, data: bytes = b"", *, reply: int) -> bytes:
         name = _request_name(mid, data)
         self._write(ser, xbus.build(mid, data), name)
         answer = self._await(ser, reply, name, self.request_timeout_s)
         if answer is None:
-            raise DeviceInitError(f"IMU on {self.port}: no answer to {name} within "
-                                  f"{self.request_timeout_s:g} s")
+            raise DeviceInitError(
+                f"IMU on {self.port}: no answer to {name} within {self.request_timeout_s:g} s"
+            )
         return answer
 
     def _write(self, ser, frame: bytes, name: str) -> None:
@@ -283,8 +320,9 @@ class XbusImu(Imu):
         try:
             ser.write(frame)
         except (serial.SerialException, OSError) as e:
-            raise DeviceNotAvailable(f"IMU port {self.port} failed sending {name}: "
-                                     f"{_reason(e)}") from None
+            raise DeviceNotAvailable(
+                f"IMU port {self.port} failed sending {name}: {_reason(e)}"
+            ) from None
 
     def _await(self, ser, reply: int, name: str, timeout: float) -> bytes | None:
         """The data of the first `reply` message; None on timeout; Error raises."""
@@ -298,15 +336,17 @@ class XbusImu(Imu):
                 waiting = ser.in_waiting
                 chunk = ser.read(waiting if waiting > 0 else 1)
             except (serial.SerialException, OSError) as e:
-                raise DeviceNotAvailable(f"IMU port {self.port} failed waiting for the answer "
-                                         f"to {name}: {_reason(e)}") from None
+                raise DeviceNotAvailable(
+                    f"IMU port {self.port} failed waiting for the answer to {name}: {_reason(e)}"
+                ) from None
             for msg in self._parser.feed(chunk):
                 if msg.mid == reply:
                     return msg.data
                 if msg.mid == MID.ERROR:
                     code = msg.data[0] if msg.data else 0
-                    raise DeviceInitError(f"IMU on {self.port} answered {name} with "
-                                          f"{xbus.error_text(code)}")
+                    raise DeviceInitError(
+                        f"IMU on {self.port} answered {name} with {xbus.error_text(code)}"
+                    )
                 if msg.mid == MID.WAKEUP:  # just powered up: keep it in configuration
                     self._write(ser, xbus.build(MID.WAKEUP_ACK), "WakeUpAck")
                     self._woke_up = True
@@ -382,8 +422,14 @@ class XbusImu(Imu):
         if self._state != LOST:
             self._state = LOST
             self._lost_at_ns = t
-            self._event("lost", f"IMU lost: {reason}", t, reason=reason, port=self.port,
-                        last_sample_ns=self._last_sample_ns)
+            self._event(
+                "lost",
+                f"IMU lost: {reason}",
+                t,
+                reason=reason,
+                port=self.port,
+                last_sample_ns=self._last_sample_ns,
+            )
         self._message = f"lost: {reason}; retrying {self.port}"
         if self._serial is not None:
             _close_quietly(self._serial)
@@ -429,8 +475,9 @@ class XbusImu(Imu):
                     self._count("missing_packets", missing, t)
             self._last_counter = counter
         # The device took the sample before sending it: remove the wire time.
-        t_sent = t - xbus.wire_time_ns(len(msg.data) + (5 if len(msg.data) < 255 else 7),
-                                       self.baudrate)
+        t_sent = t - xbus.wire_time_ns(
+            len(msg.data) + (5 if len(msg.data) < 255 else 7), self.baudrate
+        )
         stf = values.get("sample_time_fine")
         if stf is not None:
             resets = self.clock.resets
@@ -449,8 +496,15 @@ class XbusImu(Imu):
         self.reconnects += 1
         self._state = OK
         self._message = f"streaming from {self.port}"
-        self._event("reconnected", f"IMU back after a gap of {gap_s:.2f} s", t,
-                    gap_s=gap_s, gap_start_ns=last, gap_end_ns=t, port=self.port)
+        self._event(
+            "reconnected",
+            f"IMU back after a gap of {gap_s:.2f} s",
+            t,
+            gap_s=gap_s,
+            gap_start_ns=last,
+            gap_end_ns=t,
+            port=self.port,
+        )
 
     # ---- problems and status ----------------------------------------------------------
 
@@ -465,17 +519,25 @@ class XbusImu(Imu):
     def _flush_count(self, kind: str, t: int) -> None:
         pending = self._pending[kind]
         count, pending[1], pending[0] = pending[1], 0, t
-        text = {"missing_packets": "packets missing (packet counter gaps)",
-                "checksum_error": "messages with a bad checksum",
-                "resync": "resynchronisations on the byte stream",
-                "drop": "samples dropped: the consumer is too slow"}[kind]
+        text = {
+            "missing_packets": "packets missing (packet counter gaps)",
+            "checksum_error": "messages with a bad checksum",
+            "resync": "resynchronisations on the byte stream",
+            "drop": "samples dropped: the consumer is too slow",
+        }[kind]
         self._event(kind, f"IMU: {count} {text}", t, count=count)
 
     def _count_problems(self, t: int) -> None:
-        now = {"checksum_errors": self._parser.checksum_errors,
-               "resyncs": self._parser.resyncs, "dropped": self._buffer.dropped}
-        for key, kind in (("checksum_errors", "checksum_error"), ("resyncs", "resync"),
-                          ("dropped", "drop")):
+        now = {
+            "checksum_errors": self._parser.checksum_errors,
+            "resyncs": self._parser.resyncs,
+            "dropped": self._buffer.dropped,
+        }
+        for key, kind in (
+            ("checksum_errors", "checksum_error"),
+            ("resyncs", "resync"),
+            ("dropped", "drop"),
+        ):
             new = now[key] - self._seen[key]
             if new > 0:
                 self._seen[key] = now[key]
@@ -488,28 +550,38 @@ class XbusImu(Imu):
         t = now_ns()
         state = self._state
         measured = self._measured_rate()
-        if state == OK and (t - self._last_problem_ns < 2_000_000_000 or
-                            (t - self._started_ns > 2_500_000_000 and
-                             measured < 0.9 * self.configured_rate_hz)):
+        if state == OK and (
+            t - self._last_problem_ns < 2_000_000_000
+            or (t - self._started_ns > 2_500_000_000 and measured < 0.9 * self.configured_rate_hz)
+        ):
             state = DEGRADED
         clock = self.clock.state()
         return DeviceStatus(
-            backend=self.backend, state=state, message=self._message,
-            configured_rate_hz=self.configured_rate_hz, measured_rate_hz=measured,
-            delivered=self.delivered, dropped=self._buffer.dropped,
+            backend=self.backend,
+            state=state,
+            message=self._message,
+            configured_rate_hz=self.configured_rate_hz,
+            measured_rate_hz=measured,
+            delivered=self.delivered,
+            dropped=self._buffer.dropped,
             errors=self._parser.checksum_errors + self.missing_packets,
             details={
                 "device_id": self.info.get("device_id", ""),
                 "product_code": self.info.get("product_code", ""),
                 "firmware": self.info.get("firmware", ""),
                 "port": self.port,
-                "offset_ms": clock.offset_ms, "drift_ppm": clock.drift_ppm,
-                "residual_ms": clock.residual_ms, "clock_resets": clock.resets,
+                "offset_ms": clock.offset_ms,
+                "drift_ppm": clock.drift_ppm,
+                "residual_ms": clock.residual_ms,
+                "clock_resets": clock.resets,
                 "missing_packets": self.missing_packets,
                 "checksum_errors": self._parser.checksum_errors,
-                "resyncs": self._parser.resyncs, "unknown_ids": self._parser.unknown_ids,
-                "device_errors": self.device_errors, "reconnects": self.reconnects,
-            })
+                "resyncs": self._parser.resyncs,
+                "unknown_ids": self._parser.unknown_ids,
+                "device_errors": self.device_errors,
+                "reconnects": self.reconnects,
+            },
+        )
 
 
 def mock_baudrate(config: Any) -> int:
@@ -525,16 +597,29 @@ class EmulatedImu(XbusImu):
 
     backend = "mock"
 
-    def __init__(self, rate_hz: int = 100, drift_ppm: float = 0.0, jitter_ms: float = 0.0,
-                 seed: int = 0, orientation_at: Callable[[float], np.ndarray] | None = None,
-                 noise: bool = True, baudrate: int = 115200, **driver: Any) -> None:
+    def __init__(
+        self,
+        rate_hz: int = 100,
+        drift_ppm: float = 0.0,
+        jitter_ms: float = 0.0,
+        seed: int = 0,
+        orientation_at: Callable[[float], np.ndarray] | None = None,
+        noise: bool = True,
+        baudrate: int = 115200,
+        **driver: Any,
+    ) -> None:
         from devices.imu_emulator import ImuEmulator
 
         try:
-            self.emulator = ImuEmulator(rate_hz=rate_hz, drift_ppm=drift_ppm,
-                                        jitter_ms=jitter_ms, seed=seed,
-                                        orientation_at=orientation_at, noise=noise,
-                                        baudrate=baudrate)
+            self.emulator = ImuEmulator(
+                rate_hz=rate_hz,
+                drift_ppm=drift_ppm,
+                jitter_ms=jitter_ms,
+                seed=seed,
+                orientation_at=orientation_at,
+                noise=noise,
+                baudrate=baudrate,
+            )
         except ValueError as e:
             raise DeviceInitError(str(e)) from None
         port = self.emulator.start()
@@ -545,12 +630,15 @@ class EmulatedImu(XbusImu):
             raise
 
     @classmethod
-    def from_config(cls, config: Any, orientation_at=None) -> "EmulatedImu":
-        return cls(rate_hz=getattr(config, "rate_hz", 100),
-                   drift_ppm=getattr(config, "drift_ppm", 0.0),
-                   jitter_ms=getattr(config, "jitter_ms", 0.0),
-                   seed=getattr(config, "seed", 0), orientation_at=orientation_at,
-                   baudrate=mock_baudrate(config))
+    def from_config(cls, config: Any, orientation_at=None) -> EmulatedImu:
+        return cls(
+            rate_hz=getattr(config, "rate_hz", 100),
+            drift_ppm=getattr(config, "drift_ppm", 0.0),
+            jitter_ms=getattr(config, "jitter_ms", 0.0),
+            seed=getattr(config, "seed", 0),
+            orientation_at=orientation_at,
+            baudrate=mock_baudrate(config),
+        )
 
     def true_time_ns(self, sample_time_fine: int) -> int:
         """When the emulator really took that sample (for sync-accuracy checks)."""
@@ -567,13 +655,19 @@ class EmulatedImu(XbusImu):
 
 # ---- helpers ------------------------------------------------------------------------------
 
-def _sample(values: dict[str, Any], systems: dict[str, str], host_ns: int,
-            time_ns: int) -> ImuSample:
-    extra = {k: _plain(v) for k, v in values.items()
-             if k not in ("packet_counter", "sample_time_fine", "quaternion", "status_word",
-                          *_VECTOR_OUTPUTS)}
+
+def _sample(
+    values: dict[str, Any], systems: dict[str, str], host_ns: int, time_ns: int
+) -> ImuSample:
+    extra = {
+        k: _plain(v)
+        for k, v in values.items()
+        if k
+        not in ("packet_counter", "sample_time_fine", "quaternion", "status_word", *_VECTOR_OUTPUTS)
+    }
     return ImuSample(
-        host_time_ns=host_ns, time_ns=int(time_ns),
+        host_time_ns=host_ns,
+        time_ns=int(time_ns),
         packet_counter=values.get("packet_counter"),
         sample_time_fine=values.get("sample_time_fine"),
         quaternion=_orientation(values, systems),
@@ -621,11 +715,17 @@ def _firmware_text(data: bytes) -> str:
 
 
 def _request_name(mid: int, data: bytes) -> str:
-    names = {MID.REQ_DID: "ReqDID", MID.REQ_PRODUCT_CODE: "ReqProductCode",
-             MID.REQ_FW_REV: "ReqFWRev", MID.GOTO_CONFIG: "GoToConfig",
-             MID.GOTO_MEASUREMENT: "GoToMeasurement", MID.RESET: "Reset",
-             MID.SET_OUTPUT_CONFIGURATION: "SetOutputConfiguration" if data
-             else "ReqOutputConfiguration"}
+    names = {
+        MID.REQ_DID: "ReqDID",
+        MID.REQ_PRODUCT_CODE: "ReqProductCode",
+        MID.REQ_FW_REV: "ReqFWRev",
+        MID.GOTO_CONFIG: "GoToConfig",
+        MID.GOTO_MEASUREMENT: "GoToMeasurement",
+        MID.RESET: "Reset",
+        MID.SET_OUTPUT_CONFIGURATION: "SetOutputConfiguration"
+        if data
+        else "ReqOutputConfiguration",
+    }
     return names.get(mid, xbus.mid_name(mid))
 
 

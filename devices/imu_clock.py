@@ -14,6 +14,7 @@ the baud rate), so the offset holds only the unknowable fixed part of the latenc
 
 Pure and single-threaded: the IMU reader thread owns one.
 """
+
 from __future__ import annotations
 
 import collections
@@ -23,7 +24,7 @@ from dataclasses import dataclass
 log = logging.getLogger(__name__)
 
 TICK_NS = 100_000  # one SampleTimeFine tick (10 kHz)
-WRAP = 2 ** 32
+WRAP = 2**32
 
 
 @dataclass(frozen=True)
@@ -39,10 +40,17 @@ class ClockState:
 class DeviceClock:
     """Maps device ticks onto host nanoseconds; see the module docstring."""
 
-    def __init__(self, tick_ns: int = TICK_NS, wrap: int = WRAP, window_s: float = 30.0,
-                 bucket_s: float = 0.25, max_drift_ppm: float = 1000.0,
-                 jump_ms: float = 50.0, max_delay_s: float = 1.0,
-                 min_span_s: float = 2.0) -> None:
+    def __init__(
+        self,
+        tick_ns: int = TICK_NS,
+        wrap: int = WRAP,
+        window_s: float = 30.0,
+        bucket_s: float = 0.25,
+        max_drift_ppm: float = 1000.0,
+        jump_ms: float = 50.0,
+        max_delay_s: float = 1.0,
+        min_span_s: float = 2.0,
+    ) -> None:
         self.tick_ns = tick_ns
         self.wrap = wrap
         self.window_ns = int(window_s * 1e9)
@@ -88,8 +96,9 @@ class DeviceClock:
         """Add a sample taken at raw_ticks and received at host_ns; its mapped time."""
         ticks = self._unwrap(raw_ticks)
         if ticks is None:
-            log.info("device clock went backwards (%d after %d): refitting", raw_ticks,
-                     self._last_raw)
+            log.info(
+                "device clock went backwards (%d after %d): refitting", raw_ticks, self._last_raw
+            )
             self.reset()
             ticks = raw_ticks
         if self._last_raw is None:
@@ -123,8 +132,12 @@ class DeviceClock:
             while x - buckets[0][1] > self.window_ns:
                 buckets.popleft()
         short = buckets[-1][1] - buckets[0][1] < self.min_span_ns
-        self._a, self._b = lower_envelope([p[1] for p in buckets], [p[2] for p in buckets],
-                                          self._b, 0.0 if short else self.max_slope)
+        self._a, self._b = lower_envelope(
+            [p[1] for p in buckets],
+            [p[2] for p in buckets],
+            self._b,
+            0.0 if short else self.max_slope,
+        )
 
     # ---- mapping ----------------------------------------------------------------------
 
@@ -157,13 +170,19 @@ class DeviceClock:
 
     def state(self) -> ClockState:
         span = (self._buckets[-1][1] - self._buckets[0][1]) if self._buckets else 0
-        return ClockState(offset_ms=self.offset_ns * 1e-6 if self.ready else 0.0,
-                          drift_ppm=self.drift_ppm, residual_ms=self._residual * 1e-6,
-                          span_s=span * 1e-9, points=len(self._buckets), resets=self.resets)
+        return ClockState(
+            offset_ms=self.offset_ns * 1e-6 if self.ready else 0.0,
+            drift_ppm=self.drift_ppm,
+            residual_ms=self._residual * 1e-6,
+            span_s=span * 1e-9,
+            points=len(self._buckets),
+            resets=self.resets,
+        )
 
 
-def lower_envelope(xs: list[int], ys: list[float], slope_guess: float = 0.0,
-                   max_slope: float = 1e-3) -> tuple[float, float]:
+def lower_envelope(
+    xs: list[int], ys: list[float], slope_guess: float = 0.0, max_slope: float = 1e-3
+) -> tuple[float, float]:
     """The line y = a + b x below every point, closest to them on average.
 
     xs ascending. It lies along the edge of the lower convex hull under the mean x
@@ -180,7 +199,7 @@ def lower_envelope(xs: list[int], ys: list[float], slope_guess: float = 0.0,
         b = slope_guess
     else:
         mean_x = sum(xs) / len(xs)
-        for (x0, y0), (x1, y1) in zip(hull, hull[1:]):
+        for (x0, y0), (x1, y1) in zip(hull, hull[1:]):  # noqa: B007  (the edge it stops on)
             if x1 >= mean_x:
                 break
         b = (y1 - y0) / (x1 - x0)

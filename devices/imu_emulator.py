@@ -16,6 +16,7 @@ orientation's derivative, both with noise and bias.
 Runs in a daemon thread of the calling process (tests, the mock backend) or standalone
 (`walkcap imu emulate`).
 """
+
 from __future__ import annotations
 
 import collections
@@ -32,14 +33,21 @@ import tempfile
 import threading
 import time
 import tty
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
 from devices import xbus
 from devices.clock import now_ns
-from devices.rotations import (matrix_to_quat, quat_conjugate, quat_from_euler, quat_multiply,
-                               quat_normalize, quat_to_euler, quat_to_matrix)
+from devices.rotations import (
+    matrix_to_quat,
+    quat_conjugate,
+    quat_from_euler,
+    quat_multiply,
+    quat_normalize,
+    quat_to_euler,
+    quat_to_matrix,
+)
 from devices.xbus import MID
 
 log = logging.getLogger(__name__)
@@ -50,8 +58,9 @@ MAGNETIC_FIELD_ENU = np.array([0.0, 0.42, -0.91])  # arbitrary units: north and 
 FAULTS = ("corrupt", "drop", "hang", "disconnect", "reconnect")
 _COUNTERS = frozenset({"packet_counter", "sample_time_fine", "sample_time_coarse", "status_word"})
 # Requests a device in measurement mode accepts; the rest need GoToConfig first.
-_MEASUREMENT_OK = frozenset({MID.GOTO_CONFIG, MID.GOTO_MEASUREMENT, MID.RESET, MID.REQ_DID,
-                             MID.WAKEUP_ACK})
+_MEASUREMENT_OK = frozenset(
+    {MID.GOTO_CONFIG, MID.GOTO_MEASUREMENT, MID.RESET, MID.REQ_DID, MID.WAKEUP_ACK}
+)
 _SPIN_NS = 200_000
 _BAUD_CODE = {baud: code for code, baud in sorted(xbus.BAUD_CODES.items(), reverse=True)}
 
@@ -96,18 +105,29 @@ class EmulatorClock:
 
     def true_time_ns(self, sample_time_fine: int, now: int) -> int:
         """When the sample stamped sample_time_fine (wrapping) was taken, seen at `now`."""
-        wraps = round((self.ticks_at(now) - sample_time_fine) / 2 ** 32)
-        return self.time_of_ticks(sample_time_fine + wraps * 2 ** 32)
+        wraps = round((self.ticks_at(now) - sample_time_fine) / 2**32)
+        return self.time_of_ticks(sample_time_fine + wraps * 2**32)
 
 
 class ImuEmulator:
     """An MTi on a pty. `start()` returns the port path; see the module docstring."""
 
-    def __init__(self, rate_hz: int = 100, drift_ppm: float = 0.0, jitter_ms: float = 0.0,
-                 seed: int = 0, orientation_at: Callable[[float], np.ndarray] | None = None,
-                 noise: bool = True, *, baudrate: int = 115200, start_ticks: int | None = None,
-                 device_id: int = 0x03881234, product_code: str = "MTi-3-8A7G6",
-                 firmware: tuple[int, int, int] = (1, 8, 2), wakeup_s: float = 0.5) -> None:
+    def __init__(
+        self,
+        rate_hz: int = 100,
+        drift_ppm: float = 0.0,
+        jitter_ms: float = 0.0,
+        seed: int = 0,
+        orientation_at: Callable[[float], np.ndarray] | None = None,
+        noise: bool = True,
+        *,
+        baudrate: int = 115200,
+        start_ticks: int | None = None,
+        device_id: int = 0x03881234,
+        product_code: str = "MTi-3-8A7G6",
+        firmware: tuple[int, int, int] = (1, 8, 2),
+        wakeup_s: float = 0.5,
+    ) -> None:
         if not 1 <= rate_hz <= MAX_RATE_HZ:
             raise ValueError(f"IMU emulator rate {rate_hz} Hz: must be 1..{MAX_RATE_HZ}")
         self.rate_hz = int(rate_hz)
@@ -121,8 +141,9 @@ class ImuEmulator:
         self.wakeup_s = wakeup_s
         self.orientation_at = orientation_at or gait_orientation
         self._rng = np.random.default_rng(seed)
-        self._start_ticks = int(self._rng.integers(0, 2 ** 32)) if start_ticks is None \
-            else start_ticks % 2 ** 32
+        self._start_ticks = (
+            int(self._rng.integers(0, 2**32)) if start_ticks is None else start_ticks % 2**32
+        )
         self._gyro_bias = self._rng.normal(0.0, 0.003, 3) if noise else np.zeros(3)
         self._accel_bias = self._rng.normal(0.0, 0.02, 3) if noise else np.zeros(3)
         self._outputs = xbus.output_settings(xbus.DEFAULT_OUTPUTS, self.rate_hz)
@@ -154,8 +175,7 @@ class ImuEmulator:
         self.clock = EmulatorClock(self.start_time_ns, self._start_ticks, self.drift_ppm)
         self._power_up(self.start_time_ns)
         self._plug()
-        self._thread = threading.Thread(target=self._run, name="walkcap-imu-emulator",
-                                        daemon=True)
+        self._thread = threading.Thread(target=self._run, name="walkcap-imu-emulator", daemon=True)
         self._thread.start()
         return self.port
 
@@ -168,7 +188,7 @@ class ImuEmulator:
             shutil.rmtree(self._dir, ignore_errors=True)
             self._dir = None
 
-    def __enter__(self) -> "ImuEmulator":
+    def __enter__(self) -> ImuEmulator:
         self.start()
         return self
 
@@ -281,8 +301,12 @@ class ImuEmulator:
         hung = t < self._hang_until
         if self._measuring and not hung:
             self._take_samples(t)
-        if self.plugged and not self._measuring and t < self._wakeup_until and \
-                t >= self._next_wakeup:
+        if (
+            self.plugged
+            and not self._measuring
+            and t < self._wakeup_until
+            and t >= self._next_wakeup
+        ):
             # An MTi announces itself once; repeating it lets a host that opens late see it.
             self._send_now(xbus.build(MID.WAKEUP), t)
             self._next_wakeup = t + 100_000_000
@@ -379,8 +403,11 @@ class ImuEmulator:
         encodings: dict[str, tuple[int, str]] = {}  # name -> (precision, coordinate system)
         for setting in self._outputs:
             name = setting.name
-            if name not in _COUNTERS and setting.rate_hz != xbus.EVERY_PACKET and \
-                    index % max(1, self._rate // setting.rate_hz):
+            if (
+                name not in _COUNTERS
+                and setting.rate_hz != xbus.EVERY_PACKET
+                and index % max(1, self._rate // setting.rate_hz)
+            ):
                 continue
             system = xbus.COORDINATE_SYSTEMS.get(setting.xdi & 0xC, "ENU")
             encodings[name] = (setting.xdi & 0x3, system)
@@ -388,9 +415,9 @@ class ImuEmulator:
             if name == "packet_counter":
                 values[name] = counter
             elif name == "sample_time_fine":
-                values[name] = ticks % 2 ** 32
+                values[name] = ticks % 2**32
             elif name == "sample_time_coarse":
-                values[name] = (ticks // 10_000) % 2 ** 32
+                values[name] = (ticks // 10_000) % 2**32
             elif name == "status_word":
                 values[name] = 0b11  # self-test ok, filter valid
             elif name == "quaternion":
@@ -402,8 +429,9 @@ class ImuEmulator:
             elif name == "acceleration":
                 values[name] = tuple(accel)
             elif name == "free_acceleration":
-                values[name] = tuple(to_frame @ (rot @ (accel - self._accel_bias)
-                                                 - [0.0, 0.0, GRAVITY]))
+                values[name] = tuple(
+                    to_frame @ (rot @ (accel - self._accel_bias) - [0.0, 0.0, GRAVITY])
+                )
             elif name == "delta_v":
                 values[name] = tuple(accel * dt)
             elif name == "rate_of_turn":
@@ -418,8 +446,9 @@ class ImuEmulator:
                 values[name] = 31.0 + float(noise(0.05, 1)[0])
             elif name == "baro_pressure":
                 values[name] = int(101325 + noise(2.0, 1)[0])
-        return b"".join(xbus.encode_packet(name, value, *encodings[name])
-                        for name, value in values.items())
+        return b"".join(
+            xbus.encode_packet(name, value, *encodings[name]) for name, value in values.items()
+        )
 
     # ---- the wire ---------------------------------------------------------------------
 
@@ -468,10 +497,15 @@ class ImuEmulator:
         if self._measuring and mid not in _MEASUREMENT_OK:
             self._error(xbus.INVALID_MESSAGE, t)
             return
-        no_data = {MID.GOTO_CONFIG: MID.GOTO_CONFIG_ACK, MID.GOTO_MEASUREMENT:
-                   MID.GOTO_MEASUREMENT_ACK, MID.REQ_DID: MID.DEVICE_ID,
-                   MID.INIT_MT: MID.INIT_MT_RESULTS, MID.REQ_FW_REV: MID.FIRMWARE_REV,
-                   MID.REQ_PRODUCT_CODE: MID.PRODUCT_CODE, MID.RESET: MID.RESET_ACK}
+        no_data = {
+            MID.GOTO_CONFIG: MID.GOTO_CONFIG_ACK,
+            MID.GOTO_MEASUREMENT: MID.GOTO_MEASUREMENT_ACK,
+            MID.REQ_DID: MID.DEVICE_ID,
+            MID.INIT_MT: MID.INIT_MT_RESULTS,
+            MID.REQ_FW_REV: MID.FIRMWARE_REV,
+            MID.REQ_PRODUCT_CODE: MID.PRODUCT_CODE,
+            MID.RESET: MID.RESET_ACK,
+        }
         if mid in no_data and data:
             self._error(xbus.INVALID_MESSAGE, t)  # these requests carry no data
             return
@@ -513,7 +547,9 @@ class ImuEmulator:
 
     def _output_configuration(self, data: bytes, t: int) -> None:
         if not data:
-            self._reply(MID.OUTPUT_CONFIGURATION, xbus.encode_output_configuration(self._outputs), t)
+            self._reply(
+                MID.OUTPUT_CONFIGURATION, xbus.encode_output_configuration(self._outputs), t
+            )
             return
         try:
             settings = xbus.decode_output_configuration(data)

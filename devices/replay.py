@@ -5,6 +5,7 @@ pace times `speed`, or as fast as the consumer takes them when `realtime` is fal
 are re-stamped onto the session clock (recorded spacing kept), with their recorded truth.
 The recording's own IMU samples are available as `recorded_imu()` for offline use.
 """
+
 from __future__ import annotations
 
 import logging
@@ -22,8 +23,15 @@ log = logging.getLogger(__name__)
 class ReplayCamera(Camera):
     backend = "replay"
 
-    def __init__(self, config=None, *, path: str | None = None, speed: float = 1.0,
-                 realtime: bool = True, loop: bool = False) -> None:
+    def __init__(
+        self,
+        config=None,
+        *,
+        path: str | None = None,
+        speed: float = 1.0,
+        realtime: bool = True,
+        loop: bool = False,
+    ) -> None:
         super().__init__(config)
         self.path = Path(path or getattr(self.config, "camera_id", "") or "")
         self.speed = speed
@@ -33,7 +41,7 @@ class ReplayCamera(Camera):
         self._thread: threading.Thread | None = None
 
     @classmethod
-    def from_config(cls, camera_config, simulator_config=None, **kw) -> "ReplayCamera":
+    def from_config(cls, camera_config, simulator_config=None, **kw) -> ReplayCamera:
         if simulator_config is not None and "realtime" not in kw:
             kw["realtime"] = simulator_config.realtime
         return cls(camera_config, **kw)
@@ -45,7 +53,8 @@ class ReplayCamera(Camera):
         if not str(self.path) or not self.path.is_file():
             raise DeviceNotAvailable(
                 f"replay camera: no recording at {str(self.path) or '(none)'}; "
-                "set [camera] camera_id to a .mcap file")
+                "set [camera] camera_id to a .mcap file"
+            )
         try:
             rec = open_recording(self.path)
         except CaptureError as e:

@@ -15,13 +15,15 @@ pixels (depthConfidence 0) get xyz 0. Device timestamps (microseconds) are mappe
 the session clock with the smallest host-minus-device offset seen so far: the frame that
 arrived with the least delay fixes the mapping.
 """
+
 from __future__ import annotations
 
 import logging
 import re
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -32,9 +34,11 @@ from devices.frames import CameraGeometry, DepthFrame
 
 log = logging.getLogger(__name__)
 
-INSTALL_HINT = ("the royale backend needs the royale SDK's Python binding (roypy): install "
-                "pmd's royale SDK and add its python folder to PYTHONPATH "
-                "(e.g. export PYTHONPATH=/opt/royale/python:$PYTHONPATH)")
+INSTALL_HINT = (
+    "the royale backend needs the royale SDK's Python binding (roypy): install "
+    "pmd's royale SDK and add its python folder to PYTHONPATH "
+    "(e.g. export PYTHONPATH=/opt/royale/python:$PYTHONPATH)"
+)
 
 
 def import_roypy():
@@ -57,15 +61,18 @@ def choose_use_case(available: list[str], fps: float, requested: str = "") -> st
         raise DeviceInitError("the camera offers no use cases")
     if requested:
         if requested not in available:
-            raise DeviceInitError(f"use case {requested!r} is not offered by the camera "
-                                  f"(offered: {', '.join(available)})")
+            raise DeviceInitError(
+                f"use case {requested!r} is not offered by the camera "
+                f"(offered: {', '.join(available)})"
+            )
         return requested
     rated = [(abs(f - fps), -f, name) for name in available if (f := use_case_fps(name))]
     return min(rated)[2] if rated else available[0]
 
 
-def geometry_from_lens(lens: Any, width: int, height: int, name: str = "",
-                       serial: str = "") -> CameraGeometry:
+def geometry_from_lens(
+    lens: Any, width: int, height: int, name: str = "", serial: str = ""
+) -> CameraGeometry:
     """CameraGeometry from getLensParameters() (royale 3/4 or royale 5 key names)."""
     try:
         if "fx" in lens:
@@ -77,8 +84,16 @@ def geometry_from_lens(lens: Any, width: int, height: int, name: str = "",
         log.warning("lens parameters not understood (%s): nominal pico flexx intrinsics", e)
         d = CameraGeometry()
         fx, fy, cx, cy = d.fx, d.fy, d.cx, d.cy
-    return CameraGeometry(width=width, height=height, fx=fx, fy=fy, cx=cx, cy=cy,
-                          name=name or "pmd camera", serial=serial)
+    return CameraGeometry(
+        width=width,
+        height=height,
+        fx=fx,
+        fy=fy,
+        cx=cx,
+        cy=cy,
+        name=name or "pmd camera",
+        serial=serial,
+    )
 
 
 def depth_data_arrays(data: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -98,11 +113,13 @@ def depth_data_arrays(data: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         confidence = points[..., -1]
     else:  # per-pixel getters: slow, but some bindings have nothing else
         n = h * w
-        xyz = np.array([(data.getX(i), data.getY(i), data.getZ(i)) for i in range(n)],
-                       dtype=np.float32).reshape(h, w, 3)
+        xyz = np.array(
+            [(data.getX(i), data.getY(i), data.getZ(i)) for i in range(n)], dtype=np.float32
+        ).reshape(h, w, 3)
         gray = np.array([data.getGrayValue(i) for i in range(n)], np.float32).reshape(h, w)
-        confidence = np.array([data.getDepthConfidence(i) for i in range(n)],
-                              np.float32).reshape(h, w)
+        confidence = np.array([data.getDepthConfidence(i) for i in range(n)], np.float32).reshape(
+            h, w
+        )
     confidence = np.clip(confidence, 0, 255).astype(np.uint8)
     xyz[confidence == 0] = 0.0  # royale already does this; make sure of it
     return xyz, confidence, np.clip(gray, 0, 65535).astype(np.uint16)
@@ -154,13 +171,17 @@ class RoyaleCamera(Camera):
         else:
             connected = [str(c) for c in self._manager.getConnectedCameraList()]
             if not connected:
-                raise DeviceNotAvailable("no pmd camera connected (check the USB cable and "
-                                         "the royale SDK's udev rules)")
+                raise DeviceNotAvailable(
+                    "no pmd camera connected (check the USB cable and the royale SDK's udev rules)"
+                )
             if self.source and self.source not in connected:
-                raise DeviceNotAvailable(f"pmd camera {self.source!r} is not connected "
-                                         f"(connected: {', '.join(connected)})")
-            device = self._sdk("opening the camera", self._manager.createCamera,
-                               self.source or connected[0])
+                raise DeviceNotAvailable(
+                    f"pmd camera {self.source!r} is not connected "
+                    f"(connected: {', '.join(connected)})"
+                )
+            device = self._sdk(
+                "opening the camera", self._manager.createCamera, self.source or connected[0]
+            )
         if device is None:
             raise DeviceNotAvailable(f"royale could not open {self.source or 'the camera'}")
         self._device = device
@@ -175,18 +196,23 @@ class RoyaleCamera(Camera):
                 if hasattr(replay, "frameCount"):
                     self._recording_frames = int(replay.frameCount())
         else:
-            use_case = choose_use_case([str(u) for u in device.getUseCases()],
-                                       self.config.fps, self.config.use_case)
+            use_case = choose_use_case(
+                [str(u) for u in device.getUseCases()], self.config.fps, self.config.use_case
+            )
             self._sdk(f"setUseCase({use_case})", device.setUseCase, use_case)
         name = str(self._sdk("getCameraName", device.getCameraName))
         serial = str(self._sdk("getId", device.getId))
         width = int(getattr(device, "getMaxSensorWidth", lambda: 224)())
         height = int(getattr(device, "getMaxSensorHeight", lambda: 171)())
-        self.geometry = geometry_from_lens(self._sdk("getLensParameters",
-                                                     device.getLensParameters),
-                                           width, height, name, serial)
-        self.details = {"camera": name, "id": serial, "use_case": use_case,
-                        "source": self.source or serial}
+        self.geometry = geometry_from_lens(
+            self._sdk("getLensParameters", device.getLensParameters), width, height, name, serial
+        )
+        self.details = {
+            "camera": name,
+            "id": serial,
+            "use_case": use_case,
+            "source": self.source or serial,
+        }
 
     def _start(self) -> None:
         self._index = 0
@@ -225,12 +251,15 @@ class RoyaleCamera(Camera):
             self._offset_ns = offset
         geometry = self.geometry
         if (geometry.height, geometry.width) != confidence.shape:
-            geometry = self.geometry = replace(geometry, height=confidence.shape[0],
-                                               width=confidence.shape[1])
-        frame = DepthFrame(self._index, device_ns + self._offset_ns, host, xyz, confidence,
-                           gray, geometry)
+            geometry = self.geometry = replace(
+                geometry, height=confidence.shape[0], width=confidence.shape[1]
+            )
+        frame = DepthFrame(
+            self._index, device_ns + self._offset_ns, host, xyz, confidence, gray, geometry
+        )
         self._index += 1
         self._deliver(frame)
         if self._recording_frames and self._index >= self._recording_frames:
-            self._finish("end_of_recording", f"end of {Path(self.source).name} after "
-                         f"{self._index} frames")
+            self._finish(
+                "end_of_recording", f"end of {Path(self.source).name} after {self._index} frames"
+            )

@@ -5,6 +5,7 @@ ordinary thread: a frame is not kept waiting while other work holds both cores. 
 thread must sleep most of the time, as these do (they wait for frames and samples). Root
 may use it; another user needs an rtprio limit (limits.conf) or CAP_SYS_NICE.
 """
+
 from __future__ import annotations
 
 import logging

@@ -11,15 +11,17 @@ Decoded MTData2 values use walkcap's names (`quaternion` [w, x, y, z], `euler` [
 pitch, yaw] degrees, `rotation_matrix` as three rows, ...). Vectors are tuples of floats,
 counters and bit fields ints.
 """
+
 from __future__ import annotations
 
 import enum
 import operator
 import struct
 import time
-from zlib import adler32
+from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import Any, Iterable
+from typing import Any
+from zlib import adler32
 
 PREAMBLE = 0xFA
 MASTER_BID = 0xFF
@@ -76,8 +78,18 @@ ERROR_CODES = {
 INVALID_PERIOD, INVALID_MESSAGE, INVALID_BAUDRATE, INVALID_PARAMETER = 0x03, 0x04, 0x20, 0x21
 
 BAUD_CODES = {  # SetBaudrate code -> baud
-    0x00: 460800, 0x01: 230400, 0x02: 115200, 0x04: 57600, 0x05: 38400, 0x07: 19200,
-    0x09: 9600, 0x0B: 4800, 0x0A: 921600, 0x80: 921600, 0x0C: 2000000, 0x0D: 4000000,
+    0x00: 460800,
+    0x01: 230400,
+    0x02: 115200,
+    0x04: 57600,
+    0x05: 38400,
+    0x07: 19200,
+    0x09: 9600,
+    0x0B: 4800,
+    0x0A: 921600,
+    0x80: 921600,
+    0x0C: 2000000,
+    0x0D: 4000000,
 }
 
 
@@ -86,6 +98,7 @@ def error_text(code: int) -> str:
 
 
 # --------------------------------------------------------------------------- frames
+
 
 def checksum(body: bytes | bytearray) -> int:
     """The checksum byte for BID..DATA: makes the sum from BID to CS 0 modulo 256."""
@@ -101,7 +114,7 @@ def build(mid: int, data: bytes = b"", bid: int = MASTER_BID) -> bytes:
         body = bytes((bid, mid, n)) + data
     else:
         body = bytes((bid, mid, EXTENDED_LENGTH, n >> 8, n & 0xFF)) + data
-    return b"\xFA" + body + bytes((checksum(body),))
+    return b"\xfa" + body + bytes((checksum(body),))
 
 
 @dataclass(slots=True)
@@ -135,8 +148,9 @@ class XbusParser:
     bytes) beyond the chunk being parsed. MTData2 payloads are decoded on the way.
     """
 
-    def __init__(self, bus_id: int | None = MASTER_BID, max_data: int = MAX_DATA,
-                 decode: bool = True) -> None:
+    def __init__(
+        self, bus_id: int | None = MASTER_BID, max_data: int = MAX_DATA, decode: bool = True
+    ) -> None:
         self.bus_id = bus_id  # None accepts any bus id
         self.max_data = max_data
         self.decode = decode
@@ -151,9 +165,14 @@ class XbusParser:
         self.malformed = 0  # MTData2 payloads whose packets ran past their end
 
     def counters(self) -> dict[str, int]:
-        return {"messages": self.messages, "checksum_errors": self.checksum_errors,
-                "resyncs": self.resyncs, "unknown_ids": self.unknown_ids,
-                "malformed": self.malformed, "discarded_bytes": self.discarded_bytes}
+        return {
+            "messages": self.messages,
+            "checksum_errors": self.checksum_errors,
+            "resyncs": self.resyncs,
+            "unknown_ids": self.unknown_ids,
+            "malformed": self.malformed,
+            "discarded_bytes": self.discarded_bytes,
+        }
 
     def _lose_sync(self, nbytes: int) -> None:
         self.discarded_bytes += nbytes
@@ -194,8 +213,9 @@ class XbusParser:
                 break  # incomplete: wait for more bytes
             # Adler-32's low half is the byte sum modulo 65521: exact (and much faster than
             # sum()) while the sum stays below 65521, i.e. for frames up to 257 bytes.
-            if (adler32(buf[i + 1:end + 1], 0) if end - i <= 256
-                    else sum(buf[i + 1:end + 1])) & 0xFF:
+            if (
+                adler32(buf[i + 1 : end + 1], 0) if end - i <= 256 else sum(buf[i + 1 : end + 1])
+            ) & 0xFF:
                 self.checksum_errors += 1
                 self._lose_sync(1)
                 i += 1
@@ -293,8 +313,8 @@ def value_size(xdi: int) -> int | None:
     return _INT_FORMATS[kind][1]
 
 
-_FP1220_SCALE = 2.0 ** -20
-_FP1632_SCALE = 2.0 ** -32
+_FP1220_SCALE = 2.0**-20
+_FP1632_SCALE = 2.0**-32
 
 
 def _from_fp1220(raw: tuple, count: int) -> Any:
@@ -423,8 +443,9 @@ def decode_mtdata2(payload: bytes) -> MTData2:
         if sum(len(v) for v in _LAYOUTS.values()) >= _MAX_LAYOUTS:
             _LAYOUTS.clear()  # a stream of changing layouts must not grow memory
         _LAYOUTS.setdefault(len(payload), []).append(layout)
-    return MTData2(layout.values(vals), layout.systems, layout.skipped,
-                   truncated=covered != len(payload))
+    return MTData2(
+        layout.values(vals), layout.systems, layout.skipped, truncated=covered != len(payload)
+    )
 
 
 def _pack_real(value: float, precision: int) -> bytes:
@@ -433,14 +454,15 @@ def _pack_real(value: float, precision: int) -> bytes:
     if precision == FLOAT64:
         return struct.pack(">d", value)
     if precision == FP1220:
-        raw = max(-2 ** 31, min(2 ** 31 - 1, round(value * 2 ** 20)))
+        raw = max(-(2**31), min(2**31 - 1, round(value * 2**20)))
         return struct.pack(">i", raw)
-    raw = max(-2 ** 47, min(2 ** 47 - 1, round(value * 2 ** 32)))  # 16.32 fixed point
+    raw = max(-(2**47), min(2**47 - 1, round(value * 2**32)))  # 16.32 fixed point
     return struct.pack(">Ih", raw & 0xFFFFFFFF, raw >> 32)
 
 
-def encode_packet(name: str, value: Any, precision: int = FLOAT32,
-                  coordinate_system: str = "ENU") -> bytes:
+def encode_packet(
+    name: str, value: Any, precision: int = FLOAT32, coordinate_system: str = "ENU"
+) -> bytes:
     """One MTData2 packet (XDI, size, data) for a named output."""
     base = XDI[name]
     _, kind, count = OUTPUTS[base]
@@ -465,13 +487,18 @@ def encode_packet(name: str, value: Any, precision: int = FLOAT32,
     return struct.pack(">HB", xdi, len(data)) + data
 
 
-def encode_mtdata2(values: dict[str, Any], precision: int = FLOAT32,
-                   coordinate_system: str = "ENU",
-                   precisions: dict[str, int] | None = None) -> bytes:
+def encode_mtdata2(
+    values: dict[str, Any],
+    precision: int = FLOAT32,
+    coordinate_system: str = "ENU",
+    precisions: dict[str, int] | None = None,
+) -> bytes:
     """An MTData2 payload with the given outputs, in the given order."""
     precisions = precisions or {}
-    return b"".join(encode_packet(name, v, precisions.get(name, precision), coordinate_system)
-                    for name, v in values.items())
+    return b"".join(
+        encode_packet(name, v, precisions.get(name, precision), coordinate_system)
+        for name, v in values.items()
+    )
 
 
 # --------------------------------------------------------------------------- configuration
@@ -490,9 +517,11 @@ class OutputSetting:
         return known[0] if known else f"0x{self.xdi:04X}"
 
     def describe(self) -> dict[str, Any]:
-        d: dict[str, Any] = {"output": self.name, "xdi": f"0x{self.xdi:04X}",
-                             "rate_hz": "every packet" if self.rate_hz == EVERY_PACKET
-                             else self.rate_hz}
+        d: dict[str, Any] = {
+            "output": self.name,
+            "xdi": f"0x{self.xdi:04X}",
+            "rate_hz": "every packet" if self.rate_hz == EVERY_PACKET else self.rate_hz,
+        }
         known = OUTPUTS.get(self.xdi & 0xFFF0)
         if known and known[1] == "real":
             d["precision"] = PRECISION_NAMES[self.xdi & 0x3]
@@ -512,14 +541,22 @@ def decode_output_configuration(data: bytes) -> list[OutputSetting]:
 
 
 # Counters and status go in every message; measurements at the session's rate.
-_EVERY_PACKET_OUTPUTS = frozenset({"packet_counter", "sample_time_fine", "sample_time_coarse",
-                                   "status_word"})
-DEFAULT_OUTPUTS = ("packet_counter", "sample_time_fine", "quaternion", "acceleration",
-                   "rate_of_turn", "status_word")
+_EVERY_PACKET_OUTPUTS = frozenset(
+    {"packet_counter", "sample_time_fine", "sample_time_coarse", "status_word"}
+)
+DEFAULT_OUTPUTS = (
+    "packet_counter",
+    "sample_time_fine",
+    "quaternion",
+    "acceleration",
+    "rate_of_turn",
+    "status_word",
+)
 
 
-def output_settings(names: Iterable[str], rate_hz: int, precision: int = FLOAT32,
-                    coordinate_system: str = "ENU") -> list[OutputSetting]:
+def output_settings(
+    names: Iterable[str], rate_hz: int, precision: int = FLOAT32, coordinate_system: str = "ENU"
+) -> list[OutputSetting]:
     """SetOutputConfiguration entries for named outputs at one rate."""
     settings = []
     for name in names:
@@ -530,8 +567,9 @@ def output_settings(names: Iterable[str], rate_hz: int, precision: int = FLOAT32
             xdi |= precision
             if name in WORLD_FRAME_OUTPUTS:
                 xdi |= _COORDINATE_CODES[coordinate_system]
-        settings.append(OutputSetting(xdi, EVERY_PACKET if name in _EVERY_PACKET_OUTPUTS
-                                      else int(rate_hz)))
+        settings.append(
+            OutputSetting(xdi, EVERY_PACKET if name in _EVERY_PACKET_OUTPUTS else int(rate_hz))
+        )
     return settings
 
 
@@ -542,15 +580,21 @@ def wire_time_ns(nbytes: int, baudrate: int) -> int:
 
 # --------------------------------------------------------------------------- benchmark
 
+
 def bench_parse_rate(seconds: float = 2.0) -> float:
     """MTData2 messages framed, checked and decoded per second of CPU time.
 
     Default outputs in float32 (a 73-byte frame), fed in 4 KiB chunks. CPU time, not wall
     time, so that other processes on a shared machine do not count against the parser.
     """
-    values = {"packet_counter": 1, "sample_time_fine": 123456, "quaternion": (1.0, 0.0, 0.0, 0.0),
-              "acceleration": (0.1, 0.2, 9.8), "rate_of_turn": (0.01, 0.02, 0.03),
-              "status_word": 3}
+    values = {
+        "packet_counter": 1,
+        "sample_time_fine": 123456,
+        "quaternion": (1.0, 0.0, 0.0, 0.0),
+        "acceleration": (0.1, 0.2, 9.8),
+        "rate_of_turn": (0.01, 0.02, 0.03),
+        "status_word": 3,
+    }
     frame = build(MID.MTDATA2, encode_mtdata2(values))
     per_chunk = max(1, 4096 // len(frame))
     chunk = frame * per_chunk

@@ -9,6 +9,7 @@ mounting; yaw (about gravity when standing) is not observable from a floor and i
 Pure: frames and orientations in, a CalibrationResult out. `walkcap calibrate` collects
 the frames and writes the result to the configuration.
 """
+
 from __future__ import annotations
 
 import logging
@@ -59,15 +60,17 @@ class CalibrationResult:
         return self.roll_deg - self.previous[0], self.pitch_deg - self.previous[1]
 
 
-def floor_plane(xyz: np.ndarray, confidence: np.ndarray, min_confidence: int = 1,
-                seed: int = 0) -> tuple[np.ndarray, float, float, float] | None:
+def floor_plane(
+    xyz: np.ndarray, confidence: np.ndarray, min_confidence: int = 1, seed: int = 0
+) -> tuple[np.ndarray, float, float, float] | None:
     """The dominant plane of one frame: (upward unit normal in the camera frame, camera
     height above it, inlier fraction, RMS distance of the inliers); None without points."""
     import open3d as o3d
 
     pts = np.asarray(xyz, dtype=np.float32).reshape(-1, 3)
     valid = (np.asarray(confidence).reshape(-1) >= min_confidence) & np.all(
-        np.isfinite(pts), axis=1)
+        np.isfinite(pts), axis=1
+    )
     pts = pts[valid]
     pts = pts[np.linalg.norm(pts, axis=1) > 0.05]  # (0, 0, 0) is "no measurement"
     if len(pts) < 100:
@@ -89,18 +92,22 @@ def floor_plane(xyz: np.ndarray, confidence: np.ndarray, min_confidence: int = 1
     return normal, height, len(inliers) / len(pts), rms
 
 
-def estimate_mounting(xyz_frames: list[np.ndarray], confidence_frames: list[np.ndarray],
-                      quaternions: list[np.ndarray],
-                      current: tuple[float, float, float] = (0.0, 35.0, 0.0),
-                      min_confidence: int = 1) -> CalibrationResult:
+def estimate_mounting(
+    xyz_frames: list[np.ndarray],
+    confidence_frames: list[np.ndarray],
+    quaternions: list[np.ndarray],
+    current: tuple[float, float, float] = (0.0, 35.0, 0.0),
+    min_confidence: int = 1,
+) -> CalibrationResult:
     """New mounting roll/pitch from frames of level floor taken while standing still.
 
     quaternions: IMU -> world at each frame's time. The result's `problem` says why it
     must not be used (no floor, subject moved, too few frames); it never raises.
     """
     roll0, pitch0, yaw0 = (float(v) for v in current)
-    result = CalibrationResult(roll0, pitch0, yaw0, (roll0, pitch0, yaw0),
-                               frames_total=len(xyz_frames))
+    result = CalibrationResult(
+        roll0, pitch0, yaw0, (roll0, pitch0, yaw0), frames_total=len(xyz_frames)
+    )
     m_current = mounting_matrix(roll0, pitch0, yaw0)
     normals, ups, heights, fractions, rmss = [], [], [], [], []
     for k, (xyz, conf, q) in enumerate(zip(xyz_frames, confidence_frames, quaternions)):
@@ -134,9 +141,11 @@ def estimate_mounting(xyz_frames: list[np.ndarray], confidence_frames: list[np.n
         result.camera_height_m = float(np.median(heights))
     needed = max(MIN_FRAMES, (result.frames_total + 1) // 2)
     if result.frames_used < needed:
-        result.problem = (f"the floor was not found: {result.frames_used} of "
-                          f"{result.frames_total} frames show a level floor "
-                          f"(need {needed}); stand on open level ground, camera unobstructed")
+        result.problem = (
+            f"the floor was not found: {result.frames_used} of "
+            f"{result.frames_total} frames show a level floor "
+            f"(need {needed}); stand on open level ground, camera unobstructed"
+        )
         return result
     ups_a, normals_a = np.array(ups), np.array(normals)
     mean_up = ups_a.mean(axis=0)
@@ -146,12 +155,17 @@ def estimate_mounting(xyz_frames: list[np.ndarray], confidence_frames: list[np.n
     mean_normal = normals_a.mean(axis=0)
     mean_normal /= np.linalg.norm(mean_normal)
     view_motion = float(max(_angle_deg(n, mean_normal) for n in normals_a))
-    if (result.motion_deg > MAX_MOTION_DEG or view_motion > MAX_MOTION_DEG
-            or height_spread > MAX_HEIGHT_SPREAD_M):
-        result.problem = (f"the subject moved: the thigh turned {result.motion_deg:.1f} deg, "
-                          f"the view {view_motion:.1f} deg, the camera height changed "
-                          f"{100 * height_spread:.1f} cm (limits {MAX_MOTION_DEG:.0f} deg, "
-                          f"{100 * MAX_HEIGHT_SPREAD_M:.0f} cm); stand still and try again")
+    if (
+        result.motion_deg > MAX_MOTION_DEG
+        or view_motion > MAX_MOTION_DEG
+        or height_spread > MAX_HEIGHT_SPREAD_M
+    ):
+        result.problem = (
+            f"the subject moved: the thigh turned {result.motion_deg:.1f} deg, "
+            f"the view {view_motion:.1f} deg, the camera height changed "
+            f"{100 * height_spread:.1f} cm (limits {MAX_MOTION_DEG:.0f} deg, "
+            f"{100 * MAX_HEIGHT_SPREAD_M:.0f} cm); stand still and try again"
+        )
         return result
 
     roll, pitch = _fit_roll_pitch(normals_a, ups_a, roll0, pitch0, yaw0)
@@ -162,8 +176,9 @@ def estimate_mounting(xyz_frames: list[np.ndarray], confidence_frames: list[np.n
     return result
 
 
-def _fit_roll_pitch(normals: np.ndarray, ups: np.ndarray, roll0: float, pitch0: float,
-                    yaw: float) -> tuple[float, float]:
+def _fit_roll_pitch(
+    normals: np.ndarray, ups: np.ndarray, roll0: float, pitch0: float, yaw: float
+) -> tuple[float, float]:
     from scipy.optimize import least_squares
 
     def residuals(angles: np.ndarray) -> np.ndarray:

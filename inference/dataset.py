@@ -15,14 +15,15 @@ np.packbits of the flattened 0/1 images, `labels` (N,) int8 mode indices (MODES 
 `errors` (N,) str (simulator truth, for diagnostics), `meta` a JSON string (preset, seed,
 fps, preprocessing parameters, walker, IMU noise). Nothing in it needs pickle.
 """
+
 from __future__ import annotations
 
 import json
 import logging
 import os
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -62,23 +63,40 @@ class LabeledSession:
         def part(values):
             return None if values is None else values[keep]
 
-        return replace(self, images=self.images[keep], labels=self.labels[keep],
-                       flags=part(self.flags), view_modes=part(self.view_modes),
-                       errors=part(self.errors))
+        return replace(
+            self,
+            images=self.images[keep],
+            labels=self.labels[keep],
+            flags=part(self.flags),
+            view_modes=part(self.view_modes),
+            errors=part(self.errors),
+        )
 
 
 # ---- files ---------------------------------------------------------------------------------
 
-def write_session(path: str | os.PathLike, session: LabeledSession,
-                  time_ns: np.ndarray | None = None, extra: dict | None = None) -> Path:
+
+def write_session(
+    path: str | os.PathLike,
+    session: LabeledSession,
+    time_ns: np.ndarray | None = None,
+    extra: dict | None = None,
+) -> Path:
     """Write one session as a compressed .npz (atomically). `extra`: more (N,) arrays."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     n = len(session)
     images = np.asarray(session.images, dtype=np.uint8)
-    meta = {"format": FORMAT, "format_version": FORMAT_VERSION, "name": session.name,
-            "preset": session.preset, "source": session.source,
-            "image_shape": list(images.shape[1:]), "frames": n, **session.meta}
+    meta = {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "name": session.name,
+        "preset": session.preset,
+        "source": session.source,
+        "image_shape": list(images.shape[1:]),
+        "frames": n,
+        **session.meta,
+    }
     arrays = {
         "images": np.packbits(images.reshape(n, -1) != 0, axis=1),
         "labels": np.asarray(session.labels, dtype=np.int8),
@@ -103,8 +121,10 @@ def read_session(path: str | os.PathLike) -> LabeledSession:
             if meta.get("format") != FORMAT:
                 raise InferenceError(f"{path} is not a walkcap dataset session")
             if meta.get("format_version") != FORMAT_VERSION:
-                raise InferenceError(f"{path}: dataset version {meta.get('format_version')!r},"
-                                     f" this walkcap reads {FORMAT_VERSION}")
+                raise InferenceError(
+                    f"{path}: dataset version {meta.get('format_version')!r},"
+                    f" this walkcap reads {FORMAT_VERSION}"
+                )
             h, w = meta["image_shape"]
             labels = z["labels"].astype(np.int64)
             packed = z["images"]
@@ -117,14 +137,26 @@ def read_session(path: str | os.PathLike) -> LabeledSession:
     except FileNotFoundError:
         raise InferenceError(f"dataset file not found: {path}") from None
     except Exception as e:  # zip, JSON, key and shape errors all mean a broken file
-        raise InferenceError(f"{path} is not a readable dataset session: "
-                             f"{type(e).__name__}: {e}") from None
-    if (len(images) != len(labels) or labels.max(initial=-1) >= len(MODES)
-            or any(v is not None and len(v) != len(labels) for v in (view_modes, errors))):
+        raise InferenceError(
+            f"{path} is not a readable dataset session: {type(e).__name__}: {e}"
+        ) from None
+    if (
+        len(images) != len(labels)
+        or labels.max(initial=-1) >= len(MODES)
+        or any(v is not None and len(v) != len(labels) for v in (view_modes, errors))
+    ):
         raise InferenceError(f"{path}: images and labels do not match")
-    return LabeledSession(name=meta.get("name") or path.stem, images=images, labels=labels,
-                          preset=meta.get("preset", ""), source=meta.get("source", "synth"),
-                          flags=flags, meta=meta, view_modes=view_modes, errors=errors)
+    return LabeledSession(
+        name=meta.get("name") or path.stem,
+        images=images,
+        labels=labels,
+        preset=meta.get("preset", ""),
+        source=meta.get("source", "synth"),
+        flags=flags,
+        meta=meta,
+        view_modes=view_modes,
+        errors=errors,
+    )
 
 
 # Readers by file suffix. The recording code registers ".mcap" (frames' images and the
@@ -152,8 +184,11 @@ def find_session_files(paths: list[str | os.PathLike]) -> list[Path]:
     files: list[Path] = []
     for p in map(Path, paths):
         if p.is_dir():
-            found = sorted(f for f in p.rglob("*") if f.suffix.lower() in (*READERS, ".mcap")
-                           and ".tmp" not in f.name)
+            found = sorted(
+                f
+                for f in p.rglob("*")
+                if f.suffix.lower() in (*READERS, ".mcap") and ".tmp" not in f.name
+            )
             if not found:
                 raise InferenceError(f"no sessions (.npz or .mcap) in {p}")
             files += found
@@ -168,8 +203,9 @@ def read_sessions(paths: list[str | os.PathLike]) -> list[LabeledSession]:
     """Every session under `paths` (files or folders), whatever its source."""
     sessions = []
     for f in find_session_files(paths):
-        reader = READERS.get(f.suffix.lower(),
-                             _read_recording if f.suffix.lower() == ".mcap" else None)
+        reader = READERS.get(
+            f.suffix.lower(), _read_recording if f.suffix.lower() == ".mcap" else None
+        )
         if reader is None:
             raise InferenceError(f"{f}: unknown session file type {f.suffix!r}")
         sessions.append(reader(f))
@@ -178,8 +214,13 @@ def read_sessions(paths: list[str | os.PathLike]) -> list[LabeledSession]:
 
 def summarize(sessions: list[LabeledSession]) -> dict:
     """Counts for metadata and reports: sessions, frames, per class, per preset."""
-    out: dict = {"sessions": len(sessions), "frames": 0,
-                 "per_class": dict.fromkeys(MODES, 0), "per_preset": {}, "flagged": 0}
+    out: dict = {
+        "sessions": len(sessions),
+        "frames": 0,
+        "per_class": dict.fromkeys(MODES, 0),
+        "per_preset": {},
+        "flagged": 0,
+    }
     for s in sessions:
         n = int(np.count_nonzero(s.labels >= 0))
         out["frames"] += n
@@ -194,6 +235,7 @@ def summarize(sessions: list[LabeledSession]) -> dict:
 
 
 # ---- synthesized sessions -------------------------------------------------------------------
+
 
 @dataclass(frozen=True)
 class SynthSettings:
@@ -227,15 +269,21 @@ def session_plan(count: int, preset: str, base_seed: int) -> list[tuple[str, int
 
 
 def _walker(rng: np.random.Generator, vary: bool, config) -> dict:
-    base = {"speed_mps": config.speed_mps, "cadence_spm": config.cadence_spm,
-            "camera_height_m": config.camera_height_m, "camera_tilt_deg": config.camera_tilt_deg}
+    base = {
+        "speed_mps": config.speed_mps,
+        "cadence_spm": config.cadence_spm,
+        "camera_height_m": config.camera_height_m,
+        "camera_tilt_deg": config.camera_tilt_deg,
+    }
     if not vary:
         return base
     # Subjects and mountings differ: speed, cadence, thigh length, strap angle.
-    return {"speed_mps": float(rng.uniform(0.85, 1.35)),
-            "cadence_spm": float(rng.uniform(90.0, 120.0)),
-            "camera_height_m": float(rng.uniform(0.48, 0.62)),
-            "camera_tilt_deg": float(rng.uniform(28.0, 42.0))}
+    return {
+        "speed_mps": float(rng.uniform(0.85, 1.35)),
+        "cadence_spm": float(rng.uniform(90.0, 120.0)),
+        "camera_height_m": float(rng.uniform(0.48, 0.62)),
+        "camera_tilt_deg": float(rng.uniform(28.0, 42.0)),
+    }
 
 
 def _small_rotation(rng: np.random.Generator, sigma_deg: float) -> np.ndarray:
@@ -246,10 +294,14 @@ def _small_rotation(rng: np.random.Generator, sigma_deg: float) -> np.ndarray:
     return quat_from_euler(roll, pitch, yaw)
 
 
-def render_synth_session(preset: str, seed: int, params=None, settings: SynthSettings =
-                         SynthSettings(), simulator_config=None,
-                         progress: Callable[[int], None] | None = None) -> tuple[
-                             LabeledSession, dict]:
+def render_synth_session(
+    preset: str,
+    seed: int,
+    params=None,
+    settings: SynthSettings = SynthSettings(),
+    simulator_config=None,
+    progress: Callable[[int], None] | None = None,
+) -> tuple[LabeledSession, dict]:
     """Walk one simulated course and preprocess every frame as the live pipeline does.
 
     The IMU orientation is the simulator's thigh orientation with a per-session bias and
@@ -299,31 +351,51 @@ def render_synth_session(preset: str, seed: int, params=None, settings: SynthSet
         time_ns[k] = frame.device_time_ns
         if progress:
             progress(1)
-    meta = {"seed": seed, "fps": settings.fps, "preprocess": params.to_dict(),
-            "walker": walker, "imu_noise_deg": settings.imu_noise_deg,
-            "imu_bias_deg": settings.imu_bias_deg,
-            "mounting_error_deg": settings.mounting_error_deg,
-            "course": [[s.mode, round(float(s.length_m), 3)] for s in course.segments]}
-    session = LabeledSession(name=f"{preset}-{seed:06d}", images=images, labels=labels,
-                             preset=preset, source="synth", flags=np.array(flags, dtype=str),
-                             meta=meta, view_modes=np.array(view_modes, dtype=str),
-                             errors=np.array(errors, dtype=str))
+    meta = {
+        "seed": seed,
+        "fps": settings.fps,
+        "preprocess": params.to_dict(),
+        "walker": walker,
+        "imu_noise_deg": settings.imu_noise_deg,
+        "imu_bias_deg": settings.imu_bias_deg,
+        "mounting_error_deg": settings.mounting_error_deg,
+        "course": [[s.mode, round(float(s.length_m), 3)] for s in course.segments],
+    }
+    session = LabeledSession(
+        name=f"{preset}-{seed:06d}",
+        images=images,
+        labels=labels,
+        preset=preset,
+        source="synth",
+        flags=np.array(flags, dtype=str),
+        meta=meta,
+        view_modes=np.array(view_modes, dtype=str),
+        errors=np.array(errors, dtype=str),
+    )
     extra = {"view_modes": session.view_modes, "errors": session.errors}
     return session, {"time_ns": time_ns, "extra": extra}
 
 
-def synth_dataset(out: str | os.PathLike, count: int, preset: str, base_seed: int,
-                  params=None, settings: SynthSettings = SynthSettings(),
-                  simulator_config=None, workers: int = 1, show_progress: bool = True
-                  ) -> list[Path]:
+def synth_dataset(
+    out: str | os.PathLike,
+    count: int,
+    preset: str,
+    base_seed: int,
+    params=None,
+    settings: SynthSettings = SynthSettings(),
+    simulator_config=None,
+    workers: int = 1,
+    show_progress: bool = True,
+) -> list[Path]:
     """Render `count` sessions into `out` (one .npz each) with a progress bar over frames."""
     from tqdm import tqdm
 
     plan = session_plan(count, preset, base_seed)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    jobs = [(p, s, params, settings, simulator_config, str(out / f"{p}-{s:06d}.npz"))
-            for p, s in plan]
+    jobs = [
+        (p, s, params, settings, simulator_config, str(out / f"{p}-{s:06d}.npz")) for p, s in plan
+    ]
     paths: list[Path] = []
     with tqdm(total=len(jobs), unit="session", desc="synth", disable=not show_progress) as bar:
         if workers > 1 and len(jobs) > 1:
@@ -348,4 +420,3 @@ def _synth_job(job) -> tuple[str, int]:
     session, extra = render_synth_session(preset, seed, params, settings, simulator_config)
     write_session(path, session, extra["time_ns"], extra["extra"])
     return path, len(session)
-

@@ -10,6 +10,7 @@ accuracies, as in the paper (not pooled over frames); SD uses n-1.
 Inputs: score files (CSV, `read_scores`) or recordings (`load_trials_from_recordings`,
 through capture's recording reader), both as `Trial`s.
 """
+
 from __future__ import annotations
 
 import csv
@@ -27,16 +28,27 @@ import numpy as np
 from devices.frames import MODES
 from inference.errors import InferenceError
 from inference.fusion import (
-    N_MODES, PAPER_TRANSITION, FixedLagSmoother, Fusion, HmmFusion, Voter,
-    estimate_transition, make_fusion, mode_indices,
+    N_MODES,
+    PAPER_TRANSITION,
+    FixedLagSmoother,
+    Fusion,
+    HmmFusion,
+    Voter,
+    estimate_transition,
+    make_fusion,
+    mode_indices,
 )
 
 log = logging.getLogger(__name__)
 
 PAPER_METHODS = ("cnn", "cnn+voting", "hmm", "hmm+voting")
 TITLES = {
-    "cnn": "CNN", "cnn+voting": "CNN + voting", "hmm": "HMM", "hmm+voting": "HMM + voting",
-    "forward": "forward filter", "fixed-lag": "fixed-lag smoother",
+    "cnn": "CNN",
+    "cnn+voting": "CNN + voting",
+    "hmm": "HMM",
+    "hmm+voting": "HMM + voting",
+    "forward": "forward filter",
+    "fixed-lag": "fixed-lag smoother",
 }
 SCORE_HEADER = (*MODES, "label")
 SUM_TOLERANCE = 0.01  # score rows must sum to 1 within this (they are often rounded)
@@ -76,15 +88,19 @@ class Trial:
     def __post_init__(self) -> None:
         self.probabilities = np.asarray(self.probabilities, dtype=float)
         if self.probabilities.ndim != 2 or self.probabilities.shape[1] != N_MODES:
-            raise InferenceError(f"{self.path}: expected probabilities of shape (N, 5), "
-                                 f"got {self.probabilities.shape}")
+            raise InferenceError(
+                f"{self.path}: expected probabilities of shape (N, 5), "
+                f"got {self.probabilities.shape}"
+            )
         try:
             self.reference = mode_indices(self.reference)
         except InferenceError as e:
             raise InferenceError(f"{self.path}: {e}") from None
         if len(self.reference) != len(self.probabilities):
-            raise InferenceError(f"{self.path}: {len(self.probabilities)} frames but "
-                                 f"{len(self.reference)} reference labels")
+            raise InferenceError(
+                f"{self.path}: {len(self.probabilities)} frames but "
+                f"{len(self.reference)} reference labels"
+            )
 
     @property
     def subject(self) -> str:
@@ -131,6 +147,7 @@ class DelaySweep:
 
 # ---------------------------------------------------------------------------------------
 # running methods
+
 
 def run_offline(fusion: Fusion, probabilities: np.ndarray) -> FusionRun:
     """Push every frame through a fresh streaming object, then flush: the live decisions."""
@@ -191,20 +208,25 @@ def _per_trial(params: FusionParameters | Sequence[FusionParameters], n: int):
     return list(params)
 
 
-def evaluate_trial(trial: Trial, methods: Sequence[str] = PAPER_METHODS,
-                   params: FusionParameters = FusionParameters()) -> TrialResult:
+def evaluate_trial(
+    trial: Trial,
+    methods: Sequence[str] = PAPER_METHODS,
+    params: FusionParameters = FusionParameters(),
+) -> TrialResult:
     if not (trial.reference >= 0).any():
         raise InferenceError(f"{trial.path}: no frame has a reference mode")
     runs = {m: run_offline(params.make(m), trial.probabilities) for m in methods}
-    return TrialResult(trial, {m: accuracy(r.final, trial.reference) for m, r in runs.items()},
-                       runs)
+    return TrialResult(
+        trial, {m: accuracy(r.final, trial.reference) for m, r in runs.items()}, runs
+    )
 
 
-def evaluate(trials: Sequence[Trial], methods: Sequence[str] = PAPER_METHODS,
-             params: FusionParameters | Sequence[FusionParameters] = FusionParameters(),
-             ) -> list[TrialResult]:
-    return [evaluate_trial(t, methods, p)
-            for t, p in zip(trials, _per_trial(params, len(trials)))]
+def evaluate(
+    trials: Sequence[Trial],
+    methods: Sequence[str] = PAPER_METHODS,
+    params: FusionParameters | Sequence[FusionParameters] = FusionParameters(),
+) -> list[TrialResult]:
+    return [evaluate_trial(t, methods, p) for t, p in zip(trials, _per_trial(params, len(trials)))]
 
 
 def leave_one_out_transitions(trials: Sequence[Trial], smoothing: float = 1.0) -> list[np.ndarray]:
@@ -213,11 +235,12 @@ def leave_one_out_transitions(trials: Sequence[Trial], smoothing: float = 1.0) -
     refs = [t.reference for t in trials]
     if len(refs) == 1:
         return [estimate_transition(refs, smoothing)]
-    return [estimate_transition(refs[:i] + refs[i + 1:], smoothing) for i in range(len(refs))]
+    return [estimate_transition(refs[:i] + refs[i + 1 :], smoothing) for i in range(len(refs))]
 
 
 # ---------------------------------------------------------------------------------------
 # statistics
+
 
 def mean_sd(values: Sequence[float]) -> tuple[float, float]:
     """Mean and sample SD (n-1; NaN for one value)."""
@@ -241,7 +264,7 @@ def paired_t_tests(results: Sequence[TrialResult], methods: Sequence[str]) -> li
 
     tests = []
     for i, a in enumerate(methods):
-        for b in methods[i + 1:]:
+        for b in methods[i + 1 :]:
             x = np.array([r.accuracy[a] for r in results])
             y = np.array([r.accuracy[b] for r in results])
             t = p = math.nan
@@ -280,13 +303,18 @@ def confusion_matrix(decisions: np.ndarray, reference: np.ndarray) -> np.ndarray
 
 
 def pooled_confusion(results: Sequence[TrialResult], method: str) -> np.ndarray:
-    return sum((confusion_matrix(r.runs[method].final, r.trial.reference) for r in results),
-               np.zeros((N_MODES, N_MODES), dtype=int))
+    return sum(
+        (confusion_matrix(r.runs[method].final, r.trial.reference) for r in results),
+        np.zeros((N_MODES, N_MODES), dtype=int),
+    )
 
 
-def delay_sweep(trials: Sequence[Trial], methods: Sequence[str], max_delay: int,
-                params: FusionParameters | Sequence[FusionParameters] = FusionParameters(),
-                ) -> DelaySweep:
+def delay_sweep(
+    trials: Sequence[Trial],
+    methods: Sequence[str],
+    max_delay: int,
+    params: FusionParameters | Sequence[FusionParameters] = FusionParameters(),
+) -> DelaySweep:
     """Accuracy against the number of delayed frames D = 0..max_delay (the paper's trade-off).
 
     cnn+voting: l_v = D; hmm+voting: l_v = D-1 (the HMM adds one frame); fixed-lag: lag = D.
@@ -299,14 +327,14 @@ def delay_sweep(trials: Sequence[Trial], methods: Sequence[str], max_delay: int,
         ref = trial.reference
         stages: dict[str, FusionRun] = {}
 
-        def stage(method: str) -> FusionRun:
+        def stage(method: str, stages=stages, p=p, trial=trial) -> FusionRun:
             if method not in stages:
                 stages[method] = run_offline(p.make(method), trial.probabilities)
             return stages[method]
 
         for m in methods:
             if m in ("cnn", "forward", "hmm"):
-                acc[m][i, p.delay_frames(m):] = accuracy(stage(m).final, ref)
+                acc[m][i, p.delay_frames(m) :] = accuracy(stage(m).final, ref)
             elif m == "cnn+voting":
                 for d in delays:
                     acc[m][i, d] = accuracy(vote_offline(stage("cnn").decisions, d), ref)
@@ -325,6 +353,7 @@ def delay_sweep(trials: Sequence[Trial], methods: Sequence[str], max_delay: int,
 # ---------------------------------------------------------------------------------------
 # the JSON report (what `walkcap eval --json` prints)
 
+
 def _num(x: float) -> float | None:
     return None if x is None or not math.isfinite(x) else float(x)
 
@@ -337,8 +366,13 @@ def _tests_json(tests: Sequence[PairedTest]) -> list[dict]:
     return [{"a": t.a, "b": t.b, "n": t.n, "t": _num(t.t), "p": _num(t.p)} for t in tests]
 
 
-def report(results: Sequence[TrialResult], methods: Sequence[str], params: FusionParameters,
-           sweep: DelaySweep | None = None, grouped: bool = False) -> dict:
+def report(
+    results: Sequence[TrialResult],
+    methods: Sequence[str],
+    params: FusionParameters,
+    sweep: DelaySweep | None = None,
+    grouped: bool = False,
+) -> dict:
     """{"files": [...], "mean", "sd", "delay_frames", "parameters", ...}; accuracies as
     fractions, null where undefined. grouped adds "groups" (subject x condition) and
     "conditions" (with their own paired t-tests)."""
@@ -359,8 +393,11 @@ def report(results: Sequence[TrialResult], methods: Sequence[str], params: Fusio
         "mean": _nums(summary["mean"]),
         "sd": _nums(summary["sd"]),
         "delay_frames": {m: params.delay_frames(m) for m in methods},
-        "parameters": {"window": params.window, "vote_delay": params.vote_delay,
-                       **({"lag": params.lag} if "fixed-lag" in methods else {})},
+        "parameters": {
+            "window": params.window,
+            "vote_delay": params.vote_delay,
+            **({"lag": params.lag} if "fixed-lag" in methods else {}),
+        },
     }
     if len(results) >= 2:
         out["paired_t_tests"] = _tests_json(paired_t_tests(results, methods))
@@ -368,15 +405,27 @@ def report(results: Sequence[TrialResult], methods: Sequence[str], params: Fusio
         out["groups"] = []
         for (condition, subject), rs in group_results(results).items():
             s = summarize(rs, methods)
-            out["groups"].append({"condition": condition, "subject": subject,
-                                  "trials": len(rs), "mean": _nums(s["mean"]),
-                                  "sd": _nums(s["sd"])})
+            out["groups"].append(
+                {
+                    "condition": condition,
+                    "subject": subject,
+                    "trials": len(rs),
+                    "mean": _nums(s["mean"]),
+                    "sd": _nums(s["sd"]),
+                }
+            )
         out["conditions"] = []
         for condition, rs in by_condition(results).items():
             s = summarize(rs, methods)
-            out["conditions"].append({"condition": condition, "trials": len(rs),
-                                      "mean": _nums(s["mean"]), "sd": _nums(s["sd"]),
-                                      "paired_t_tests": _tests_json(paired_t_tests(rs, methods))})
+            out["conditions"].append(
+                {
+                    "condition": condition,
+                    "trials": len(rs),
+                    "mean": _nums(s["mean"]),
+                    "sd": _nums(s["sd"]),
+                    "paired_t_tests": _tests_json(paired_t_tests(rs, methods)),
+                }
+            )
     if sweep is not None:
         with np.errstate(all="ignore"):
             out["sweep"] = {
@@ -392,12 +441,14 @@ def _nanmean(a: np.ndarray) -> np.ndarray:
 
 
 def _nansd(a: np.ndarray) -> np.ndarray:
-    return np.array([np.std(c, ddof=1) if len(c) > 1 and not np.isnan(c).any() else np.nan
-                     for c in a.T])
+    return np.array(
+        [np.std(c, ddof=1) if len(c) > 1 and not np.isnan(c).any() else np.nan for c in a.T]
+    )
 
 
 # ---------------------------------------------------------------------------------------
 # inputs
+
 
 def read_scores(path: str | Path) -> Trial:
     """A score CSV: header LG,US,DS,UR,DR,label, one row per frame in capture order.
@@ -413,11 +464,13 @@ def read_scores(path: str | Path) -> Trial:
         try:
             header = next(rows, None)
             if header is None or not any(h.strip() for h in header):
-                raise ScoreFileError(f"{path}: empty file (expected the header {expected} "
-                                     "and one row per frame)")
+                raise ScoreFileError(
+                    f"{path}: empty file (expected the header {expected} and one row per frame)"
+                )
             if tuple(h.strip() for h in header) != SCORE_HEADER:
-                raise ScoreFileError(f"{path}:1: expected the header {expected}, "
-                                     f"got {','.join(header)}")
+                raise ScoreFileError(
+                    f"{path}:1: expected the header {expected}, got {','.join(header)}"
+                )
             for row in rows:
                 line = rows.line_num
                 if not row or not any(c.strip() for c in row):
@@ -425,8 +478,10 @@ def read_scores(path: str | Path) -> Trial:
                 probabilities.append(_score_row(path, line, row))
                 label = row[N_MODES].strip()
                 if label not in MODES:
-                    raise ScoreFileError(f"{path}:{line}: unknown label {label!r} "
-                                         f"(expected one of {', '.join(MODES)})")
+                    raise ScoreFileError(
+                        f"{path}:{line}: unknown label {label!r} "
+                        f"(expected one of {', '.join(MODES)})"
+                    )
                 labels.append(MODES.index(label))
         except csv.Error as e:
             raise ScoreFileError(f"{path}:{rows.line_num}: not valid CSV: {e}") from None
@@ -439,8 +494,10 @@ def read_scores(path: str | Path) -> Trial:
 
 def _score_row(path: str, line: int, row: list[str]) -> list[float]:
     if len(row) != len(SCORE_HEADER):
-        raise ScoreFileError(f"{path}:{line}: expected {len(SCORE_HEADER)} fields "
-                             f"({','.join(SCORE_HEADER)}), got {len(row)}")
+        raise ScoreFileError(
+            f"{path}:{line}: expected {len(SCORE_HEADER)} fields "
+            f"({','.join(SCORE_HEADER)}), got {len(row)}"
+        )
     values = []
     for name, text in zip(MODES, row):
         try:
@@ -454,8 +511,9 @@ def _score_row(path: str, line: int, row: list[str]) -> list[float]:
         values.append(v)
     total = sum(values)
     if abs(total - 1.0) > SUM_TOLERANCE:
-        raise ScoreFileError(f"{path}:{line}: probabilities sum to {total:.4g}, expected 1 "
-                             f"(within {SUM_TOLERANCE})")
+        raise ScoreFileError(
+            f"{path}:{line}: probabilities sum to {total:.4g}, expected 1 (within {SUM_TOLERANCE})"
+        )
     return values
 
 
@@ -468,6 +526,7 @@ def trial_from_recording(path: str, data: Any, reference: str = "auto") -> Trial
     or a flat dict). reference: "labels", "truth" or "auto" (operator labels when there
     are any, else simulator truth). Frames without a finite CNN output are left out.
     """
+
     def get(key: str):
         return data.get(key) if isinstance(data, dict) else getattr(data, key, None)
 
@@ -502,19 +561,26 @@ def load_trials_from_recordings(paths: Sequence[str], reference: str = "auto") -
             raise
         raise RecordingsUnavailable(
             "reading recordings arrives with the [recording] issue; meanwhile evaluate "
-            "score files with 'walkcap eval scores'") from None
+            "score files with 'walkcap eval scores'"
+        ) from None
     return [trial_from_recording(p, reader.read_trial(p), reference) for p in paths]
 
 
-def synthetic_trial(seed: int = 0, accuracy: float = 0.9, block_frames: tuple[int, int] = (30, 80),
-                    path: str = "", metadata: dict | None = None) -> Trial:
+def synthetic_trial(
+    seed: int = 0,
+    accuracy: float = 0.9,
+    block_frames: tuple[int, int] = (30, 80),
+    path: str = "",
+    metadata: dict | None = None,
+) -> Trial:
     """A simulated trial for tests and demos: the paper's course (three level-ground
     blocks, stairs and ramps up and down) and CNN-like scores that pick the true mode on
     about `accuracy` of the frames, errors independent and less confident."""
     rng = np.random.default_rng(seed)
     course = ["LG", "US", "LG", "UR", "LG", "DS", "DR"]
-    reference = np.concatenate([np.full(rng.integers(*block_frames), MODES.index(m))
-                                for m in course])
+    reference = np.concatenate(
+        [np.full(rng.integers(*block_frames), MODES.index(m)) for m in course]
+    )
     n = len(reference)
     chosen = reference.copy()
     wrong = rng.random(n) > accuracy
@@ -531,13 +597,18 @@ def synthetic_trial(seed: int = 0, accuracy: float = 0.9, block_frames: tuple[in
 # ---------------------------------------------------------------------------------------
 # figures (matplotlib, Agg, PNG)
 
+
 def _safe(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("_") or "trial"
 
 
-def write_plots(results: Sequence[TrialResult], out_dir: str | Path, methods: Sequence[str],
-                params: FusionParameters = FusionParameters(),
-                sweep: DelaySweep | None = None) -> list[Path]:
+def write_plots(
+    results: Sequence[TrialResult],
+    out_dir: str | Path,
+    methods: Sequence[str],
+    params: FusionParameters = FusionParameters(),
+    sweep: DelaySweep | None = None,
+) -> list[Path]:
     """The paper's figures as PNGs in out_dir; returns the files written.
 
     accuracy_per_subject[_<condition>].png (mean +- SD per subject and method),
@@ -562,11 +633,13 @@ def write_plots(results: Sequence[TrialResult], out_dir: str | Path, methods: Se
 
     conditions = by_condition(results)
     for condition, rs in conditions.items():
-        save(_plot_per_subject(plt, rs, methods, condition),
-             f"accuracy_per_subject{'_' + _safe(condition) if condition else ''}.png")
+        save(
+            _plot_per_subject(plt, rs, methods, condition),
+            f"accuracy_per_subject{'_' + _safe(condition) if condition else ''}.png",
+        )
     if sweep is not None:
         save(_plot_sweep(plt, results, sweep), "accuracy_vs_delay.png")
-    for condition, rs in conditions.items():
+    for rs in conditions.values():
         example = rs[0]
         stem = _safe(Path(example.trial.path).stem)
         save(_plot_decisions(plt, example, methods), f"decisions_{stem}.png")
@@ -585,8 +658,14 @@ def _plot_per_subject(plt, results, methods, condition):
         stats = [mean_sd([r.accuracy[m] for r in rs]) for rs in groups.values()]
         means = [100 * s[0] for s in stats]
         sds = [0 if math.isnan(s[1]) else 100 * s[1] for s in stats]
-        ax.bar(x + (k - (len(methods) - 1) / 2) * width, means, width, yerr=sds, capsize=3,
-               label=TITLES.get(m, m))
+        ax.bar(
+            x + (k - (len(methods) - 1) / 2) * width,
+            means,
+            width,
+            yerr=sds,
+            capsize=3,
+            label=TITLES.get(m, m),
+        )
     ax.set_xticks(x, subjects, rotation=30 if len(subjects) > 6 else 0)
     ax.set_ylabel("accuracy (%)")
     low = min(100 * min(r.accuracy[m] for r in results for m in methods), 100)
@@ -607,8 +686,14 @@ def _plot_sweep(plt, results, sweep):
             sub = a[rows]
             with np.errstate(all="ignore"):
                 mean, sd = _nanmean(sub), _nansd(sub)
-            ax.errorbar(sweep.delays, 100 * mean, yerr=100 * np.nan_to_num(sd), capsize=3,
-                        marker="o", label=TITLES.get(m, m))
+            ax.errorbar(
+                sweep.delays,
+                100 * mean,
+                yerr=100 * np.nan_to_num(sd),
+                capsize=3,
+                marker="o",
+                label=TITLES.get(m, m),
+            )
         ax.set_xticks(sweep.delays)
         ax.set_xlabel("delayed frames")
         ax.set_ylabel("accuracy (%)")
@@ -623,17 +708,30 @@ def _plot_decisions(plt, result, methods):
     fig, ax = plt.subplots(figsize=(10, 4))
     ref = np.where(trial.reference >= 0, trial.reference, np.nan)
     ax.step(frames, ref, where="mid", color="black", linewidth=3, label="reference")
-    styles = {"cnn": dict(linestyle="none", marker="o", markersize=3, fillstyle="none"),
-              "cnn+voting": dict(linewidth=1), "hmm": dict(linestyle="--", linewidth=1.5),
-              "hmm+voting": dict(linestyle=":", linewidth=1.5)}
+    styles = {
+        "cnn": dict(linestyle="none", marker="o", markersize=3, fillstyle="none"),
+        "cnn+voting": dict(linewidth=1),
+        "hmm": dict(linestyle="--", linewidth=1.5),
+        "hmm+voting": dict(linestyle=":", linewidth=1.5),
+    }
     for m in methods:
-        ax.step(frames, result.runs[m].final, where="mid", label=TITLES.get(m, m),
-                **styles.get(m, dict(linewidth=1)))
+        ax.step(
+            frames,
+            result.runs[m].final,
+            where="mid",
+            label=TITLES.get(m, m),
+            **styles.get(m, dict(linewidth=1)),
+        )
     ax.set_yticks(range(N_MODES), MODES)
     ax.set_xlabel("frame")
     ax.set_title(f"Sequential decisions: {Path(trial.path).name}")
-    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.2),
-              ncol=len(methods) + 1, frameon=False)
+    ax.legend(
+        fontsize=8,
+        loc="upper center",
+        bbox_to_anchor=(0.5, -0.2),
+        ncol=len(methods) + 1,
+        frameon=False,
+    )
     return fig
 
 
@@ -643,8 +741,10 @@ def _plot_probabilities(plt, result, params):
     if run is None:
         run = run_offline(HmmFusion(params.window, params.transition), trial.probabilities)
     fig, axes = plt.subplots(2, 1, figsize=(10, 5), sharex=True)
-    for ax, p, title in ((axes[0], trial.probabilities, "CNN probabilities"),
-                         (axes[1], run.posteriors, "HMM smoothed posterior p(s_t)")):
+    for ax, p, title in (
+        (axes[0], trial.probabilities, "CNN probabilities"),
+        (axes[1], run.posteriors, "HMM smoothed posterior p(s_t)"),
+    ):
         for j, mode in enumerate(MODES):
             ax.plot(p[:, j], label=mode, linewidth=1)
         ax.set_ylim(-0.02, 1.02)
@@ -664,12 +764,18 @@ def _plot_confusion(plt, results, methods):
         ax.imshow(np.nan_to_num(rate), vmin=0, vmax=1, cmap="Blues")
         for i in range(N_MODES):
             for j in range(N_MODES):
-                ax.text(j, i, str(counts[i, j]), ha="center", va="center", fontsize=7,
-                        color="white" if np.nan_to_num(rate[i, j]) > 0.5 else "black")
+                ax.text(
+                    j,
+                    i,
+                    str(counts[i, j]),
+                    ha="center",
+                    va="center",
+                    fontsize=7,
+                    color="white" if np.nan_to_num(rate[i, j]) > 0.5 else "black",
+                )
         ax.set_xticks(range(N_MODES), MODES)
         ax.set_yticks(range(N_MODES), MODES)
         ax.set_xlabel("decided")
         ax.set_ylabel("reference")
         ax.set_title(TITLES.get(m, m))
     return fig
-

@@ -19,6 +19,7 @@ raw points (total least squares, trimmed). Then:
 - level: mostly horizontal segments; slope reported too (near 0);
 - unknown: anything else (too few points, clutter).
 """
+
 from __future__ import annotations
 
 import functools
@@ -76,7 +77,8 @@ class _Segment:
     def flat(self) -> bool:
         rise = abs(float(self.end[1] - self.start[1]))
         return abs(self.angle_deg) <= FLAT_MAX_DEG or (
-            rise <= FLAT_SHORT_RISE_M and abs(self.angle_deg) <= FLAT_SHORT_MAX_DEG)
+            rise <= FLAT_SHORT_RISE_M and abs(self.angle_deg) <= FLAT_SHORT_MAX_DEG
+        )
 
     @functools.cached_property
     def level(self) -> float:
@@ -109,14 +111,23 @@ def terrain_features(profile: np.ndarray, mode_hint: str | None = None) -> Terra
     for s in segments:
         explained[s.index] = True
     inlier_fraction = float(explained.mean())
-    residual = float(np.sqrt(sum(s.rms_m ** 2 * len(s.points) for s in segments)
-                             / sum(len(s.points) for s in segments)))
-    result = (_stairs(segments, mode_hint) or _ramp(segments, mode_hint)
-              or _level(segments) or TerrainFeatures())
+    residual = float(
+        np.sqrt(
+            sum(s.rms_m**2 * len(s.points) for s in segments) / sum(len(s.points) for s in segments)
+        )
+    )
+    result = (
+        _stairs(segments, mode_hint)
+        or _ramp(segments, mode_hint)
+        or _level(segments)
+        or TerrainFeatures()
+    )
     result.inlier_fraction = inlier_fraction
     result.residual_m = residual
-    result.segments = [(float(s.start[0]), float(s.start[1]), float(s.end[0]),
-                        float(s.end[1]), float(s.angle_deg)) for s in segments]
+    result.segments = [
+        (float(s.start[0]), float(s.start[1]), float(s.end[0]), float(s.end[1]), float(s.angle_deg))
+        for s in segments
+    ]
     return result
 
 
@@ -134,8 +145,9 @@ def _polyline_runs(bins: np.ndarray, rng: np.ndarray) -> list[np.ndarray]:
     median_rng = rng[starts + counts // 2]
     own = bins[starts]
     centre = (own + 0.5) * width
-    vertices = np.stack([median_rng * np.cos(centre), median_rng * np.sin(centre),
-                         own, own + 1], axis=1)
+    vertices = np.stack(
+        [median_rng * np.cos(centre), median_rng * np.sin(centre), own, own + 1], axis=1
+    )
     if len(vertices) < 2:
         return []
     step = np.hypot(*np.diff(vertices[:, :2], axis=0).T)
@@ -149,7 +161,7 @@ def _split(vertices: np.ndarray, lo: int, hi: int, out: list[tuple[int, int]]) -
     if hi - lo >= 2:
         d = b - a
         n = np.hypot(*d)
-        rel = vertices[lo + 1:hi, :2] - a
+        rel = vertices[lo + 1 : hi, :2] - a
         dist = np.abs(rel[:, 0] * d[1] - rel[:, 1] * d[0]) / max(n, 1e-9)
         k = int(np.argmax(dist))
         if dist[k] > SPLIT_TOL_M:
@@ -198,8 +210,15 @@ def _fit_line(pts: np.ndarray, first: int, stop: int) -> _Segment | None:
         start, end = end, start
     d = end - start
     angle = float(np.degrees(np.arctan2(d[1], d[0])))
-    return _Segment(points=points, index=index, start=start, end=end, angle_deg=angle, centre=centre,
-                    rms_m=float(np.sqrt(np.mean(dist[inside] ** 2))))
+    return _Segment(
+        points=points,
+        index=index,
+        start=start,
+        end=end,
+        angle_deg=angle,
+        centre=centre,
+        rms_m=float(np.sqrt(np.mean(dist[inside] ** 2))),
+    )
 
 
 def _principal_axes(centred: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -227,8 +246,11 @@ def _stairs(segments: list[_Segment], hint: str | None) -> TerrainFeatures | Non
         elif rise < 0 and -0.02 <= gap <= MAX_HIDDEN_M:  # the lower tread is half hidden
             down_steps.append((-rise, i, j))
     # Going up, the risers face the camera: each is a stair edge.
-    risers = [i for i, s in enumerate(segments) if s.angle_deg > 60
-              and 0.02 <= s.length <= RISER_MAX_M + 0.05]
+    risers = [
+        i
+        for i, s in enumerate(segments)
+        if s.angle_deg > 60 and 0.02 <= s.length <= RISER_MAX_M + 0.05
+    ]
     up_evidence, down_evidence = len(up_rises) + len(risers), len(down_steps)
     if hint == "US" and up_evidence or not down_evidence:
         going_up = True
@@ -243,15 +265,21 @@ def _stairs(segments: list[_Segment], hint: str | None) -> TerrainFeatures | Non
         edges = [float(np.median(segments[i].points[:, 0])) for i in risers]
         tops = [float(segments[i].end[1]) for i in risers]
         bottoms = [float(segments[i].start[1]) for i in risers]
-        depths = [e1 - e0 for e0, e1, top, bottom in zip(edges, edges[1:], tops, bottoms[1:])
-                  if bottom >= top - 0.03]  # the next riser starts where this one ends
+        depths = [
+            e1 - e0
+            for e0, e1, top, bottom in zip(edges, edges[1:], tops, bottoms[1:])
+            if bottom >= top - 0.03
+        ]  # the next riser starts where this one ends
         steps = max(len(rises), len(risers))
     else:
         rises = [r for r, _, _ in down_steps]
         # The nosing (far end of the upper tread) is the edge; chained steps share treads.
         nosing = {i: _nosing(segments[i], segments[j]) for _, i, j in down_steps}
-        depths = [nosing[j] - nosing[i] for (_, i, j), (_, k, _) in
-                  zip(down_steps, down_steps[1:]) if j == k]
+        depths = [
+            nosing[j] - nosing[i]
+            for (_, i, j), (_, k, _) in zip(down_steps, down_steps[1:])
+            if j == k
+        ]
         steps = len(down_steps)
     depths = [d for d in depths if TREAD_MIN_M <= d <= TREAD_MAX_M]
     return TerrainFeatures(
@@ -293,13 +321,17 @@ def _complete_riser(segments: list[_Segment], i: int) -> float | None:
 
 def _ramp(segments: list[_Segment], hint: str | None) -> TerrainFeatures | None:
     min_length = 0.15 if hint in ("UR", "DR") else RAMP_MIN_LENGTH_M
-    slanted = [s for s in segments if not s.flat and abs(s.angle_deg) <= RAMP_MAX_DEG
-               and s.length >= min_length]
+    slanted = [
+        s
+        for s in segments
+        if not s.flat and abs(s.angle_deg) <= RAMP_MAX_DEG and s.length >= min_length
+    ]
     if not slanted:
         return None
     ramp = max(slanted, key=lambda s: s.length)
-    return TerrainFeatures(kind="ramp", slope_deg=ramp.angle_deg,
-                           direction="up" if ramp.angle_deg > 0 else "down")
+    return TerrainFeatures(
+        kind="ramp", slope_deg=ramp.angle_deg, direction="up" if ramp.angle_deg > 0 else "down"
+    )
 
 
 def _level(segments: list[_Segment]) -> TerrainFeatures | None:

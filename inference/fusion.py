@@ -24,12 +24,14 @@ At the ends of a sequence (documented choices, the paper does not say):
 - Voting windows are cut at both ends of the sequence (fewer votes there).
 - A tie in the vote goes to the smallest mode index (LG first), as MATLAB's `mode`.
 """
+
 from __future__ import annotations
 
 import time
 from collections import deque
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import Iterable, Protocol, Sequence
+from typing import Protocol
 
 import numpy as np
 
@@ -40,13 +42,15 @@ N_MODES = len(MODES)
 
 # The authors' transition matrix (rows: from, columns: to; LG, US, DS, UR, DR), as in
 # ../shared/paper/README.md; the configuration's default.
-PAPER_TRANSITION = np.array([
-    [0.80, 0.05, 0.05, 0.05, 0.05],
-    [0.15, 0.80, 0.01, 0.03, 0.01],
-    [0.15, 0.01, 0.80, 0.01, 0.03],
-    [0.15, 0.03, 0.01, 0.80, 0.01],
-    [0.15, 0.01, 0.03, 0.01, 0.80],
-])
+PAPER_TRANSITION = np.array(
+    [
+        [0.80, 0.05, 0.05, 0.05, 0.05],
+        [0.15, 0.80, 0.01, 0.03, 0.01],
+        [0.15, 0.01, 0.80, 0.01, 0.03],
+        [0.15, 0.03, 0.01, 0.80, 0.01],
+        [0.15, 0.01, 0.03, 0.01, 0.80],
+    ]
+)
 
 METHODS = ("cnn", "cnn+voting", "hmm", "hmm+voting", "forward", "fixed-lag")
 
@@ -105,6 +109,7 @@ class Fusion(Protocol):
 # ---------------------------------------------------------------------------------------
 # transition matrices
 
+
 def validate_transition(matrix, name: str = "transition") -> np.ndarray:
     """A 5x5 row-stochastic matrix with positive entries, as float64; else InferenceError."""
     try:
@@ -112,19 +117,22 @@ def validate_transition(matrix, name: str = "transition") -> np.ndarray:
     except (TypeError, ValueError):
         raise InferenceError(f"{name}: expected 5 rows of 5 numbers") from None
     if t.shape != (N_MODES, N_MODES):
-        raise InferenceError(f"{name}: expected 5 rows of 5 numbers ({', '.join(MODES)}), "
-                             f"got shape {t.shape}")
+        raise InferenceError(
+            f"{name}: expected 5 rows of 5 numbers ({', '.join(MODES)}), got shape {t.shape}"
+        )
     if not np.all(np.isfinite(t)) or np.any(t <= 0):
-        raise InferenceError(f"{name}: every entry must be a positive number "
-                             "(a zero transition could never be left)")
+        raise InferenceError(
+            f"{name}: every entry must be a positive number (a zero transition could never be left)"
+        )
     for i, row in enumerate(t):
         if abs(row.sum() - 1.0) > 1e-3:
             raise InferenceError(f"{name}: row {MODES[i]} sums to {row.sum():.4g}, expected 1")
     return t
 
 
-def design_transition(stay: float = 0.80, to_level: float = 0.15,
-                      same_direction: float = 0.03) -> np.ndarray:
+def design_transition(
+    stay: float = 0.80, to_level: float = 0.15, same_direction: float = 0.03
+) -> np.ndarray:
     """The transition matrix from the paper's six rules, as a function of three numbers.
 
     stay: t_ii for every mode (rules 1, 2); leaving level ground is split equally over the
@@ -136,14 +144,18 @@ def design_transition(stay: float = 0.80, to_level: float = 0.15,
     opposite = (1.0 - stay - to_level - same_direction) / 2.0
     leave_level = (1.0 - stay) / (N_MODES - 1)
     if min(stay, to_level, same_direction, opposite, leave_level) <= 0:
-        raise InferenceError("transition design: every probability must be positive "
-                             f"(stay={stay}, to_level={to_level}, "
-                             f"same_direction={same_direction}, opposite={opposite:.4g})")
+        raise InferenceError(
+            "transition design: every probability must be positive "
+            f"(stay={stay}, to_level={to_level}, "
+            f"same_direction={same_direction}, opposite={opposite:.4g})"
+        )
     if stay <= max(to_level, same_direction, leave_level):
         raise InferenceError("transition design: staying must be more likely than any change")
     if same_direction <= opposite:
-        raise InferenceError("transition design: same-direction changes must be more likely "
-                             f"than opposite-direction ones ({same_direction} <= {opposite:.4g})")
+        raise InferenceError(
+            "transition design: same-direction changes must be more likely "
+            f"than opposite-direction ones ({same_direction} <= {opposite:.4g})"
+        )
     t = np.empty((N_MODES, N_MODES))
     t[0, :] = leave_level
     t[1:, 0] = to_level
@@ -164,8 +176,7 @@ def mode_indices(labels: Iterable) -> np.ndarray:
             out.append(-1)
         elif isinstance(label, str):
             if label not in MODES:
-                raise InferenceError(f"unknown mode {label!r} (expected one of "
-                                     f"{', '.join(MODES)})")
+                raise InferenceError(f"unknown mode {label!r} (expected one of {', '.join(MODES)})")
             out.append(MODES.index(label))
         else:
             index = int(label)
@@ -196,10 +207,14 @@ def estimate_transition(label_sequences: Iterable[Iterable], smoothing: float = 
 # ---------------------------------------------------------------------------------------
 # streaming methods
 
+
 def _row(probabilities) -> list[float]:
     """The frame's probabilities as 5 Python floats (the fast path), checked cheaply."""
-    e = probabilities.tolist() if isinstance(probabilities, np.ndarray) else [
-        float(x) for x in probabilities]
+    e = (
+        probabilities.tolist()
+        if isinstance(probabilities, np.ndarray)
+        else [float(x) for x in probabilities]
+    )
     if len(e) != N_MODES:
         raise InferenceError(f"fusion: expected {N_MODES} probabilities, got {len(e)}")
     total = e[0] + e[1] + e[2] + e[3] + e[4]
@@ -251,7 +266,7 @@ class Voter:
         lv, n = self.vote_delay, self._next
         recent = list(self._recent)
         first = n - len(recent)  # the frame of recent[0]
-        votes = [(f, _mode(recent[max(0, f - lv) - first:])) for f in range(self._unvoted, n)]
+        votes = [(f, _mode(recent[max(0, f - lv) - first :])) for f in range(self._unvoted, n)]
         self._unvoted = n
         return votes
 
@@ -327,8 +342,7 @@ class HmmFusion(_Stream):
     without numpy's per-call overhead (see `bench_fusion`).
     """
 
-    def __init__(self, window: int = 5, transition=PAPER_TRANSITION,
-                 vote_delay: int | None = None):
+    def __init__(self, window: int = 5, transition=PAPER_TRANSITION, vote_delay: int | None = None):
         if int(window) != window or window < 1:
             raise InferenceError(f"fusion window l_w must be an integer >= 1, got {window}")
         super().__init__(vote_delay)
@@ -368,11 +382,13 @@ class HmmFusion(_Stream):
             pbar = (a0 / lw, a1 / lw, a2 / lw, a3 / lw, a4 / lw)
             # posterior of the last smooth state: pbar_i * sum_j t_ij p(x_t | z_t = j)
             r0, r1, r2, r3, r4 = self._rows
-            h = (pbar[0] * (r0[0] * e0 + r0[1] * e1 + r0[2] * e2 + r0[3] * e3 + r0[4] * e4),
-                 pbar[1] * (r1[0] * e0 + r1[1] * e1 + r1[2] * e2 + r1[3] * e3 + r1[4] * e4),
-                 pbar[2] * (r2[0] * e0 + r2[1] * e1 + r2[2] * e2 + r2[3] * e3 + r2[4] * e4),
-                 pbar[3] * (r3[0] * e0 + r3[1] * e1 + r3[2] * e2 + r3[3] * e3 + r3[4] * e4),
-                 pbar[4] * (r4[0] * e0 + r4[1] * e1 + r4[2] * e2 + r4[3] * e3 + r4[4] * e4))
+            h = (
+                pbar[0] * (r0[0] * e0 + r0[1] * e1 + r0[2] * e2 + r0[3] * e3 + r0[4] * e4),
+                pbar[1] * (r1[0] * e0 + r1[1] * e1 + r1[2] * e2 + r1[3] * e3 + r1[4] * e4),
+                pbar[2] * (r2[0] * e0 + r2[1] * e1 + r2[2] * e2 + r2[3] * e3 + r2[4] * e4),
+                pbar[3] * (r3[0] * e0 + r3[1] * e1 + r3[2] * e2 + r3[3] * e3 + r3[4] * e4),
+                pbar[4] * (r4[0] * e0 + r4[1] * e1 + r4[2] * e2 + r4[3] * e3 + r4[4] * e4),
+            )
             decision = h.index(max(h))
             # the current smooth state given s_opt(t-1), normalised
             c = pbar[decision]
@@ -430,8 +446,11 @@ class ForwardFilter(_Stream):
         e = np.array(_row(probabilities))
         t = self._frame
         self._frame = t + 1
-        prior = (np.full(N_MODES, 1.0 / N_MODES) if self._alpha is None
-                 else self._alpha @ self.transition)
+        prior = (
+            np.full(N_MODES, 1.0 / N_MODES)
+            if self._alpha is None
+            else self._alpha @ self.transition
+        )
         alpha = prior * e
         self._alpha = alpha = alpha / alpha.sum()
         return FusionOutput(t, int(np.argmax(alpha)), t, tuple(alpha.tolist()))
@@ -475,16 +494,20 @@ class FixedLagSmoother(_Stream):
         e = np.array(_row(probabilities))
         t = self._frame
         self._frame = t + 1
-        prior = (np.full(N_MODES, 1.0 / N_MODES) if not self._alphas
-                 else self._alphas[-1] @ self.transition)
+        prior = (
+            np.full(N_MODES, 1.0 / N_MODES)
+            if not self._alphas
+            else self._alphas[-1] @ self.transition
+        )
         alpha = prior * e
         self._alphas.append(alpha / alpha.sum())
         self._emissions.append(e)
         if t < self.lag:
             return None
         gamma = self._smoothed(self.lag)
-        return FusionOutput(t - self.lag, int(np.argmax(gamma)), t - self.lag,
-                            tuple(gamma.tolist()))
+        return FusionOutput(
+            t - self.lag, int(np.argmax(gamma)), t - self.lag, tuple(gamma.tolist())
+        )
 
     def flush(self) -> list[FusionOutput]:
         if self._flushed:
@@ -494,13 +517,13 @@ class FixedLagSmoother(_Stream):
         n = self._frame
         for frame in range(max(0, n - self.lag), n):
             gamma = self._smoothed(n - 1 - frame)
-            outputs.append(FusionOutput(frame, int(np.argmax(gamma)), frame,
-                                        tuple(gamma.tolist())))
+            outputs.append(FusionOutput(frame, int(np.argmax(gamma)), frame, tuple(gamma.tolist())))
         return outputs
 
 
-def make_fusion(method: str, window: int = 5, vote_delay: int = 1,
-                transition=PAPER_TRANSITION, lag: int = 1) -> Fusion:
+def make_fusion(
+    method: str, window: int = 5, vote_delay: int = 1, transition=PAPER_TRANSITION, lag: int = 1
+) -> Fusion:
     """A fresh streaming fusion object; `lag` is used by "fixed-lag" only."""
     if int(vote_delay) != vote_delay or vote_delay < 0:
         raise InferenceError(f"vote delay l_v must be an integer >= 0, got {vote_delay}")
@@ -522,8 +545,10 @@ def make_fusion(method: str, window: int = 5, vote_delay: int = 1,
 # ---------------------------------------------------------------------------------------
 # the straightforward transcription: reference for tests and the benchmark's baseline
 
-def paper_step(smooth_window: np.ndarray, emission: np.ndarray, transition: np.ndarray,
-               window: int) -> tuple[int, np.ndarray]:
+
+def paper_step(
+    smooth_window: np.ndarray, emission: np.ndarray, transition: np.ndarray, window: int
+) -> tuple[int, np.ndarray]:
     """One iteration of Algorithm 1 in numpy: (s_opt(t-1), p(s_t))."""
     pbar = smooth_window.sum(axis=0) / window
     phat_last = pbar * (transition @ emission)
@@ -532,8 +557,9 @@ def paper_step(smooth_window: np.ndarray, emission: np.ndarray, transition: np.n
     return s_opt, phat / phat.sum()
 
 
-def paper_viterbi(probabilities, transition=PAPER_TRANSITION,
-                  window: int = 5) -> tuple[np.ndarray, np.ndarray]:
+def paper_viterbi(
+    probabilities, transition=PAPER_TRANSITION, window: int = 5
+) -> tuple[np.ndarray, np.ndarray]:
     """Algorithm 1 over a whole sequence: (smooth states (N,), p(s_t) (N, 5)).
 
     Ends as documented in the module docstring, so it matches HmmFusion + flush.
@@ -546,7 +572,7 @@ def paper_viterbi(probabilities, transition=PAPER_TRANSITION,
     smooth[:window] = e[:window]
     states[:window] = np.argmax(e[:window], axis=1)
     for t in range(window, n):
-        states[t - 1], smooth[t] = paper_step(smooth[t - window:t], e[t], t_matrix, window)
+        states[t - 1], smooth[t] = paper_step(smooth[t - window : t], e[t], t_matrix, window)
     if n:
         states[n - 1] = int(np.argmax(smooth[n - 1]))
     return states, smooth
@@ -574,10 +600,9 @@ def bench_fusion(updates: int = 20000, window: int = 5, seed: int = 0) -> dict:
     paper = []
     for t in range(window, len(frames)):
         start = clock()
-        _, smooth[t] = paper_step(smooth[t - window:t], frames[t], PAPER_TRANSITION, window)
+        _, smooth[t] = paper_step(smooth[t - window : t], frames[t], PAPER_TRANSITION, window)
         paper.append(clock() - start)
 
     fast_us = float(np.median(fast)) / 1000.0
     paper_us = float(np.median(paper)) / 1000.0
-    return {"fusion_update_us": fast_us, "paper_loop_us": paper_us,
-            "speedup": paper_us / fast_us}
+    return {"fusion_update_us": fast_us, "paper_loop_us": paper_us, "speedup": paper_us / fast_us}

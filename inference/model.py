@@ -20,6 +20,7 @@ Files: the weights are a PyTorch state dict (`<name>.pt`, read with
 metrics and the weights' SHA-256). Anything missing, corrupt or mismatched is one
 InferenceError line.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -29,7 +30,6 @@ import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
@@ -54,8 +54,10 @@ def max_pool_2x2(x: torch.Tensor) -> torch.Tensor:
     """2 x 2 max-pool, stride 2 (even sizes). Same values as F.max_pool2d, built from four
     strided views: for inference on this CPU it is 3-30x faster than PyTorch's kernel
     (its backward is slow, so training uses F.max_pool2d)."""
-    return torch.maximum(torch.maximum(x[..., 0::2, 0::2], x[..., 0::2, 1::2]),
-                         torch.maximum(x[..., 1::2, 0::2], x[..., 1::2, 1::2]))
+    return torch.maximum(
+        torch.maximum(x[..., 0::2, 0::2], x[..., 0::2, 1::2]),
+        torch.maximum(x[..., 1::2, 0::2], x[..., 1::2, 1::2]),
+    )
 
 
 class TerrainCNN(nn.Module):
@@ -116,10 +118,18 @@ def _patch_codes(images: np.ndarray) -> np.ndarray:
     padded = np.zeros((n, h + 2, w + 2), np.int32)
     padded[:, 1:-1, 1:-1] = images != 0
     cells = padded.reshape(n, h // 2 + 1, 2, w // 2 + 1, 2)
-    block = cells[:, :, 0, :, 0] | cells[:, :, 0, :, 1] << 1 | cells[:, :, 1, :, 0] << 2 \
+    block = (
+        cells[:, :, 0, :, 0]
+        | cells[:, :, 0, :, 1] << 1
+        | cells[:, :, 1, :, 0] << 2
         | cells[:, :, 1, :, 1] << 3
-    return block[:, :-1, :-1] | block[:, :-1, 1:] << 4 | block[:, 1:, :-1] << 8 \
+    )
+    return (
+        block[:, :-1, :-1]
+        | block[:, :-1, 1:] << 4
+        | block[:, 1:, :-1] << 8
         | block[:, 1:, 1:] << 12
+    )
 
 
 def _nhwc(x: torch.Tensor) -> torch.Tensor:
@@ -167,8 +177,13 @@ class _FoldedCNN:
             # fc1 reads the last activations in (H, W, C) order, as channels-last stores them,
             # its weights as (H * W * C, hidden): a band of rows is one slice.
             s4, c3 = net.input_size // 4, w3.shape[0]
-            self.fc1_rows = net.fc1.weight.detach().view(-1, c3, s4, s4).permute(
-                2, 3, 1, 0).reshape(-1, net.fc1.out_features).contiguous()
+            self.fc1_rows = (
+                net.fc1.weight.detach()
+                .view(-1, c3, s4, s4)
+                .permute(2, 3, 1, 0)
+                .reshape(-1, net.fc1.out_features)
+                .contiguous()
+            )
             self.fc1_b = net.fc1.bias.detach().clone()
             self.fc2_w, self.fc2_b = net.fc2.weight.detach().clone(), net.fc2.bias.detach().clone()
             # The background, padded by one cell where a convolution follows.
@@ -181,8 +196,9 @@ class _FoldedCNN:
             self.conv3_bg = _nhwc(F.pad(conv3, (1, 1, 1, 1)))[0].numpy()
             self.pooled_bg = _nhwc(pooled)[0].numpy()
             self.out_bg = self.conv3_bg[1:-1, 1:-1].clip(min=0)
-            self.fc1_bg = torch.addmm(self.fc1_b, torch.from_numpy(self.out_bg).reshape(1, -1),
-                                      self.fc1_rows)
+            self.fc1_bg = torch.addmm(
+                self.fc1_b, torch.from_numpy(self.out_bg).reshape(1, -1), self.fc1_rows
+            )
         self.reach2, self.reach3 = _reach(s2 + 2), _reach(s4 + 2)
 
     def __call__(self, images: np.ndarray) -> torch.Tensor:
@@ -218,20 +234,31 @@ class _FoldedCNN:
         # pa..pb. The padded buffer's rows b0..b1-1 take every tap that lands.
         pa, pb = max(r0 - 1, 0) // 2, min(r1 + 1, s2 - 1) // 2
         b0, b1 = min(r0, 2 * pa + 1), max(r1 + 3, 2 * pb + 3)
-        conv2 = _add_taps(self.conv2_bg[b0:b1], n, image, row - b0, col,
-                          self.change[code.reshape(-1)[occupied]], self.taps2, self.reach2)
-        y = conv2[:, 2 * pa + 1 - b0:2 * pb + 3 - b0, 1:-1]
-        pooled = np.maximum(np.maximum(y[:, 0::2, 0::2], y[:, 0::2, 1::2]),
-                            np.maximum(y[:, 1::2, 0::2], y[:, 1::2, 1::2]))
-        change = (pooled.clip(min=0) - self.pooled_bg[pa:pb + 1]).reshape(-1, pooled.shape[-1])
+        conv2 = _add_taps(
+            self.conv2_bg[b0:b1],
+            n,
+            image,
+            row - b0,
+            col,
+            self.change[code.reshape(-1)[occupied]],
+            self.taps2,
+            self.reach2,
+        )
+        y = conv2[:, 2 * pa + 1 - b0 : 2 * pb + 3 - b0, 1:-1]
+        pooled = np.maximum(
+            np.maximum(y[:, 0::2, 0::2], y[:, 0::2, 1::2]),
+            np.maximum(y[:, 1::2, 0::2], y[:, 1::2, 1::2]),
+        )
+        change = (pooled.clip(min=0) - self.pooled_bg[pa : pb + 1]).reshape(-1, pooled.shape[-1])
         changed = np.flatnonzero(change.any(1))
         image, cell = np.divmod(changed, (pb + 1 - pa) * s4)
         row, col = np.divmod(cell, s4)
-        conv3 = _add_taps(self.conv3_bg[pa:pb + 3], n, image, row, col, change[changed],
-                          self.taps3, self.reach3)
+        conv3 = _add_taps(
+            self.conv3_bg[pa : pb + 3], n, image, row, col, change[changed], self.taps3, self.reach3
+        )
         q0, q1 = max(pa - 1, 0), min(pb + 2, s4)  # the rows conv3 changed
-        out = conv3[:, q0 + 1 - pa:q1 + 1 - pa, 1:-1].clip(min=0) - self.out_bg[q0:q1]
-        band = self.fc1_rows[q0 * s4 * out.shape[-1]:q1 * s4 * out.shape[-1]]
+        out = conv3[:, q0 + 1 - pa : q1 + 1 - pa, 1:-1].clip(min=0) - self.out_bg[q0:q1]
+        band = self.fc1_rows[q0 * s4 * out.shape[-1] : q1 * s4 * out.shape[-1]]
         return torch.addmm(self.fc1_bg, torch.from_numpy(out.reshape(n, -1)), band)
 
 
@@ -242,9 +269,16 @@ def _reach(p: int) -> np.ndarray:
     return np.array([(2 - kr) * p + 2 - kc for kr in range(3) for kc in range(3)])
 
 
-def _add_taps(background: np.ndarray, n: int, image: np.ndarray, row: np.ndarray,
-              col: np.ndarray, change: np.ndarray, taps: torch.Tensor,
-              reach: np.ndarray) -> np.ndarray:
+def _add_taps(
+    background: np.ndarray,
+    n: int,
+    image: np.ndarray,
+    row: np.ndarray,
+    col: np.ndarray,
+    change: np.ndarray,
+    taps: torch.Tensor,
+    reach: np.ndarray,
+) -> np.ndarray:
     """A 3 x 3 convolution of (background input + change), channels last, for one band of
     rows of several images. A convolution is linear, so it is conv(background) (given: the
     band's rows of the padded (R, S+2, C_out) output) plus each changed cell's value times
@@ -255,12 +289,13 @@ def _add_taps(background: np.ndarray, n: int, image: np.ndarray, row: np.ndarray
     out = np.tile(background, (n, 1, 1, 1))
     target = (((image * r + row) * p + col)[:, None] + reach).reshape(-1)
     torch.from_numpy(out).view(-1, c_out).index_add_(
-        0, torch.from_numpy(target), (torch.from_numpy(change) @ taps).view(-1, c_out))
+        0, torch.from_numpy(target), (torch.from_numpy(change) @ taps).view(-1, c_out)
+    )
     return out
 
 
 def choose_device(device: str = "auto") -> torch.device:
-    """"auto": the GPU when there is one, else the CPU."""
+    """ "auto": the GPU when there is one, else the CPU."""
     if device == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     if device not in ("cpu", "cuda"):
@@ -306,8 +341,10 @@ class Classifier:
     def _check(self, images: np.ndarray) -> np.ndarray:
         a = np.asarray(images)
         if a.shape[-2:] != (self.input_size, self.input_size):
-            raise InferenceError(f"classifier input must be {self.input_size} x "
-                                 f"{self.input_size}, got {a.shape[-2:]}")
+            raise InferenceError(
+                f"classifier input must be {self.input_size} x "
+                f"{self.input_size}, got {a.shape[-2:]}"
+            )
         return a
 
     def predict(self, image: np.ndarray) -> np.ndarray:
@@ -327,7 +364,9 @@ class Classifier:
         out = np.empty((len(a), len(MODES)), dtype=np.float64)
         with torch.inference_mode():
             for i in range(0, len(a), batch_size):
-                out[i:i + batch_size] = _softmax(self._scores(a[i:i + batch_size]).cpu().numpy())
+                out[i : i + batch_size] = _softmax(
+                    self._scores(a[i : i + batch_size]).cpu().numpy()
+                )
         return out
 
 
@@ -351,8 +390,15 @@ def file_sha256(path: str | os.PathLike) -> str:
 
 
 def architecture(net: TerrainCNN) -> dict:
-    return {"name": "TerrainCNN", "channels": list(CHANNELS), "kernel": 3, "padding": "same",
-            "pools": "after conv1 and conv2", "hidden": net.hidden, "init_std": INIT_STD}
+    return {
+        "name": "TerrainCNN",
+        "channels": list(CHANNELS),
+        "kernel": 3,
+        "padding": "same",
+        "pools": "after conv1 and conv2",
+        "hidden": net.hidden,
+        "init_std": INIT_STD,
+    }
 
 
 def save_model(net: TerrainCNN, path: str | os.PathLike, metadata: dict | None = None) -> Path:
@@ -365,16 +411,18 @@ def save_model(net: TerrainCNN, path: str | os.PathLike, metadata: dict | None =
     torch.save(state, tmp)
     os.replace(tmp, path)
     meta = dict(metadata or {})
-    meta.update({
-        "format": FORMAT,
-        "format_version": FORMAT_VERSION,
-        "classes": list(MODES),
-        "input_size": [net.input_size, net.input_size],
-        "architecture": architecture(net),
-        "weights_file": path.name,
-        "weights_sha256": file_sha256(path),
-        "weights_bytes": path.stat().st_size,
-    })
+    meta.update(
+        {
+            "format": FORMAT,
+            "format_version": FORMAT_VERSION,
+            "classes": list(MODES),
+            "input_size": [net.input_size, net.input_size],
+            "architecture": architecture(net),
+            "weights_file": path.name,
+            "weights_sha256": file_sha256(path),
+            "weights_bytes": path.stat().st_size,
+        }
+    )
     meta.setdefault("created", time.strftime("%Y-%m-%dT%H:%M:%S%z"))
     mpath = metadata_path(path)
     tmp = mpath.with_name(mpath.name + ".tmp")
@@ -396,22 +444,28 @@ def read_metadata(path: str | os.PathLike) -> dict:
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
         raise InferenceError(f"{mpath} is not walkcap terrain-classifier metadata")
     if meta.get("format_version") != FORMAT_VERSION:
-        raise InferenceError(f"{mpath}: format version {meta.get('format_version')!r}, "
-                             f"this walkcap reads {FORMAT_VERSION}")
+        raise InferenceError(
+            f"{mpath}: format version {meta.get('format_version')!r}, "
+            f"this walkcap reads {FORMAT_VERSION}"
+        )
     if meta.get("classes") != list(MODES):
-        raise InferenceError(f"model {path} classifies {meta.get('classes')!r}, "
-                             f"walkcap needs {list(MODES)}")
+        raise InferenceError(
+            f"model {path} classifies {meta.get('classes')!r}, walkcap needs {list(MODES)}"
+        )
     if meta.get("input_size") != [INPUT_SIZE, INPUT_SIZE]:
-        raise InferenceError(f"model {path} takes {meta.get('input_size')!r} images, "
-                             f"walkcap's preprocessing makes {INPUT_SIZE} x {INPUT_SIZE}")
+        raise InferenceError(
+            f"model {path} takes {meta.get('input_size')!r} images, "
+            f"walkcap's preprocessing makes {INPUT_SIZE} x {INPUT_SIZE}"
+        )
     hidden = meta.get("architecture", {}).get("hidden")
     if not isinstance(hidden, int) or hidden < 1:
         raise InferenceError(f"{mpath}: architecture.hidden must be a positive integer")
     return meta
 
 
-def load_classifier(path: str | os.PathLike | None = None, device: str = "auto",
-                    threads: int | None = None) -> Classifier:
+def load_classifier(
+    path: str | os.PathLike | None = None, device: str = "auto", threads: int | None = None
+) -> Classifier:
     """Load a classifier; None or "" loads the bundled model.
 
     A missing file, a corrupt file (hash, unreadable) or a file that does not fit the
@@ -427,24 +481,31 @@ def load_classifier(path: str | os.PathLike | None = None, device: str = "auto",
         raise InferenceError(f"model file not found: {weights}{hint}")
     meta = read_metadata(weights)
     if file_sha256(weights) != meta.get("weights_sha256"):
-        raise InferenceError(f"model file {weights} is corrupt: its SHA-256 does not match "
-                             f"{metadata_path(weights).name}")
+        raise InferenceError(
+            f"model file {weights} is corrupt: its SHA-256 does not match "
+            f"{metadata_path(weights).name}"
+        )
     try:
         state = torch.load(weights, map_location="cpu", weights_only=True)
     except Exception as e:  # torch raises many types for a bad file
-        raise InferenceError(f"model file {weights} is corrupt or not a state dict: "
-                             f"{type(e).__name__}") from None
+        raise InferenceError(
+            f"model file {weights} is corrupt or not a state dict: {type(e).__name__}"
+        ) from None
     net = TerrainCNN(hidden=meta["architecture"]["hidden"])
     if not isinstance(state, dict):
         raise InferenceError(f"model file {weights} does not hold a state dict")
     expected = net.state_dict()
     problems = [k for k in expected if k not in state]
     problems += [k for k in state if k not in expected]
-    problems += [f"{k} {tuple(state[k].shape)} != {tuple(v.shape)}" for k, v in expected.items()
-                 if k in state and hasattr(state[k], "shape") and state[k].shape != v.shape]
+    problems += [
+        f"{k} {tuple(state[k].shape)} != {tuple(v.shape)}"
+        for k, v in expected.items()
+        if k in state and hasattr(state[k], "shape") and state[k].shape != v.shape
+    ]
     if problems:
-        raise InferenceError(f"model file {weights} does not match the network: "
-                             f"{'; '.join(problems[:3])}")
+        raise InferenceError(
+            f"model file {weights} does not match the network: {'; '.join(problems[:3])}"
+        )
     net.load_state_dict(state)
     if threads:
         torch.set_num_threads(threads)
@@ -454,6 +515,7 @@ def load_classifier(path: str | os.PathLike | None = None, device: str = "auto",
 
 
 # ---- benchmark ---------------------------------------------------------------------------
+
 
 def bench_cnn(frames: int = 500, path: str | None = None, threads: int = 1) -> dict:
     """Single-frame latency (median ms) and batched throughput (frames/s) on the CPU.
@@ -468,7 +530,7 @@ def bench_cnn(frames: int = 500, path: str | None = None, threads: int = 1) -> d
 
     walk = render_synth_session("indoor", 1)[0].images
     images = walk[np.arange(frames) % len(walk)]
-    noise = (np.random.default_rng(0).random((100, INPUT_SIZE, INPUT_SIZE)) < 0.03)
+    noise = np.random.default_rng(0).random((100, INPUT_SIZE, INPUT_SIZE)) < 0.03
     try:
         clf = load_classifier(path, device="cpu")
     except InferenceError:
@@ -499,6 +561,10 @@ def bench_cnn(frames: int = 500, path: str | None = None, threads: int = 1) -> d
     occupied = _patch_codes(images) != 0
     rows = occupied.any(axis=2)
     span = [np.ptp(np.flatnonzero(r)) + 1 if r.any() else 0 for r in rows]
-    return {"cnn_frame_ms": frame_ms, "cnn_frame_busy_ms": busy_ms, "cnn_batch_rate": float(rate),
-            "walk_patches_occupied": float(np.median(occupied.mean(axis=(1, 2)))),
-            "walk_band_rows": float(np.median(span) / rows.shape[1])}
+    return {
+        "cnn_frame_ms": frame_ms,
+        "cnn_frame_busy_ms": busy_ms,
+        "cnn_batch_rate": float(rate),
+        "walk_patches_occupied": float(np.median(occupied.mean(axis=(1, 2)))),
+        "walk_band_rows": float(np.median(span) / rows.shape[1]),
+    }

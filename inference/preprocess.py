@@ -21,6 +21,7 @@ default: per-pixel dot products, isolated-cell removal on the sagittal grid) and
 (tensor point cloud transform, crop and radius outlier removal). `bench_preprocess()`
 measures both; numpy wins by a wide margin on a frame of 224 x 171 points.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -75,8 +76,7 @@ class PreprocessParams:
     def __post_init__(self) -> None:
         problems = []
         if self.backend not in BACKENDS:
-            problems.append(f"backend: expected one of {', '.join(BACKENDS)}, got "
-                            f"{self.backend!r}")
+            problems.append(f"backend: expected one of {', '.join(BACKENDS)}, got {self.backend!r}")
         if self.grid_size < 2 or self.cell_m <= 0 or self.outlier_cell_m <= 0:
             problems.append("grid_size, cell_m and outlier_cell_m must be positive")
         if self.corridor_width_m <= 0 or self.max_forward_m <= self.min_forward_m:
@@ -88,8 +88,9 @@ class PreprocessParams:
     def from_config(cls, config) -> PreprocessParams:
         """From a capture.config.Config (its [preprocess] and [mounting] sections)."""
         pre, mount = config.preprocess, config.mounting
-        kwargs = {f.name: getattr(pre, f.name) for f in dataclasses.fields(cls)
-                  if hasattr(pre, f.name)}
+        kwargs = {
+            f.name: getattr(pre, f.name) for f in dataclasses.fields(cls) if hasattr(pre, f.name)
+        }
         kwargs["mounting_roll_deg"] = float(mount.roll_deg)
         kwargs["mounting_pitch_deg"] = float(mount.pitch_deg)
         kwargs["mounting_yaw_deg"] = float(getattr(mount, "yaw_deg", 0.0))
@@ -118,8 +119,9 @@ class Preprocessed:
         return not self.flag
 
 
-def empty(params: PreprocessParams, flag: str, elevation_deg: float = float("nan"),
-          **details) -> Preprocessed:
+def empty(
+    params: PreprocessParams, flag: str, elevation_deg: float = float("nan"), **details
+) -> Preprocessed:
     return Preprocessed(
         image=np.zeros((params.grid_size, params.grid_size), np.uint8),
         cloud=np.zeros((0, 3), np.float32),
@@ -147,7 +149,8 @@ def leveling_matrix(quaternion: np.ndarray, params: PreprocessParams) -> np.ndar
     if not 0.5 < norm < 2.0:  # a real orientation filter never drifts this far
         return None
     cam_to_world = quat_to_matrix(q / norm) @ _mounting(
-        params.mounting_roll_deg, params.mounting_pitch_deg, params.mounting_yaw_deg)
+        params.mounting_roll_deg, params.mounting_pitch_deg, params.mounting_yaw_deg
+    )
     axis = cam_to_world[:, 2]  # the optical axis in the world
     if np.hypot(axis[0], axis[1]) < 0.2:
         # Looking almost straight down: the top of the image points forward.
@@ -158,8 +161,9 @@ def leveling_matrix(quaternion: np.ndarray, params: PreprocessParams) -> np.ndar
     return unyaw @ cam_to_world
 
 
-def preprocess(xyz: np.ndarray, confidence: np.ndarray, quaternion: np.ndarray,
-               params: PreprocessParams) -> Preprocessed:
+def preprocess(
+    xyz: np.ndarray, confidence: np.ndarray, quaternion: np.ndarray, params: PreprocessParams
+) -> Preprocessed:
     """Level, crop, clean and rasterise one depth frame (see the module docstring).
 
     xyz: (H, W, 3) metres, camera frame; confidence: (H, W), 0 = invalid;
@@ -193,8 +197,14 @@ def preprocess(xyz: np.ndarray, confidence: np.ndarray, quaternion: np.ndarray,
 
     profile = np.ascontiguousarray(cloud[:, [0, 2]])
     image, origin = rasterise(profile, params.grid_size, params.cell_m)
-    return Preprocessed(image=image, cloud=cloud, profile=profile, elevation_deg=elevation,
-                        origin_m=origin, details={"corridor": len(cloud)})
+    return Preprocessed(
+        image=image,
+        cloud=cloud,
+        profile=profile,
+        elevation_deg=elevation,
+        origin_m=origin,
+        details={"corridor": len(cloud)},
+    )
 
 
 def preprocess_frame(frame, quaternion: np.ndarray, params: PreprocessParams) -> Preprocessed:
@@ -202,8 +212,9 @@ def preprocess_frame(frame, quaternion: np.ndarray, params: PreprocessParams) ->
     return preprocess(frame.xyz, frame.confidence, quaternion, params)
 
 
-def rasterise(profile: np.ndarray, grid: int = 100,
-              cell_m: float = 0.01) -> tuple[np.ndarray, tuple[float, float]]:
+def rasterise(
+    profile: np.ndarray, grid: int = 100, cell_m: float = 0.01
+) -> tuple[np.ndarray, tuple[float, float]]:
     """The authors' binary image of sagittal points (x forward, z up); and its origin."""
     image = np.zeros((grid, grid), np.uint8)
     x, z = profile[:, 0], profile[:, 1]
@@ -216,8 +227,9 @@ def rasterise(profile: np.ndarray, grid: int = 100,
     return image, (x_min - cell_m, z_min - cell_m)
 
 
-def _corridor_numpy(xyz: np.ndarray, confidence: np.ndarray, level: np.ndarray,
-                    params: PreprocessParams) -> np.ndarray:
+def _corridor_numpy(
+    xyz: np.ndarray, confidence: np.ndarray, level: np.ndarray, params: PreprocessParams
+) -> np.ndarray:
     flat = xyz.reshape(-1, 3)
     rows = level.astype(np.float32)
     # Crop on y (and confidence) before computing x and z: nine pixels in ten leave here.
@@ -225,18 +237,22 @@ def _corridor_numpy(xyz: np.ndarray, confidence: np.ndarray, level: np.ndarray,
     with np.errstate(invalid="ignore", over="ignore"):
         y = flat @ rows[1]
     half = params.corridor_width_m / 2
-    keep = np.flatnonzero((np.abs(y) <= half)
-                          & (confidence.reshape(-1) >= params.min_confidence))
+    keep = np.flatnonzero((np.abs(y) <= half) & (confidence.reshape(-1) >= params.min_confidence))
     near = flat[keep]
     with np.errstate(invalid="ignore", over="ignore"):
         x = near @ rows[0]
         z = near @ rows[2]
-    inside = ((x >= params.min_forward_m) & (x <= params.max_forward_m)
-              & (z >= params.min_height_m) & (z <= params.max_height_m))
+    inside = (
+        (x >= params.min_forward_m)
+        & (x <= params.max_forward_m)
+        & (z >= params.min_height_m)
+        & (z <= params.max_height_m)
+    )
     cloud = np.stack([x[inside], y[keep[inside]], z[inside]], axis=1)
     if params.outlier_min_points > 1 and len(cloud):
-        cloud = cloud[_dense_cells(cloud[:, 0], cloud[:, 2], params.outlier_cell_m,
-                                   params.outlier_min_points)]
+        cloud = cloud[
+            _dense_cells(cloud[:, 0], cloud[:, 2], params.outlier_cell_m, params.outlier_min_points)
+        ]
     return cloud
 
 
@@ -249,12 +265,13 @@ def _dense_cells(x: np.ndarray, z: np.ndarray, cell_m: float, min_points: int) -
     # 3 x 3 box sums from an integral image.
     integral = np.zeros((height + 1, width + 1), np.int32)
     np.cumsum(np.cumsum(counts, axis=0), axis=1, out=integral[1:, 1:])
-    box = (integral[3:, 3:] - integral[:-3, 3:] - integral[3:, :-3] + integral[:-3, :-3])
+    box = integral[3:, 3:] - integral[:-3, 3:] - integral[3:, :-3] + integral[:-3, :-3]
     return box[iz - 1, ix - 1] >= min_points
 
 
-def _corridor_open3d(xyz: np.ndarray, confidence: np.ndarray, level: np.ndarray,
-                     params: PreprocessParams) -> np.ndarray:
+def _corridor_open3d(
+    xyz: np.ndarray, confidence: np.ndarray, level: np.ndarray, params: PreprocessParams
+) -> np.ndarray:
     import open3d as o3d
 
     o3c = o3d.core
@@ -268,11 +285,13 @@ def _corridor_open3d(xyz: np.ndarray, confidence: np.ndarray, level: np.ndarray,
     half = params.corridor_width_m / 2
     box = o3d.t.geometry.AxisAlignedBoundingBox(
         o3c.Tensor([params.min_forward_m, -half, params.min_height_m], dtype=o3c.float32),
-        o3c.Tensor([params.max_forward_m, half, params.max_height_m], dtype=o3c.float32))
+        o3c.Tensor([params.max_forward_m, half, params.max_height_m], dtype=o3c.float32),
+    )
     cloud = cloud.crop(box)
     if params.outlier_min_points > 1 and not cloud.is_empty():
-        cloud, _ = cloud.remove_radius_outliers(params.outlier_min_points,
-                                                1.5 * params.outlier_cell_m)
+        cloud, _ = cloud.remove_radius_outliers(
+            params.outlier_min_points, 1.5 * params.outlier_cell_m
+        )
     if cloud.is_empty():
         return np.zeros((0, 3), np.float32)
     return cloud.point.positions.numpy().astype(np.float32, copy=False)
@@ -289,8 +308,11 @@ def _bench_frames(count: int, seed: int = 0) -> list[tuple[np.ndarray, np.ndarra
     rng = np.random.default_rng(seed)
     frames = []
     for i in range(count):
-        q = quat_from_euler(np.radians(rng.uniform(-3, 3)), np.radians(rng.uniform(-25, 10)),
-                            np.radians(rng.uniform(-180, 180)))
+        q = quat_from_euler(
+            np.radians(rng.uniform(-3, 3)),
+            np.radians(rng.uniform(-25, 10)),
+            np.radians(rng.uniform(-180, 180)),
+        )
         d = rays @ (quat_to_matrix(q) @ mount).T
         # Floor 0.55 m below the camera; every other frame a 0.15 m step from 0.6 m ahead.
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -301,10 +323,13 @@ def _bench_frames(count: int, seed: int = 0) -> list[tuple[np.ndarray, np.ndarra
         t = t + rng.uniform(-0.01, 0.01, len(t))
         valid = np.isfinite(t) & (t < geometry.max_range_m)
         xyz = (rays * np.where(valid, t, 0.0)[:, None]).astype(np.float32)
-        frames.append((xyz.reshape(geometry.height, geometry.width, 3),
-                       np.where(valid, 255, 0).astype(np.uint8).reshape(geometry.height,
-                                                                        geometry.width),
-                       q))
+        frames.append(
+            (
+                xyz.reshape(geometry.height, geometry.width, 3),
+                np.where(valid, 255, 0).astype(np.uint8).reshape(geometry.height, geometry.width),
+                q,
+            )
+        )
     return frames
 
 
@@ -319,8 +344,7 @@ def bench_preprocess(frames: int = 200) -> dict:
     height, width = data[0][1].shape
     result: dict = {"frames": frames, "resolution": f"{width}x{height}"}
     for backend in BACKENDS:
-        for suffix, outliers in (("", PreprocessParams.outlier_min_points),
-                                 ("_no_outliers", 0)):
+        for suffix, outliers in (("", PreprocessParams.outlier_min_points), ("_no_outliers", 0)):
             params = PreprocessParams(backend=backend, outlier_min_points=outliers)
             preprocess(*data[0], params)  # warm-up (imports, caches)
             times, corridor = [], []

@@ -14,6 +14,7 @@
 - Deterministic for a seed on one machine (one process, seeded generators, deterministic
   algorithms); CPU by default, the GPU when there is one (device "auto").
 """
+
 from __future__ import annotations
 
 import copy
@@ -31,7 +32,12 @@ from devices.frames import MODES
 from inference.dataset import LabeledSession, summarize
 from inference.errors import InferenceError
 from inference.model import (
-    DEFAULT_HIDDEN, Classifier, TerrainCNN, choose_device, images_to_tensor, save_model,
+    DEFAULT_HIDDEN,
+    Classifier,
+    TerrainCNN,
+    choose_device,
+    images_to_tensor,
+    save_model,
 )
 
 log = logging.getLogger(__name__)
@@ -98,13 +104,16 @@ class TrainResult:
 
 # ---- split -------------------------------------------------------------------------------
 
-def split_by_session(sessions: list[LabeledSession], val_fraction: float, test_fraction: float,
-                     seed: int) -> tuple[list[LabeledSession], list[LabeledSession],
-                                         list[LabeledSession]]:
+
+def split_by_session(
+    sessions: list[LabeledSession], val_fraction: float, test_fraction: float, seed: int
+) -> tuple[list[LabeledSession], list[LabeledSession], list[LabeledSession]]:
     """Train, validation and test sessions; whole sessions, stratified by preset."""
     if len(sessions) < 3:
-        raise InferenceError(f"need at least 3 sessions to split into train, validation "
-                             f"and test, got {len(sessions)}")
+        raise InferenceError(
+            f"need at least 3 sessions to split into train, validation "
+            f"and test, got {len(sessions)}"
+        )
     names = [s.name for s in sessions]
     if len(set(names)) != len(names):
         raise InferenceError("two sessions have the same name; a walk must not be split")
@@ -125,8 +134,8 @@ def split_by_session(sessions: list[LabeledSession], val_fraction: float, test_f
         n_test = min(n_test, max(n - 1, 0))
         n_val = min(n_val, max(n - 1 - n_test, 0))
         test += [ordered[i] for i in idx[:n_test]]
-        val += [ordered[i] for i in idx[n_test:n_test + n_val]]
-        train += [ordered[i] for i in idx[n_test + n_val:]]
+        val += [ordered[i] for i in idx[n_test : n_test + n_val]]
+        train += [ordered[i] for i in idx[n_test + n_val :]]
     if not val and val_fraction > 0:  # tiny presets: borrow one training session
         val.append(train.pop())
     if not train:
@@ -136,8 +145,14 @@ def split_by_session(sessions: list[LabeledSession], val_fraction: float, test_f
 
 # ---- augmentation ------------------------------------------------------------------------
 
-def augment_image(image: np.ndarray, rng: np.random.Generator, tilt_deg: float = 1.0,
-                  scale: float = 0.04, dropout: float = 0.15) -> np.ndarray:
+
+def augment_image(
+    image: np.ndarray,
+    rng: np.random.Generator,
+    tilt_deg: float = 1.0,
+    scale: float = 0.04,
+    dropout: float = 0.15,
+) -> np.ndarray:
     """A plausible other view of the same terrain (see the module docstring).
 
     The tilt is small: synthetic sessions already carry the IMU's and the mounting's
@@ -175,6 +190,7 @@ def augment_image(image: np.ndarray, rng: np.random.Generator, tilt_deg: float =
 
 # ---- metrics ---------------------------------------------------------------------------------
 
+
 def group_metrics(labels: np.ndarray, predictions: np.ndarray) -> GroupMetrics:
     from inference.evaluation import confusion_matrix
 
@@ -182,8 +198,9 @@ def group_metrics(labels: np.ndarray, predictions: np.ndarray) -> GroupMetrics:
     predictions = np.asarray(predictions)
     cm = confusion_matrix(predictions, labels)
     totals = cm.sum(axis=1)
-    per_class = {m: (float(cm[i, i] / totals[i]) if totals[i] else None)
-                 for i, m in enumerate(MODES)}
+    per_class = {
+        m: (float(cm[i, i] / totals[i]) if totals[i] else None) for i, m in enumerate(MODES)
+    }
     present = [v for v in per_class.values() if v is not None]
     frames = int(totals.sum())
     return GroupMetrics(
@@ -200,13 +217,18 @@ def group_metrics(labels: np.ndarray, predictions: np.ndarray) -> GroupMetrics:
 # the mode once per transition, so near a change some frames show the other mode: there a
 # classifier that reports the view is wrong, and the "view oracle" (the view's mode as the
 # answer) is the accuracy of that. Groups, first match wins:
-BREAKDOWN_GROUPS = ("error image", "near a mode change, the view shows another mode",
-                    "near a mode change, the view shows the mode", "elsewhere")
+BREAKDOWN_GROUPS = (
+    "error image",
+    "near a mode change, the view shows another mode",
+    "near a mode change, the view shows the mode",
+    "elsewhere",
+)
 NEAR_CHANGE_S = 1.0  # "near a mode change": within this long of one
 
 
-def frame_groups(labels: np.ndarray, view_modes: np.ndarray, errors: np.ndarray,
-                 near_frames: int) -> np.ndarray:
+def frame_groups(
+    labels: np.ndarray, view_modes: np.ndarray, errors: np.ndarray, near_frames: int
+) -> np.ndarray:
     """Each frame's index in BREAKDOWN_GROUPS; one walk's labelled frames, in order."""
     labels = np.asarray(labels)
     n = len(labels)
@@ -222,22 +244,26 @@ def frame_groups(labels: np.ndarray, view_modes: np.ndarray, errors: np.ndarray,
     return np.where(np.asarray(errors) != "", 0, np.where(near, np.where(shows, 2, 1), 3))
 
 
-def error_breakdown(groups: np.ndarray, right: np.ndarray, view_right: np.ndarray,
-                    near_frames: int) -> dict:
+def error_breakdown(
+    groups: np.ndarray, right: np.ndarray, view_right: np.ndarray, near_frames: int
+) -> dict:
     """Share of frames, accuracy and points of accuracy lost per group; the view oracle."""
     total = len(groups)
     parts = {}
     for g, name in enumerate(BREAKDOWN_GROUPS):
         mask = groups == g
         n = int(mask.sum())
-        parts[name] = {"frames": n, "accuracy": float(right[mask].mean()) if n else None,
-                       "points_lost": float((mask & ~right).sum() / total * 100)}
-    return {"near_frames": near_frames, "view_accuracy": float(view_right.mean()),
-            "groups": parts}
+        parts[name] = {
+            "frames": n,
+            "accuracy": float(right[mask].mean()) if n else None,
+            "points_lost": float((mask & ~right).sum() / total * 100),
+        }
+    return {"near_frames": near_frames, "view_accuracy": float(view_right.mean()), "groups": parts}
 
 
-def evaluate_sessions(classifier: Classifier, sessions: list[LabeledSession]
-                      ) -> dict[str, GroupMetrics]:
+def evaluate_sessions(
+    classifier: Classifier, sessions: list[LabeledSession]
+) -> dict[str, GroupMetrics]:
     """Per-frame quality, all frames and per preset ("all", "indoor", "outdoor", ...);
     with the error breakdown when every session carries the simulator's truth."""
     labels: dict[str, list[np.ndarray]] = {"all": []}
@@ -271,8 +297,9 @@ def evaluate_sessions(classifier: Classifier, sessions: list[LabeledSession]
         out[k] = group_metrics(y, p)
         out[k].session_accuracy = per_session[k]
         if with_truth:
-            out[k].breakdown = error_breakdown(np.concatenate(groups[k]), p == y,
-                                               np.concatenate(views[k]), near_frames)
+            out[k].breakdown = error_breakdown(
+                np.concatenate(groups[k]), p == y, np.concatenate(views[k]), near_frames
+            )
     return out
 
 
@@ -282,16 +309,24 @@ def format_metrics(metrics: dict[str, GroupMetrics], title: str = "") -> str:
 
     lines = [title] if title else []
     for group, m in metrics.items():
-        lines.append(f"{group}: {m.accuracy * 100:.2f} % of {m.frames} frames "
-                     f"(balanced {m.balanced_accuracy * 100:.2f} %)")
+        lines.append(
+            f"{group}: {m.accuracy * 100:.2f} % of {m.frames} frames "
+            f"(balanced {m.balanced_accuracy * 100:.2f} %)"
+        )
         if m.session_accuracy and len(m.session_accuracy) > 1:
             mean, sd = mean_sd(m.session_accuracy)
-            lines.append(f"  per session: mean {mean * 100:.2f} %, SD {sd * 100:.2f} points, "
-                         f"{min(m.session_accuracy) * 100:.1f}-"
-                         f"{max(m.session_accuracy) * 100:.1f} % over "
-                         f"{len(m.session_accuracy)} sessions")
-        lines.append("  per class: " + "  ".join(
-            f"{k} {'-' if v is None else f'{v * 100:.1f}'}" for k, v in m.per_class.items()))
+            lines.append(
+                f"  per session: mean {mean * 100:.2f} %, SD {sd * 100:.2f} points, "
+                f"{min(m.session_accuracy) * 100:.1f}-"
+                f"{max(m.session_accuracy) * 100:.1f} % over "
+                f"{len(m.session_accuracy)} sessions"
+            )
+        lines.append(
+            "  per class: "
+            + "  ".join(
+                f"{k} {'-' if v is None else f'{v * 100:.1f}'}" for k, v in m.per_class.items()
+            )
+        )
         lines.append("  confusion (rows true, columns predicted):")
         lines.append("        " + "".join(f"{k:>7}" for k in MODES))
         for k, row in zip(MODES, m.confusion):
@@ -302,66 +337,92 @@ def format_metrics(metrics: dict[str, GroupMetrics], title: str = "") -> str:
 
 
 def _format_breakdown(b: dict, frames: int) -> list[str]:
-    lines = [f"  where the errors are (near: within {b['near_frames']} frames of a change of "
-             f"the true mode):"]
+    lines = [
+        f"  where the errors are (near: within {b['near_frames']} frames of a change of "
+        f"the true mode):"
+    ]
     for name, part in b["groups"].items():
         right = "-" if part["accuracy"] is None else f"{part['accuracy'] * 100:.1f} %"
-        lines.append(f"    {name:<48} {part['frames'] / frames * 100:5.1f} % of frames, "
-                     f"{right:>7} right, {part['points_lost']:.2f} points lost")
-    lines.append(f"  view oracle (answering the mode each view mostly shows): "
-                 f"{b['view_accuracy'] * 100:.2f} %")
+        lines.append(
+            f"    {name:<48} {part['frames'] / frames * 100:5.1f} % of frames, "
+            f"{right:>7} right, {part['points_lost']:.2f} points lost"
+        )
+    lines.append(
+        f"  view oracle (answering the mode each view mostly shows): "
+        f"{b['view_accuracy'] * 100:.2f} %"
+    )
     return lines
 
 
 # ---- training --------------------------------------------------------------------------------
+
 
 def _stack(sessions: list[LabeledSession]) -> tuple[np.ndarray, np.ndarray]:
     parts = [s.labelled() for s in sessions]
     parts = [p for p in parts if len(p)]
     if not parts:
         return np.zeros((0, 100, 100), np.uint8), np.zeros(0, np.int64)
-    return (np.concatenate([p.images for p in parts]),
-            np.concatenate([p.labels for p in parts]).astype(np.int64))
+    return (
+        np.concatenate([p.images for p in parts]),
+        np.concatenate([p.labels for p in parts]).astype(np.int64),
+    )
 
 
-def _epoch_indices(labels: np.ndarray, count: int, balance: bool,
-                   rng: np.random.Generator, power: float = 1.0) -> np.ndarray:
+def _epoch_indices(
+    labels: np.ndarray, count: int, balance: bool, rng: np.random.Generator, power: float = 1.0
+) -> np.ndarray:
     if not balance or power == 0:
-        return rng.permutation(len(labels))[:count] if count <= len(labels) else \
-            rng.integers(0, len(labels), count)
+        return (
+            rng.permutation(len(labels))[:count]
+            if count <= len(labels)
+            else rng.integers(0, len(labels), count)
+        )
     freq = np.bincount(labels, minlength=len(MODES)).astype(np.float64)
     weights = freq[labels] ** -power
     return rng.choice(len(labels), size=count, replace=True, p=weights / weights.sum())
 
 
-def _batches(images: np.ndarray, labels: np.ndarray, order: np.ndarray, batch_size: int,
-             augment: float, rng: np.random.Generator):
+def _batches(
+    images: np.ndarray,
+    labels: np.ndarray,
+    order: np.ndarray,
+    batch_size: int,
+    augment: float,
+    rng: np.random.Generator,
+):
     """Batches in `order`; each frame augmented with probability `augment`."""
     for i in range(0, len(order), batch_size):
-        idx = order[i:i + batch_size]
+        idx = order[i : i + batch_size]
         batch = images[idx]
         if augment > 0:
-            batch = np.stack([augment_image(img, rng) if rng.random() < augment else img
-                              for img in batch])
+            batch = np.stack(
+                [augment_image(img, rng) if rng.random() < augment else img for img in batch]
+            )
         yield images_to_tensor(batch), torch.from_numpy(labels[idx])
 
 
 @torch.no_grad()
-def _validate(net: TerrainCNN, images: np.ndarray, labels: np.ndarray,
-              device: torch.device, power: float = 1.0,
-              batch_size: int = 256) -> tuple[float, float, float]:
+def _validate(
+    net: TerrainCNN,
+    images: np.ndarray,
+    labels: np.ndarray,
+    device: torch.device,
+    power: float = 1.0,
+    batch_size: int = 256,
+) -> tuple[float, float, float]:
     """Mean loss with the class weights the balanced sampling gives (frequency ** -power),
     accuracy and balanced accuracy."""
     net.eval()
     if not len(labels):
         return float("nan"), float("nan"), float("nan")
     freq = np.bincount(labels, minlength=len(MODES)).astype(np.float64)
-    weights = torch.tensor(np.where(freq > 0, np.maximum(freq, 1) ** -power, 0.0),
-                           dtype=torch.float32, device=device)
+    weights = torch.tensor(
+        np.where(freq > 0, np.maximum(freq, 1) ** -power, 0.0), dtype=torch.float32, device=device
+    )
     loss_sum, weight_sum, preds = 0.0, 0.0, []
     for i in range(0, len(labels), batch_size):
-        x = images_to_tensor(images[i:i + batch_size]).to(device)
-        y = torch.from_numpy(labels[i:i + batch_size]).to(device)
+        x = images_to_tensor(images[i : i + batch_size]).to(device)
+        y = torch.from_numpy(labels[i : i + batch_size]).to(device)
         scores = net(x)
         loss_sum += float(F.cross_entropy(scores, y, weight=weights, reduction="sum"))
         weight_sum += float(weights[y].sum())
@@ -378,8 +439,13 @@ def _native_bf16() -> bool:
 
 
 @torch.no_grad()
-def _warm_start_batch_norm(net: TerrainCNN, images: np.ndarray, device: torch.device,
-                           rng: np.random.Generator, count: int = 256) -> None:
+def _warm_start_batch_norm(
+    net: TerrainCNN,
+    images: np.ndarray,
+    device: torch.device,
+    rng: np.random.Generator,
+    count: int = 256,
+) -> None:
     """Set the batch-norm running statistics from a first batch of data.
 
     With weights from N(0, 0.01) the activations' variance is ~1e-4, while PyTorch starts
@@ -413,8 +479,11 @@ def keep_freed_memory() -> bool:
     return bool(mallopt(m_mmap_max, 0)) and bool(mallopt(m_trim_threshold, 2**30))
 
 
-def train(sessions: list[LabeledSession], settings: TrainSettings = TrainSettings(),
-          show_progress: bool = True) -> TrainResult:
+def train(
+    sessions: list[LabeledSession],
+    settings: TrainSettings = TrainSettings(),
+    show_progress: bool = True,
+) -> TrainResult:
     """Train a TerrainCNN on sessions (split by session); see the module docstring."""
     from tqdm import tqdm
 
@@ -426,8 +495,9 @@ def train(sessions: list[LabeledSession], settings: TrainSettings = TrainSetting
     rng = np.random.default_rng(settings.seed)
     device = choose_device(settings.device)
 
-    train_s, val_s, test_s = split_by_session(sessions, settings.val_fraction,
-                                              settings.test_fraction, settings.seed)
+    train_s, val_s, test_s = split_by_session(
+        sessions, settings.val_fraction, settings.test_fraction, settings.seed
+    )
     x_train, y_train = _stack(train_s)
     x_val, y_val = _stack(val_s)
     if not len(y_train):
@@ -437,8 +507,9 @@ def train(sessions: list[LabeledSession], settings: TrainSettings = TrainSetting
         log.warning("no training frames of %s", ", ".join(absent))
 
     net = TerrainCNN(hidden=settings.hidden).to(device, memory_format=torch.channels_last)
-    optimiser = torch.optim.Adam(net.parameters(), lr=settings.lr,
-                                 weight_decay=settings.weight_decay)
+    optimiser = torch.optim.Adam(
+        net.parameters(), lr=settings.lr, weight_decay=settings.weight_decay
+    )
     scheduler = torch.optim.lr_scheduler.ReduceLROnPlateau(optimiser, factor=0.5, patience=0)
     _warm_start_batch_norm(net, x_train, device, rng)
     per_epoch = settings.samples_per_epoch or len(y_train)
@@ -448,15 +519,25 @@ def train(sessions: list[LabeledSession], settings: TrainSettings = TrainSetting
 
     for epoch in range(1, settings.epochs + 1):
         net.train()
-        order = _epoch_indices(y_train, per_epoch, settings.balance, rng,
-                               settings.balance_power)
+        order = _epoch_indices(y_train, per_epoch, settings.balance, rng, settings.balance_power)
         n_batches = math.ceil(len(order) / settings.batch_size)
         loss_sum = correct = seen = 0
-        with tqdm(total=n_batches, desc=f"epoch {epoch}/{settings.epochs}", unit="batch",
-                  disable=not show_progress, leave=True, dynamic_ncols=True) as bar:
-            for x, y in _batches(x_train, y_train, order, settings.batch_size,
-                                 settings.augment_probability if settings.augment else 0.0,
-                                 rng):
+        with tqdm(
+            total=n_batches,
+            desc=f"epoch {epoch}/{settings.epochs}",
+            unit="batch",
+            disable=not show_progress,
+            leave=True,
+            dynamic_ncols=True,
+        ) as bar:
+            for x, y in _batches(
+                x_train,
+                y_train,
+                order,
+                settings.batch_size,
+                settings.augment_probability if settings.augment else 0.0,
+                rng,
+            ):
                 x, y = x.to(device), y.to(device)
                 with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
                     scores = net(x)
@@ -476,13 +557,26 @@ def train(sessions: list[LabeledSession], settings: TrainSettings = TrainSetting
                     out_of_time = True
                     break
             val_loss, val_acc, val_bal = _validate(
-                net, x_val, y_val, device, settings.balance_power if settings.balance else 0.0)
-            bar.set_postfix(loss=f"{loss_sum / seen:.3f}", acc=f"{correct / seen:.3f}",
-                            val_loss=f"{val_loss:.3f}", val_acc=f"{val_acc:.3f}")
+                net, x_val, y_val, device, settings.balance_power if settings.balance else 0.0
+            )
+            bar.set_postfix(
+                loss=f"{loss_sum / seen:.3f}",
+                acc=f"{correct / seen:.3f}",
+                val_loss=f"{val_loss:.3f}",
+                val_acc=f"{val_acc:.3f}",
+            )
         lr = optimiser.param_groups[0]["lr"]
-        history.append({"epoch": epoch, "train_loss": loss_sum / seen,
-                        "train_accuracy": correct / seen, "val_loss": val_loss,
-                        "val_accuracy": val_acc, "val_balanced_accuracy": val_bal, "lr": lr})
+        history.append(
+            {
+                "epoch": epoch,
+                "train_loss": loss_sum / seen,
+                "train_accuracy": correct / seen,
+                "val_loss": val_loss,
+                "val_accuracy": val_acc,
+                "val_balanced_accuracy": val_bal,
+                "lr": lr,
+            }
+        )
         improved = not math.isnan(val_loss) and val_loss < best_loss - 1e-4
         if improved or best_state is None:
             best_loss = val_loss if not math.isnan(val_loss) else best_loss
@@ -501,11 +595,19 @@ def train(sessions: list[LabeledSession], settings: TrainSettings = TrainSetting
     net.load_state_dict(best_state)
     net.eval()
     result = TrainResult(
-        net=net.cpu(), history=history, best_epoch=best_epoch,
-        split={"train": [s.name for s in train_s], "validation": [s.name for s in val_s],
-               "test": [s.name for s in test_s]},
-        data={"train": summarize(train_s), "validation": summarize(val_s),
-              "test": summarize(test_s)},
+        net=net.cpu(),
+        history=history,
+        best_epoch=best_epoch,
+        split={
+            "train": [s.name for s in train_s],
+            "validation": [s.name for s in val_s],
+            "test": [s.name for s in test_s],
+        },
+        data={
+            "train": summarize(train_s),
+            "validation": summarize(val_s),
+            "test": summarize(test_s),
+        },
         stopped_early=stopped_early,
     )
     if test_s:
@@ -514,24 +616,43 @@ def train(sessions: list[LabeledSession], settings: TrainSettings = TrainSetting
     return result
 
 
-def training_metadata(result: TrainResult, settings: TrainSettings, preprocess: dict,
-                      sources: list[str], extra: dict | None = None) -> dict:
+def training_metadata(
+    result: TrainResult,
+    settings: TrainSettings,
+    preprocess: dict,
+    sources: list[str],
+    extra: dict | None = None,
+) -> dict:
     """The metadata file's content beyond what save_model adds."""
     seeds = sorted({s for part in ("train", "validation") for s in result.split[part]})
     return {
         "preprocess": preprocess,
         "data": {**result.data, "sources": sources, "sessions_seen_in_training": seeds},
         "split": result.split,
-        "training": {**asdict(settings), "best_epoch": result.best_epoch,
-                     "epochs_run": len(result.history), "stopped_early": result.stopped_early,
-                     "seconds": round(result.seconds, 1), "history": result.history,
-                     "torch": torch.__version__},
-        "metrics": {"test": {k: v.to_dict() for k, v in result.test_metrics.items()},
-                    **(extra or {})},
+        "training": {
+            **asdict(settings),
+            "best_epoch": result.best_epoch,
+            "epochs_run": len(result.history),
+            "stopped_early": result.stopped_early,
+            "seconds": round(result.seconds, 1),
+            "history": result.history,
+            "torch": torch.__version__,
+        },
+        "metrics": {
+            "test": {k: v.to_dict() for k, v in result.test_metrics.items()},
+            **(extra or {}),
+        },
     }
 
 
-def save_result(result: TrainResult, path: str, settings: TrainSettings, preprocess: dict,
-                sources: list[str], extra: dict | None = None):
-    return save_model(result.net, path, training_metadata(result, settings, preprocess,
-                                                          sources, extra))
+def save_result(
+    result: TrainResult,
+    path: str,
+    settings: TrainSettings,
+    preprocess: dict,
+    sources: list[str],
+    extra: dict | None = None,
+):
+    return save_model(
+        result.net, path, training_metadata(result, settings, preprocess, sources, extra)
+    )

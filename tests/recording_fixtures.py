@@ -3,6 +3,7 @@
 Frames come from capture.recorder.synthetic_frame (a ray-cast step scene with 1 % range
 noise), a few of them re-stamped; times are synthetic session-clock times starting at T0.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -19,15 +20,22 @@ T0 = 1_000_000_000_000  # 1000 s on the session clock
 FPS = 45.0
 IMU_HZ = 100.0
 METADATA = {
-    "session": {"subject": "S07", "height_m": "1.78", "amputee": "True", "side": "left",
-                "condition": "indoor", "trial": "3", "notes": "test"},
+    "session": {
+        "subject": "S07",
+        "height_m": "1.78",
+        "amputee": "True",
+        "side": "left",
+        "condition": "indoor",
+        "trial": "3",
+        "notes": "test",
+    },
     "devices": {"camera_backend": "mock", "imu_backend": "mock"},
     "software": {"walkcap_version": "0.1.0", "model_hash": "abc123"},
 }
 ATTACHMENTS = {"walkcap.toml": b"[camera]\nfps = 45.0\n", "model.json": b'{"hash": "abc123"}'}
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _frames(n: int = 12):
     return tuple(synthetic_frame(i, 0) for i in range(n))
 
@@ -35,8 +43,13 @@ def _frames(n: int = 12):
 def frame_at(index: int):
     base = _frames()[index % len(_frames())]
     t = frame_time(index)
-    return dataclasses.replace(base, index=index, device_time_ns=t, host_time_ns=t + 3_000_000,
-                               truth={"mode": truth_mode(index), "pose": np.eye(4)})
+    return dataclasses.replace(
+        base,
+        index=index,
+        device_time_ns=t,
+        host_time_ns=t + 3_000_000,
+        truth={"mode": truth_mode(index), "pose": np.eye(4)},
+    )
 
 
 def frame_time(index: int) -> int:
@@ -55,10 +68,17 @@ def probabilities(index: int) -> np.ndarray:
 
 def imu_sample(k: int) -> ImuSample:
     t = T0 + int(round(k * 1e9 / IMU_HZ))
-    return ImuSample(host_time_ns=t + 1_000_000, time_ns=t, packet_counter=k % 65536,
-                     sample_time_fine=k * 100, quaternion=np.array([0.9, 0.1, -0.2, 0.3]) / np.linalg.norm([0.9, 0.1, -0.2, 0.3]),
-                     acceleration=np.array([0.1, -0.2, 9.81]), rate_of_turn=np.array([0.01, 0.02, -0.03]),
-                     status_word=3, extra={"temperature": 31.5})
+    return ImuSample(
+        host_time_ns=t + 1_000_000,
+        time_ns=t,
+        packet_counter=k % 65536,
+        sample_time_fine=k * 100,
+        quaternion=np.array([0.9, 0.1, -0.2, 0.3]) / np.linalg.norm([0.9, 0.1, -0.2, 0.3]),
+        acceleration=np.array([0.1, -0.2, 9.81]),
+        rate_of_turn=np.array([0.01, 0.02, -0.03]),
+        status_word=3,
+        extra={"temperature": 31.5},
+    )
 
 
 def label_schedule(seconds: float) -> list[tuple[int, str, str]]:
@@ -71,13 +91,27 @@ def label_schedule(seconds: float) -> list[tuple[int, str, str]]:
     return out
 
 
-def write_recording(path: str | Path, seconds: float = 2.0, *, chunk_interval_s: float = 1.0,
-                    queue_size: int = 100_000, close: bool = True, gray: bool = False,
-                    zstd_level: int = 3) -> Recorder:
+def write_recording(
+    path: str | Path,
+    seconds: float = 2.0,
+    *,
+    chunk_interval_s: float = 1.0,
+    queue_size: int = 100_000,
+    close: bool = True,
+    gray: bool = False,
+    zstd_level: int = 3,
+) -> Recorder:
     """Every topic, in the order a session writes them; returns the (closed) recorder."""
-    rec = Recorder(path, metadata=METADATA, attachments=ATTACHMENTS, queue_size=queue_size,
-                   cloud_voxel_m=0.0,  # exact clouds, to compare what comes back
-                   chunk_interval_s=chunk_interval_s, gray=gray, zstd_level=zstd_level)
+    rec = Recorder(
+        path,
+        metadata=METADATA,
+        attachments=ATTACHMENTS,
+        queue_size=queue_size,
+        cloud_voxel_m=0.0,  # exact clouds, to compare what comes back
+        chunk_interval_s=chunk_interval_s,
+        gray=gray,
+        zstd_level=zstd_level,
+    )
     rec.start()
     labels = label_schedule(seconds)
     n_frames = int(seconds * FPS)
@@ -91,24 +125,34 @@ def write_recording(path: str | Path, seconds: float = 2.0, *, chunk_interval_s:
             rec.write_label(*labels.pop(0))
         frame = frame_at(i)
         rec.write_frame(frame)
-        cloud = np.column_stack([np.linspace(0.0, 1.5, 300), np.zeros(300),
-                                 np.full(300, -0.55) + 0.001 * i])
+        cloud = np.column_stack(
+            [np.linspace(0.0, 1.5, 300), np.zeros(300), np.full(300, -0.55) + 0.001 * i]
+        )
         image = np.zeros((100, 100), np.uint8)
-        image[50 + i % 20:, :] = 1
+        image[50 + i % 20 :, :] = 1
         quaternion = None if i == 5 else np.array([np.cos(0.1), 0.0, np.sin(0.1), 0.0])
-        rec.write_processed(i, t, frame.host_time_ns, cloud, image, quaternion,
-                            "" if i != 5 else "no orientation")
-        fused = {} if i < 2 else {
-            "frame_index": i - 1, "decision": truth_mode(i - 1),
-            "posterior": probabilities(i - 1), "voted": truth_mode(i - 2) if i > 2 else None,
-            "voted_frame_index": i - 2 if i > 2 else None}
+        rec.write_processed(
+            i, t, frame.host_time_ns, cloud, image, quaternion, "" if i != 5 else "no orientation"
+        )
+        fused = (
+            {}
+            if i < 2
+            else {
+                "frame_index": i - 1,
+                "decision": truth_mode(i - 1),
+                "posterior": probabilities(i - 1),
+                "voted": truth_mode(i - 2) if i > 2 else None,
+                "voted_frame_index": i - 2 if i > 2 else None,
+            }
+        )
         rec.write_inference(i, t, frame.host_time_ns + 9_000_000, probabilities(i), fused)
         rec.write_features(i, t, {"riser_m": 0.17, "tread_m": float("nan"), "ok": True})
         rec.write_truth(i, t, frame.truth)
         if i == 10:
             rec.write_event(DeviceEvent(t, "imu", "gap", "3 samples missing", {"missing": 3}))
-            rec.write_event({"time_ns": t, "device": "operator", "kind": "marker",
-                             "message": "stairs start"})
+            rec.write_event(
+                {"time_ns": t, "device": "operator", "kind": "marker", "message": "stairs start"}
+            )
     if close:
         rec.close()
     return rec

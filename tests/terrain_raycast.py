@@ -5,6 +5,7 @@ height z, ground under the camera at z = 0), extruded sideways. The camera sits 
 above the origin; its orientation is the IMU quaternion (IMU -> world) times the mounting
 (camera -> IMU). Independent of the simulator other code uses: pure numpy, exact geometry.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -28,8 +29,9 @@ def ramp(angle_deg: float, start_m: float | None = None) -> list[tuple[float, fl
     return [(-5.0, 0.0), (start_m, 0.0), (10.0, (10.0 - start_m) * k)]
 
 
-def stairs(riser_m: float, tread_m: float, first_m: float = 0.2, steps: int = 4,
-           up: bool = True) -> list[tuple[float, float]]:
+def stairs(
+    riser_m: float, tread_m: float, first_m: float = 0.2, steps: int = 4, up: bool = True
+) -> list[tuple[float, float]]:
     """Level ground, then `steps` steps up (or down) starting `first_m` ahead, then a landing."""
     sign = 1.0 if up else -1.0
     pts = [(-5.0, 0.0)]
@@ -43,15 +45,21 @@ def stairs(riser_m: float, tread_m: float, first_m: float = 0.2, steps: int = 4,
     return pts
 
 
-def thigh_quaternion(pitch_deg: float = 0.0, roll_deg: float = 0.0,
-                     yaw_deg: float = 0.0) -> np.ndarray:
+def thigh_quaternion(
+    pitch_deg: float = 0.0, roll_deg: float = 0.0, yaw_deg: float = 0.0
+) -> np.ndarray:
     return quat_from_euler(np.radians(roll_deg), np.radians(pitch_deg), np.radians(yaw_deg))
 
 
-def render(terrain: list[tuple[float, float]], quaternion: np.ndarray,
-           mounting: tuple[float, float, float] = (0.0, 35.0, 0.0), height_m: float = 0.55,
-           noise_m: float = 0.0, seed: int = 0,
-           geometry: CameraGeometry = GEOMETRY) -> tuple[np.ndarray, np.ndarray]:
+def render(
+    terrain: list[tuple[float, float]],
+    quaternion: np.ndarray,
+    mounting: tuple[float, float, float] = (0.0, 35.0, 0.0),
+    height_m: float = 0.55,
+    noise_m: float = 0.0,
+    seed: int = 0,
+    geometry: CameraGeometry = GEOMETRY,
+) -> tuple[np.ndarray, np.ndarray]:
     """(xyz (H, W, 3) float32 camera frame, confidence (H, W) uint8) as a ToF camera gives.
 
     noise_m: uniform range noise in [-noise_m, +noise_m] along each ray.
@@ -77,9 +85,14 @@ def render(terrain: list[tuple[float, float]], quaternion: np.ndarray,
     if noise_m:
         t_best = t_best + np.random.default_rng(seed).uniform(-noise_m, noise_m, len(rays))
     # A ToF camera reports range along the ray; xyz = t * ray.
-    valid = np.isfinite(t_best) & (t_best * rays[:, 2] >= geometry.min_range_m) & (
-        t_best <= geometry.max_range_m)
+    valid = (
+        np.isfinite(t_best)
+        & (t_best * rays[:, 2] >= geometry.min_range_m)
+        & (t_best <= geometry.max_range_m)
+    )
     xyz = np.where(valid[:, None], rays * np.where(valid, t_best, 0.0)[:, None], 0.0)
     shape = (geometry.height, geometry.width)
-    return (xyz.reshape(*shape, 3).astype(np.float32),
-            np.where(valid, 200, 0).astype(np.uint8).reshape(shape))
+    return (
+        xyz.reshape(*shape, 3).astype(np.float32),
+        np.where(valid, 200, 0).astype(np.uint8).reshape(shape),
+    )

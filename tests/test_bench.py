@@ -1,5 +1,6 @@
 """The bench's own bookkeeping: what it records must be every frame, and must not grow the
 memory it measures."""
+
 import numpy as np
 
 from capture import bench
@@ -19,7 +20,7 @@ def test_latency_log_keeps_every_value_in_order_past_its_expected_size():
 def test_latency_log_does_not_allocate_while_it_fills_its_expected_size():
     log = bench.LatencyLog(expected_frames=5000)
     values = log._values
-    for k in range(5000):
+    for _ in range(5000):
         log.append(1.0)
     assert log._values is values
 
@@ -46,8 +47,14 @@ def test_rss_growth_ignores_the_first_minute_and_needs_samples():
 
 def test_a_session_run_records_one_latency_per_frame(tmp_path):
     samples = []
-    run = bench.session_run(15.0, 100, 3.0, str(tmp_path), sample_every_s=1.0,
-                            on_sample=lambda snap, memory, recent: samples.append(len(recent)))
+    run = bench.session_run(
+        15.0,
+        100,
+        3.0,
+        str(tmp_path),
+        sample_every_s=1.0,
+        on_sample=lambda snap, memory, recent: samples.append(len(recent)),
+    )
     assert run.frames > 20
     assert len(run.latency_ms) == run.frames
     assert sum(samples) <= run.frames and len(samples) >= 2

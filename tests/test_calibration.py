@@ -2,24 +2,27 @@ import re
 
 import numpy as np
 import pytest
-
 import terrain_raycast as tr
+
 from inference.calibration import CalibrationResult, estimate_mounting, floor_plane
 from inference.preprocess import PreprocessParams, preprocess
 
 TRUE_MOUNTING = (2.0, 38.5, 0.0)  # the camera sits 2 deg rolled, 3.5 deg lower than set
 
 
-def standing(count=6, mounting=TRUE_MOUNTING, terrain=None, sway_deg=0.1, lean_deg=0.0,
-             seed=0):
+def standing(count=6, mounting=TRUE_MOUNTING, terrain=None, sway_deg=0.1, lean_deg=0.0, seed=0):
     """Frames of a subject standing on level ground; the thigh sways a little."""
     rng = np.random.default_rng(seed)
     xyz, conf, quats = [], [], []
     for k in range(count):
-        q = tr.thigh_quaternion(1.5 + rng.normal(0, sway_deg) + lean_deg * k / max(count - 1, 1),
-                                -0.8 + rng.normal(0, sway_deg), 40.0)
-        x, c = tr.render(terrain or tr.level(), q, mounting=mounting, noise_m=0.005,
-                         seed=seed * 10 + k)
+        q = tr.thigh_quaternion(
+            1.5 + rng.normal(0, sway_deg) + lean_deg * k / max(count - 1, 1),
+            -0.8 + rng.normal(0, sway_deg),
+            40.0,
+        )
+        x, c = tr.render(
+            terrain or tr.level(), q, mounting=mounting, noise_m=0.005, seed=seed * 10 + k
+        )
         xyz.append(x)
         conf.append(c)
         quats.append(q)
@@ -86,8 +89,9 @@ def test_floor_plane_height_and_normal():
     normal, height, fraction, rms = floor_plane(xyz, conf)
     assert height == pytest.approx(0.6, abs=0.002) and fraction > 0.99 and rms < 0.002
     # Camera frame: y down, z forward; tilted 35 deg down, up is (0, -cos 35, -sin 35).
-    np.testing.assert_allclose(normal, [0, -np.cos(np.radians(35)), -np.sin(np.radians(35))],
-                               atol=1e-3)
+    np.testing.assert_allclose(
+        normal, [0, -np.cos(np.radians(35)), -np.sin(np.radians(35))], atol=1e-3
+    )
     assert floor_plane(xyz, np.zeros_like(conf)) is None
 
 

@@ -1,4 +1,5 @@
 """The camera interface, the backend registry and the mock camera."""
+
 import subprocess
 import sys
 import threading
@@ -16,8 +17,14 @@ from devices.simulator import MockCamera, Simulator, make_course
 
 
 def blank_frame(index: int) -> DepthFrame:
-    return DepthFrame(index, now_ns(), now_ns(), np.zeros((2, 2, 3), np.float32),
-                      np.zeros((2, 2), np.uint8), np.zeros((2, 2), np.uint16))
+    return DepthFrame(
+        index,
+        now_ns(),
+        now_ns(),
+        np.zeros((2, 2, 3), np.float32),
+        np.zeros((2, 2), np.uint8),
+        np.zeros((2, 2), np.uint16),
+    )
 
 
 class ScriptedCamera(Camera):
@@ -43,6 +50,7 @@ class ScriptedCamera(Camera):
 
 
 # ---- base class ----------------------------------------------------------------------------
+
 
 def test_life_cycle_is_idempotent_and_a_context_manager():
     cam = ScriptedCamera()
@@ -106,6 +114,7 @@ def test_measured_rate_follows_deliveries():
 
 # ---- registry ------------------------------------------------------------------------------
 
+
 def test_registry_names_the_three_backends():
     assert set(BACKENDS) == {"mock", "royale", "replay"}
     assert camera_class("mock") is MockCamera
@@ -123,15 +132,17 @@ def test_a_backend_module_that_cannot_be_imported_is_reported(monkeypatch):
 
 
 def test_backends_are_imported_only_when_chosen():
-    code = ("import sys, devices.camera; "
-            "print(any(m in sys.modules for m in ('open3d', 'devices.royale', "
-            "'devices.simulator', 'devices.replay')))")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         check=True)
+    code = (
+        "import sys, devices.camera; "
+        "print(any(m in sys.modules for m in ('open3d', 'devices.royale', "
+        "'devices.simulator', 'devices.replay')))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
 
 
 # ---- mock camera ---------------------------------------------------------------------------
+
 
 @pytest.fixture(scope="module")
 def short_sim():
@@ -139,8 +150,10 @@ def short_sim():
 
 
 def test_open_camera_builds_the_mock_from_the_configuration():
-    cam = open_camera(CameraConfig(backend="mock", fps=30),
-                      SimulatorConfig(course="outdoor", seed=4, realtime=False))
+    cam = open_camera(
+        CameraConfig(backend="mock", fps=30),
+        SimulatorConfig(course="outdoor", seed=4, realtime=False),
+    )
     try:
         assert isinstance(cam, MockCamera)
         assert cam.simulator.course.preset == "outdoor" and cam.simulator.course.seed == 4
@@ -157,8 +170,7 @@ def test_bad_simulator_configuration_names_the_key():
 
 
 def test_mock_runs_to_the_end_of_the_course_then_stops(short_sim):
-    cam = MockCamera(CameraConfig(fps=15, buffer_frames=2), simulator=short_sim,
-                     realtime=False)
+    cam = MockCamera(CameraConfig(fps=15, buffer_frames=2), simulator=short_sim, realtime=False)
     with cam:
         cam.start()
         frames = list(cam)  # as fast as consumed, nothing dropped
@@ -207,8 +219,9 @@ def test_mock_paces_frames_in_real_time(short_sim):
 
 
 def test_mock_loops_when_asked(short_sim):
-    cam = MockCamera(CameraConfig(fps=15, buffer_frames=2), simulator=short_sim,
-                     realtime=False, loop=True)
+    cam = MockCamera(
+        CameraConfig(fps=15, buffer_frames=2), simulator=short_sim, realtime=False, loop=True
+    )
     n = int(short_sim.duration_s * 15) + 10
     with cam:
         cam.start()

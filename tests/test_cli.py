@@ -7,8 +7,9 @@ from tui import cli
 
 
 def walkcap(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "tui.cli", *args], capture_output=True,
-                          text=True, timeout=120)
+    return subprocess.run(
+        [sys.executable, "-m", "tui.cli", *args], capture_output=True, text=True, timeout=120
+    )
 
 
 def test_help_lists_every_subcommand():
@@ -71,7 +72,12 @@ def test_a_closed_pipe_is_not_an_error(tmp_path):
     path = tmp_path / "r.mcap"
     write_recording(path, seconds=1.0)
     many = " ".join([f"'{path}'"] * 400)  # far more output than a pipe holds
-    out = subprocess.run(f"'{sys.executable}' -m tui.cli info {many} | head -1", shell=True,
-                         capture_output=True, text=True, timeout=120)
+    out = subprocess.run(
+        f"'{sys.executable}' -m tui.cli info {many} | head -1",
+        shell=True,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert out.stdout.strip() == str(path)
     assert "error" not in out.stderr.lower() and "Traceback" not in out.stderr

@@ -19,15 +19,18 @@ def test_reads_local_walkcap_toml(tmp_path):
     assert c.source == "walkcap.toml"
 
 
-@pytest.mark.parametrize("text, key", [
-    ("[camera]\nfpss = 3\n", "camera.fpss"),
-    ("[nosuch]\nx = 1\n", "nosuch"),
-    ("[imu]\nbaudrate = 'fast'\n", "imu.baudrate"),
-    ("[imu]\nbaudrate = 1.5\n", "imu.baudrate"),
-    ("[simulator]\nrealtime = 1\n", "simulator.realtime"),
-    ("[fusion]\ntransition = [[1, 'a']]\n", "fusion.transition[0][1]"),
-    ("camera = 3\n", "camera"),
-])
+@pytest.mark.parametrize(
+    "text, key",
+    [
+        ("[camera]\nfpss = 3\n", "camera.fpss"),
+        ("[nosuch]\nx = 1\n", "nosuch"),
+        ("[imu]\nbaudrate = 'fast'\n", "imu.baudrate"),
+        ("[imu]\nbaudrate = 1.5\n", "imu.baudrate"),
+        ("[simulator]\nrealtime = 1\n", "simulator.realtime"),
+        ("[fusion]\ntransition = [[1, 'a']]\n", "fusion.transition[0][1]"),
+        ("camera = 3\n", "camera"),
+    ],
+)
 def test_bad_keys_and_types_name_the_key(tmp_path, text, key):
     p = tmp_path / "c.toml"
     p.write_text(text)

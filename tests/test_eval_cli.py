@@ -1,4 +1,5 @@
 """`walkcap eval`: scores, recordings (through a stand-in reader), model registration."""
+
 import json
 import subprocess
 import sys
@@ -39,8 +40,9 @@ def live_accuracy(method, probabilities, reference, **kw):
     for out in [fusion.push(row) for row in probabilities] + fusion.flush():
         if out is None:
             continue
-        frame, decision = (out.voted_frame, out.voted) if fusion.votes else (out.frame,
-                                                                            out.decision)
+        frame, decision = (
+            (out.voted_frame, out.voted) if fusion.votes else (out.frame, out.decision)
+        )
         if frame is not None:
             final[frame] = decision
     return np.mean([final[i] == r for i, r in enumerate(reference) if r >= 0])
@@ -49,14 +51,25 @@ def live_accuracy(method, probabilities, reference, **kw):
 def test_scores_table(capsys, score_files):
     code, out, err = run(capsys, "eval", "scores", *score_files)
     assert code == 0, err
-    for word in ("CNN", "CNN + voting", "HMM", "HMM + voting", "mean", "SD", "delay (frames)",
-                 "s0.csv", "s2.csv", "paired t-tests"):
+    for word in (
+        "CNN",
+        "CNN + voting",
+        "HMM",
+        "HMM + voting",
+        "mean",
+        "SD",
+        "delay (frames)",
+        "s0.csv",
+        "s2.csv",
+        "paired t-tests",
+    ):
         assert word in out
 
 
 def test_scores_json_equals_live_decisions(capsys, score_files):
-    code, out, _ = run(capsys, "eval", "scores", *score_files, "--window", "4",
-                       "--vote-delay", "2", "--json")
+    code, out, _ = run(
+        capsys, "eval", "scores", *score_files, "--window", "4", "--vote-delay", "2", "--json"
+    )
     assert code == 0
     data = json.loads(out)
     assert data["delay_frames"] == {"cnn": 0, "cnn+voting": 2, "hmm": 1, "hmm+voting": 3}
@@ -65,8 +78,9 @@ def test_scores_json_equals_live_decisions(capsys, score_files):
         trial = ev.read_scores(path)
         assert entry["path"] == path and entry["frames"] == len(trial.reference)
         for method, acc in entry["accuracy"].items():
-            assert acc == pytest.approx(live_accuracy(method, trial.probabilities,
-                                                      trial.reference, window=4, vote_delay=2))
+            assert acc == pytest.approx(
+                live_accuracy(method, trial.probabilities, trial.reference, window=4, vote_delay=2)
+            )
     means = {m: np.mean([f["accuracy"][m] for f in data["files"]]) for m in data["mean"]}
     assert data["mean"] == pytest.approx(means)
     assert data["mean"]["hmm"] > data["mean"]["cnn"]
@@ -75,8 +89,7 @@ def test_scores_json_equals_live_decisions(capsys, score_files):
 def test_scores_use_the_configured_fusion(capsys, score_files, tmp_path):
     config = tmp_path / "walkcap.toml"
     config.write_text("[fusion]\nwindow = 3\nvote_delay = 4\n")
-    code, out, _ = run(capsys, "--config", str(config), "eval", "scores", score_files[0],
-                       "--json")
+    code, out, _ = run(capsys, "--config", str(config), "eval", "scores", score_files[0], "--json")
     data = json.loads(out)
     assert data["parameters"]["window"] == 3 and data["delay_frames"]["cnn+voting"] == 4
     config.write_text("[fusion]\ntransition = [[1.0, 0.0, 0.0, 0.0, 0.0]]\n")
@@ -85,9 +98,21 @@ def test_scores_use_the_configured_fusion(capsys, score_files, tmp_path):
 
 
 def test_scores_sweep_methods_and_estimated_transition(capsys, score_files, tmp_path):
-    code, out, _ = run(capsys, "eval", "scores", *score_files, "--methods",
-                       "cnn,hmm,fixed-lag", "--lag", "2", "--transition", "estimated",
-                       "--sweep-delay", "3", "--json")
+    code, out, _ = run(
+        capsys,
+        "eval",
+        "scores",
+        *score_files,
+        "--methods",
+        "cnn,hmm,fixed-lag",
+        "--lag",
+        "2",
+        "--transition",
+        "estimated",
+        "--sweep-delay",
+        "3",
+        "--json",
+    )
     assert code == 0
     data = json.loads(out)
     assert set(data["mean"]) == {"cnn", "hmm", "fixed-lag"}
@@ -104,16 +129,27 @@ def test_scores_sweep_methods_and_estimated_transition(capsys, score_files, tmp_
 def test_bad_score_file_is_one_line_naming_file_and_line(tmp_path):
     bad = tmp_path / "bad.csv"
     bad.write_text("LG,US,DS,UR,DR,label\n0.2,0.2,0.2,0.2,0.2,LG\n0.2,0.2,nan,0.2,0.2,LG\n")
-    out = subprocess.run([sys.executable, "-m", "tui.cli", "eval", "scores", str(bad)],
-                         capture_output=True, text=True, timeout=60)
+    out = subprocess.run(
+        [sys.executable, "-m", "tui.cli", "eval", "scores", str(bad)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert out.returncode == 1
     assert out.stderr.strip().splitlines() == [
-        f"walkcap eval: error: {bad}:3: DS: not a finite number: nan"]
+        f"walkcap eval: error: {bad}:3: DS: not a finite number: nan"
+    ]
 
 
-@pytest.mark.parametrize("argv", [["eval"], ["eval", "scores"],
-                                  ["eval", "scores", "a.csv", "--methods", "kalman"],
-                                  ["eval", "scores", "a.csv", "--window", "0"]])
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["eval"],
+        ["eval", "scores"],
+        ["eval", "scores", "a.csv", "--methods", "kalman"],
+        ["eval", "scores", "a.csv", "--window", "0"],
+    ],
+)
 def test_usage_errors(capsys, argv):
     with pytest.raises(SystemExit) as e:
         cli.main(argv)
@@ -136,12 +172,16 @@ def test_recordings_without_reader_say_when_they_arrive(capsys, monkeypatch):
 @pytest.fixture
 def fake_reader(monkeypatch):
     trials = {}
-    for i, (subject, condition) in enumerate([("S1", "indoor"), ("S1", "indoor"),
-                                              ("A1", "indoor"), ("A1", "outdoor")]):
+    for i, (subject, condition) in enumerate(
+        [("S1", "indoor"), ("S1", "indoor"), ("A1", "indoor"), ("A1", "outdoor")]
+    ):
         t = ev.synthetic_trial(10 + i)
         trials[f"r{i}.mcap"] = {
-            "probabilities": t.probabilities, "labels": [MODES[r] for r in t.reference],
-            "truth": None, "metadata": {"subject": subject, "condition": condition}}
+            "probabilities": t.probabilities,
+            "labels": [MODES[r] for r in t.reference],
+            "truth": None,
+            "metadata": {"subject": subject, "condition": condition},
+        }
     reader = types.ModuleType("capture.reader")
     reader.read_trial = lambda path: trials[path]
     monkeypatch.setitem(sys.modules, "capture.reader", reader)
@@ -149,8 +189,16 @@ def fake_reader(monkeypatch):
 
 
 def test_recordings_grouped_with_sweep_and_plots(capsys, fake_reader, tmp_path):
-    code, out, err = run(capsys, "eval", "recordings", *fake_reader, "--sweep-delay", "2",
-                         "--plot", str(tmp_path / "fig"))
+    code, out, err = run(
+        capsys,
+        "eval",
+        "recordings",
+        *fake_reader,
+        "--sweep-delay",
+        "2",
+        "--plot",
+        str(tmp_path / "fig"),
+    )
     assert code == 0, err
     assert "condition" in out and "S1" in out and "A1" in out and "±" in out
     assert "against delayed frames" in out and "wrote 8 figure(s)" in out
@@ -159,7 +207,10 @@ def test_recordings_grouped_with_sweep_and_plots(capsys, fake_reader, tmp_path):
     data = json.loads(out)
     assert [f["subject"] for f in data["files"]] == ["S1", "S1", "A1", "A1"]
     assert {(g["condition"], g["subject"], g["trials"]) for g in data["groups"]} == {
-        ("indoor", "S1", 2), ("indoor", "A1", 1), ("outdoor", "A1", 1)}
+        ("indoor", "S1", 2),
+        ("indoor", "A1", 1),
+        ("outdoor", "A1", 1),
+    }
     assert set(data) >= {"files", "mean", "sd", "delay_frames", "paired_t_tests"}
     code, _, err = run(capsys, "eval", "recordings", *fake_reader, "--reference", "truth")
     assert code == 1 and "r0.mcap: no simulator truth" in err
@@ -170,7 +221,8 @@ def test_model_not_available_is_one_line(capsys, monkeypatch):
     code, _, err = run(capsys, "eval", "model", "sessions")
     assert code == 2
     assert err.strip().splitlines() == [
-        "walkcap eval: model: not available yet (it lands with the CNN evaluation issue)"]
+        "walkcap eval: model: not available yet (it lands with the CNN evaluation issue)"
+    ]
 
 
 def test_model_module_is_registered_when_present(capsys, monkeypatch):
@@ -185,8 +237,9 @@ def test_model_module_is_registered_when_present(capsys, monkeypatch):
 
 def test_real_recording_end_to_end(capsys, tmp_path):
     """A recording written by capture's recorder, read by capture.reader."""
-    from capture.reader import read_trial
     from recording_fixtures import write_recording
+
+    from capture.reader import read_trial
 
     path = str(tmp_path / "S07_indoor_t03.mcap")
     write_recording(path, seconds=2.0)
@@ -197,12 +250,14 @@ def test_real_recording_end_to_end(capsys, tmp_path):
     assert (entry["subject"], entry["condition"]) == ("S07", "indoor")
     recorded = read_trial(path)
     assert entry["frames"] == len(recorded["probabilities"])
-    assert entry["accuracy"]["hmm"] == pytest.approx(live_accuracy(
-        "hmm", recorded["probabilities"], recorded["labels"]))
+    assert entry["accuracy"]["hmm"] == pytest.approx(
+        live_accuracy("hmm", recorded["probabilities"], recorded["labels"])
+    )
     code, out, _ = run(capsys, "eval", "recordings", path, "--reference", "truth", "--json")
     truth = json.loads(out)["files"][0]["accuracy"]
-    assert truth["cnn"] == pytest.approx(np.mean(
-        np.argmax(recorded["probabilities"], axis=1) == recorded["truth"]))
+    assert truth["cnn"] == pytest.approx(
+        np.mean(np.argmax(recorded["probabilities"], axis=1) == recorded["truth"])
+    )
 
 
 def test_a_folder_stands_for_its_recordings(capsys, monkeypatch, tmp_path):
@@ -212,8 +267,11 @@ def test_a_folder_stands_for_its_recordings(capsys, monkeypatch, tmp_path):
         path = tmp_path / f"S1_indoor_t0{i + 1}.mcap"
         path.write_bytes(b"")  # read through the stand-in reader below
         trials[str(path)] = {
-            "probabilities": t.probabilities, "labels": [MODES[r] for r in t.reference],
-            "truth": None, "metadata": {"subject": "S1", "condition": "indoor"}}
+            "probabilities": t.probabilities,
+            "labels": [MODES[r] for r in t.reference],
+            "truth": None,
+            "metadata": {"subject": "S1", "condition": "indoor"},
+        }
     reader = types.ModuleType("capture.reader")
     reader.read_trial = lambda path: trials[str(path)]
     monkeypatch.setitem(sys.modules, "capture.reader", reader)

@@ -1,4 +1,5 @@
 """Evaluation: offline = live, accuracies, delay sweep, statistics, score files, plots."""
+
 import sys
 import types
 
@@ -20,8 +21,9 @@ def live_final(fusion, probabilities):
     for out in [fusion.push(row) for row in probabilities] + fusion.flush():
         if out is None:
             continue
-        frame, decision = ((out.voted_frame, out.voted) if fusion.votes
-                           else (out.frame, out.decision))
+        frame, decision = (
+            (out.voted_frame, out.voted) if fusion.votes else (out.frame, out.decision)
+        )
         if frame is not None:
             final[frame] = decision
     return final
@@ -30,12 +32,19 @@ def live_final(fusion, probabilities):
 @pytest.fixture(scope="module")
 def trials():
     conditions = ["indoor", "indoor", "outdoor", "outdoor", "indoor", "outdoor"]
-    return [ev.synthetic_trial(i, accuracy=0.88, path=f"t{i}.mcap",
-                               metadata={"subject": f"S{i % 2 + 1}", "condition": c})
-            for i, c in enumerate(conditions)]
+    return [
+        ev.synthetic_trial(
+            i,
+            accuracy=0.88,
+            path=f"t{i}.mcap",
+            metadata={"subject": f"S{i % 2 + 1}", "condition": c},
+        )
+        for i, c in enumerate(conditions)
+    ]
 
 
 # --- running methods ---------------------------------------------------------------------
+
 
 @pytest.mark.parametrize("method", METHODS)
 def test_offline_decisions_are_the_live_ones(method, trials):
@@ -81,6 +90,7 @@ def test_trial_validates_its_inputs():
 
 
 # --- statistics --------------------------------------------------------------------------
+
 
 def test_mean_sd_and_paired_t_tests_match_scipy(trials):
     results = ev.evaluate(trials, ev.PAPER_METHODS)
@@ -130,13 +140,19 @@ def test_delay_sweep_aligns_methods_on_delayed_frames(trials):
         assert a["fixed-lag"][i, 0] == pytest.approx(base.accuracy["forward"])
         for d in (2, 3):  # each point is the method configured for that delay
             p = ev.FusionParameters(vote_delay=d, lag=d)
-            assert a["cnn+voting"][i, d] == ev.evaluate_trial(trial, ["cnn+voting"], p).accuracy[
-                "cnn+voting"]
-            assert a["fixed-lag"][i, d] == ev.evaluate_trial(trial, ["fixed-lag"], p).accuracy[
-                "fixed-lag"]
+            assert (
+                a["cnn+voting"][i, d]
+                == ev.evaluate_trial(trial, ["cnn+voting"], p).accuracy["cnn+voting"]
+            )
+            assert (
+                a["fixed-lag"][i, d]
+                == ev.evaluate_trial(trial, ["fixed-lag"], p).accuracy["fixed-lag"]
+            )
             p = ev.FusionParameters(vote_delay=d - 1)
-            assert a["hmm+voting"][i, d] == ev.evaluate_trial(trial, ["hmm+voting"], p).accuracy[
-                "hmm+voting"]
+            assert (
+                a["hmm+voting"][i, d]
+                == ev.evaluate_trial(trial, ["hmm+voting"], p).accuracy["hmm+voting"]
+            )
 
 
 def test_leave_one_out_transitions_exclude_the_trial_itself(trials):
@@ -157,8 +173,12 @@ def test_report_shape(trials):
     assert data["delay_frames"] == {"cnn": 0, "cnn+voting": 1, "hmm": 1, "hmm+voting": 2}
     assert all(0 <= v <= 1 for v in data["mean"].values())
     groups = {(g["condition"], g["subject"]): g["trials"] for g in data["groups"]}
-    assert groups == {("indoor", "S1"): 2, ("indoor", "S2"): 1, ("outdoor", "S1"): 1,
-                      ("outdoor", "S2"): 2}
+    assert groups == {
+        ("indoor", "S1"): 2,
+        ("indoor", "S2"): 1,
+        ("outdoor", "S1"): 1,
+        ("outdoor", "S2"): 2,
+    }
     assert [c["condition"] for c in data["conditions"]] == ["indoor", "outdoor"]
     assert data["sweep"]["mean"]["hmm"][0] is None
     assert data["sweep"]["mean"]["hmm"][1] == pytest.approx(data["mean"]["hmm"])
@@ -166,6 +186,7 @@ def test_report_shape(trials):
 
 
 # --- score files -------------------------------------------------------------------------
+
 
 def write(tmp_path, text, name="s.csv"):
     path = tmp_path / name
@@ -181,18 +202,21 @@ def test_read_scores(tmp_path):
     assert trial.path == path
 
 
-@pytest.mark.parametrize("text, where, words", [
-    ("", "", "empty file"),
-    (HEADER, "", "no frames"),
-    ("LG,US,DS,UR,label\n", ":1:", "expected the header"),
-    ("lg,us,ds,ur,dr,label\n0.2,0.2,0.2,0.2,0.2,LG\n", ":1:", "expected the header"),
-    (HEADER + "0.2,0.2,0.2,0.2,0.2,LG\n0.2,nan,0.2,0.2,0.2,LG\n", ":3:", "US: not a finite"),
-    (HEADER + "0.2,0.2,0.2,0.2,x,LG\n", ":2:", "DR: not a number"),
-    (HEADER + "0.6,-0.2,0.2,0.2,0.2,LG\n", ":2:", "US: negative"),
-    (HEADER + "0.5,0.2,0.2,0.2,0.2,LG\n", ":2:", "sum to 1.3"),
-    (HEADER + "0.2,0.2,0.2,0.2,0.2,XX\n", ":2:", "unknown label 'XX'"),
-    (HEADER + "0.2,0.2,0.2,0.2,0.2\n", ":2:", "expected 6 fields"),
-])
+@pytest.mark.parametrize(
+    "text, where, words",
+    [
+        ("", "", "empty file"),
+        (HEADER, "", "no frames"),
+        ("LG,US,DS,UR,label\n", ":1:", "expected the header"),
+        ("lg,us,ds,ur,dr,label\n0.2,0.2,0.2,0.2,0.2,LG\n", ":1:", "expected the header"),
+        (HEADER + "0.2,0.2,0.2,0.2,0.2,LG\n0.2,nan,0.2,0.2,0.2,LG\n", ":3:", "US: not a finite"),
+        (HEADER + "0.2,0.2,0.2,0.2,x,LG\n", ":2:", "DR: not a number"),
+        (HEADER + "0.6,-0.2,0.2,0.2,0.2,LG\n", ":2:", "US: negative"),
+        (HEADER + "0.5,0.2,0.2,0.2,0.2,LG\n", ":2:", "sum to 1.3"),
+        (HEADER + "0.2,0.2,0.2,0.2,0.2,XX\n", ":2:", "unknown label 'XX'"),
+        (HEADER + "0.2,0.2,0.2,0.2,0.2\n", ":2:", "expected 6 fields"),
+    ],
+)
 def test_bad_score_files_name_file_and_line(tmp_path, text, where, words):
     path = write(tmp_path, text)
     with pytest.raises(ev.ScoreFileError) as e:
@@ -210,10 +234,15 @@ def test_binary_score_file_is_a_clear_error(tmp_path):
 
 # --- recordings --------------------------------------------------------------------------
 
+
 def test_trial_from_recording_prefers_operator_labels():
     probs = np.full((3, 5), 0.2)
-    data = {"probabilities": probs, "labels": [None, "US", "US"], "truth": ["LG"] * 3,
-            "metadata": {"subject": "A1", "condition": "outdoor"}}
+    data = {
+        "probabilities": probs,
+        "labels": [None, "US", "US"],
+        "truth": ["LG"] * 3,
+        "metadata": {"subject": "A1", "condition": "outdoor"},
+    }
     trial = ev.trial_from_recording("a.mcap", data)
     np.testing.assert_array_equal(trial.reference, [-1, 1, 1])
     assert (trial.subject, trial.condition) == ("A1", "outdoor")
@@ -237,7 +266,9 @@ def test_recordings_through_the_reader(monkeypatch, trials):
     reader.read_trial = lambda path: {
         "probabilities": by_path[path].probabilities,
         "labels": [None] * len(by_path[path].reference),
-        "truth": [int(x) for x in by_path[path].reference], "metadata": by_path[path].metadata}
+        "truth": [int(x) for x in by_path[path].reference],
+        "metadata": by_path[path].metadata,
+    }
     monkeypatch.setitem(sys.modules, "capture.reader", reader)
     loaded = ev.load_trials_from_recordings([t.path for t in trials[:2]])
     np.testing.assert_array_equal(loaded[1].reference, trials[1].reference)
@@ -246,16 +277,25 @@ def test_recordings_through_the_reader(monkeypatch, trials):
 
 # --- figures -----------------------------------------------------------------------------
 
+
 def test_write_plots_writes_the_papers_figures(tmp_path, trials):
     methods = list(ev.PAPER_METHODS)
     results = ev.evaluate(trials, methods)
     sweep = ev.delay_sweep(trials, methods, 2)
     written = ev.write_plots(results, tmp_path / "fig", methods, sweep=sweep)
     names = sorted(p.name for p in written)
-    assert names == sorted([
-        "accuracy_per_subject_indoor.png", "accuracy_per_subject_outdoor.png",
-        "accuracy_vs_delay.png", "decisions_t0.png", "probabilities_t0.png",
-        "decisions_t2.png", "probabilities_t2.png", "confusion.png"])
+    assert names == sorted(
+        [
+            "accuracy_per_subject_indoor.png",
+            "accuracy_per_subject_outdoor.png",
+            "accuracy_vs_delay.png",
+            "decisions_t0.png",
+            "probabilities_t0.png",
+            "decisions_t2.png",
+            "probabilities_t2.png",
+            "confusion.png",
+        ]
+    )
     for p in written:
         assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and p.stat().st_size > 5000
 

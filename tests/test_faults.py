@@ -3,6 +3,7 @@
 Each fault gets one clear message, costs nothing already captured, and leaves the
 recording readable. Devices are the real mock backends (the IMU emulator behind a pty).
 """
+
 import os
 import shutil
 import subprocess
@@ -11,12 +12,11 @@ import time
 
 import numpy as np
 import pytest
+from test_session import StandInClassifier
 
 from capture.config import Config
 from capture.reader import open_recording, read_trial
 from capture.session import Session, SubjectInfo
-
-from test_session import StandInClassifier
 
 
 def wait_for(predicate, timeout=5.0, step=0.05):
@@ -46,7 +46,9 @@ def test_imu_unplug_and_replug_during_a_recording(tmp_path):
         session.set_label("LG")
         time.sleep(1.0)
         session._imu.inject("disconnect")
-        assert wait_for(lambda: session.snapshot().imu.state == "lost", 1.5), "unplug not seen in 1 s"
+        assert wait_for(lambda: session.snapshot().imu.state == "lost", 1.5), (
+            "unplug not seen in 1 s"
+        )
         frames_while_lost = session.snapshot().frames
         session.set_label("US")  # the operator keeps labelling
         time.sleep(0.8)
@@ -106,8 +108,9 @@ def small_disk(tmp_path):
     mount.mkdir()
     if os.geteuid() != 0 or shutil.which("mount") is None:
         pytest.skip("mounting a size-limited tmpfs needs root")
-    done = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=3m", "tmpfs", str(mount)],
-                          capture_output=True)
+    done = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", "size=3m", "tmpfs", str(mount)], capture_output=True
+    )
     if done.returncode != 0:
         pytest.skip(f"cannot mount tmpfs here: {done.stderr.decode().strip()}")
     yield mount
@@ -134,8 +137,9 @@ def test_disk_full_stops_the_recording_cleanly_and_keeps_it_readable(small_disk)
 
 
 def run_cli(*args, timeout=120):
-    return subprocess.run([sys.executable, "-m", "tui.cli", *args], capture_output=True,
-                          text=True, timeout=timeout)
+    return subprocess.run(
+        [sys.executable, "-m", "tui.cli", *args], capture_output=True, text=True, timeout=timeout
+    )
 
 
 def one_clear_line(out):
@@ -166,8 +170,9 @@ def garbage_and_cut(tmp_path_factory):
     return good, cut, garbage, flipped
 
 
-@pytest.mark.parametrize("command", [["info"], ["replay", "--fast"], ["eval", "recordings"],
-                                     ["recover"]])
+@pytest.mark.parametrize(
+    "command", [["info"], ["replay", "--fast"], ["eval", "recordings"], ["recover"]]
+)
 def test_garbage_files_are_one_clear_line(garbage_and_cut, command):
     _, _, garbage, _ = garbage_and_cut
     line = one_clear_line(run_cli(*command, str(garbage)))
@@ -196,11 +201,22 @@ def test_kill_9_while_recording_then_recover_loses_at_most_a_second_and_no_label
     import json
     import signal
 
-    from capture import recovery
-
-    proc = subprocess.Popen([sys.executable, "-m", "tui.cli", "record", "--out", str(tmp_path),
-                             "--auto-label", "--duration", "60"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "tui.cli",
+            "record",
+            "--out",
+            str(tmp_path),
+            "--auto-label",
+            "--duration",
+            "60",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         line = proc.stderr.readline()  # "recording PATH"
         assert line.startswith("recording "), line + proc.stderr.read()
@@ -230,8 +246,9 @@ def test_kill_9_while_recording_then_recover_loses_at_most_a_second_and_no_label
 def test_a_bad_model_file_is_one_clear_line(tmp_path):
     bad = tmp_path / "broken.pt"
     bad.write_bytes(b"not a torch file at all")
-    line = one_clear_line(run_cli("record", "--duration", "1", "--out", str(tmp_path),
-                                  "--model", str(bad)))
+    line = one_clear_line(
+        run_cli("record", "--duration", "1", "--out", str(tmp_path), "--model", str(bad))
+    )
     assert "broken.pt" in line
 
 

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
-
 import terrain_raycast as tr
+
 from inference.features import TerrainFeatures, terrain_features
 from inference.preprocess import PreprocessParams, preprocess
 
@@ -13,13 +13,13 @@ def poses(count: int, seed: int, pitch_deg: tuple[float, float]):
     camera heights of a walking subject, any heading."""
     rng = np.random.default_rng(seed)
     for k in range(count):
-        q = tr.thigh_quaternion(rng.uniform(*pitch_deg), rng.uniform(-3, 3),
-                                rng.uniform(-180, 180))
+        q = tr.thigh_quaternion(rng.uniform(*pitch_deg), rng.uniform(-3, 3), rng.uniform(-180, 180))
         yield q, rng.uniform(0.5, 0.6), k
 
 
-def features_over_poses(terrain, count: int = 8, seed: int = 0, hint=None,
-                        pitch_deg: tuple[float, float] = (-20, 10)):
+def features_over_poses(
+    terrain, count: int = 8, seed: int = 0, hint=None, pitch_deg: tuple[float, float] = (-20, 10)
+):
     """Features of the terrain seen from a set of poses, with the range noise of the
     authors' simulation (+-1 cm); frames the preprocessing flags are left out."""
     out = []
@@ -64,9 +64,12 @@ STAIRS = [(0.11, 0.29), (0.15, 0.33), (0.19, 0.37)]
 @pytest.mark.parametrize("riser, tread", STAIRS)
 def test_stairs_riser_and_tread_within_a_centimetre(riser, tread, up):
     # Going down, the thigh is raised less: the camera looks further down.
-    feats = features_over_poses(tr.stairs(riser, tread, first_m=0.2, up=up), count=10,
-                                seed=int(riser * 100) + up,
-                                pitch_deg=(-20, 10) if up else (-10, 15))
+    feats = features_over_poses(
+        tr.stairs(riser, tread, first_m=0.2, up=up),
+        count=10,
+        seed=int(riser * 100) + up,
+        pitch_deg=(-20, 10) if up else (-10, 15),
+    )
     stairs = [f for f in feats if f.kind == "stairs"]
     assert len(stairs) >= 0.7 * len(feats) >= 5
     assert all(f.direction == ("up" if up else "down") for f in stairs)
@@ -94,8 +97,7 @@ def sagittal(polyline, spacing=0.003, noise=0.0, seed=0):
 def test_the_fused_decision_only_relaxes_the_evidence():
     # Level ground with a short incline (20 cm long, 14 degrees) in the middle.
     k = np.tan(np.radians(14))
-    profile = sagittal([(0.3, -0.55), (0.7, -0.55), (0.9, -0.55 + 0.2 * k),
-                        (1.4, -0.55 + 0.2 * k)])
+    profile = sagittal([(0.3, -0.55), (0.7, -0.55), (0.9, -0.55 + 0.2 * k), (1.4, -0.55 + 0.2 * k)])
     assert terrain_features(profile).kind == "level"
     hinted = terrain_features(profile, "UR")
     assert hinted.kind == "ramp" and hinted.slope_deg == pytest.approx(14.0, abs=1.0)
@@ -107,8 +109,17 @@ def test_the_fused_decision_only_relaxes_the_evidence():
 
 def test_stairs_from_a_clean_profile():
     # Up stairs as the camera sees them: treads and risers, nothing hidden.
-    profile = sagittal([(0.3, -0.55), (0.5, -0.55), (0.5, -0.39), (0.8, -0.39), (0.8, -0.23),
-                        (1.1, -0.23), (1.1, -0.07)])
+    profile = sagittal(
+        [
+            (0.3, -0.55),
+            (0.5, -0.55),
+            (0.5, -0.39),
+            (0.8, -0.39),
+            (0.8, -0.23),
+            (1.1, -0.23),
+            (1.1, -0.07),
+        ]
+    )
     f = terrain_features(profile)
     assert f.kind == "stairs" and f.direction == "up"
     assert f.riser_m == pytest.approx(0.16, abs=0.003)
@@ -117,10 +128,16 @@ def test_stairs_from_a_clean_profile():
     assert len(f.segments) >= 6
 
 
-@pytest.mark.parametrize("profile", [
-    np.zeros((0, 2)), np.full((50, 2), np.nan), np.ones((3, 2)), np.zeros((100, 2)),
-    np.random.default_rng(0).normal(size=(500, 2)),
-])
+@pytest.mark.parametrize(
+    "profile",
+    [
+        np.zeros((0, 2)),
+        np.full((50, 2), np.nan),
+        np.ones((3, 2)),
+        np.zeros((100, 2)),
+        np.random.default_rng(0).normal(size=(500, 2)),
+    ],
+)
 def test_degenerate_profiles_are_unknown(profile):
     f = terrain_features(profile)
     assert isinstance(f, TerrainFeatures) and f.kind == "unknown"

@@ -1,4 +1,5 @@
 """Sequential decision fusion: Algorithm 1, voting, baselines, transition matrices."""
+
 import numpy as np
 import pytest
 
@@ -6,8 +7,17 @@ from capture.config import PAPER_TRANSITION as CONFIG_TRANSITION
 from inference.errors import InferenceError
 from inference.evaluation import accuracy, run_offline, synthetic_trial
 from inference.fusion import (
-    METHODS, PAPER_TRANSITION, FixedLagSmoother, ForwardFilter, HmmFusion, Voter,
-    bench_fusion, design_transition, estimate_transition, make_fusion, paper_viterbi,
+    METHODS,
+    PAPER_TRANSITION,
+    FixedLagSmoother,
+    ForwardFilter,
+    HmmFusion,
+    Voter,
+    bench_fusion,
+    design_transition,
+    estimate_transition,
+    make_fusion,
+    paper_viterbi,
     validate_transition,
 )
 
@@ -38,6 +48,7 @@ def stream(fusion, probabilities):
 
 # --- transition matrices -----------------------------------------------------------------
 
+
 def test_paper_matrix_is_the_authors_and_the_six_rules_with_defaults():
     np.testing.assert_array_equal(T, np.array(CONFIG_TRANSITION))
     np.testing.assert_allclose(design_transition(), T, atol=1e-15)
@@ -57,20 +68,28 @@ def test_designed_matrix_follows_the_six_rules():
     assert t[1, 3] == 0.02 and t[1, 2] == pytest.approx(0.01)
 
 
-@pytest.mark.parametrize("kwargs", [
-    dict(stay=0.1), dict(stay=0.8, to_level=0.25), dict(same_direction=0.005),
-])
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        dict(stay=0.1),
+        dict(stay=0.8, to_level=0.25),
+        dict(same_direction=0.005),
+    ],
+)
 def test_designs_breaking_the_rules_are_refused(kwargs):
     with pytest.raises(InferenceError):
         design_transition(**kwargs)
 
 
-@pytest.mark.parametrize("matrix, words", [
-    (np.eye(4), "5 rows"),
-    (np.where(np.eye(5, dtype=bool), 1.0, 0.0), "positive"),
-    (T * 0.9, "row LG sums to 0.9"),
-    ("nonsense", "5 rows"),
-])
+@pytest.mark.parametrize(
+    "matrix, words",
+    [
+        (np.eye(4), "5 rows"),
+        (np.where(np.eye(5, dtype=bool), 1.0, 0.0), "positive"),
+        (T * 0.9, "row LG sums to 0.9"),
+        ("nonsense", "5 rows"),
+    ],
+)
 def test_invalid_transition_matrices_name_the_problem(matrix, words):
     with pytest.raises(InferenceError, match=words):
         validate_transition(matrix, "fusion.transition")
@@ -86,6 +105,7 @@ def test_estimated_transition_counts_labeled_pairs_with_smoothing():
 
 
 # --- Algorithm 1 -------------------------------------------------------------------------
+
 
 def test_one_update_by_hand():
     """Window 1, two frames: the formulas of Algorithm 1 written out directly."""
@@ -162,10 +182,15 @@ def test_reset_starts_a_new_sequence():
         np.testing.assert_array_equal(x, y)
 
 
-@pytest.mark.parametrize("bad, words", [
-    ([0.5, 0.5], "expected 5"), ([np.nan, 0.2, 0.2, 0.3, 0.3], "not a probability"),
-    ([-0.1, 0.3, 0.3, 0.3, 0.2], "not a probability"), ([0, 0, 0, 0, 0], "not a probability"),
-])
+@pytest.mark.parametrize(
+    "bad, words",
+    [
+        ([0.5, 0.5], "expected 5"),
+        ([np.nan, 0.2, 0.2, 0.3, 0.3], "not a probability"),
+        ([-0.1, 0.3, 0.3, 0.3, 0.2], "not a probability"),
+        ([0, 0, 0, 0, 0], "not a probability"),
+    ],
+)
 def test_bad_probability_vectors_are_refused(bad, words):
     with pytest.raises(InferenceError, match=words):
         HmmFusion().push(np.array(bad, dtype=float))
@@ -184,6 +209,7 @@ def test_hmm_beats_the_cnn_on_noisy_blocks():
 
 
 # --- voting ------------------------------------------------------------------------------
+
 
 def test_voting_window_cut_at_the_ends_and_ties_to_the_smallest_mode():
     voter = Voter(1)
@@ -209,7 +235,7 @@ def test_voting_equals_the_mode_over_the_window():
                 votes[out[0]] = out[1]
         votes.update(voter.flush())
         for f in range(len(d)):
-            window = d[max(0, f - lv): f + lv + 1]
+            window = d[max(0, f - lv) : f + lv + 1]
             counts = np.bincount(window, minlength=5)
             assert votes[f] == int(np.argmax(counts)), (lv, f)
 
@@ -219,14 +245,17 @@ def test_voting_delays_and_combines_with_the_hmm():
     fusion = make_fusion("hmm+voting", window=5, vote_delay=2)
     assert fusion.delay_frames == 3 and fusion.votes
     outs = [fusion.push(row) for row in e]
-    voted = [(t, o.voted_frame) for t, o in enumerate(outs)
-             if o is not None and o.voted_frame is not None]
+    voted = [
+        (t, o.voted_frame)
+        for t, o in enumerate(outs)
+        if o is not None and o.voted_frame is not None
+    ]
     assert voted[0] == (3, 0) and all(t - f == 3 for t, f in voted)
     assert all(o.voted_frame_index == o.voted_frame for o in outs if o is not None)
     hmm, _, _ = stream(make_fusion("hmm"), e)
     _, votes, _ = stream(make_fusion("hmm+voting", window=5, vote_delay=2), e)
     for f in range(30):
-        assert votes[f] == np.argmax(np.bincount(hmm[max(0, f - 2): f + 3], minlength=5))
+        assert votes[f] == np.argmax(np.bincount(hmm[max(0, f - 2) : f + 3], minlength=5))
 
 
 def test_cnn_baselines():
@@ -241,6 +270,7 @@ def test_cnn_baselines():
 
 
 # --- standard HMM baselines --------------------------------------------------------------
+
 
 def forward_backward(e, t):
     n = len(e)
@@ -277,8 +307,14 @@ def test_forward_filter_and_fixed_lag_smoother_match_batch_forward_backward():
 
 def test_make_fusion_knows_every_method_and_its_delay():
     delays = {m: make_fusion(m, window=5, vote_delay=3, lag=2).delay_frames for m in METHODS}
-    assert delays == {"cnn": 0, "cnn+voting": 3, "hmm": 1, "hmm+voting": 4, "forward": 0,
-                      "fixed-lag": 2}
+    assert delays == {
+        "cnn": 0,
+        "cnn+voting": 3,
+        "hmm": 1,
+        "hmm+voting": 4,
+        "forward": 0,
+        "fixed-lag": 2,
+    }
     with pytest.raises(InferenceError, match="unknown fusion method"):
         make_fusion("kalman")
     with pytest.raises(InferenceError, match="window"):

@@ -1,4 +1,5 @@
 """`walkcap imu`: decode captures, identify and stream a device, run the emulator."""
+
 import json
 import subprocess
 import sys
@@ -14,17 +15,32 @@ pytestmark = pytest.mark.timeout(60)
 
 
 def capture_bytes() -> bytes:
-    every = {"packet_counter": 1, "sample_time_fine": 1000, "sample_time_coarse": 0,
-             "quaternion": (1.0, 0.0, 0.0, 0.0), "euler": (1.0, 2.0, 3.0),
-             "rotation_matrix": ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)),
-             "acceleration": (0.0, 0.0, 9.75), "free_acceleration": (0.0, 0.0, 0.0),
-             "delta_v": (0.0, 0.0, 0.0975), "rate_of_turn": (0.5, 0.0, 0.0),
-             "delta_q": (1.0, 0.0, 0.0, 0.0), "magnetic_field": (0.0, 0.4, -0.9),
-             "temperature": 30.5, "baro_pressure": 101325, "status_word": 3}
+    every = {
+        "packet_counter": 1,
+        "sample_time_fine": 1000,
+        "sample_time_coarse": 0,
+        "quaternion": (1.0, 0.0, 0.0, 0.0),
+        "euler": (1.0, 2.0, 3.0),
+        "rotation_matrix": ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)),
+        "acceleration": (0.0, 0.0, 9.75),
+        "free_acceleration": (0.0, 0.0, 0.0),
+        "delta_v": (0.0, 0.0, 0.0975),
+        "rate_of_turn": (0.5, 0.0, 0.0),
+        "delta_q": (1.0, 0.0, 0.0, 0.0),
+        "magnetic_field": (0.0, 0.4, -0.9),
+        "temperature": 30.5,
+        "baro_pressure": 101325,
+        "status_word": 3,
+    }
     full = xbus.build(xbus.MID.MTDATA2, xbus.encode_mtdata2(every))
     unknown = b"\x77\x70\x02ab"  # an unknown identifier, skipped by its size
-    small = xbus.build(xbus.MID.MTDATA2, unknown + xbus.encode_mtdata2(
-        {"packet_counter": 2, "quaternion": (0.0, 1.0, 0.0, 0.0)}, xbus.FP1632))
+    small = xbus.build(
+        xbus.MID.MTDATA2,
+        unknown
+        + xbus.encode_mtdata2(
+            {"packet_counter": 2, "quaternion": (0.0, 1.0, 0.0, 0.0)}, xbus.FP1632
+        ),
+    )
     bad = bytearray(full)
     bad[20] ^= 0xFF
     ack = xbus.build(xbus.MID.GOTO_CONFIG_ACK)
@@ -45,8 +61,9 @@ def test_decode_json_lines_and_summary(tmp_path, capsys):
     assert second == {"packet_counter": 2, "quaternion": [0.0, 1.0, 0.0, 0.0]}
     # resyncs: the corrupted and the cut message (no good one between); the junk before
     # the first message is a start mid-stream
-    assert summary == {"summary": {"messages": 2, "checksum_errors": 2, "resyncs": 1,
-                                   "unknown_ids": 1}}
+    assert summary == {
+        "summary": {"messages": 2, "checksum_errors": 2, "resyncs": 1, "unknown_ids": 1}
+    }
 
 
 def test_decode_table(tmp_path, capsys):
@@ -80,8 +97,12 @@ def test_info_on_a_missing_port_is_one_line(capsys, tmp_path):
 
 def test_stream_mock_with_a_raw_capture_that_decodes(tmp_path, capsys):
     raw = tmp_path / "raw.bin"
-    assert cli.main(["imu", "stream", "mock", "--seconds", "1.2", "--interval", "0.4",
-                     "--raw", str(raw)]) == 0
+    assert (
+        cli.main(
+            ["imu", "stream", "mock", "--seconds", "1.2", "--interval", "0.4", "--raw", str(raw)]
+        )
+        == 0
+    )
     out = capsys.readouterr().out.splitlines()
     assert "MTi-3-8A7G6" in out[0]
     assert any("Hz" in line and "rpy" in line for line in out[1:])
@@ -91,13 +112,18 @@ def test_stream_mock_with_a_raw_capture_that_decodes(tmp_path, capsys):
 
 
 def test_emulate_prints_its_port_and_list_runs():
-    out = subprocess.run([sys.executable, "-m", "tui.cli", "imu", "emulate", "--seconds", "0.3"],
-                         capture_output=True, text=True, timeout=60)
+    out = subprocess.run(
+        [sys.executable, "-m", "tui.cli", "imu", "emulate", "--seconds", "0.3"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert out.returncode == 0, out.stderr
     assert out.stdout.splitlines()[0].endswith("ttyIMU")
     assert "walkcap imu stream" in out.stderr
-    listed = subprocess.run([sys.executable, "-m", "tui.cli", "imu", "list"],
-                            capture_output=True, text=True, timeout=60)
+    listed = subprocess.run(
+        [sys.executable, "-m", "tui.cli", "imu", "list"], capture_output=True, text=True, timeout=60
+    )
     assert listed.returncode == 0 and listed.stdout.strip()
 
 

@@ -1,4 +1,5 @@
 """Device clock -> host clock: drift tracked, jitter rejected, wraps and restarts handled."""
+
 import numpy as np
 import pytest
 
@@ -8,9 +9,17 @@ RATE = 100  # samples per second
 TICKS_PER_SAMPLE = 10_000 // RATE
 
 
-def simulate(seconds: float, drift_ppm: float = 50.0, jitter_ms: float = 2.0,
-             latency_ms: float = 0.3, start_ticks: int = 123_456, seed: int = 0,
-             spikes: float = 0.02, clock: DeviceClock | None = None, t0_ns: int = 10**12):
+def simulate(
+    seconds: float,
+    drift_ppm: float = 50.0,
+    jitter_ms: float = 2.0,
+    latency_ms: float = 0.3,
+    start_ticks: int = 123_456,
+    seed: int = 0,
+    spikes: float = 0.02,
+    clock: DeviceClock | None = None,
+    t0_ns: int = 10**12,
+):
     """Feed a clock as a device would: samples on device ticks, late by latency + jitter.
 
     Returns the clock and per sample (true host time + latency, mapped time).
@@ -33,7 +42,7 @@ def simulate(seconds: float, drift_ppm: float = 50.0, jitter_ms: float = 2.0,
 def test_drift_and_jitter_mapped_within_a_fraction_of_a_millisecond():
     clock, truth, mapped = simulate(10.0, drift_ppm=50.0, jitter_ms=2.0)
     err_ms = np.abs(mapped - truth) * 1e-6
-    assert err_ms[3 * RATE:].max() < 0.15  # after 3 s
+    assert err_ms[3 * RATE :].max() < 0.15  # after 3 s
     assert clock.drift_ppm == pytest.approx(50.0, abs=10.0)
     state = clock.state()
     assert 0.5 < state.residual_ms < 3.0  # jitter (mean 1 ms) plus spikes, above the envelope
@@ -47,7 +56,7 @@ def test_drift_and_jitter_mapped_within_a_fraction_of_a_millisecond():
 def test_drift_estimate_follows_the_device(drift):
     clock, truth, mapped = simulate(20.0, drift_ppm=drift, jitter_ms=2.0, seed=3)
     assert clock.drift_ppm == pytest.approx(drift, abs=5.0)
-    assert np.abs(mapped - truth)[5 * RATE:].max() < 0.15e6
+    assert np.abs(mapped - truth)[5 * RATE :].max() < 0.15e6
 
 
 def test_first_sample_maps_to_its_receive_time():
@@ -59,7 +68,7 @@ def test_first_sample_maps_to_its_receive_time():
 def test_sample_time_fine_wrap_is_seamless():
     start = WRAP - 3 * 10_000  # wraps 3 s in
     clock, truth, mapped = simulate(8.0, start_ticks=start, seed=1)
-    assert np.abs(mapped - truth)[3 * RATE:].max() < 0.15e6
+    assert np.abs(mapped - truth)[3 * RATE :].max() < 0.15e6
     assert clock.state().resets == 0
 
 

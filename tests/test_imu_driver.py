@@ -1,4 +1,5 @@
 """The Xbus driver against the device emulator over a real pty (pyserial and termios too)."""
+
 import os
 import time
 from types import SimpleNamespace
@@ -55,13 +56,19 @@ def mock_imu():
 
 # ----------------------------------------------------------------------------- configuration
 
+
 def test_configuration_sequence_and_info(mock_imu):
     imu = mock_imu(rate_hz=100)
     imu.open()
     requests = [r for r in imu.emulator.requests if r != MID.WAKEUP_ACK]
     assert MID.GOTO_CONFIG in requests[:-5]
-    assert requests[-5:] == [MID.REQ_DID, MID.REQ_PRODUCT_CODE, MID.REQ_FW_REV,
-                             MID.SET_OUTPUT_CONFIGURATION, MID.GOTO_MEASUREMENT]
+    assert requests[-5:] == [
+        MID.REQ_DID,
+        MID.REQ_PRODUCT_CODE,
+        MID.REQ_FW_REV,
+        MID.SET_OUTPUT_CONFIGURATION,
+        MID.GOTO_MEASUREMENT,
+    ]
     assert imu.info["device_id"] == "03881234"
     assert imu.info["product_code"] == "MTi-3-8A7G6"
     assert imu.info["firmware"].startswith("1.8.2")
@@ -136,14 +143,18 @@ def test_emulator_answers_malformed_and_unsupported_requests_with_error():
             raise AssertionError("no answer")
 
         assert ask(MID.GOTO_CONFIG).mid == MID.GOTO_CONFIG_ACK
-        assert (ask(MID.GOTO_CONFIG, b"\x01").mid, ask(MID.REQ_DID, b"x").data) == \
-            (MID.ERROR, bytes([xbus.INVALID_MESSAGE]))
+        assert (ask(MID.GOTO_CONFIG, b"\x01").mid, ask(MID.REQ_DID, b"x").data) == (
+            MID.ERROR,
+            bytes([xbus.INVALID_MESSAGE]),
+        )
         assert ask(MID.REQ_CONFIGURATION).data == bytes([xbus.INVALID_MESSAGE])
         assert ask(0x77).data == bytes([xbus.INVALID_MESSAGE])
-        assert ask(MID.SET_OUTPUT_CONFIGURATION, b"\x20\x10\x00").data == \
-            bytes([xbus.INVALID_MESSAGE])
-        assert ask(MID.SET_OUTPUT_CONFIGURATION, b"\x55\x50\x00\x64").data == \
-            bytes([xbus.INVALID_PARAMETER])
+        assert ask(MID.SET_OUTPUT_CONFIGURATION, b"\x20\x10\x00").data == bytes(
+            [xbus.INVALID_MESSAGE]
+        )
+        assert ask(MID.SET_OUTPUT_CONFIGURATION, b"\x55\x50\x00\x64").data == bytes(
+            [xbus.INVALID_PARAMETER]
+        )
         assert ask(MID.REQ_BAUDRATE, b"\x42").data == bytes([xbus.INVALID_BAUDRATE])
         assert ask(MID.REQ_BAUDRATE).data == b"\x02"  # 115200
         assert ask(MID.GOTO_MEASUREMENT).mid == MID.GOTO_MEASUREMENT_ACK
@@ -153,6 +164,7 @@ def test_emulator_answers_malformed_and_unsupported_requests_with_error():
 
 
 # ----------------------------------------------------------------------------- streaming
+
 
 def body_rate(t: float) -> np.ndarray:
     """The default gait's body rate, analytically: roll and pitch (Z-Y-X Euler, no yaw)."""
@@ -171,7 +183,7 @@ def test_rate_counters_and_sensor_model_without_noise(mock_imu):
     assert imu.status().configured_rate_hz == 50
     counters = [s.packet_counter for s in samples]
     assert counters == list(range(counters[0], counters[0] + len(counters)))
-    ticks = np.diff([s.sample_time_fine for s in samples]) % 2 ** 32
+    ticks = np.diff([s.sample_time_fine for s in samples]) % 2**32
     assert set(ticks) == {200}  # 50 Hz on the device's 10 kHz clock
     for s in samples[::7]:
         t = (imu.true_time_ns(s.sample_time_fine) - imu.emulator.start_time_ns) * 1e-9
@@ -186,8 +198,12 @@ def test_rate_counters_and_sensor_model_without_noise(mock_imu):
 
 
 def test_ned_output_is_turned_into_the_same_enu_orientation(mock_imu):
-    imu = mock_imu(rate_hz=100, noise=False, coordinate_system="NED",
-                   outputs=("packet_counter", "sample_time_fine", "quaternion", "euler"))
+    imu = mock_imu(
+        rate_hz=100,
+        noise=False,
+        coordinate_system="NED",
+        outputs=("packet_counter", "sample_time_fine", "quaternion", "euler"),
+    )
     imu.start()
     samples = collect(imu, 0.5)
     assert imu.info["output_configuration"][2]["coordinate_system"] == "NED"
@@ -206,8 +222,9 @@ def test_drift_and_jitter_mapped_within_half_a_millisecond(mock_imu):
     errors_ms = np.array([s.time_ns - imu.true_time_ns(s.sample_time_fine) for s in late]) * 1e-6
     assert np.abs(errors_ms).max() < 0.5, (errors_ms.min(), errors_ms.max())
     # Raw receive times carry the wire time and the jitter: several milliseconds off.
-    receive_ms = np.array([s.host_time_ns - imu.true_time_ns(s.sample_time_fine)
-                           for s in late]) * 1e-6
+    receive_ms = (
+        np.array([s.host_time_ns - imu.true_time_ns(s.sample_time_fine) for s in late]) * 1e-6
+    )
     assert receive_ms.mean() > 5.0
     details = imu.status().details
     # Over 7 s a busy host leaves the slope loose; test_imu_clock checks it closely.
@@ -225,6 +242,7 @@ def test_time_ns_is_always_an_estimate_even_for_the_first_sample(mock_imu):
 
 
 # ----------------------------------------------------------------------------- faults
+
 
 def test_corrupted_and_dropped_packets_are_counted(mock_imu):
     imu = mock_imu(rate_hz=100)
@@ -304,8 +322,10 @@ def test_stop_and_close_are_idempotent_and_leave_nothing_running(mock_imu):
     imu.stop()
     assert imu.status().state == "stopped"
     assert not imu.emulator.plugged
-    assert not any(t.name.startswith("walkcap-imu") and t.is_alive()
-                   for t in __import__("threading").enumerate())
+    assert not any(
+        t.name.startswith("walkcap-imu") and t.is_alive()
+        for t in __import__("threading").enumerate()
+    )
 
 
 def test_open_imu_mock_from_a_config():

@@ -1,13 +1,14 @@
 """`walkcap info` and `walkcap recover` on good, cut-off and garbage files."""
+
 from __future__ import annotations
 
 import subprocess
 import sys
 
 import pytest
+from recording_fixtures import write_recording
 
 from capture.journal import journal_path
-from recording_fixtures import write_recording
 from tui import cli
 
 
@@ -55,8 +56,12 @@ def test_info_on_garbage_is_one_clear_line(tmp_path, capsys, content):
 
 
 def test_info_on_a_missing_file_is_one_clear_line(tmp_path):
-    out = subprocess.run([sys.executable, "-m", "tui.cli", "info", str(tmp_path / "x.mcap")],
-                         capture_output=True, text=True, timeout=120)
+    out = subprocess.run(
+        [sys.executable, "-m", "tui.cli", "info", str(tmp_path / "x.mcap")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert out.returncode == 1 and "Traceback" not in out.stderr
     assert out.stderr == f"walkcap info: error: {tmp_path / 'x.mcap'}: no such file\n"
 

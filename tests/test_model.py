@@ -1,4 +1,5 @@
 """The terrain CNN: architecture, initialisation, inference paths, safe files, errors."""
+
 import json
 
 import numpy as np
@@ -8,7 +9,13 @@ import torch
 from devices.frames import MODES
 from inference.errors import InferenceError
 from inference.model import (
-    BUNDLED_PATH, BUSY, Classifier, TerrainCNN, bench_cnn, load_classifier, metadata_path,
+    BUNDLED_PATH,
+    BUSY,
+    Classifier,
+    TerrainCNN,
+    bench_cnn,
+    load_classifier,
+    metadata_path,
     save_model,
 )
 
@@ -62,8 +69,9 @@ def _terrain_like(n: int, seed: int = 0) -> np.ndarray:
     images = np.zeros((n, 100, 100), np.uint8)
     for img in images[1:]:
         cols = np.arange(100)
-        rows = np.clip(60 + rng.integers(-15, 15) + (cols * rng.uniform(-0.3, 0.3)).astype(int),
-                       0, 97)
+        rows = np.clip(
+            60 + rng.integers(-15, 15) + (cols * rng.uniform(-0.3, 0.3)).astype(int), 0, 97
+        )
         for t in range(3):
             img[rows + t, cols] = 1
         img[rng.integers(0, 100, 10), rng.integers(0, 100, 10)] = 1
@@ -106,8 +114,9 @@ def test_the_sparse_path_works_on_the_band_of_rows_an_image_occupies():
     net = _trained_looking()
     clf = Classifier(net)
     bands = [(0, 0), (0, 7), (99, 99), (93, 99), (41, 41), (40, 43), (25, 80), (1, 98)]
-    images = np.stack([_band(a, b, seed=i) for i, (a, b) in enumerate(bands)]
-                      + [np.zeros((100, 100), np.uint8)])
+    images = np.stack(
+        [_band(a, b, seed=i) for i, (a, b) in enumerate(bands)] + [np.zeros((100, 100), np.uint8)]
+    )
     ref = _network_probs(net, images)
     one = np.stack([clf.predict(img) for img in images])
     np.testing.assert_allclose(one, ref, atol=1e-5)
@@ -140,8 +149,9 @@ def test_save_and_load_round_trip(tmp_path):
     assert meta["data"] == {"sessions": 3}
     clf = load_classifier(str(path), device="cpu")
     images = _images(4)
-    np.testing.assert_allclose(clf.predict_batch(images), Classifier(net).predict_batch(images),
-                               atol=1e-6)
+    np.testing.assert_allclose(
+        clf.predict_batch(images), Classifier(net).predict_batch(images), atol=1e-6
+    )
     assert clf.metadata["weights_sha256"] == meta["weights_sha256"]
     assert load_classifier(str(metadata_path(path))).path == str(path)  # the .json works too
 
@@ -228,8 +238,9 @@ def test_mismatched_file_is_one_clear_error(tmp_path):
     torch.save({"weight": torch.zeros(3)}, path)
     import hashlib
 
-    metadata_path(path).write_text(json.dumps(
-        {**meta, "weights_sha256": hashlib.sha256(path.read_bytes()).hexdigest()}))
+    metadata_path(path).write_text(
+        json.dumps({**meta, "weights_sha256": hashlib.sha256(path.read_bytes()).hexdigest()})
+    )
     with pytest.raises(InferenceError) as e:
         load_classifier(str(path))
     assert "does not match" in _one_line(e)
@@ -237,8 +248,13 @@ def test_mismatched_file_is_one_clear_error(tmp_path):
 
 def test_bench_cnn_reports_its_figures():
     result = bench_cnn(frames=20)
-    assert set(result) == {"cnn_frame_ms", "cnn_frame_busy_ms", "cnn_batch_rate",
-                           "walk_patches_occupied", "walk_band_rows"}
+    assert set(result) == {
+        "cnn_frame_ms",
+        "cnn_frame_busy_ms",
+        "cnn_batch_rate",
+        "walk_patches_occupied",
+        "walk_band_rows",
+    }
     assert min(result.values()) > 0
     # A walk's images are sparse and fill a band: what the sparse path's cost rests on.
     assert result["walk_patches_occupied"] < BUSY and result["walk_band_rows"] < 0.5

@@ -46,10 +46,17 @@ def test_wait_until_returns_when_a_later_sample_arrives():
     assert not track.wait_until(5000, 0.01)
 
 
-@pytest.mark.parametrize("field, value", [
-    ("subject", "Jane Doe"), ("height_m", 3.0), ("sex", "x"), ("side", "up"),
-    ("trial", 0), ("condition", "in door"),
-])
+@pytest.mark.parametrize(
+    "field, value",
+    [
+        ("subject", "Jane Doe"),
+        ("height_m", 3.0),
+        ("sex", "x"),
+        ("side", "up"),
+        ("trial", 0),
+        ("condition", "in door"),
+    ],
+)
 def test_subject_info_validation_names_the_field(field, value):
     info = SubjectInfo(**{field: value})
     with pytest.raises(CaptureError, match=field.split("_")[0]):

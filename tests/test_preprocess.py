@@ -2,13 +2,20 @@ import json
 
 import numpy as np
 import pytest
+import terrain_raycast as tr
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import terrain_raycast as tr
 from devices.frames import DepthFrame
-from inference.preprocess import (PreprocessParams, Preprocessed, bench_preprocess,
-                                  leveling_matrix, preprocess, preprocess_frame, rasterise)
+from inference.preprocess import (
+    Preprocessed,
+    PreprocessParams,
+    bench_preprocess,
+    leveling_matrix,
+    preprocess,
+    preprocess_frame,
+    rasterise,
+)
 
 PARAMS = PreprocessParams()
 POSES = [(-20, 0, 0), (-10, 3, 40), (0, -4, -120), (10, 2, 170), (-5, 5, 75)]
@@ -66,8 +73,17 @@ def test_image_is_the_authors_grid_with_the_documented_orientation():
 
 def test_rasterise_follows_the_authors_rule():
     # Mid-cell values: a value on a cell boundary may fall either side in float32.
-    profile = np.array([[0.50, -0.50], [0.605, -0.395], [0.555, -0.455], [1.485, -0.495],
-                        [1.495, -0.45], [0.70, 0.495]], np.float32)
+    profile = np.array(
+        [
+            [0.50, -0.50],
+            [0.605, -0.395],
+            [0.555, -0.455],
+            [1.485, -0.495],
+            [1.495, -0.45],
+            [0.70, 0.495],
+        ],
+        np.float32,
+    )
     image, origin = rasterise(profile)
     assert origin == pytest.approx((0.49, -0.51))
     expected = np.zeros((100, 100), np.uint8)
@@ -104,8 +120,9 @@ def test_heading_does_not_matter(terrain):
     assert iou(images[0], images[1]) > 0.97 and iou(images[0], images[2]) > 0.97
 
 
-@pytest.mark.parametrize("terrain", [tr.stairs(0.15, 0.3), tr.stairs(0.15, 0.3, up=False),
-                                     tr.ramp(15)])
+@pytest.mark.parametrize(
+    "terrain", [tr.stairs(0.15, 0.3), tr.stairs(0.15, 0.3, up=False), tr.ramp(15)]
+)
 def test_backends_agree(terrain):
     q = tr.thigh_quaternion(0, 2, 10)
     xyz, conf = tr.render(terrain, q, noise_m=0.005)
@@ -197,8 +214,7 @@ def test_some_nans_are_dropped_not_fatal():
 
 
 @settings(max_examples=40, deadline=None)
-@given(st.integers(0, 2 ** 32 - 1), st.sampled_from([np.nan, np.inf, 0.0, 1e30]),
-       st.floats(0, 1))
+@given(st.integers(0, 2**32 - 1), st.sampled_from([np.nan, np.inf, 0.0, 1e30]), st.floats(0, 1))
 def test_never_raises(seed, special, fraction):
     rng = np.random.default_rng(seed)
     xyz = rng.normal(0, 2, (17, 23, 3)).astype(np.float32)
@@ -231,8 +247,16 @@ def test_params_from_config_and_to_dict():
     assert params.backend == "open3d" and params.outlier_min_points == 0
 
 
-@pytest.mark.parametrize("bad", [{"backend": "gpu"}, {"cell_m": 0.0}, {"grid_size": 0},
-                                 {"corridor_width_m": -0.1}, {"max_forward_m": -1.0}])
+@pytest.mark.parametrize(
+    "bad",
+    [
+        {"backend": "gpu"},
+        {"cell_m": 0.0},
+        {"grid_size": 0},
+        {"corridor_width_m": -0.1},
+        {"max_forward_m": -1.0},
+    ],
+)
 def test_bad_params_are_a_user_error(bad):
     from inference.errors import InferenceError
 
@@ -243,8 +267,14 @@ def test_bad_params_are_a_user_error(bad):
 def test_preprocess_frame_and_grid_size():
     q = tr.thigh_quaternion(-10, 0, 0)
     xyz, conf = tr.render(tr.stairs(0.15, 0.3), q)
-    frame = DepthFrame(index=0, device_time_ns=0, host_time_ns=0, xyz=xyz, confidence=conf,
-                       gray=np.zeros(conf.shape, np.uint16))
+    frame = DepthFrame(
+        index=0,
+        device_time_ns=0,
+        host_time_ns=0,
+        xyz=xyz,
+        confidence=conf,
+        gray=np.zeros(conf.shape, np.uint16),
+    )
     out = preprocess_frame(frame, q, PreprocessParams(grid_size=64, cell_m=0.02))
     assert out.ok and out.image.shape == (64, 64)
 

@@ -1,16 +1,26 @@
 """The Python reader: trials as per-frame arrays, depth frames, finished and unfinished files."""
+
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from recording_fixtures import (
+    ATTACHMENTS,
+    FPS,
+    T0,
+    frame_at,
+    frame_time,
+    label_schedule,
+    probabilities,
+    truth_mode,
+    write_recording,
+)
 
 from capture import topics as T
 from capture.errors import CaptureError
-from capture.reader import (depth_frames, find_gaps, labels_at, open_recording, read_trial)
+from capture.reader import depth_frames, find_gaps, labels_at, open_recording, read_trial
 from capture.recorder import Recorder
 from devices.frames import MODES
-from recording_fixtures import (ATTACHMENTS, FPS, T0, frame_at, frame_time, label_schedule, probabilities,
-                                truth_mode, write_recording)
 
 
 @pytest.fixture(scope="module")
@@ -31,8 +41,10 @@ def test_read_trial_gives_per_frame_arrays_with_the_label_in_force(recording):
     # fused decisions are filed under the frame they refer to (one earlier), votes two earlier
     expected = [MODES.index(truth_mode(i)) if 1 <= i <= n - 2 else -1 for i in range(n)]
     np.testing.assert_array_equal(trial["decisions"], expected)
-    assert trial["voted"][0] == -1 and (trial["voted"][n - 2:] == -1).all()
-    np.testing.assert_array_equal(trial["voted"][1:n - 2], [MODES.index(truth_mode(i)) for i in range(1, n - 2)])
+    assert trial["voted"][0] == -1 and (trial["voted"][n - 2 :] == -1).all()
+    np.testing.assert_array_equal(
+        trial["voted"][1 : n - 2], [MODES.index(truth_mode(i)) for i in range(1, n - 2)]
+    )
     np.testing.assert_array_equal(trial["truth"], [MODES.index(truth_mode(i)) for i in range(n)])
     changes = label_schedule(2.0)
     assert trial["label_changes"] == changes
@@ -43,10 +55,15 @@ def test_read_trial_gives_per_frame_arrays_with_the_label_in_force(recording):
 
 
 def test_labels_at_handles_undo_to_nothing_and_same_time_changes():
-    changes = [(10, "LG", "operator"), (20, "US", "operator"), (20, "DS", "operator"),
-               (30, "", "undo:DS")]
-    np.testing.assert_array_equal(labels_at(np.array([5, 10, 19, 20, 29, 30, 99]), changes),
-                                  [-1, 0, 0, 2, 2, -1, -1])
+    changes = [
+        (10, "LG", "operator"),
+        (20, "US", "operator"),
+        (20, "DS", "operator"),
+        (30, "", "undo:DS"),
+    ]
+    np.testing.assert_array_equal(
+        labels_at(np.array([5, 10, 19, 20, 29, 30, 99]), changes), [-1, 0, 0, 2, 2, -1, -1]
+    )
 
 
 def test_without_truth_the_trial_says_so(tmp_path):
@@ -82,7 +99,9 @@ def test_log_times_from_the_index_match_a_full_read(recording):
     rec = open_recording(recording)
     times = rec.log_times()
     for topic in (T.DEPTH, T.IMU, T.LABELS):
-        np.testing.assert_array_equal(times[topic], sorted(m.log_time_ns for m in rec.messages(topic)))
+        np.testing.assert_array_equal(
+            times[topic], sorted(m.log_time_ns for m in rec.messages(topic))
+        )
 
 
 def test_an_unfinished_file_reads_up_to_its_cut(recording, tmp_path):
@@ -116,13 +135,14 @@ def test_a_finished_file_is_read_one_chunk_at_a_time(tmp_path):
     path = tmp_path / "long.mcap"
     write_recording(path, seconds=2.0, chunk_interval_s=0.25)
     with open(path, "rb") as f:
-        chunks = sorted(make_reader(f).get_summary().chunk_indexes,
-                        key=lambda c: c.chunk_start_offset)
+        chunks = sorted(
+            make_reader(f).get_summary().chunk_indexes, key=lambda c: c.chunk_start_offset
+        )
     assert len(chunks) >= 4
     data = bytearray(path.read_bytes())
     last = chunks[-1]
     middle = last.chunk_start_offset + last.chunk_length // 2
-    data[middle:middle + 64] = bytes(64)  # zeros inside the last chunk's compressed data
+    data[middle : middle + 64] = bytes(64)  # zeros inside the last chunk's compressed data
     path.write_bytes(bytes(data))
     frames = depth_frames(path)
     first = next(frames)
@@ -131,15 +151,17 @@ def test_a_finished_file_is_read_one_chunk_at_a_time(tmp_path):
         list(frames)
     # chunks without a wanted topic are skipped, not opened: the labels come out whole
     rec = open_recording(path)
-    assert [m.data["mode"] for m in rec.messages(T.LABELS)] == \
-        [mode for _, mode, _ in label_schedule(2.0)]
+    assert [m.data["mode"] for m in rec.messages(T.LABELS)] == [
+        mode for _, mode, _ in label_schedule(2.0)
+    ]
 
 
 def test_frames_after_the_truth_stops_come_out_as_they_are_read(tmp_path, monkeypatch):
     """A frame waits for its truth only so long: where the truth stops, frames still
     stream (damage at the end of the file shows after them, not before)."""
-    import capture.reader as reader
     from mcap.reader import make_reader
+
+    import capture.reader as reader
 
     monkeypatch.setattr(reader, "_TRUTH_WAIT_FRAMES", 4)
     path = tmp_path / "half.mcap"
@@ -154,7 +176,7 @@ def test_frames_after_the_truth_stops_come_out_as_they_are_read(tmp_path, monkey
         last = max(make_reader(f).get_summary().chunk_indexes, key=lambda c: c.chunk_start_offset)
     data = bytearray(path.read_bytes())
     middle = last.chunk_start_offset + last.chunk_length // 2
-    data[middle:middle + 64] = bytes(64)
+    data[middle : middle + 64] = bytes(64)
     path.write_bytes(bytes(data))
     frames = []
     with pytest.raises(CaptureError, match="damaged"):

@@ -1,5 +1,6 @@
 """The recorder: every topic decodes with the schema in the file, depth is exact to 0.5 mm,
 writes never block, drops are counted and recorded, write errors end in a readable file."""
+
 from __future__ import annotations
 
 import errno
@@ -15,6 +16,17 @@ from mcap.reader import make_reader
 from mcap.records import Chunk, Message
 from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap_protobuf.decoder import DecoderFactory
+from recording_fixtures import (
+    ATTACHMENTS,
+    FPS,
+    METADATA,
+    T0,
+    frame_at,
+    frame_time,
+    imu_sample,
+    label_schedule,
+    write_recording,
+)
 
 from capture import topics as T
 from capture.errors import CaptureError
@@ -23,8 +35,6 @@ from capture.reader import depth_frames, open_recording
 from capture.recorder import Recorder, _TrackedFile, synthetic_frame
 from capture.recovery import recover
 from devices.frames import CameraGeometry
-from recording_fixtures import (ATTACHMENTS, FPS, METADATA, T0, frame_at, frame_time,
-                                      imu_sample, label_schedule, write_recording)
 
 
 def decode_all(path):
@@ -55,23 +65,41 @@ def test_every_topic_round_trips_and_decodes_with_the_schema_in_the_file(tmp_pat
     msgs = decode_all(path)
     n = int(2.0 * FPS)
     assert {t: len(v) for t, v in msgs.items()} == {
-        T.DEPTH: n, T.CONFIDENCE: n, T.CLOUD: n, T.BINARY_IMAGE: n, T.PREPROCESS: n,
-        T.TF: n - 1, T.IMU: len(msgs[T.IMU]), T.CNN: n, T.FUSED: n - 2, T.FEATURES: n,
-        T.TRUTH: n, T.LABELS: len(label_schedule(2.0)), T.EVENTS: 2}
+        T.DEPTH: n,
+        T.CONFIDENCE: n,
+        T.CLOUD: n,
+        T.BINARY_IMAGE: n,
+        T.PREPROCESS: n,
+        T.TF: n - 1,
+        T.IMU: len(msgs[T.IMU]),
+        T.CNN: n,
+        T.FUSED: n - 2,
+        T.FEATURES: n,
+        T.TRUTH: n,
+        T.LABELS: len(label_schedule(2.0)),
+        T.EVENTS: 2,
+    }
     assert len(msgs[T.IMU]) == 198  # up to the last frame at 89/45 s, 100 Hz
 
     message, depth = msgs[T.DEPTH][7]  # times: log = host receive, publish = sample time
     assert (message.sequence, message.log_time, message.publish_time) == (
-        7, frame_at(7).host_time_ns, frame_time(7))
+        7,
+        frame_at(7).host_time_ns,
+        frame_time(7),
+    )
     assert depth.encoding == "16UC1" and depth.step == 2 * depth.width
     assert depth.timestamp.seconds * 10**9 + depth.timestamp.nanos == frame_time(7)
 
     _, tf = msgs[T.TF][0]
     assert (tf.parent_frame_id, tf.child_frame_id) == ("world", "camera")
-    assert tf.rotation.w == pytest.approx(np.cos(0.1)) and tf.rotation.y == pytest.approx(np.sin(0.1))
+    assert tf.rotation.w == pytest.approx(np.cos(0.1)) and tf.rotation.y == pytest.approx(
+        np.sin(0.1)
+    )
     _, cloud = msgs[T.CLOUD][3]
     xyz = T.cloud_from_message(cloud)
-    expected = np.column_stack([np.linspace(0.0, 1.5, 300), np.zeros(300), np.full(300, -0.55) + 0.003])
+    expected = np.column_stack(
+        [np.linspace(0.0, 1.5, 300), np.zeros(300), np.full(300, -0.55) + 0.003]
+    )
     assert xyz.dtype == np.float32 and np.abs(xyz - expected).max() <= T.CLOUD_QUANTUM_M / 2 + 1e-6
     _, image = msgs[T.BINARY_IMAGE][0]
     img = T.image_from_message(image)
@@ -146,7 +174,9 @@ def test_range_quantisation_bound_on_random_points():
     assert np.linalg.norm(back - xyz, axis=-1).max() <= 0.0005 + 1e-6
 
 
-def test_a_full_queue_drops_counts_and_records_but_never_blocks_or_loses_labels(tmp_path, monkeypatch):
+def test_a_full_queue_drops_counts_and_records_but_never_blocks_or_loses_labels(
+    tmp_path, monkeypatch
+):
     path = tmp_path / "slow.mcap"
     real = Recorder._encode_frame
 
@@ -197,8 +227,11 @@ def sensor_spans_per_chunk(path) -> list[int]:
         spans = []
         for record in StreamReader(f, emit_chunks=True).records:
             if isinstance(record, Chunk):
-                times = [m.log_time for m in breakup_chunk(record) if isinstance(m, Message)
-                         and topic[m.channel_id] in (T.DEPTH, T.IMU)]
+                times = [
+                    m.log_time
+                    for m in breakup_chunk(record)
+                    if isinstance(m, Message) and topic[m.channel_id] in (T.DEPTH, T.IMU)
+                ]
                 spans.append(max(times) - min(times) if times else 0)
     return spans
 
@@ -231,9 +264,12 @@ def test_chunks_close_every_second_of_data_and_by_the_wall_clock(tmp_path):
 def test_each_recorder_compresses_at_its_own_level(tmp_path):
     # Two recorders at once, as a replay might run beside a live session's recording.
     fast, small = tmp_path / "fast.mcap", tmp_path / "small.mcap"
-    threads = [threading.Thread(target=write_recording, args=(path,),
-                                kwargs={"seconds": 2.0, "zstd_level": level})
-               for path, level in ((fast, 1), (small, 19))]
+    threads = [
+        threading.Thread(
+            target=write_recording, args=(path,), kwargs={"seconds": 2.0, "zstd_level": level}
+        )
+        for path, level in ((fast, 1), (small, 19))
+    ]
     for t in threads:
         t.start()
     for t in threads:
@@ -331,8 +367,9 @@ def test_clouds_are_thinned_to_one_point_per_2_cm_voxel(tmp_path):
     from capture.reader import open_recording
 
     rng = np.random.default_rng(3)
-    dense = np.column_stack([rng.uniform(0, 1, 20000), rng.uniform(-0.05, 0.05, 20000),
-                             np.zeros(20000)]).astype(np.float32)  # a floor, densely sampled
+    dense = np.column_stack(
+        [rng.uniform(0, 1, 20000), rng.uniform(-0.05, 0.05, 20000), np.zeros(20000)]
+    ).astype(np.float32)  # a floor, densely sampled
     path = tmp_path / "c.mcap"
     with Recorder(path, metadata={}) as rec:
         rec.write_processed(0, 1000, 1000, dense, np.zeros((100, 100), np.uint8), None, "")

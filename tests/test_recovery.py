@@ -1,5 +1,6 @@
 """Recovery: a recording cut anywhere (kill -9, power loss) becomes a valid indexed MCAP
 with at most a second of sensor data lost and every journaled label present."""
+
 from __future__ import annotations
 
 import json
@@ -13,8 +14,10 @@ from pathlib import Path
 
 import pytest
 from mcap.reader import make_reader
-from mcap.stream_reader import breakup_chunk
 from mcap.records import Chunk, Message
+from mcap.stream_reader import breakup_chunk
+from recording_fixtures import FPS, write_recording
+from test_recorder import decode_all
 
 from capture import topics as T
 from capture.errors import CaptureError
@@ -22,8 +25,6 @@ from capture.journal import journal_path, read_journal
 from capture.reader import open_recording
 from capture.recovery import NotMcapError, recover
 from devices.clock import now_ns
-from recording_fixtures import FPS, write_recording
-from test_recorder import decode_all
 
 TESTS = Path(__file__).parent
 
@@ -46,14 +47,19 @@ def depth_per_chunk(path: Path) -> list[tuple[int, int, int]]:
             from mcap.data_stream import ReadDataStream
 
             chunk = Chunk.read(ReadDataStream(f))
-            n = sum(1 for r in breakup_chunk(chunk) if isinstance(r, Message) and r.channel_id == depth)
+            n = sum(
+                1 for r in breakup_chunk(chunk) if isinstance(r, Message) and r.channel_id == depth
+            )
             out.append((index.chunk_start_offset, index.chunk_start_offset + index.chunk_length, n))
     return out
 
 
 def journal_labels(path: Path) -> set:
-    return {(e["time_ns"], e["mode"], e["source"]) for e in read_journal(journal_path(path))
-            if e["type"] == "label"}
+    return {
+        (e["time_ns"], e["mode"], e["source"])
+        for e in read_journal(journal_path(path))
+        if e["type"] == "label"
+    }
 
 
 def file_labels(msgs) -> set:
@@ -61,7 +67,9 @@ def file_labels(msgs) -> set:
 
 
 @pytest.mark.parametrize("fraction", [0.0, 0.07, 0.31, 0.5, 0.77, 0.93, 0.9995])
-def test_a_file_cut_anywhere_recovers_complete_chunks_and_every_label(recording, tmp_path, fraction):
+def test_a_file_cut_anywhere_recovers_complete_chunks_and_every_label(
+    recording, tmp_path, fraction
+):
     data = recording.read_bytes()
     cut_at = max(20, int(len(data) * fraction))  # 20: inside the header record
     cut = tmp_path / "cut.mcap"
@@ -101,7 +109,10 @@ def test_recovering_a_complete_file_changes_nothing(recording, tmp_path):
     assert report.labels_added == 0 and report.events_added == 0
     before, after = decode_all(recording), decode_all(report.output)
     assert {t: len(v) for t, v in before.items()} == {t: len(v) for t, v in after.items()}
-    assert open_recording(report.output).metadata["session"] == open_recording(recording).metadata["session"]
+    assert (
+        open_recording(report.output).metadata["session"]
+        == open_recording(recording).metadata["session"]
+    )
     assert open_recording(report.output).metadata["recovery"]["source_complete"] == "True"
 
 
@@ -134,7 +145,8 @@ RECORD_UNTIL_KILLED = textwrap.dedent("""
     next_label = start
     while True:
         t = now_ns()
-        rec.write_frame(dataclasses.replace(frames[i % 4], index=i, device_time_ns=t, host_time_ns=t))
+        frame = dataclasses.replace(frames[i % 4], index=i, device_time_ns=t, host_time_ns=t)
+        rec.write_frame(frame)
         rec.write_processed(i, t, t, np.zeros((500, 3)), np.zeros((100, 100), np.uint8),
                             np.array([1.0, 0, 0, 0]), "")
         for k in range(2):
@@ -150,8 +162,12 @@ RECORD_UNTIL_KILLED = textwrap.dedent("""
 
 def test_kill_9_while_recording_loses_at_most_a_second_and_no_label(tmp_path):
     path = tmp_path / "killed.mcap"
-    proc = subprocess.Popen([sys.executable, "-c", RECORD_UNTIL_KILLED, str(path)],
-                            stdout=subprocess.PIPE, text=True, cwd=TESTS.parent)
+    proc = subprocess.Popen(
+        [sys.executable, "-c", RECORD_UNTIL_KILLED, str(path)],
+        stdout=subprocess.PIPE,
+        text=True,
+        cwd=TESTS.parent,
+    )
     try:
         assert proc.stdout.readline().strip() == "recording"
         time.sleep(2.7)

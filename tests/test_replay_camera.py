@@ -1,11 +1,11 @@
 import time
 
 import pytest
+from recording_fixtures import write_recording
 
 from capture.config import CameraConfig
 from devices.camera import open_camera
 from devices.errors import DeviceNotAvailable
-from recording_fixtures import write_recording
 
 
 def test_plays_the_recorded_frames_in_order(tmp_path):

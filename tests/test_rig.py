@@ -3,6 +3,7 @@
 The host side is what it would be with hardware: frames arriving, and the real Xbus driver
 on the emulator's pseudo-terminal.
 """
+
 import os
 import signal
 import subprocess
@@ -100,9 +101,14 @@ def test_the_rig_ends_when_the_host_dies(tmp_path):
         "from capture.session import open_devices\n"
         "camera, imu = open_devices(Config())\n"
         "print(camera.rig._child.pid, flush=True)\n"
-        "time.sleep(60)\n")
-    host = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True,
-                            env={**os.environ, "PYTHONPATH": os.getcwd()})
+        "time.sleep(60)\n"
+    )
+    host = subprocess.Popen(
+        [sys.executable, str(script)],
+        stdout=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONPATH": os.getcwd()},
+    )
     try:
         child = int(host.stdout.readline())
         assert alive(child)

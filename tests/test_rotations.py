@@ -23,8 +23,11 @@ def test_matrix_round_trip(roll, pitch, yaw):
 def test_product_composes_matrices():
     a = r.quat_from_euler(0.1, 0.2, 0.3)
     b = r.quat_from_euler(-0.4, 0.5, 0.6)
-    np.testing.assert_allclose(r.quat_to_matrix(r.quat_multiply(a, b)),
-                               r.quat_to_matrix(a) @ r.quat_to_matrix(b), atol=1e-12)
+    np.testing.assert_allclose(
+        r.quat_to_matrix(r.quat_multiply(a, b)),
+        r.quat_to_matrix(a) @ r.quat_to_matrix(b),
+        atol=1e-12,
+    )
 
 
 def test_positive_pitch_points_the_camera_down():

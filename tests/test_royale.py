@@ -1,4 +1,5 @@
 """The royale backend against a stand-in module shaped like pmd's roypy binding."""
+
 import threading
 import time
 import types
@@ -11,8 +12,14 @@ from devices.camera import open_camera
 from devices.errors import DeviceInitError, DeviceNotAvailable
 from devices.royale import RoyaleCamera, choose_use_case, use_case_fps
 
-USE_CASES = ["MODE_9_5FPS_2000", "MODE_9_10FPS_1000", "MODE_9_15FPS_700", "MODE_9_25FPS_450",
-             "MODE_5_35FPS_600", "MODE_5_45FPS_500"]
+USE_CASES = [
+    "MODE_9_5FPS_2000",
+    "MODE_9_10FPS_1000",
+    "MODE_9_15FPS_700",
+    "MODE_9_25FPS_450",
+    "MODE_5_35FPS_600",
+    "MODE_5_45FPS_500",
+]
 W, H = 224, 171
 
 
@@ -77,8 +84,12 @@ class FakeDevice:
     def getLensParameters(self):
         if self.sdk.lens_style == "royale5":
             return {"fx": 210.0, "fy": 211.0, "cx": 113.0, "cy": 84.5, "k1": 0.1}
-        return {"principalPoint": (113.0, 84.5), "focalLength": (210.0, 211.0),
-                "distortionTangential": (0.0, 0.0), "distortionRadial": (0.1, 0.0, 0.0)}
+        return {
+            "principalPoint": (113.0, 84.5),
+            "focalLength": (210.0, 211.0),
+            "distortionTangential": (0.0, 0.0),
+            "distortionRadial": (0.1, 0.0, 0.0),
+        }
 
     def registerDataListener(self, listener):
         assert isinstance(listener, self.sdk.IDepthDataListener)
@@ -164,6 +175,7 @@ def frames_from(cam, n, timeout=2.0):
 
 # ---- without the SDK -----------------------------------------------------------------------
 
+
 def test_without_roypy_choosing_royale_fails_with_one_line(monkeypatch):
     monkeypatch.setitem(__import__("sys").modules, "roypy", None)  # import roypy fails
     with pytest.raises(DeviceNotAvailable) as e:
@@ -186,14 +198,22 @@ def test_the_cli_shows_it_as_one_line(monkeypatch, tmp_path, capsys):
 
 # ---- use cases -----------------------------------------------------------------------------
 
+
 def test_use_case_names_carry_the_frame_rate():
     assert use_case_fps("MODE_9_15FPS_700") == 15.0
     assert use_case_fps("Low_Noise_Extended") is None
 
 
-@pytest.mark.parametrize("fps, expected", [(15, "MODE_9_15FPS_700"), (45, "MODE_5_45FPS_500"),
-                                           (5, "MODE_9_5FPS_2000"), (30, "MODE_5_35FPS_600"),
-                                           (60, "MODE_5_45FPS_500")])
+@pytest.mark.parametrize(
+    "fps, expected",
+    [
+        (15, "MODE_9_15FPS_700"),
+        (45, "MODE_5_45FPS_500"),
+        (5, "MODE_9_5FPS_2000"),
+        (30, "MODE_5_35FPS_600"),
+        (60, "MODE_5_45FPS_500"),
+    ],
+)
 def test_the_use_case_nearest_the_configured_fps_is_chosen(fps, expected):
     assert choose_use_case(USE_CASES, fps) == expected
 
@@ -204,6 +224,7 @@ def test_a_use_case_the_camera_lacks_is_an_error_listing_the_offered():
 
 
 # ---- a live camera -------------------------------------------------------------------------
+
 
 def test_opens_the_first_camera_with_the_use_case_for_15_fps(roypy):
     cam = open_camera(royale(fps=15))
@@ -288,6 +309,7 @@ def test_a_use_case_the_camera_refuses_is_an_init_error(roypy):
 
 
 # ---- a recording ---------------------------------------------------------------------------
+
 
 def test_plays_an_rrf_recording_through_the_sdk(roypy, tmp_path):
     rrf = tmp_path / "stairs.rrf"

@@ -3,6 +3,7 @@
 A stand-in classifier keeps these tests independent of the bundled weights; the devices,
 preprocessing, fusion and recorder are the real ones.
 """
+
 import os
 import threading
 import time
@@ -66,8 +67,18 @@ def test_recording_is_named_from_the_session_and_complete(recorded):
     assert path.name.startswith("S07_indoor_t03_") and path.suffix == ".mcap"
     assert stats.state == "stopped" and stats.dropped == 0
     rec = open_recording(path)
-    for topic in ("/camera/depth", "/camera/cloud", "/camera/binary_image", "/tf", "/imu",
-                  "/labels", "/events", "/inference/cnn", "/inference/fused", "/sim/truth"):
+    for topic in (
+        "/camera/depth",
+        "/camera/cloud",
+        "/camera/binary_image",
+        "/tf",
+        "/imu",
+        "/labels",
+        "/events",
+        "/inference/cnn",
+        "/inference/fused",
+        "/sim/truth",
+    ):
         assert topic in rec.topics, topic
     assert rec.metadata["session"]["subject"] == "S07"
     assert rec.metadata["software"]["model_hash"] == "stand-in"
@@ -99,7 +110,9 @@ def test_labels_markers_and_undo_are_recorded(recorded):
 def test_fused_decisions_refer_to_earlier_frames(recorded):
     path, _, _, _ = recorded
     fused = [m.data for m in open_recording(path).messages(["/inference/fused"])]
-    cnn = {m.data["frame_index"]: m.sequence for m in open_recording(path).messages(["/inference/cnn"])}
+    cnn = {
+        m.data["frame_index"]: m.sequence for m in open_recording(path).messages(["/inference/cnn"])
+    }
     assert fused
     first = min(cnn)  # frames before the recording started are decided in it too
     for f in fused:
@@ -184,9 +197,11 @@ def test_realtime_priority_goes_to_the_given_thread_alone_where_permitted(monkey
 
         def refused(*args):
             raise PermissionError(1, "Operation not permitted")
+
         monkeypatch.setattr(os, "sched_setscheduler", refused)
-        assert realtime_priority(thread.native_id, 10) == \
-            "normal (real-time priority not permitted)"
+        assert (
+            realtime_priority(thread.native_id, 10) == "normal (real-time priority not permitted)"
+        )
     finally:
         waiting.set()
         thread.join()
@@ -211,8 +226,9 @@ def test_fast_replay_in_two_processes_matches_a_paced_one(recorded, tmp_path):
     """The reader process and batched classification change nothing but the speed."""
     path, _, _, _ = recorded
     fast = replay(path, Config(), output=tmp_path / "fast.mcap", classifier=StandInClassifier())
-    paced = replay(path, Config(), output=tmp_path / "paced.mcap", speed=50.0,
-                   classifier=StandInClassifier())
+    paced = replay(
+        path, Config(), output=tmp_path / "paced.mcap", speed=50.0, classifier=StandInClassifier()
+    )
     a, b = read_trial(fast.output), read_trial(paced.output)
     assert fast.frames == paced.frames > 30
     for key in ("frame_index", "probabilities", "cnn_decisions", "decisions", "voted"):

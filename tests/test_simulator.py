@@ -1,11 +1,17 @@
 """The terrain-walk simulator: courses, walker, rendering, ground truth, error images."""
+
 import numpy as np
 import pytest
 
 from devices.frames import MODES, DepthFrame
 from devices.rotations import mounting_matrix, quat_to_matrix
 from devices.simulator import (
-    PAPER_TRIAL, ErrorEvent, Simulator, Walk, bench_sim_frame, make_course,
+    PAPER_TRIAL,
+    ErrorEvent,
+    Simulator,
+    Walk,
+    bench_sim_frame,
+    make_course,
 )
 from devices.simulator.simulator import VOTE_DT_S, switch_once
 
@@ -22,8 +28,9 @@ def outdoor():
 
 def leveled(frame: DepthFrame, tilt_deg: float = 35.0) -> np.ndarray:
     """Valid points rotated as the capture pipeline does: thigh quaternion and mounting."""
-    rotation = quat_to_matrix(np.array(frame.truth["thigh_quaternion"])) @ \
-        mounting_matrix(0, tilt_deg, 0)
+    rotation = quat_to_matrix(np.array(frame.truth["thigh_quaternion"])) @ mounting_matrix(
+        0, tilt_deg, 0
+    )
     return frame.xyz[frame.confidence > 0] @ rotation.T
 
 
@@ -37,6 +44,7 @@ def clean_times(sim: Simulator, mode: str, fps: float = 15.0):
 
 
 # ---- courses -------------------------------------------------------------------------------
+
 
 def test_default_course_is_one_trial_of_the_paper():
     course = make_course()
@@ -93,6 +101,7 @@ def test_unknown_names_are_errors():
 
 # ---- walker --------------------------------------------------------------------------------
 
+
 def test_walker_swings_the_thigh_and_climbs_with_the_terrain():
     course = make_course("indoor", 0)
     walk = Walk(course, seed=0)
@@ -113,25 +122,29 @@ def test_walker_swings_the_thigh_and_climbs_with_the_terrain():
 def test_thigh_quaternion_accepts_arrays():
     walk = Walk(make_course("indoor", 0))
     t = np.array([0.5, 3.0, 7.25])
-    np.testing.assert_allclose(walk.thigh_quaternion(t),
-                               np.stack([walk.thigh_quaternion(ti) for ti in t]))
+    np.testing.assert_allclose(
+        walk.thigh_quaternion(t), np.stack([walk.thigh_quaternion(ti) for ti in t])
+    )
 
 
 def test_error_image_rates_per_preset():
     def share(preset):
         frames = errors = 0
         for seed in range(12):
-            walk = Walk(make_course(preset, seed), seed=seed,
-                        error_rate=1.6 if preset == "outdoor" else 1.0)
+            walk = Walk(
+                make_course(preset, seed), seed=seed, error_rate=1.6 if preset == "outdoor" else 1.0
+            )
             t = np.arange(0, walk.duration_s, 1 / 15)
             frames += len(t)
             errors += sum(walk.event_at(ti) is not None for ti in t)
         return errors / frames
+
     indoor, outdoor = share("indoor"), share("outdoor")
     assert 0.015 < indoor < 0.06 and indoor < outdoor < 0.09
 
 
 # ---- rendering -----------------------------------------------------------------------------
+
 
 def test_frames_look_like_royale_frames(indoor, outdoor):
     for sim, t in ((indoor, 2.0), (outdoor, 6.0), (indoor, 12.0)):
@@ -169,8 +182,9 @@ def test_camera_pose_is_the_thigh_composed_with_the_mounting(indoor):
     pose = np.array(f.truth["camera_pose"])
     q = indoor.thigh_quaternion(3.3)
     np.testing.assert_allclose(f.truth["thigh_quaternion"], q)
-    np.testing.assert_allclose(pose[:3, :3], quat_to_matrix(q) @ mounting_matrix(0, 35, 0),
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        pose[:3, :3], quat_to_matrix(q) @ mounting_matrix(0, 35, 0), atol=1e-12
+    )
 
 
 def test_leveled_level_ground_lies_one_camera_height_below(indoor):
@@ -223,6 +237,7 @@ def test_stairs_show_treads_one_riser_apart(indoor):
 
 # ---- ground truth --------------------------------------------------------------------------
 
+
 def test_truth_mode_switches_once_per_transition(indoor):
     t = np.arange(0, indoor.duration_s, 1 / 15)
     segments = [indoor.truth_segment(ti) for ti in t]
@@ -253,8 +268,7 @@ def test_truth_mode_is_the_terrain_in_view(indoor, outdoor):
 def test_switch_once_ignores_glances_and_looks_back():
     # a glance ahead (index 2) and looks back after the switch (9, 10) change nothing
     votes = [0, 0, 1, 0, 0, 0, 1, 1, 1, 0, 0, 1, 1, 1, 1, 2, 2]
-    np.testing.assert_array_equal(
-        switch_once(votes, 3), [0] * 6 + [1] * 9 + [2] * 2)
+    np.testing.assert_array_equal(switch_once(votes, 3), [0] * 6 + [1] * 9 + [2] * 2)
     # no vote (None) and a tie: the switch comes at the first moment it may
     np.testing.assert_array_equal(switch_once([0, None, 1, 0, 1, 1], 2), [0, 1, 1, 1, 1, 1])
     np.testing.assert_array_equal(switch_once([None, None], 2), [1, 1])
@@ -285,6 +299,7 @@ def test_few_frames_are_ambiguous_or_wrong_looking(indoor):
 
 
 # ---- error images --------------------------------------------------------------------------
+
 
 def forced(kind: str, t: float = 2.0) -> tuple[DepthFrame, DepthFrame]:
     """The same moment rendered without and with an error image of `kind`."""
@@ -328,6 +343,7 @@ def test_error_image_swing_blur_is_noisy_and_holed():
     def spread(f):
         p = leveled(f)
         return np.std(p[(np.abs(p[:, 1]) < 0.1) & (p[:, 0] < 1.5), 2])
+
     assert spread(blur) > 2 * spread(plain)
 
 

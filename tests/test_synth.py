@@ -1,4 +1,5 @@
 """`walkcap synth --format dataset`, the dataset files, `walkcap train` and `eval model`."""
+
 import argparse
 import json
 
@@ -7,7 +8,11 @@ import pytest
 
 from devices.frames import MODES
 from inference.dataset import (
-    LabeledSession, read_session, read_sessions, session_plan, write_session,
+    LabeledSession,
+    read_session,
+    read_sessions,
+    session_plan,
+    write_session,
 )
 from inference.errors import InferenceError
 from tui import cli
@@ -29,8 +34,10 @@ def test_session_plan_alternates_presets_with_consecutive_seeds():
 
 def test_synth_writes_one_compressed_session_per_walk(tmp_path, capsys):
     out = tmp_path / "set"
-    assert cli.main(["synth", "--out", str(out), "--sessions", "2", "--seed", "5",
-                     "--frames", "4"]) == 0
+    assert (
+        cli.main(["synth", "--out", str(out), "--sessions", "2", "--seed", "5", "--frames", "4"])
+        == 0
+    )
     files = sorted(out.glob("*.npz"))
     assert [f.name for f in files] == ["indoor-000005.npz", "outdoor-000006.npz"]
     s = read_session(files[1])
@@ -46,16 +53,18 @@ def test_synth_writes_one_compressed_session_per_walk(tmp_path, capsys):
     # Deterministic for a seed.
     again = tmp_path / "again"
     cli.main(["synth", "--out", str(again), "--sessions", "1", "--seed", "5", "--frames", "4"])
-    np.testing.assert_array_equal(read_session(again / "indoor-000005.npz").images,
-                                  read_session(files[0]).images)
+    np.testing.assert_array_equal(
+        read_session(again / "indoor-000005.npz").images, read_session(files[0]).images
+    )
 
 
 def test_dataset_files_round_trip_and_bad_files_are_one_line(tmp_path):
     rng = np.random.default_rng(0)
     images = (rng.random((7, 100, 100)) < 0.1).astype(np.uint8)
     labels = np.array([0, 1, 2, 3, 4, -1, 0])
-    s = LabeledSession("walk", images, labels, "indoor", flags=np.array([""] * 6 + ["x"]),
-                       meta={"seed": 3})
+    s = LabeledSession(
+        "walk", images, labels, "indoor", flags=np.array([""] * 6 + ["x"]), meta={"seed": 3}
+    )
     path = write_session(tmp_path / "walk.npz", s)
     back = read_session(path)
     np.testing.assert_array_equal(back.images, images)
@@ -65,8 +74,7 @@ def test_dataset_files_round_trip_and_bad_files_are_one_line(tmp_path):
     assert back.view_modes is None and back.errors is None  # a recording's session has none
     # The simulator's truth travels with the frames, and labelled() keeps it aligned.
     views, errors = np.array(list("ABCDEFG")), np.array([""] * 5 + ["sky", "foot"])
-    truth = write_session(tmp_path / "truth.npz", s, extra={"view_modes": views,
-                                                             "errors": errors})
+    truth = write_session(tmp_path / "truth.npz", s, extra={"view_modes": views, "errors": errors})
     kept = read_session(truth).labelled()
     assert list(kept.view_modes) == list("ABCDEG") and list(kept.errors) == [""] * 5 + ["foot"]
     write_session(tmp_path / "short.npz", s, extra={"view_modes": views[:3], "errors": errors})
@@ -104,8 +112,27 @@ def test_train_and_eval_model_commands(tmp_path, capsys, monkeypatch):
     model = tmp_path / "m.pt"
     kept = []  # the command keeps its freed memory; the test process must not
     monkeypatch.setattr("inference.training.keep_freed_memory", lambda: kept.append(1))
-    assert cli.main(["train", "--data", str(data), "--out", str(model), "--epochs", "1",
-                     "--max-steps", "2", "--hidden", "4", "--threads", "1", "--quiet"]) == 0
+    assert (
+        cli.main(
+            [
+                "train",
+                "--data",
+                str(data),
+                "--out",
+                str(model),
+                "--epochs",
+                "1",
+                "--max-steps",
+                "2",
+                "--hidden",
+                "4",
+                "--threads",
+                "1",
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     assert kept == [1]
     out = capsys.readouterr().out
     assert "6 sessions" in out and "test sessions" in out and "confusion" in out
@@ -140,4 +167,3 @@ def test_eval_model_renders_unseen_sessions(tmp_path, capsys):
     assert "indoor:" in out and "outdoor:" in out and "seeds 100000" in out
     # Rendered sessions carry the simulator's truth: the report says where the errors are.
     assert out.count("view oracle") == 3 and "near a mode change" in out
-

@@ -1,5 +1,6 @@
 """`walkcap synth --format recording`: simulated sessions as recordings, and recordings
 as training data (one dataset code path for synth and recordings)."""
+
 import numpy as np
 import pytest
 
@@ -11,8 +12,26 @@ from tui import cli
 @pytest.fixture(scope="module")
 def synth_folder(tmp_path_factory):
     out = tmp_path_factory.mktemp("synth")
-    assert cli.main(["synth", "--format", "recording", "--out", str(out), "--sessions", "2",
-                     "--preset", "both", "--seed", "5", "--frames", "40"]) == 0
+    assert (
+        cli.main(
+            [
+                "synth",
+                "--format",
+                "recording",
+                "--out",
+                str(out),
+                "--sessions",
+                "2",
+                "--preset",
+                "both",
+                "--seed",
+                "5",
+                "--frames",
+                "40",
+            ]
+        )
+        == 0
+    )
     return out
 
 

@@ -2,6 +2,7 @@
 
 Images are simple drawn profiles per class (no simulator), so these run in seconds.
 """
+
 import subprocess
 import sys
 
@@ -14,8 +15,16 @@ from inference.dataset import LabeledSession
 from inference.errors import InferenceError
 from inference.model import Classifier
 from inference.training import (
-    BREAKDOWN_GROUPS, TrainSettings, _epoch_indices, augment_image, evaluate_sessions,
-    format_metrics, frame_groups, group_metrics, split_by_session, train,
+    BREAKDOWN_GROUPS,
+    TrainSettings,
+    _epoch_indices,
+    augment_image,
+    evaluate_sessions,
+    format_metrics,
+    frame_groups,
+    group_metrics,
+    split_by_session,
+    train,
 )
 
 
@@ -40,22 +49,30 @@ def draw_profile(mode: str, rng: np.random.Generator, grid: int = 100) -> np.nda
     return image
 
 
-def drawn_session(name: str, preset: str, seed: int, per_class: int = 8,
-                  counts: dict | None = None) -> LabeledSession:
+def drawn_session(
+    name: str, preset: str, seed: int, per_class: int = 8, counts: dict | None = None
+) -> LabeledSession:
     rng = np.random.default_rng(seed)
     images, labels = [], []
     for i, mode in enumerate(MODES):
         for _ in range((counts or {}).get(mode, per_class)):
             images.append(draw_profile(mode, rng))
             labels.append(i)
-    return LabeledSession(name, np.array(images), np.array(labels), preset=preset,
-                          flags=np.array([""] * len(labels)))
+    return LabeledSession(
+        name, np.array(images), np.array(labels), preset=preset, flags=np.array([""] * len(labels))
+    )
 
 
 def drawn_sessions(count: int = 6, per_class: int = 8) -> list[LabeledSession]:
-    return [drawn_session(f"{'indoor' if i % 2 == 0 else 'outdoor'}-{i:06d}",
-                          "indoor" if i % 2 == 0 else "outdoor", i, per_class)
-            for i in range(count)]
+    return [
+        drawn_session(
+            f"{'indoor' if i % 2 == 0 else 'outdoor'}-{i:06d}",
+            "indoor" if i % 2 == 0 else "outdoor",
+            i,
+            per_class,
+        )
+        for i in range(count)
+    ]
 
 
 def test_split_keeps_every_session_whole_and_covers_both_presets():
@@ -118,8 +135,18 @@ def test_group_metrics_and_report():
 
 
 def _tiny_settings(**kw) -> TrainSettings:
-    base = dict(epochs=2, batch_size=16, max_steps=4, hidden=8, device="cpu", threads=1,
-                val_fraction=0.2, test_fraction=0.2, seed=5, samples_per_epoch=32)
+    base = dict(
+        epochs=2,
+        batch_size=16,
+        max_steps=4,
+        hidden=8,
+        device="cpu",
+        threads=1,
+        val_fraction=0.2,
+        test_fraction=0.2,
+        seed=5,
+        samples_per_epoch=32,
+    )
     base.update(kw)
     return TrainSettings(**base)
 
@@ -139,8 +166,17 @@ def test_training_is_deterministic_for_a_seed():
 
 def test_training_learns_drawn_profiles_and_reports_unseen_sessions():
     sessions = drawn_sessions(6, per_class=12)
-    settings = TrainSettings(epochs=8, batch_size=32, hidden=16, device="cpu", patience=8,
-                             samples_per_epoch=256, seed=0, lr=3e-3, threads=1)
+    settings = TrainSettings(
+        epochs=8,
+        batch_size=32,
+        hidden=16,
+        device="cpu",
+        patience=8,
+        samples_per_epoch=256,
+        seed=0,
+        lr=3e-3,
+        threads=1,
+    )
     result = train(sessions, settings, show_progress=False)
     test = result.test_metrics
     assert {"all", "indoor", "outdoor"} <= set(test)
@@ -157,11 +193,14 @@ def test_early_stopping_restores_the_best_epoch(monkeypatch):
     import inference.training as training
 
     losses = iter([1.0, 0.5, 0.7, 0.8, 0.9, 1.0])
-    monkeypatch.setattr(training, "_validate",
-                        lambda net, x, y, device, power: (next(losses), 0.5, 0.5))
-    result = train(drawn_sessions(6, 2), _tiny_settings(epochs=6, patience=2, max_steps=0,
-                                                         samples_per_epoch=16),
-                   show_progress=False)
+    monkeypatch.setattr(
+        training, "_validate", lambda net, x, y, device, power: (next(losses), 0.5, 0.5)
+    )
+    result = train(
+        drawn_sessions(6, 2),
+        _tiny_settings(epochs=6, patience=2, max_steps=0, samples_per_epoch=16),
+        show_progress=False,
+    )
     assert result.stopped_early and result.best_epoch == 2 and len(result.history) == 4
 
 
@@ -181,10 +220,19 @@ def test_unbalanced_frames_are_balanced_in_training(monkeypatch):
     shares = []
     for power in (1.0, 0.5):
         seen.clear()
-        train(sessions, _tiny_settings(max_steps=1, epochs=1, samples_per_epoch=2000,
-                                       batch_size=8, val_fraction=0.25, test_fraction=0.0,
-                                       balance_power=power),
-              show_progress=False)
+        train(
+            sessions,
+            _tiny_settings(
+                max_steps=1,
+                epochs=1,
+                samples_per_epoch=2000,
+                batch_size=8,
+                val_fraction=0.25,
+                test_fraction=0.0,
+                balance_power=power,
+            ),
+            show_progress=False,
+        )
         shares.append(np.bincount(seen, minlength=5) / len(seen))
     assert shares[0].max() < 0.3  # full balance
     assert 0.3 < shares[1][0] < 0.55  # half-way: level ground 44 %, not its 71 %
@@ -192,9 +240,11 @@ def test_unbalanced_frames_are_balanced_in_training(monkeypatch):
 
 
 def test_time_budget_ends_training():
-    result = train(drawn_sessions(6, 2), _tiny_settings(max_steps=0, epochs=50,
-                                                         max_seconds=1e-6),
-                   show_progress=False)
+    result = train(
+        drawn_sessions(6, 2),
+        _tiny_settings(max_steps=0, epochs=50, max_seconds=1e-6),
+        show_progress=False,
+    )
     assert len(result.history) == 1 and result.history[0]["epoch"] == 1
 
 
@@ -221,8 +271,9 @@ def test_frame_groups_error_images_first_then_near_a_change_by_what_the_view_sho
     assert names[4] == "near a mode change, the view shows another mode"  # sees US early
     assert names[6] == "near a mode change, the view shows another mode"  # looks back at LG
     assert names[5] == names[7] == names[8] == "near a mode change, the view shows the mode"
-    assert set(frame_groups(np.zeros(5, int), np.array(["LG"] * 5), np.array([""] * 5),
-                            3)) == {3}  # no change: nothing is near one
+    assert set(frame_groups(np.zeros(5, int), np.array(["LG"] * 5), np.array([""] * 5), 3)) == {
+        3
+    }  # no change: nothing is near one
 
 
 class _FixedAnswers:
@@ -233,8 +284,8 @@ class _FixedAnswers:
 
     def predict_batch(self, images):
         out = np.zeros((len(images), len(MODES)), np.float32)
-        out[np.arange(len(images)), self.answers[:len(images)]] = 1
-        del self.answers[:len(images)]
+        out[np.arange(len(images)), self.answers[: len(images)]] = 1
+        del self.answers[: len(images)]
         return out
 
 
@@ -242,17 +293,26 @@ def test_evaluation_breaks_the_errors_down_when_sessions_carry_the_truth():
     labels = np.array([0] * 6 + [1] * 6)
     views = np.array(["LG"] * 4 + ["US", "LG", "LG"] + ["US"] * 5)
     errors = np.array([""] * 11 + ["sky"])
-    session = LabeledSession("indoor-000001", np.zeros((12, 100, 100), np.uint8), labels,
-                             preset="indoor", meta={"fps": 3}, view_modes=views,
-                             errors=errors)
+    session = LabeledSession(
+        "indoor-000001",
+        np.zeros((12, 100, 100), np.uint8),
+        labels,
+        preset="indoor",
+        meta={"fps": 3},
+        view_modes=views,
+        errors=errors,
+    )
     answers = [0] * 4 + [1, 0, 0, 1] + [1] * 3 + [0]  # wrong on 4, 6 and the error image
     m = evaluate_sessions(_FixedAnswers(answers), [session])["indoor"]
     b = m.breakdown
     assert b["near_frames"] == 3  # one second at 3 frames a second
     assert b["view_accuracy"] == pytest.approx(10 / 12)  # the view misses frames 4 and 6
     groups = b["groups"]
-    assert groups["error image"] == {"frames": 1, "accuracy": 0.0,
-                                     "points_lost": pytest.approx(100 / 12)}
+    assert groups["error image"] == {
+        "frames": 1,
+        "accuracy": 0.0,
+        "points_lost": pytest.approx(100 / 12),
+    }
     assert groups["near a mode change, the view shows another mode"]["accuracy"] == 0.0
     assert groups["near a mode change, the view shows the mode"]["accuracy"] == 1.0
     lost = sum(g["points_lost"] for g in groups.values())
@@ -267,9 +327,12 @@ def test_evaluation_breaks_the_errors_down_when_sessions_carry_the_truth():
 def test_evaluation_gives_each_sessions_accuracy_and_their_spread():
     """The pooled figure hides how much one walk strays: each session's accuracy is kept,
     per preset, and the report gives their mean, SD and range."""
+
     def session(name, preset):
-        return LabeledSession(name, np.zeros((4, 100, 100), np.uint8), np.zeros(4, np.int64),
-                              preset=preset)
+        return LabeledSession(
+            name, np.zeros((4, 100, 100), np.uint8), np.zeros(4, np.int64), preset=preset
+        )
+
     sessions = [session("a", "indoor"), session("b", "indoor"), session("c", "outdoor")]
     answers = [0, 0, 0, 0] + [0, 1, 1, 1] + [0, 0, 1, 0]  # right on 4, 1 and 3 frames of 4
     m = evaluate_sessions(_FixedAnswers(answers), sessions)
@@ -300,8 +363,9 @@ print(held - resident_mb())
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's allocator")
 def test_a_training_process_keeps_the_memory_of_its_last_batch():
     def released_mb(mode: str) -> float:
-        out = subprocess.run([sys.executable, "-c", _KEPT_SCRIPT, mode], check=True,
-                             capture_output=True, text=True).stdout
+        out = subprocess.run(
+            [sys.executable, "-c", _KEPT_SCRIPT, mode], check=True, capture_output=True, text=True
+        ).stdout
         return float(out.split()[-1])
 
     assert released_mb("default") > 35  # handed back to the system at once

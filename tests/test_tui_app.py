@@ -1,6 +1,9 @@
 """The terminal UI driven by Textual's Pilot, on a fake session: every key, every screen."""
+
 import json
 import threading
+
+from tui_fake_session import FakeSession
 
 from capture.config import Config
 from capture.session import SubjectInfo
@@ -13,7 +16,6 @@ from tui.widgets.device_panel import DevicePanel
 from tui.widgets.help_screen import HelpScreen
 from tui.widgets.marker_dialog import MarkerDialog
 from tui.widgets.quit_dialog import QuitDialog
-from tui_fake_session import FakeSession
 
 SIZE = (120, 40)
 
@@ -50,7 +52,9 @@ def rendered(widget) -> str:
 
 
 async def test_form_remembers_validates_and_leads_to_the_live_screen():
-    save_last_session(SubjectInfo(subject="A03", condition="outdoor", trial=5, amputee=True, side="right"))
+    save_last_session(
+        SubjectInfo(subject="A03", condition="outdoor", trial=5, amputee=True, side="right")
+    )
     fake = FakeSession()
     app = WalkcapApp(Config(), session=fake)
     async with app.run_test(size=SIZE) as pilot:
@@ -73,8 +77,10 @@ async def test_starting_devices_is_shown_and_a_start_error_is_a_message_not_a_cr
     from devices.errors import DeviceNotAvailable
 
     gate = threading.Event()
-    fake = FakeSession(start_error=DeviceNotAvailable("royale SDK not found: install it (see README)"),
-                       start_gate=gate)
+    fake = FakeSession(
+        start_error=DeviceNotAvailable("royale SDK not found: install it (see README)"),
+        start_gate=gate,
+    )
     app = WalkcapApp(Config(), session=fake, ask_subject=False)
     async with app.run_test(size=SIZE) as pilot:
         await pilot.pause()

@@ -1,6 +1,7 @@
 """One run of the UI on the real Session with mock devices (camera simulator, IMU emulator
 on a pty): devices start in the background, labels and a trial reach the MCAP file.
 A stand-in classifier keeps it fast (the CNN has its own tests)."""
+
 import asyncio
 
 import numpy as np
@@ -49,8 +50,9 @@ async def test_real_session_on_mock_devices(tmp_path, monkeypatch):
         sessions.append(Session(cfg, classifier=StubClassifier()))
         return sessions[-1]
 
-    app = WalkcapApp(config, session_factory=factory, subject=SubjectInfo(subject="S09"),
-                     ask_subject=False)
+    app = WalkcapApp(
+        config, session_factory=factory, subject=SubjectInfo(subject="S09"), ask_subject=False
+    )
     async with app.run_test(size=(120, 40)) as pilot:
         await wait_for(pilot, lambda: app.ready, 15)
         session = sessions[0]

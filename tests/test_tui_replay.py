@@ -1,5 +1,6 @@
 """Replay in the UI: a recording plays in the live screens; label corrections go to a new
 file, message for message the original plus the corrections; the original never changes."""
+
 import hashlib
 
 import numpy as np
@@ -37,9 +38,15 @@ def frame_time(i: int) -> int:
 def recording(tmp_path):
     """Level ground for 2 s, then up stairs; the operator pressed US 0.5 s late."""
     path = tmp_path / "S05_indoor_t03.mcap"
-    meta = {"session": SubjectInfo(subject="S05", trial=3).to_metadata(),
-            "devices": {"camera_backend": "mock", "camera_fps": "15.0", "imu_backend": "mock",
-                        "imu_rate_hz": "100"}}
+    meta = {
+        "session": SubjectInfo(subject="S05", trial=3).to_metadata(),
+        "devices": {
+            "camera_backend": "mock",
+            "camera_fps": "15.0",
+            "imu_backend": "mock",
+            "imu_rate_hz": "100",
+        },
+    }
     rec = Recorder(path, metadata=meta)
     rec.start()
     rec.write_label(T0, "LG", "start")
@@ -47,9 +54,10 @@ def recording(tmp_path):
         t = frame_time(i)
         true = 0 if i < 30 else 1
         image = np.zeros((100, 100), np.uint8)
-        image[60 - 20 * true:, 10:90] = 1
-        cloud = np.column_stack([np.linspace(0.1, 1.4, 50), np.zeros(50),
-                                 np.full(50, -0.5 + 0.1 * true)]).astype(np.float32)
+        image[60 - 20 * true :, 10:90] = 1
+        cloud = np.column_stack(
+            [np.linspace(0.1, 1.4, 50), np.zeros(50), np.full(50, -0.5 + 0.1 * true)]
+        ).astype(np.float32)
         probs = np.full(5, 0.05)
         probs[true] = 0.8
         fused = {"frame_index": i - 1, "decision": MODES[true]} if i else {}
@@ -87,7 +95,9 @@ def test_replay_source_plays_seeks_and_corrects(recording):
     snap = source.snapshot()
     assert snap.latest.index == 30 and snap.label == "LG" and snap.latest.cnn_decision == 1
     assert snap.latest.fused.decision == 1 and snap.latest.features["kind"] == "stairs"
-    assert snap.latest.profile.shape[1] == 2 and snap.latest.profile[0, 1] == pytest.approx(-0.4, abs=1e-3)
+    assert snap.latest.profile.shape[1] == 2 and snap.latest.profile[0, 1] == pytest.approx(
+        -0.4, abs=1e-3
+    )
     source.set_label("US")  # the correction: stairs from frame 30
     assert source.label == "US" and source.unsaved
     source.seek(-10)
@@ -153,7 +163,9 @@ async def test_replay_in_the_live_screen(recording):
         assert not source.recording
         source.seek(2.0 - pos)
         await pilot.press("2")
-        assert source.corrections[-1].mode == "US" and source.corrections[-1].time_ns == frame_time(30)
+        assert source.corrections[-1].mode == "US" and source.corrections[-1].time_ns == frame_time(
+            30
+        )
         await pilot.press("q")  # unsaved corrections: asks
         assert isinstance(app.screen, QuitDialog)
         await pilot.press("n")

@@ -1,4 +1,5 @@
 """The UI's pure parts: rasters, strips, bars, big letters, the form and its memory."""
+
 import json
 
 import numpy as np
@@ -8,15 +9,26 @@ from capture.config import Config
 from capture.errors import CaptureError
 from capture.session import SubjectInfo, TimelineEntry
 from tui.app import keymap
-from tui.session_screen import (form_values, info_from_form, last_session_path, load_last_session,
-                                save_last_session)
+from tui.session_screen import (
+    form_values,
+    info_from_form,
+    last_session_path,
+    load_last_session,
+    save_last_session,
+)
 from tui.widgets.decision import big_letters
 from tui.widgets.features import feature_rows
 from tui.widgets.help_screen import key_label
 from tui.widgets.modes import MODE_COLORS, mode_color, mode_name
 from tui.widgets.probability_bars import bar
 from tui.widgets.profile_plot import profile_ranges
-from tui.widgets.raster import braille_lines, fit_binary_image, halfblock_lines, plot_points, pool_any
+from tui.widgets.raster import (
+    braille_lines,
+    fit_binary_image,
+    halfblock_lines,
+    plot_points,
+    pool_any,
+)
 from tui.widgets.recording_panel import clock_text, human_bytes
 from tui.widgets.timeline import strip_cells, strip_text
 
@@ -71,8 +83,10 @@ def test_profile_ranges_have_equal_scales_and_keep_the_profile_in_view():
 
 def test_strip_cells_bins_the_last_span():
     now = 20_000_000_000
-    entries = [TimelineEntry(i, now - (19 - i) * 1_000_000_000, "LG" if i < 10 else "US", i % 5)
-               for i in range(20)]
+    entries = [
+        TimelineEntry(i, now - (19 - i) * 1_000_000_000, "LG" if i < 10 else "US", i % 5)
+        for i in range(20)
+    ]
     cells = strip_cells(entries, "label", now, 20)
     assert cells[1:11] == ["LG"] * 10 and cells[11:] == ["US"] * 9
     assert cells[0] == ""  # exactly 20 s ago falls off the left edge: before the first frame
@@ -110,7 +124,11 @@ def test_feature_rows_format_known_and_unknown():
 def test_small_formatters():
     assert human_bytes(999) == "999 B" and human_bytes(12_345_678) == "12.3 MB"
     assert clock_text(3725.9) == "1:02:05"
-    assert key_label("question_mark") == "?" and key_label("space") == "space" and key_label("1") == "1"
+    assert (
+        key_label("question_mark") == "?"
+        and key_label("space") == "space"
+        and key_label("1") == "1"
+    )
 
 
 def test_keymap_follows_config_keys():
@@ -121,8 +139,18 @@ def test_keymap_follows_config_keys():
 
 
 def test_form_round_trip_and_validation():
-    info = SubjectInfo(subject="A02", height_m=1.78, weight_kg=81.5, age=41, sex="male",
-                       amputee=True, side="left", residual_limb_cm=28.0, condition="outdoor", trial=3)
+    info = SubjectInfo(
+        subject="A02",
+        height_m=1.78,
+        weight_kg=81.5,
+        age=41,
+        sex="male",
+        amputee=True,
+        side="left",
+        residual_limb_cm=28.0,
+        condition="outdoor",
+        trial=3,
+    )
     assert info_from_form(form_values(info)) == info
     values = form_values(info)
     with pytest.raises(CaptureError, match="height"):
@@ -156,11 +184,22 @@ def test_write_rate_and_recording_rows():
     rate = ByteRate(window_s=2.0)
     assert rate.add(0, 0) is None
     assert rate.add(1_000_000_000, 500_000) == pytest.approx(500_000)
-    assert rate.add(4_000_000_000, 3_500_000) == pytest.approx(1_000_000)  # the old reading aged out
+    assert rate.add(4_000_000_000, 3_500_000) == pytest.approx(
+        1_000_000
+    )  # the old reading aged out
     assert rate.add(5_000_000_000, 100) is None  # a new file starts over
-    stats = RecorderStats(path="/r/S01_indoor_t01.mcap", state="failed", message="disk full",
-                          bytes_written=2_000_000, queue_depth=1500, queue_size=2048, dropped=7)
-    rows = {label: (value, style) for label, value, style in recording_rows(stats, 61.0, None, "", 1e6)}
+    stats = RecorderStats(
+        path="/r/S01_indoor_t01.mcap",
+        state="failed",
+        message="disk full",
+        bytes_written=2_000_000,
+        queue_depth=1500,
+        queue_size=2048,
+        dropped=7,
+    )
+    rows = {
+        label: (value, style) for label, value, style in recording_rows(stats, 61.0, None, "", 1e6)
+    }
     assert rows["● REC"][0] == "0:01:01" and rows["FAILED"][0] == "disk full"
     assert rows["file"][0] == "S01_indoor_t01.mcap" and rows["write"][0] == "1.0 MB/s"
     assert rows["queue"] == ("1500/2048", "bold #f0a020") and rows["dropped"][0] == "7"
@@ -171,10 +210,19 @@ def test_device_rows_show_state_rates_errors_clock():
     from devices.base import DeviceStatus
     from tui.widgets.device_panel import device_rows
 
-    imu = DeviceStatus("serial", "degraded", "3 packets missing", 100.0, 80.0, dropped=1, errors=5,
-                       details={"offset_ms": -2.5, "drift_ppm": 51.0, "checksum_errors": 2,
-                                "missing_packets": 3})
-    rows = {label: value for label, value, _ in device_rows("imu", imu, {"p50_ms": 0.5, "p99_ms": 2.0})}
+    imu = DeviceStatus(
+        "serial",
+        "degraded",
+        "3 packets missing",
+        100.0,
+        80.0,
+        dropped=1,
+        errors=5,
+        details={"offset_ms": -2.5, "drift_ppm": 51.0, "checksum_errors": 2, "missing_packets": 3},
+    )
+    rows = {
+        label: value for label, value, _ in device_rows("imu", imu, {"p50_ms": 0.5, "p99_ms": 2.0})
+    }
     assert rows["imu"] == "degraded  serial" and rows[""] == "3 packets missing"
     assert rows["rate"] == " 80.0/100 Hz"
     assert rows["drops"] == "1  errors 5 (2 checksum, 3 missing)"

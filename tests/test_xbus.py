@@ -1,4 +1,5 @@
 """Xbus codec: frames, the streaming parser under abuse, MTData2 in every precision."""
+
 import math
 import struct
 
@@ -13,11 +14,16 @@ FUZZ = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCh
 
 
 def sample_payload(counter: int = 1) -> bytes:
-    return xbus.encode_mtdata2({
-        "packet_counter": counter, "sample_time_fine": 1000 + counter,
-        "quaternion": (1.0, 0.0, 0.0, 0.0), "acceleration": (0.0, 0.0, 9.81),
-        "rate_of_turn": (0.1, -0.2, 0.3), "status_word": 3,
-    })
+    return xbus.encode_mtdata2(
+        {
+            "packet_counter": counter,
+            "sample_time_fine": 1000 + counter,
+            "quaternion": (1.0, 0.0, 0.0, 0.0),
+            "acceleration": (0.0, 0.0, 9.81),
+            "rate_of_turn": (0.1, -0.2, 0.3),
+            "status_word": 3,
+        }
+    )
 
 
 def sample_stream(n: int = 3) -> tuple[bytes, list[xbus.Message]]:
@@ -30,6 +36,7 @@ def same(decoded: list[xbus.Message], expected: list[xbus.Message]) -> bool:
 
 
 # ----------------------------------------------------------------------------- frames
+
 
 def test_goto_config_frame_matches_the_documented_bytes():
     assert xbus.build(MID.GOTO_CONFIG) == bytes.fromhex("FAFF3000D1")
@@ -56,6 +63,7 @@ def test_preamble_bytes_inside_data_do_not_confuse_the_parser():
 
 
 # ----------------------------------------------------------------------------- streaming
+
 
 def test_split_at_every_offset_gives_the_same_messages():
     stream, expected = sample_stream(3)
@@ -99,7 +107,7 @@ def test_finish_recovers_messages_hidden_behind_a_bogus_long_header():
     stream, expected = sample_stream(2)
     # A fake header announcing 2000 bytes swallows what follows until the end of stream.
     parser = XbusParser()
-    got = parser.feed(b"\xFA\xFF\x36\xFF\x07\xD0" + stream)
+    got = parser.feed(b"\xfa\xff\x36\xff\x07\xd0" + stream)
     assert got == []
     assert same(parser.finish(), expected)
 
@@ -109,17 +117,19 @@ def test_finish_recovers_messages_hidden_behind_a_bogus_long_header():
 def test_random_bytes_never_raise_and_the_buffer_stays_bounded(data, chunk):
     parser = XbusParser()
     for i in range(0, len(data), chunk):
-        parser.feed(data[i:i + chunk])
+        parser.feed(data[i : i + chunk])
         assert parser.buffered <= xbus.MAX_DATA + 7 + chunk
     parser.finish()
     assert parser.buffered == 0
 
 
 @FUZZ
-@given(garbage=st.binary(max_size=300), chunk=st.integers(1, 200),
-       mutations=st.lists(st.tuples(st.integers(0, 10_000), st.integers(0, 255)), max_size=4))
-def test_garbage_and_corruption_then_recovery_on_the_next_good_message(garbage, chunk,
-                                                                       mutations):
+@given(
+    garbage=st.binary(max_size=300),
+    chunk=st.integers(1, 200),
+    mutations=st.lists(st.tuples(st.integers(0, 10_000), st.integers(0, 255)), max_size=4),
+)
+def test_garbage_and_corruption_then_recovery_on_the_next_good_message(garbage, chunk, mutations):
     good, expected = sample_stream(3)
     corrupted = bytearray(good)
     for pos, value in mutations:  # damage a first copy of the stream
@@ -128,7 +138,7 @@ def test_garbage_and_corruption_then_recovery_on_the_next_good_message(garbage, 
     parser = XbusParser()
     got = []
     for i in range(0, len(stream), chunk):
-        got += parser.feed(stream[i:i + chunk])
+        got += parser.feed(stream[i : i + chunk])
     got += parser.finish()
     good_frames = {m.frame() for m in expected}
     bogus = [m for m in got if m.frame() not in good_frames]
@@ -158,7 +168,7 @@ def test_another_bus_id_is_rejected_by_default_and_accepted_when_asked():
 # ----------------------------------------------------------------------------- MTData2
 
 REAL_RANGE = {xbus.FLOAT32: 1e6, xbus.FP1220: 2000.0, xbus.FP1632: 30000.0, xbus.FLOAT64: 1e9}
-TOLERANCE = {xbus.FP1220: 2 ** -21, xbus.FP1632: 2 ** -33}  # half a step of the fixed point
+TOLERANCE = {xbus.FP1220: 2**-21, xbus.FP1632: 2**-33}  # half a step of the fixed point
 
 
 @st.composite
@@ -211,10 +221,10 @@ def test_mtdata2_round_trip_in_every_precision_and_coordinate_system(case):
 
 def test_fixed_point_encodings_on_the_wire():
     fp1220 = xbus.encode_packet("temperature", -1.5, xbus.FP1220)
-    assert fp1220 == struct.pack(">HBi", 0x0811, 4, -3 * 2 ** 19)
+    assert fp1220 == struct.pack(">HBi", 0x0811, 4, -3 * 2**19)
     fp1632 = xbus.encode_packet("temperature", -1.25, xbus.FP1632)
     # a 32-bit fraction then a 16-bit signed integer part: -1.25 = -2 + 0.75
-    assert fp1632 == struct.pack(">HBIh", 0x0812, 6, 3 * 2 ** 30, -2)
+    assert fp1632 == struct.pack(">HBIh", 0x0812, 6, 3 * 2**30, -2)
     assert xbus.decode_mtdata2(fp1632).values["temperature"] == -1.25
 
 
@@ -226,9 +236,15 @@ def test_rotation_matrix_is_column_major_on_the_wire_and_rows_decoded():
 
 
 @FUZZ
-@given(unknown=st.lists(st.tuples(st.sampled_from([0x0001, 0x5010, 0x7777, 0xA010, 0x1010]),
-                                  st.binary(max_size=40)), max_size=4),
-       bad_size=st.booleans())
+@given(
+    unknown=st.lists(
+        st.tuples(
+            st.sampled_from([0x0001, 0x5010, 0x7777, 0xA010, 0x1010]), st.binary(max_size=40)
+        ),
+        max_size=4,
+    ),
+    bad_size=st.booleans(),
+)
 def test_unknown_identifiers_are_skipped_by_their_size(unknown, bad_size):
     payload = sample_payload(7)
     extra = b"".join(struct.pack(">HB", xdi, len(d)) + d for xdi, d in unknown)
@@ -264,6 +280,7 @@ def test_the_layout_cache_tells_apart_payloads_of_equal_length():
 
 
 # ----------------------------------------------------------------------------- configuration
+
 
 def test_output_configuration_round_trip_and_defaults():
     settings_ = xbus.output_settings(xbus.DEFAULT_OUTPUTS, 100)

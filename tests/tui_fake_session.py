@@ -1,5 +1,6 @@
 """A stand-in for capture.session.Session for the UI tests: same public surface,
 deterministic snapshots built from the real dataclasses, and a record of every command."""
+
 from __future__ import annotations
 
 import threading
@@ -25,12 +26,17 @@ def stairs_profile() -> np.ndarray:
     xs = np.arange(0.0, 1.5, 0.01)
     steps = np.clip(np.floor((xs - 0.2) / 0.30) + 1, 0, 4)
     heights = steps * 0.16
-    risers = [(0.2 + 0.3 * k, h) for k in range(4) for h in np.arange(0.16 * k, 0.16 * (k + 1), 0.01)]
+    risers = [
+        (0.2 + 0.3 * k, h) for k in range(4) for h in np.arange(0.16 * k, 0.16 * (k + 1), 0.01)
+    ]
     return np.vstack([np.column_stack([xs, heights]), np.array(risers)]).astype(np.float32)
 
 
 def image_from_profile(profile: np.ndarray) -> np.ndarray:
-    """The 100 x 100 binary image as inference.preprocess makes it: row 0 highest, column 0 nearest."""
+    """The 100 x 100 binary image as inference.preprocess makes it.
+
+    Row 0 is the highest, column 0 the nearest.
+    """
     img = np.zeros((100, 100), dtype=np.uint8)
     p = profile - profile.min(axis=0) + 0.01
     cols, rows = (p[:, 0] / 0.01).astype(int), (p[:, 1] / 0.01).astype(int)
@@ -50,14 +56,28 @@ def timeline(now_ns: int = NOW_NS, seconds: float = 20.0) -> list[TimelineEntry]
         if i in range(n // 2 - 4, n // 2):  # the camera sees the stairs before the operator
             cnn = 1
         fused = 0 if i < n // 2 - 2 else 1
-        entries.append(TimelineEntry(index=1000 + i, time_ns=t, label=MODES[true], cnn=cnn,
-                                     fused=fused if i < n - 1 else None, voted=None, truth=None))
+        entries.append(
+            TimelineEntry(
+                index=1000 + i,
+                time_ns=t,
+                label=MODES[true],
+                cnn=cnn,
+                fused=fused if i < n - 1 else None,
+                voted=None,
+                truth=None,
+            )
+        )
     return entries
 
 
 class FakeSession:
-    def __init__(self, *, start_error: Exception | None = None, start_gate: threading.Event | None = None,
-                 recordings: Path | None = None) -> None:
+    def __init__(
+        self,
+        *,
+        start_error: Exception | None = None,
+        start_gate: threading.Event | None = None,
+        recordings: Path | None = None,
+    ) -> None:
         self.start_error = start_error
         self.start_gate = start_gate  # start() waits for it, like devices being opened
         self.recordings = recordings or Path("recordings")
@@ -72,23 +92,58 @@ class FakeSession:
         self._label: str | None = "US"
         self._recording_path: Path | None = None
         self.recorder_state, self.recorder_message = "recording", ""
-        self.camera = DeviceStatus(backend="mock", state="ok", configured_rate_hz=15.0,
-                                   measured_rate_hz=14.9, delivered=4500, dropped=0, errors=0)
-        self.imu = DeviceStatus(backend="mock", state="ok", configured_rate_hz=100.0,
-                                measured_rate_hz=99.8, delivered=30000, dropped=0, errors=2,
-                                details={"clock_offset_ms": 1.25, "drift_ppm": 48.0,
-                                         "checksum_errors": 2})
+        self.camera = DeviceStatus(
+            backend="mock",
+            state="ok",
+            configured_rate_hz=15.0,
+            measured_rate_hz=14.9,
+            delivered=4500,
+            dropped=0,
+            errors=0,
+        )
+        self.imu = DeviceStatus(
+            backend="mock",
+            state="ok",
+            configured_rate_hz=100.0,
+            measured_rate_hz=99.8,
+            delivered=30000,
+            dropped=0,
+            errors=2,
+            details={"clock_offset_ms": 1.25, "drift_ppm": 48.0, "checksum_errors": 2},
+        )
         self.events: list[DeviceEvent] = []
         self.timeline = timeline()
         profile = stairs_profile()
         self.latest = FrameResult(
-            index=1299, time_ns=NOW_NS, host_time_ns=NOW_NS, quaternion=np.array([1.0, 0, 0, 0]),
-            image=image_from_profile(profile), cloud=np.zeros((0, 3), np.float32), profile=profile,
-            flag="", probabilities=np.array([0.05, 0.82, 0.03, 0.07, 0.03]), cnn_decision=1,
-            fused=SimpleNamespace(frame_index=1298, decision=1, posterior=[0.02, 0.9, 0.02, 0.04, 0.02],
-                                  voted=1, voted_frame_index=1297),
-            features={"kind": "stairs", "direction": "up", "steps": 3, "riser_m": 0.162, "tread_m": 0.305,
-                      "slope_deg": None, "inlier_fraction": 0.93, "residual_m": 0.004}, done_ns=NOW_NS + 12_000_000)
+            index=1299,
+            time_ns=NOW_NS,
+            host_time_ns=NOW_NS,
+            quaternion=np.array([1.0, 0, 0, 0]),
+            image=image_from_profile(profile),
+            cloud=np.zeros((0, 3), np.float32),
+            profile=profile,
+            flag="",
+            probabilities=np.array([0.05, 0.82, 0.03, 0.07, 0.03]),
+            cnn_decision=1,
+            fused=SimpleNamespace(
+                frame_index=1298,
+                decision=1,
+                posterior=[0.02, 0.9, 0.02, 0.04, 0.02],
+                voted=1,
+                voted_frame_index=1297,
+            ),
+            features={
+                "kind": "stairs",
+                "direction": "up",
+                "steps": 3,
+                "riser_m": 0.162,
+                "tread_m": 0.305,
+                "slope_deg": None,
+                "inlier_fraction": 0.93,
+                "residual_m": 0.004,
+            },
+            done_ns=NOW_NS + 12_000_000,
+        )
 
     # ---- life cycle
     def start(self) -> None:
@@ -103,7 +158,9 @@ class FakeSession:
         return self.stop_recording() if self._recording_path is not None else None
 
     # ---- commands
-    def set_label(self, mode: str, source: str = "operator", time_ns: int | None = None) -> LabelChange:
+    def set_label(
+        self, mode: str, source: str = "operator", time_ns: int | None = None
+    ) -> LabelChange:
         if mode not in MODES:
             raise CaptureError(f"unknown mode {mode!r}")
         change = LabelChange(now_ns() if time_ns is None else time_ns, mode, source)
@@ -135,7 +192,9 @@ class FakeSession:
         if self._recording_path is not None:
             raise CaptureError("already recording")
         self.recordings_started.append(info)
-        self._recording_path = self.recordings / f"{info.subject}_{info.condition}_t{info.trial:02d}.mcap"
+        self._recording_path = (
+            self.recordings / f"{info.subject}_{info.condition}_t{info.trial:02d}.mcap"
+        )
         return self._recording_path
 
     def stop_recording(self):
@@ -143,7 +202,9 @@ class FakeSession:
             return None
         path, self._recording_path = self._recording_path, None
         self.recordings_stopped += 1
-        return RecorderStats(path=str(path), state="stopped", bytes_written=12_345_678, messages=4321)
+        return RecorderStats(
+            path=str(path), state="stopped", bytes_written=12_345_678, messages=4321
+        )
 
     # ---- what the UI reads
     def snapshot(self) -> Snapshot:
@@ -151,12 +212,28 @@ class FakeSession:
         recording = None
         started = None
         if self._recording_path is not None:
-            recording = RecorderStats(path=str(self._recording_path), state=self.recorder_state,
-                                      message=self.recorder_message, bytes_written=3_456_789,
-                                      messages=2100, queue_depth=3, queue_size=2048)
+            recording = RecorderStats(
+                path=str(self._recording_path),
+                state=self.recorder_state,
+                message=self.recorder_message,
+                bytes_written=3_456_789,
+                messages=2100,
+                queue_depth=3,
+                queue_size=2048,
+            )
             started = NOW_NS - 75_000_000_000
         return Snapshot(
-            time_ns=NOW_NS, running=True, camera=self.camera, imu=self.imu,
-            sync={"p50_ms": 0.4, "p99_ms": 1.9}, label=self._label, latest=self.latest,
-            timeline=list(self.timeline), events=list(self.events), recording=recording,
-            recording_started_ns=started, frames=1300, latency_ms={"p50": 11.8, "p99": 21.3})
+            time_ns=NOW_NS,
+            running=True,
+            camera=self.camera,
+            imu=self.imu,
+            sync={"p50_ms": 0.4, "p99_ms": 1.9},
+            label=self._label,
+            latest=self.latest,
+            timeline=list(self.timeline),
+            events=list(self.events),
+            recording=recording,
+            recording_started_ns=started,
+            frames=1300,
+            latency_ms={"p50": 11.8, "p99": 21.3},
+        )

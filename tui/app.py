@@ -5,6 +5,7 @@ take time (opening devices, loading the model, starting or finalising a recordin
 stopping) runs in a thread worker that reports back with a message (tui/messages.py),
 so the UI never waits and a key is handled, and a label stamped, at once.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -48,7 +49,9 @@ def describe_error(e: BaseException) -> str:
 
 def keymap(config: Config) -> dict[str, str]:
     """config.keys -> Textual keymap over the live screen's binding ids."""
-    return {f"walkcap.{name}": value for name, value in dataclasses.asdict(config.keys).items() if value}
+    return {
+        f"walkcap.{name}": value for name, value in dataclasses.asdict(config.keys).items() if value
+    }
 
 
 class WalkcapApp(App):
@@ -59,10 +62,16 @@ class WalkcapApp(App):
 
     status: reactive[str] = reactive("")  # starting devices… / stopping… / an error
 
-    def __init__(self, config: Config | None = None, session=None,
-                 session_factory: Callable[[Config], object] | None = None, *,
-                 subject: SubjectInfo | None = None, ask_subject: bool = True,
-                 start_status: str = "starting devices…") -> None:
+    def __init__(
+        self,
+        config: Config | None = None,
+        session=None,
+        session_factory: Callable[[Config], object] | None = None,
+        *,
+        subject: SubjectInfo | None = None,
+        ask_subject: bool = True,
+        start_status: str = "starting devices…",
+    ) -> None:
         """`session`: a ready-made source (tests pass a fake); otherwise `session_factory`
         (default: capture.session.Session) builds one from the configuration in a worker."""
         super().__init__()
@@ -136,9 +145,14 @@ class WalkcapApp(App):
         if self.session is not None and self.ready and self.session.recording:
             self.push_screen(QuitDialog(), lambda yes: self.stop_session() if yes else None)
         elif self.ready and getattr(self.session, "unsaved", False):
-            self.push_screen(QuitDialog("The label corrections are not saved (w saves them). Quit anyway?",
-                                        yes="Quit without saving (y)", no="Stay (n)"),
-                             lambda yes: self.stop_session() if yes else None)
+            self.push_screen(
+                QuitDialog(
+                    "The label corrections are not saved (w saves them). Quit anyway?",
+                    yes="Quit without saving (y)",
+                    no="Stay (n)",
+                ),
+                lambda yes: self.stop_session() if yes else None,
+            )
         else:
             self.stop_session()
 
@@ -182,8 +196,11 @@ class WalkcapApp(App):
 
     def open_session_form(self, then_record: bool = False) -> None:
         if self.session is not None and self.ready and self.session.recording:
-            self.notify("stop the recording first (the form describes the next trial)",
-                        severity="warning", timeout=3)
+            self.notify(
+                "stop the recording first (the form describes the next trial)",
+                severity="warning",
+                timeout=3,
+            )
             return
 
         def done(info: SubjectInfo | None) -> None:
@@ -248,14 +265,22 @@ class WalkcapApp(App):
         stats = message.stats
         name = Path(getattr(stats, "path", "") or message.path or "recording").name
         if getattr(stats, "state", "") == "failed":
-            self.notify(f"{name}: {stats.message} (what reached the disk is readable)",
-                        title="recording failed", severity="error", timeout=30)
+            self.notify(
+                f"{name}: {stats.message} (what reached the disk is readable)",
+                title="recording failed",
+                severity="error",
+                timeout=30,
+            )
         else:
             size = getattr(stats, "bytes_written", None)
             dropped = getattr(stats, "dropped", 0)
-            self.notify(f"saved {name}" + (f" ({human_bytes(size)})" if size else "")
-                        + (f", {dropped} messages dropped" if dropped else ""),
-                        severity="warning" if dropped else "information", timeout=6)
+            self.notify(
+                f"saved {name}"
+                + (f" ({human_bytes(size)})" if size else "")
+                + (f", {dropped} messages dropped" if dropped else ""),
+                severity="warning" if dropped else "information",
+                timeout=6,
+            )
         self._refresh_live()
 
     def on_recording_failed(self, message: messages.RecordingFailed) -> None:

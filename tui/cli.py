@@ -4,6 +4,7 @@ Each subcommand is a module in `tui/commands/` with `HELP`, `add_arguments(parse
 `run(args, config) -> int`. Modules import heavy libraries (torch, open3d) inside `run`,
 so `walkcap --help` stays instant.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -16,8 +17,17 @@ import traceback
 from capture import __version__
 
 COMMANDS = (
-    "tui", "record", "replay", "info", "recover", "eval", "train", "synth",
-    "calibrate", "bench", "imu",
+    "tui",
+    "record",
+    "replay",
+    "info",
+    "recover",
+    "eval",
+    "train",
+    "synth",
+    "calibrate",
+    "bench",
+    "imu",
 )
 
 
@@ -47,8 +57,11 @@ def build_parser() -> argparse.ArgumentParser:
         "live terrain classification with HMM fusion, synchronized MCAP recordings.",
     )
     parser.add_argument("--version", action="version", version=f"walkcap {__version__}")
-    parser.add_argument("--config", metavar="PATH", help="configuration file (TOML); "
-                        "default: $WALKCAP_CONFIG or ./walkcap.toml when present")
+    parser.add_argument(
+        "--config",
+        metavar="PATH",
+        help="configuration file (TOML); default: $WALKCAP_CONFIG or ./walkcap.toml when present",
+    )
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for name in COMMANDS:
@@ -89,8 +102,11 @@ def main(argv: list[str] | None = None) -> int:
         if os.environ.get("WALKCAP_DEBUG"):
             raise
         log = _write_crash_log()
-        print(f"walkcap {args.command}: internal error: {type(e).__name__}: {e} "
-              f"(details in {log}; please report it)", file=sys.stderr)
+        print(
+            f"walkcap {args.command}: internal error: {type(e).__name__}: {e} "
+            f"(details in {log}; please report it)",
+            file=sys.stderr,
+        )
         return 70
 
 

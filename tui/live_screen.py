@@ -4,6 +4,7 @@ It pulls one snapshot from its source at most REFRESH_HZ times a second (whateve
 frame rate), hands each widget its part, and sends the operator's keys to the source as
 commands that only touch memory: nothing here waits on a device or the disk.
 """
+
 from __future__ import annotations
 
 import logging
@@ -37,8 +38,15 @@ log = logging.getLogger(__name__)
 
 REFRESH_HZ = 20
 # Events that also pop up (all of them show in the device panel); gaps and drops only there.
-FAULT_KINDS = {"lost": "error", "error": "error", "device_error": "error", "stall": "warning",
-               "device_restarted": "warning", "end_of_course": "warning", "reconnected": "information"}
+FAULT_KINDS = {
+    "lost": "error",
+    "error": "error",
+    "device_error": "error",
+    "stall": "warning",
+    "device_restarted": "warning",
+    "end_of_course": "warning",
+    "reconnected": "information",
+}
 SEEK_S = 5.0
 
 
@@ -57,7 +65,10 @@ def pipeline_rows(snap: Snapshot) -> list[tuple[str, str, str]]:
 
 class LiveScreen(Screen):
     BINDINGS = [
-        *[_binding(str(i + 1), f"label('{m}')", m, f"mode_{m.lower()}") for i, m in enumerate(MODES)],
+        *[
+            _binding(str(i + 1), f"label('{m}')", m, f"mode_{m.lower()}")
+            for i, m in enumerate(MODES)
+        ],
         _binding("u", "undo", "undo", "undo"),
         _binding("m", "marker", "marker", "marker"),
         _binding("r", "record", "record", "record"),
@@ -112,12 +123,21 @@ class LiveScreen(Screen):
         yield Footer(compact=True)
 
     def on_mount(self) -> None:
-        titles = {"devices": "devices", "recording": "recording", "image": "image",
-                  "profile": "profile", "decision": "fused decision", "probabilities": "CNN",
-                  "features": "terrain", "timeline": "last 20 s"}
+        titles = {
+            "devices": "devices",
+            "recording": "recording",
+            "image": "image",
+            "profile": "profile",
+            "decision": "fused decision",
+            "probabilities": "CNN",
+            "features": "terrain",
+            "timeline": "last 20 s",
+        }
         for wid, title in titles.items():
             self.query_one(f"#{wid}").border_title = title
-        self._w = {type(w): w for w in self.query("#main *, #timeline, #topbar") if hasattr(w, "present")}
+        self._w = {
+            type(w): w for w in self.query("#main *, #timeline, #topbar") if hasattr(w, "present")
+        }
         self._timer = self.set_interval(1 / REFRESH_HZ, self.refresh_view)
         self.watch(self.app, "status", lambda _: self._show_topbar())
         self.refresh_view()
@@ -144,17 +164,20 @@ class LiveScreen(Screen):
         key = latest.index if latest is not None else None
         if latest is not None and latest.fused is not None:
             self._fused = latest.fused.decision
-        self._w[BinaryImage].present(latest.image if latest else None,
-                                            latest.flag if latest else "", key)
+        self._w[BinaryImage].present(
+            latest.image if latest else None, latest.flag if latest else "", key
+        )
         self._w[ProfilePlot].present(latest.profile if latest else None, key)
-        self._w[DecisionDisplay].present(self._fused, latest.cnn_decision if latest else None,
-                                                snap.label)
+        self._w[DecisionDisplay].present(
+            self._fused, latest.cnn_decision if latest else None, snap.label
+        )
         self._w[ProbabilityBars].present(latest.probabilities if latest else None)
         self._w[FeaturesPanel].present(latest.features if latest else None)
         self._w[TimelineStrips].present(snap.timeline, snap.time_ns)
         faults = [e for e in snap.events if e.device != "operator"]
-        self._w[DevicePanel].present(snap.camera, snap.imu, snap.sync,
-                                            faults[-1] if faults else None, pipeline_rows(snap))
+        self._w[DevicePanel].present(
+            snap.camera, snap.imu, snap.sync, faults[-1] if faults else None, pipeline_rows(snap)
+        )
         self._show_recording(snap)
         self._notify_new_events(snap)
         self._show_topbar()
@@ -178,18 +201,27 @@ class LiveScreen(Screen):
         if isinstance(source, Playback):  # a replay records nothing: it saves corrections
             n = len(getattr(source, "corrections", []))
             saved = getattr(source, "saved_path", None)
-            hint = f"w: save {n} correction{'s' if n != 1 else ''} to a new file" if n else \
-                "1-5: correct labels"
+            hint = (
+                f"w: save {n} correction{'s' if n != 1 else ''} to a new file"
+                if n
+                else "1-5: correct labels"
+            )
             if saved is not None and not getattr(source, "unsaved", False):
                 hint = f"saved {saved.name}"
             self._w[RecordingPanel].present(None, None, None, hint, snap.time_ns, idle="▶ replay")
             return
         idle = f"{key}: record trial {info.trial}"
-        self._w[RecordingPanel].present(snap.recording, elapsed, app.recording_path, idle, snap.time_ns)
+        self._w[RecordingPanel].present(
+            snap.recording, elapsed, app.recording_path, idle, snap.time_ns
+        )
         failed = getattr(snap.recording, "state", "") == "failed"
         if failed and not self._failure_shown:
-            self.notify(f"{getattr(snap.recording, 'message', '')} — press "
-                        f"{key} to close the file", title="recording failed", severity="error", timeout=30)
+            self.notify(
+                f"{getattr(snap.recording, 'message', '')} — press {key} to close the file",
+                title="recording failed",
+                severity="error",
+                timeout=30,
+            )
         self._failure_shown = failed
 
     def _notify_new_events(self, snap: Snapshot) -> None:
@@ -199,27 +231,36 @@ class LiveScreen(Screen):
                 continue
             severity = FAULT_KINDS.get(e.kind)
             if e.device != "operator" and severity:
-                self.notify(f"{e.device} {e.kind}: {e.message}", severity=severity,
-                            timeout=10 if severity == "error" else 4)
+                self.notify(
+                    f"{e.device} {e.kind}: {e.message}",
+                    severity=severity,
+                    timeout=10 if severity == "error" else 4,
+                )
         if snap.events:
             self._last_event_ns = max(self._last_event_ns or 0, max(e.time_ns for e in snap.events))
 
     def _show_topbar(self) -> None:
         app, snap = self.app, self._snapshot
         info = app.subject
-        bar = Text.assemble(("walkcap ", "bold"), f"{info.subject} · {info.condition} · trial {info.trial}  ")
+        bar = Text.assemble(
+            ("walkcap ", "bold"), f"{info.subject} · {info.condition} · trial {info.trial}  "
+        )
         label = snap.label if snap is not None else None
         bar.append_text(Text.assemble("true ", mode_text(label), "  "))
         if snap is not None:
             if snap.recording_started_ns is not None:
-                bar.append(f"● REC {clock_text((snap.time_ns - snap.recording_started_ns) * 1e-9)}  ",
-                           style="bold #e04040")
+                bar.append(
+                    f"● REC {clock_text((snap.time_ns - snap.recording_started_ns) * 1e-9)}  ",
+                    style="bold #e04040",
+                )
         source = app.source
         if isinstance(source, Playback):
             pos, duration = source.position()
             bar.append(f"{getattr(source, 'path', Path('')).name}  ", style="bold")
-            bar.append(f"{'▶' if source.playing else '⏸'} {clock_text(pos)} / {clock_text(duration)}  ",
-                       style="bold")
+            bar.append(
+                f"{'▶' if source.playing else '⏸'} {clock_text(pos)} / {clock_text(duration)}  ",
+                style="bold",
+            )
         if self.frozen:
             bar.append(" FROZEN ", style="bold #000000 on #2f7ff0")
             bar.append("  ")
@@ -293,8 +334,11 @@ class LiveScreen(Screen):
     def key_help(self) -> list[tuple[str, str]]:
         """(key, what it does) for this screen's bindings as configured, in BINDINGS order."""
         order = [b.action for b in self.BINDINGS]
-        rows = [(key, active.binding) for key, active in self.active_bindings.items()
-                if active.node is self and active.binding.action in self.HELP]
+        rows = [
+            (key, active.binding)
+            for key, active in self.active_bindings.items()
+            if active.node is self and active.binding.action in self.HELP
+        ]
         rows.sort(key=lambda kb: order.index(kb[1].action) if kb[1].action in order else len(order))
         return [(key, self.HELP.get(b.action, b.description)) for key, b in rows]
 

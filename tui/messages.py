@@ -1,4 +1,5 @@
 """The app's own messages: what the session workers report back to the UI thread."""
+
 from __future__ import annotations
 
 from pathlib import Path

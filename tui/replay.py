@@ -10,6 +10,7 @@ corrections added to /labels (source "correction") and to /events (markers), plu
 "corrections" metadata record naming the original. Later changes win (capture.reader
 labels_at), so a correction at time t applies from t until the next change.
 """
+
 from __future__ import annotations
 
 import bisect
@@ -107,8 +108,17 @@ class ReplaySource:
     def _load(self, rec) -> _Frames:
         cnn, fused, voted, produced, truth = {}, {}, {}, {}, {}
         images, profiles, flags, features = {}, {}, {}, {}
-        wanted = [T.CNN, T.FUSED, T.TRUTH, T.LABELS, T.EVENTS, T.BINARY_IMAGE, T.CLOUD,
-                  T.PREPROCESS, T.FEATURES]
+        wanted = [
+            T.CNN,
+            T.FUSED,
+            T.TRUTH,
+            T.LABELS,
+            T.EVENTS,
+            T.BINARY_IMAGE,
+            T.CLOUD,
+            T.PREPROCESS,
+            T.FEATURES,
+        ]
         for m in rec.messages(wanted):
             d = m.data
             if m.topic == T.CNN:
@@ -122,10 +132,19 @@ class ReplaySource:
             elif m.topic == T.TRUTH:
                 truth[int(d["frame_index"])] = _mode_index(d.get("mode"))
             elif m.topic == T.LABELS:
-                self.original_labels.append((int(d["time_ns"]), d.get("mode", ""), d.get("source", "")))
+                self.original_labels.append(
+                    (int(d["time_ns"]), d.get("mode", ""), d.get("source", ""))
+                )
             elif m.topic == T.EVENTS:
-                self.events.append(DeviceEvent(int(d["time_ns"]), d.get("device", ""), d.get("kind", ""),
-                                               d.get("message", ""), d.get("details") or {}))
+                self.events.append(
+                    DeviceEvent(
+                        int(d["time_ns"]),
+                        d.get("device", ""),
+                        d.get("kind", ""),
+                        d.get("message", ""),
+                        d.get("details") or {},
+                    )
+                )
             elif m.topic == T.BINARY_IMAGE:
                 images[m.sequence] = np.packbits(np.asarray(m.data) > 0)
             elif m.topic == T.CLOUD:
@@ -136,14 +155,17 @@ class ReplaySource:
             elif m.topic == T.PREPROCESS:
                 flags[int(d["frame_index"])] = d.get("flag", "")
             elif m.topic == T.FEATURES:
-                features[int(d["frame_index"])] = {k: v for k, v in d.items()
-                                                   if k not in ("frame_index", "time_ns")
-                                                   and not isinstance(v, (list, dict))}
+                features[int(d["frame_index"])] = {
+                    k: v
+                    for k, v in d.items()
+                    if k not in ("frame_index", "time_ns") and not isinstance(v, (list, dict))
+                }
         self.original_labels.sort(key=lambda c: c[0])
         self.events.sort(key=lambda e: e.time_ns)
         index = np.array(sorted(cnn), dtype=np.int64)
-        probs = np.array([[np.nan if p is None else p for p in cnn[i][2]] for i in index],
-                         dtype=np.float64).reshape(-1, len(MODES))
+        probs = np.array(
+            [[np.nan if p is None else p for p in cnn[i][2]] for i in index], dtype=np.float64
+        ).reshape(-1, len(MODES))
         shown = np.full(len(index), -1, dtype=int)
         last = -1
         for k, i in enumerate(index):  # what the big display showed when frame i was processed
@@ -154,12 +176,17 @@ class ReplaySource:
             time_ns=np.array([cnn[i][0] for i in index], dtype=np.int64),
             host_ns=np.array([cnn[i][1] for i in index], dtype=np.int64),
             probabilities=probs,
-            cnn=np.array([int(np.nanargmax(p)) if np.isfinite(p).any() else -1 for p in probs], dtype=int),
+            cnn=np.array(
+                [int(np.nanargmax(p)) if np.isfinite(p).any() else -1 for p in probs], dtype=int
+            ),
             fused=np.array([fused.get(int(i), -1) for i in index], dtype=int),
             voted=np.array([voted.get(int(i), -1) for i in index], dtype=int),
             fused_shown=shown,
             truth=np.array([truth.get(int(i), -1) for i in index], dtype=int),
-            images=images, profiles=profiles, flags=flags, features=features,
+            images=images,
+            profiles=profiles,
+            flags=flags,
+            features=features,
         )
 
     def _device_status(self, rec, frames: int) -> tuple[DeviceStatus, DeviceStatus]:
@@ -167,12 +194,21 @@ class ReplaySource:
         seconds = max(rec.duration_s, 1e-9)
         imu_count = rec.topics[T.IMU].count if T.IMU in rec.topics else 0
         name = self.path.name
-        camera = DeviceStatus(backend=f"replay of {devices.get('camera_backend', '?')}", state="ok",
-                              message=name, configured_rate_hz=float(devices.get("camera_fps") or 0),
-                              measured_rate_hz=frames / seconds, delivered=frames)
-        imu = DeviceStatus(backend=f"replay of {devices.get('imu_backend', '?')}", state="ok",
-                           configured_rate_hz=float(devices.get("imu_rate_hz") or 0),
-                           measured_rate_hz=imu_count / seconds, delivered=imu_count)
+        camera = DeviceStatus(
+            backend=f"replay of {devices.get('camera_backend', '?')}",
+            state="ok",
+            message=name,
+            configured_rate_hz=float(devices.get("camera_fps") or 0),
+            measured_rate_hz=frames / seconds,
+            delivered=frames,
+        )
+        imu = DeviceStatus(
+            backend=f"replay of {devices.get('imu_backend', '?')}",
+            state="ok",
+            configured_rate_hz=float(devices.get("imu_rate_hz") or 0),
+            measured_rate_hz=imu_count / seconds,
+            delivered=imu_count,
+        )
         return camera, imu
 
     def stop(self):
@@ -233,7 +269,9 @@ class ReplaySource:
         k = int(self._labels_at(np.array([t]))[0])
         return MODES[k] if k >= 0 else None
 
-    def set_label(self, mode: str, source: str = CORRECTION, time_ns: int | None = None) -> LabelChange:
+    def set_label(
+        self, mode: str, source: str = CORRECTION, time_ns: int | None = None
+    ) -> LabelChange:
         """The true mode from the replay position on (until the next change)."""
         if mode not in MODES:
             raise CaptureError(f"unknown mode {mode!r} (one of {', '.join(MODES)})")
@@ -254,8 +292,9 @@ class ReplaySource:
 
     def add_marker(self, note: str = "", time_ns: int | None = None) -> None:
         _, t = self._cursor()  # in replay a marker sits at the playback position
-        self.markers.append(DeviceEvent(t, "operator", "marker", note or "marker",
-                                        {"added_in_replay": True}))
+        self.markers.append(
+            DeviceEvent(t, "operator", "marker", note or "marker", {"added_in_replay": True})
+        )
         self._unsaved = True
 
     @property
@@ -288,33 +327,59 @@ class ReplaySource:
         f = self.frames
         k, t = self._cursor()
         i = int(f.index[k])
-        image = np.unpackbits(f.images[i])[:100 * 100].reshape(100, 100) if i in f.images \
+        image = (
+            np.unpackbits(f.images[i])[: 100 * 100].reshape(100, 100)
+            if i in f.images
             else np.zeros((100, 100), np.uint8)
+        )
         shown = int(f.fused_shown[k])
         latest = FrameResult(
-            index=i, time_ns=int(f.time_ns[k]), host_time_ns=int(f.host_ns[k]), quaternion=None,
-            image=image, cloud=np.zeros((0, 3), np.float32),
+            index=i,
+            time_ns=int(f.time_ns[k]),
+            host_time_ns=int(f.host_ns[k]),
+            quaternion=None,
+            image=image,
+            cloud=np.zeros((0, 3), np.float32),
             profile=f.profiles.get(i, np.zeros((0, 2), np.float16)).astype(np.float32),
-            flag=f.flags.get(i, ""), probabilities=f.probabilities[k], cnn_decision=int(f.cnn[k]),
+            flag=f.flags.get(i, ""),
+            probabilities=f.probabilities[k],
+            cnn_decision=int(f.cnn[k]),
             fused=SimpleNamespace(decision=shown) if shown >= 0 else None,
-            features=f.features.get(i, {}))
+            features=f.features.get(i, {}),
+        )
         lo = int(np.searchsorted(f.time_ns, t - int(TIMELINE_S * 1e9), side="left"))
-        times = f.time_ns[lo:k + 1]
+        times = f.time_ns[lo : k + 1]
         labels = self._labels_at(times)
         timeline = [
-            TimelineEntry(int(f.index[j]), int(f.time_ns[j]),
-                          MODES[labels[j - lo]] if labels[j - lo] >= 0 else None, int(f.cnn[j]),
-                          int(f.fused[j]) if f.fused[j] >= 0 else None,
-                          int(f.voted[j]) if f.voted[j] >= 0 else None,
-                          MODES[f.truth[j]] if f.truth[j] >= 0 else None)
-            for j in range(lo, k + 1)]
+            TimelineEntry(
+                int(f.index[j]),
+                int(f.time_ns[j]),
+                MODES[labels[j - lo]] if labels[j - lo] >= 0 else None,
+                int(f.cnn[j]),
+                int(f.fused[j]) if f.fused[j] >= 0 else None,
+                int(f.voted[j]) if f.voted[j] >= 0 else None,
+                MODES[f.truth[j]] if f.truth[j] >= 0 else None,
+            )
+            for j in range(lo, k + 1)
+        ]
         events = sorted(self.events + self.markers, key=lambda e: e.time_ns)
         upto = bisect.bisect_right([e.time_ns for e in events], t)
         label = labels[-1] if len(labels) else -1
-        return Snapshot(time_ns=t, running=True, camera=self._camera, imu=self._imu, sync={},
-                        label=MODES[label] if label >= 0 else None, latest=latest,
-                        timeline=timeline, events=events[max(0, upto - 50):upto], recording=None,
-                        recording_started_ns=None, frames=k + 1, latency_ms={})
+        return Snapshot(
+            time_ns=t,
+            running=True,
+            camera=self._camera,
+            imu=self._imu,
+            sync={},
+            label=MODES[label] if label >= 0 else None,
+            latest=latest,
+            timeline=timeline,
+            events=events[max(0, upto - 50) : upto],
+            recording=None,
+            recording_started_ns=None,
+            frames=k + 1,
+            latency_ms={},
+        )
 
 
 def _subject_from_metadata(session: dict) -> SubjectInfo | None:
@@ -350,8 +415,9 @@ def corrected_path(original: Path) -> Path:
     return candidate
 
 
-def write_corrected(original: Path, target: Path, corrections: list[LabelChange],
-                    markers: list[DeviceEvent]) -> Path:
+def write_corrected(
+    original: Path, target: Path, corrections: list[LabelChange], markers: list[DeviceEvent]
+) -> Path:
     """Copy `original` message for message into `target` (never overwritten), adding the
     corrections to /labels and the markers to /events.
 
@@ -374,19 +440,27 @@ def write_corrected(original: Path, target: Path, corrections: list[LabelChange]
             writer.start(profile="", library=rec.library or "walkcap")
             for name, values in rec.metadata_records:
                 writer.add_metadata(name, values)
-            writer.add_metadata("corrections", {
-                "source": original.name,
-                "source_size": str(rec.size),
-                "written": dt.datetime.now().isoformat(timespec="seconds"),
-                "labels": json.dumps([[c.time_ns, c.mode] for c in corrections]),
-                "markers": str(len(markers)),
-                "rule": "label changes apply from their time until the next; corrections "
-                        f"have source '{CORRECTION}'",
-            })
+            writer.add_metadata(
+                "corrections",
+                {
+                    "source": original.name,
+                    "source_size": str(rec.size),
+                    "written": dt.datetime.now().isoformat(timespec="seconds"),
+                    "labels": json.dumps([[c.time_ns, c.mode] for c in corrections]),
+                    "markers": str(len(markers)),
+                    "rule": "label changes apply from their time until the next; corrections "
+                    f"have source '{CORRECTION}'",
+                },
+            )
             t0 = rec.start_ns or 0
             for name, data in rec.attachments.items():
-                media = "application/x-npy" if name.endswith(".npy") else \
-                    "application/json" if name.endswith(".json") else "application/octet-stream"
+                media = (
+                    "application/x-npy"
+                    if name.endswith(".npy")
+                    else "application/json"
+                    if name.endswith(".json")
+                    else "application/octet-stream"
+                )
                 writer.add_attachment(t0, t0, name, media, data)
             schemas: dict[int, int] = {}
             channels: dict[int, int] = {}  # original channel id -> new id
@@ -397,16 +471,21 @@ def write_corrected(original: Path, target: Path, corrections: list[LabelChange]
                     sid = 0
                     if schema is not None:
                         sid = schemas.get(schema.id) or writer.register_schema(
-                            schema.name, schema.encoding, schema.data)
+                            schema.name, schema.encoding, schema.data
+                        )
                         schemas[schema.id] = sid
-                    cid = writer.register_channel(channel.topic, channel.message_encoding, sid,
-                                                  dict(channel.metadata))
+                    cid = writer.register_channel(
+                        channel.topic, channel.message_encoding, sid, dict(channel.metadata)
+                    )
                     channels[channel.id] = cid
                     by_topic.setdefault(channel.topic, cid)
-                writer.add_message(cid, message.log_time, message.data, message.publish_time,
-                                   message.sequence)
-            extra = [(T.LABELS, c.time_ns, T.label_json(c.time_ns, c.mode, CORRECTION))
-                     for c in corrections]
+                writer.add_message(
+                    cid, message.log_time, message.data, message.publish_time, message.sequence
+                )
+            extra = [
+                (T.LABELS, c.time_ns, T.label_json(c.time_ns, c.mode, CORRECTION))
+                for c in corrections
+            ]
             extra += [(T.EVENTS, e.time_ns, T.event_json(e)) for e in markers]
             for topic, t, entry in sorted(extra, key=lambda x: x[1]):
                 cid = by_topic.get(topic) or _json_channel(writer, topic, by_topic)
@@ -431,8 +510,9 @@ def _json_channel(writer, topic: str, by_topic: dict[str, int]) -> int:
     """A channel for `topic` in the new file when the original had none."""
     spec = T.topic_spec(topic)
     sid = writer.register_schema(spec.schema_name, spec.schema_encoding, spec.schema_data)
-    by_topic[topic] = writer.register_channel(topic, spec.message_encoding, sid,
-                                              {"description": T.DESCRIPTIONS[topic]})
+    by_topic[topic] = writer.register_channel(
+        topic, spec.message_encoding, sid, {"description": T.DESCRIPTIONS[topic]}
+    )
     return by_topic[topic]
 
 
@@ -444,8 +524,9 @@ def run_tui(path: str | os.PathLike, config) -> int:
     p = Path(path)
     if not p.is_file():
         raise CaptureError(f"{p}: no such file")
-    app = WalkcapApp(config, session=ReplaySource(p), ask_subject=False,
-                     start_status=f"loading {p.name}…")
+    app = WalkcapApp(
+        config, session=ReplaySource(p), ask_subject=False, start_status=f"loading {p.name}…"
+    )
     with logging_to_file(log_path()):
         app.run()
     if app.start_error:

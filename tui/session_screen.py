@@ -3,6 +3,7 @@
 The last values confirmed are kept in ~/.config/walkcap/last_session.json so that the next
 session (or a restart after a crash) opens with them, trial number included.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -92,7 +93,9 @@ def info_from_form(values: dict[str, object]) -> SubjectInfo:
             try:
                 kwargs[name] = int(text) if kind == "int" else float(text)
             except ValueError:
-                raise CaptureError(f"{label.split(' (')[0].lower()}: {text!r} is not a number") from None
+                raise CaptureError(
+                    f"{label.split(' (')[0].lower()}: {text!r} is not a number"
+                ) from None
         else:
             kwargs[name] = text
     info = SubjectInfo(**kwargs)
@@ -105,7 +108,11 @@ def form_values(info: SubjectInfo) -> dict[str, object]:
     values: dict[str, object] = {}
     for name, (_, kind) in FIELDS.items():
         v = getattr(info, name)
-        values[name] = v if kind == "bool" else ("" if v is None else (f"{v:g}" if isinstance(v, float) else str(v)))
+        values[name] = (
+            v
+            if kind == "bool"
+            else ("" if v is None else (f"{v:g}" if isinstance(v, float) else str(v)))
+        )
     return values
 
 

@@ -3,6 +3,7 @@
 The live screen only pulls `snapshot()` and sends these commands; anything with this
 surface can drive it (capture.session.Session does; tests use a fake; replay its own).
 """
+
 from __future__ import annotations
 
 from pathlib import Path

@@ -13,6 +13,7 @@ The IMU emulator must see the same walk on the same time base: give it
 seconds since `camera.start_time_ns`. Set `start_time_ns` before `start()` to share a
 start time chosen elsewhere; otherwise `start()` sets it.
 """
+
 from __future__ import annotations
 
 import logging
@@ -37,9 +38,16 @@ CATCH_UP_FRAMES = 3
 class MockCamera(Camera):
     backend = "mock"
 
-    def __init__(self, config=None, simulator_config=None, *, simulator: Simulator | None = None,
-                 loop: bool = False, realtime: bool | None = None,
-                 geometry: CameraGeometry | None = None) -> None:
+    def __init__(
+        self,
+        config=None,
+        simulator_config=None,
+        *,
+        simulator: Simulator | None = None,
+        loop: bool = False,
+        realtime: bool | None = None,
+        geometry: CameraGeometry | None = None,
+    ) -> None:
         super().__init__(config, geometry=geometry)
         if simulator is None:
             if simulator_config is None:
@@ -61,13 +69,17 @@ class MockCamera(Camera):
         self._thread: threading.Thread | None = None
         self._stall_until_ns = 0
         course = simulator.course
-        self.details = {"course": course.preset, "seed": course.seed,
-                        "modes": " ".join(course.modes),
-                        "duration_s": round(simulator.duration_s, 2), "loop": self.loop,
-                        "realtime": self.realtime}
+        self.details = {
+            "course": course.preset,
+            "seed": course.seed,
+            "modes": " ".join(course.modes),
+            "duration_s": round(simulator.duration_s, 2),
+            "loop": self.loop,
+            "realtime": self.realtime,
+        }
 
     @classmethod
-    def from_config(cls, camera_config, simulator_config=None, **kw) -> "MockCamera":
+    def from_config(cls, camera_config, simulator_config=None, **kw) -> MockCamera:
         return cls(camera_config, simulator_config, **kw)
 
     def walk_time(self, t_s: float) -> float:
@@ -96,8 +108,7 @@ class MockCamera(Camera):
         if self.start_time_ns is None:
             self.start_time_ns = now_ns()
         self._halt.clear()
-        self._thread = threading.Thread(target=self._run, name="walkcap-mock-camera",
-                                        daemon=True)
+        self._thread = threading.Thread(target=self._run, name="walkcap-mock-camera", daemon=True)
         self._thread.start()
 
     def _stop(self) -> None:
@@ -130,8 +141,9 @@ class MockCamera(Camera):
                 behind = int(-wait / period)
                 if behind >= CATCH_UP_FRAMES:  # too late: skip to the current frame
                     self._count_error(behind)
-                    self._event("gap", f"{behind} frames skipped: the simulator is too slow",
-                                skipped=behind)
+                    self._event(
+                        "gap", f"{behind} frames skipped: the simulator is too slow", skipped=behind
+                    )
                     k += behind
                     continue
             else:

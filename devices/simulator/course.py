@@ -15,6 +15,7 @@ Presets: "indoor" and "outdoor", randomised by a seed: risers 0.12-0.20 m, tread
 0.25-0.35 m, ramps 5-15 degrees; outdoors also curbs (one-step height changes inside
 level-ground segments), uneven ground and clutter beside the walkway.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -158,8 +159,9 @@ class Course:
         return z
 
 
-def _stairs(mode: str, x0: float, z0: float, rng: np.random.Generator,
-            steps: tuple[int, int]) -> Segment:
+def _stairs(
+    mode: str, x0: float, z0: float, rng: np.random.Generator, steps: tuple[int, int]
+) -> Segment:
     n = int(rng.integers(steps[0], steps[1] + 1))
     riser = float(rng.uniform(0.12, 0.20))
     tread = float(rng.uniform(0.25, 0.35))
@@ -167,8 +169,9 @@ def _stairs(mode: str, x0: float, z0: float, rng: np.random.Generator,
 
 
 def _ramp(mode: str, x0: float, z0: float, rng: np.random.Generator) -> Segment:
-    return Segment(mode, x0, z0, float(rng.uniform(3.0, 5.0)),
-                   slope_deg=float(rng.uniform(5.0, 15.0)))
+    return Segment(
+        mode, x0, z0, float(rng.uniform(3.0, 5.0)), slope_deg=float(rng.uniform(5.0, 15.0))
+    )
 
 
 def _level(x0: float, z0: float, rng: np.random.Generator, outdoor: bool) -> Segment:
@@ -180,8 +183,9 @@ def _level(x0: float, z0: float, rng: np.random.Generator, outdoor: bool) -> Seg
     return Segment("LG", x0, z0, length, curbs=curbs)
 
 
-def make_course(preset: str = "indoor", seed: int = 0,
-                modes: tuple[str, ...] | list[str] | None = None) -> Course:
+def make_course(
+    preset: str = "indoor", seed: int = 0, modes: tuple[str, ...] | list[str] | None = None
+) -> Course:
     """A course for a preset and seed; `modes` (default: one trial of the paper) orders it."""
     if preset not in PRESETS:
         raise ValueError(f"unknown course preset {preset!r} (known: {', '.join(PRESETS)})")
@@ -208,16 +212,20 @@ def make_course(preset: str = "indoor", seed: int = 0,
         x, z = seg.x1, seg.z1
     bare = Course(tuple(segments), preset, seed)
     if outdoor:
-        return Course(bare.segments, preset, seed, bump_m=0.012,
-                      boxes=tuple(_clutter(bare, rng)),
-                      bump_waves=tuple(_bump_waves(rng, 0.012)))
+        return Course(
+            bare.segments,
+            preset,
+            seed,
+            bump_m=0.012,
+            boxes=tuple(_clutter(bare, rng)),
+            bump_waves=tuple(_bump_waves(rng, 0.012)),
+        )
     return Course(bare.segments, preset, seed, boxes=tuple(_walls(bare, rng)))
 
 
 def _turns(before: str, after: str) -> bool:
     """Going up turns into going down or back: a landing must join them."""
-    return ((before in ASCENTS and after in DESCENTS)
-            or (before in DESCENTS and after in ASCENTS))
+    return (before in ASCENTS and after in DESCENTS) or (before in DESCENTS and after in ASCENTS)
 
 
 def _bump_waves(rng: np.random.Generator, amplitude: float):
@@ -226,8 +234,12 @@ def _bump_waves(rng: np.random.Generator, amplitude: float):
     for _ in range(n):
         k = 2 * np.pi / rng.uniform(0.5, 2.0)
         angle = rng.uniform(0, np.pi)
-        yield (float(k * np.cos(angle)), float(k * np.sin(angle)),
-               float(rng.uniform(0, 2 * np.pi)), float(amplitude / np.sqrt(n / 2)))
+        yield (
+            float(k * np.cos(angle)),
+            float(k * np.sin(angle)),
+            float(rng.uniform(0, 2 * np.pi)),
+            float(amplitude / np.sqrt(n / 2)),
+        )
 
 
 def _walls(course: Course, rng: np.random.Generator):
@@ -247,7 +259,10 @@ def _clutter(course: Course, rng: np.random.Generator):
         x += float(rng.uniform(0.8, 2.2))
         side = float(rng.choice([-1.0, 1.0]))
         y = side * float(rng.uniform(0.75, 2.5))
-        size = (float(rng.uniform(0.1, 0.8)), float(rng.uniform(0.1, 0.8)),
-                float(rng.uniform(0.2, 1.5)))
+        size = (
+            float(rng.uniform(0.1, 0.8)),
+            float(rng.uniform(0.1, 0.8)),
+            float(rng.uniform(0.2, 1.5)),
+        )
         ground = float(course.height_at(np.array([x]))[0])
         yield Box((x, y, ground + size[2] / 2 - 0.02), size)

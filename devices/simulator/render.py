@@ -13,6 +13,7 @@ casts one ray per pixel (camera rays precomputed once). The ToF model (`ToFSenso
 Occluders for error images (the other foot, something in front of the lens) are drawn
 analytically in the camera frame, so the scene never changes per frame.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -48,7 +49,7 @@ class ToFParams:
     ambient_gray: float = 30.0
 
     @classmethod
-    def for_course(cls, course: Course) -> "ToFParams":
+    def for_course(cls, course: Course) -> ToFParams:
         if course.outdoor:
             return cls(noise_rel=0.016, min_amplitude=0.009, speckle=0.01, ambient_gray=250.0)
         return cls()
@@ -91,8 +92,9 @@ def course_mesh(course: Course) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     zz = z[:, None] + course.bumps(xx, yy)
     vertices = np.stack([xx, yy, zz], axis=-1).reshape(-1, 3)
     i = (np.arange(n - 1)[:, None] * m + np.arange(m - 1)[None, :]).ravel()
-    triangles = np.concatenate([np.stack([i, i + m, i + 1], 1),
-                                np.stack([i + 1, i + m, i + m + 1], 1)])
+    triangles = np.concatenate(
+        [np.stack([i, i + m, i + 1], 1), np.stack([i + 1, i + m, i + m + 1], 1)]
+    )
     tri_labels = np.tile(np.repeat(labels[1:], m - 1), 2)
     for box in course.boxes:
         v, t = _box_triangles(box)
@@ -124,8 +126,10 @@ class TerrainScene:
         self._o3d = o3d
         vertices, triangles, labels = course_mesh(course)
         self.scene = o3d.t.geometry.RaycastingScene()
-        self.scene.add_triangles(o3d.core.Tensor(vertices.astype(np.float32)),
-                                 o3d.core.Tensor(triangles.astype(np.uint32)))
+        self.scene.add_triangles(
+            o3d.core.Tensor(vertices.astype(np.float32)),
+            o3d.core.Tensor(triangles.astype(np.uint32)),
+        )
         self.triangle_count = n = len(triangles)
         # per-triangle tables with one more entry for "no hit" (primitive ids are clamped)
         self._labels = np.append(labels, NOTHING).astype(np.int32)
@@ -148,12 +152,17 @@ class TerrainScene:
         # a miss has primitive id INVALID_ID (2**32 - 1): clamp it to the extra entry
         index = np.minimum(ans["primitive_ids"].numpy(), self._no_hit)
         cos_inc = np.einsum("ij,ij->i", ans["primitive_normals"].numpy(), rays[:, 3:])
-        return Hits(t=ans["t_hit"].numpy().copy(), label=self._labels[index],
-                    cos_inc=np.abs(cos_inc), albedo=self._albedo[index])
+        return Hits(
+            t=ans["t_hit"].numpy().copy(),
+            label=self._labels[index],
+            cos_inc=np.abs(cos_inc),
+            albedo=self._albedo[index],
+        )
 
 
-def draw_foot(hits: Hits, geometry: CameraGeometry, progress: float, strength: float,
-              rng: np.random.Generator) -> None:
+def draw_foot(
+    hits: Hits, geometry: CameraGeometry, progress: float, strength: float, rng: np.random.Generator
+) -> None:
     """The other foot and shank passing through the lower image, 0.25-0.45 m away."""
     w, h = geometry.width, geometry.height
     uc = w * rng.uniform(0.3, 0.55)
@@ -162,8 +171,13 @@ def draw_foot(hits: Hits, geometry: CameraGeometry, progress: float, strength: f
     _draw_blob(hits, geometry, uc, vc, ru, rv, 0.25 + 0.2 * rng.random(), 0.08, 0.5)
 
 
-def draw_occlusion(hits: Hits, rays_cam: np.ndarray, geometry: CameraGeometry,
-                   strength: float, rng: np.random.Generator) -> None:
+def draw_occlusion(
+    hits: Hits,
+    rays_cam: np.ndarray,
+    geometry: CameraGeometry,
+    strength: float,
+    rng: np.random.Generator,
+) -> None:
     """Something flat close in front of the lens, over one side and the centre."""
     rays = rays_cam.reshape(geometry.height, geometry.width, 3)
     cols = np.arange(geometry.width)
@@ -178,7 +192,7 @@ def draw_occlusion(hits: Hits, rays_cam: np.ndarray, geometry: CameraGeometry,
 
 
 def _draw_blob(hits, geometry, uc, vc, ru, rv, depth, bulge, albedo) -> None:
-    v, u = np.mgrid[0:geometry.height, 0:geometry.width]
+    v, u = np.mgrid[0 : geometry.height, 0 : geometry.width]
     rho2 = ((u - uc) / ru) ** 2 + ((v - vc) / rv) ** 2
     mask = (rho2 < 1.0).ravel()
     t_occ = (depth + bulge * rho2).astype(np.float32).ravel()
@@ -229,7 +243,7 @@ class ToFSensor:
     def _draws(self, rng: np.random.Generator, pool: np.ndarray) -> np.ndarray:
         n = len(self.rays_cam)
         offset = int(rng.integers(0, 2 * n))
-        return pool[offset:offset + n]
+        return pool[offset : offset + n]
 
     def apply(self, hits: Hits, rng: np.random.Generator, noise_scale: float = 1.0):
         """(xyz, confidence, gray) images of a frame, as the camera delivers them."""
@@ -260,8 +274,10 @@ class ToFSensor:
         # flying pixels: a pixel beside a much nearer neighbour mixes both depths
         img = np.where(valid, t, np.float32(np.nan)).reshape(g.height, g.width)
         nearest = np.full_like(img, np.nan)
-        for a, b in (((slice(None), slice(1, None)), (slice(None), slice(None, -1))),
-                     ((slice(1, None), slice(None)), (slice(None, -1), slice(None)))):
+        for a, b in (
+            ((slice(None), slice(1, None)), (slice(None), slice(None, -1))),
+            ((slice(1, None), slice(None)), (slice(None, -1), slice(None))),
+        ):
             np.fmin(nearest[a], img[b], out=nearest[a])
             np.fmin(nearest[b], img[a], out=nearest[b])
         with np.errstate(invalid="ignore"):
@@ -283,5 +299,8 @@ class ToFSensor:
         gray += normal * 4.0 + p.ambient_gray  # amplitude noise, reusing the draws
         np.clip(gray, 0, 4095, out=gray)
         h, w = g.height, g.width
-        return (xyz.reshape(h, w, 3), confidence.astype(np.uint8).reshape(h, w),
-                gray.astype(np.uint16).reshape(h, w))
+        return (
+            xyz.reshape(h, w, 3),
+            confidence.astype(np.uint8).reshape(h, w),
+            gray.astype(np.uint16).reshape(h, w),
+        )

@@ -17,6 +17,7 @@ The subject stands at the start of the course until the camera starts, then walk
 IMU feels the same thigh all along. Closing both devices ends the child; so does the
 host's death (the pipe breaks).
 """
+
 from __future__ import annotations
 
 import logging
@@ -58,15 +59,22 @@ class MockRig:
         self._users = 0
         self._closed = False
         self.camera_device: RigCamera | None = None
-        self._child = Child("devices.simulator.rig:_serve", camera_config, simulator_config,
-                            imu_config)
+        self._child = Child(
+            "devices.simulator.rig:_serve", camera_config, simulator_config, imu_config
+        )
         self._conn = self._child.conn
         ready = self._conn.poll(START_TIMEOUT_S) and self._receive_quietly()
         if not ready or ready[0] != "ready":
             code = self._child.process.poll()
-            message = ready[1] if ready else (
-                "no answer" if code is None else
-                f"its process exited with code {code} (WALKCAP_DEBUG=1 shows its errors)")
+            message = (
+                ready[1]
+                if ready
+                else (
+                    "no answer"
+                    if code is None
+                    else f"its process exited with code {code} (WALKCAP_DEBUG=1 shows its errors)"
+                )
+            )
             self._kill()
             raise DeviceInitError(f"mock devices failed to start: {message}")
         info = ready[1]
@@ -79,12 +87,12 @@ class MockRig:
 
     # ---- the two devices ------------------------------------------------------------------
 
-    def camera(self) -> "RigCamera":
+    def camera(self) -> RigCamera:
         self._users += 1
         self.camera_device = RigCamera(self)
         return self.camera_device
 
-    def imu(self) -> "RigImu":
+    def imu(self) -> RigImu:
         self._users += 1
         cfg = self.imu_config
         return RigImu(self, self.port, mock_baudrate(cfg), cfg.rate_hz)
@@ -118,8 +126,12 @@ class MockRig:
             request_id = self._next_id
         self._send(("request", request_id) + message)
         with self._replied:
-            if not self._replied.wait_for(lambda: request_id in self._replies or self._closed,
-                                          REPLY_TIMEOUT_S) or request_id not in self._replies:
+            if (
+                not self._replied.wait_for(
+                    lambda: request_id in self._replies or self._closed, REPLY_TIMEOUT_S
+                )
+                or request_id not in self._replies
+            ):
                 raise DeviceInitError(f"mock devices did not answer {message[0]!r}")
             ok, value = self._replies.pop(request_id)
         if not ok:
@@ -173,9 +185,16 @@ class MockRig:
             self._conn.recv_bytes_into(buffer)
             arrays[name] = np.frombuffer(buffer, dtype=dtype).reshape(shape)
         if self.camera_device is not None:
-            self.camera_device.on_frame(DepthFrame(
-                index=header["index"], device_time_ns=header["device_time_ns"],
-                host_time_ns=now_ns(), geometry=self.geometry, truth=header["truth"], **arrays))
+            self.camera_device.on_frame(
+                DepthFrame(
+                    index=header["index"],
+                    device_time_ns=header["device_time_ns"],
+                    host_time_ns=now_ns(),
+                    geometry=self.geometry,
+                    truth=header["truth"],
+                    **arrays,
+                )
+            )
 
     # ---- end ------------------------------------------------------------------------------
 
@@ -275,6 +294,7 @@ class RigImu(XbusImu):
 
 # ---- the child process ---------------------------------------------------------------------
 
+
 def _serve(conn, camera_config, simulator_config, imu_config) -> None:
     """The rig's main: build the walk, camera and IMU emulator; answer requests; stream."""
     logging.basicConfig(level=logging.WARNING)
@@ -304,17 +324,30 @@ def _serve(conn, camera_config, simulator_config, imu_config) -> None:
                 return camera.orientation_at(0.0)
             return camera.orientation_at(max(0.0, (emulator.start_time_ns - start) * 1e-9 + t_s))
 
-        emulator = ImuEmulator(rate_hz=imu_config.rate_hz, drift_ppm=imu_config.drift_ppm,
-                               jitter_ms=imu_config.jitter_ms, seed=getattr(imu_config, "seed", 0),
-                               orientation_at=thigh, baudrate=mock_baudrate(imu_config))
+        emulator = ImuEmulator(
+            rate_hz=imu_config.rate_hz,
+            drift_ppm=imu_config.drift_ppm,
+            jitter_ms=imu_config.jitter_ms,
+            seed=getattr(imu_config, "seed", 0),
+            orientation_at=thigh,
+            baudrate=mock_baudrate(imu_config),
+        )
         port = emulator.start()
     except Exception as e:
         conn.send(("failed", f"{type(e).__name__}: {e}"))
         return
     stopping = threading.Event()
-    send(("ready", {"port": port, "geometry": camera.geometry,
-                    "details": {**camera.details, "scheduling": scheduling},
-                    "clock": emulator.clock}))
+    send(
+        (
+            "ready",
+            {
+                "port": port,
+                "geometry": camera.geometry,
+                "details": {**camera.details, "scheduling": scheduling},
+                "clock": emulator.clock,
+            },
+        )
+    )
     streamer = threading.Thread(target=_stream, args=(camera, send, stopping), daemon=True)
     streamer.start()
     try:
@@ -364,12 +397,17 @@ def _stream(camera, send, stopping: threading.Event) -> None:
             if frame is None:
                 continue
             arrays = [(name, getattr(frame, name)) for name in ("xyz", "confidence", "gray")]
-            header = {"index": frame.index, "device_time_ns": frame.device_time_ns,
-                      "truth": frame.truth,
-                      "arrays": [(n, a.dtype.str, a.shape) for n, a in arrays]}
+            header = {
+                "index": frame.index,
+                "device_time_ns": frame.device_time_ns,
+                "truth": frame.truth,
+                "arrays": [(n, a.dtype.str, a.shape) for n, a in arrays],
+            }
             # flat bytes: Connection.send_bytes takes len() of a memoryview, rows for 2-D
-            send(("frame", header), *(np.ascontiguousarray(a).reshape(-1).view(np.uint8)
-                                      for _, a in arrays))
+            send(
+                ("frame", header),
+                *(np.ascontiguousarray(a).reshape(-1).view(np.uint8) for _, a in arrays),
+            )
     except (OSError, ValueError):
         pass  # the host is gone
     except Exception as e:  # a simulator bug shows on the host as a lost camera

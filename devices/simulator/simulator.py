@@ -29,6 +29,7 @@ ground truth in `frame.truth`:
 
 Every frame is a pure function of (course, walker parameters, seed, t): deterministic.
 """
+
 from __future__ import annotations
 
 import time
@@ -39,7 +40,12 @@ from capture.errors import ConfigError
 from devices.frames import MODES, CameraGeometry, DepthFrame
 from devices.simulator.course import Course, make_course
 from devices.simulator.render import (
-    TerrainScene, ToFParams, ToFSensor, blend_swing, draw_foot, draw_occlusion,
+    TerrainScene,
+    ToFParams,
+    ToFSensor,
+    blend_swing,
+    draw_foot,
+    draw_occlusion,
 )
 from devices.simulator.walk import GRID_M, Walk, smooth
 
@@ -55,11 +61,21 @@ CELL_M, IMAGE_M, IMAGE_FORWARD_M = 0.01, 1.0, 2.5
 
 
 class Simulator:
-    def __init__(self, course: Course, *, geometry: CameraGeometry = CameraGeometry(),
-                 speed_mps: float = 1.1, cadence_spm: float = 105.0,
-                 camera_height_m: float = 0.55, camera_tilt_deg: float = 35.0, seed: int = 0,
-                 camera_offset_m: float = 0.07, error_rate: float | None = None,
-                 events=None, cast_threads: int = 0) -> None:
+    def __init__(
+        self,
+        course: Course,
+        *,
+        geometry: CameraGeometry = CameraGeometry(),
+        speed_mps: float = 1.1,
+        cadence_spm: float = 105.0,
+        camera_height_m: float = 0.55,
+        camera_tilt_deg: float = 35.0,
+        seed: int = 0,
+        camera_offset_m: float = 0.07,
+        error_rate: float | None = None,
+        events=None,
+        cast_threads: int = 0,
+    ) -> None:
         """`camera_offset_m`: the camera's distance in front of the thigh's axis;
         `error_rate` scales the error images (default 1 indoors, 1.6 outdoors); `events`
         (ErrorEvent list) replaces their random schedule, e.g. [] for none; `cast_threads`:
@@ -69,10 +85,17 @@ class Simulator:
         self.course = course
         self.geometry = geometry
         self.seed = seed
-        self.walk = Walk(course, speed_mps=speed_mps, cadence_spm=cadence_spm,
-                         camera_height_m=camera_height_m, camera_tilt_deg=camera_tilt_deg,
-                         camera_forward_m=camera_offset_m, error_rate=error_rate, seed=seed,
-                         events=events)
+        self.walk = Walk(
+            course,
+            speed_mps=speed_mps,
+            cadence_spm=cadence_spm,
+            camera_height_m=camera_height_m,
+            camera_tilt_deg=camera_tilt_deg,
+            camera_forward_m=camera_offset_m,
+            error_rate=error_rate,
+            seed=seed,
+            events=events,
+        )
         self.sensor = ToFSensor(geometry, ToFParams.for_course(course), seed)
         self.scene = TerrainScene(course, self.sensor.rays_cam, cast_threads)
         c = int(round(geometry.cx))
@@ -85,16 +108,22 @@ class Simulator:
         self._truth: np.ndarray | None = None  # truth segment per VOTE_DT_S, when first asked
 
     @classmethod
-    def from_config(cls, config, geometry: CameraGeometry | None = None,
-                    cast_threads: int = 0) -> "Simulator":
+    def from_config(
+        cls, config, geometry: CameraGeometry | None = None, cast_threads: int = 0
+    ) -> Simulator:
         """From a capture.config.SimulatorConfig (course preset, seed, walker, camera)."""
         try:
             course = make_course(config.course, config.seed)
-            return cls(course, geometry=geometry or CameraGeometry(),
-                       speed_mps=config.speed_mps, cadence_spm=config.cadence_spm,
-                       camera_height_m=config.camera_height_m,
-                       camera_tilt_deg=config.camera_tilt_deg, seed=config.seed,
-                       cast_threads=cast_threads)
+            return cls(
+                course,
+                geometry=geometry or CameraGeometry(),
+                speed_mps=config.speed_mps,
+                cadence_spm=config.cadence_spm,
+                camera_height_m=config.camera_height_m,
+                camera_tilt_deg=config.camera_tilt_deg,
+                seed=config.seed,
+                cast_threads=cast_threads,
+            )
         except ValueError as e:
             raise ConfigError(f"simulator: {e}") from None
 
@@ -130,8 +159,12 @@ class Simulator:
         rays = self.sensor.rays_cam[self._corridor[seen]]
         forward = hits.t[seen] * (rays @ pose[0, :3])
         window = _image_window(forward)
-        counts = _cover(pose[0, 3] + forward[window], forward[window],
-                        self.course.segment_index, len(self.course.segments))
+        counts = _cover(
+            pose[0, 3] + forward[window],
+            forward[window],
+            self.course.segment_index,
+            len(self.course.segments),
+        )
         best = int(np.argmax(counts))
         return best if counts[best] * 2 > counts.sum() else None
 
@@ -166,8 +199,7 @@ class Simulator:
                 progress = (t_s - event.t0) / (event.t1 - event.t0)
                 draw_foot(hits, self.geometry, progress, event.strength, shape_rng)
             elif event.kind == "occlusion":
-                draw_occlusion(hits, self.sensor.rays_cam, self.geometry, event.strength,
-                               shape_rng)
+                draw_occlusion(hits, self.sensor.rays_cam, self.geometry, event.strength, shape_rng)
         xyz, confidence, gray = self.sensor.apply(hits, rng, noise_scale)
         truth = {
             "mode": mode,

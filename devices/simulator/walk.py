@@ -26,6 +26,7 @@ Everything is precomputed on a 1 cm grid along the course at construction, so an
 can be asked in any order (the camera and the IMU emulator ask independently), and the
 same seed gives the same walk.
 """
+
 from __future__ import annotations
 
 import math
@@ -70,11 +71,13 @@ def _euler_matrix(roll: float, pitch: float, yaw: float) -> np.ndarray:
     cr, sr = math.cos(roll), math.sin(roll)
     cp, sp = math.cos(pitch), math.sin(pitch)
     cy, sy = math.cos(yaw), math.sin(yaw)
-    return np.array([
-        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-        [-sp, cp * sr, cp * cr],
-    ])
+    return np.array(
+        [
+            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+            [-sp, cp * sr, cp * cr],
+        ]
+    )
 
 
 def smooth(values: np.ndarray, window_m: float) -> np.ndarray:
@@ -87,14 +90,26 @@ def smooth(values: np.ndarray, window_m: float) -> np.ndarray:
 class Walk:
     """A walker on a course; every method is a pure function of time (seconds)."""
 
-    def __init__(self, course: Course, *, speed_mps: float = 1.1, cadence_spm: float = 105.0,
-                 camera_height_m: float = 0.55, camera_tilt_deg: float = 35.0,
-                 hip_height_m: float = 0.90, camera_forward_m: float = 0.07,
-                 hip_lateral_m: float = -0.10, error_rate: float = 1.0, seed: int = 0,
-                 events: list[ErrorEvent] | tuple[ErrorEvent, ...] | None = None) -> None:
+    def __init__(
+        self,
+        course: Course,
+        *,
+        speed_mps: float = 1.1,
+        cadence_spm: float = 105.0,
+        camera_height_m: float = 0.55,
+        camera_tilt_deg: float = 35.0,
+        hip_height_m: float = 0.90,
+        camera_forward_m: float = 0.07,
+        hip_lateral_m: float = -0.10,
+        error_rate: float = 1.0,
+        seed: int = 0,
+        events: list[ErrorEvent] | tuple[ErrorEvent, ...] | None = None,
+    ) -> None:
         if not 0.1 < camera_height_m < hip_height_m:
-            raise ValueError(f"camera height {camera_height_m} m must be between 0.1 m and "
-                             f"the hip ({hip_height_m} m)")
+            raise ValueError(
+                f"camera height {camera_height_m} m must be between 0.1 m and "
+                f"the hip ({hip_height_m} m)"
+            )
         if speed_mps <= 0 or cadence_spm <= 0:
             raise ValueError("speed and cadence must be positive")
         self.course = course
@@ -108,8 +123,9 @@ class Walk:
         self.amp_scale = float(rng.uniform(0.9, 1.1))
         self.mean_offset = float(np.radians(rng.uniform(-2.0, 2.0)))
         self.roll_offset = float(np.radians(rng.uniform(-2.0, 2.0)))
-        self.wander = [(float(rng.uniform(5, 12)), float(rng.uniform(0, 2 * np.pi)))
-                       for _ in range(2)]
+        self.wander = [
+            (float(rng.uniform(5, 12)), float(rng.uniform(0, 2 * np.pi))) for _ in range(2)
+        ]
 
         self.start_x = min(0.5, course.length_m / 4)
         self.end_x = course.length_m - min(1.5, course.length_m / 4)
@@ -119,8 +135,9 @@ class Walk:
         stride_hz = cadence_spm / 120.0 * smooth(params[:, 1], 0.6)
         self._x = x
         self._t = np.concatenate([[0.0], np.cumsum(GRID_M / speed[:-1])])
-        self._phase = np.concatenate([[0.0], np.cumsum(2 * np.pi * stride_hz[:-1] * GRID_M
-                                                       / speed[:-1])])
+        self._phase = np.concatenate(
+            [[0.0], np.cumsum(2 * np.pi * stride_hz[:-1] * GRID_M / speed[:-1])]
+        )
         self._flex_mean = np.radians(smooth(params[:, 2], 0.6)) + self.mean_offset
         self._flex_amp = np.radians(smooth(params[:, 3], 0.6)) * self.amp_scale
         self._ground = smooth(course.height_at(x), 0.6)
@@ -144,10 +161,14 @@ class Walk:
                 at = rng.uniform(0, 2 * np.pi) if phase is None else phase + rng.normal(0, 0.3)
                 tc = float(np.interp(2 * np.pi * k + at, self._phase, self._t))
                 d = float(rng.uniform(d0, d1))
-                ev = ErrorEvent(kind, tc - d / 2, tc + d / 2, float(rng.random()),
-                                int(rng.integers(2**31)))
-                if ev.t0 > 0 and ev.t1 < self.duration_s and not any(
-                        ev.t0 < e.t1 and e.t0 < ev.t1 for e in events):
+                ev = ErrorEvent(
+                    kind, tc - d / 2, tc + d / 2, float(rng.random()), int(rng.integers(2**31))
+                )
+                if (
+                    ev.t0 > 0
+                    and ev.t1 < self.duration_s
+                    and not any(ev.t0 < e.t1 and e.t0 < ev.t1 for e in events)
+                ):
                     events.append(ev)
         return sorted(events, key=lambda e: e.t0)
 
@@ -171,8 +192,9 @@ class Walk:
 
     def flexion(self, t):
         """Thigh flexion (rad): positive lifts the knee forward and the camera up."""
-        flex = (np.interp(t, self._t, self._flex_mean)
-                + np.interp(t, self._t, self._flex_amp) * np.sin(self.phase(t)))
+        flex = np.interp(t, self._t, self._flex_mean) + np.interp(
+            t, self._t, self._flex_amp
+        ) * np.sin(self.phase(t))
         for e in self._sky:  # a high knee lift: a smooth bump of 25-35 degrees
             u = np.interp(t, (e.t0, e.t1), (0.0, 1.0))
             flex = flex + np.radians(25 + 10 * e.strength) * np.sin(np.pi * u) ** 2
@@ -201,8 +223,13 @@ class Walk:
         x = np.interp(t, self._t, self._x)
         phi = self.phase(t)
         ground = np.interp(t, self._t, self._ground)
-        return np.array([x, self.hip_lateral_m + 0.015 * np.sin(phi),
-                         ground + self.hip_height_m + 0.01 * np.cos(2 * phi)])
+        return np.array(
+            [
+                x,
+                self.hip_lateral_m + 0.015 * np.sin(phi),
+                ground + self.hip_height_m + 0.01 * np.cos(2 * phi),
+            ]
+        )
 
     def pose(self, t: float, extra_flexion: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """(thigh quaternion [w, x, y, z], camera -> world 4x4) at t; `extra_flexion` (rad)

@@ -5,6 +5,7 @@ import argparse
 
 def count(minimum: int):
     """An argparse type: an integer of at least `minimum`, else a one-line usage error."""
+
     def parse(text: str) -> int:
         try:
             value = int(text)
@@ -13,6 +14,7 @@ def count(minimum: int):
         if value < minimum:
             raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {value}")
         return value
+
     return parse
 
 

@@ -1,4 +1,5 @@
 """`walkcap bench`: speed, latency and size on mock devices, each figure against its goal."""
+
 from __future__ import annotations
 
 import json
@@ -9,11 +10,16 @@ HELP = "measure speed, latency and size on mock devices"
 
 def add_arguments(parser) -> None:
     parser.add_argument("--json", action="store_true", help="machine-readable results")
-    parser.add_argument("--seconds", type=float, default=15.0,
-                        help="length of each mock session run (default 15)")
-    parser.add_argument("--soak", type=float, metavar="MINUTES",
-                        help="instead: a full mock session at 45 fps for MINUTES; "
-                        "memory and latency over time, drops")
+    parser.add_argument(
+        "--seconds", type=float, default=15.0, help="length of each mock session run (default 15)"
+    )
+    parser.add_argument(
+        "--soak",
+        type=float,
+        metavar="MINUTES",
+        help="instead: a full mock session at 45 fps for MINUTES; "
+        "memory and latency over time, drops",
+    )
 
 
 def run(args, config) -> int:
@@ -30,8 +36,10 @@ def run(args, config) -> int:
     if args.json:
         print(json.dumps({"machine": machine, "results": [r.to_dict() for r in results]}, indent=2))
         return 0
-    print(f"machine: {machine['cpu']}, {machine['cores']} cores, {machine['memory_gib']} GiB, "
-          f"Python {machine['python']}, torch {machine['torch']}, load {machine['load_avg_1min']}")
+    print(
+        f"machine: {machine['cpu']}, {machine['cores']} cores, {machine['memory_gib']} GiB, "
+        f"Python {machine['python']}, torch {machine['torch']}, load {machine['load_avg_1min']}"
+    )
     print(f"{'benchmark':32} {'value':>12} {'unit':10} {'goal':>12}  ")
     for r in results:
         goal = "" if r.goal is None else ("<= " if r.better == "lower" else ">= ") + f"{r.goal:g}"
@@ -57,12 +65,18 @@ def _soak(bench, minutes: float, as_json: bool) -> int:
             return round(float(np.percentile(recent, q)), 2) if len(recent) else None
 
         cam, skipped = snap.camera, bench.renderer_skipped(snap.camera)
-        row = {"t_s": memory[0], "rss_mib": _known(memory[1]), "rig_rss_mib": _known(memory[2]),
-               "frames": snap.frames, "latency_p50_ms": pct(50), "latency_p99_ms": pct(99),
-               "latency_max_ms": pct(100),
-               "camera_dropped": cam.dropped + cam.errors - skipped if cam else 0,
-               "renderer_skipped": skipped,
-               "recorder_dropped": snap.recording.dropped if snap.recording else 0}
+        row = {
+            "t_s": memory[0],
+            "rss_mib": _known(memory[1]),
+            "rig_rss_mib": _known(memory[2]),
+            "frames": snap.frames,
+            "latency_p50_ms": pct(50),
+            "latency_p99_ms": pct(99),
+            "latency_max_ms": pct(100),
+            "camera_dropped": cam.dropped + cam.errors - skipped if cam else 0,
+            "renderer_skipped": skipped,
+            "recorder_dropped": snap.recording.dropped if snap.recording else 0,
+        }
         rows.append(row)
         if not as_json:
             print("  ".join(f"{k} {v}" for k, v in row.items()), flush=True)
@@ -71,26 +85,36 @@ def _soak(bench, minutes: float, as_json: bool) -> int:
         run = bench.session_run(45.0, 400, minutes * 60, tmp, sample_every_s=10.0, on_sample=sample)
     lat = run.latency_ms
     growth, growth_late = bench.rss_growth_mib_per_min(run.rss_mib)
-    summary = {"minutes": minutes, "frames": run.frames, "dropped": run.dropped,
-               # of those, the mock rig's renderer's (it fell behind), not the capture path's
-               "renderer_skipped": run.renderer_skipped,
-               "latency_p50_ms": float(np.median(lat)) if len(lat) else None,
-               "latency_p99_ms": float(np.percentile(lat, 99)) if len(lat) else None,
-               "latency_max_ms": float(np.max(lat)) if len(lat) else None,
-               "pipeline": run.pipeline_priority,
-               "rss_start_mib": run.rss_mib[0][1] if run.rss_mib else None,
-               # after the first minute: what warm-up allocates is in, growth is what is left
-               "rss_1min_mib": next((m for t, m, _ in run.rss_mib if t >= 60), None),
-               "rss_end_mib": run.rss_mib[-1][1] if run.rss_mib else None,
-               # None when the run is too short to tell (under about 2 minutes)
-               "rss_growth_mib_per_min": _known(round(growth, 3)),
-               "rss_growth_last_half_mib_per_min": _known(round(growth_late, 3)),
-               "rig_rss_start_mib": _known(run.rss_mib[0][2]) if run.rss_mib else None,
-               "rig_rss_end_mib": _known(run.rss_mib[-1][2]) if run.rss_mib else None,
-               "record_mb_per_s": run.record_bytes / max(run.record_seconds, 1e-9) / 1e6}
+    summary = {
+        "minutes": minutes,
+        "frames": run.frames,
+        "dropped": run.dropped,
+        # of those, the mock rig's renderer's (it fell behind), not the capture path's
+        "renderer_skipped": run.renderer_skipped,
+        "latency_p50_ms": float(np.median(lat)) if len(lat) else None,
+        "latency_p99_ms": float(np.percentile(lat, 99)) if len(lat) else None,
+        "latency_max_ms": float(np.max(lat)) if len(lat) else None,
+        "pipeline": run.pipeline_priority,
+        "rss_start_mib": run.rss_mib[0][1] if run.rss_mib else None,
+        # after the first minute: what warm-up allocates is in, growth is what is left
+        "rss_1min_mib": next((m for t, m, _ in run.rss_mib if t >= 60), None),
+        "rss_end_mib": run.rss_mib[-1][1] if run.rss_mib else None,
+        # None when the run is too short to tell (under about 2 minutes)
+        "rss_growth_mib_per_min": _known(round(growth, 3)),
+        "rss_growth_last_half_mib_per_min": _known(round(growth_late, 3)),
+        "rig_rss_start_mib": _known(run.rss_mib[0][2]) if run.rss_mib else None,
+        "rig_rss_end_mib": _known(run.rss_mib[-1][2]) if run.rss_mib else None,
+        "record_mb_per_s": run.record_bytes / max(run.record_seconds, 1e-9) / 1e6,
+    }
     if as_json:
-        print(json.dumps({"machine": bench.machine(), "samples": rows, "summary": summary}, indent=2))
+        print(
+            json.dumps({"machine": bench.machine(), "samples": rows, "summary": summary}, indent=2)
+        )
     else:
-        print("summary: " + ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}"
-                                      for k, v in summary.items()))
+        print(
+            "summary: "
+            + ", ".join(
+                f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in summary.items()
+            )
+        )
     return 0

@@ -8,6 +8,7 @@ nothing, when the floor is not found or the subject moved.
 
 On mock devices the simulated walker stands at the start of its course.
 """
+
 from __future__ import annotations
 
 import threading
@@ -16,7 +17,6 @@ from pathlib import Path
 
 import numpy as np
 
-
 HELP = "estimate the camera mounting from standing on level ground"
 MAX_FRAMES = 30  # evenly spread over the collection: plenty for a plane and a mean
 MAX_IMU_GAP_S = 0.1  # a frame without an IMU sample this close gets no orientation
@@ -24,13 +24,22 @@ FIRST_FRAME_TIMEOUT_S = 5.0
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--seconds", type=float, default=3.0, metavar="S",
-                        help="how long to collect while the subject stands still (default 3)")
-    parser.add_argument("--write", metavar="PATH",
-                        help="configuration file to write [mounting] to (default: the "
-                             "configuration read, else ./walkcap.toml)")
-    parser.add_argument("--dry-run", action="store_true",
-                        help="estimate and show the result, write nothing")
+    parser.add_argument(
+        "--seconds",
+        type=float,
+        default=3.0,
+        metavar="S",
+        help="how long to collect while the subject stands still (default 3)",
+    )
+    parser.add_argument(
+        "--write",
+        metavar="PATH",
+        help="configuration file to write [mounting] to (default: the "
+        "configuration read, else ./walkcap.toml)",
+    )
+    parser.add_argument(
+        "--dry-run", action="store_true", help="estimate and show the result, write nothing"
+    )
 
 
 def run(args, config) -> int:
@@ -40,8 +49,10 @@ def run(args, config) -> int:
 
     if not args.seconds > 0:
         raise CalibrationError(f"--seconds must be positive, got {args.seconds:g}")
-    print(f"stand still on level ground, camera unobstructed: collecting {args.seconds:g} s ...",
-          flush=True)
+    print(
+        f"stand still on level ground, camera unobstructed: collecting {args.seconds:g} s ...",
+        flush=True,
+    )
     camera, imu = open_devices(config)
     try:
         frames, quaternions = collect(camera, imu, args.seconds)
@@ -50,12 +61,19 @@ def run(args, config) -> int:
 
     m = config.mounting
     current = (m.roll_deg, m.pitch_deg, m.yaw_deg)
-    result = estimate_mounting([f.xyz for f in frames], [f.confidence for f in frames],
-                               quaternions, current, config.preprocess.min_confidence)
-    print(f"frames: {result.frames_used} of {result.frames_total} show the floor; "
-          f"floor inliers {100 * result.inlier_fraction:.0f}%, "
-          f"plane RMS {1000 * result.plane_rms_m:.1f} mm, "
-          f"camera height {result.camera_height_m:.3f} m")
+    result = estimate_mounting(
+        [f.xyz for f in frames],
+        [f.confidence for f in frames],
+        quaternions,
+        current,
+        config.preprocess.min_confidence,
+    )
+    print(
+        f"frames: {result.frames_used} of {result.frames_total} show the floor; "
+        f"floor inliers {100 * result.inlier_fraction:.0f}%, "
+        f"plane RMS {1000 * result.plane_rms_m:.1f} mm, "
+        f"camera height {result.camera_height_m:.3f} m"
+    )
     if not result.ok:
         raise CalibrationError(f"calibration refused, nothing written: {result.problem}")
     print(f"fit residual {result.residual_deg:.2f} deg, thigh motion {result.motion_deg:.2f} deg")

@@ -6,6 +6,7 @@
 
 Accuracies are per trial (file), then mean +- SD across trials, as in the paper.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -32,25 +33,54 @@ def _methods(text: str) -> list[str]:
     unknown = [m for m in names if m not in METHODS]
     if unknown or not names:
         raise argparse.ArgumentTypeError(
-            f"unknown method {', '.join(unknown) or '(none)'} (known: {', '.join(METHODS)})")
+            f"unknown method {', '.join(unknown) or '(none)'} (known: {', '.join(METHODS)})"
+        )
     return list(dict.fromkeys(names))
 
 
 def _common_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--window", type=count(1), metavar="N",
-                   help="l_w, the HMM's smoothing window in frames (default: [fusion] window, 5)")
-    p.add_argument("--vote-delay", type=count(0), metavar="N",
-                   help="l_v, voting half-window in frames (default: [fusion] vote_delay, 1)")
-    p.add_argument("--methods", type=_methods, default=DEFAULT_METHODS,
-                   metavar="LIST", help=f"comma-separated methods (default: {DEFAULT_METHODS}; "
-                   "also forward, fixed-lag: standard HMM filter and smoother)")
-    p.add_argument("--lag", type=count(0), default=1, metavar="N",
-                   help="lag of the fixed-lag smoother (default: 1)")
-    p.add_argument("--transition", choices=("config", "paper", "estimated"), default="config",
-                   help="transition matrix: [fusion] transition (default: the authors'), the "
-                   "authors', or counted from the other files' labels (leave one out)")
-    p.add_argument("--sweep-delay", type=count(0), nargs="?", const=SWEEP_DEFAULT, metavar="N",
-                   help=f"also accuracy against 0..N delayed frames (default N: {SWEEP_DEFAULT})")
+    p.add_argument(
+        "--window",
+        type=count(1),
+        metavar="N",
+        help="l_w, the HMM's smoothing window in frames (default: [fusion] window, 5)",
+    )
+    p.add_argument(
+        "--vote-delay",
+        type=count(0),
+        metavar="N",
+        help="l_v, voting half-window in frames (default: [fusion] vote_delay, 1)",
+    )
+    p.add_argument(
+        "--methods",
+        type=_methods,
+        default=DEFAULT_METHODS,
+        metavar="LIST",
+        help=f"comma-separated methods (default: {DEFAULT_METHODS}; "
+        "also forward, fixed-lag: standard HMM filter and smoother)",
+    )
+    p.add_argument(
+        "--lag",
+        type=count(0),
+        default=1,
+        metavar="N",
+        help="lag of the fixed-lag smoother (default: 1)",
+    )
+    p.add_argument(
+        "--transition",
+        choices=("config", "paper", "estimated"),
+        default="config",
+        help="transition matrix: [fusion] transition (default: the authors'), the "
+        "authors', or counted from the other files' labels (leave one out)",
+    )
+    p.add_argument(
+        "--sweep-delay",
+        type=count(0),
+        nargs="?",
+        const=SWEEP_DEFAULT,
+        metavar="N",
+        help=f"also accuracy against 0..N delayed frames (default N: {SWEEP_DEFAULT})",
+    )
     p.add_argument("--plot", metavar="DIR", help="write the paper's figures as PNG into DIR")
     p.add_argument("--json", action="store_true", help="print JSON instead of tables")
 
@@ -72,20 +102,29 @@ def _model_module():
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     verbs = parser.add_subparsers(dest="eval_command", metavar="VERB", required=True)
 
-    p = verbs.add_parser("scores", help="any classifier's per-frame scores from CSV files",
-                         description="Evaluate per-frame scores: each CSV has the header "
-                         "LG,US,DS,UR,DR,label and one row per frame in capture order.")
+    p = verbs.add_parser(
+        "scores",
+        help="any classifier's per-frame scores from CSV files",
+        description="Evaluate per-frame scores: each CSV has the header "
+        "LG,US,DS,UR,DR,label and one row per frame in capture order.",
+    )
     p.add_argument("files", nargs="+", metavar="FILE.csv")
     _common_arguments(p)
 
-    p = verbs.add_parser("recordings", help="the recorded CNN outputs of MCAP recordings",
-                         description="Evaluate recordings against operator labels (or "
-                         "simulator truth), grouped by subject and condition.")
-    p.add_argument("files", nargs="+", metavar="FILE.mcap",
-                   help="recordings, or folders of them")
-    p.add_argument("--reference", choices=("auto", "labels", "truth"), default="auto",
-                   help="what is true: operator labels, simulator truth, or auto (labels "
-                   "when the recording has any)")
+    p = verbs.add_parser(
+        "recordings",
+        help="the recorded CNN outputs of MCAP recordings",
+        description="Evaluate recordings against operator labels (or "
+        "simulator truth), grouped by subject and condition.",
+    )
+    p.add_argument("files", nargs="+", metavar="FILE.mcap", help="recordings, or folders of them")
+    p.add_argument(
+        "--reference",
+        choices=("auto", "labels", "truth"),
+        default="auto",
+        help="what is true: operator labels, simulator truth, or auto (labels "
+        "when the recording has any)",
+    )
     _common_arguments(p)
 
     module, reason = _model_module()
@@ -94,8 +133,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         module.add_arguments(p)
         p.set_defaults(_eval_run=module.run)
     else:
-        p = verbs.add_parser("model", help="the CNN on unseen synthetic sessions "
-                             "(not available yet)")
+        p = verbs.add_parser(
+            "model", help="the CNN on unseen synthetic sessions (not available yet)"
+        )
         p.add_argument("rest", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
         p.set_defaults(_eval_unavailable=reason)
 
@@ -113,10 +153,14 @@ def run(args, config) -> int:
     window = args.window if args.window is not None else config.fusion.window
     vote_delay = args.vote_delay if args.vote_delay is not None else config.fusion.vote_delay
     if window < 1 or vote_delay < 0:
-        raise InferenceError(f"fusion.window must be >= 1 and fusion.vote_delay >= 0 "
-                             f"(got {window}, {vote_delay})")
-    transition = (PAPER_TRANSITION if args.transition == "paper" else
-                  validate_transition(config.fusion.transition, "fusion.transition"))
+        raise InferenceError(
+            f"fusion.window must be >= 1 and fusion.vote_delay >= 0 (got {window}, {vote_delay})"
+        )
+    transition = (
+        PAPER_TRANSITION
+        if args.transition == "paper"
+        else validate_transition(config.fusion.transition, "fusion.transition")
+    )
     params = ev.FusionParameters(window, vote_delay, transition, args.lag)
 
     if args.eval_command == "scores":
@@ -128,18 +172,24 @@ def run(args, config) -> int:
             raise NotYetAvailable(f"recordings: {e}") from None
     per_trial = params
     if args.transition == "estimated":
-        per_trial = [ev.FusionParameters(window, vote_delay, t, args.lag)
-                     for t in ev.leave_one_out_transitions(trials)]
+        per_trial = [
+            ev.FusionParameters(window, vote_delay, t, args.lag)
+            for t in ev.leave_one_out_transitions(trials)
+        ]
 
     results = ev.evaluate(trials, args.methods, per_trial)
-    sweep = (ev.delay_sweep(trials, args.methods, args.sweep_delay, per_trial)
-             if args.sweep_delay is not None else None)
+    sweep = (
+        ev.delay_sweep(trials, args.methods, args.sweep_delay, per_trial)
+        if args.sweep_delay is not None
+        else None
+    )
     grouped = args.eval_command == "recordings"
     data = ev.report(results, args.methods, params, sweep, grouped)
     data["parameters"]["transition"] = args.transition
     if args.plot:
-        data["plots"] = [str(p) for p in ev.write_plots(results, args.plot, args.methods,
-                                                        params, sweep)]
+        data["plots"] = [
+            str(p) for p in ev.write_plots(results, args.plot, args.methods, params, sweep)
+        ]
     if args.json:
         print(json.dumps(data, indent=2))
     else:
@@ -149,6 +199,7 @@ def run(args, config) -> int:
 
 # ---------------------------------------------------------------------------------------
 # text output
+
 
 def _title(method: str) -> str:
     from inference.evaluation import TITLES
@@ -165,18 +216,26 @@ def _table(headers: list[str], rows: list[list[str]], left: int = 1) -> list[str
     widths = [max(len(str(r[i])) for r in [headers, *rows]) for i in range(len(headers))]
 
     def line(cells) -> str:
-        return "  ".join(str(c).ljust(w) if i < left else str(c).rjust(w)
-                         for i, (c, w) in enumerate(zip(cells, widths))).rstrip()
+        return "  ".join(
+            str(c).ljust(w) if i < left else str(c).rjust(w)
+            for i, (c, w) in enumerate(zip(cells, widths))
+        ).rstrip()
+
     return [line(headers), *(line(r) for r in rows)]
 
 
 def format_report(data: dict, methods: list[str]) -> str:
     p = data["parameters"]
-    out = [f"{len(data['files'])} file(s); l_w = {p['window']}, l_v = {p['vote_delay']}, "
-           f"transition: {p['transition']}; accuracy in %", ""]
+    out = [
+        f"{len(data['files'])} file(s); l_w = {p['window']}, l_v = {p['vote_delay']}, "
+        f"transition: {p['transition']}; accuracy in %",
+        "",
+    ]
     titles = [_title(m) for m in methods]
-    rows = [[f["path"], str(f["frames"]), *(_pct(f["accuracy"][m]) for m in methods)]
-            for f in data["files"]]
+    rows = [
+        [f["path"], str(f["frames"]), *(_pct(f["accuracy"][m]) for m in methods)]
+        for f in data["files"]
+    ]
     rows.append(["mean", "", *(_pct(data["mean"][m]) for m in methods)])
     rows.append(["SD", "", *(_pct(data["sd"][m]) for m in methods)])
     rows.append(["delay (frames)", "", *(str(data["delay_frames"][m]) for m in methods)])
@@ -186,19 +245,31 @@ def format_report(data: dict, methods: list[str]) -> str:
         out.append("")
         rows = []
         for g in data["groups"]:
-            rows.append([g["condition"] or "-", g["subject"], str(g["trials"]),
-                         *(_mean_sd(g, m) for m in methods)])
+            rows.append(
+                [
+                    g["condition"] or "-",
+                    g["subject"],
+                    str(g["trials"]),
+                    *(_mean_sd(g, m) for m in methods),
+                ]
+            )
         for c in data["conditions"]:
-            rows.append([c["condition"] or "-", "all", str(c["trials"]),
-                         *(_mean_sd(c, m) for m in methods)])
+            rows.append(
+                [c["condition"] or "-", "all", str(c["trials"]), *(_mean_sd(c, m) for m in methods)]
+            )
         out += _table(["condition", "subject", "trials", *titles], rows, left=2)
 
     tests = data.get("paired_t_tests")
     if tests:
         out += ["", f"paired t-tests over {tests[0]['n']} trials:"]
-        rows = [[f"{_title(t['a'])} vs {_title(t['b'])}",
-                 "t =       -" if t["t"] is None else f"t = {t['t']:7.3f}",
-                 "p = -" if t["p"] is None else f"p = {t['p']:.3g}"] for t in tests]
+        rows = [
+            [
+                f"{_title(t['a'])} vs {_title(t['b'])}",
+                "t =       -" if t["t"] is None else f"t = {t['t']:7.3f}",
+                "p = -" if t["p"] is None else f"p = {t['p']:.3g}",
+            ]
+            for t in tests
+        ]
         out += ["  " + line for line in _table(["", "", ""], rows, left=3)[1:]]
 
     sweep = data.get("sweep")

@@ -10,6 +10,7 @@ simulator's truth, so the report also says where the errors are (error images, f
 a mode change by what their view shows, elsewhere) and what an oracle that answers each
 view's mode would score. Registered by tui/commands/eval.py.
 """
+
 from __future__ import annotations
 
 import json
@@ -22,17 +23,35 @@ _positive = count(1)
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--model", metavar="PATH",
-                        help="weights file (default: [model] path, else the bundled model)")
-    parser.add_argument("--data", nargs="+", metavar="PATH",
-                        help="evaluate these session files or folders instead of rendering")
-    parser.add_argument("--sessions", type=_positive, default=4, metavar="N",
-                        help="fresh synthetic sessions to render (default 4)")
+    parser.add_argument(
+        "--model",
+        metavar="PATH",
+        help="weights file (default: [model] path, else the bundled model)",
+    )
+    parser.add_argument(
+        "--data",
+        nargs="+",
+        metavar="PATH",
+        help="evaluate these session files or folders instead of rendering",
+    )
+    parser.add_argument(
+        "--sessions",
+        type=_positive,
+        default=4,
+        metavar="N",
+        help="fresh synthetic sessions to render (default 4)",
+    )
     parser.add_argument("--preset", choices=("indoor", "outdoor", "both"), default="both")
-    parser.add_argument("--seed", type=int, default=UNSEEN_SEED, metavar="S",
-                        help=f"seed of the first rendered session (default {UNSEEN_SEED})")
-    parser.add_argument("--frames", type=_positive, metavar="N",
-                        help="at most N frames per rendered session")
+    parser.add_argument(
+        "--seed",
+        type=int,
+        default=UNSEEN_SEED,
+        metavar="S",
+        help=f"seed of the first rendered session (default {UNSEEN_SEED})",
+    )
+    parser.add_argument(
+        "--frames", type=_positive, metavar="N", help="at most N frames per rendered session"
+    )
     parser.add_argument("--json", action="store_true", help="print the metrics as JSON")
 
 
@@ -44,8 +63,9 @@ def run(args, config) -> int:
     from inference.preprocess import PreprocessParams
     from inference.training import evaluate_sessions, format_metrics
 
-    classifier = load_classifier(args.model or config.model.path or None,
-                                 device=config.model.device)
+    classifier = load_classifier(
+        args.model or config.model.path or None, device=config.model.device
+    )
     if args.data:
         sessions = read_sessions(args.data)
         where = ", ".join(args.data)
@@ -57,20 +77,34 @@ def run(args, config) -> int:
         params = PreprocessParams.from_config(config)
         settings = SynthSettings(max_frames=args.frames or 0)
         sessions = []
-        for preset, seed in tqdm(session_plan(args.sessions, args.preset, args.seed),
-                                 desc="render", unit="session", disable=args.json):
-            sessions.append(render_synth_session(preset, seed, params, settings,
-                                                 config.simulator)[0])
+        for preset, seed in tqdm(
+            session_plan(args.sessions, args.preset, args.seed),
+            desc="render",
+            unit="session",
+            disable=args.json,
+        ):
+            sessions.append(
+                render_synth_session(preset, seed, params, settings, config.simulator)[0]
+            )
         where = f"{len(sessions)} new synthetic sessions (seeds {args.seed}..)"
     seen = set(classifier.metadata.get("data", {}).get("sessions_seen_in_training", []))
     overlap = sorted(seen & {s.name for s in sessions})
     if overlap:
-        logging.getLogger(__name__).warning("%d of these sessions were used in training "
-                                            "(e.g. %s)", len(overlap), overlap[0])
+        logging.getLogger(__name__).warning(
+            "%d of these sessions were used in training (e.g. %s)", len(overlap), overlap[0]
+        )
     metrics = evaluate_sessions(classifier, sessions)
     if args.json:
-        print(json.dumps({"model": classifier.path, "sessions": [s.name for s in sessions],
-                          "metrics": {k: v.to_dict() for k, v in metrics.items()}}, indent=2))
+        print(
+            json.dumps(
+                {
+                    "model": classifier.path,
+                    "sessions": [s.name for s in sessions],
+                    "metrics": {k: v.to_dict() for k, v in metrics.items()},
+                },
+                indent=2,
+            )
+        )
     else:
         print(format_metrics(metrics, f"{classifier.path} on {where}:"))
     return 0

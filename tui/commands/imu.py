@@ -1,4 +1,5 @@
 """`walkcap imu`: IMU tools: list ports, device info, stream, emulate, decode captures"""
+
 from __future__ import annotations
 
 import json
@@ -9,59 +10,95 @@ import time
 HELP = "IMU tools: list ports, device info, stream, emulate, decode captures"
 
 # `decode` keys, in output order (each only when the message has it).
-DECODE_KEYS = ("packet_counter", "sample_time_fine", "quaternion", "euler", "rotation_matrix",
-               "acceleration", "free_acceleration", "delta_v", "rate_of_turn", "delta_q",
-               "magnetic_field", "temperature", "baro_pressure", "status_word")
+DECODE_KEYS = (
+    "packet_counter",
+    "sample_time_fine",
+    "quaternion",
+    "euler",
+    "rotation_matrix",
+    "acceleration",
+    "free_acceleration",
+    "delta_v",
+    "rate_of_turn",
+    "delta_q",
+    "magnetic_field",
+    "temperature",
+    "baro_pressure",
+    "status_word",
+)
 
 
 def add_arguments(parser) -> None:
     verbs = parser.add_subparsers(dest="verb", metavar="VERB", required=True)
-    verbs.add_parser("list", help="serial ports on this machine",
-                     description="List serial ports (pyserial list_ports).")
+    verbs.add_parser(
+        "list",
+        help="serial ports on this machine",
+        description="List serial ports (pyserial list_ports).",
+    )
 
-    p = verbs.add_parser("info", help="device id, product code, firmware, output configuration",
-                         description="Identify the device on PORT without changing its "
-                         "output configuration.")
+    p = verbs.add_parser(
+        "info",
+        help="device id, product code, firmware, output configuration",
+        description="Identify the device on PORT without changing its output configuration.",
+    )
     p.add_argument("port", help="serial port, e.g. /dev/ttyUSB0")
     p.add_argument("--baudrate", type=int, help="default: [imu] baudrate")
 
-    p = verbs.add_parser("stream", help="live values, rate and errors",
-                         description="Configure the device on PORT and show live values. "
-                         "PORT 'mock' streams from an emulator in this process.")
+    p = verbs.add_parser(
+        "stream",
+        help="live values, rate and errors",
+        description="Configure the device on PORT and show live values. "
+        "PORT 'mock' streams from an emulator in this process.",
+    )
     p.add_argument("port", help="serial port, or 'mock'")
     p.add_argument("--baudrate", type=int, help="default: [imu] baudrate")
     p.add_argument("--rate", type=int, help="output rate in Hz (default: [imu] rate_hz)")
     p.add_argument("--seconds", type=float, help="stop after this long (default: Ctrl-C)")
     p.add_argument("--interval", type=float, default=0.5, help="seconds between lines")
-    p.add_argument("--raw", metavar="FILE", help="also save the raw bytes of the serial line "
-                   "(for `walkcap imu decode`)")
+    p.add_argument(
+        "--raw",
+        metavar="FILE",
+        help="also save the raw bytes of the serial line (for `walkcap imu decode`)",
+    )
 
-    p = verbs.add_parser("emulate", help="run the device emulator and print its pty path",
-                         description="Run the Xsens-style device emulator on a pseudo-terminal "
-                         "and print its port path, to try the driver or other tools against "
-                         "it. Ctrl-C stops it.")
-    p.add_argument("--rate", type=int, help="output rate at power-up in Hz (default: [imu] "
-                   "rate_hz)")
-    p.add_argument("--drift-ppm", type=float, help="device clock drift (default: [imu] "
-                   "drift_ppm)")
+    p = verbs.add_parser(
+        "emulate",
+        help="run the device emulator and print its pty path",
+        description="Run the Xsens-style device emulator on a pseudo-terminal "
+        "and print its port path, to try the driver or other tools against "
+        "it. Ctrl-C stops it.",
+    )
+    p.add_argument(
+        "--rate", type=int, help="output rate at power-up in Hz (default: [imu] rate_hz)"
+    )
+    p.add_argument("--drift-ppm", type=float, help="device clock drift (default: [imu] drift_ppm)")
     p.add_argument("--jitter-ms", type=float, help="transmit jitter (default: [imu] jitter_ms)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--seconds", type=float, help="stop after this long (default: Ctrl-C)")
 
-    p = verbs.add_parser("decode", help="decode a raw capture of the serial line",
-                         description="Decode a raw byte capture of the serial line: one JSON "
-                         "object per MTData2 message, then a summary line (--json), or a "
-                         "table.")
+    p = verbs.add_parser(
+        "decode",
+        help="decode a raw capture of the serial line",
+        description="Decode a raw byte capture of the serial line: one JSON "
+        "object per MTData2 message, then a summary line (--json), or a "
+        "table.",
+    )
     p.add_argument("file", help="capture file, '-' for standard input")
     p.add_argument("--json", action="store_true", help="JSON lines instead of a table")
 
 
 def run(args, config) -> int:
-    return {"list": _list, "info": _info, "stream": _stream, "emulate": _emulate,
-            "decode": _decode}[args.verb](args, config)
+    return {
+        "list": _list,
+        "info": _info,
+        "stream": _stream,
+        "emulate": _emulate,
+        "decode": _decode,
+    }[args.verb](args, config)
 
 
 # ---- list / info ---------------------------------------------------------------------------
+
 
 def _list(args, config) -> int:
     from serial.tools import list_ports
@@ -98,6 +135,7 @@ def _info(args, config) -> int:
 
 # ---- stream --------------------------------------------------------------------------------
 
+
 def _stream(args, config) -> int:
     from devices.imu import EmulatedImu, XbusImu
 
@@ -106,15 +144,23 @@ def _stream(args, config) -> int:
     raw = open(args.raw, "wb") if args.raw else None
     sink = raw.write if raw else None
     if args.port == "mock":
-        imu = EmulatedImu(rate_hz=rate, drift_ppm=config.imu.drift_ppm,
-                          jitter_ms=config.imu.jitter_ms, baudrate=baudrate, raw_sink=sink)
+        imu = EmulatedImu(
+            rate_hz=rate,
+            drift_ppm=config.imu.drift_ppm,
+            jitter_ms=config.imu.jitter_ms,
+            baudrate=baudrate,
+            raw_sink=sink,
+        )
     else:
         imu = XbusImu(args.port, baudrate, rate, raw_sink=sink)
     try:
         with imu:
             info = imu.info
-            print(f"{info['product_code']} {info['device_id']} firmware {info['firmware']} on "
-                  f"{imu.port}, {imu.configured_rate_hz:g} Hz (Ctrl-C stops)", flush=True)
+            print(
+                f"{info['product_code']} {info['device_id']} firmware {info['firmware']} on "
+                f"{imu.port}, {imu.configured_rate_hz:g} Hz (Ctrl-C stops)",
+                flush=True,
+            )
             _stream_lines(imu, args.seconds, args.interval)
     except KeyboardInterrupt:
         pass
@@ -141,13 +187,16 @@ def _stream_lines(imu, seconds: float | None, interval: float) -> None:
 
 def _stream_line(sample, status) -> str:
     d = status.details
-    head = (f"{status.state:<8} {status.measured_rate_hz:6.1f} Hz  errors {status.errors} "
-            f"(crc {d['checksum_errors']}, missing {d['missing_packets']})  "
-            f"drift {d['drift_ppm']:+6.1f} ppm  jitter {d['residual_ms']:.2f} ms")
+    head = (
+        f"{status.state:<8} {status.measured_rate_hz:6.1f} Hz  errors {status.errors} "
+        f"(crc {d['checksum_errors']}, missing {d['missing_packets']})  "
+        f"drift {d['drift_ppm']:+6.1f} ppm  jitter {d['residual_ms']:.2f} ms"
+    )
     if sample is None:
         return head
-    from devices.rotations import quat_to_euler
     import numpy as np
+
+    from devices.rotations import quat_to_euler
 
     parts = [head, f"#{sample.packet_counter}"]
     if sample.quaternion is not None:
@@ -162,6 +211,7 @@ def _stream_line(sample, status) -> str:
 
 # ---- emulate -------------------------------------------------------------------------------
 
+
 def _emulate(args, config) -> int:
     from devices.imu_emulator import ImuEmulator
 
@@ -169,13 +219,17 @@ def _emulate(args, config) -> int:
         rate_hz=args.rate or config.imu.rate_hz,
         drift_ppm=config.imu.drift_ppm if args.drift_ppm is None else args.drift_ppm,
         jitter_ms=config.imu.jitter_ms if args.jitter_ms is None else args.jitter_ms,
-        seed=args.seed)
+        seed=args.seed,
+    )
     try:
         port = emulator.start()
         print(port, flush=True)
-        print(f"IMU emulator at {emulator.rate_hz} Hz, drift {emulator.drift_ppm:g} ppm, jitter "
-              f"{emulator.jitter_ms:g} ms; try: walkcap imu stream {port}", file=sys.stderr,
-              flush=True)
+        print(
+            f"IMU emulator at {emulator.rate_hz} Hz, drift {emulator.drift_ppm:g} ppm, jitter "
+            f"{emulator.jitter_ms:g} ms; try: walkcap imu stream {port}",
+            file=sys.stderr,
+            flush=True,
+        )
         deadline = time.monotonic() + args.seconds if args.seconds is not None else None
         while deadline is None or time.monotonic() < deadline:
             time.sleep(0.1 if deadline is None else min(0.1, max(0.0, deadline - time.monotonic())))
@@ -187,6 +241,7 @@ def _emulate(args, config) -> int:
 
 
 # ---- decode --------------------------------------------------------------------------------
+
 
 def decode_capture(stream, chunk_size: int = 65536):
     """(message dict per MTData2 message ..., then the summary dict) from a byte stream."""
@@ -200,12 +255,19 @@ def decode_capture(stream, chunk_size: int = 65536):
         for msg in messages:
             if msg.mid == xbus.MID.MTDATA2 and msg.mtdata2 is not None:
                 count += 1
-                yield _plain({k: msg.mtdata2.values[k] for k in DECODE_KEYS
-                              if k in msg.mtdata2.values})
+                yield _plain(
+                    {k: msg.mtdata2.values[k] for k in DECODE_KEYS if k in msg.mtdata2.values}
+                )
         if not chunk:
             break
-    yield {"summary": {"messages": count, "checksum_errors": parser.checksum_errors,
-                       "resyncs": parser.resyncs, "unknown_ids": parser.unknown_ids}}
+    yield {
+        "summary": {
+            "messages": count,
+            "checksum_errors": parser.checksum_errors,
+            "resyncs": parser.resyncs,
+            "unknown_ids": parser.unknown_ids,
+        }
+    }
 
 
 def _plain(value):
@@ -236,22 +298,39 @@ def _decode_table(objects) -> None:
     def vec(values, fmt="{:+8.3f}"):
         return " ".join(fmt.format(v) for v in values) if values is not None else "-"
 
-    print(f"{'counter':>7} {'time_fine':>10}  {'quaternion w x y z':<35}  "
-          f"{'acceleration m/s2':<26}  {'rate of turn rad/s':<26}  {'status':>8}  other")
+    print(
+        f"{'counter':>7} {'time_fine':>10}  {'quaternion w x y z':<35}  "
+        f"{'acceleration m/s2':<26}  {'rate of turn rad/s':<26}  {'status':>8}  other"
+    )
     for obj in objects:
         if "summary" in obj:
             s = obj["summary"]
-            print(f"{s['messages']} messages, {s['checksum_errors']} checksum errors, "
-                  f"{s['resyncs']} resyncs, {s['unknown_ids']} unknown identifiers")
+            print(
+                f"{s['messages']} messages, {s['checksum_errors']} checksum errors, "
+                f"{s['resyncs']} resyncs, {s['unknown_ids']} unknown identifiers"
+            )
             continue
-        other = [k for k in obj if k not in ("packet_counter", "sample_time_fine", "quaternion",
-                                             "acceleration", "rate_of_turn", "status_word")]
+        other = [
+            k
+            for k in obj
+            if k
+            not in (
+                "packet_counter",
+                "sample_time_fine",
+                "quaternion",
+                "acceleration",
+                "rate_of_turn",
+                "status_word",
+            )
+        ]
         status = obj.get("status_word")
-        print(f"{_or_dash(obj.get('packet_counter')):>7} "
-              f"{_or_dash(obj.get('sample_time_fine')):>10}  "
-              f"{vec(obj.get('quaternion'), '{:+8.5f}'):<35}  {vec(obj.get('acceleration')):<26}  "
-              f"{vec(obj.get('rate_of_turn')):<26}  "
-              f"{'-' if status is None else f'0x{status:06X}':>8}  {','.join(other)}")
+        print(
+            f"{_or_dash(obj.get('packet_counter')):>7} "
+            f"{_or_dash(obj.get('sample_time_fine')):>10}  "
+            f"{vec(obj.get('quaternion'), '{:+8.5f}'):<35}  {vec(obj.get('acceleration')):<26}  "
+            f"{vec(obj.get('rate_of_turn')):<26}  "
+            f"{'-' if status is None else f'0x{status:06X}':>8}  {','.join(other)}"
+        )
 
 
 def _or_dash(value) -> str:

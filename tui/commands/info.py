@@ -1,4 +1,5 @@
 """`walkcap info`: describe a recording: topics, counts, rates, gaps, metadata"""
+
 from __future__ import annotations
 
 import datetime as dt
@@ -47,13 +48,17 @@ def describe(rec) -> list[str]:
     if rec.complete:
         lines.append("  state       complete")
     else:
-        lines.append(f"  state       unfinished ({rec.reason}): readable here; "
-                     f"`walkcap recover {rec.path}` writes an indexed copy")
+        lines.append(
+            f"  state       unfinished ({rec.reason}): readable here; "
+            f"`walkcap recover {rec.path}` writes an indexed copy"
+        )
     rate = f" ({_size(rec.size / rec.duration_s)}/s)" if rec.duration_s > 0 else ""
     lines.append(f"  size        {_size(rec.size)}{rate}")
     if rec.start_ns is not None:
-        lines.append(f"  time        {_wall(rec, rec.start_ns)} -> {_wall(rec, rec.end_ns)}, "
-                     f"{rec.duration_s:.1f} s")
+        lines.append(
+            f"  time        {_wall(rec, rec.start_ns)} -> {_wall(rec, rec.end_ns)}, "
+            f"{rec.duration_s:.1f} s"
+        )
     times = rec.log_times()
     lines.append("  topics      messages    rate  schema" if rec.topics else "  topics      none")
     for topic in sorted(rec.topics):
@@ -94,8 +99,10 @@ def describe(rec) -> list[str]:
         text = ", ".join(f"{k}={_short(v)}" for k, v in values.items() if v != "")
         lines.append(f"    {name:<11} {text}")
     if rec.attachment_sizes:
-        lines.append("  attachments " + ", ".join(f"{name} ({_size(n)})"
-                                                  for name, n in rec.attachment_sizes.items()))
+        lines.append(
+            "  attachments "
+            + ", ".join(f"{name} ({_size(n)})" for name, n in rec.attachment_sizes.items())
+        )
     return lines
 
 

@@ -1,4 +1,5 @@
 """`walkcap record`: record one trial headless (mock devices by default)."""
+
 from __future__ import annotations
 
 import signal
@@ -14,17 +15,27 @@ def add_arguments(parser) -> None:
     parser.add_argument("--camera", metavar="BACKEND", help="mock | royale")
     parser.add_argument("--imu", metavar="BACKEND", help="mock | serial")
     parser.add_argument("--port", help="IMU serial port (backend serial)")
-    parser.add_argument("--duration", type=float, metavar="S",
-                        help="seconds to record (default: until the mock course ends, or Ctrl-C)")
+    parser.add_argument(
+        "--duration",
+        type=float,
+        metavar="S",
+        help="seconds to record (default: until the mock course ends, or Ctrl-C)",
+    )
     parser.add_argument("--fps", type=float, help="camera frame rate")
     parser.add_argument("--imu-rate", type=int, metavar="HZ", help="IMU output rate")
     parser.add_argument("--out", metavar="DIR", help="recordings folder")
     parser.add_argument("--course", choices=("indoor", "outdoor"), help="mock walk preset")
     parser.add_argument("--seed", type=int, help="mock walk seed")
-    parser.add_argument("--fast", action="store_true",
-                        help="mock camera as fast as the pipeline runs (not real time)")
-    parser.add_argument("--auto-label", action="store_true",
-                        help="labels from the simulator's truth (unattended mock runs)")
+    parser.add_argument(
+        "--fast",
+        action="store_true",
+        help="mock camera as fast as the pipeline runs (not real time)",
+    )
+    parser.add_argument(
+        "--auto-label",
+        action="store_true",
+        help="labels from the simulator's truth (unattended mock runs)",
+    )
     parser.add_argument("--model", metavar="PATH", help="classifier weights (default: bundled)")
     g = parser.add_argument_group("session metadata")
     g.add_argument("--subject", default="S01", help="pseudonymous subject id")
@@ -44,9 +55,17 @@ def apply_device_flags(args, config) -> None:
     """Flags shared by record and tui: they override the configuration file."""
     from capture.config import override
 
-    for flag, key in (("camera", "camera.backend"), ("imu", "imu.backend"), ("port", "imu.port"),
-                      ("fps", "camera.fps"), ("imu_rate", "imu.rate_hz"), ("out", "session.recordings"),
-                      ("course", "simulator.course"), ("seed", "simulator.seed"), ("model", "model.path")):
+    for flag, key in (
+        ("camera", "camera.backend"),
+        ("imu", "imu.backend"),
+        ("port", "imu.port"),
+        ("fps", "camera.fps"),
+        ("imu_rate", "imu.rate_hz"),
+        ("out", "session.recordings"),
+        ("course", "simulator.course"),
+        ("seed", "simulator.seed"),
+        ("model", "model.path"),
+    ):
         value = getattr(args, flag, None)
         if value is not None:
             override(config, key, value)
@@ -59,11 +78,17 @@ def run(args, config) -> int:
 
     apply_device_flags(args, config)
     info = SubjectInfo(
-        subject=args.subject, height_m=args.height_m, weight_kg=args.weight_kg, age=args.age,
-        sex=args.sex, amputee=args.amputee, side=args.side,
+        subject=args.subject,
+        height_m=args.height_m,
+        weight_kg=args.weight_kg,
+        age=args.age,
+        sex=args.sex,
+        amputee=args.amputee,
+        side=args.side,
         residual_limb_cm=args.residual_limb_cm,
         condition=args.condition or _default_condition(config),
-        trial=args.trial, notes=args.notes,
+        trial=args.trial,
+        notes=args.notes,
     )
     info.validate()
     session = Session(config, auto_label=args.auto_label)
@@ -89,9 +114,15 @@ def run(args, config) -> int:
     if stats is None:
         return 1
     snap_lat = session.snapshot().latency_ms
-    print(f"{stats.messages} messages, {stats.bytes_written / 1e6:.1f} MB, dropped {stats.dropped}"
-          + (f", latency p50 {snap_lat['p50']:.1f} ms p99 {snap_lat['p99']:.1f} ms" if snap_lat else ""),
-          file=sys.stderr)
+    print(
+        f"{stats.messages} messages, {stats.bytes_written / 1e6:.1f} MB, dropped {stats.dropped}"
+        + (
+            f", latency p50 {snap_lat['p50']:.1f} ms p99 {snap_lat['p99']:.1f} ms"
+            if snap_lat
+            else ""
+        ),
+        file=sys.stderr,
+    )
     return finish_recording("record", stats, stats.path)
 
 

@@ -1,4 +1,5 @@
 """`walkcap recover`: rebuild a valid MCAP from a recording cut off by a crash"""
+
 from __future__ import annotations
 
 HELP = "rebuild a valid MCAP from a recording cut off by a crash"
@@ -6,10 +7,17 @@ HELP = "rebuild a valid MCAP from a recording cut off by a crash"
 
 def add_arguments(parser) -> None:
     parser.add_argument("file", metavar="FILE", help="the cut-off recording (kept unchanged)")
-    parser.add_argument("-o", "--output", metavar="OUT",
-                        help="the rebuilt file (default: FILE with .recovered before .mcap)")
-    parser.add_argument("--journal", metavar="PATH",
-                        help="label journal to merge (default: FILE.journal.jsonl if present)")
+    parser.add_argument(
+        "-o",
+        "--output",
+        metavar="OUT",
+        help="the rebuilt file (default: FILE with .recovered before .mcap)",
+    )
+    parser.add_argument(
+        "--journal",
+        metavar="PATH",
+        help="label journal to merge (default: FILE.journal.jsonl if present)",
+    )
     parser.add_argument("--force", action="store_true", help="replace OUT if it exists")
 
 
@@ -17,9 +25,13 @@ def run(args, config) -> int:
     from capture.recovery import recover
 
     r = recover(args.file, args.output, journal=args.journal, overwrite=args.force)
-    source = "complete file" if r.complete else f"{r.reason}; {r.lost_bytes} bytes after it unreadable"
+    source = (
+        "complete file" if r.complete else f"{r.reason}; {r.lost_bytes} bytes after it unreadable"
+    )
     print(f"{r.source}: {source}")
-    print(f"wrote {r.output}: {r.messages} messages, {r.duration_s:.1f} s of sensor data, "
-          f"{r.labels_added} labels and {r.events_added} markers added from the journal"
-          + ("" if r.journal else " (no journal found)"))
+    print(
+        f"wrote {r.output}: {r.messages} messages, {r.duration_s:.1f} s of sensor data, "
+        f"{r.labels_added} labels and {r.events_added} markers added from the journal"
+        + ("" if r.journal else " (no journal found)")
+    )
     return 0

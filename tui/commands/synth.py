@@ -10,6 +10,7 @@ rate, levels every frame with a noisy IMU orientation, preprocesses it as the li
 pipeline does and writes one compressed .npz per session (images, true modes, flags,
 metadata) for `walkcap train`. Session i uses seed S + i; "both" alternates presets.
 """
+
 from __future__ import annotations
 
 from tui.commands import count
@@ -20,23 +21,54 @@ _positive = count(1)
 
 def add_arguments(parser) -> None:
     parser.add_argument("--out", metavar="DIR", required=True, help="output folder")
-    parser.add_argument("--sessions", type=_positive, default=1, metavar="N",
-                        help="number of sessions (default 1)")
-    parser.add_argument("--preset", choices=("indoor", "outdoor", "both"), default="both",
-                        help="course preset; both alternates indoor and outdoor (default)")
-    parser.add_argument("--seed", type=int, default=0, metavar="S",
-                        help="seed of the first session; session i uses S + i (default 0)")
-    parser.add_argument("--format", choices=("dataset", "recording"), default="dataset",
-                        help="dataset: .npz training sessions (default); recording: MCAP")
-    parser.add_argument("--frames", type=_positive, metavar="N",
-                        help="at most N frames per session (default: the whole walk)")
-    parser.add_argument("--workers", type=_positive, default=1, metavar="N",
-                        help="processes rendering sessions in parallel (default 1)")
-    parser.add_argument("--imu-noise-deg", type=float, default=None, metavar="DEG",
-                        help="per-frame IMU orientation noise, 1 sigma (default 0.7)")
-    parser.add_argument("--fixed-walker", action="store_true",
-                        help="use the [simulator] walker for every session instead of "
-                        "drawing speed, cadence, camera height and tilt per session")
+    parser.add_argument(
+        "--sessions", type=_positive, default=1, metavar="N", help="number of sessions (default 1)"
+    )
+    parser.add_argument(
+        "--preset",
+        choices=("indoor", "outdoor", "both"),
+        default="both",
+        help="course preset; both alternates indoor and outdoor (default)",
+    )
+    parser.add_argument(
+        "--seed",
+        type=int,
+        default=0,
+        metavar="S",
+        help="seed of the first session; session i uses S + i (default 0)",
+    )
+    parser.add_argument(
+        "--format",
+        choices=("dataset", "recording"),
+        default="dataset",
+        help="dataset: .npz training sessions (default); recording: MCAP",
+    )
+    parser.add_argument(
+        "--frames",
+        type=_positive,
+        metavar="N",
+        help="at most N frames per session (default: the whole walk)",
+    )
+    parser.add_argument(
+        "--workers",
+        type=_positive,
+        default=1,
+        metavar="N",
+        help="processes rendering sessions in parallel (default 1)",
+    )
+    parser.add_argument(
+        "--imu-noise-deg",
+        type=float,
+        default=None,
+        metavar="DEG",
+        help="per-frame IMU orientation noise, 1 sigma (default 0.7)",
+    )
+    parser.add_argument(
+        "--fixed-walker",
+        action="store_true",
+        help="use the [simulator] walker for every session instead of "
+        "drawing speed, cadence, camera height and tilt per session",
+    )
 
 
 def run(args, config) -> int:
@@ -50,9 +82,16 @@ def run(args, config) -> int:
     settings = SynthSettings(max_frames=args.frames or 0, vary_walker=not args.fixed_walker)
     if args.imu_noise_deg is not None:
         settings = replace(settings, imu_noise_deg=args.imu_noise_deg)
-    paths = synth_dataset(args.out, args.sessions, args.preset, args.seed,
-                          params=PreprocessParams.from_config(config), settings=settings,
-                          simulator_config=config.simulator, workers=args.workers)
+    paths = synth_dataset(
+        args.out,
+        args.sessions,
+        args.preset,
+        args.seed,
+        params=PreprocessParams.from_config(config),
+        settings=settings,
+        simulator_config=config.simulator,
+        workers=args.workers,
+    )
     print(f"wrote {len(paths)} session(s) to {args.out}")
     return 0
 
@@ -75,11 +114,19 @@ def _recordings(args, config) -> int:
     written = []
     for i, (preset, seed) in enumerate(session_plan(args.sessions, args.preset, args.seed)):
         path = out / f"SIM_{preset}_t{i + 1:02d}_seed{seed}.mcap"
-        with tqdm(desc=path.name, unit="frame", file=sys.stderr,
-                  disable=not sys.stderr.isatty()) as bar:
-            stats = synth_recording(path, config, classifier, preset=preset, seed=seed,
-                                    trial=i + 1, max_frames=args.frames or 0,
-                                    progress=bar.update)
+        with tqdm(
+            desc=path.name, unit="frame", file=sys.stderr, disable=not sys.stderr.isatty()
+        ) as bar:
+            stats = synth_recording(
+                path,
+                config,
+                classifier,
+                preset=preset,
+                seed=seed,
+                trial=i + 1,
+                max_frames=args.frames or 0,
+                progress=bar.update,
+            )
         if stats.state == "failed":
             from capture.errors import CaptureError
 

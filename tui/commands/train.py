@@ -8,6 +8,7 @@ test, trains with class balancing, augmentation and early stopping, writes the w
 (PATH, a PyTorch state dict) and PATH.json (metadata), and prints per-class accuracy and
 the confusion matrix on the held-out test sessions, indoor and outdoor.
 """
+
 from __future__ import annotations
 
 from tui.commands import count
@@ -19,41 +20,102 @@ def add_arguments(parser) -> None:
     from inference.training import TrainSettings
 
     d = TrainSettings()
-    parser.add_argument("--data", nargs="+", required=True, metavar="PATH",
-                        help="session files or folders: .npz from `walkcap synth`, .mcap "
-                        "recordings (labelled by the operator)")
-    parser.add_argument("--out", default="runs/terrain_cnn.pt", metavar="PATH",
-                        help="weights file to write; metadata goes to PATH with .json "
-                        "(default runs/terrain_cnn.pt)")
-    parser.add_argument("--epochs", type=count(1), default=d.epochs, metavar="N",
-                        help=f"at most N epochs (default {d.epochs})")
+    parser.add_argument(
+        "--data",
+        nargs="+",
+        required=True,
+        metavar="PATH",
+        help="session files or folders: .npz from `walkcap synth`, .mcap "
+        "recordings (labelled by the operator)",
+    )
+    parser.add_argument(
+        "--out",
+        default="runs/terrain_cnn.pt",
+        metavar="PATH",
+        help="weights file to write; metadata goes to PATH with .json "
+        "(default runs/terrain_cnn.pt)",
+    )
+    parser.add_argument(
+        "--epochs",
+        type=count(1),
+        default=d.epochs,
+        metavar="N",
+        help=f"at most N epochs (default {d.epochs})",
+    )
     parser.add_argument("--batch-size", type=count(1), default=d.batch_size, metavar="N")
     parser.add_argument("--lr", type=float, default=d.lr, help=f"learning rate (default {d.lr})")
-    parser.add_argument("--patience", type=count(1), default=d.patience, metavar="N",
-                        help=f"stop after N epochs without progress (default {d.patience})")
-    parser.add_argument("--seed", type=int, default=d.seed, metavar="S",
-                        help="seed of the split, sampling, augmentation and initialisation")
-    parser.add_argument("--hidden", type=count(1), default=d.hidden, metavar="N",
-                        help=f"width of the hidden fully connected layer (default {d.hidden})")
-    parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default=None,
-                        help="default: [model] device (auto: the GPU when there is one)")
-    parser.add_argument("--samples-per-epoch", type=count(1), default=None, metavar="N",
-                        help="frames drawn per epoch (default: the training set's size)")
-    parser.add_argument("--max-steps", type=count(1), default=None, metavar="N",
-                        help="stop after N optimiser steps (quick checks)")
-    parser.add_argument("--max-minutes", type=float, default=None, metavar="M",
-                        help="wall-clock budget: stop training after M minutes")
-    parser.add_argument("--threads", type=count(1), default=None, metavar="N",
-                        help="CPU threads for torch (default: torch's choice)")
+    parser.add_argument(
+        "--patience",
+        type=count(1),
+        default=d.patience,
+        metavar="N",
+        help=f"stop after N epochs without progress (default {d.patience})",
+    )
+    parser.add_argument(
+        "--seed",
+        type=int,
+        default=d.seed,
+        metavar="S",
+        help="seed of the split, sampling, augmentation and initialisation",
+    )
+    parser.add_argument(
+        "--hidden",
+        type=count(1),
+        default=d.hidden,
+        metavar="N",
+        help=f"width of the hidden fully connected layer (default {d.hidden})",
+    )
+    parser.add_argument(
+        "--device",
+        choices=("auto", "cpu", "cuda"),
+        default=None,
+        help="default: [model] device (auto: the GPU when there is one)",
+    )
+    parser.add_argument(
+        "--samples-per-epoch",
+        type=count(1),
+        default=None,
+        metavar="N",
+        help="frames drawn per epoch (default: the training set's size)",
+    )
+    parser.add_argument(
+        "--max-steps",
+        type=count(1),
+        default=None,
+        metavar="N",
+        help="stop after N optimiser steps (quick checks)",
+    )
+    parser.add_argument(
+        "--max-minutes",
+        type=float,
+        default=None,
+        metavar="M",
+        help="wall-clock budget: stop training after M minutes",
+    )
+    parser.add_argument(
+        "--threads",
+        type=count(1),
+        default=None,
+        metavar="N",
+        help="CPU threads for torch (default: torch's choice)",
+    )
     parser.add_argument("--val-fraction", type=float, default=d.val_fraction, metavar="F")
     parser.add_argument("--test-fraction", type=float, default=d.test_fraction, metavar="F")
     parser.add_argument("--no-augment", action="store_true", help="no augmentation")
     parser.add_argument("--no-balance", action="store_true", help="no class balancing")
-    parser.add_argument("--balance-power", type=float, default=d.balance_power, metavar="P",
-                        help="sample frames with weight class_frequency**-P: 1 balances "
-                        f"fully, 0 not at all (default {d.balance_power})")
-    parser.add_argument("--no-bf16", action="store_true",
-                        help="train in float32 even where the CPU has native bfloat16")
+    parser.add_argument(
+        "--balance-power",
+        type=float,
+        default=d.balance_power,
+        metavar="P",
+        help="sample frames with weight class_frequency**-P: 1 balances "
+        f"fully, 0 not at all (default {d.balance_power})",
+    )
+    parser.add_argument(
+        "--no-bf16",
+        action="store_true",
+        help="train in float32 even where the CPU has native bfloat16",
+    )
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
@@ -62,18 +124,32 @@ def run(args, config) -> int:
     from inference.model import file_sha256
     from inference.preprocess import PreprocessParams
     from inference.training import (
-        TrainSettings, format_metrics, keep_freed_memory, save_result, train,
+        TrainSettings,
+        format_metrics,
+        keep_freed_memory,
+        save_result,
+        train,
     )
 
     settings = TrainSettings(
-        epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, patience=args.patience,
-        seed=args.seed, hidden=args.hidden, device=args.device or config.model.device,
-        augment=not args.no_augment, balance=not args.no_balance,
-        balance_power=args.balance_power, bf16=not args.no_bf16,
-        samples_per_epoch=args.samples_per_epoch or 0, max_steps=args.max_steps or 0,
-        threads=args.threads or 0, max_seconds=(args.max_minutes or 0) * 60,
+        epochs=args.epochs,
+        batch_size=args.batch_size,
+        lr=args.lr,
+        patience=args.patience,
+        seed=args.seed,
+        hidden=args.hidden,
+        device=args.device or config.model.device,
+        augment=not args.no_augment,
+        balance=not args.no_balance,
+        balance_power=args.balance_power,
+        bf16=not args.no_bf16,
+        samples_per_epoch=args.samples_per_epoch or 0,
+        max_steps=args.max_steps or 0,
+        threads=args.threads or 0,
+        max_seconds=(args.max_minutes or 0) * 60,
         val_fraction=args.val_fraction,
-        test_fraction=args.test_fraction)
+        test_fraction=args.test_fraction,
+    )
     keep_freed_memory()  # this process only trains
     files = find_session_files(args.data)
     sessions = read_sessions(files)
@@ -83,10 +159,12 @@ def run(args, config) -> int:
     result = train(sessions, settings, show_progress=not args.quiet)
     path = save_result(result, args.out, settings, preprocess, [str(f) for f in files])
     split = result.split
-    print(f"best epoch {result.best_epoch} of {len(result.history)}"
-          f"{' (early stop)' if result.stopped_early else ''}, {result.seconds:.0f} s; "
-          f"sessions: {len(split['train'])} train, {len(split['validation'])} validation, "
-          f"{len(split['test'])} test")
+    print(
+        f"best epoch {result.best_epoch} of {len(result.history)}"
+        f"{' (early stop)' if result.stopped_early else ''}, {result.seconds:.0f} s; "
+        f"sessions: {len(split['train'])} train, {len(split['validation'])} validation, "
+        f"{len(split['test'])} test"
+    )
     if result.test_metrics:
         print(format_metrics(result.test_metrics, "test sessions (unseen in training):"))
     else:

@@ -1,4 +1,5 @@
 """`walkcap tui`: the terminal UI for a data-collection session."""
+
 from __future__ import annotations
 
 import contextlib
@@ -9,7 +10,9 @@ HELP = "open the terminal UI (mock devices and the bundled model by default)"
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--camera", metavar="BACKEND", help="camera backend: mock | royale | replay")
+    parser.add_argument(
+        "--camera", metavar="BACKEND", help="camera backend: mock | royale | replay"
+    )
     parser.add_argument("--imu", metavar="BACKEND", help="IMU backend: mock | serial")
     parser.add_argument("--port", help="serial port of the IMU (backend serial)")
 

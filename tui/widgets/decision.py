@@ -1,4 +1,5 @@
 """The fused decision, large, with the CNN's own decision and the operator's label under it."""
+
 from __future__ import annotations
 
 from rich.console import Group
@@ -24,7 +25,9 @@ def big_letters(word: str) -> list[str]:
     """Five lines of block letters, two cells per pixel, two cells between letters."""
     rows = []
     for r in range(5):
-        parts = [GLYPHS.get(ch, GLYPHS["-"])[r].replace("#", "██").replace(".", "  ") for ch in word]
+        parts = [
+            GLYPHS.get(ch, GLYPHS["-"])[r].replace("#", "██").replace(".", "  ") for ch in word
+        ]
         rows.append("  ".join(parts))
     return rows
 
@@ -48,7 +51,12 @@ class DecisionDisplay(Widget):
         fused, cnn, label = self._content
         color = MODE_COLORS[fused] if fused else "#555555"
         big = Text("\n".join(big_letters(fused or "--")), style=f"bold {color}", justify="center")
-        name = Text(MODE_NAMES[fused] if fused else "no decision yet", style="bold" if fused else "dim",
-                    justify="center")
-        below = Text.assemble("CNN ", mode_text(cnn), "   true ", mode_text(label), justify="center")
+        name = Text(
+            MODE_NAMES[fused] if fused else "no decision yet",
+            style="bold" if fused else "dim",
+            justify="center",
+        )
+        below = Text.assemble(
+            "CNN ", mode_text(cnn), "   true ", mode_text(label), justify="center"
+        )
         return Group(big, name, below)

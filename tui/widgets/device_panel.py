@@ -1,4 +1,5 @@
 """Both devices at a glance: state, rates, drops, errors, clock and sync; the latest fault."""
+
 from __future__ import annotations
 
 from rich.table import Table
@@ -12,7 +13,11 @@ from tui.widgets.pacing import Pacer
 # Backends name their clock figures slightly differently; the first key present is shown.
 _OFFSET_KEYS = ("clock_offset_ms", "offset_ms")
 _DRIFT_KEYS = ("clock_drift_ppm", "drift_ppm")
-_ERROR_PARTS = (("checksum_errors", "checksum"), ("missing_packets", "missing"), ("reconnects", "reconnects"))
+_ERROR_PARTS = (
+    ("checksum_errors", "checksum"),
+    ("missing_packets", "missing"),
+    ("reconnects", "reconnects"),
+)
 _RED, _AMBER = STATE_COLORS["lost"], STATE_COLORS["degraded"]
 
 Row = tuple[str, str, str]  # label, value, style of the value
@@ -35,20 +40,28 @@ def device_rows(name: str, status: DeviceStatus | None, sync: dict | None = None
     """The lines shown for one device, already formatted (so an unchanged view costs nothing)."""
     if status is None:
         return [(name, "not open", "dim")]
-    rows = [(name, f"{status.state}  {status.backend}", f"bold {STATE_COLORS.get(status.state, '')}")]
+    rows = [
+        (name, f"{status.state}  {status.backend}", f"bold {STATE_COLORS.get(status.state, '')}")
+    ]
     if status.message and status.state != "ok":  # "streaming" says nothing the state does not
         rows.append(("", status.message, STATE_COLORS.get(status.state, "")))
     slow = status.configured_rate_hz and status.measured_rate_hz < 0.9 * status.configured_rate_hz
-    rows.append(("rate", f"{status.measured_rate_hz:5.1f}/{status.configured_rate_hz:g} Hz",
-                 _AMBER if slow and status.state == "ok" else ""))
+    rows.append(
+        (
+            "rate",
+            f"{status.measured_rate_hz:5.1f}/{status.configured_rate_hz:g} Hz",
+            _AMBER if slow and status.state == "ok" else "",
+        )
+    )
     parts = [f"{status.details[k]} {name}" for k, name in _ERROR_PARTS if status.details.get(k)]
     errors = f"{status.errors}" + (f" ({', '.join(parts)})" if parts else "")
     style = f"bold {_RED}" if status.dropped else (_AMBER if status.errors else "")
     rows.append(("drops", f"{status.dropped}  errors {errors}", style))
     offset, drift = _first(status.details, _OFFSET_KEYS), _first(status.details, _DRIFT_KEYS)
     if offset is not None or drift is not None:
-        parts = ([offset_text(float(offset))] if offset is not None else []) + \
-                ([f"{float(drift):+.0f} ppm"] if drift is not None else [])
+        parts = ([offset_text(float(offset))] if offset is not None else []) + (
+            [f"{float(drift):+.0f} ppm"] if drift is not None else []
+        )
         rows.append(("clock", " ".join(parts), ""))
     if sync:
         rows.append(("sync", f"{sync.get('p50_ms', 0):.1f} ms p99 {sync.get('p99_ms', 0):.1f}", ""))
@@ -79,8 +92,14 @@ class DevicePanel(Widget):
         self._rows: list[Row] = []
         self._pacer = Pacer()
 
-    def present(self, camera: DeviceStatus | None, imu: DeviceStatus | None, sync: dict,
-                last_event: DeviceEvent | None, pipeline: list[Row] | None = None) -> None:
+    def present(
+        self,
+        camera: DeviceStatus | None,
+        imu: DeviceStatus | None,
+        sync: dict,
+        last_event: DeviceEvent | None,
+        pipeline: list[Row] | None = None,
+    ) -> None:
         rows = device_rows("camera", camera) + device_rows("imu", imu, sync)
         if last_event is not None:  # before the pipeline line: a small terminal cuts the end
             rows.append(event_row(last_event))

@@ -1,4 +1,5 @@
 """Terrain features of the current profile (slope, riser height, tread depth, ...)."""
+
 from __future__ import annotations
 
 from rich.text import Text
@@ -53,7 +54,7 @@ class FeaturesPanel(Widget):
         rows = feature_rows(features or {})
         if rows == self._rows:
             return
-        kind_changed = (rows[:1] != self._rows[:1])  # what the terrain is: at once
+        kind_changed = rows[:1] != self._rows[:1]  # what the terrain is: at once
         if self._pacer.due(kind_changed):
             self._rows = rows
             self.refresh()  # fixed height: no relayout (it would redraw the whole screen)

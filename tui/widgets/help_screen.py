@@ -1,4 +1,5 @@
 """The key reference, over the live screen."""
+
 from __future__ import annotations
 
 from rich.table import Table

@@ -3,6 +3,7 @@
 The image and the profile change with every frame; building their few dozen lines as
 plain segments costs a fraction of rendering the same text through Rich every time.
 """
+
 from __future__ import annotations
 
 from rich.segment import Segment
@@ -34,7 +35,9 @@ class CachedLines(Widget):
             base = self.rich_style
             strips = []
             for line in self.build_lines(size.width, size.height)[: size.height]:
-                segments = [Segment(text, base + style if style else base) for text, style in line if text]
+                segments = [
+                    Segment(text, base + style if style else base) for text, style in line if text
+                ]
                 strips.append(Strip(segments).adjust_cell_length(size.width, base))
             self._strips, self._built_for = strips, size
         if y < len(self._strips):

@@ -1,4 +1,5 @@
 """Ask for an optional note for a marker; enter places it, escape cancels."""
+
 from __future__ import annotations
 
 from textual.app import ComposeResult

@@ -1,4 +1,5 @@
 """Colours for the five modes and the device states, defined once for every widget."""
+
 from __future__ import annotations
 
 from rich.text import Text

@@ -1,5 +1,6 @@
 """Numbers that change with every snapshot (rates, sizes) are redrawn a few times a second;
 a change of state is redrawn at once. Terminal redraws cost the capture threads CPU."""
+
 from __future__ import annotations
 
 import time

@@ -1,4 +1,5 @@
 """The CNN's five class probabilities as horizontal bars in the mode colours."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -47,8 +48,12 @@ class ProbabilityBars(Widget):
             p = p if np.isfinite(p) else 0.0
             strong = i == best
             text.append(f"{mode} ", style="bold" if strong else "")
-            text.append(bar(p, width), style=f"bold {MODE_COLORS[mode]}" if strong else MODE_COLORS[mode])
-            text.append(" " + (f"{p:.2f}"[1:] if p < 1 else "1.0"), style="bold" if strong else "dim")
+            text.append(
+                bar(p, width), style=f"bold {MODE_COLORS[mode]}" if strong else MODE_COLORS[mode]
+            )
+            text.append(
+                " " + (f"{p:.2f}"[1:] if p < 1 else "1.0"), style="bold" if strong else "dim"
+            )
             if i < len(MODES) - 1:
                 text.append("\n")
         return text

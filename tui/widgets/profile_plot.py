@@ -1,4 +1,5 @@
 """The leveled sagittal profile: height against distance ahead, equal scales, in braille."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -13,8 +14,9 @@ _DIM = Style(dim=True)
 FORWARD_M = (0.0, 1.5)  # what the corridor keeps by default (preprocess.max_forward_m)
 
 
-def profile_ranges(points: np.ndarray, cols: int, rows: int,
-                   forward_m: tuple[float, float] = FORWARD_M) -> tuple[tuple[float, float], tuple[float, float]]:
+def profile_ranges(
+    points: np.ndarray, cols: int, rows: int, forward_m: tuple[float, float] = FORWARD_M
+) -> tuple[tuple[float, float], tuple[float, float]]:
     """Axis ranges with equal metres per dot on both axes, the profile centred in height."""
     x0, x1 = forward_m
     m_per_dot = (x1 - x0) / max(1, cols * 2)
@@ -46,7 +48,9 @@ class ProfilePlot(CachedLines):
         if key is not None and not self._pacer.due(urgent=self._key is None):
             return  # a new frame again within 1/10 s: the next one will show
         self._key = key
-        self._points = None if profile is None else np.asarray(profile, dtype=np.float64).reshape(-1, 2)
+        self._points = (
+            None if profile is None else np.asarray(profile, dtype=np.float64).reshape(-1, 2)
+        )
         self.invalidate()
 
     @property
@@ -60,7 +64,9 @@ class ProfilePlot(CachedLines):
         if width < 4 or rows < 2:
             return []
         xr, yr = profile_ranges(self._points, width, rows, self.forward_m)
-        out: list[Line] = [[(line, None)] for line in plot_points(self._points, width, rows, xr, yr)]
+        out: list[Line] = [
+            [(line, None)] for line in plot_points(self._points, width, rows, xr, yr)
+        ]
         right = f"{xr[1]:.1f} m ahead"
         out.append([(f"0 m{' ' * max(1, width - 3 - len(right))}{right}"[:width], _DIM)])
         return out

@@ -1,4 +1,5 @@
 """Quitting while a trial records: ask first; yes stops and finalises the file."""
+
 from __future__ import annotations
 
 from textual.app import ComposeResult
@@ -22,8 +23,12 @@ class QuitDialog(ModalScreen[bool]):
         Binding("n,escape", "answer(False)", "No"),
     ]
 
-    def __init__(self, question: str = "A trial is recording. Stop it, save the file and quit?",
-                 yes: str = "Stop and quit (y)", no: str = "Keep recording (n)") -> None:
+    def __init__(
+        self,
+        question: str = "A trial is recording. Stop it, save the file and quit?",
+        yes: str = "Stop and quit (y)",
+        no: str = "Keep recording (n)",
+    ) -> None:
         super().__init__()
         self.question, self.yes, self.no = question, yes, no
 

@@ -3,6 +3,7 @@
 Pure functions on numpy arrays, so the image and the profile widgets share them and the
 tests check them without a terminal.
 """
+
 from __future__ import annotations
 
 import math
@@ -16,7 +17,10 @@ _HALF = {(0, 0): " ", (1, 0): "▀", (0, 1): "▄", (1, 1): "█"}
 
 
 def pool_any(image: np.ndarray, factor: int) -> np.ndarray:
-    """Shrink by an integer factor; a cell is set when any pixel under it is (thin lines survive)."""
+    """Shrink by an integer factor; a cell is set when any pixel under it is.
+
+    Thin lines survive the shrink.
+    """
     if factor <= 1:
         return image.astype(bool)
     h, w = image.shape
@@ -71,8 +75,13 @@ def fit_binary_image(image: np.ndarray, cols: int, rows: int) -> tuple[list[str]
     return braille_lines(pool_any(image, braille)), braille, "braille"
 
 
-def plot_points(points: np.ndarray, cols: int, rows: int,
-                x_range: tuple[float, float], y_range: tuple[float, float]) -> list[str]:
+def plot_points(
+    points: np.ndarray,
+    cols: int,
+    rows: int,
+    x_range: tuple[float, float],
+    y_range: tuple[float, float],
+) -> list[str]:
     """Scatter (x, y) points on a braille canvas; y up. Braille dots are about square."""
     if cols <= 0 or rows <= 0:
         return []

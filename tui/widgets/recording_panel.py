@@ -1,4 +1,5 @@
 """The trial being recorded: file, elapsed time, size, write rate, writer queue."""
+
 from __future__ import annotations
 
 import collections
@@ -47,15 +48,22 @@ class ByteRate:
         return (b1 - b0) / ((t1 - t0) * 1e-9) if t1 > t0 else None
 
 
-def recording_rows(stats: object | None, elapsed_s: float | None, path: Path | None,
-                   next_trial: str = "", write_rate: float | None = None,
-                   idle: str = "○ not recording") -> list[tuple[str, str, str]]:
+def recording_rows(
+    stats: object | None,
+    elapsed_s: float | None,
+    path: Path | None,
+    next_trial: str = "",
+    write_rate: float | None = None,
+    idle: str = "○ not recording",
+) -> list[tuple[str, str, str]]:
     """(label, value, style) lines for the panel, formatted. `stats`: RecorderStats."""
     if elapsed_s is None:
         return [(idle, "", "bold")] + ([(next_trial, "", "dim")] if next_trial else [])
     rows = [("● REC", clock_text(elapsed_s), "bold")]
     if _stat(stats, "state") == "failed":
-        rows.append(("FAILED", _stat(stats, "message", "") or "the recording stopped", "bold #e04040"))
+        rows.append(
+            ("FAILED", _stat(stats, "message", "") or "the recording stopped", "bold #e04040")
+        )
     file = path or _stat(stats, "path")
     if file is not None:
         rows.append(("file", Path(file).name, ""))
@@ -66,8 +74,13 @@ def recording_rows(stats: object | None, elapsed_s: float | None, path: Path | N
     depth, capacity = _stat(stats, "queue_depth"), _stat(stats, "queue_size")
     if depth is not None:
         busy = bool(capacity) and depth > capacity / 2
-        rows.append(("queue", f"{depth}/{capacity}" if capacity else str(depth),
-                     "bold #f0a020" if busy else ""))
+        rows.append(
+            (
+                "queue",
+                f"{depth}/{capacity}" if capacity else str(depth),
+                "bold #f0a020" if busy else "",
+            )
+        )
     dropped = _stat(stats, "dropped")
     if dropped:
         rows.append(("dropped", str(dropped), "bold #e04040"))
@@ -85,8 +98,15 @@ class RecordingPanel(Widget):
         self._rate = ByteRate()
         self._pacer = Pacer()
 
-    def present(self, stats: object | None, elapsed_s: float | None, path: Path | None,
-                next_trial: str = "", now_ns: int = 0, idle: str = "○ not recording") -> None:
+    def present(
+        self,
+        stats: object | None,
+        elapsed_s: float | None,
+        path: Path | None,
+        next_trial: str = "",
+        now_ns: int = 0,
+        idle: str = "○ not recording",
+    ) -> None:
         """`next_trial` describes what the record key would start (shown while idle)."""
         size = _stat(stats, "bytes_written")
         rate = self._rate.add(now_ns, size) if size is not None else None
@@ -95,8 +115,9 @@ class RecordingPanel(Widget):
         rows = recording_rows(stats, elapsed_s, path, next_trial, rate, idle)
         if rows == self._rows:
             return
-        urgent = [r for r in rows if r[0] not in ("size", "write", "queue")] != \
-            [r for r in self._rows if r[0] not in ("size", "write", "queue")]
+        urgent = [r for r in rows if r[0] not in ("size", "write", "queue")] != [
+            r for r in self._rows if r[0] not in ("size", "write", "queue")
+        ]
         if self._pacer.due(urgent):
             self._rows = rows
             self.refresh()  # fixed height: no relayout (it would redraw the whole screen)
@@ -110,5 +131,7 @@ class RecordingPanel(Widget):
                 color = "#e04040" if label.startswith("●") else ""
                 table.add_row(Text(label, style=f"bold {color}"), Text(value, style=style))
             else:
-                table.add_row(Text(label, style=style if not value else ""), Text(value, style=style))
+                table.add_row(
+                    Text(label, style=style if not value else ""), Text(value, style=style)
+                )
         return table

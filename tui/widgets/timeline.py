@@ -1,5 +1,6 @@
 """The last ~20 s as coloured strips: operator label, CNN decision, fused decision
 (the paper's Fig. 8, live), plus the simulator's truth when there is one."""
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -13,8 +14,9 @@ SPAN_S = 20.0
 _NAME_WIDTH = 6
 
 
-def strip_cells(entries: Sequence, field: str, now_ns: int, width: int,
-                span_s: float = SPAN_S) -> list[str | None]:
+def strip_cells(
+    entries: Sequence, field: str, now_ns: int, width: int, span_s: float = SPAN_S
+) -> list[str | None]:
     """The mode shown in each of `width` columns; a column covers span_s / width seconds.
 
     The latest entry in a column wins; a column without a frame (a gap) or whose frame has
@@ -27,7 +29,7 @@ def strip_cells(entries: Sequence, field: str, now_ns: int, width: int,
     per_col = span_s * 1e9 / width
     if entries:
         first = int((entries[0].time_ns - start) // per_col)
-        cells[:max(0, min(first, width))] = [""] * max(0, min(first, width))
+        cells[: max(0, min(first, width))] = [""] * max(0, min(first, width))
     else:
         cells = [""] * width
     for e in entries:
@@ -88,8 +90,12 @@ class TimelineStrips(Widget):
         width = max(1, self.size.width - _NAME_WIDTH)
         column_ns = int(self.span_s * 1e9 / width)
         last = entries[-4:] if entries else []
-        key = (now_ns // max(1, column_ns), len(entries),
-               tuple((e.index, e.label, e.cnn, e.fused, e.truth) for e in last), width)
+        key = (
+            now_ns // max(1, column_ns),
+            len(entries),
+            tuple((e.index, e.label, e.cnn, e.fused, e.truth) for e in last),
+            width,
+        )
         if key == self._key:
             return
         self._key = key
@@ -111,7 +117,9 @@ class TimelineStrips(Widget):
         text = Text(no_wrap=True)
         for name, field in rows:
             text.append(f"{name:<{_NAME_WIDTH}}", style="bold")
-            text.append_text(strip_text(strip_cells(self._entries, field, self._now_ns, width, self.span_s)))
+            text.append_text(
+                strip_text(strip_cells(self._entries, field, self._now_ns, width, self.span_s))
+            )
             text.append("\n")
         text.append(" " * _NAME_WIDTH)
         text.append_text(axis_text(width, self.span_s))

@@ -1,4 +1,5 @@
 """The one-line status bar over the live screen (subject, trial, true mode, recording)."""
+
 from __future__ import annotations
 
 from rich.text import Text
