@@ -3,7 +3,9 @@
 Where it is read from: `--config PATH`, else `$WALKCAP_CONFIG`, else `./walkcap.toml` when
 it exists, else the defaults. An unknown key or a value of the wrong type is a
 ConfigError naming the key (`camera.fps: expected a number, got "fast"`).
-Sections extend by adding a field to their dataclass below: the loader validates by type.
+Each package owns its sections (devices.config, inference.config, the session's and the
+keys' here); `Config` composes them. A section extends by adding a field to its dataclass:
+the loader validates by type.
 """
 
 from __future__ import annotations
@@ -18,7 +20,8 @@ from pathlib import Path
 from typing import Any
 
 from capture.errors import ConfigError
-from inference.fusion import PAPER_TRANSITION  # the authors' matrix, defined once
+from devices.config import CameraConfig, ImuConfig, MountingConfig, SimulatorConfig
+from inference.config import FusionConfig, ModelConfig, PreprocessConfig
 
 DEFAULT_PATH = Path("walkcap.toml")
 
@@ -30,80 +33,6 @@ class SessionConfig:
     # The pipeline thread's SCHED_FIFO priority (1-99; 0: normal scheduling), where the
     # system allows it (root, CAP_SYS_NICE or an rtprio limit); otherwise it runs normally.
     realtime_priority: int = 10
-
-
-@dataclass
-class CameraConfig:
-    backend: str = "mock"  # mock | royale | replay
-    fps: float = 15.0  # the paper ran at 15 fps
-    use_case: str = ""  # royale use case name; empty: the one matching fps
-    camera_id: str = ""  # royale camera id or .rrf file; empty: the first camera
-    buffer_frames: int = 8
-
-
-@dataclass
-class SimulatorConfig:
-    course: str = "indoor"  # indoor | outdoor
-    seed: int = 0
-    speed_mps: float = 1.1
-    cadence_spm: float = 105.0  # steps per minute
-    camera_height_m: float = 0.55  # thigh mount height when standing
-    camera_tilt_deg: float = 35.0  # downward tilt relative to the thigh
-    realtime: bool = True
-    stand: bool = False  # the walker stands still at the start (calibration on mock devices)
-    loop: bool = False  # walk the course again at its end (the UI loops; `record` stops)
-    # Real time: camera renderer and IMU emulator in a child process, costing the session's
-    # threads nothing, as real sensors would (devices/simulator/rig.py)
-    process: bool = True
-
-
-@dataclass
-class ImuConfig:
-    backend: str = "mock"  # mock (emulator on a pseudo-terminal) | serial
-    port: str = ""  # e.g. /dev/ttyUSB0 for backend = serial
-    baudrate: int = 115200
-    rate_hz: int = 100
-    drift_ppm: float = 50.0  # emulator only
-    jitter_ms: float = 2.0  # emulator only
-
-
-@dataclass
-class MountingConfig:
-    """Camera orientation relative to the IMU, on top of the nominal axes.
-
-    Nominal: camera z (forward) along IMU x, camera x (right) along IMU -y. `pitch_deg`
-    tilts the camera down, `roll_deg` about its optical axis. Written by `walkcap calibrate`.
-    """
-
-    roll_deg: float = 0.0
-    pitch_deg: float = 35.0
-    yaw_deg: float = 0.0
-
-
-@dataclass
-class PreprocessConfig:
-    corridor_width_m: float = 0.1  # across the walking direction (authors: 0.1 m)
-    min_forward_m: float = 0.0
-    max_forward_m: float = 2.5  # see inference.preprocess.PreprocessParams
-    grid_size: int = 100  # 100 x 100 cells
-    cell_m: float = 0.01  # 1 cm cells
-    min_confidence: int = 1
-    outlier_min_points: int = 4  # isolated-point removal, 3 x 3 cm neighbourhood (0: off)
-    max_elevation_deg: float = 30.0  # camera looking higher than this: no image
-    backend: str = "numpy"  # numpy | open3d (same result; numpy is faster)
-
-
-@dataclass
-class ModelConfig:
-    path: str = ""  # empty: the bundled model
-    device: str = "auto"  # auto | cpu | cuda
-
-
-@dataclass
-class FusionConfig:
-    window: int = 5  # l_w, smoothing window (frames)
-    vote_delay: int = 1  # l_v, voting half-window (frames)
-    transition: list[list[float]] = field(default_factory=lambda: PAPER_TRANSITION.tolist())
 
 
 @dataclass

@@ -31,7 +31,7 @@ import orjson
 from capture import topics as T
 from capture.errors import CaptureError
 from capture.recovery import RECORD_HEAD, ScanResult, check_magic, scan
-from devices.frames import MODES, CameraGeometry, DepthFrame
+from devices.frames import MODES, CameraGeometry, DepthFrame, ImuSample
 
 
 @dataclass
@@ -419,6 +419,26 @@ def _scan_times(path: Path) -> dict[str, np.ndarray]:
 
 
 # ---- analysis helpers -------------------------------------------------------------------
+
+
+def imu_sample(d: dict) -> ImuSample:
+    """An /imu message, decoded, as the ImuSample the driver delivered."""
+
+    def arr(key):
+        v = d.get(key)
+        return None if v is None else np.asarray(v, dtype=np.float64)
+
+    return ImuSample(
+        host_time_ns=int(d["host_time_ns"]),
+        time_ns=d.get("time_ns"),
+        packet_counter=d.get("packet_counter"),
+        sample_time_fine=d.get("sample_time_fine"),
+        quaternion=arr("quaternion"),
+        acceleration=arr("acceleration"),
+        rate_of_turn=arr("rate_of_turn"),
+        status_word=d.get("status_word"),
+        extra=d.get("extra") or {},
+    )
 
 
 def mode_index(mode: str | None) -> int:

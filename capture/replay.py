@@ -30,6 +30,7 @@ import numpy as np
 from capture import topics as T
 from capture.errors import CaptureError
 from capture.pipeline import CNN_THREADS, OrientationTrack, Pipeline, model_hash, record_decisions
+from capture.reader import imu_sample
 from devices.frames import DepthFrame, ImuSample
 
 IMU_LOOKAHEAD_NS = 20_000_000  # samples recorded up to this long after a frame may be used
@@ -52,24 +53,6 @@ class ReplayReport:
         )
 
 
-def _imu_sample(d: dict) -> ImuSample:
-    def arr(key):
-        v = d.get(key)
-        return None if v is None else np.asarray(v, dtype=np.float64)
-
-    return ImuSample(
-        host_time_ns=int(d["host_time_ns"]),
-        time_ns=d.get("time_ns"),
-        packet_counter=d.get("packet_counter"),
-        sample_time_fine=d.get("sample_time_fine"),
-        quaternion=arr("quaternion"),
-        acceleration=arr("acceleration"),
-        rate_of_turn=arr("rate_of_turn"),
-        status_word=d.get("status_word"),
-        extra=d.get("extra") or {},
-    )
-
-
 def default_output(source: Path, folder: Path | None = None) -> Path:
     folder = folder or source.parent
     stem = source.stem
@@ -86,7 +69,7 @@ def recorded(rec) -> tuple[list[ImuSample], list[dict], list[dict]]:
     imu, labels, events = [], [], []
     for m in rec.messages([T.IMU, T.LABELS, T.EVENTS]):
         if m.topic == T.IMU:
-            imu.append(_imu_sample(m.data))
+            imu.append(imu_sample(m.data))
         else:
             (labels if m.topic == T.LABELS else events).append(m.data)
     imu.sort(key=_sample_time)

@@ -17,6 +17,7 @@ import logging
 import re
 import sys
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -224,6 +225,7 @@ class Session:
         self._by_index: dict[int, TimelineEntry] = {}
         self._events: collections.deque[DeviceEvent] = collections.deque(maxlen=200)
         self._latencies: collections.deque[float] = collections.deque(maxlen=2000)
+        self._latency_sinks: list[Callable[[float], None]] = []
         self._sync_errors: collections.deque[float] = collections.deque(maxlen=5000)
         self._frames = 0
         self._last_truth_mode: str | None = None
@@ -395,6 +397,24 @@ class Session:
                     if e is not None:
                         e.voted = fused.voted
             self._latencies.append(r.latency_ms)
+            for sink in self._latency_sinks:
+                sink(r.latency_ms)
+
+    def add_latency_sink(self, sink: Callable[[float], None]) -> None:
+        """Call `sink(ms)` with every frame's pipeline latency, in frame order.
+
+        It runs on the pipeline thread, under the lock that counts the frame, so a sink
+        sees exactly the frames a snapshot counts. It must be quick and must not call back
+        into the session.
+        """
+        with self._lock:
+            self._latency_sinks.append(sink)
+
+    @property
+    def rig_pid(self) -> int | None:
+        """The mock rig's process id when the devices run in it, else None."""
+        rig = getattr(self._camera, "rig", None)
+        return getattr(rig, "pid", None)
 
     # ---- commands (from the UI or the CLI) --------------------------------------------
 

@@ -21,7 +21,8 @@ from capture import config as config_mod
 from capture.pipeline import OrientationTrack, Pipeline, model_hash, record_result
 from devices.clock import now_ns
 from devices.frames import ImuSample
-from devices.rotations import quat_conjugate, quat_from_euler, quat_multiply, quat_to_matrix
+from devices.orientation_error import OrientationError, OrientationErrorModel
+from devices.rotations import quat_conjugate, quat_multiply, quat_to_matrix
 
 GRAVITY = np.array([0.0, 0.0, 9.81])
 TRANSPORT_NS = 3_000_000  # a USB-serial hop: samples arrive ~3 ms after they are taken
@@ -32,12 +33,13 @@ def imu_samples(
     simulator, rate_hz: float, rng: np.random.Generator, t0_ns: int, noise_deg: float = 0.3
 ):
     """The thigh's IMU at `rate_hz`: orientation with noise, gravity, rate of turn."""
+    error = OrientationError(OrientationErrorModel(noise_deg=noise_deg, bias_deg=0.0), rng)
     n = int(simulator.duration_s * rate_hz) + 1
     t = np.arange(n) / rate_hz
     quats = np.asarray(simulator.thigh_quaternion(t), dtype=np.float64)
     for k in range(n):
         q = quats[k]
-        noisy = quat_multiply(quat_from_euler(*np.radians(rng.normal(0, noise_deg, 3))), q)
+        noisy = error.apply(q)
         accel = quat_to_matrix(q).T @ GRAVITY + rng.normal(0, 0.05, 3)
         nxt = quats[min(k + 1, n - 1)]
         dq = quat_multiply(quat_conjugate(q), nxt)  # body-frame rotation to the next sample

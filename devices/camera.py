@@ -38,8 +38,12 @@ from devices.frames import CameraGeometry, DepthFrame
 BACKENDS: dict[str, str] = {
     "mock": "devices.simulator.camera:MockCamera",
     "royale": "devices.royale:RoyaleCamera",
-    "replay": "devices.replay:ReplayCamera",
 }
+
+
+def register_backend(name: str, target: str) -> None:
+    """Add a backend, "module:Class", imported only when chosen (higher layers add theirs)."""
+    BACKENDS[name] = target
 
 
 def camera_class(name: str) -> type[Camera]:
@@ -60,11 +64,11 @@ def camera_class(name: str) -> type[Camera]:
 def open_camera(camera_config=None, simulator_config=None, **kw) -> Camera:
     """Construct the configured backend and open it (not started yet).
 
-    `camera_config` is a capture.config.CameraConfig (default: mock at 15 fps); the mock
+    `camera_config` is a devices.config.CameraConfig (default: mock at 15 fps); the mock
     backend also takes the SimulatorConfig; other keywords go to the backend.
     """
     if camera_config is None:
-        from capture.config import CameraConfig
+        from devices.config import CameraConfig
 
         camera_config = CameraConfig()
     camera = camera_class(camera_config.backend).from_config(camera_config, simulator_config, **kw)
@@ -83,7 +87,7 @@ class Camera:
 
     def __init__(self, config=None, *, geometry: CameraGeometry | None = None) -> None:
         if config is None:
-            from capture.config import CameraConfig
+            from devices.config import CameraConfig
 
             config = CameraConfig()
         self.config = config

@@ -39,6 +39,7 @@ import numpy as np
 
 from devices import xbus
 from devices.clock import now_ns
+from devices.orientation_error import OrientationError, OrientationErrorModel
 from devices.rotations import (
     matrix_to_quat,
     quat_conjugate,
@@ -127,6 +128,7 @@ class ImuEmulator:
         product_code: str = "MTi-3-8A7G6",
         firmware: tuple[int, int, int] = (1, 8, 2),
         wakeup_s: float = 0.5,
+        orientation_error: OrientationErrorModel | None = None,
     ) -> None:
         if not 1 <= rate_hz <= MAX_RATE_HZ:
             raise ValueError(f"IMU emulator rate {rate_hz} Hz: must be 1..{MAX_RATE_HZ}")
@@ -135,6 +137,7 @@ class ImuEmulator:
         self.jitter_ms = float(jitter_ms)
         self.baudrate = baudrate
         self.noise = noise
+        self.orientation_error = orientation_error
         self.device_id = device_id
         self.product_code = product_code
         self.firmware = firmware
@@ -146,6 +149,10 @@ class ImuEmulator:
         )
         self._gyro_bias = self._rng.normal(0.0, 0.003, 3) if noise else np.zeros(3)
         self._accel_bias = self._rng.normal(0.0, 0.02, 3) if noise else np.zeros(3)
+        # The attitude filter's error (devices.orientation_error); none: the true orientation.
+        self._filter_error = (
+            OrientationError(orientation_error, self._rng) if orientation_error else None
+        )
         self._outputs = xbus.output_settings(xbus.DEFAULT_OUTPUTS, self.rate_hz)
         self._commands: queue.SimpleQueue = queue.SimpleQueue()
         self._lock = threading.Lock()
@@ -399,6 +406,10 @@ class ImuEmulator:
         if dq[0] < 0:
             dq = -dq
         gyro = dq[1:] / h + self._gyro_bias + noise(0.004)  # 2 * vec / (2 h)
+        field_enu = rot.T @ MAGNETIC_FIELD_ENU  # physics sees the true orientation
+        if self._filter_error is not None:  # the filter's estimate, not the truth
+            q = self._filter_error.apply(q)
+            rot = quat_to_matrix(q)
         values: dict[str, object] = {}
         encodings: dict[str, tuple[int, str]] = {}  # name -> (precision, coordinate system)
         for setting in self._outputs:
@@ -441,7 +452,7 @@ class ImuEmulator:
                 d = quat_multiply(quat_conjugate(q_prev), q)
                 values[name] = tuple(d if d[0] >= 0 else -d)
             elif name == "magnetic_field":
-                values[name] = tuple(rot.T @ MAGNETIC_FIELD_ENU + noise(0.01))
+                values[name] = tuple(field_enu + noise(0.01))
             elif name == "temperature":
                 values[name] = 31.0 + float(noise(0.05, 1)[0])
             elif name == "baro_pressure":

@@ -17,7 +17,6 @@ from __future__ import annotations
 import enum
 import operator
 import struct
-import time
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
@@ -579,33 +578,3 @@ def wire_time_ns(nbytes: int, baudrate: int) -> int:
 
 
 # --------------------------------------------------------------------------- benchmark
-
-
-def bench_parse_rate(seconds: float = 2.0) -> float:
-    """MTData2 messages framed, checked and decoded per second of CPU time.
-
-    Default outputs in float32 (a 73-byte frame), fed in 4 KiB chunks. CPU time, not wall
-    time, so that other processes on a shared machine do not count against the parser.
-    """
-    values = {
-        "packet_counter": 1,
-        "sample_time_fine": 123456,
-        "quaternion": (1.0, 0.0, 0.0, 0.0),
-        "acceleration": (0.1, 0.2, 9.8),
-        "rate_of_turn": (0.01, 0.02, 0.03),
-        "status_word": 3,
-    }
-    frame = build(MID.MTDATA2, encode_mtdata2(values))
-    per_chunk = max(1, 4096 // len(frame))
-    chunk = frame * per_chunk
-    parser = XbusParser()
-    count = 0
-    start = time.process_time()
-    deadline = start + seconds
-    while True:
-        for _ in range(50):
-            count += len(parser.feed(chunk))
-        now = time.process_time()
-        if now >= deadline:
-            break
-    return count / (now - start)

@@ -27,7 +27,6 @@ At the ends of a sequence (documented choices, the paper does not say):
 
 from __future__ import annotations
 
-import time
 from collections import deque
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -576,33 +575,3 @@ def paper_viterbi(
     if n:
         states[n - 1] = int(np.argmax(smooth[n - 1]))
     return states, smooth
-
-
-def bench_fusion(updates: int = 20000, window: int = 5, seed: int = 0) -> dict:
-    """Median time of one fusion update (HmmFusion.push) against the numpy transcription.
-
-    Returns {"fusion_update_us", "paper_loop_us", "speedup"}. Not a test: a figure to report.
-    """
-    rng = np.random.default_rng(seed)
-    frames = rng.dirichlet(np.ones(N_MODES), size=updates + window)
-    clock = time.perf_counter_ns
-
-    fusion = HmmFusion(window, PAPER_TRANSITION)
-    for row in frames[:window]:
-        fusion.push(row)
-    fast = []
-    for row in frames[window:]:
-        start = clock()
-        fusion.push(row)
-        fast.append(clock() - start)
-
-    smooth = frames.copy()
-    paper = []
-    for t in range(window, len(frames)):
-        start = clock()
-        _, smooth[t] = paper_step(smooth[t - window : t], frames[t], PAPER_TRANSITION, window)
-        paper.append(clock() - start)
-
-    fast_us = float(np.median(fast)) / 1000.0
-    paper_us = float(np.median(paper)) / 1000.0
-    return {"fusion_update_us": fast_us, "paper_loop_us": paper_us, "speedup": paper_us / fast_us}

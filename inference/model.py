@@ -132,6 +132,11 @@ def _patch_codes(images: np.ndarray) -> np.ndarray:
     )
 
 
+def occupied_patches(images: np.ndarray) -> np.ndarray:
+    """Which 4 x 4 patches of each image hold terrain: what the sparse path's cost follows."""
+    return _patch_codes(images) != 0
+
+
 def _nhwc(x: torch.Tensor) -> torch.Tensor:
     """(N, C, H, W) -> (N, H, W, C), contiguous."""
     return x.permute(0, 2, 3, 1).contiguous()
@@ -515,56 +520,3 @@ def load_classifier(
 
 
 # ---- benchmark ---------------------------------------------------------------------------
-
-
-def bench_cnn(frames: int = 500, path: str | None = None, threads: int = 1) -> dict:
-    """Single-frame latency (median ms) and batched throughput (frames/s) on the CPU.
-
-    The images of a synthesized indoor walk (the sparse path's cost follows how much of an
-    image is occupied), and, for the worst case, random noise images that occupy 40 % of
-    the patches and take the dense path. The bundled model if it exists, else an
-    untrained network (same cost). `threads` applies to the single-frame figures (1, as the
-    live session runs the CNN); the batched figure uses every core.
-    """
-    from inference.dataset import render_synth_session
-
-    walk = render_synth_session("indoor", 1)[0].images
-    images = walk[np.arange(frames) % len(walk)]
-    noise = np.random.default_rng(0).random((100, INPUT_SIZE, INPUT_SIZE)) < 0.03
-    try:
-        clf = load_classifier(path, device="cpu")
-    except InferenceError:
-        clf = Classifier(TerrainCNN(), {}, torch.device("cpu"))
-
-    def one_frame_ms(images: np.ndarray) -> float:
-        for img in images[:20]:
-            clf.predict(img)
-        times = []
-        for img in images:
-            t = time.perf_counter()
-            clf.predict(img)
-            times.append(time.perf_counter() - t)
-        return float(np.median(times) * 1e3)
-
-    before = torch.get_num_threads()
-    try:
-        torch.set_num_threads(threads)
-        frame_ms, busy_ms = one_frame_ms(images), one_frame_ms(noise)
-        torch.set_num_threads(os.cpu_count() or 1)
-        clf.predict_batch(images[:32])
-        t = time.perf_counter()
-        clf.predict_batch(images)
-        rate = frames / (time.perf_counter() - t)
-    finally:
-        torch.set_num_threads(before)
-    # What sets the sparse path's cost: the share of occupied patches and of occupied rows.
-    occupied = _patch_codes(images) != 0
-    rows = occupied.any(axis=2)
-    span = [np.ptp(np.flatnonzero(r)) + 1 if r.any() else 0 for r in rows]
-    return {
-        "cnn_frame_ms": frame_ms,
-        "cnn_frame_busy_ms": busy_ms,
-        "cnn_batch_rate": float(rate),
-        "walk_patches_occupied": float(np.median(occupied.mean(axis=(1, 2)))),
-        "walk_band_rows": float(np.median(span) / rows.shape[1]),
-    }

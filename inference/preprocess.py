@@ -27,7 +27,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import logging
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -295,67 +294,3 @@ def _corridor_open3d(
     if cloud.is_empty():
         return np.zeros((0, 3), np.float32)
     return cloud.point.positions.numpy().astype(np.float32, copy=False)
-
-
-def _bench_frames(count: int, seed: int = 0) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """Level ground and a step seen from a swinging thigh, full resolution, 1 cm noise."""
-    from devices.frames import CameraGeometry
-    from devices.rotations import quat_from_euler
-
-    geometry = CameraGeometry()
-    rays = geometry.rays().reshape(-1, 3).astype(np.float64)
-    mount = mounting_matrix(0.0, 35.0)
-    rng = np.random.default_rng(seed)
-    frames = []
-    for i in range(count):
-        q = quat_from_euler(
-            np.radians(rng.uniform(-3, 3)),
-            np.radians(rng.uniform(-25, 10)),
-            np.radians(rng.uniform(-180, 180)),
-        )
-        d = rays @ (quat_to_matrix(q) @ mount).T
-        # Floor 0.55 m below the camera; every other frame a 0.15 m step from 0.6 m ahead.
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = np.where(d[:, 2] < 0, -0.55 / d[:, 2], np.inf)
-            if i % 2:
-                t_step = np.where(d[:, 2] < 0, -0.40 / d[:, 2], np.inf)
-                t = np.where(np.hypot(d[:, 0], d[:, 1]) * t_step > 0.6, t_step, t)
-        t = t + rng.uniform(-0.01, 0.01, len(t))
-        valid = np.isfinite(t) & (t < geometry.max_range_m)
-        xyz = (rays * np.where(valid, t, 0.0)[:, None]).astype(np.float32)
-        frames.append(
-            (
-                xyz.reshape(geometry.height, geometry.width, 3),
-                np.where(valid, 255, 0).astype(np.uint8).reshape(geometry.height, geometry.width),
-                q,
-            )
-        )
-    return frames
-
-
-def bench_preprocess(frames: int = 200) -> dict:
-    """Median milliseconds per frame, frame -> image, for the numpy and Open3D backends.
-
-    Also each backend without outlier removal (`*_no_outliers_*`): leveling and cropping
-    alone. Not a test: run it by hand, e.g. `python -c "from inference.preprocess import
-    bench_preprocess as b; print(b())"`.
-    """
-    data = _bench_frames(min(frames, 40))
-    height, width = data[0][1].shape
-    result: dict = {"frames": frames, "resolution": f"{width}x{height}"}
-    for backend in BACKENDS:
-        for suffix, outliers in (("", PreprocessParams.outlier_min_points), ("_no_outliers", 0)):
-            params = PreprocessParams(backend=backend, outlier_min_points=outliers)
-            preprocess(*data[0], params)  # warm-up (imports, caches)
-            times, corridor = [], []
-            for i in range(frames):
-                xyz, confidence, q = data[i % len(data)]
-                t0 = time.perf_counter()
-                out = preprocess(xyz, confidence, q, params)
-                times.append(time.perf_counter() - t0)
-                corridor.append(len(out.cloud))
-            name = backend + suffix
-            result[f"{name}_median_ms"] = float(np.median(times) * 1e3)
-            result[f"{name}_p95_ms"] = float(np.percentile(times, 95) * 1e3)
-            result[f"{name}_corridor_points"] = int(np.median(corridor))
-    return result

@@ -1,6 +1,6 @@
 """Test fixture: write a synthetic walkcap recording with every topic, fast.
 
-Frames come from capture.recorder.synthetic_frame (a ray-cast step scene with 1 % range
+Frames come from devices.simulator.synthetic.synthetic_frame (a ray-cast step scene with 1 % range
 noise), a few of them re-stamped; times are synthetic session-clock times starting at T0.
 """
 
@@ -12,9 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
-from capture.recorder import Recorder, synthetic_frame
+from capture.recorder import Recorder
 from devices.base import DeviceEvent
 from devices.frames import MODES, ImuSample
+from devices.simulator.synthetic import synthetic_frame
 
 T0 = 1_000_000_000_000  # 1000 s on the session clock
 FPS = 45.0

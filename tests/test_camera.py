@@ -8,9 +8,9 @@ import time
 import numpy as np
 import pytest
 
-from capture.config import CameraConfig, SimulatorConfig
 from devices.camera import BACKENDS, Camera, camera_class, open_camera
 from devices.clock import now_ns
+from devices.config import CameraConfig, SimulatorConfig
 from devices.errors import DeviceNotAvailable
 from devices.frames import DepthFrame
 from devices.simulator import MockCamera, Simulator, make_course
@@ -116,8 +116,16 @@ def test_measured_rate_follows_deliveries():
 
 
 def test_registry_names_the_three_backends():
+    import capture  # noqa: F401  (registers the replay camera, which reads recordings)
+
     assert set(BACKENDS) == {"mock", "royale", "replay"}
     assert camera_class("mock") is MockCamera
+
+
+def test_devices_alone_register_only_their_own_backends():
+    code = "import devices.camera as c; print(sorted(c.BACKENDS))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "['mock', 'royale']"
 
 
 def test_unknown_backend_is_one_clear_error():
@@ -133,9 +141,9 @@ def test_a_backend_module_that_cannot_be_imported_is_reported(monkeypatch):
 
 def test_backends_are_imported_only_when_chosen():
     code = (
-        "import sys, devices.camera; "
+        "import sys, devices.camera, capture; "
         "print(any(m in sys.modules for m in ('open3d', 'devices.royale', "
-        "'devices.simulator', 'devices.replay')))"
+        "'devices.simulator', 'capture.replay_camera', 'capture.reader')))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
@@ -163,9 +171,9 @@ def test_open_camera_builds_the_mock_from_the_configuration():
 
 
 def test_bad_simulator_configuration_names_the_key():
-    from capture.errors import ConfigError
+    from devices.errors import DeviceConfigError
 
-    with pytest.raises(ConfigError, match="simulator.*beach"):
+    with pytest.raises(DeviceConfigError, match="simulator.*beach"):
         open_camera(CameraConfig(backend="mock"), SimulatorConfig(course="beach"))
 
 

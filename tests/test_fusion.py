@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from capture.config import PAPER_TRANSITION as CONFIG_TRANSITION
+from inference.config import PAPER_TRANSITION as CONFIG_TRANSITION
 from inference.errors import InferenceError
 from inference.evaluation import accuracy, run_offline, synthetic_trial
 from inference.fusion import (
@@ -13,7 +13,6 @@ from inference.fusion import (
     ForwardFilter,
     HmmFusion,
     Voter,
-    bench_fusion,
     design_transition,
     estimate_transition,
     make_fusion,
@@ -322,6 +321,8 @@ def test_make_fusion_knows_every_method_and_its_delay():
 
 
 def test_bench_fusion_reports_both_timings():
+    from capture.bench.components import bench_fusion
+
     result = bench_fusion(updates=300)
     assert set(result) == {"fusion_update_us", "paper_loop_us", "speedup"}
     assert result["fusion_update_us"] > 0 and result["paper_loop_us"] > 0

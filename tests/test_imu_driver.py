@@ -329,7 +329,7 @@ def test_stop_and_close_are_idempotent_and_leave_nothing_running(mock_imu):
 
 
 def test_open_imu_mock_from_a_config():
-    from capture.config import ImuConfig
+    from devices.config import ImuConfig
 
     imu = open_imu(ImuConfig(rate_hz=100, drift_ppm=50.0, jitter_ms=2.0))
     try:

@@ -13,7 +13,6 @@ from inference.model import (
     BUSY,
     Classifier,
     TerrainCNN,
-    bench_cnn,
     load_classifier,
     metadata_path,
     save_model,
@@ -247,6 +246,8 @@ def test_mismatched_file_is_one_clear_error(tmp_path):
 
 
 def test_bench_cnn_reports_its_figures():
+    from capture.bench.components import bench_cnn
+
     result = bench_cnn(frames=20)
     assert set(result) == {
         "cnn_frame_ms",

@@ -10,7 +10,6 @@ from devices.frames import DepthFrame
 from inference.preprocess import (
     Preprocessed,
     PreprocessParams,
-    bench_preprocess,
     leveling_matrix,
     preprocess,
     preprocess_frame,
@@ -280,6 +279,8 @@ def test_preprocess_frame_and_grid_size():
 
 
 def test_bench_reports_both_backends():
+    from capture.bench.components import bench_preprocess
+
     result = bench_preprocess(frames=4)
     assert result["numpy_median_ms"] > 0 and result["open3d_median_ms"] > 0
     assert result["numpy_corridor_points"] > 100

@@ -32,9 +32,10 @@ from capture import topics as T
 from capture.errors import CaptureError
 from capture.journal import read_journal
 from capture.reader import depth_frames, open_recording
-from capture.recorder import Recorder, _TrackedFile, synthetic_frame
+from capture.recorder import Recorder, _TrackedFile
 from capture.recovery import recover
 from devices.frames import CameraGeometry
+from devices.simulator.synthetic import synthetic_frame
 
 
 def decode_all(path):
@@ -355,7 +356,7 @@ def test_an_existing_recording_is_never_overwritten(tmp_path):
 
 
 def test_bench_record_reports_the_recording_rate(tmp_path):
-    from capture.recorder import bench_record
+    from capture.bench.components import bench_record
 
     r = bench_record(fps=15, seconds=1.0, folder=tmp_path)
     assert r["state"] == "stopped" and r["dropped"] == 0 and r["frames"] == 15

@@ -132,7 +132,8 @@ def test_recover_never_overwrites(recording, tmp_path):
 RECORD_UNTIL_KILLED = textwrap.dedent("""
     import dataclasses, sys, time
     import numpy as np
-    from capture.recorder import Recorder, synthetic_frame
+    from capture.recorder import Recorder
+    from devices.simulator.synthetic import synthetic_frame
     from devices.clock import now_ns
     from devices.frames import MODES, ImuSample
 

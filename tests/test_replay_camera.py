@@ -3,8 +3,8 @@ import time
 import pytest
 from recording_fixtures import write_recording
 
-from capture.config import CameraConfig
 from devices.camera import open_camera
+from devices.config import CameraConfig
 from devices.errors import DeviceNotAvailable
 
 

@@ -7,8 +7,8 @@ import types
 import numpy as np
 import pytest
 
-from capture.config import CameraConfig
 from devices.camera import open_camera
+from devices.config import CameraConfig
 from devices.errors import DeviceInitError, DeviceNotAvailable
 from devices.royale import RoyaleCamera, choose_use_case, use_case_fps
 

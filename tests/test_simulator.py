@@ -10,7 +10,6 @@ from devices.simulator import (
     ErrorEvent,
     Simulator,
     Walk,
-    bench_sim_frame,
     make_course,
 )
 from devices.simulator.simulator import VOTE_DT_S, switch_once
@@ -348,5 +347,7 @@ def test_error_image_swing_blur_is_noisy_and_holed():
 
 
 def test_bench_sim_frame_reports_milliseconds():
+    from capture.bench.components import bench_sim_frame
+
     ms = bench_sim_frame(frames=3)
     assert 0 < ms < 1000

@@ -6,14 +6,9 @@ import json
 import numpy as np
 import pytest
 
+from capture.dataset import read_sessions, session_plan
 from devices.frames import MODES
-from inference.dataset import (
-    LabeledSession,
-    read_session,
-    read_sessions,
-    session_plan,
-    write_session,
-)
+from inference.dataset import LabeledSession, read_session, write_session
 from inference.errors import InferenceError
 from tui import cli
 from tui.commands import eval_model
@@ -92,7 +87,7 @@ def test_dataset_files_round_trip_and_bad_files_are_one_line(tmp_path):
 
 
 def test_recording_reader_hook_feeds_the_same_code_path(tmp_path):
-    import inference.dataset as dataset
+    import capture.dataset as dataset
 
     session = _drawn_sessions(1)[0]
     (tmp_path / "a.mcap").write_bytes(b"")

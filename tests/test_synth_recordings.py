@@ -4,8 +4,8 @@ as training data (one dataset code path for synth and recordings)."""
 import numpy as np
 import pytest
 
+from capture.dataset import read_sessions
 from capture.reader import labeled_session, open_recording, read_trial
-from inference.dataset import read_sessions
 from tui import cli
 
 

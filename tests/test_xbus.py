@@ -295,4 +295,6 @@ def test_output_configuration_round_trip_and_defaults():
 
 
 def test_bench_parse_rate_measures_something():
-    assert xbus.bench_parse_rate(0.05) > 1000
+    from capture.bench.components import bench_parse_rate
+
+    assert bench_parse_rate(0.05) > 1000

@@ -8,7 +8,7 @@ q = sim.thigh_quaternion(1.0)               # what the IMU on the thigh should r
 
 from devices.simulator.camera import MockCamera
 from devices.simulator.course import PAPER_TRIAL, PRESETS, Box, Course, Segment, make_course
-from devices.simulator.simulator import Simulator, bench_sim_frame
+from devices.simulator.simulator import Simulator
 from devices.simulator.walk import ERROR_KINDS, ErrorEvent, Walk
 
 __all__ = [
@@ -20,7 +20,6 @@ __all__ = [
     "Segment",
     "make_course",
     "Simulator",
-    "bench_sim_frame",
     "ERROR_KINDS",
     "ErrorEvent",
     "Walk",

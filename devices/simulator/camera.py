@@ -51,7 +51,7 @@ class MockCamera(Camera):
         super().__init__(config, geometry=geometry)
         if simulator is None:
             if simulator_config is None:
-                from capture.config import SimulatorConfig
+                from devices.config import SimulatorConfig
 
                 simulator_config = SimulatorConfig()
             # One thread per frame's ray cast: the session's pipeline keeps the other core,

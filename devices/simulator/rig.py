@@ -87,6 +87,11 @@ class MockRig:
 
     # ---- the two devices ------------------------------------------------------------------
 
+    @property
+    def pid(self) -> int:
+        """The rig's process id (its memory and CPU are the devices', not the session's)."""
+        return self._child.pid
+
     def camera(self) -> RigCamera:
         self._users += 1
         self.camera_device = RigCamera(self)

@@ -32,11 +32,9 @@ Every frame is a pure function of (course, walker parameters, seed, t): determin
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 
-from capture.errors import ConfigError
+from devices.errors import DeviceConfigError
 from devices.frames import MODES, CameraGeometry, DepthFrame
 from devices.simulator.course import Course, make_course
 from devices.simulator.render import (
@@ -111,7 +109,7 @@ class Simulator:
     def from_config(
         cls, config, geometry: CameraGeometry | None = None, cast_threads: int = 0
     ) -> Simulator:
-        """From a capture.config.SimulatorConfig (course preset, seed, walker, camera)."""
+        """From a devices.config.SimulatorConfig (course preset, seed, walker, camera)."""
         try:
             course = make_course(config.course, config.seed)
             return cls(
@@ -125,7 +123,7 @@ class Simulator:
                 cast_threads=cast_threads,
             )
         except ValueError as e:
-            raise ConfigError(f"simulator: {e}") from None
+            raise DeviceConfigError(f"simulator: {e}") from None
 
     @property
     def duration_s(self) -> float:
@@ -265,15 +263,3 @@ def switch_once(votes: list[int | None], segments: int) -> np.ndarray:
         path[k] = s
         s = int(best_before[k][s])
     return path
-
-
-def bench_sim_frame(frames: int = 200) -> float:
-    """Median milliseconds per rendered 224 x 171 frame (indoor course, seed 0, 15 fps)."""
-    sim = Simulator(make_course("indoor", 0))
-    times = []
-    for k in range(frames):
-        t = (k / 15.0) % sim.duration_s
-        t0 = time.perf_counter()
-        sim.render(t, index=k)
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times) * 1e3)

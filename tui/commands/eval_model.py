@@ -58,7 +58,7 @@ def add_arguments(parser) -> None:
 def run(args, config) -> int:
     import logging
 
-    from inference.dataset import SynthSettings, read_sessions
+    from capture.dataset import SynthSettings, read_sessions
     from inference.model import load_classifier
     from inference.preprocess import PreprocessParams
     from inference.training import evaluate_sessions, format_metrics
@@ -72,7 +72,7 @@ def run(args, config) -> int:
     else:
         from tqdm import tqdm
 
-        from inference.dataset import render_synth_session, session_plan
+        from capture.dataset import render_synth_session, session_plan
 
         params = PreprocessParams.from_config(config)
         settings = SynthSettings(max_frames=args.frames or 0)

@@ -76,7 +76,7 @@ def run(args, config) -> int:
         return _recordings(args, config)
     from dataclasses import replace
 
-    from inference.dataset import SynthSettings, synth_dataset
+    from capture.dataset import SynthSettings, synth_dataset
     from inference.preprocess import PreprocessParams
 
     settings = SynthSettings(max_frames=args.frames or 0, vary_walker=not args.fixed_walker)
@@ -103,9 +103,9 @@ def _recordings(args, config) -> int:
 
     from tqdm import tqdm
 
+    from capture.dataset import session_plan
     from capture.pipeline import CNN_THREADS
     from capture.synth import synth_recording
-    from inference.dataset import session_plan
     from inference.model import load_classifier
 
     out = Path(args.out)

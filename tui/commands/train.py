@@ -120,7 +120,7 @@ def add_arguments(parser) -> None:
 
 
 def run(args, config) -> int:
-    from inference.dataset import find_session_files, read_sessions
+    from capture.dataset import find_session_files, read_sessions
     from inference.model import file_sha256
     from inference.preprocess import PreprocessParams
     from inference.training import (

@@ -4,6 +4,8 @@ The recording is `camera_id` in the configuration (or `path=`). Frames come at t
 pace times `speed`, or as fast as the consumer takes them when `realtime` is false; they
 are re-stamped onto the session clock (recorded spacing kept), with their recorded truth.
 The recording's own IMU samples are available as `recorded_imu()` for offline use.
+It reads recordings, so it lives with the reader; capture registers it in devices' camera
+registry under the name "replay".
 """
 
 from __future__ import annotations
@@ -12,6 +14,9 @@ import logging
 import threading
 from pathlib import Path
 
+from capture import topics as T
+from capture.errors import CaptureError
+from capture.reader import depth_frames, imu_sample, open_recording
 from devices.base import OK
 from devices.camera import Camera
 from devices.clock import now_ns
@@ -47,9 +52,6 @@ class ReplayCamera(Camera):
         return cls(camera_config, **kw)
 
     def _open(self) -> None:
-        from capture.errors import CaptureError
-        from capture.reader import open_recording
-
         if not str(self.path) or not self.path.is_file():
             raise DeviceNotAvailable(
                 f"replay camera: no recording at {str(self.path) or '(none)'}; "
@@ -85,8 +87,6 @@ class ReplayCamera(Camera):
             self._fail(f"replay stopped: {type(e).__name__}: {e}")
 
     def _play_once(self) -> None:
-        from capture.reader import depth_frames
-
         start = now_ns()
         first = None
         for frame in depth_frames(self.path):
@@ -108,8 +108,4 @@ class ReplayCamera(Camera):
 
     def recorded_imu(self):
         """The recording's IMU samples (ImuSample), in time order, on the recorded clock."""
-        from capture import topics as T
-        from capture.reader import open_recording
-        from capture.replay import _imu_sample
-
-        return [_imu_sample(m.data) for m in open_recording(self.path).messages([T.IMU])]
+        return [imu_sample(m.data) for m in open_recording(self.path).messages([T.IMU])]

@@ -9,6 +9,7 @@ from __future__ import annotations
 import os
 import platform
 import tempfile
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -121,20 +122,26 @@ def classifier(path: str | None = None):
 
 class LatencyLog:
     """Every frame's latency in one float64 array, allocated (and touched) up front for the
-        frames expected: the soak measures the session's memory, so the bench's own record must
-        not grow with it (8 bytes a frame: a deque of Python floats took about 32, an estimated
-    86 KiB a minute at 45 fps).
-        Stands in for the session's bounded deque: append under the session's lock."""
+    frames expected: the soak measures the session's memory, so the bench's own record must
+    not grow with it (8 bytes a frame, a quarter of a deque of Python floats).
+
+    A latency sink of the session (Session.add_latency_sink): appends come from the
+    pipeline thread, reads from the bench's, each under the log's own lock.
+    """
 
     def __init__(self, expected_frames: int) -> None:
         self._values = np.full(max(int(expected_frames), 1024), np.nan)
         self._n = 0
+        self._lock = threading.Lock()
 
     def append(self, ms: float) -> None:
-        if self._n == len(self._values):  # longer than expected: grow rarely, by doubling
-            self._values = np.concatenate([self._values, np.full(len(self._values), np.nan)])
-        self._values[self._n] = ms
-        self._n += 1
+        with self._lock:
+            if self._n == len(self._values):  # longer than expected: grow rarely, by doubling
+                self._values = np.concatenate([self._values, np.full(len(self._values), np.nan)])
+            self._values[self._n] = ms
+            self._n += 1
+
+    __call__ = append  # the session calls its sinks
 
     def __len__(self) -> int:
         return self._n
@@ -144,7 +151,8 @@ class LatencyLog:
 
     def since(self, k: int) -> np.ndarray:
         """A copy of the latencies from the k-th frame on."""
-        return self._values[k : self._n].copy()
+        with self._lock:
+            return self._values[k : self._n].copy()
 
 
 @dataclass
@@ -185,10 +193,9 @@ def session_run(
     session = Session(cfg, classifier=clf or classifier(), auto_label=True)
     session.start()
     log = LatencyLog(seconds * fps * 1.2)
-    with session._lock:
-        session._latencies = log
+    session.add_latency_sink(log)
     memory = []
-    rig = getattr(getattr(session._camera, "rig", None), "_child", None)
+    rig_pid = session.rig_pid
     try:
         session.start_recording(SubjectInfo(subject="BENCH", condition="bench"))
         t0 = time.monotonic()
@@ -200,27 +207,26 @@ def session_run(
                     (
                         round(time.monotonic() - t0, 1),
                         round(rss_mib(), 1),
-                        round(rss_mib(rig.pid), 1) if rig is not None else float("nan"),
+                        round(rss_mib(rig_pid), 1) if rig_pid is not None else float("nan"),
                     )
                 )
                 if on_sample is not None:
-                    with session._lock:
-                        recent = log.since(seen)  # since the last sample
+                    recent = log.since(seen)  # since the last sample
                     seen += len(recent)
                     on_sample(session.snapshot(), memory[-1], recent)
                 next_sample += sample_every_s
             time.sleep(0.05)
         snap = session.snapshot()
-        with session._lock:
-            latencies = log.since(0)
     finally:
         stats = session.stop()
+    # Read once the pipeline has stopped: every frame it counted, and no other.
+    latencies = log.since(0)
     cam = snap.camera
     return SessionRun(
         fps=fps,
         imu_hz=imu_hz,
         seconds=seconds,
-        frames=snap.frames,
+        frames=len(latencies),
         latency_ms=latencies,
         dropped=(cam.dropped + cam.errors if cam else 0) + (stats.dropped if stats else 0),
         renderer_skipped=renderer_skipped(cam),
@@ -249,12 +255,14 @@ def replay_speedup(path: str, clf=None, runs: int = 3) -> float:
 
 def run_all(seconds: float = 15.0, progress=print) -> list[Result]:
     """Every benchmark, in order; `progress` gets a line per step."""
-    from capture.recorder import bench_record
-    from devices.simulator import bench_sim_frame
-    from devices.xbus import bench_parse_rate
-    from inference.fusion import bench_fusion
-    from inference.model import bench_cnn
-    from inference.preprocess import bench_preprocess
+    from capture.bench.components import (
+        bench_cnn,
+        bench_fusion,
+        bench_parse_rate,
+        bench_preprocess,
+        bench_record,
+        bench_sim_frame,
+    )
 
     results: list[Result] = []
     progress("Xbus parser")

@@ -1,0 +1,57 @@
+"""The devices' configuration sections: [camera], [simulator], [imu], [mounting].
+
+capture.config composes every package's sections into the one TOML file and validates
+each key by the type of its field here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass
+class CameraConfig:
+    backend: str = "mock"  # mock | royale | replay
+    fps: float = 15.0  # the paper ran at 15 fps
+    use_case: str = ""  # royale use case name; empty: the one matching fps
+    camera_id: str = ""  # royale camera id or .rrf file; empty: the first camera
+    buffer_frames: int = 8
+
+
+@dataclass
+class SimulatorConfig:
+    course: str = "indoor"  # indoor | outdoor
+    seed: int = 0
+    speed_mps: float = 1.1
+    cadence_spm: float = 105.0  # steps per minute
+    camera_height_m: float = 0.55  # thigh mount height when standing
+    camera_tilt_deg: float = 35.0  # downward tilt relative to the thigh
+    realtime: bool = True
+    stand: bool = False  # the walker stands still at the start (calibration on mock devices)
+    loop: bool = False  # walk the course again at its end (the UI loops; `record` stops)
+    # Real time: camera renderer and IMU emulator in a child process, costing the session's
+    # threads nothing, as real sensors would (devices/simulator/rig.py)
+    process: bool = True
+
+
+@dataclass
+class ImuConfig:
+    backend: str = "mock"  # mock (emulator on a pseudo-terminal) | serial
+    port: str = ""  # e.g. /dev/ttyUSB0 for backend = serial
+    baudrate: int = 115200
+    rate_hz: int = 100
+    drift_ppm: float = 50.0  # emulator only
+    jitter_ms: float = 2.0  # emulator only
+
+
+@dataclass
+class MountingConfig:
+    """Camera orientation relative to the IMU, on top of the nominal axes.
+
+    Nominal: camera z (forward) along IMU x, camera x (right) along IMU -y. `pitch_deg`
+    tilts the camera down, `roll_deg` about its optical axis. Written by `walkcap calibrate`.
+    """
+
+    roll_deg: float = 0.0
+    pitch_deg: float = 35.0
+    yaw_deg: float = 0.0
