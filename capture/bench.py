@@ -1,4 +1,4 @@
-"""`walkcap bench`: every figure the issues set a goal for, measured on mock devices.
+"""`walkcap bench`: every figure that has a goal, measured on mock devices.
 
 Each function measures one thing and returns plain numbers; `run_all` collects them as
 results with their goals. Numbers depend on the machine: the report says which it was.
@@ -121,10 +121,10 @@ def classifier(path: str | None = None):
 
 class LatencyLog:
     """Every frame's latency in one float64 array, allocated (and touched) up front for the
-        frames expected: the soak measures the session's memory, so the bench's own record must
-        not grow with it (8 bytes a frame: a deque of Python floats took about 32, an estimated
-    86 KiB a minute at 45 fps).
-        Stands in for the session's bounded deque: append under the session's lock."""
+    frames expected: the soak measures the session's memory, so the bench's own record must
+    not grow with it (8 bytes a frame; a deque of Python floats takes about 32, some 86 KiB
+    a minute at 45 fps).
+    Stands in for the session's bounded deque: append under the session's lock."""
 
     def __init__(self, expected_frames: int) -> None:
         self._values = np.full(max(int(expected_frames), 1024), np.nan)
