@@ -23,9 +23,9 @@ lint: install
 
 install: system-deps $(STAMP) bytecode
 
-# Compiled once here: where PYTHONDONTWRITEBYTECODE is set (as on the development
-# machines), every process would otherwise compile walkcap's sources again at start, and
-# replay's reader process would start 40-80 ms later. Up-to-date files are skipped.
+# Compiled once here: where PYTHONDONTWRITEBYTECODE is set, every process would otherwise
+# compile walkcap's sources again at start, and replay's reader process would start
+# 40-80 ms later. Up-to-date files are skipped.
 bytecode: $(STAMP)
 	@$(BIN)/python -m compileall -q capture devices inference tui >/dev/null
 

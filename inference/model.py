@@ -52,7 +52,7 @@ BUNDLED_PATH = Path(__file__).resolve().parent / "models" / "terrain_cnn.pt"
 
 def max_pool_2x2(x: torch.Tensor) -> torch.Tensor:
     """2 x 2 max-pool, stride 2 (even sizes). Same values as F.max_pool2d, built from four
-    strided views: for inference on this CPU it is 3-30x faster than PyTorch's kernel
+    strided views: for CPU inference it is 3-30x faster than PyTorch's kernel
     (its backward is slow, so training uses F.max_pool2d)."""
     return torch.maximum(
         torch.maximum(x[..., 0::2, 0::2], x[..., 0::2, 1::2]),

@@ -52,7 +52,7 @@ class PreprocessParams:
     corridor_width_m: float = 0.1  # across the walking direction (authors: 0.1 m)
     min_forward_m: float = 0.0
     # 2.5 m, not 1.5: a thigh camera at peak flexion or above a descent sees its nearest
-    # corridor point 1-2 m ahead; a 1.5 m crop left 7-9 % of frames empty or a few cm
+    # corridor point 1-2 m ahead; a 1.5 m crop leaves 7-9 % of frames empty or a few cm
     # long (a third of the classifier's errors). The image is still 1 m from the nearest.
     max_forward_m: float = 2.5
     min_height_m: float = -2.0  # height band kept, relative to the camera

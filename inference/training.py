@@ -58,13 +58,12 @@ class TrainSettings:
     augment: bool = True
     balance: bool = True
     # Sampling weight of a frame: class frequency ** -balance_power. 1 draws every class
-    # equally often (softmax ~ likelihood); lower keeps part of level ground's prior. On
-    # 96 synthetic sessions 0.3 beat 0.5 on held-out sessions per frame (91.3 / 87.2 %
-    # vs 90.2 / 84.3 % indoor / outdoor) and after HMM fusion (93.5 / 94.2 vs
-    # 93.1 / 93.9 %), at the cost of down-stairs recall (71 vs 83 %).
+    # equally often (softmax ~ likelihood); lower keeps part of level ground's prior. 0.3
+    # scores higher than 0.5 on held-out sessions, per frame and after HMM fusion, at some
+    # cost in down-stairs recall.
     balance_power: float = 0.3
     augment_probability: float = 0.5  # share of training frames that are augmented
-    bf16: bool = True  # bfloat16 autocast on CPUs with native support (1.7x faster here)
+    bf16: bool = True  # bfloat16 autocast on CPUs with native support (about 1.7x faster)
     samples_per_epoch: int = 0  # frames drawn per epoch; 0: as many as the training set
     max_steps: int = 0  # stop after this many optimiser steps in total (0: no limit)
     threads: int = 0  # torch intra-op threads; 0: leave as is
@@ -156,8 +155,8 @@ def augment_image(
     """A plausible other view of the same terrain (see the module docstring).
 
     The tilt is small: synthetic sessions already carry the IMU's and the mounting's
-    errors (about 1.4 degrees of pitch together), and 2 degrees more turned 5-6 degree
-    up ramps into level ground (their images measured 3.4-4.2 degrees of slope).
+    errors (about 1.4 degrees of pitch together), and 2 degrees more turns 5-6 degree
+    up ramps into level ground (their images then show 3.4-4.2 degrees of slope).
 
     Image convention (inference.preprocess): col = forward cells (0 nearest),
     row 0 = highest; the profile's minimum sits in column 1 and the row above the last.
@@ -467,10 +466,9 @@ def keep_freed_memory() -> bool:
     """Let this process keep the memory it frees for its next allocations (glibc; elsewhere
     a no-op, False). For a training process only: every step allocates and frees conv1's
     output for the batch (64 x 16 x 100 x 100 float32, 41 MB), above the 32 MB that glibc
-    ever serves from its heap, so glibc gave it back to the system at every free and the
-    kernel zeroed 41 MB of fresh pages for the next step: a third of the training time was
-    the kernel's (150 steps on one thread: 84 s, 29 s of it system time; with this 52 s,
-    2 s)."""
+    ever serves from its heap. Without this, glibc gives it back to the system at every
+    free and the kernel zeroes 41 MB of fresh pages for the next step: a third of the
+    training time goes to the kernel."""
     try:
         mallopt = ctypes.CDLL(None).mallopt
     except (OSError, AttributeError):

@@ -32,7 +32,7 @@ COMMANDS = (
 
 
 class NotYetAvailable(Exception):
-    """A subcommand whose issue has not landed yet."""
+    """A subcommand that is not available in this installation."""
 
 
 class _Parser(argparse.ArgumentParser):

@@ -1,4 +1,4 @@
-"""`walkcap bench`: every figure the issues set a goal for, measured on mock devices.
+"""`walkcap bench`: every figure that has a goal, measured on mock devices.
 
 Each function measures one thing and returns plain numbers; `run_all` collects them as
 results with their goals. Numbers depend on the machine: the report says which it was.

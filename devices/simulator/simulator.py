@@ -7,8 +7,8 @@ ground truth in `frame.truth`:
   terrain seen in the central image columns (the classifier's corridor) within 1 m of the
   nearest visible point (and 2.5 m of the camera, the image's crop), measured as the
   classifier's binary image shows it: 1 cm columns along the forward distance, not pixels
-  (the near terrain has many more pixels per metre; counting pixels switched the truth
-  up to a second after the image was mostly the new terrain). Cast without the error
+  (the near terrain has many more pixels per metre; counting pixels would switch the truth
+  up to a second after the image is mostly the new terrain). Cast without the error
   images drawn in (a foot, an occlusion or
   blur hides the terrain, it does not change it); a moment whose corridor is less than
   MIN_SEEN_SHARE terrain (sky, walls) votes for the fallback, the segment a look-ahead

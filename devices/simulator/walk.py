@@ -7,9 +7,9 @@ normal walking), more flexion going up, less going down, each walker's swing sca
 0.9-1.1. The amplitude is the simulator's calibration to the paper: the swinging thigh makes
 the view glance back at the terrain just left and ahead at the next, so it sets how many
 frames near a transition show another mode than the truth's single switch. At 24 degrees
-(the first eight sessions) neither the CNN (93.3 %) nor an oracle answering each view's
-mode (94.4 %) reached the paper's 94.8 % indoors; at 19 the oracle scores 96.1 % and the
-CNN lands in the paper's regime (README, "Classifier quality"). The IMU
+neither the CNN (93.3 %) nor an oracle answering each view's mode (94.4 %) reaches the
+paper's 94.8 % indoors; at 19 the oracle scores 96.1 % and the CNN lands in the paper's
+regime (README, "Analysis and training"). The IMU
 body frame is the thigh's (x forward, y left, z up when standing), so its orientation is
 roll, pitch = -flexion, yaw (flexion lifts the knee and tilts the camera up). The camera
 sits on the front of the thigh, `camera_height_m` above the ground when standing, tilted

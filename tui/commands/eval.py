@@ -86,7 +86,7 @@ def _common_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _model_module():
-    """tui.commands.eval_model when it exists (another issue), else (None, reason)."""
+    """tui.commands.eval_model when it imports, else (None, reason)."""
     try:
         return importlib.import_module("tui.commands.eval_model"), ""
     except ModuleNotFoundError as e:

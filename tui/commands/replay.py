@@ -22,7 +22,7 @@ def add_arguments(parser) -> None:
         metavar="FILE",
         help="output file (default: FILE.replay.mcap beside the original)",
     )
-    # [tui] issue: viewing with play/pause/seek and label corrections into a new file
+    # viewing with play/pause/seek and label corrections into a new file
     parser.add_argument(
         "--tui",
         action="store_true",

@@ -3,7 +3,7 @@
     walkcap train --data DIR|FILE ... [--out PATH] [--epochs N] [--seed S] ...
 
 Reads labelled sessions (`walkcap synth --format dataset` output; recordings with
-operator labels once recording lands), splits them by session into train / validation /
+operator labels), splits them by session into train / validation /
 test, trains with class balancing, augmentation and early stopping, writes the weights
 (PATH, a PyTorch state dict) and PATH.json (metadata), and prints per-class accuracy and
 the confusion matrix on the held-out test sessions, indoor and outdoor.
