@@ -6,9 +6,12 @@ The authors' pipeline (Zhang et al. 2019, ../shared/notes/preprocessing.md):
    origin at the camera);
 2. keep a narrow corridor straight ahead (|y| <= corridor_width / 2);
 3. remove isolated points (flying pixels, speckle);
-4. project onto the sagittal plane (x forward, z up) and rasterise into 1 cm cells: x and
-   z are shifted so that their minimum lands at one cell (0.01 m), points 0.99 m or more
-   beyond the minimum are dropped.
+4. project onto the sagittal plane (x forward, z up) and rasterise into 1 cm cells in the
+   authors' order (their setOccupancyMap): x is shifted so that its minimum lands at one
+   cell (0.01 m) and points 0.99 m or more beyond it are dropped; then z is shifted so that
+   the minimum of the points left lands at 0.01 m, and points 0.99 m or more above it are
+   dropped. Terrain beyond the image (a descent 1.5 m ahead) so never lifts the visible
+   terrain off the image's bottom.
 
 Image orientation: `image[row, col]`, col = forward distance (col 0 nearest), row 0 =
 highest, the last row lowest; as one looks at the terrain from the walker's left side.
@@ -214,14 +217,21 @@ def preprocess_frame(frame, quaternion: np.ndarray, params: PreprocessParams) ->
 def rasterise(
     profile: np.ndarray, grid: int = 100, cell_m: float = 0.01
 ) -> tuple[np.ndarray, tuple[float, float]]:
-    """The authors' binary image of sagittal points (x forward, z up); and its origin."""
+    """The authors' binary image of sagittal points (x forward, z up); and its origin.
+
+    Their order: the x shift and crop first, then the z shift by the minimum height of the
+    points the x crop kept, then the z crop.
+    """
     image = np.zeros((grid, grid), np.uint8)
     x, z = profile[:, 0], profile[:, 1]
-    x_min, z_min = float(x.min()), float(z.min())
+    x_min = float(x.min())
     # The minimum lands in cell 1 (at 0.01 m), as the authors shift it.
     col = ((x - x_min) * (1.0 / cell_m)).astype(np.int32) + 1
+    in_x = col < grid
+    col, z = col[in_x], z[in_x]
+    z_min = float(z.min())
     up = ((z - z_min) * (1.0 / cell_m)).astype(np.int32) + 1
-    keep = (col < grid) & (up < grid)
+    keep = up < grid
     image[grid - 1 - up[keep], col[keep]] = 1
     return image, (x_min - cell_m, z_min - cell_m)
 

@@ -95,6 +95,31 @@ def test_rasterise_follows_the_authors_rule():
     np.testing.assert_array_equal(image, expected)
 
 
+@pytest.mark.parametrize("beyond", [-0.6, -0.2, 0.4, None])
+def test_a_level_line_sits_on_the_bottom_row_whatever_lies_beyond(beyond):
+    # Level ground from 0.6 to 1.6 m ahead, then (beyond the image's 0.99 m) a descent, a
+    # rise or nothing: the z shift takes the minimum of the points the x crop kept.
+    x = np.arange(0.6, 1.58, 0.004)
+    profile = [np.stack([x, np.zeros_like(x)], 1)]
+    if beyond is not None:
+        far = np.arange(1.65, 2.5, 0.004)
+        profile.append(np.stack([far, np.full_like(far, beyond)], 1))
+    image, (_, z0) = rasterise(np.concatenate(profile).astype(np.float32))
+    rows, cols = np.nonzero(image)
+    assert set(rows) == {98}  # the lowest row the one-cell shift allows (99 is the margin)
+    assert cols.min() == 1 and cols.max() >= 97
+    assert z0 == pytest.approx(-0.01)
+
+
+def test_rasterise_shifts_z_by_the_points_the_x_crop_keeps():
+    # A line descending 0.5 m over 2 m: the image holds its first 0.99 m, whose lowest
+    # point (at 0.99 m) sits on the bottom row and whose highest point 25 cm above it.
+    x = np.arange(0.0, 2.0, 0.002)
+    image, _ = rasterise(np.stack([x, -0.25 * x], 1).astype(np.float32))
+    rows, cols = np.nonzero(image)
+    assert rows.max() == 98 and rows[cols == 1].min() == 98 - 24
+
+
 def test_stairs_up_rise_in_the_image():
     q = tr.thigh_quaternion(-10, 0, 0)
     xyz, conf = tr.render(tr.stairs(0.15, 0.30), q, noise_m=0.005)
