@@ -2,13 +2,16 @@
 
     walkcap eval model [--model PATH] [--sessions N] [--preset both] [--seed S] [--frames N]
     walkcap eval model --data DIR|FILE ... [--model PATH]
+    walkcap eval model --textbook [--model PATH]
 
 Without --data it renders N fresh synthetic sessions (default 4, alternating indoor and
 outdoor, seeds from 100000: never used for the bundled model's training) and prints the
 per-class accuracy and confusion matrix per preset. Synthesized sessions carry the
 simulator's truth, so the report also says where the errors are (error images, frames near
 a mode change by what their view shows, elsewhere) and what an oracle that answers each
-view's mode would score. Registered by tui/commands/eval.py.
+view's mode would score. --textbook scores the textbook set instead (inference.textbook:
+the five terrains drawn by the authors' recipe, 100 images a class). Registered by
+tui/commands/eval.py.
 """
 
 from __future__ import annotations
@@ -33,6 +36,11 @@ def add_arguments(parser) -> None:
         nargs="+",
         metavar="PATH",
         help="evaluate these session files or folders instead of rendering",
+    )
+    parser.add_argument(
+        "--textbook",
+        action="store_true",
+        help="score the textbook set (the authors' recipe, 100 images a class) instead",
     )
     parser.add_argument(
         "--sessions",
@@ -66,6 +74,8 @@ def run(args, config) -> int:
     classifier = load_classifier(
         args.model or config.model.path or None, device=config.model.device
     )
+    if args.textbook:
+        return _textbook(classifier, args.json)
     if args.data:
         sessions = read_sessions(args.data)
         where = ", ".join(args.data)
@@ -107,4 +117,24 @@ def run(args, config) -> int:
         )
     else:
         print(format_metrics(metrics, f"{classifier.path} on {where}:"))
+    return 0
+
+
+def _textbook(classifier, as_json: bool) -> int:
+    import numpy as np
+
+    from inference.textbook import PER_CLASS, TEXTBOOK_SEED, textbook_set
+    from inference.training import format_metrics, group_metrics
+
+    images, labels = textbook_set()
+    predictions = np.argmax(classifier.predict_batch(images, batch_size=100), axis=1)
+    metrics = {"textbook": group_metrics(labels, predictions)}
+    if as_json:
+        print(json.dumps({"model": classifier.path, "metrics": metrics["textbook"].to_dict()}))
+    else:
+        title = (
+            f"{classifier.path} on the textbook set ({PER_CLASS} images a class, "
+            f"seed {TEXTBOOK_SEED}):"
+        )
+        print(format_metrics(metrics, title))
     return 0
