@@ -10,6 +10,7 @@ frame as the live pipeline does; `synth_dataset` writes many, one .npz each.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -81,15 +82,11 @@ class SynthSettings:
     """How a synthesized session is made, beyond its preset and seed."""
 
     fps: float = 15.0  # the paper's camera rate
-    imu_noise_deg: float = 0.7  # per-frame orientation noise (1 sigma per axis)
-    # Per session: the IMU's roll and pitch bias and the mounting's pitch error (1 sigma).
-    # `walkcap calibrate` fits the mounting through the IMU's own orientation on level
-    # ground, so it absorbs the bias present then: what is left is the bias's change since
-    # and the calibration's residual (strap settling). Counting both in full (0.7 + 1.0
-    # degrees) would give 1.2 degrees of pitch per session, the slope every image of that
-    # session is off by: up ramps of 5-6 degrees would show 3-4 degrees and be taken for
-    # level ground.
-    imu_bias_deg: float = 0.5
+    # The attitude filter's error: the MTi 1-series' roll/pitch accuracy as a slowly
+    # drifting error (devices.orientation_error).
+    imu_error: OrientationErrorModel = OrientationErrorModel()
+    # Per session: the mounting's pitch error left after `walkcap calibrate` (1 sigma; the
+    # strap settling).
     mounting_error_deg: float = 0.5
     vary_walker: bool = True  # draw speed, cadence, camera height and tilt per session
     max_frames: int = 0  # stop a session after this many frames (0: the whole walk)
@@ -135,8 +132,8 @@ def render_synth_session(
 ) -> tuple[LabeledSession, dict]:
     """Walk one simulated course and preprocess every frame as the live pipeline does.
 
-    The IMU orientation is the simulator's thigh orientation with a per-session bias and
-    per-frame noise; the preprocessing uses the mounting the operator would have
+    The IMU orientation is the simulator's thigh orientation with the attitude filter's
+    slowly drifting error; the preprocessing uses the mounting the operator would have
     calibrated (true tilt plus a small error). Returns the session and extra per-frame
     arrays (time_ns, view_modes, errors) for `write_session`.
     """
@@ -151,9 +148,7 @@ def render_synth_session(
     sim = Simulator(course, seed=seed, **walker)
     mounting_pitch = walker["camera_tilt_deg"] + float(rng.normal(0.0, settings.mounting_error_deg))
     params = replace(params, mounting_pitch_deg=mounting_pitch)
-    imu_error = OrientationError(
-        OrientationErrorModel(noise_deg=settings.imu_noise_deg, bias_deg=settings.imu_bias_deg), rng
-    )
+    imu_error = OrientationError(settings.imu_error, rng)
 
     n = int(sim.duration_s * settings.fps)
     if settings.max_frames:
@@ -166,7 +161,7 @@ def render_synth_session(
         t = k / settings.fps
         frame = sim.render(t, k)
         truth = frame.truth
-        q = imu_error.apply(np.asarray(truth["thigh_quaternion"], dtype=np.float64))
+        q = imu_error.apply(np.asarray(truth["thigh_quaternion"], dtype=np.float64), t)
         pre = preprocess_frame(frame, q, params)
         images[k] = pre.image
         labels[k] = MODES.index(truth["mode"])
@@ -181,8 +176,7 @@ def render_synth_session(
         "fps": settings.fps,
         "preprocess": params.to_dict(),
         "walker": walker,
-        "imu_noise_deg": settings.imu_noise_deg,
-        "imu_bias_deg": settings.imu_bias_deg,
+        "imu_error": dataclasses.asdict(settings.imu_error),
         "mounting_error_deg": settings.mounting_error_deg,
         "course": [[s.mode, round(float(s.length_m), 3)] for s in course.segments],
     }

@@ -30,16 +30,21 @@ FRAME_TRANSFER_NS = 5_000_000  # a ToF frame arrives ~5 ms after its exposure
 
 
 def imu_samples(
-    simulator, rate_hz: float, rng: np.random.Generator, t0_ns: int, noise_deg: float = 0.3
+    simulator,
+    rate_hz: float,
+    rng: np.random.Generator,
+    t0_ns: int,
+    error_model: OrientationErrorModel | None = None,
 ):
-    """The thigh's IMU at `rate_hz`: orientation with noise, gravity, rate of turn."""
-    error = OrientationError(OrientationErrorModel(noise_deg=noise_deg, bias_deg=0.0), rng)
+    """The thigh's IMU at `rate_hz`: orientation with the attitude filter's slowly drifting
+    error (devices.orientation_error, the MTi 1-series' accuracy), gravity, rate of turn."""
+    error = OrientationError(error_model or OrientationErrorModel(), rng)
     n = int(simulator.duration_s * rate_hz) + 1
     t = np.arange(n) / rate_hz
     quats = np.asarray(simulator.thigh_quaternion(t), dtype=np.float64)
     for k in range(n):
         q = quats[k]
-        noisy = error.apply(q)
+        noisy = error.apply(q, float(t[k]))
         accel = quat_to_matrix(q).T @ GRAVITY + rng.normal(0, 0.05, 3)
         nxt = quats[min(k + 1, n - 1)]
         dq = quat_multiply(quat_conjugate(q), nxt)  # body-frame rotation to the next sample

@@ -408,7 +408,7 @@ class ImuEmulator:
         gyro = dq[1:] / h + self._gyro_bias + noise(0.004)  # 2 * vec / (2 h)
         field_enu = rot.T @ MAGNETIC_FIELD_ENU  # physics sees the true orientation
         if self._filter_error is not None:  # the filter's estimate, not the truth
-            q = self._filter_error.apply(q)
+            q = self._filter_error.apply(q, t)
             rot = quat_to_matrix(q)
         values: dict[str, object] = {}
         encodings: dict[str, tuple[int, str]] = {}  # name -> (precision, coordinate system)

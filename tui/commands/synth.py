@@ -57,11 +57,11 @@ def add_arguments(parser) -> None:
         help="processes rendering sessions in parallel (default 1)",
     )
     parser.add_argument(
-        "--imu-noise-deg",
+        "--imu-error-deg",
         type=float,
         default=None,
         metavar="DEG",
-        help="per-frame IMU orientation noise, 1 sigma (default 0.7)",
+        help="IMU roll/pitch error, RMS, drifting slowly (default 1.0: the MTi 1-series)",
     )
     parser.add_argument(
         "--fixed-walker",
@@ -80,8 +80,13 @@ def run(args, config) -> int:
     from inference.preprocess import PreprocessParams
 
     settings = SynthSettings(max_frames=args.frames or 0, vary_walker=not args.fixed_walker)
-    if args.imu_noise_deg is not None:
-        settings = replace(settings, imu_noise_deg=args.imu_noise_deg)
+    if args.imu_error_deg is not None:
+        if args.imu_error_deg < 0:
+            from capture.errors import CaptureError
+
+            raise CaptureError(f"--imu-error-deg must be >= 0, got {args.imu_error_deg:g}")
+        error = replace(settings.imu_error, roll_pitch_deg=args.imu_error_deg)
+        settings = replace(settings, imu_error=error)
     paths = synth_dataset(
         args.out,
         args.sessions,
