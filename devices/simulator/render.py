@@ -1,15 +1,26 @@
 """Rendering: ray casting the course with Open3D, then what a ToF camera does to depth.
 
 `TerrainScene` builds the course's triangle mesh and Open3D's RaycastingScene once and
-casts one ray per pixel (camera rays precomputed once). The ToF model (`ToFSensor`):
-- range-dependent noise: sigma = 1 % of the range, more where the returned amplitude
-  (albedo * cos(incidence) * vignetting / range^2) is low, more outdoors (sunlight);
-- invalid pixels: beyond 0.1-4 m, at grazing incidence, too little amplitude; outdoors
-  also a speckle of saturated pixels;
-- flying pixels at depth edges: most are filtered out (confidence 0, as royale's filter
-  does), the rest float between foreground and background with low confidence;
-- confidence from amplitude (1-255, 0 = invalid), gray value = amplitude; invalid pixels
-  have xyz = 0 and confidence 0, exactly like royale frames.
+casts one ray per pixel (camera rays precomputed once). The ToF model (`ToFSensor`), after
+the pico flexx datasheet and the royale pipeline's defaults (../shared/notes; sources in
+ToFParams):
+- depth noise by use case and distance: the datasheet gives <= 1 % of the distance at
+  5 fps (MODE_9_5FPS_2000, 0.5-4 m) and <= 2 % at 45 fps (MODE_5_45FPS_500, 0.1-1 m); the
+  use cases between scale with their integration time (raw frames x exposure) as the two
+  figures do (sigma ~ T^-1/3). That sigma holds for a return at least as strong as a
+  mid-grey surface facing the camera at 4 m; weaker returns (dark, far, grazing) are
+  noisier by sqrt(A_ref / A), shot noise; outdoors sunlight adds more. The noise is
+  spatially correlated over about 3 x 3 pixels, as royale's adaptive noise filter leaves
+  it;
+- flying pixels: a pixel beside a depth edge sees both surfaces and measures a depth
+  between them, weighted by their amplitudes (pmd: "in the middle between object and
+  background"); royale's flying-pixel filter then invalidates a pixel whose final Z
+  differs from both neighbours of a pair (left/right or above/below) by more than
+  1.8 cm (Z <= 1 m) to 14 cm (Z >= 4.5 m);
+- invalid pixels: beyond 0.1-4 m, at grazing incidence, too little amplitude, a noise
+  sigma above royale's 7 cm threshold, the flying-pixel flag; outdoors also a speckle of
+  saturated pixels. Invalid pixels have confidence 0 and xyz = 0, exactly like royale
+  frames; the others a confidence from their amplitude (1-255), flying ones less.
 Occluders for error images (the other foot, something in front of the lens) are drawn
 analytically in the camera frame, so the scene never changes per frame.
 """
@@ -37,22 +48,72 @@ class Hits:
     albedo: np.ndarray  # float32
 
 
+# pico flexx use cases (royale operation modes): fps -> (name, raw frames, max exposure
+# in microseconds); 8 + 1 raw frames are two modulation frequencies, 4 + 1 one.
+USE_CASES = {
+    5.0: ("MODE_9_5FPS_2000", 8, 2000),
+    10.0: ("MODE_9_10FPS_1000", 8, 1000),
+    15.0: ("MODE_9_15FPS_700", 8, 700),
+    25.0: ("MODE_9_25FPS_450", 8, 450),
+    35.0: ("MODE_5_35FPS_600", 4, 600),
+    45.0: ("MODE_5_45FPS_500", 4, 500),
+}
+# The datasheet's two depth-noise figures, (integration time in us, sigma / distance).
+DATASHEET_NOISE = ((8 * 2000, 0.01), (4 * 500, 0.02))
+
+
+def use_case(fps: float) -> tuple[str, int, int]:
+    """The use case a camera asked for `fps` runs (the nearest rate; ties: the faster)."""
+    return USE_CASES[min(USE_CASES, key=lambda f: (abs(f - fps), -f))]
+
+
+def datasheet_noise(fps: float) -> float:
+    """Depth noise sigma / distance of the use case for `fps`: the datasheet's figure at
+    5 and 45 fps, between them a power law in the integration time through both."""
+    _, frames, exposure = use_case(fps)
+    (t0, k0), (t1, k1) = DATASHEET_NOISE
+    power = np.log(k1 / k0) / np.log(t1 / t0)
+    return float(k0 * (frames * exposure / t0) ** power)
+
+
 @dataclass(frozen=True)
 class ToFParams:
-    noise_rel: float = 0.01  # depth noise sigma / range at full amplitude
+    noise_rel: float = 0.0142  # sigma / distance (datasheet_noise(15): MODE_9_15FPS_700)
+    # The return the datasheet's figure holds down to: a mid-grey surface (albedo 0.45, the
+    # indoor floor) facing the camera at 4 m, the end of the 5 fps figure's range.
+    reference_amplitude: float = 0.45 / 4.0**2
+    max_noise_m: float = 0.07  # royale's noise threshold: a noisier pixel is invalid
     min_amplitude: float = 0.006  # below: invalid (too dark, too far, too grazing)
-    full_amplitude: float = 0.25  # amplitude of a good return (albedo 0.5 at 1.4 m)
+    full_amplitude: float = 0.25  # amplitude of full confidence (albedo 0.5 at 1.4 m)
     grazing_cos: float = 0.10  # incidence beyond ~84 degrees: invalid
-    flying_jump_m: float = 0.04  # a depth edge: neighbours differ by this + 3 % of range
-    flying_filtered: float = 0.65  # share of edge pixels the camera's filter invalidates
+    edge_jump_m: float = 0.04  # a depth edge: neighbours differ by this + 3 % of range
+    # royale's flying-pixel filter: the threshold on Z rises linearly from near to far.
+    flying_near: tuple[float, float] = (1.0, 0.018)  # (Z m, threshold m)
+    flying_far: tuple[float, float] = (4.5, 0.14)
     speckle: float = 0.0  # share of random invalid pixels (sunlight)
     ambient_gray: float = 30.0
 
     @classmethod
-    def for_course(cls, course: Course) -> ToFParams:
-        if course.outdoor:
-            return cls(noise_rel=0.016, min_amplitude=0.009, speckle=0.01, ambient_gray=250.0)
-        return cls()
+    def for_course(cls, course: Course, fps: float = 15.0) -> ToFParams:
+        return cls.for_scene(course.outdoor, fps)
+
+    @classmethod
+    def for_scene(cls, outdoor: bool, fps: float = 15.0) -> ToFParams:
+        noise = datasheet_noise(fps)
+        if outdoor:
+            # Sunlight's shot noise (no datasheet figure): 1.6 times the indoor sigma.
+            return cls(noise_rel=1.6 * noise, min_amplitude=0.009, speckle=0.01, ambient_gray=250.0)
+        return cls(noise_rel=noise)
+
+    def noise_sigma(self, distance: np.ndarray, amplitude: np.ndarray) -> np.ndarray:
+        """Depth noise sigma (m) of a return at `distance` (m) with `amplitude`."""
+        weak = self.reference_amplitude / np.maximum(amplitude, 1e-9)
+        return self.noise_rel * distance * np.sqrt(np.maximum(weak, 1.0))
+
+    def flying_threshold(self, z: np.ndarray) -> np.ndarray:
+        """royale's flying-pixel threshold at the final Z (m)."""
+        (z0, f0), (z1, f1) = self.flying_near, self.flying_far
+        return f0 + (f1 - f0) * np.clip((z - z0) / (z1 - z0), 0.0, 1.0)
 
 
 def _box_triangles(box: Box) -> tuple[np.ndarray, np.ndarray]:
@@ -226,7 +287,7 @@ def blend_swing(a: Hits, b: Hits, rng: np.random.Generator) -> Hits:
 class ToFSensor:
     """What the ToF camera does to ideal depth (see the module docstring).
 
-    Random draws come from pools made once, read at a random offset per frame: drawing
+    Random draws come from pools made once, read at a random row offset per frame: drawing
     38k normals per frame would cost more than the rest of the model.
     """
 
@@ -235,19 +296,26 @@ class ToFSensor:
         self.params = params
         self.rays_cam = geometry.rays().reshape(-1, 3)
         self.vignetting = (self.rays_cam[:, 2] ** 4).astype(np.float32)  # cos^4 law
-        n = len(self.rays_cam)
+        h, w = geometry.height, geometry.width
         pool = np.random.default_rng([seed, 99])
-        self._normal = pool.standard_normal(3 * n, dtype=np.float32)
-        self._uniform = pool.random(3 * n, dtype=np.float32)
+        # Noise as the adaptive filter leaves it: a 3 x 3 mean of white noise, rescaled.
+        white = pool.standard_normal((3 * h + 2, w + 2), dtype=np.float32)
+        smooth = sum(
+            white[i : i + 3 * h, j : j + w] for i in range(3) for j in range(3)
+        ) * np.float32(1 / 3)
+        self._normal = smooth.ravel()
+        self._white = pool.standard_normal(3 * h * w, dtype=np.float32)
+        self._uniform = pool.random(3 * h * w, dtype=np.float32)
 
     def _draws(self, rng: np.random.Generator, pool: np.ndarray) -> np.ndarray:
-        n = len(self.rays_cam)
-        offset = int(rng.integers(0, 2 * n))
-        return pool[offset : offset + n]
+        g = self.geometry
+        offset = int(rng.integers(0, 2 * g.height)) * g.width  # whole rows: 2-D noise
+        return pool[offset : offset + g.height * g.width]
 
     def apply(self, hits: Hits, rng: np.random.Generator, noise_scale: float = 1.0):
         """(xyz, confidence, gray) images of a frame, as the camera delivers them."""
         g, p = self.geometry, self.params
+        h, w = g.height, g.width
         t = hits.t
         t_clamped = np.maximum(t, np.float32(0.1))
         amplitude = hits.albedo * hits.cos_inc
@@ -259,48 +327,80 @@ class ToFSensor:
         valid &= t >= g.min_range_m
         if p.speckle:
             valid &= self._draws(rng, self._uniform) >= p.speckle
-        normal = self._draws(rng, self._normal)
-        # sigma = noise_rel * range / sqrt(relative amplitude), the amplitude floored at 10 %
-        noise = np.clip(amplitude, 0.1 * p.full_amplitude, p.full_amplitude)
-        np.sqrt(noise, out=noise)
         depth = np.where(valid, t, np.float32(0.0))
-        np.divide(depth, noise, out=noise)
-        noise *= normal
-        noise *= np.float32(p.noise_rel * noise_scale * np.sqrt(p.full_amplitude))
-        depth += noise
+        mixed = self._mix_edges(depth, amplitude, valid, rng)
+
+        sigma = p.noise_sigma(depth, amplitude).astype(np.float32)
+        sigma *= np.float32(noise_scale)
+        valid &= sigma <= p.max_noise_m
+        depth += sigma * self._draws(rng, self._normal)
+        depth *= valid
+        valid &= ~self._flying(depth, valid)
+
         confidence = np.minimum(amplitude, p.full_amplitude)
         confidence *= 255.0 / p.full_amplitude
-
-        # flying pixels: a pixel beside a much nearer neighbour mixes both depths
-        img = np.where(valid, t, np.float32(np.nan)).reshape(g.height, g.width)
-        nearest = np.full_like(img, np.nan)
-        for a, b in (
-            ((slice(None), slice(1, None)), (slice(None), slice(None, -1))),
-            ((slice(1, None), slice(None)), (slice(None, -1), slice(None))),
-        ):
-            np.fmin(nearest[a], img[b], out=nearest[a])
-            np.fmin(nearest[b], img[a], out=nearest[b])
-        with np.errstate(invalid="ignore"):
-            nearest -= img
-            edge = np.flatnonzero(nearest < -(p.flying_jump_m + 0.03 * img))
-        if len(edge):
-            u = self._draws(rng, self._uniform)[edge]
-            valid[edge[u < p.flying_filtered]] = False
-            flying = edge[u >= p.flying_filtered]
-            mix = 0.2 + 0.6 * self._draws(rng, self._uniform)[flying]
-            depth[flying] += mix * nearest.ravel()[flying]
-            confidence[flying] *= 0.2
-
+        confidence[mixed] *= 0.3
         depth *= valid  # invalid pixels: xyz = 0 and confidence 0, as royale delivers them
         xyz = self.rays_cam * depth[:, None]
         np.maximum(confidence, 1.0, out=confidence)
         confidence *= valid
         gray = amplitude * (3000.0 / p.full_amplitude)
-        gray += normal * 4.0 + p.ambient_gray  # amplitude noise, reusing the draws
+        gray += self._draws(rng, self._white) * 4.0 + p.ambient_gray  # amplitude noise
         np.clip(gray, 0, 4095, out=gray)
-        h, w = g.height, g.width
         return (
             xyz.reshape(h, w, 3),
             confidence.astype(np.uint8).reshape(h, w),
             gray.astype(np.uint16).reshape(h, w),
         )
+
+    def _mix_edges(
+        self, depth: np.ndarray, amplitude: np.ndarray, valid: np.ndarray, rng
+    ) -> np.ndarray:
+        """Pixels beside a depth edge take in part of the neighbour's surface (their
+        footprint straddles it): the depth measured is the amplitude-weighted mix. Changes
+        `depth` in place; returns the mask of mixed pixels."""
+        g, p = self.geometry, self.params
+        img = np.where(valid, depth, np.float32(np.nan)).reshape(g.height, g.width)
+        amp = amplitude.reshape(g.height, g.width)
+        jump = np.zeros_like(img)  # the neighbour's depth - own, of the largest jump
+        other = np.zeros_like(img)  # that neighbour's amplitude
+        with np.errstate(invalid="ignore"):
+            for a, b in (
+                ((slice(None), slice(1, None)), (slice(None), slice(None, -1))),
+                ((slice(1, None), slice(None)), (slice(None, -1), slice(None))),
+            ):
+                for x, y in ((a, b), (b, a)):
+                    d = img[y] - img[x]
+                    bigger = np.abs(d) > np.abs(jump[x])
+                    jump[x] = np.where(bigger, d, jump[x])
+                    other[x] = np.where(bigger, amp[y], other[x])
+            edge = np.flatnonzero(np.abs(jump) > p.edge_jump_m + 0.03 * img)
+        u = self._draws(rng, self._uniform)  # drawn whatever the edges: same later draws
+        if len(edge):
+            share = 0.5 * u[edge]  # of the footprint
+            a_own, a_other = amplitude[edge], other.ravel()[edge]
+            weight = share * a_other / np.maximum((1 - share) * a_own + share * a_other, 1e-9)
+            depth[edge] += weight * jump.ravel()[edge]
+        mixed = np.zeros(len(depth), bool)
+        mixed[edge] = True
+        return mixed
+
+    def _flying(self, depth: np.ndarray, valid: np.ndarray) -> np.ndarray:
+        """royale's flying-pixel flag on the final Z: a pixel differing from both of its
+        left and right, or both of its upper and lower, neighbours by more than the
+        threshold (an invalid neighbour flags nothing)."""
+        g, p = self.geometry, self.params
+        z = np.where(valid, depth * self.rays_cam[:, 2], np.float32(np.nan))
+        z = z.reshape(g.height, g.width)
+        threshold = p.flying_threshold(z)
+        flag = np.zeros(z.shape, bool)
+        with np.errstate(invalid="ignore"):
+            c = z[:, 1:-1]
+            lr = (np.abs(c - z[:, :-2]) > threshold[:, 1:-1]) & (
+                np.abs(c - z[:, 2:]) > threshold[:, 1:-1]
+            )
+            flag[:, 1:-1] |= lr
+            c = z[1:-1]
+            ud = (np.abs(c - z[:-2]) > threshold[1:-1]) & (np.abs(c - z[2:]) > threshold[1:-1])
+            flag[1:-1] |= ud
+        return flag.ravel()
