@@ -135,7 +135,7 @@ def render_synth_session(
     The IMU orientation is the simulator's thigh orientation with the attitude filter's
     slowly drifting error; the preprocessing uses the mounting the operator would have
     calibrated (true tilt plus a small error). Returns the session and extra per-frame
-    arrays (time_ns, view_modes, errors) for `write_session`.
+    arrays (time_ns, locomotion_modes, errors) for `write_session`.
     """
     params = params or PreprocessParams()
     simulator_config = simulator_config or SimulatorConfig()
@@ -145,7 +145,7 @@ def render_synth_session(
         course = make_course(preset, seed)
     except ValueError as e:
         raise InferenceError(str(e)) from None
-    sim = Simulator(course, seed=seed, **walker)
+    sim = Simulator(course, seed=seed, fps=settings.fps, **walker)
     mounting_pitch = walker["camera_tilt_deg"] + float(rng.normal(0.0, settings.mounting_error_deg))
     params = replace(params, mounting_pitch_deg=mounting_pitch)
     imu_error = OrientationError(settings.imu_error, rng)
@@ -155,7 +155,7 @@ def render_synth_session(
         n = min(n, settings.max_frames)
     images = np.zeros((n, params.grid_size, params.grid_size), np.uint8)
     labels = np.zeros(n, np.int64)
-    flags, view_modes, errors = [], [], []
+    flags, locomotion_modes, errors = [], [], []
     time_ns = np.zeros(n, np.int64)
     for k in range(n):
         t = k / settings.fps
@@ -166,7 +166,7 @@ def render_synth_session(
         images[k] = pre.image
         labels[k] = MODES.index(truth["mode"])
         flags.append(pre.flag)
-        view_modes.append(truth.get("view_mode", ""))
+        locomotion_modes.append(truth.get("locomotion_mode", ""))
         errors.append(truth.get("error", ""))
         time_ns[k] = frame.device_time_ns
         if progress:
@@ -188,10 +188,10 @@ def render_synth_session(
         source="synth",
         flags=np.array(flags, dtype=str),
         meta=meta,
-        view_modes=np.array(view_modes, dtype=str),
+        locomotion_modes=np.array(locomotion_modes, dtype=str),
         errors=np.array(errors, dtype=str),
     )
-    extra = {"view_modes": session.view_modes, "errors": session.errors}
+    extra = {"locomotion_modes": session.locomotion_modes, "errors": session.errors}
     return session, {"time_ns": time_ns, "extra": extra}
 
 

@@ -82,7 +82,7 @@ def synth_recording(
 
     cfg = copy.deepcopy(config)
     cfg.simulator.course, cfg.simulator.seed = preset, seed
-    simulator = Simulator.from_config(cfg.simulator)
+    simulator = Simulator.from_config(cfg.simulator, fps=cfg.camera.fps)
     rng = np.random.default_rng([seed, 4242])
     fusion = make_fusion(
         "hmm+voting",

@@ -14,7 +14,7 @@ holds the record and its file format, which training and evaluation read.
 
 The .npz layout (format "walkcap-dataset", version 1): `images` (N, 1250) uint8 from
 np.packbits of the flattened 0/1 images, `labels` (N,) int8 mode indices (MODES order),
-`flags` (N,) str (preprocessing flag, "" when fine), `time_ns` (N,) int64, `view_modes` and
+`flags` (N,) str (preprocessing flag, "" when fine), `time_ns` (N,) int64, `locomotion_modes` and
 `errors` (N,) str (simulator truth, for diagnostics), `meta` a JSON string (preset, seed,
 fps, preprocessing parameters, walker, IMU noise). Nothing in it needs pickle.
 """
@@ -51,8 +51,8 @@ class LabeledSession:
     flags: np.ndarray | None = None  # (N,) str, preprocessing flag ("" when fine)
     meta: dict = field(default_factory=dict)
     # Simulator truth for diagnostics (synthesized sessions only), (N,) str each: the mode
-    # the frame's view mostly shows ("" for none) and its error image kind ("" for none).
-    view_modes: np.ndarray | None = None
+    # the walker itself is in and the frame's error image kind ("" for none).
+    locomotion_modes: np.ndarray | None = None
     errors: np.ndarray | None = None
 
     def __len__(self) -> int:
@@ -70,7 +70,7 @@ class LabeledSession:
             images=self.images[keep],
             labels=self.labels[keep],
             flags=part(self.flags),
-            view_modes=part(self.view_modes),
+            locomotion_modes=part(self.locomotion_modes),
             errors=part(self.errors),
         )
 
@@ -132,7 +132,7 @@ def read_session(path: str | os.PathLike) -> LabeledSession:
             packed = z["images"]
             images = np.unpackbits(packed, axis=1, count=h * w).reshape(len(packed), h, w)
             flags = z["flags"]
-            view_modes = z["view_modes"] if "view_modes" in z.files else None
+            locomotion_modes = z["locomotion_modes"] if "locomotion_modes" in z.files else None
             errors = z["errors"] if "errors" in z.files else None
     except InferenceError:
         raise
@@ -145,7 +145,7 @@ def read_session(path: str | os.PathLike) -> LabeledSession:
     if (
         len(images) != len(labels)
         or labels.max(initial=-1) >= len(MODES)
-        or any(v is not None and len(v) != len(labels) for v in (view_modes, errors))
+        or any(v is not None and len(v) != len(labels) for v in (locomotion_modes, errors))
     ):
         raise InferenceError(f"{path}: images and labels do not match")
     return LabeledSession(
@@ -156,7 +156,7 @@ def read_session(path: str | os.PathLike) -> LabeledSession:
         source=meta.get("source", "synth"),
         flags=flags,
         meta=meta,
-        view_modes=view_modes,
+        locomotion_modes=locomotion_modes,
         errors=errors,
     )
 

@@ -211,22 +211,22 @@ def group_metrics(labels: np.ndarray, predictions: np.ndarray) -> GroupMetrics:
     )
 
 
-# Where a classifier's errors fall, on synthesized sessions (their simulator truth says what
-# each frame's view mostly shows and which frames are error images). The truth rule switches
-# the mode once per transition, so near a change some frames show the other mode: there a
-# classifier that reports the view is wrong, and the "view oracle" (the view's mode as the
-# answer) is the accuracy of that. Groups, first match wins:
+# Where a classifier's errors fall, on synthesized sessions (their simulator truth says which
+# mode the walker itself is in and which frames are error images). The truth is what each
+# image shows, so near a change it leads the walker's own mode (the camera looks ahead) or,
+# on a thigh swung back, lags it; the "locomotion oracle" (the walker's mode as the answer)
+# is how far that is from answering the image. Groups, first match wins:
 BREAKDOWN_GROUPS = (
     "error image",
-    "near a mode change, the view shows another mode",
-    "near a mode change, the view shows the mode",
+    "near a mode change, the walker is in another mode",
+    "near a mode change, the walker is in the mode",
     "elsewhere",
 )
 NEAR_CHANGE_S = 1.0  # "near a mode change": within this long of one
 
 
 def frame_groups(
-    labels: np.ndarray, view_modes: np.ndarray, errors: np.ndarray, near_frames: int
+    labels: np.ndarray, locomotion_modes: np.ndarray, errors: np.ndarray, near_frames: int
 ) -> np.ndarray:
     """Each frame's index in BREAKDOWN_GROUPS; one walk's labelled frames, in order."""
     labels = np.asarray(labels)
@@ -239,14 +239,14 @@ def frame_groups(
         before = np.clip(after - 1, 0, len(changes) - 1)
         distance = np.minimum(np.abs(i - changes[after]), np.abs(i - changes[before]))
         near = distance < near_frames
-    shows = np.asarray(view_modes) == np.asarray(MODES)[labels]
+    shows = np.asarray(locomotion_modes) == np.asarray(MODES)[labels]
     return np.where(np.asarray(errors) != "", 0, np.where(near, np.where(shows, 2, 1), 3))
 
 
 def error_breakdown(
-    groups: np.ndarray, right: np.ndarray, view_right: np.ndarray, near_frames: int
+    groups: np.ndarray, right: np.ndarray, walker_right: np.ndarray, near_frames: int
 ) -> dict:
-    """Share of frames, accuracy and points of accuracy lost per group; the view oracle."""
+    """Share of frames, accuracy and points of accuracy lost per group; the locomotion oracle."""
     total = len(groups)
     parts = {}
     for g, name in enumerate(BREAKDOWN_GROUPS):
@@ -257,7 +257,11 @@ def error_breakdown(
             "accuracy": float(right[mask].mean()) if n else None,
             "points_lost": float((mask & ~right).sum() / total * 100),
         }
-    return {"near_frames": near_frames, "view_accuracy": float(view_right.mean()), "groups": parts}
+    return {
+        "near_frames": near_frames,
+        "locomotion_accuracy": float(walker_right.mean()),
+        "groups": parts,
+    }
 
 
 def evaluate_sessions(
@@ -271,7 +275,7 @@ def evaluate_sessions(
     groups: dict[str, list[np.ndarray]] = {"all": []}
     views: dict[str, list[np.ndarray]] = {"all": []}
     near_frames = 0
-    with_truth = all(s.view_modes is not None and s.errors is not None for s in sessions)
+    with_truth = all(s.locomotion_modes is not None and s.errors is not None for s in sessions)
     for s in sessions:
         s = s.labelled()
         if not len(s):
@@ -283,11 +287,11 @@ def evaluate_sessions(
             per_session.setdefault(key, []).append(float(np.mean(p == s.labels)))
         if with_truth:
             near_frames = max(1, int(round(NEAR_CHANGE_S * s.meta.get("fps", 15))))
-            g = frame_groups(s.labels, s.view_modes, s.errors, near_frames)
-            view_right = s.view_modes == np.asarray(MODES)[s.labels]
+            g = frame_groups(s.labels, s.locomotion_modes, s.errors, near_frames)
+            walker_right = s.locomotion_modes == np.asarray(MODES)[s.labels]
             for key in ("all", s.preset or "unknown"):
                 groups.setdefault(key, []).append(g)
-                views.setdefault(key, []).append(view_right)
+                views.setdefault(key, []).append(walker_right)
     if not labels["all"]:
         raise InferenceError("no labelled frames to evaluate")
     out = {}
@@ -347,8 +351,8 @@ def _format_breakdown(b: dict, frames: int) -> list[str]:
             f"{right:>7} right, {part['points_lost']:.2f} points lost"
         )
     lines.append(
-        f"  view oracle (answering the mode each view mostly shows): "
-        f"{b['view_accuracy'] * 100:.2f} %"
+        f"  locomotion oracle (answering the mode the walker is in): "
+        f"{b['locomotion_accuracy'] * 100:.2f} %"
     )
     return lines
 

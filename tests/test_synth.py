@@ -66,13 +66,19 @@ def test_dataset_files_round_trip_and_bad_files_are_one_line(tmp_path):
     np.testing.assert_array_equal(back.labels, labels)
     assert back.flags[-1] == "x" and back.meta["seed"] == 3 and back.preset == "indoor"
     assert len(back.labelled()) == 6
-    assert back.view_modes is None and back.errors is None  # a recording's session has none
+    assert back.locomotion_modes is None and back.errors is None  # a recording's session has none
     # The simulator's truth travels with the frames, and labelled() keeps it aligned.
     views, errors = np.array(list("ABCDEFG")), np.array([""] * 5 + ["sky", "foot"])
-    truth = write_session(tmp_path / "truth.npz", s, extra={"view_modes": views, "errors": errors})
+    truth = write_session(
+        tmp_path / "truth.npz", s, extra={"locomotion_modes": views, "errors": errors}
+    )
     kept = read_session(truth).labelled()
-    assert list(kept.view_modes) == list("ABCDEG") and list(kept.errors) == [""] * 5 + ["foot"]
-    write_session(tmp_path / "short.npz", s, extra={"view_modes": views[:3], "errors": errors})
+    assert list(kept.locomotion_modes) == list("ABCDEG") and list(kept.errors) == [""] * 5 + [
+        "foot"
+    ]
+    write_session(
+        tmp_path / "short.npz", s, extra={"locomotion_modes": views[:3], "errors": errors}
+    )
     with pytest.raises(InferenceError, match="do not match"):
         read_session(tmp_path / "short.npz")
     (tmp_path / "junk.npz").write_bytes(b"junk")
@@ -161,4 +167,4 @@ def test_eval_model_renders_unseen_sessions(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "indoor:" in out and "outdoor:" in out and "seeds 100000" in out
     # Rendered sessions carry the simulator's truth: the report says where the errors are.
-    assert out.count("view oracle") == 3 and "near a mode change" in out
+    assert out.count("locomotion oracle") == 3 and "near a mode change" in out

@@ -268,9 +268,9 @@ def test_frame_groups_error_images_first_then_near_a_change_by_what_the_view_sho
     names = [BREAKDOWN_GROUPS[i] for i in g]
     assert names[11] == "error image"
     assert names[0:4] == ["elsewhere"] * 4 and names[9:11] == ["elsewhere"] * 2
-    assert names[4] == "near a mode change, the view shows another mode"  # sees US early
-    assert names[6] == "near a mode change, the view shows another mode"  # looks back at LG
-    assert names[5] == names[7] == names[8] == "near a mode change, the view shows the mode"
+    assert names[4] == "near a mode change, the walker is in another mode"  # sees US early
+    assert names[6] == "near a mode change, the walker is in another mode"  # looks back at LG
+    assert names[5] == names[7] == names[8] == "near a mode change, the walker is in the mode"
     assert set(frame_groups(np.zeros(5, int), np.array(["LG"] * 5), np.array([""] * 5), 3)) == {
         3
     }  # no change: nothing is near one
@@ -299,29 +299,29 @@ def test_evaluation_breaks_the_errors_down_when_sessions_carry_the_truth():
         labels,
         preset="indoor",
         meta={"fps": 3},
-        view_modes=views,
+        locomotion_modes=views,
         errors=errors,
     )
     answers = [0] * 4 + [1, 0, 0, 1] + [1] * 3 + [0]  # wrong on 4, 6 and the error image
     m = evaluate_sessions(_FixedAnswers(answers), [session])["indoor"]
     b = m.breakdown
     assert b["near_frames"] == 3  # one second at 3 frames a second
-    assert b["view_accuracy"] == pytest.approx(10 / 12)  # the view misses frames 4 and 6
+    assert b["locomotion_accuracy"] == pytest.approx(10 / 12)  # the view misses frames 4 and 6
     groups = b["groups"]
     assert groups["error image"] == {
         "frames": 1,
         "accuracy": 0.0,
         "points_lost": pytest.approx(100 / 12),
     }
-    assert groups["near a mode change, the view shows another mode"]["accuracy"] == 0.0
-    assert groups["near a mode change, the view shows the mode"]["accuracy"] == 1.0
+    assert groups["near a mode change, the walker is in another mode"]["accuracy"] == 0.0
+    assert groups["near a mode change, the walker is in the mode"]["accuracy"] == 1.0
     lost = sum(g["points_lost"] for g in groups.values())
     assert lost == pytest.approx((1 - m.accuracy) * 100)
-    assert "view oracle" in format_metrics({"indoor": m})
+    assert "locomotion oracle" in format_metrics({"indoor": m})
     # Without the simulator's truth (a recording) there is nothing to break down.
     plain = LabeledSession("rec", session.images, labels, preset="indoor")
     m = evaluate_sessions(_FixedAnswers(answers), [plain])["indoor"]
-    assert m.breakdown is None and "view oracle" not in format_metrics({"indoor": m})
+    assert m.breakdown is None and "locomotion oracle" not in format_metrics({"indoor": m})
 
 
 def test_evaluation_gives_each_sessions_accuracy_and_their_spread():

@@ -56,7 +56,12 @@ class MockCamera(Camera):
                 simulator_config = SimulatorConfig()
             # One thread per frame's ray cast: the session's pipeline keeps the other core,
             # as beside a real camera (all cores only cut the cast's wall time).
-            simulator = Simulator.from_config(simulator_config, self.geometry, cast_threads=1)
+            simulator = Simulator.from_config(
+                simulator_config,
+                self.geometry,
+                cast_threads=1,
+                fps=float(getattr(config, "fps", 15.0)),
+            )
             if realtime is None:
                 realtime = simulator_config.realtime
         self.simulator = simulator
@@ -100,9 +105,9 @@ class MockCamera(Camera):
         return self.simulator.thigh_quaternion(self.walk_time(t_s))
 
     def _open(self) -> None:
-        # The walk's ground truth is worked out once for the whole course (about a second):
-        # here, while the device opens, not in the first frame of a real-time stream.
-        self.simulator.truth_segment(0.0)
+        # The first cast commits the scene's acceleration structure: here, while the device
+        # opens, not in the first frame of a real-time stream.
+        self.simulator.truth_at(0.0)
 
     def _start(self) -> None:
         if self.start_time_ns is None:
