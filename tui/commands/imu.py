@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 import sys
 import time
@@ -86,6 +87,18 @@ def add_arguments(parser) -> None:
     p.add_argument("file", help="capture file, '-' for standard input")
     p.add_argument("--json", action="store_true", help="JSON lines instead of a table")
 
+    p = verbs.add_parser(
+        "fuzz",
+        help="feed the Xbus parser random streams; count exceptions and lost messages",
+        description="Feed the Xbus parser STREAMS random byte streams (random MTData2 "
+        "layouts, damaged frames, garbage), each followed by valid messages. Reports "
+        "exceptions (there must be none) and how often the next valid message was lost to a "
+        "false frame that passed the 8-bit checksum. Exit status 1 on any exception.",
+    )
+    p.add_argument("--streams", type=int, default=1_000_000, help="default 1000000")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", action="store_true", help="machine-readable results")
+
 
 def run(args, config) -> int:
     return {
@@ -94,6 +107,7 @@ def run(args, config) -> int:
         "stream": _stream,
         "emulate": _emulate,
         "decode": _decode,
+        "fuzz": _fuzz,
     }[args.verb](args, config)
 
 
@@ -266,15 +280,19 @@ def decode_capture(stream, chunk_size: int = 65536):
             "checksum_errors": parser.checksum_errors,
             "resyncs": parser.resyncs,
             "unknown_ids": parser.unknown_ids,
+            "malformed": parser.malformed,
         }
     }
 
 
 def _plain(value):
+    """Lists for tuples; None for NaN and infinities, which strict JSON has no word for."""
     if isinstance(value, (tuple, list)):
         return [_plain(v) for v in value]
     if isinstance(value, dict):
         return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
     return value
 
 
@@ -283,7 +301,7 @@ def _decode(args, config) -> int:
     try:
         if args.json:
             for obj in decode_capture(source):
-                print(json.dumps(obj))
+                print(json.dumps(obj, allow_nan=False))
         else:
             _decode_table(decode_capture(source))
     except BrokenPipeError:  # `walkcap imu decode FILE | head`: the reader has had enough
@@ -296,7 +314,9 @@ def _decode(args, config) -> int:
 
 def _decode_table(objects) -> None:
     def vec(values, fmt="{:+8.3f}"):
-        return " ".join(fmt.format(v) for v in values) if values is not None else "-"
+        if values is None:
+            return "-"
+        return " ".join("nan" if v is None else fmt.format(v) for v in values)
 
     print(
         f"{'counter':>7} {'time_fine':>10}  {'quaternion w x y z':<35}  "
@@ -307,7 +327,8 @@ def _decode_table(objects) -> None:
             s = obj["summary"]
             print(
                 f"{s['messages']} messages, {s['checksum_errors']} checksum errors, "
-                f"{s['resyncs']} resyncs, {s['unknown_ids']} unknown identifiers"
+                f"{s['resyncs']} resyncs, {s['unknown_ids']} unknown identifiers, "
+                f"{s['malformed']} malformed"
             )
             continue
         other = [
@@ -335,3 +356,32 @@ def _decode_table(objects) -> None:
 
 def _or_dash(value) -> str:
     return "-" if value is None else str(value)
+
+
+# ---- fuzz ----------------------------------------------------------------------------------
+
+
+def _fuzz(args, config) -> int:
+    from capture.bench.fuzz import fuzz_parser
+    from capture.errors import CaptureError
+
+    if args.streams < 1:
+        raise CaptureError(f"--streams must be at least 1 (got {args.streams})")
+    say = (lambda line: None) if args.json else (lambda line: print(f"… {line}", file=sys.stderr))
+    report = fuzz_parser(args.streams, args.seed, progress=say)
+    if args.json:
+        print(json.dumps(report.to_dict(), indent=2))
+    else:
+        kinds = ", ".join(f"{n} {k}" for k, n in sorted(report.by_kind.items()))
+        print(f"streams          {report.streams} (seed {report.seed}: {kinds})")
+        print(f"exceptions       {report.exceptions}")
+        print(
+            f"next valid lost  {report.lost_next} "
+            f"({report.lost_next / report.streams:.4%}) to a false frame passing the checksum"
+        )
+        print(f"false frames     {report.false_frames} accepted from damaged or random bytes")
+        print(f"malformed        {report.malformed} MTData2 payloads counted and skipped")
+        print(f"time             {report.seconds:.1f} s")
+        for example in report.examples:
+            print(f"  {example}")
+    return 1 if report.exceptions else 0
