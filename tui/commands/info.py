@@ -42,10 +42,21 @@ def _wall(rec, t_ns: int) -> str:
 def describe(rec) -> list[str]:
     """The recording in a few readable lines."""
     from capture import topics as T
+    from capture.errors import CaptureError
     from capture.reader import find_gaps
+    from capture.recovery import check
 
     lines = [str(rec.path)]
-    if rec.complete:
+    damaged = check(rec.path).damaged  # every chunk's CRC, finished file or not
+    if damaged:
+        lines.append(
+            f"  state       damaged: {len(damaged)} region(s), "
+            f"{sum(d.length for d in damaged)} bytes unreadable; "
+            f"`walkcap recover {rec.path}` copies every intact message"
+        )
+        for d in damaged:
+            lines.append(f"    damaged   {d.describe(rec.start_ns)}")
+    elif rec.complete:
         lines.append("  state       complete")
     else:
         lines.append(
@@ -82,11 +93,15 @@ def describe(rec) -> list[str]:
         lines.append("  gaps        " + "; ".join(gaps))
     small = [t for t in (T.LABELS, T.EVENTS) if t in rec.topics]
     labels, kinds = [], {}
-    for m in rec.messages(small):
-        if m.topic == T.LABELS:
-            labels.append((m.data["time_ns"], m.data["mode"] or "-"))
-        else:
-            kinds[m.data["kind"]] = kinds.get(m.data["kind"], 0) + 1
+    try:
+        for m in rec.messages(small):
+            if m.topic == T.LABELS:
+                labels.append((m.data["time_ns"], m.data["mode"] or "-"))
+            else:
+                kinds[m.data["kind"]] = kinds.get(m.data["kind"], 0) + 1
+    except CaptureError:  # damaged: the labels and events before the damage are listed
+        if not damaged:
+            raise
     if labels:
         sequence = " ".join(mode for _, mode in sorted(labels))
         lines.append(f"  labels      {len(labels)} changes: {_clip(sequence)}")
