@@ -125,7 +125,9 @@ def test_fuzz_command_reports_streams_and_no_exceptions(capsys):
 
 
 def test_fuzz_with_no_streams_is_one_line(capsys):
-    assert cli.main(["imu", "fuzz", "--streams", "0"]) == 1
+    with pytest.raises(SystemExit) as e:
+        cli.main(["imu", "fuzz", "--streams", "0"])
+    assert e.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--streams" in err[0]
 

@@ -24,6 +24,7 @@ log = logging.getLogger(__name__)
 
 DEFAULT_METHODS = "cnn,cnn+voting,hmm,hmm+voting"
 SWEEP_DEFAULT = 6  # frames; the paper's trade-off figure reaches 6
+SWEEP_MAX = 100  # frames: several seconds of delay, beyond any use for a prosthesis
 
 
 def _methods(text: str) -> list[str]:
@@ -75,7 +76,7 @@ def _common_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--sweep-delay",
-        type=count(0),
+        type=count(0, SWEEP_MAX),
         nargs="?",
         const=SWEEP_DEFAULT,
         metavar="N",

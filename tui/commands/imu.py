@@ -8,6 +8,8 @@ import os
 import sys
 import time
 
+from tui.commands import count, seconds
+
 HELP = "IMU tools: list ports, device info, stream, emulate, decode captures"
 
 # `decode` keys, in output order (each only when the message has it).
@@ -53,9 +55,9 @@ def add_arguments(parser) -> None:
     )
     p.add_argument("port", help="serial port, or 'mock'")
     p.add_argument("--baudrate", type=int, help="default: [imu] baudrate")
-    p.add_argument("--rate", type=int, help="output rate in Hz (default: [imu] rate_hz)")
-    p.add_argument("--seconds", type=float, help="stop after this long (default: Ctrl-C)")
-    p.add_argument("--interval", type=float, default=0.5, help="seconds between lines")
+    p.add_argument("--rate", type=count(1, 2000), help="output rate in Hz (default: [imu] rate_hz)")
+    p.add_argument("--seconds", type=seconds, help="stop after this long (default: Ctrl-C)")
+    p.add_argument("--interval", type=seconds, default=0.5, help="seconds between lines")
     p.add_argument(
         "--raw",
         metavar="FILE",
@@ -70,12 +72,14 @@ def add_arguments(parser) -> None:
         "it. Ctrl-C stops it.",
     )
     p.add_argument(
-        "--rate", type=int, help="output rate at power-up in Hz (default: [imu] rate_hz)"
+        "--rate",
+        type=count(1, 2000),
+        help="output rate at power-up in Hz (default: [imu] rate_hz)",
     )
     p.add_argument("--drift-ppm", type=float, help="device clock drift (default: [imu] drift_ppm)")
     p.add_argument("--jitter-ms", type=float, help="transmit jitter (default: [imu] jitter_ms)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--seconds", type=float, help="stop after this long (default: Ctrl-C)")
+    p.add_argument("--seconds", type=seconds, help="stop after this long (default: Ctrl-C)")
 
     p = verbs.add_parser(
         "decode",
@@ -95,7 +99,7 @@ def add_arguments(parser) -> None:
         "exceptions (there must be none) and how often the next valid message was lost to a "
         "false frame that passed the 8-bit checksum. Exit status 1 on any exception.",
     )
-    p.add_argument("--streams", type=int, default=1_000_000, help="default 1000000")
+    p.add_argument("--streams", type=count(1), default=1_000_000, help="default 1000000")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", action="store_true", help="machine-readable results")
 
@@ -126,10 +130,19 @@ def _list(args, config) -> int:
     return 0
 
 
+def _baudrate(args, config) -> int:
+    """--baudrate, checked as [imu] baudrate is, else the configured one."""
+    from capture.config import override
+
+    if args.baudrate is not None:
+        override(config, "imu.baudrate", args.baudrate, flag="--baudrate")
+    return config.imu.baudrate
+
+
 def _info(args, config) -> int:
     from devices.imu import XbusImu
 
-    imu = XbusImu(args.port, args.baudrate or config.imu.baudrate, outputs=None)
+    imu = XbusImu(args.port, _baudrate(args, config), outputs=None)
     try:
         imu.open()
     finally:
@@ -154,7 +167,7 @@ def _stream(args, config) -> int:
     from devices.imu import EmulatedImu, XbusImu
 
     rate = args.rate or config.imu.rate_hz
-    baudrate = args.baudrate or config.imu.baudrate
+    baudrate = _baudrate(args, config)
     raw = open(args.raw, "wb") if args.raw else None
     sink = raw.write if raw else None
     if args.port == "mock":
@@ -363,10 +376,7 @@ def _or_dash(value) -> str:
 
 def _fuzz(args, config) -> int:
     from capture.bench.fuzz import fuzz_parser
-    from capture.errors import CaptureError
 
-    if args.streams < 1:
-        raise CaptureError(f"--streams must be at least 1 (got {args.streams})")
     say = (lambda line: None) if args.json else (lambda line: print(f"… {line}", file=sys.stderr))
     report = fuzz_parser(args.streams, args.seed, progress=say)
     if args.json:

@@ -6,7 +6,7 @@ import signal
 import sys
 import time
 
-from tui.commands import finish_recording
+from tui.commands import finish_recording, seconds
 
 HELP = "record a session headless into an MCAP file"
 
@@ -17,7 +17,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--port", help="IMU serial port (backend serial)")
     parser.add_argument(
         "--duration",
-        type=float,
+        type=seconds,
         metavar="S",
         help="seconds to record (default: until the mock course ends, or Ctrl-C)",
     )
@@ -68,7 +68,7 @@ def apply_device_flags(args, config) -> None:
     ):
         value = getattr(args, flag, None)
         if value is not None:
-            override(config, key, value)
+            override(config, key, value, flag="--" + flag.replace("_", "-"))
     if getattr(args, "fast", False):
         config.simulator.realtime = False
 
