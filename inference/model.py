@@ -28,6 +28,7 @@ import json
 import logging
 import os
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -512,7 +513,11 @@ def load_classifier(
             f"{metadata_path(weights).name}"
         )
     try:
-        state = torch.load(weights, map_location="cpu", weights_only=True)
+        # torch warns about what it reads (pickle protocols) before failing on a file that
+        # is no state dict: the one-line error below says all the user needs
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            state = torch.load(weights, map_location="cpu", weights_only=True)
     except Exception as e:  # torch raises many types for a bad file
         raise InferenceError(
             f"model file {weights} is corrupt or not a state dict: {type(e).__name__}"

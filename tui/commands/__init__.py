@@ -35,10 +35,10 @@ def seconds(text: str) -> float:
 
 def finish_recording(command: str, stats, path) -> int:
     """Print the file path last (scripts take it); a failed recording is one error line."""
-    import sys
-
     if stats.state == "failed":
-        print(f"walkcap {command}: error: {stats.message}", file=sys.stderr)
+        from tui.cli import error_line
+
+        error_line(command, stats.message)
         print(path)
         return 1
     print(path)
