@@ -38,6 +38,8 @@ class CameraConfig:
     use_case: str = ""  # royale use case name; empty: the one matching fps
     camera_id: str = ""  # royale camera id or .rrf file; empty: the first camera
     buffer_frames: int = 8
+    # Silent this long (s): "lost", and reopened until frames come (a stall before it).
+    lost_after_s: float = 5.0
 
     def problems(self) -> Problems:
         out = one_of("backend", self.backend, ("mock", "royale", "replay"))
@@ -45,6 +47,8 @@ class CameraConfig:
             out.append(("fps", f"a frame rate 0 < fps <= {MAX_FPS:g} (the pico flexx's modes)"))
         if not 1 <= self.buffer_frames <= 1000:
             out.append(("buffer_frames", "1 to 1000"))
+        if not number_in(self.lost_after_s, 0.5, 600.0):
+            out.append(("lost_after_s", "0.5 to 600 seconds"))
         return out
 
 
