@@ -622,9 +622,12 @@ def _frame(
     )
 
 
-def find_gaps(times_ns: np.ndarray, factor: float = 2.5) -> list[tuple[int, float]]:
-    """Gaps in a regular stream: intervals longer than `factor` x the median interval,
-    as (start time ns, length s)."""
+def find_gaps(times_ns: np.ndarray, factor: float | None = None) -> list[tuple[int, float]]:
+    """Gaps in a regular stream: intervals longer than `factor` (default: the live alarms'
+    GAP_PERIODS) x the median interval, as (start time ns, length s)."""
+    from capture.alarms import GAP_PERIODS
+
+    factor = GAP_PERIODS if factor is None else factor
     t = np.asarray(times_ns, dtype=np.int64)
     if len(t) < 3:
         return []

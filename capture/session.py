@@ -25,6 +25,7 @@ import numpy as np
 
 from capture import __version__
 from capture import config as config_mod
+from capture.alarms import AlarmState, TrialAlarms
 from capture.errors import CaptureError, ConfigError
 from capture.pipeline import (
     CNN_THREADS,
@@ -122,6 +123,7 @@ class Snapshot:
     recording_started_ns: int | None
     frames: int
     latency_ms: dict
+    alarms: AlarmState | None = None  # gaps this trial, and what the operator must see now
 
 
 def open_devices(config: config_mod.Config, camera=None, imu=None):
@@ -233,6 +235,7 @@ class Session:
         self.pipeline_priority = NORMAL_PRIORITY  # how the pipeline thread is scheduled
         self.model_metadata: dict = {}
         self.finished = threading.Event()  # the camera ran out of frames (end of a mock course)
+        self.alarms = TrialAlarms(config.session.recordings)
 
     # ---- life cycle -------------------------------------------------------------------
 
@@ -322,6 +325,7 @@ class Session:
             if sample is None:
                 continue
             t = sample.time_ns if sample.time_ns is not None else sample.host_time_ns
+            self.alarms.sample("imu", sample.host_time_ns)  # the recorder's log time
             if sample.quaternion is not None:
                 self.track.add(t, sample.quaternion, sample.rate_of_turn)
             truth = getattr(self._imu, "true_time_ns", None)
@@ -372,6 +376,7 @@ class Session:
             self.set_label(truth_mode, source="simulator", time_ns=t)
         self._last_truth_mode = truth_mode
         rec = self._recorder
+        self.alarms.sample("camera", frame.host_time_ns)  # the recorder's log time
         if rec is not None:
             record_result(rec, frame, result)
         self._publish(result, truth_mode)
@@ -481,6 +486,8 @@ class Session:
         path = folder / f"{info.subject}_{info.condition}_t{info.trial:02d}_{stamp}.mcap"
         recorder = Recorder(path, metadata=self._metadata(info), attachments=self._attachments())
         recorder.start()
+        self.alarms.recordings = folder
+        self.alarms.new_trial()
         self._recorder = recorder
         self._recording_started_ns = now_ns()
         if self._label is not None:  # the mode in force when the trial starts
@@ -490,6 +497,7 @@ class Session:
     def stop_recording(self):
         rec, self._recorder = self._recorder, None
         self._recording_started_ns = None
+        self.alarms.end_trial()
         return rec.close() if rec is not None else None
 
     def _metadata(self, info: SubjectInfo) -> dict[str, dict[str, str]]:
@@ -561,4 +569,5 @@ class Session:
             snap.sync = {"p50_ms": float(np.median(sync)), "p99_ms": float(np.percentile(sync, 99))}
         rec = self._recorder
         snap.recording = rec.stats() if rec is not None else None
+        snap.alarms = self.alarms.state(snap.time_ns, snap.recording, snap.events)
         return snap
