@@ -3,8 +3,8 @@ a pipeline failure. What the operator must see at once, in words, without readin
 
 Gaps are counted per trial on the timestamps the recorder writes (host receive times), by
 the rule `walkcap info` applies to the file afterwards (capture.reader.find_gaps): an
-interval longer than GAP_PERIODS x the stream's median interval. So the live count and
-the file's count agree.
+interval longer than GAP_PERIODS x the stream's configured period (the camera's fps, the
+IMU's rate, which the file's metadata records). So the live count and the file's agree.
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ GAP_PERIODS = 3.0  # an interval longer than this many periods is a gap
 DISK_MINUTES_LOW = 10.0  # free disk below this many minutes of recording: alarm
 QUEUE_FULL = 0.5  # the recorder's queue above this fraction: alarm
 RECENT_S = 5.0  # an ended gap, a pipeline failure: shown this long
+SILENT_SHOWN_S = 0.3  # a stream silent this long shows while it lasts (shorter ones count)
 _MEDIAN_WINDOW = 512  # intervals the running median is taken over
 _DISK_EVERY_NS = 2_000_000_000
 
@@ -28,9 +29,12 @@ STREAMS = ("camera", "imu")
 
 
 class GapCounter:
-    """Gaps in one regular stream, counted as samples arrive (thread-safe)."""
+    """Gaps in one regular stream, counted as samples arrive (thread-safe).
 
-    def __init__(self) -> None:
+    The period is the configured one; without it, the running median interval."""
+
+    def __init__(self, period_s: float | None = None) -> None:
+        self._period_ns = period_s * 1e9 if period_s else None
         self._lock = threading.Lock()
         self._last_ns: int | None = None
         self._intervals: collections.deque[int] = collections.deque(maxlen=_MEDIAN_WINDOW)
@@ -54,6 +58,9 @@ class GapCounter:
                 self.longest_s = max(self.longest_s, gap)
                 self.last_gap = (t_ns, gap)
             self._intervals.append(dt)
+            if self._period_ns is not None:
+                self._median_ns = self._period_ns
+                return gap
             self._since_median += 1
             if self._since_median >= 32 or len(self._intervals) < 64:
                 self._median_ns = float(np.median(self._intervals))
@@ -113,9 +120,10 @@ def event_alarms(events: list, now_ns: int) -> list[Alarm]:
 class TrialAlarms:
     """Per-trial gap counters plus the checks that need no stream (disk, queue, events)."""
 
-    def __init__(self, recordings: str | Path) -> None:
+    def __init__(self, recordings: str | Path, periods_s: dict[str, float] | None = None) -> None:
         self.recordings = Path(recordings)
-        self.counters = {s: GapCounter() for s in STREAMS}
+        self.periods_s = periods_s or {}  # stream -> configured period
+        self.counters = self._counters()
         self.recording = False
         self.trial_gaps: dict[str, int] = {}  # the last trial's, once it ended
         self.write_rate: float | None = None  # bytes/s, the last measured
@@ -125,8 +133,11 @@ class TrialAlarms:
     def new_trial(self) -> None:
         """Counts start again with each trial's file (samples feed them all the time, so a
         stall shows while no trial records, too)."""
-        self.counters = {s: GapCounter() for s in STREAMS}
+        self.counters = self._counters()
         self.recording = True
+
+    def _counters(self) -> dict[str, GapCounter]:
+        return {s: GapCounter(self.periods_s.get(s)) for s in STREAMS}
 
     def end_trial(self) -> dict[str, int]:
         """The trial's gap counts per stream (kept in `trial_gaps` too)."""
@@ -166,7 +177,7 @@ class TrialAlarms:
                 out.longest_s[stream] = counter.longest_s
             name = "IMU" if stream == "imu" else stream
             silent = counter.silent_s(now_ns)
-            if silent is not None:
+            if silent is not None and silent >= SILENT_SHOWN_S:
                 out.alarms.append(Alarm("error", f"{name}: no data for {silent:.1f} s"))
             elif counter.last_gap is not None:
                 end, length = counter.last_gap

@@ -126,6 +126,11 @@ class Snapshot:
     alarms: AlarmState | None = None  # gaps this trial, and what the operator must see now
 
 
+def stream_periods(config: config_mod.Config) -> dict[str, float]:
+    """The configured period of each sensor stream (what a gap is measured against)."""
+    return {"camera": 1.0 / config.camera.fps, "imu": 1.0 / config.imu.rate_hz}
+
+
 def open_devices(config: config_mod.Config, camera=None, imu=None):
     """The configured camera and IMU, opened and configured, not yet started.
 
@@ -235,7 +240,7 @@ class Session:
         self.pipeline_priority = NORMAL_PRIORITY  # how the pipeline thread is scheduled
         self.model_metadata: dict = {}
         self.finished = threading.Event()  # the camera ran out of frames (end of a mock course)
-        self.alarms = TrialAlarms(config.session.recordings)
+        self.alarms = TrialAlarms(config.session.recordings, stream_periods(config))
 
     # ---- life cycle -------------------------------------------------------------------
 
@@ -459,6 +464,13 @@ class Session:
                 now_ns() if time_ns is None else time_ns, "operator", "marker", note or "marker"
             )
         )
+
+    def inject(self, device: str, fault: str, **kw) -> None:
+        """A fault of a mock device, for drills and tests ("imu", "disconnect", seconds=2)."""
+        target = self._imu if device == "imu" else self._camera
+        if getattr(target, "backend", "") != "mock" or not hasattr(target, "inject"):
+            raise CaptureError(f"faults can be injected into mock devices only, not {device}")
+        target.inject(fault, **kw)
 
     @property
     def label(self) -> str | None:

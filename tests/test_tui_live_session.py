@@ -57,6 +57,9 @@ async def test_real_session_on_mock_devices(tmp_path, monkeypatch):
         await wait_for(pilot, lambda: app.ready, 15)
         session = sessions[0]
         await wait_for(pilot, lambda: session.snapshot().frames >= 5, 5)
+        # the pre-flight check (a probe trial, deleted) passes before a trial can record
+        await wait_for(pilot, lambda: app.preflight_state == "ok", 15)
+        assert not list((tmp_path / "recordings").iterdir())
         await pilot.press("2")
         assert session.label == "US"
         await pilot.press("r")

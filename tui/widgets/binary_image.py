@@ -51,8 +51,8 @@ class BinaryImage(CachedLines):
             return [[("no frame yet", _DIM)]]
         lines, factor, style = fit_binary_image(self._image, width, height - 1)
         out: list[Line] = [[(line, None)] for line in lines]
-        caption = f"{self._image.shape[1]}x{self._image.shape[0]} {style}" + (
-            f" 1:{factor}" if factor > 1 else ""
+        caption = f"leveled image {self._image.shape[1]} x {self._image.shape[0]} cells" + (
+            f", shown 1:{factor}" if factor > 1 else ""
         )
         out.append([(caption, _DIM), (f"  {self._flag}" if self._flag else "", _FLAG)])
         return out
