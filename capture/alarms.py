@@ -42,7 +42,7 @@ class GapCounter:
         self._since_median = 0
         self.count = 0
         self.longest_s = 0.0
-        self.last_gap: tuple[int, float] | None = None  # (end time ns, length s)
+        self.last_gap: tuple[int, float] | None = None  # the last shown: (end ns, length s)
 
     def add(self, t_ns: int) -> float | None:
         """One sample's time; the gap's length in seconds when this sample ends one."""
@@ -56,7 +56,8 @@ class GapCounter:
                 gap = dt * 1e-9
                 self.count += 1
                 self.longest_s = max(self.longest_s, gap)
-                self.last_gap = (t_ns, gap)
+                if gap >= SILENT_SHOWN_S:  # short ones count, and show in the trial's total
+                    self.last_gap = (t_ns, gap)
             self._intervals.append(dt)
             if self._period_ns is not None:
                 self._median_ns = self._period_ns
@@ -185,6 +186,12 @@ class TrialAlarms:
                     out.alarms.append(
                         Alarm("warning", f"{name}: gap of {length:.2f} s ended, data again")
                     )
+        if self.recording and any(out.gaps.values()):  # the trial's file has holes
+            longest = max(out.longest_s.values())
+            counts = ", ".join(f"{'IMU' if s == 'imu' else s} {n}" for s, n in out.gaps.items())
+            out.alarms.append(
+                Alarm("warning", f"gaps this trial: {counts} (longest {longest:.2f} s)")
+            )
         out.alarms += recorder_alarms(recorder_stats)
         out.alarms += event_alarms(events, now_ns)
         return out

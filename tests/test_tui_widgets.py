@@ -118,7 +118,7 @@ def test_feature_rows_format_known_and_unknown():
     rows = feature_rows({"slope_deg": 12.34, "riser_m": 0.1612, "width": 0.5, "none": None})
     assert rows == [("slope", "+12.3°"), ("riser", "0.161 m"), ("width", "0.5")]
     rows = feature_rows({"kind": "stairs", "direction": "down", "steps": 2, "inlier_fraction": 0.9})
-    assert rows == [("", "profile fits stairs down, 2 steps"), ("fit", "90%")]
+    assert rows == [("", "fits stairs down, 2 steps"), ("fit", "90%")]
 
 
 def test_small_formatters():
@@ -201,7 +201,7 @@ def test_write_rate_and_recording_rows():
         label: (value, style) for label, value, style in recording_rows(stats, 61.0, None, "", 1e6)
     }
     assert rows["● REC"][0] == "0:01:01" and rows["FAILED"][0] == "disk full"
-    assert rows["file"][0] == "S01_indoor_t01.mcap" and rows["write"][0] == "1.0 MB/s"
+    assert rows["file"][0] == "S01_indoor_\nt01.mcap" and rows["write"][0] == "1.0 MB/s"
     assert rows["queue"] == ("73 % full", "bold #f0a020") and rows["dropped"][0] == "7 messages"
     gaps = recording_rows(stats, 61.0, None, "", 1e6, gaps={"camera": 2, "imu": 35})
     assert ("gaps", "camera 2, IMU 35", "bold #f0a020") in gaps
@@ -229,8 +229,8 @@ def test_device_rows_show_state_rates_errors_clock():
     assert lines[0][:2] == ("IMU", "degraded  serial") and lines[1][1] == "3 packets missing"
     assert rows["rate"] == "80.0 of 100 Hz" and rows["drops"] == "1 samples"
     assert rows["errors"] == "5"
-    assert ("", "  2 bad checksums") in [r[:2] for r in lines]
-    assert ("", "  3 missing packets") in [r[:2] for r in lines]
+    assert ("", "  bad checksums: 2") in [r[:2] for r in lines]
+    assert ("", "  missing packets: 3") in [r[:2] for r in lines]
     # drift and sync error, never the raw device-to-host clock offset
     assert rows["drift"] == "+51 ppm (clock)" and rows["sync"] == "error p99 2.0 ms"
     assert not any("-2.5" in value for _, value, _ in lines)

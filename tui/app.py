@@ -88,6 +88,7 @@ class WalkcapApp(App):
     TITLE = "walkcap"
     CSS_PATH = "walkcap.tcss"
     HORIZONTAL_BREAKPOINTS = [(0, "-narrow"), (120, "-normal"), (150, "-wide")]
+    VERTICAL_BREAKPOINTS = [(0, "-short"), (40, "-tall")]
     ENABLE_COMMAND_PALETTE = False
     # a key no form field takes, shown in every footer
     BINDINGS = [Binding("ctrl+q", "quit", "Quit", priority=True)]

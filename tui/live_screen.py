@@ -60,7 +60,7 @@ def pipeline_rows(snap: Snapshot) -> list[tuple[str, str, str]]:
     rows = [("pipeline", "", "bold"), ("frames", f"{snap.frames}", "")]
     if snap.latency_ms:
         p50, p99 = snap.latency_ms.get("p50", 0), snap.latency_ms.get("p99", 0)
-        rows.append(("latency", f"median {p50:.0f} ms, p99 {p99:.0f} ms", ""))
+        rows.append(("latency", f"median {p50:.0f}, p99 {p99:.0f} ms", ""))
     return rows
 
 
@@ -77,13 +77,13 @@ class LiveScreen(Screen):
         _binding("question_mark", "help", "help", "help"),
         _binding("q", "quit", "quit", "quit"),
         Binding("s", "session_form", "session", show=False),
-        Binding("c", "check", "check again"),
-        Binding("ctrl+u", "drill('imu', 'disconnect')", "drill: unplug IMU"),
-        Binding("ctrl+t", "drill('camera', 'stall')", "drill: stall camera"),
         Binding("w", "save_corrections", "save labels"),
         Binding("p", "play", "play/pause"),
         Binding("left", "seek(-1)", "-5 s"),
         Binding("right", "seek(1)", "+5 s"),
+        Binding("c", "check", "check again"),
+        Binding("ctrl+u", "drill('imu', 'disconnect')", "drill: unplug IMU", show=False),
+        Binding("ctrl+t", "drill('camera', 'stall')", "drill: stall camera", show=False),
     ]
     # What each action does, for the help screen (keys come from the live bindings).
     HELP = {

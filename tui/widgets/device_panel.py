@@ -54,7 +54,7 @@ def device_rows(name: str, status: DeviceStatus | None, sync: dict | None = None
         )
     )
     rows.append(("drops", f"{status.dropped} {things}", f"bold {_RED}" if status.dropped else ""))
-    parts = [f"{status.details[k]} {what}" for k, what in _ERROR_PARTS if status.details.get(k)]
+    parts = [f"{what}: {status.details[k]}" for k, what in _ERROR_PARTS if status.details.get(k)]
     rows.append(("errors", f"{status.errors}", _AMBER if status.errors else ""))
     rows += [("", f"  {part}", _AMBER) for part in parts]
     drift = _first(status.details, _DRIFT_KEYS)

@@ -23,7 +23,7 @@ def feature_rows(features: dict) -> list[tuple[str, str]]:
     rows = []
     kind = features.get("kind")
     if kind:  # what the profile's geometry looks like, not the decision (that is the HMM's)
-        head = f"profile fits {kind} {features.get('direction') or ''}".strip()
+        head = f"fits {kind} {features.get('direction') or ''}".strip()
         steps = features.get("steps")
         if steps:
             head += f", {steps} step{'s' if steps != 1 else ''}"
@@ -66,6 +66,7 @@ class FeaturesPanel(Widget):
         width = max(len(name) for name, _ in self._rows)
         text = Text(no_wrap=True, overflow="ellipsis")
         for i, (name, value) in enumerate(self._rows):
-            text.append(f"{name:<{width}} ", style="dim")
+            if name:  # the headline ("fits stairs up, 3 steps") starts at the edge
+                text.append(f"{name:<{width}} ", style="dim")
             text.append(value + ("\n" if i < len(self._rows) - 1 else ""))
         return text

@@ -66,8 +66,9 @@ def recording_rows(
             ("FAILED", _stat(stats, "message", "") or "the recording stopped", "bold #e04040")
         )
     file = path or _stat(stats, "path")
-    if file is not None:
-        rows.append(("file", Path(file).name, ""))
+    if file is not None:  # two lines at the name's last "_" rather than cut anywhere
+        head, sep, tail = Path(file).name.rpartition("_")
+        rows.append(("file", f"{head}{sep}\n{tail}" if sep else tail, ""))
     size = _stat(stats, "bytes_written")
     if size is not None:
         rows.append(("size", human_bytes(size), ""))
