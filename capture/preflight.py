@@ -94,7 +94,8 @@ def device_item(name: str, status, sync: dict | None = None) -> CheckItem:
     parts = [f"id {ident}"]
     if details["firmware"]:
         parts.append(f"firmware {details['firmware']}")
-    parts.append(f"rate {status.measured_rate_hz:.1f} of {status.configured_rate_hz:g} Hz")
+    unit = "fps" if name == "camera" else "Hz"
+    parts.append(f"rate {status.measured_rate_hz:.1f} of {status.configured_rate_hz:g} {unit}")
     parts.append(f"drops {status.dropped}")
     drift = d.get("drift_ppm", d.get("clock_drift_ppm"))
     warning = ""
@@ -153,9 +154,16 @@ def folder_item(folder: Path) -> CheckItem:
     return CheckItem("output folder", True, f"{folder.resolve()} writable")
 
 
+def _existing(folder: Path) -> Path:
+    folder = folder.absolute()
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    return folder
+
+
 def disk_item(folder: Path, rate: float | None) -> CheckItem:
     try:
-        free = shutil.disk_usage(folder if folder.exists() else Path.cwd()).free
+        free = shutil.disk_usage(_existing(folder)).free
     except OSError as e:
         return CheckItem("disk", False, "unknown", f"cannot read free space: {e.strerror}")
     minutes = disk_minutes(free, rate)
@@ -205,9 +213,12 @@ def run(session, *, probe_s: float = PROBE_S, settle_s: float = SETTLE_S, sleep=
             rate = probe_write_rate(session, folder, probe_s, sleep)
         except Exception as e:  # the check reports it; the session goes on
             probe_error = f"probe recording failed: {e}"
+    else:
+        sleep(max(probe_s, PROBE_S))  # the devices' rates and clock fit need the time anyway
     snap = session.snapshot()
     items.append(device_item("camera", snap.camera))
-    items.append(device_item("imu", snap.imu, snap.sync))
+    recent = getattr(session, "recent_sync_ms", None)
+    items.append(device_item("imu", snap.imu, recent() if recent is not None else snap.sync))
     items.append(model_item(session.pipeline.classifier, config.model.path))
     if probe_error:
         writable = dataclasses.replace(writable, ok=False, reason=probe_error)

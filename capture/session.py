@@ -465,6 +465,14 @@ class Session:
             )
         )
 
+    def recent_sync_ms(self, samples: int = 100) -> dict:
+        """The IMU-to-frame sync error of the last `samples` IMU samples (p50, p99 in ms):
+        what the clock fit achieves now, without its first seconds of settling."""
+        recent = list(self._sync_errors)[-samples:]
+        if not recent:
+            return {}
+        return {"p50_ms": float(np.median(recent)), "p99_ms": float(np.percentile(recent, 99))}
+
     def inject(self, device: str, fault: str, **kw) -> None:
         """A fault of a mock device, for drills and tests ("imu", "disconnect", seconds=2)."""
         target = self._imu if device == "imu" else self._camera

@@ -180,6 +180,7 @@ class WalkcapApp(App):
 
     def start_preflight(self) -> None:
         self.preflight_state = "running"
+        self._set_status("pre-flight check: devices, model, output folder, disk…")
         self._refresh_live()
         self._preflight_worker()
 
@@ -198,7 +199,13 @@ class WalkcapApp(App):
         report = message.report
         self.preflight_report = report
         self.preflight_state = "ok" if report.ok else "failed"
-        if not report.ok:
+        if report.ok:
+            self._set_status("")
+        else:
+            self._set_status(
+                f"pre-flight failed: {report.reason()} (c checks again; ctrl+r in the form)",
+                error=True,
+            )
             self.notify(
                 f"{report.reason()} — c checks again",
                 title="pre-flight failed: recording blocked",
@@ -242,7 +249,7 @@ class WalkcapApp(App):
         self._start_failed = True
         self.start_error = message.error
         self._set_status(
-            f"could not start: {message.error} (c retries, ctrl+r in the form; ctrl+q quits)",
+            f"could not start: {message.error} (c retries; ctrl+r in the form; ctrl+q quits)",
             error=True,
         )
         self.notify(message.error, title="could not start", severity="error", timeout=30)
@@ -326,7 +333,14 @@ class WalkcapApp(App):
     def toggle_recording(self) -> None:
         source = self.source
         if source is None:
-            self.notify("the devices are not running yet", severity="warning", timeout=3)
+            if self.start_error:
+                self.notify(
+                    f"the devices did not start: {self.start_error} — c retries",
+                    severity="error",
+                    timeout=6,
+                )
+            else:
+                self.notify("the devices are still starting", severity="warning", timeout=3)
             return
         if self._busy_recording:
             return  # a start or stop is under way: one press, one action

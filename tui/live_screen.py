@@ -161,6 +161,10 @@ class LiveScreen(Screen):
         if source is None:
             self._show_topbar()
             self._show_banner(None)
+            error = getattr(self.app, "start_error", None)
+            if error:  # say why, and how to try again, where the devices would be
+                rows = [("", f"could not start: {error}", "bold #e04040"), ("", "c retries", "")]
+                self._w[DevicePanel].present(None, None, {}, None, rows)
             return
         try:
             snap = source.snapshot()
@@ -372,7 +376,13 @@ class LiveScreen(Screen):
     def _source_or_warn(self):
         source = self.app.source
         if source is None:
-            self.notify("the devices are not running yet", severity="warning", timeout=3)
+            error = getattr(self.app, "start_error", None)
+            text = (
+                f"the devices did not start: {error} — c retries"
+                if error
+                else ("the devices are still starting")
+            )
+            self.notify(text, severity="warning", timeout=4)
         return source
 
     def action_label(self, mode: str) -> None:

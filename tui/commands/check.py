@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import sys
 
 from tui.commands import add_device_arguments
 
@@ -49,6 +48,4 @@ def run(args, config) -> int:
     else:
         print("\n".join(report.lines()))
         print("pre-flight: " + ("ok" if report.ok else f"FAILED ({report.reason()})"))
-    if not report.ok and not args.json:
-        print(f"walkcap check: {report.reason()}", file=sys.stderr)
     return 0 if report.ok else 1
