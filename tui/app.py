@@ -73,7 +73,7 @@ class TrialRecord:
         size = human_bytes(self.size_bytes)
         return (
             f"trial {self.trial:<3} {clock_text(self.duration_s)}  {size:>8}  "
-            f"{self.labels} labels  {gaps}  {self.path}{state}"
+            f"{self.labels} label{'s' if self.labels != 1 else ''}  {gaps}  {self.path}{state}"
         )
 
 

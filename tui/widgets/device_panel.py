@@ -53,10 +53,11 @@ def device_rows(name: str, status: DeviceStatus | None, sync: dict | None = None
             _AMBER if slow and status.state == "ok" else "",
         )
     )
-    rows.append(("drops", f"{status.dropped} {things}", f"bold {_RED}" if status.dropped else ""))
+    # drops: lost on this side (walkcap fell behind); errors: faults of the device or link
+    style = f"bold {_RED}" if status.dropped else (_AMBER if status.errors else "")
+    rows.append(("drops", f"{status.dropped} {things}, errors {status.errors}", style))
     parts = [f"{what}: {status.details[k]}" for k, what in _ERROR_PARTS if status.details.get(k)]
-    rows.append(("errors", f"{status.errors}", _AMBER if status.errors else ""))
-    rows += [("", f"  {part}", _AMBER) for part in parts]
+    rows += [("", part, _AMBER) for part in parts]
     drift = _first(status.details, _DRIFT_KEYS)
     if drift is not None:  # how fast the device clock runs against the host's
         rows.append(("drift", f"{float(drift):+.0f} ppm (clock)", ""))
