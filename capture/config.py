@@ -66,7 +66,7 @@ class Config:
     source: str = ""  # the file it was read from, empty for defaults
 
 
-_KEY_DOC = "key for {} (a Textual key name, e.g. 1, u, space, question_mark)"
+_KEY_DOC = "key for {}"  # Textual key names: 1, u, space, question_mark, ctrl+x, ...
 # One line per key for `walkcap config`; the devices' and algorithms' come from their packages.
 DOCS: dict[type, dict[str, str]] = {
     SessionConfig: {
@@ -223,6 +223,7 @@ def documented(config: Config) -> str:
     lines = [
         "# walkcap configuration: every key with what it does and its default.",
         "# Save as walkcap.toml (or pass --config FILE); keys left out take their default.",
+        "# [keys] take Textual key names: 1, u, space, question_mark, ctrl+x, ...",
         "",
     ]
     for f in dataclasses.fields(Config):
@@ -233,8 +234,14 @@ def documented(config: Config) -> str:
         lines.append(f"[{f.name}]")
         for key, value in dataclasses.asdict(section).items():
             default = _toml_value(defaults[f.name][key])
+            if len(default) > 40:  # a matrix: `walkcap config --default` shows it in full
+                default = "printed by --default"
             lines.append(f"# {docs.get(key, key)} [default: {default}]")
-            lines.append(f"{key} = {_toml_value(value)}")
+            if value and isinstance(value, list) and isinstance(value[0], list):
+                rows = [f"    {_toml_value(row)}," for row in value]
+                lines += [f"{key} = [", *rows, "]"]
+            else:
+                lines.append(f"{key} = {_toml_value(value)}")
         lines.append("")
     return "\n".join(lines)
 

@@ -63,8 +63,8 @@ DOCS: dict[type, dict[str, str]] = {
         "backend": "camera backend: mock (simulated walk) | royale (pmd pico flexx) | replay",
         "fps": "frame rate, frames per second (the paper: 15)",
         "use_case": "royale use case name; empty: the one matching fps",
-        "camera_id": "royale camera serial or .rrf file; empty: the first camera found",
-        "buffer_frames": "frames held between the camera and the pipeline before the oldest drops",
+        "camera_id": "royale camera serial or .rrf file (replay: the .mcap); empty: the first one",
+        "buffer_frames": "frames buffered for the pipeline before the oldest is dropped",
     },
     SimulatorConfig: {
         "course": "mock walk preset: indoor | outdoor",
@@ -81,7 +81,7 @@ DOCS: dict[type, dict[str, str]] = {
     ImuConfig: {
         "backend": "IMU backend: mock (emulator on a pseudo-terminal) | serial (Xsens MTi)",
         "port": "IMU serial port for backend serial, e.g. /dev/ttyUSB0",
-        "baudrate": "IMU serial baud rate",
+        "baudrate": "IMU line speed, as the device is set (the mock uses 921600 above 100 Hz)",
         "rate_hz": "IMU output rate, samples per second",
         "drift_ppm": "mock IMU clock drift against the host, parts per million",
         "jitter_ms": "mock IMU transmit jitter, milliseconds",
@@ -89,6 +89,6 @@ DOCS: dict[type, dict[str, str]] = {
     MountingConfig: {
         "roll_deg": "camera roll about its optical axis relative to the IMU, degrees",
         "pitch_deg": "camera pitch down relative to the IMU, degrees (walkcap calibrate)",
-        "yaw_deg": "camera yaw relative to the IMU, degrees",
+        "yaw_deg": "camera yaw relative to the IMU, degrees (not observable from a floor)",
     },
 }

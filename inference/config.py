@@ -57,6 +57,6 @@ DOCS: dict[type, dict[str, str]] = {
     FusionConfig: {
         "window": "HMM smoothing window l_w, frames",
         "vote_delay": "voting half-window l_v, frames (decisions lag by this many)",
-        "transition": "HMM transition matrix, rows and columns LG US DS UR DR (the paper's)",
+        "transition": "HMM transition matrix (the paper's), rows and columns LG US DS UR DR",
     },
 }
