@@ -154,3 +154,11 @@ def test_check_fails_with_the_reason_on_a_broken_model(tmp_path, capsys):
     model = next(i for i in report["items"] if i["name"] == "model")
     assert not model["ok"] and model["reason"]
     assert next(i for i in report["items"] if i["name"] == "output folder")["ok"]
+
+
+def test_the_readmes_configuration_reference_is_the_commands_output():
+    from pathlib import Path
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    for line in cfg.documented(cfg.Config()).splitlines():
+        assert ("    " + line if line else "") in readme, line
