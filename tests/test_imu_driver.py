@@ -100,10 +100,12 @@ def test_wakeup_is_acknowledged():
         emulator.stop()
 
 
-def test_unsupported_rate_is_a_clear_error_naming_the_request(mock_imu):
-    imu = mock_imu(rate_hz=7)  # 400 Hz is not a multiple of 7 Hz
-    with pytest.raises(DeviceInitError, match=r"SetOutputConfiguration.*Error 0x03"):
-        imu.open()
+def test_a_rate_the_family_lacks_is_fitted_and_said(mock_imu):
+    imu = mock_imu(rate_hz=7)  # the 1-series divides 100 Hz: 5 Hz is the nearest below
+    imu.open()
+    assert imu.configured_rate_hz == 5
+    assert any("at 5 Hz, not 7 Hz" in a for a in imu.info["adjusted"])
+    assert "output_adjusted" in kinds(imu.poll_events())
 
 
 def test_a_silent_port_times_out_naming_the_request():
@@ -305,7 +307,7 @@ def test_a_power_cycled_device_restarts_its_clock_and_the_fit_follows(mock_imu):
 
 
 def test_a_slow_consumer_loses_the_oldest_samples_counted(mock_imu):
-    imu = mock_imu(rate_hz=200, buffer_size=10)
+    imu = mock_imu(rate_hz=200, buffer_size=10, model="MTi-630", baudrate=460800)
     imu.start()
     time.sleep(0.6)
     wait_for(lambda: imu.status().dropped > 0, 2.0)

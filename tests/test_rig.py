@@ -145,9 +145,10 @@ def test_a_rig_that_cannot_start_is_one_clear_error():
         open_devices(config)
 
 
-def test_a_fast_mock_imu_gets_a_line_that_carries_it():
+def test_a_fast_mock_imu_needs_a_model_and_line_that_carry_it():
     config = Config()
-    config.imu.rate_hz = 400  # 115200 baud carries about 157 messages/s
+    config.imu.rate_hz = 400  # 115200 baud carries about 157 messages/s; a 1-series 100 Hz
+    config.imu.emulate, config.imu.baudrate = "MTi-630", 921600
     camera, imu = open_devices(config)
     try:
         imu.start()

@@ -188,6 +188,9 @@ def session_run(
     cfg = Config()
     cfg.camera.fps = fps
     cfg.imu.rate_hz = imu_hz
+    if imu_hz > 100:  # beyond the 1-series: a 600-series model on a line that carries it
+        cfg.imu.emulate = "MTi-630"
+        cfg.imu.baudrate = 921600
     cfg.session.recordings = folder
     cfg.simulator.loop = True  # the walk repeats for as long as the run lasts
     session = Session(cfg, classifier=clf or classifier(), auto_label=True)
