@@ -28,6 +28,7 @@ from recording_fixtures import (
     write_recording,
 )
 
+from capture import recorder as recorder_module
 from capture import topics as T
 from capture.errors import CaptureError
 from capture.journal import read_journal
@@ -178,13 +179,13 @@ def test_a_full_queue_drops_counts_and_records_but_never_blocks_or_loses_labels(
     tmp_path, monkeypatch
 ):
     path = tmp_path / "slow.mcap"
-    real = Recorder._encode_frame
+    real = recorder_module.encode_depth
 
-    def slow(self, frame, time_ns):
+    def slow(*args):
         time.sleep(0.02)  # a disk or CPU that cannot keep up
-        return real(self, frame, time_ns)
+        return real(*args)
 
-    monkeypatch.setattr(Recorder, "_encode_frame", slow)
+    monkeypatch.setattr(recorder_module, "encode_depth", slow)
     rec = Recorder(path, metadata={}, queue_size=4)
     rec.start()
     longest = 0.0
