@@ -32,6 +32,7 @@ import queue
 import threading
 import time
 from dataclasses import dataclass, field
+from enum import StrEnum
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -48,7 +49,6 @@ CLOUD_MAX_POINTS = 4096
 
 log = logging.getLogger(__name__)
 
-IDLE, RECORDING, STOPPED, FAILED = "idle", "recording", "stopped", "failed"
 _STOP = object()
 _OPERATOR_KINDS = ("marker", "note")
 
@@ -96,10 +96,19 @@ MEDIA_TYPES = {
 }
 
 
+class RecorderState(StrEnum):
+    """A str equal to its text ("recording", ...) in comparisons, f-strings, the journal."""
+
+    IDLE = "idle"  # not started
+    RECORDING = "recording"
+    STOPPED = "stopped"  # closed, the file complete
+    FAILED = "failed"  # a write error ended it; RecorderStats.message says why
+
+
 @dataclass
 class RecorderStats:
     path: str
-    state: str  # idle | recording | stopped | failed
+    state: RecorderState
     message: str = ""  # why it failed, in one line; or a warning (journal trouble)
     bytes_written: int = 0
     messages: int = 0
@@ -285,7 +294,7 @@ class Recorder:
         # is waiting on them.
         self._blocking = blocking
         self._zstd_level = zstd_level
-        self._state = IDLE
+        self._state = RecorderState.IDLE
         self._message = ""
         self._accepting = False
         self._lock = threading.Lock()
@@ -317,7 +326,7 @@ class Recorder:
         """Create the file and its journal, write header, metadata and attachments, start."""
         from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 
-        if self._state != IDLE:
+        if self._state != RecorderState.IDLE:
             raise CaptureError(f"recorder for {self.path} already started")
         folder = self.path.parent
         if not folder.is_dir():
@@ -359,7 +368,7 @@ class Recorder:
             self._abandon_start()
             self._set_failed(f"cannot write the recording {self.path}: {e.strerror or e}")
             raise CaptureError(self._message) from None
-        self._state = RECORDING
+        self._state = RecorderState.RECORDING
         self._accepting = True
         self._next_flush = time.monotonic() + self._chunk_interval_s
         self._thread = threading.Thread(target=self._run, name="walkcap-recorder", daemon=True)
@@ -463,7 +472,7 @@ class Recorder:
         )
 
     @property
-    def state(self) -> str:
+    def state(self) -> RecorderState:
         return self._state
 
     # ---- writes (any thread; never block, never encode) ------------------------------
@@ -472,7 +481,7 @@ class Recorder:
         if self._accepting:
             try:
                 if self._blocking:
-                    while self._accepting and self._state == RECORDING:
+                    while self._accepting and self._state == RecorderState.RECORDING:
                         try:
                             self._queue.put(item, timeout=0.5)
                             return
@@ -483,7 +492,7 @@ class Recorder:
                     return
             except queue.Full:
                 pass
-        if self._state in (RECORDING, FAILED):
+        if self._state in (RecorderState.RECORDING, RecorderState.FAILED):
             with self._lock:
                 self._dropped[item.kind] += 1
 
@@ -535,7 +544,7 @@ class Recorder:
         self._journal_append({"type": "label", **entry})
         with self._lock:
             self._labels += 1
-        if self._state == RECORDING:
+        if self._state == RecorderState.RECORDING:
             self._priority.append((T.LABELS, entry))
 
     def write_event(self, event) -> None:
@@ -549,7 +558,7 @@ class Recorder:
         if device == "operator" or kind in _OPERATOR_KINDS:
             entry = T.event_json(event)
             self._journal_append({"type": "event", **T.jsonable(entry)})
-            if self._state == RECORDING:
+            if self._state == RecorderState.RECORDING:
                 self._priority.append((T.EVENTS, entry))
         else:
             self._put(QueuedDeviceEvent(event))
@@ -562,7 +571,7 @@ class Recorder:
             journal.append(entry)
         except OSError as e:
             log.error("journal %s: %s", self.journal_path, e)
-            if self._state == RECORDING:
+            if self._state == RecorderState.RECORDING:
                 self._message = f"journal not writable ({e.strerror or e}): labels only in the file"
 
     # ---- the writer thread --------------------------------------------------------------
@@ -627,7 +636,7 @@ class Recorder:
         self._writer.finish()
         self._file.fsync()
         self._file.close()
-        self._state = STOPPED
+        self._state = RecorderState.STOPPED
 
     def _fail(self, e: BaseException) -> None:
         seconds = (self._last_ns - self._first_ns) * 1e-9 if self._first_ns is not None else 0.0
@@ -652,7 +661,7 @@ class Recorder:
                 break
 
     def _set_failed(self, message: str) -> None:
-        self._state = FAILED
+        self._state = RecorderState.FAILED
         self._message = message
 
     def _report_drops(self) -> None:

@@ -217,7 +217,8 @@ def test_labels_are_on_disk_in_the_journal_when_write_label_returns(tmp_path):
     assert {"type": "label", "time_ns": T0, "mode": "DS", "source": "operator"} in entries
     assert any(e["type"] == "event" and e["message"] == "here" for e in entries)
     rec.close()
-    assert read_journal(rec.journal_path)[-1]["type"] == "end"
+    end = read_journal(rec.journal_path)[-1]
+    assert end["type"] == "end" and end["state"] == "stopped"  # the state's text, as JSON
 
 
 def sensor_spans_per_chunk(path) -> list[int]:
