@@ -58,10 +58,6 @@ class ScoreFileError(InferenceError):
     """A score CSV is malformed; the message names the file and line."""
 
 
-class RecordingsUnavailable(InferenceError):
-    """capture's recording reader is not there yet."""
-
-
 @dataclass(frozen=True)
 class FusionParameters:
     window: int = 5  # l_w
@@ -554,15 +550,7 @@ def trial_from_recording(path: str, data: Any, reference: str = "auto") -> Trial
 
 def load_trials_from_recordings(paths: Sequence[str], reference: str = "auto") -> list[Trial]:
     """Trials from MCAP recordings through `capture.reader.read_trial(path)`."""
-    try:
-        reader = importlib.import_module("capture.reader")
-    except ModuleNotFoundError as e:
-        if e.name not in ("capture.reader", "capture"):
-            raise
-        raise RecordingsUnavailable(
-            "reading recordings arrives with the [recording] issue; meanwhile evaluate "
-            "score files with 'walkcap eval scores'"
-        ) from None
+    reader = importlib.import_module("capture.reader")
     return [trial_from_recording(p, reader.read_trial(p), reference) for p in paths]
 
 

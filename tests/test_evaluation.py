@@ -254,12 +254,6 @@ def test_trial_from_recording_prefers_operator_labels():
     assert ev.trial_from_recording("a.mcap", obj).subject == "A1"
 
 
-def test_recordings_without_a_reader_say_when_it_arrives(monkeypatch):
-    monkeypatch.setitem(sys.modules, "capture.reader", None)
-    with pytest.raises(ev.RecordingsUnavailable, match=r"\[recording\] issue"):
-        ev.load_trials_from_recordings(["a.mcap"])
-
-
 def test_recordings_through_the_reader(monkeypatch, trials):
     reader = types.ModuleType("capture.reader")
     by_path = {t.path: t for t in trials}
