@@ -180,25 +180,36 @@ def test_a_full_queue_drops_counts_and_records_but_never_blocks_or_loses_labels(
 ):
     path = tmp_path / "slow.mcap"
     real = recorder_module.encode_depth
+    encoding, disk_free = threading.Event(), threading.Event()
 
-    def slow(*args):
-        time.sleep(0.02)  # a disk or CPU that cannot keep up
+    def stuck(*args):  # a disk or CPU that cannot keep up: the writer holds its first frame
+        encoding.set()
+        disk_free.wait(10.0)
         return real(*args)
 
-    monkeypatch.setattr(recorder_module, "encode_depth", slow)
+    monkeypatch.setattr(recorder_module, "encode_depth", stuck)
     rec = Recorder(path, metadata={}, queue_size=4)
     rec.start()
-    longest = 0.0
-    for i in range(60):
-        start = time.perf_counter()
-        rec.write_frame(frame_at(i))
-        rec.write_imu(imu_sample(i))
-        longest = max(longest, time.perf_counter() - start)
-        if i % 10 == 0:
-            rec.write_label(frame_time(i), "US", "operator")
+    rec.write_frame(frame_at(0))
+    assert encoding.wait(5.0)
+
+    def writes():
+        for i in range(60):
+            if i:
+                rec.write_frame(frame_at(i))
+            rec.write_imu(imu_sample(i))
+            if i % 10 == 0:
+                rec.write_label(frame_time(i), "US", "operator")
+
+    caller = threading.Thread(target=writes)
+    caller.start()
+    caller.join(5.0)
+    assert not caller.is_alive()  # every write returned while the writer was stuck
+    # The queue holds imu 0, frame 1, imu 1 and frame 2; the other 115 writes are dropped.
+    assert rec.stats().dropped_by_kind == {"frame": 57, "imu": 58}
+    disk_free.set()
     stats = rec.close()
-    assert longest < 0.01  # each write is a queue put, never a wait for the disk
-    assert stats.dropped > 0 and stats.state == "stopped"
+    assert stats.dropped == 115 and stats.state == "stopped"
     msgs = decode_all(path)
     drops = [d for _, d in msgs[T.EVENTS] if d["kind"] == "drop"]
     assert sum(sum(d["details"].values()) for d in drops) == stats.dropped
