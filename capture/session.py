@@ -34,7 +34,7 @@ from capture.pipeline import (
     model_hash,
     record_result,
 )
-from devices.base import DeviceEvent, DeviceStatus
+from devices.base import DeviceEvent, DeviceState, DeviceStatus
 from devices.clock import now_ns
 from devices.frames import MODES, DepthFrame
 from devices.scheduling import NORMAL_PRIORITY, realtime_priority
@@ -346,7 +346,7 @@ class Session:
 
     def _camera_finished(self) -> bool:
         status = self._camera.status()
-        return status.state == "stopped" and not self._stop.is_set()
+        return status.state == DeviceState.STOPPED and not self._stop.is_set()
 
     def _monitor_loop(self) -> None:
         while not self._stop.wait(0.2):

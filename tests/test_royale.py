@@ -515,13 +515,15 @@ def test_five_channel_points_of_royale5(monkeypatch):
 
 
 def test_a_slow_consumer_costs_counted_frames_not_a_blocked_sdk(monkeypatch):
-    monkeypatch.setitem(__import__("sys").modules, "roypy", make_roypy(frames=30))
+    sdk = make_roypy(frames=30)
+    monkeypatch.setitem(__import__("sys").modules, "roypy", sdk)
     cam = open_camera(royale(buffer_frames=4))
     try:
         cam.start()
-        deadline = time.monotonic() + 5  # nobody receives
-        while cam.status().delivered < 30 and time.monotonic() < deadline:
-            time.sleep(0.05)
+        device = sdk.devices[0]
+        deadline = time.monotonic() + 5.0
+        while len(device.callback_s) < 30 and time.monotonic() < deadline:  # nobody receives
+            time.sleep(0.01)
         status = cam.status()
     finally:
         cam.close()

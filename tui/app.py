@@ -18,6 +18,7 @@ from textual.app import App
 from textual.reactive import reactive
 
 from capture.config import Config
+from capture.recorder import RecorderState
 from capture.session import SubjectInfo
 from tui import messages
 from tui.live_screen import LiveScreen
@@ -264,7 +265,7 @@ class WalkcapApp(App):
         save_last_session(self.subject)
         stats = message.stats
         name = Path(getattr(stats, "path", "") or message.path or "recording").name
-        if getattr(stats, "state", "") == "failed":
+        if getattr(stats, "state", "") == RecorderState.FAILED:
             self.notify(
                 f"{name}: {stats.message} (what reached the disk is readable)",
                 title="recording failed",

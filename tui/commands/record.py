@@ -74,6 +74,7 @@ def apply_device_flags(args, config) -> None:
 
 
 def run(args, config) -> int:
+    from capture.recorder import RecorderState
     from capture.session import Session, SubjectInfo
 
     apply_device_flags(args, config)
@@ -104,7 +105,7 @@ def run(args, config) -> int:
             if deadline is not None and time.monotonic() >= deadline:
                 break
             rec = session.snapshot().recording
-            if rec is not None and rec.state == "failed":
+            if rec is not None and rec.state == RecorderState.FAILED:
                 break
             time.sleep(0.05)
     except KeyboardInterrupt:
