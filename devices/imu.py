@@ -208,6 +208,7 @@ class XbusImu(Imu):
         self.budget: xbus.LinkBudget | None = None
         self.adjusted: list[str] = []  # what walkcap changed to fit the family
         self.granted: list[str] = []  # what the device granted instead of the request
+        self._said: set[str] = set()
         # Silence longer than this is a lost device: half a second, or 3 periods when slow.
         self.silence_ns = int(
             (silence_s if silence_s is not None else max(0.5, 3.0 / max(self.rate_hz, 1))) * 1e9
@@ -354,9 +355,16 @@ class XbusImu(Imu):
                 )
             fitted.append(xbus.OutputSetting(s.xdi, rate))
         for text in self.adjusted:
-            log.warning("IMU on %s: %s", self.port, text)
-            self._event("output_adjusted", f"IMU: {text}")
+            self._say("output_adjusted", f"IMU: {text}")
         return fitted
+
+    def _say(self, kind: str, text: str) -> None:
+        """A warning and an event, once per driver (a reconnect configures again)."""
+        if text in self._said:
+            return
+        self._said.add(text)
+        log.warning("%s (%s)", text, self.port)
+        self._event(kind, text)
 
     def _compare(self, request: list, reply: list, product_code: str) -> None:
         """Say every difference between the request and what the device uses."""
@@ -376,10 +384,7 @@ class XbusImu(Imu):
                 name = xbus.OutputSetting(xdi, rate).name
                 self.granted.append(f"{name}: not asked for, the device adds it")
         for text in self.granted:
-            log.warning(
-                "IMU %s on %s granted a different configuration: %s", product_code, self.port, text
-            )
-            self._event("output_granted", f"IMU {product_code}: {text}")
+            self._say("output_granted", f"IMU {product_code}: {text}")
 
     def _budget_refusal(self, settings: list, product_code: str) -> str:
         """One line: what the stream needs, and a rate or baud rate that carries it."""
@@ -723,7 +728,12 @@ class XbusImu(Imu):
             details={
                 "device_id": self.info.get("device_id", ""),
                 "product_code": self.info.get("product_code", ""),
+                "family": self.info.get("family", ""),
+                "function": self.info.get("function", ""),
                 "firmware": self.info.get("firmware", ""),
+                "link_budget": self.info.get("link_budget", ""),
+                "adjusted": self.info.get("adjusted", []),
+                "granted": self.info.get("granted", []),
                 "port": self.port,
                 "offset_ms": clock.offset_ms,
                 "drift_ppm": clock.drift_ppm,
