@@ -234,8 +234,20 @@ def _make_event_listener(roypy, on_lost: Callable[[str], None]):
     return _Events()
 
 
+def device_time_us(data: Any) -> int | None:
+    """DepthData.timeStamp in microseconds: an int in the bindings, a std::chrono duration
+    (`.count()`) where SWIG leaves it wrapped; None when neither reads."""
+    stamp = getattr(data, "timeStamp", None)
+    for read in (int, lambda s: int(s.count())):
+        try:
+            return read(stamp)
+        except (TypeError, ValueError, AttributeError):
+            continue
+    return None
+
+
 WATCH_INTERVAL_S = 0.2
-SILENT_LOST_S = 1.0  # no frame for this long (and not connected, or no way to tell): lost
+SILENT_LOST_S = 0.8  # no frame for this long (and no other way to tell): lost within 1 s
 REOPEN_INTERVAL_S = 0.5
 
 
@@ -259,6 +271,7 @@ class RoyaleCamera(Camera):
         self._watching = threading.Event()
         self._lost_reason: str | None = None  # set by the event listener (SDK thread)
         self._copying = False  # onNewData is copying a frame out
+        self._warned_stamp = False
         self._activity_ns = 0  # the last onNewData's end
 
     @property
@@ -477,7 +490,13 @@ class RoyaleCamera(Camera):
             self._count_error()
             self._event("bad_frame", f"royale frame not understood: {e}")
             return
-        device_ns = int(data.timeStamp) * 1000  # microseconds
+        stamp_us = device_time_us(data)
+        if stamp_us is None:  # a binding whose timestamp Python cannot read: arrival time
+            stamp_us = host // 1000
+            if not self._warned_stamp:
+                self._warned_stamp = True
+                self._event("no_device_time", "royale timestamps unreadable: arrival times used")
+        device_ns = stamp_us * 1000
         offset = host - device_ns
         if self._offset_ns is None or offset < self._offset_ns:
             self._offset_ns = offset

@@ -575,3 +575,34 @@ def test_plays_an_rrf_recording_through_the_sdk(generation, tmp_path):
 def test_a_missing_recording_is_named(roypy, tmp_path):
     with pytest.raises(DeviceNotAvailable, match="recording not found: .*gone.rrf"):
         open_camera(royale(camera_id=str(tmp_path / "gone.rrf")))
+
+
+def test_device_timestamps_as_int_or_chrono_duration_or_arrival_time():
+    from devices.royale import device_time_us
+
+    class Duration:
+        def count(self):
+            return 1234
+
+    assert device_time_us(types.SimpleNamespace(timeStamp=99)) == 99
+    assert device_time_us(types.SimpleNamespace(timeStamp=Duration())) == 1234
+    assert device_time_us(types.SimpleNamespace(timeStamp=object())) is None
+
+
+def test_without_events_or_is_connected_a_second_of_silence_is_a_lost_camera(monkeypatch):
+    monkeypatch.delattr(FakeDevice, "isConnected")
+    roypy = make_roypy(generation="4", frames=100_000)
+    roypy.frame_s = 0.01
+    monkeypatch.setitem(__import__("sys").modules, "roypy", roypy)
+    cam = open_camera(royale())
+    try:
+        cam.start()
+        assert frames_from(cam, 1, timeout=5.0)
+        roypy.unplug()
+        t0 = time.monotonic()
+        while cam.status().state != "lost" and time.monotonic() - t0 < 3:
+            time.sleep(0.01)
+        assert time.monotonic() - t0 < 1.2  # 0.8 s of silence, checked every 0.2 s
+        assert "no frame" in cam.status().message
+    finally:
+        cam.close()
