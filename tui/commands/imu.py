@@ -194,6 +194,7 @@ def _stream(args, config) -> int:
             drift_ppm=config.imu.drift_ppm,
             jitter_ms=config.imu.jitter_ms,
             baudrate=baudrate,
+            model=config.imu.emulate,
             raw_sink=sink,
         )
     else:
