@@ -198,6 +198,17 @@ class QueuedEncodedFrame(QueuedItem):
 
 
 @dataclass(slots=True)
+class QueuedMessage(QueuedItem):
+    """A JSON message on a topic declared with Recorder.declare_topic (an LSL stream)."""
+
+    kind: ClassVar[str] = "message"
+    topic: str
+    time_ns: int
+    log_time: int
+    message: dict
+
+
+@dataclass(slots=True)
 class QueuedDeviceEvent(QueuedItem):
     kind: ClassVar[str] = "event"
     event: Any  # a DeviceEvent or a dict
@@ -307,6 +318,8 @@ class Recorder:
         self._thread: threading.Thread | None = None
         # writer-thread state
         self._channels: dict[str, int] = {}
+        self._declared: dict[str, T.TopicSpec] = {}  # topics beyond walkcap's own
+        self._descriptions: dict[str, str] = {}
         self._messages = 0
         self._errors = 0
         self._chunks = 0
@@ -538,6 +551,18 @@ class Recorder:
         among the attachments: no depth frame passes here to take them from."""
         self._put(QueuedEncodedFrame(frame_index, time_ns, log_time_ns, messages))
 
+    def declare_topic(self, topic: str, schema: dict, description: str) -> None:
+        """A JSON topic beyond walkcap's own (another device's LSL stream), with its JSON
+        Schema; declared before its first write_message."""
+        if topic in T.TOPICS:
+            raise CaptureError(f"{topic} is one of walkcap's own topics")
+        self._descriptions[topic] = description
+        self._declared[topic] = T.json_topic_spec(topic, schema)
+
+    def write_message(self, topic: str, time_ns: int, log_time_ns: int, message: dict) -> None:
+        """A JSON message on a declared topic; publish time `time_ns`, log time the receipt."""
+        self._put(QueuedMessage(topic, time_ns, log_time_ns, message))
+
     def write_label(self, time_ns: int, mode: str, source: str) -> None:
         """The operator's mode from `time_ns` on. Journaled (on disk) before this returns."""
         entry = T.label_json(time_ns, mode, source)
@@ -685,12 +710,13 @@ class Recorder:
     def _channel(self, topic: str) -> int:
         channel = self._channels.get(topic)
         if channel is None:
-            spec = T.topic_spec(topic)
+            spec = self._declared.get(topic) or T.topic_spec(topic)
             schema = self._writer.register_schema(
                 spec.schema_name, spec.schema_encoding, spec.schema_data
             )
+            description = self._descriptions.get(topic) or T.DESCRIPTIONS[topic]
             channel = self._writer.register_channel(
-                topic, spec.message_encoding, schema, {"description": T.DESCRIPTIONS[topic]}
+                topic, spec.message_encoding, schema, {"description": description}
             )
             self._channels[topic] = channel
         return channel
@@ -842,6 +868,12 @@ class Recorder:
         self._remember(item.index, item.time_ns, item.log_time)
         return item.messages
 
+    def _encode_message(self, item: QueuedMessage) -> list:
+        if item.topic not in self._declared:
+            raise ValueError(f"{item.topic}: not declared")
+        data = T.encode_json(item.message)
+        return [(item.topic, item.log_time, item.time_ns, data, 0, False)]
+
     def _encode_device_event(self, item: QueuedDeviceEvent) -> list:
         entry = T.event_json(item.event)
         t = entry["time_ns"]
@@ -856,6 +888,7 @@ class Recorder:
         QueuedTruth: _encode_truth,
         QueuedEncodedFrame: _take_encoded_frame,
         QueuedDeviceEvent: _encode_device_event,
+        QueuedMessage: _encode_message,
     }
 
 
