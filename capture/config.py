@@ -53,6 +53,27 @@ class KeysConfig:
 
 
 @dataclass
+class LslConfig:
+    """Lab Streaming Layer: walkcap's streams out, other devices' streams into the recording."""
+
+    enabled: bool = False  # outlets: IMU, classifier and decisions, labels and markers
+    record: list[str] = field(default_factory=list)  # LSL stream names to record, e.g. ["EMG"]
+    # LabRecorder-compatible remote control (start, stop, filename) on localhost
+    remote_control: bool = False
+    remote_port: int = 22345  # LabRecorder's default
+
+
+@dataclass
+class FoxgloveConfig:
+    """A live Foxglove WebSocket server with the recording's topics and schemas."""
+
+    enabled: bool = False
+    host: str = "127.0.0.1"  # localhost only unless asked otherwise
+    port: int = 8765  # Foxglove's default
+    image_hz: float = 15.0  # depth, images and clouds at most this often (live view only)
+
+
+@dataclass
 class Config:
     session: SessionConfig = field(default_factory=SessionConfig)
     camera: CameraConfig = field(default_factory=CameraConfig)
@@ -63,6 +84,8 @@ class Config:
     model: ModelConfig = field(default_factory=ModelConfig)
     fusion: FusionConfig = field(default_factory=FusionConfig)
     keys: KeysConfig = field(default_factory=KeysConfig)
+    lsl: LslConfig = field(default_factory=LslConfig)
+    foxglove: FoxgloveConfig = field(default_factory=FoxgloveConfig)
     source: str = ""  # the file it was read from, empty for defaults
 
 
@@ -86,6 +109,18 @@ DOCS: dict[type, dict[str, str]] = {
         "freeze": _KEY_DOC.format("freezing the display"),
         "help": _KEY_DOC.format("the help screen"),
         "quit": _KEY_DOC.format("quitting (ctrl+q always quits too)"),
+    },
+    LslConfig: {
+        "enabled": "LSL outlets: walkcap IMU, walkcap Terrain, walkcap Markers",
+        "record": "names of other devices' LSL streams recorded into each trial",
+        "remote_control": "LabRecorder's start / stop / filename commands on 127.0.0.1",
+        "remote_port": "the remote control's TCP port (LabRecorder's)",
+    },
+    FoxgloveConfig: {
+        "enabled": "serve the live session's topics to Foxglove over a WebSocket",
+        "host": "address the Foxglove server listens on (localhost only unless changed)",
+        "port": "the Foxglove server's port",
+        "image_hz": "depth, images and clouds sent at most this often, per second",
     },
     **DEVICE_DOCS,
     **INFERENCE_DOCS,

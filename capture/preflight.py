@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from capture.alarms import DISK_MINUTES_LOW, disk_minutes
+from devices.base import DeviceState
 
 MIN_RATE = 0.8  # a device below this fraction of its configured rate fails
 SYNC_P99_MS = 5.0  # IMU-to-frame sync error above this (p99): a warning
@@ -110,7 +111,7 @@ def device_item(name: str, status, sync: dict | None = None) -> CheckItem:
         if sync.get("p99_ms", 0.0) > SYNC_P99_MS:
             warning = f"IMU-to-frame sync error p99 {sync['p99_ms']:.1f} ms"
     reason = ""
-    if status.state != "ok":
+    if status.state != DeviceState.OK:
         reason = f"{status.state}: {status.message or 'not streaming'}"
     elif status.configured_rate_hz and status.measured_rate_hz < (
         MIN_RATE * status.configured_rate_hz
@@ -180,6 +181,7 @@ def disk_item(folder: Path, rate: float | None) -> CheckItem:
 
 def probe_write_rate(session, folder: Path, seconds: float, sleep=time.sleep) -> float | None:
     """Bytes per second of a short probe trial in a hidden folder, deleted afterwards."""
+    from capture.recorder import RecorderState
     from capture.session import SubjectInfo
 
     probe_dir = Path(tempfile.mkdtemp(dir=folder, prefix=".walkcap-check-"))
@@ -194,7 +196,7 @@ def probe_write_rate(session, folder: Path, seconds: float, sleep=time.sleep) ->
         config.recordings = saved
         session.alarms.recordings = Path(saved)
         shutil.rmtree(probe_dir, ignore_errors=True)
-    if stats is None or stats.duration_s <= 0 or stats.state == "failed":
+    if stats is None or stats.duration_s <= 0 or stats.state == RecorderState.FAILED:
         return None
     return stats.bytes_written / stats.duration_s
 

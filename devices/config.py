@@ -42,6 +42,9 @@ class ImuConfig:
     rate_hz: int = 100
     drift_ppm: float = 50.0  # emulator only
     jitter_ms: float = 2.0  # emulator only
+    # The model the mock backend plays (devices/imu_family.py): "MTi-3" (AHRS, 1-series,
+    # 100 Hz at most), "MTi-1" (IMU only), "MTi-630" (600-series, 400 Hz), ...
+    emulate: str = "MTi-3"
 
 
 @dataclass
@@ -81,10 +84,11 @@ DOCS: dict[type, dict[str, str]] = {
     ImuConfig: {
         "backend": "IMU backend: mock (emulator on a pseudo-terminal) | serial (Xsens MTi)",
         "port": "IMU serial port for backend serial, e.g. /dev/ttyUSB0",
-        "baudrate": "IMU line speed, as the device is set (the mock uses 921600 above 100 Hz)",
-        "rate_hz": "IMU output rate, samples per second",
+        "baudrate": "IMU line speed: the device's (walkcap imu set-baud changes it)",
+        "rate_hz": "IMU output rate, samples per second; fitted to the model (1-series: 100 Hz)",
         "drift_ppm": "mock IMU clock drift against the host, parts per million",
         "jitter_ms": "mock IMU transmit jitter, milliseconds",
+        "emulate": "mock IMU model it plays (MTi-1, MTi-630, ...); above 100 Hz a 600-series",
     },
     MountingConfig: {
         "roll_deg": "camera roll about its optical axis relative to the IMU, degrees",

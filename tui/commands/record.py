@@ -6,6 +6,7 @@ import signal
 import sys
 import time
 
+from tui import lab_flags
 from tui.commands import (
     add_device_arguments,
     add_session_arguments,
@@ -39,6 +40,7 @@ def add_arguments(parser) -> None:
     )
     add_device_arguments(parser)
     add_session_arguments(parser)
+    lab_flags.add_arguments(parser)
 
 
 def status_line(elapsed_s: float, total_s: float | None, snap) -> str:
@@ -61,9 +63,12 @@ def status_line(elapsed_s: float, total_s: float | None, snap) -> str:
 
 
 def run(args, config) -> int:
+    from capture.labtools import LabTools, SessionController
+    from capture.recorder import RecorderState
     from capture.session import Session, SubjectInfo
 
     apply_device_flags(args, config)
+    lab_flags.apply(args, config)
     warning = course_condition(args, config)
     if warning:
         print(f"walkcap record: warning: {warning}", file=sys.stderr)
@@ -77,10 +82,20 @@ def run(args, config) -> int:
     signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
     tty = sys.stderr.isatty()
     stats = None
+    lab = None
+    remote = config.lsl.remote_control
     try:
         session.start()
-        path = session.start_recording(info)
-        print(f"recording {path}", file=sys.stderr)
+        lab = LabTools(session, config, SessionController(session, info)).start()
+        for line in lab.describe():
+            print(line, file=sys.stderr)
+        for problem in lab.problems:
+            print(f"walkcap record: {problem}", file=sys.stderr)
+        if remote:  # the experiment script says when: start, stop, start, ...
+            print("waiting for the remote control's start (Ctrl-C ends)", file=sys.stderr)
+        else:
+            path = session.start_recording(info)
+            print(f"recording {path}", file=sys.stderr)
         started = time.monotonic()
         deadline = started + args.duration if args.duration else None
         shown = 0.0
@@ -89,9 +104,9 @@ def run(args, config) -> int:
             if deadline is not None and now >= deadline:
                 break
             snap = session.snapshot()
-            if snap.recording is not None and snap.recording.state == "failed":
+            if snap.recording is not None and snap.recording.state == RecorderState.FAILED:
                 break
-            if tty and now - shown >= STATUS_EVERY_S:
+            if tty and now - shown >= STATUS_EVERY_S and snap.recording is not None:
                 shown = now
                 line = status_line(now - started, args.duration, snap)
                 print(f"\r\x1b[K{line}", end="", file=sys.stderr, flush=True)
@@ -101,9 +116,17 @@ def run(args, config) -> int:
     finally:
         if tty:
             print(file=sys.stderr)
+        remote_log = list(lab.remote.log) if lab is not None and lab.remote is not None else []
+        if lab is not None:
+            lab.stop()
         stats = session.stop()
+    saved = [r.removeprefix("saved ") for _, r in remote_log if r.startswith("saved ")]
+    for path in saved:  # the trials the remote control started and stopped
+        print(path)
     if stats is None:
-        return 1
+        if remote and not saved:
+            print("walkcap record: no trial was recorded (no remote start)", file=sys.stderr)
+        return 0 if saved else 1
     snap_lat = session.snapshot().latency_ms
     gaps = session.alarms.trial_gaps
     print(

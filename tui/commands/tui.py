@@ -6,6 +6,7 @@ import contextlib
 import logging
 import os
 
+from tui import lab_flags
 from tui.commands import add_device_arguments, add_session_arguments
 
 HELP = "open the terminal UI (mock devices and the bundled model by default)"
@@ -20,6 +21,7 @@ def add_arguments(parser) -> None:
     )
     add_device_arguments(parser, "mock | royale | replay")
     add_session_arguments(parser)
+    lab_flags.add_arguments(parser)
 
 
 def log_path() -> str:
@@ -54,6 +56,7 @@ def run(args, config) -> int:
     from tui.session_screen import load_last_session
 
     apply_device_flags(args, config)
+    lab_flags.apply(args, config)
     given_condition = args.condition is not None
     warning = course_condition(args, config)
     if warning:
