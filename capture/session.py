@@ -26,6 +26,7 @@ import numpy as np
 
 from capture import __version__
 from capture import config as config_mod
+from capture.alarms import AlarmState, TrialAlarms
 from capture.errors import CaptureError, ConfigError
 from capture.pipeline import (
     CNN_THREADS,
@@ -35,7 +36,7 @@ from capture.pipeline import (
     model_hash,
     record_decisions,
 )
-from devices.base import DeviceEvent, DeviceStatus
+from devices.base import DeviceEvent, DeviceState, DeviceStatus
 from devices.clock import now_ns
 from devices.frames import MODES, DepthFrame
 from devices.scheduling import NORMAL_PRIORITY, realtime_priority
@@ -124,6 +125,12 @@ class Snapshot:
     recording_started_ns: int | None
     frames: int
     latency_ms: dict
+    alarms: AlarmState | None = None  # gaps this trial, and what the operator must see now
+
+
+def stream_periods(config: config_mod.Config) -> dict[str, float]:
+    """The configured period of each sensor stream (what a gap is measured against)."""
+    return {"camera": 1.0 / config.camera.fps, "imu": 1.0 / config.imu.rate_hz}
 
 
 def open_devices(config: config_mod.Config, camera=None, imu=None):
@@ -298,6 +305,7 @@ class Session:
         self._events: collections.deque[DeviceEvent] = collections.deque(maxlen=200)
         self._latencies: collections.deque[float] = collections.deque(maxlen=2000)
         self._latency_sinks: list[Callable[[float], None]] = []
+        self._taps: tuple = ()  # live outputs beside the recorder (LSL, Foxglove)
         self._sync_errors: collections.deque[float] = collections.deque(maxlen=5000)
         self._frames = 0
         self._last_truth_mode: str | None = None
@@ -310,6 +318,7 @@ class Session:
         self.pipeline_priority = NORMAL_PRIORITY  # how the pipeline thread is scheduled
         self.model_metadata: dict = {}
         self.finished = threading.Event()  # the camera ran out of frames (end of a mock course)
+        self.alarms = TrialAlarms(config.session.recordings, stream_periods(config))
 
     # ---- life cycle -------------------------------------------------------------------
 
@@ -407,14 +416,14 @@ class Session:
             if sample is None:
                 continue
             t = sample.time_ns if sample.time_ns is not None else sample.host_time_ns
+            self.alarms.sample("imu", sample.host_time_ns)  # the recorder's log time
             if sample.quaternion is not None:
                 self.track.add(t, sample.quaternion, sample.rate_of_turn)
             truth = getattr(self._imu, "true_time_ns", None)
             if truth is not None and sample.sample_time_fine is not None:
                 self._sync_errors.append(abs(t - truth(sample.sample_time_fine)) * 1e-6)
-            rec = self._recorder
-            if rec is not None:
-                rec.write_imu(sample)
+            for out in self._outputs():
+                out.write_imu(sample)
 
     def _frame_loop(self) -> None:
         """Camera frames in: each recorded at once, then handed to the pipeline thread."""
@@ -446,7 +455,7 @@ class Session:
 
     def _camera_finished(self) -> bool:
         status = self._camera.status()
-        return status.state == "stopped" and not self._stop.is_set()
+        return status.state == DeviceState.STOPPED and not self._stop.is_set()
 
     def _monitor_loop(self) -> None:
         while not self._stop.wait(0.2):
@@ -457,9 +466,30 @@ class Session:
     def _event(self, event: DeviceEvent) -> None:
         with self._lock:
             self._events.append(event)
+        for out in self._outputs():
+            out.write_event(event)
+
+    def _outputs(self) -> tuple:
+        """Where the session's data goes: the recorder (while recording), then the taps."""
         rec = self._recorder
-        if rec is not None:
-            rec.write_event(event)
+        return self._taps if rec is None else (rec, *self._taps)
+
+    def add_event(self, event: DeviceEvent) -> None:
+        """An event from beside the devices (an LSL peer, a lab tool): shown and recorded."""
+        self._event(event)
+
+    def active_recorder(self):
+        """The recorder of the trial being recorded, or None between trials."""
+        return self._recorder
+
+    def add_tap(self, tap) -> None:
+        """A live output beside the recorder: it gets the recorder's write_* calls (frames,
+        IMU samples, labels, events) whether or not a trial is recording. Each call must
+        return at once (queue, or a non-blocking send) and must not raise."""
+        self._taps = (*self._taps, tap)
+
+    def remove_tap(self, tap) -> None:
+        self._taps = tuple(t for t in self._taps if t is not tap)
 
     # ---- per frame --------------------------------------------------------------------
 
@@ -475,11 +505,11 @@ class Session:
         if self.auto_label and truth_mode and truth_mode != self._last_truth_mode:
             self.set_label(truth_mode, source="simulator", time_ns=t)
         self._last_truth_mode = truth_mode
-        rec = self._recorder
-        if rec is not None:
-            rec.write_frame(frame, t)
+        self.alarms.sample("camera", frame.host_time_ns)  # the recorder's log time
+        for out in self._outputs():
+            out.write_frame(frame, t)
             if frame.truth:
-                rec.write_truth(frame.index, t, frame.truth)
+                out.write_truth(frame.index, t, frame.truth)
 
     def classify_frame(self, frame: DepthFrame) -> FrameResult | None:
         """Preprocess, classify, fuse; the results recorded and published. A failure (a
@@ -493,21 +523,20 @@ class Session:
         except Exception as e:  # one bad frame (or a broken model) must not end the session
             log.debug("frame %d", frame.index, exc_info=True)
             self._report(self._failures.fail(t, f"frame {frame.index}: {e}"), say=True)
-            rec = self._recorder
-            if rec is not None and pre is not None:
+            if pre is not None:
                 q = (
                     quaternion
                     if quaternion is not None and np.all(np.isfinite(quaternion))
                     else None
                 )
-                rec.write_processed(
-                    frame.index, t, frame.host_time_ns, pre.cloud, pre.image, q, pre.flag
-                )
+                for out in self._outputs():
+                    out.write_processed(
+                        frame.index, t, frame.host_time_ns, pre.cloud, pre.image, q, pre.flag
+                    )
             return None
         self._report(self._failures.ok(t))
-        rec = self._recorder
-        if rec is not None:
-            rec.write_processed(
+        for out in self._outputs():
+            out.write_processed(
                 result.index,
                 result.time_ns,
                 result.host_time_ns,
@@ -516,7 +545,7 @@ class Session:
                 result.quaternion,
                 result.flag,
             )
-            record_decisions(rec, result)
+            record_decisions(out, result)
         truth_mode = frame.truth.get("mode") if frame.truth else None
         self._publish(result, truth_mode)
         return result
@@ -578,9 +607,8 @@ class Session:
         with self._lock:
             self._label_history.append(change)
             self._label = mode
-        rec = self._recorder
-        if rec is not None:
-            rec.write_label(change.time_ns, mode, source)
+        for out in self._outputs():
+            out.write_label(change.time_ns, mode, source)
         return change
 
     def undo_label(self) -> LabelChange | None:
@@ -592,9 +620,8 @@ class Session:
             previous = self._label_history[-1].mode if self._label_history else None
             self._label = previous
         change = LabelChange(now_ns(), previous or "", "undo")
-        rec = self._recorder
-        if rec is not None:
-            rec.write_label(change.time_ns, previous or "", f"undo:{undone.mode}")
+        for out in self._outputs():
+            out.write_label(change.time_ns, previous or "", f"undo:{undone.mode}")
         return change
 
     def add_marker(self, note: str = "", time_ns: int | None = None) -> None:
@@ -604,6 +631,21 @@ class Session:
                 now_ns() if time_ns is None else time_ns, "operator", "marker", note or "marker"
             )
         )
+
+    def recent_sync_ms(self, samples: int = 100) -> dict:
+        """The IMU-to-frame sync error of the last `samples` IMU samples (p50, p99 in ms):
+        what the clock fit achieves now, without its first seconds of settling."""
+        recent = list(self._sync_errors)[-samples:]
+        if not recent:
+            return {}
+        return {"p50_ms": float(np.median(recent)), "p99_ms": float(np.percentile(recent, 99))}
+
+    def inject(self, device: str, fault: str, **kw) -> None:
+        """A fault of a mock device, for drills and tests ("imu", "disconnect", seconds=2)."""
+        target = self._imu if device == "imu" else self._camera
+        if getattr(target, "backend", "") != "mock" or not hasattr(target, "inject"):
+            raise CaptureError(f"faults can be injected into mock devices only, not {device}")
+        target.inject(fault, **kw)
 
     @property
     def label(self) -> str | None:
@@ -631,6 +673,8 @@ class Session:
         path = folder / f"{info.subject}_{info.condition}_t{info.trial:02d}_{stamp}.mcap"
         recorder = Recorder(path, metadata=self._metadata(info), attachments=self._attachments())
         recorder.start()
+        self.alarms.recordings = folder
+        self.alarms.new_trial()
         self._recorder = recorder
         self._recording_started_ns = now_ns()
         if self._label is not None:  # the mode in force when the trial starts
@@ -642,6 +686,7 @@ class Session:
             self._report(streak.ok(now_ns(), final=True))
         rec, self._recorder = self._recorder, None
         self._recording_started_ns = None
+        self.alarms.end_trial()
         return rec.close() if rec is not None else None
 
     def _metadata(self, info: SubjectInfo) -> dict[str, dict[str, str]]:
@@ -713,4 +758,5 @@ class Session:
             snap.sync = {"p50_ms": float(np.median(sync)), "p99_ms": float(np.percentile(sync, 99))}
         rec = self._recorder
         snap.recording = rec.stats() if rec is not None else None
+        snap.alarms = self.alarms.state(snap.time_ns, snap.recording, snap.events)
         return snap

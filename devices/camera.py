@@ -12,7 +12,7 @@ and hands frames from its own thread (or the SDK's) to `_deliver`. The base clas
 rest: a bounded buffer that drops the oldest frame when the consumer is slow (and counts
 it), the measured rate, events, the life cycle and the context manager, and a watchdog:
 a silent camera is a "stall" (and "resumed", with the gap, when frames come again); silent
-for `lost_after_s` it is "lost" and reopened (`_reopen`) until frames come ("reconnected").
+for `lost_after_s` it is "lost" and reopened (`_restart`) until frames come ("reconnected").
 Backends are named in `BACKENDS` and imported only when chosen, so a missing vendor SDK
 costs nothing until someone asks for that camera (as python-can does).
 """
@@ -30,6 +30,7 @@ from devices.base import (
     STOPPED,
     BoundedBuffer,
     DeviceEvent,
+    DeviceState,
     DeviceStatus,
     RateMeter,
 )
@@ -86,7 +87,9 @@ class Camera:
     """Base of every depth camera backend. Thread-safe between one producer and consumers."""
 
     backend = "camera"
-    watchdog = True  # False where another process watches the frames (the mock rig's child)
+    # False where something else watches for silence (the mock rig's child process, a
+    # backend with its own watcher): stalls and resumed frames are still reported.
+    watchdog = True
 
     def __init__(self, config=None, *, geometry: CameraGeometry | None = None) -> None:
         if config is None:
@@ -141,7 +144,7 @@ class Camera:
     def _close(self) -> None:
         """Release the device."""
 
-    def _reopen(self) -> None:
+    def _restart(self) -> None:
         """Get a silent device streaming again (raise DeviceError if it cannot be yet)."""
         self._stop()
         self._close()
@@ -177,7 +180,7 @@ class Camera:
         self._watch_stop.clear()
         if self.watchdog:
             self._watchdog = threading.Thread(
-                target=self._watch, name="walkcap-camera-watchdog", daemon=True
+                target=self._watchdog_run, name="walkcap-camera-watchdog", daemon=True
             )
             self._watchdog.start()
 
@@ -269,7 +272,7 @@ class Camera:
     def _lost_after_s(self) -> float:
         return max(self._stall_after_s(), float(getattr(self.config, "lost_after_s", 5.0)))
 
-    def _watch(self) -> None:
+    def _watchdog_run(self) -> None:
         while not self._watch_stop.wait(0.1):
             try:
                 self._check(now_ns())
@@ -285,13 +288,20 @@ class Camera:
                 if silent_s > self._stall_after_s() and not self._stalled:
                     self._stalled = True
                     self._event("stall", f"no frame for {silent_s:.1f} s")
+                if not self.watchdog:
+                    return
                 if silent_s > self._lost_after_s():
                     self._fail(f"no frame for {silent_s:.1f} s")
                     self._next_reopen_ns = t
-            if self._state == LOST and self._running and t >= self._next_reopen_ns:
+            if (
+                self._state == LOST
+                and self._running
+                and self.watchdog
+                and t >= self._next_reopen_ns
+            ):
                 self._next_reopen_ns = t + int(self._lost_after_s() * 1e9)
                 try:
-                    self._reopen()
+                    self._restart()
                 except Exception as e:  # not back yet: again after lost_after_s
                     self._message = f"lost: {e}; retrying"
                     return
@@ -350,7 +360,7 @@ class Camera:
     def _event(self, kind: str, message: str, **details) -> None:
         self._events.put(DeviceEvent(now_ns(), "camera", kind, message, details))
 
-    def _set_state(self, state: str, message: str) -> None:
+    def _set_state(self, state: DeviceState, message: str) -> None:
         self._state, self._message = state, message
 
     def _count_error(self, n: int = 1) -> None:

@@ -1,14 +1,24 @@
+import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
 from tui import cli
 
+ROOT = Path(__file__).resolve().parents[1]
+
 
 def walkcap(*args: str) -> subprocess.CompletedProcess:
+    """The command from this tree (the tests run in a temporary folder)."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
     return subprocess.run(
-        [sys.executable, "-m", "tui.cli", *args], capture_output=True, text=True, timeout=120
+        [sys.executable, "-m", "tui.cli", *args],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=env,
     )
 
 

@@ -1,9 +1,8 @@
-"""`walkcap eval`: scores, recordings (through a stand-in reader), model registration."""
+"""`walkcap eval`: scores, recordings (through a stand-in reader), the model verb."""
 
 import json
 import subprocess
 import sys
-import types
 
 import numpy as np
 import pytest
@@ -12,6 +11,7 @@ from devices.frames import MODES
 from inference import evaluation as ev
 from inference.fusion import make_fusion
 from tui import cli
+from tui.commands import eval_model
 
 
 def write_scores(path, trial):
@@ -162,13 +162,6 @@ def test_missing_score_file(capsys):
     assert code == 1 and "nowhere.csv" in err
 
 
-def test_recordings_without_reader_say_when_they_arrive(capsys, monkeypatch):
-    monkeypatch.setitem(sys.modules, "capture.reader", None)
-    code, _, err = run(capsys, "eval", "recordings", "a.mcap")
-    assert code == 2
-    assert len(err.strip().splitlines()) == 1 and "[recording] issue" in err
-
-
 @pytest.fixture
 def fake_reader(monkeypatch):
     trials = {}
@@ -182,9 +175,9 @@ def fake_reader(monkeypatch):
             "truth": None,
             "metadata": {"subject": subject, "condition": condition},
         }
-    reader = types.ModuleType("capture.reader")
-    reader.read_trial = lambda path: trials[path]
-    monkeypatch.setitem(sys.modules, "capture.reader", reader)
+    from capture import reader
+
+    monkeypatch.setattr(reader, "read_trial", lambda path: trials[path])
     return list(trials)
 
 
@@ -216,23 +209,11 @@ def test_recordings_grouped_with_sweep_and_plots(capsys, fake_reader, tmp_path):
     assert code == 1 and "r0.mcap: no simulator truth" in err
 
 
-def test_model_not_available_is_one_line(capsys, monkeypatch):
-    monkeypatch.setitem(sys.modules, "tui.commands.eval_model", None)
-    code, _, err = run(capsys, "eval", "model", "sessions")
-    assert code == 2
-    assert err.strip().splitlines() == [
-        "walkcap eval: model: not available yet (it lands with the CNN evaluation issue)"
-    ]
-
-
-def test_model_module_is_registered_when_present(capsys, monkeypatch):
-    module = types.ModuleType("tui.commands.eval_model")
-    module.HELP = "the CNN on unseen synthetic sessions"
-    module.add_arguments = lambda p: p.add_argument("--sessions", type=int, default=1)
-    module.run = lambda args, config: print(f"model with {args.sessions} sessions") or 0
-    monkeypatch.setitem(sys.modules, "tui.commands.eval_model", module)
-    code, out, _ = run(capsys, "eval", "model", "--sessions", "3")
-    assert code == 0 and out.strip() == "model with 3 sessions"
+def test_eval_model_is_the_model_command(capsys, monkeypatch):
+    calls = []
+    monkeypatch.setattr(eval_model, "run", lambda args, config: calls.append(args) or 0)
+    code, _, _ = run(capsys, "eval", "model", "--sessions", "3", "--preset", "indoor")
+    assert code == 0 and (calls[0].sessions, calls[0].preset) == (3, "indoor")
 
 
 def test_real_recording_end_to_end(capsys, tmp_path):
@@ -272,9 +253,9 @@ def test_a_folder_stands_for_its_recordings(capsys, monkeypatch, tmp_path):
             "truth": None,
             "metadata": {"subject": "S1", "condition": "indoor"},
         }
-    reader = types.ModuleType("capture.reader")
-    reader.read_trial = lambda path: trials[str(path)]
-    monkeypatch.setitem(sys.modules, "capture.reader", reader)
+    from capture import reader
+
+    monkeypatch.setattr(reader, "read_trial", lambda path: trials[str(path)])
     code, out, err = run(capsys, "eval", "recordings", str(tmp_path), "--json")
     assert code == 0, err
     assert len(json.loads(out)["files"]) == 2

@@ -28,11 +28,9 @@ COMMANDS = (
     "calibrate",
     "bench",
     "imu",
+    "check",
+    "config",
 )
-
-
-class NotYetAvailable(Exception):
-    """A subcommand that is not available in this installation."""
 
 
 class _Parser(argparse.ArgumentParser):
@@ -47,7 +45,7 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     from devices.errors import DeviceError
     from inference.errors import InferenceError
 
-    return (CaptureError, DeviceError, InferenceError, OSError, NotYetAvailable)
+    return (CaptureError, DeviceError, InferenceError, OSError)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -57,19 +55,27 @@ def build_parser() -> argparse.ArgumentParser:
         "live terrain classification with HMM fusion, synchronized MCAP recordings.",
     )
     parser.add_argument("--version", action="version", version=f"walkcap {__version__}")
-    parser.add_argument(
-        "--config",
-        metavar="PATH",
-        help="configuration file (TOML); default: $WALKCAP_CONFIG or ./walkcap.toml when present",
-    )
-    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
+    _add_common(parser, argparse.SUPPRESS)
+    parser.set_defaults(config=None, verbose=0)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for name in COMMANDS:
         module = importlib.import_module(f"tui.commands.{name}")
         p = sub.add_parser(name, help=module.HELP, description=module.HELP)
+        # before or after the subcommand alike: `walkcap --config X tui` = `walkcap tui --config X`
+        _add_common(p, argparse.SUPPRESS)
         module.add_arguments(p)
         p.set_defaults(_module=module)
     return parser
+
+
+def _add_common(parser: argparse.ArgumentParser, default) -> None:
+    parser.add_argument(
+        "--config",
+        metavar="PATH",
+        default=default,
+        help="configuration file (TOML); default: $WALKCAP_CONFIG or ./walkcap.toml when present",
+    )
+    parser.add_argument("-v", "--verbose", action="count", default=default, help="more log output")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -91,9 +97,6 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     except Exception as e:
         if isinstance(e, _user_errors()):
-            if isinstance(e, NotYetAvailable):
-                print(f"walkcap {args.command}: {e}", file=sys.stderr)
-                return 2
             error_line(args.command, _describe(e))
             return 1
         if os.environ.get("WALKCAP_DEBUG"):
