@@ -205,18 +205,18 @@ def close_devices(*devices) -> None:
 
 
 class _FrameInbox:
-    """The camera thread's hand-over to the pipeline thread: one frame. In real time a new
-    frame replaces one not yet taken (which then goes unclassified: it is already
-    recorded); `blocking`, the camera thread waits for the pipeline instead."""
+    """The camera thread's hand-over to the pipeline thread: one (frame, recorder). In real
+    time a new frame replaces one not yet taken (which then goes unclassified: it is
+    already recorded); `blocking`, the camera thread waits for the pipeline instead."""
 
     def __init__(self) -> None:
-        self._frame: DepthFrame | None = None
+        self._frame: tuple | None = None
         self._closed = False
         self.blocking = False
         self._cond = threading.Condition()
 
-    def put(self, frame: DepthFrame) -> DepthFrame | None:
-        """Hand `frame` over; the frame it replaced, if any."""
+    def put(self, frame: tuple) -> tuple | None:
+        """Hand `frame` over; the one it replaced, if any."""
         with self._cond:
             while self.blocking and self._frame is not None and not self._closed:
                 self._cond.wait(0.1)
@@ -224,7 +224,7 @@ class _FrameInbox:
             self._cond.notify_all()
             return replaced
 
-    def take(self, timeout_s: float) -> DepthFrame | None:
+    def take(self, timeout_s: float) -> tuple | None:
         with self._cond:
             if self._frame is None:
                 self._cond.wait(timeout_s)
@@ -433,11 +433,11 @@ class Session:
                 if self._camera_finished():
                     self.finished.set()
                 continue
-            self.record_frame(frame)
-            skipped = self._inbox.put(frame)
+            recorder = self.record_frame(frame)
+            skipped = self._inbox.put((frame, recorder))
             t = frame.device_time_ns
             if skipped is not None:
-                self._report(self._behind.fail(t, f"frame {skipped.index}"), say=True)
+                self._report(self._behind.fail(t, f"frame {skipped[0].index}"), say=True)
             else:
                 self._report(self._behind.ok(t))
 
@@ -446,12 +446,12 @@ class Session:
         # that a trial's last recorded frame has its decision like the others.
         camera = next(t for t in self._threads if t.name == "walkcap-camera")
         while not (self._stop.is_set() and not camera.is_alive()):
-            frame = self._inbox.take(0.1)
-            if frame is not None:
-                self.classify_frame(frame)
-        frame = self._inbox.take(0.0)
-        if frame is not None:
-            self.classify_frame(frame)
+            item = self._inbox.take(0.1)
+            if item is not None:
+                self.classify_frame(*item)
+        item = self._inbox.take(0.0)
+        if item is not None:
+            self.classify_frame(*item)
 
     def _camera_finished(self) -> bool:
         status = self._camera.status()
@@ -495,26 +495,34 @@ class Session:
 
     def process_frame(self, frame: DepthFrame) -> FrameResult | None:
         """One frame, start to end: recorded, then classified (None when that fails)."""
-        self.record_frame(frame)
-        return self.classify_frame(frame)
+        return self.classify_frame(frame, self.record_frame(frame))
 
-    def record_frame(self, frame: DepthFrame) -> None:
-        """The raw frame, its truth and an automatic label: written before any processing."""
+    def record_frame(self, frame: DepthFrame):
+        """The raw frame, its truth and an automatic label: written before any processing.
+        Returns the recorder it went to (None between trials)."""
         t = frame.device_time_ns
         truth_mode = frame.truth.get("mode") if frame.truth else None
         if self.auto_label and truth_mode and truth_mode != self._last_truth_mode:
             self.set_label(truth_mode, source="simulator", time_ns=t)
         self._last_truth_mode = truth_mode
         self.alarms.sample("camera", frame.host_time_ns)  # the recorder's log time
+        rec = self._recorder
         for out in self._outputs():
             out.write_frame(frame, t)
             if frame.truth:
                 out.write_truth(frame.index, t, frame.truth)
+        return rec
 
-    def classify_frame(self, frame: DepthFrame) -> FrameResult | None:
-        """Preprocess, classify, fuse; the results recorded and published. A failure (a
-        classifier that raises or returns NaN) is one event for a run of failed frames."""
+    def classify_frame(self, frame: DepthFrame, recorder=None) -> FrameResult | None:
+        """Preprocess, classify, fuse; the results recorded (into `recorder`, the one the
+        raw frame went to, if it still records) and published. A failure (a classifier that
+        raises or returns NaN) is one event for a run of failed frames."""
         t = frame.device_time_ns
+        outputs = (
+            (recorder, *self._taps)
+            if recorder is not None and recorder is self._recorder
+            else self._taps
+        )
         quaternion, _ = self.track.at(t)  # interpolated, or carried on by the rate of turn
         pre = None
         try:
@@ -529,13 +537,13 @@ class Session:
                     if quaternion is not None and np.all(np.isfinite(quaternion))
                     else None
                 )
-                for out in self._outputs():
+                for out in outputs:
                     out.write_processed(
                         frame.index, t, frame.host_time_ns, pre.cloud, pre.image, q, pre.flag
                     )
             return None
         self._report(self._failures.ok(t))
-        for out in self._outputs():
+        for out in outputs:
             out.write_processed(
                 result.index,
                 result.time_ns,
