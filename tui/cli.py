@@ -21,6 +21,7 @@ COMMANDS = (
     "record",
     "replay",
     "info",
+    "export",
     "recover",
     "eval",
     "train",

@@ -125,6 +125,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="what is true: operator labels, simulator truth, or auto (labels "
         "when the recording has any)",
     )
+    p.add_argument(
+        "--replays",
+        action="store_true",
+        help="evaluate the newest replay of each trial instead of its recording "
+        "(another model's output on the same trial)",
+    )
     _common_arguments(p)
 
     module, reason = _model_module()
@@ -167,7 +173,9 @@ def run(args, config) -> int:
         trials = [ev.read_scores(path) for path in args.files]
     else:
         try:
-            trials = ev.load_trials_from_recordings(_recordings(args.files), args.reference)
+            trials = ev.load_trials_from_recordings(
+                _recordings(args.files, args.replays), args.reference
+            )
         except ev.RecordingsUnavailable as e:
             raise NotYetAvailable(f"recordings: {e}") from None
     per_trial = params
@@ -287,20 +295,17 @@ def _mean_sd(entry: dict, method: str) -> str:
     return _pct(mean) if sd is None else f"{_pct(mean)} ± {_pct(sd)}"
 
 
-def _recordings(paths: list[str]) -> list[str]:
-    """Files as given; a folder stands for the recordings in it (replays included)."""
-    from pathlib import Path
+def _recordings(paths: list[str], replays: bool = False) -> list[str]:
+    """One file per trial from the files and folders given (capture.corpus.select); the
+    files left out are listed on stderr, with why."""
+    import sys
 
-    from inference.errors import InferenceError
+    from capture.corpus import select
+    from capture.errors import CaptureError
 
-    out = []
-    for p in paths:
-        folder = Path(p)
-        if folder.is_dir():
-            found = sorted(str(f) for f in folder.glob("*.mcap"))
-            if not found:
-                raise InferenceError(f"{folder}: no .mcap recordings in this folder")
-            out += found
-        else:
-            out.append(p)
-    return out
+    corpus = select(paths, replays=replays)
+    for line in corpus.report_lines():
+        print(line, file=sys.stderr)
+    if not corpus.chosen:
+        raise CaptureError("no recordings to evaluate: every file was left out")
+    return [str(p) for p in corpus.files]

@@ -6,7 +6,7 @@ import signal
 import sys
 import time
 
-from tui.commands import finish_recording
+from tui.commands import count, finish_recording
 
 HELP = "record a session headless into an MCAP file"
 
@@ -40,7 +40,19 @@ def add_arguments(parser) -> None:
     g = parser.add_argument_group("session metadata")
     g.add_argument("--subject", default="S01", help="pseudonymous subject id")
     g.add_argument("--condition", help="e.g. indoor / outdoor (default: the course)")
-    g.add_argument("--trial", type=int, default=1)
+    g.add_argument(
+        "--trial",
+        type=count(1),
+        metavar="N",
+        help="trial number (default: the next free one for subject and condition in the "
+        "recordings folder); one that exists is an error unless --overwrite",
+    )
+    g.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="record an existing --trial again: the new file supersedes the earlier one, "
+        "which stays on disk and is left out of eval, train and export",
+    )
     g.add_argument("--height", type=float, metavar="M", dest="height_m")
     g.add_argument("--weight", type=float, metavar="KG", dest="weight_kg")
     g.add_argument("--age", type=int)
@@ -74,6 +86,7 @@ def apply_device_flags(args, config) -> None:
 
 
 def run(args, config) -> int:
+    from capture.corpus import trial_conflict
     from capture.session import Session, SubjectInfo
 
     apply_device_flags(args, config)
@@ -87,17 +100,22 @@ def run(args, config) -> int:
         side=args.side,
         residual_limb_cm=args.residual_limb_cm,
         condition=args.condition or _default_condition(config),
-        trial=args.trial,
+        trial=args.trial or 1,
         notes=args.notes,
     )
     info.validate()
+    existing = _on_existing(args)
+    # Checked before the devices open: a refused trial costs no set-up time.
+    trial_conflict(config.session.recordings, info.subject, info.condition, info.trial, existing)
     session = Session(config, auto_label=args.auto_label)
     # SIGTERM finalises the file like Ctrl-C does
     signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
     stats = None
     try:
         session.start()
-        path = session.start_recording(info)
+        path = session.start_recording(info, existing)
+        if session.trial_notice:
+            print(f"walkcap record: {session.trial_notice}", file=sys.stderr)
         print(f"recording {path}", file=sys.stderr)
         deadline = time.monotonic() + args.duration if args.duration else None
         while not session.finished.is_set():
@@ -128,3 +146,12 @@ def run(args, config) -> int:
 
 def _default_condition(config) -> str:
     return config.simulator.course if config.camera.backend == "mock" else "session"
+
+
+def _on_existing(args) -> str:
+    """What an existing trial means: the next free number unless --trial was given."""
+    from capture.corpus import NEXT_TRIAL, OVERWRITE, TRIAL_ERROR
+
+    if args.trial is None:
+        return NEXT_TRIAL
+    return OVERWRITE if args.overwrite else TRIAL_ERROR

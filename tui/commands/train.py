@@ -11,6 +11,8 @@ the confusion matrix on the held-out test sessions, indoor and outdoor.
 
 from __future__ import annotations
 
+import sys
+
 from tui.commands import count
 
 HELP = "train the terrain classifier"
@@ -120,7 +122,7 @@ def add_arguments(parser) -> None:
 
 
 def run(args, config) -> int:
-    from capture.dataset import find_session_files, read_sessions
+    from capture.dataset import read_sessions, select_session_files
     from inference.model import file_sha256
     from inference.preprocess import PreprocessParams
     from inference.training import (
@@ -151,7 +153,9 @@ def run(args, config) -> int:
         test_fraction=args.test_fraction,
     )
     keep_freed_memory()  # this process only trains
-    files = find_session_files(args.data)
+    files, left_out = select_session_files(args.data)
+    for line in left_out:
+        print(line, file=sys.stderr)
     sessions = read_sessions(files)
     frames = sum(len(s) for s in sessions)
     print(f"{len(sessions)} sessions, {frames} frames from {', '.join(args.data)}")
