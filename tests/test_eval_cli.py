@@ -192,8 +192,24 @@ def test_recordings_grouped_with_sweep_and_plots(capsys, fake_reader, tmp_path):
     )
     assert code == 0, err
     assert "condition" in out and "S1" in out and "A1" in out and "±" in out
-    assert "against delayed frames" in out and "wrote 8 figure(s)" in out
-    assert (tmp_path / "fig" / "accuracy_vs_delay.png").exists()
+    assert "against delayed frames" in out and "wrote 26 figure file(s)" in out
+    fig = tmp_path / "fig"
+    assert (fig / "accuracy_vs_delay.pdf").read_bytes().startswith(b"%PDF")
+    from PIL import Image
+
+    with Image.open(fig / "accuracy_vs_delay.png") as png:
+        assert round(png.info["dpi"][0]) == 300
+    # every trial's sequential figures, confusion matrices per condition
+    assert len(list(fig.glob("decisions_*.png"))) == 4
+    assert {p.name for p in fig.glob("confusion*.png")} == {
+        "confusion_indoor.png",
+        "confusion_outdoor.png",
+    }
+    code, out, _ = run(
+        capsys, "eval", "recordings", *fake_reader, "--plot", str(tmp_path / "f2"),
+        "--plot-trials", "A1_",
+    )  # fmt: skip
+    assert code == 0 and len(list((tmp_path / "f2").glob("decisions_*.png"))) == 2
     code, out, _ = run(capsys, "eval", "recordings", *fake_reader, "--json")
     data = json.loads(out)
     assert sorted(f["subject"] for f in data["files"]) == ["A1", "A1", "S1", "S1"]

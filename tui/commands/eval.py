@@ -14,6 +14,7 @@ import importlib
 import json
 import logging
 import math
+from pathlib import Path
 
 from tui.cli import NotYetAvailable
 from tui.commands import count
@@ -81,7 +82,21 @@ def _common_arguments(p: argparse.ArgumentParser) -> None:
         metavar="N",
         help=f"also accuracy against 0..N delayed frames (default N: {SWEEP_DEFAULT})",
     )
-    p.add_argument("--plot", metavar="DIR", help="write the paper's figures as PNG into DIR")
+    p.add_argument(
+        "--plot",
+        metavar="DIR",
+        help="write the paper's figures into DIR, each as vector PDF and 300-dpi PNG: "
+        "accuracy per subject, against delay (with --sweep-delay), sequential decisions "
+        "and probability traces of every trial, confusion matrices per condition",
+    )
+    p.add_argument(
+        "--plot-trials",
+        type=lambda text: [t.strip() for t in text.split(",") if t.strip()],
+        metavar="LIST",
+        help="with --plot: the decision and probability figures only for trials whose "
+        "file name or title (subject, condition, trial) contains one of these "
+        "comma-separated words (default: every trial)",
+    )
     p.add_argument("--json", action="store_true", help="print JSON instead of tables")
 
 
@@ -196,7 +211,10 @@ def run(args, config) -> int:
     data["parameters"]["transition"] = args.transition
     if args.plot:
         data["plots"] = [
-            str(p) for p in ev.write_plots(results, args.plot, args.methods, params, sweep)
+            str(p)
+            for p in ev.write_plots(
+                results, args.plot, args.methods, params, sweep, args.plot_trials
+            )
         ]
     if args.json:
         print(json.dumps(data, indent=2))
@@ -286,7 +304,11 @@ def format_report(data: dict, methods: list[str]) -> str:
         rows = [[_title(m), *(_pct(x) for x in sweep["mean"][m])] for m in methods]
         out += _table(["method", *map(str, sweep["delays"])], rows)
     if data.get("plots"):
-        out += ["", f"wrote {len(data['plots'])} figure(s): {', '.join(data['plots'])}"]
+        folders = sorted({str(Path(p).parent) for p in data["plots"]})
+        out += [
+            "",
+            f"wrote {len(data['plots'])} figure file(s) (PDF and PNG) to {', '.join(folders)}",
+        ]
     return "\n".join(out)
 
 
