@@ -123,7 +123,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         description="Evaluate per-frame scores: each CSV has the header "
         "LG,US,DS,UR,DR,label and one row per frame in capture order.",
     )
-    p.add_argument("files", nargs="+", metavar="FILE.csv")
+    p.add_argument("files", nargs="+", metavar="FILE.csv", help="score files, one per trial")
     _common_arguments(p)
 
     p = verbs.add_parser(

@@ -23,7 +23,9 @@ def add_arguments(parser) -> None:
     )
     parser.add_argument("--fps", type=float, help="camera frame rate")
     parser.add_argument("--imu-rate", type=int, metavar="HZ", help="IMU output rate")
-    parser.add_argument("--out", metavar="DIR", help="recordings folder")
+    parser.add_argument(
+        "-o", "--out", metavar="DIR", help="recordings folder (default: [session] recordings)"
+    )
     parser.add_argument("--course", choices=("indoor", "outdoor"), help="mock walk preset")
     parser.add_argument("--seed", type=int, help="mock walk seed")
     parser.add_argument(
@@ -53,14 +55,27 @@ def add_arguments(parser) -> None:
         help="record an existing --trial again: the new file supersedes the earlier one, "
         "which stays on disk and is left out of eval, train and export",
     )
-    g.add_argument("--height", type=float, metavar="M", dest="height_m")
-    g.add_argument("--weight", type=float, metavar="KG", dest="weight_kg")
-    g.add_argument("--age", type=int)
-    g.add_argument("--sex", default="", choices=("", "female", "male", "other"))
-    g.add_argument("--amputee", action="store_true")
-    g.add_argument("--side", default="", choices=("", "left", "right"))
-    g.add_argument("--residual-limb", type=float, metavar="CM", dest="residual_limb_cm")
-    g.add_argument("--notes", default="")
+    g.add_argument("--height", type=float, metavar="M", dest="height_m", help="height in metres")
+    g.add_argument("--weight", type=float, metavar="KG", dest="weight_kg", help="weight in kg")
+    g.add_argument("--age", type=int, help="age in years")
+    g.add_argument(
+        "--sex", default="", choices=("female", "male", "other"), help="(default: not given)"
+    )
+    g.add_argument("--amputee", action="store_true", help="the subject is an amputee")
+    g.add_argument(
+        "--side",
+        default="",
+        choices=("left", "right"),
+        help="amputated side (required with --amputee)",
+    )
+    g.add_argument(
+        "--residual-limb",
+        type=float,
+        metavar="CM",
+        dest="residual_limb_cm",
+        help="residual limb length in cm",
+    )
+    g.add_argument("--notes", default="", help="free text kept with the recording")
 
 
 def apply_device_flags(args, config) -> None:

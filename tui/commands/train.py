@@ -31,6 +31,7 @@ def add_arguments(parser) -> None:
         "recordings (labelled by the operator)",
     )
     parser.add_argument(
+        "-o",
         "--out",
         default="runs/terrain_cnn.pt",
         metavar="PATH",
@@ -44,7 +45,13 @@ def add_arguments(parser) -> None:
         metavar="N",
         help=f"at most N epochs (default {d.epochs})",
     )
-    parser.add_argument("--batch-size", type=count(1), default=d.batch_size, metavar="N")
+    parser.add_argument(
+        "--batch-size",
+        type=count(1),
+        default=d.batch_size,
+        metavar="N",
+        help=f"images per training step (default {d.batch_size})",
+    )
     parser.add_argument("--lr", type=float, default=d.lr, help=f"learning rate (default {d.lr})")
     parser.add_argument(
         "--patience",
@@ -101,8 +108,22 @@ def add_arguments(parser) -> None:
         metavar="N",
         help="CPU threads for torch (default: torch's choice)",
     )
-    parser.add_argument("--val-fraction", type=float, default=d.val_fraction, metavar="F")
-    parser.add_argument("--test-fraction", type=float, default=d.test_fraction, metavar="F")
+    parser.add_argument(
+        "--val-fraction",
+        type=float,
+        default=d.val_fraction,
+        metavar="F",
+        help="share of the sessions held out for early stopping, whole sessions "
+        f"(default {d.val_fraction})",
+    )
+    parser.add_argument(
+        "--test-fraction",
+        type=float,
+        default=d.test_fraction,
+        metavar="F",
+        help="share of the sessions held out for the final test, unseen in training "
+        f"(default {d.test_fraction})",
+    )
     parser.add_argument("--no-augment", action="store_true", help="no augmentation")
     parser.add_argument("--no-balance", action="store_true", help="no class balancing")
     parser.add_argument(
