@@ -281,7 +281,7 @@ def _pick(
     for m in replay_list:
         why[id(m)] = (
             f"replay of {m.source_name or name} ({m.how or 'another model'}): another model's "
-            "output on the same trial (ask for replays to evaluate them instead)"
+            "output on the same trial (--replays takes replays instead)"
         )
     corrected = by_kind.get(CORRECTED, [])
     recovered = by_kind.get(RECOVERED, [])

@@ -316,9 +316,20 @@ def test_info_json_has_the_table_typed(tmp_path, capsys):
     assert [x["in_reference"] for x in data["labels"]] == [True, False, False]
     assert cli.main(["info", str(path)]) == 0
     text = capsys.readouterr().out
-    assert "session clock" in text and "S01 indoor trial 1" in text
+    assert "session clock" in text and "S01 indoor trial 1" in text and "1 undo(s)" in text
 
 
 def test_write_rejects_an_unknown_format(tmp_path):
     with pytest.raises(CaptureError, match="one of parquet, csv, mat"):
         write({}, tmp_path, "xlsx")
+
+
+def test_the_replay_screen_shows_the_reference_with_the_undo_applied(tmp_path):
+    from tui.replay import ReplaySource
+
+    path = tmp_path / "S01_indoor_t01.mcap"
+    write_trial(path, mistake_and_undo())
+    source = ReplaySource(path, play=False)
+    source.start()
+    labels = source._labels_at(source.frames.time_ns)
+    assert (labels == 0).all()  # LG throughout: the DS keyed by mistake never shows

@@ -63,7 +63,7 @@ def describe(rec) -> list[str]:
     """The recording in a few readable lines."""
     from capture import corpus
     from capture import topics as T
-    from capture.reader import find_gaps
+    from capture.reader import find_gaps, is_undo
 
     lines = [str(rec.path)]
     if rec.complete:
@@ -115,15 +115,18 @@ def describe(rec) -> list[str]:
     if gaps:
         lines.append("  gaps        " + "; ".join(gaps))
     small = [t for t in (T.LABELS, T.EVENTS) if t in rec.topics]
-    labels, kinds = [], {}
+    labels, kinds, undo_sources = [], {}, []
     for m in rec.messages(small):
         if m.topic == T.LABELS:
             labels.append((m.data["time_ns"], m.data["mode"] or "-"))
+            undo_sources.append(m.data.get("source", ""))
         else:
             kinds[m.data["kind"]] = kinds.get(m.data["kind"], 0) + 1
     if labels:
         sequence = " ".join(mode for _, mode in sorted(labels))
-        lines.append(f"  labels      {len(labels)} changes: {_clip(sequence)}")
+        undos = sum(1 for source in undo_sources if is_undo(source))
+        undone = f" ({undos} undo(s), applied to the reference)" if undos else ""
+        lines.append(f"  labels      {len(labels)} changes{undone}: {_clip(sequence)}")
     if kinds:
         lines.append("  events      " + ", ".join(f"{k} {v}" for k, v in sorted(kinds.items())))
     lines.append("  metadata")
