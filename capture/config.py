@@ -51,6 +51,27 @@ class KeysConfig:
 
 
 @dataclass
+class LslConfig:
+    """Lab Streaming Layer: walkcap's streams out, other devices' streams into the recording."""
+
+    enabled: bool = False  # outlets: IMU, classifier and decisions, labels and markers
+    record: list[str] = field(default_factory=list)  # LSL stream names to record, e.g. ["EMG"]
+    # LabRecorder-compatible remote control (start, stop, filename) on localhost
+    remote_control: bool = False
+    remote_port: int = 22345  # LabRecorder's default
+
+
+@dataclass
+class FoxgloveConfig:
+    """A live Foxglove WebSocket server with the recording's topics and schemas."""
+
+    enabled: bool = False
+    host: str = "127.0.0.1"  # localhost only unless asked otherwise
+    port: int = 8765  # Foxglove's default
+    image_hz: float = 15.0  # depth, images and clouds at most this often (live view only)
+
+
+@dataclass
 class Config:
     session: SessionConfig = field(default_factory=SessionConfig)
     camera: CameraConfig = field(default_factory=CameraConfig)
@@ -61,6 +82,8 @@ class Config:
     model: ModelConfig = field(default_factory=ModelConfig)
     fusion: FusionConfig = field(default_factory=FusionConfig)
     keys: KeysConfig = field(default_factory=KeysConfig)
+    lsl: LslConfig = field(default_factory=LslConfig)
+    foxglove: FoxgloveConfig = field(default_factory=FoxgloveConfig)
     source: str = ""  # the file it was read from, empty for defaults
 
 

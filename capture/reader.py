@@ -625,6 +625,17 @@ def read_trial(path: str | os.PathLike) -> dict:
     }
 
 
+def read_trials(paths, reference: str = "auto") -> list:
+    """Evaluation trials (inference.evaluation.Trial) from recordings, one a file.
+
+    reference: "labels" (the operator's), "truth" (the simulator's) or "auto" (labels
+    where there are any).
+    """
+    from inference.evaluation import trial_from_recording
+
+    return [trial_from_recording(str(p), read_trial(p), reference) for p in paths]
+
+
 def labeled_session(path: str | os.PathLike, reference: str = "labels"):
     """The recording as a training session (inference.dataset.LabeledSession): every
     classifier input image, labelled with the operator's mode at its time (`reference`

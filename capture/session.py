@@ -35,7 +35,7 @@ from capture.pipeline import (
     model_hash,
     record_result,
 )
-from devices.base import DeviceEvent, DeviceStatus
+from devices.base import DeviceEvent, DeviceState, DeviceStatus
 from devices.clock import now_ns
 from devices.frames import MODES, DepthFrame
 from devices.scheduling import NORMAL_PRIORITY, realtime_priority
@@ -228,6 +228,7 @@ class Session:
         self._events: collections.deque[DeviceEvent] = collections.deque(maxlen=200)
         self._latencies: collections.deque[float] = collections.deque(maxlen=2000)
         self._latency_sinks: list[Callable[[float], None]] = []
+        self._taps: tuple = ()  # live outputs beside the recorder (LSL, Foxglove)
         self._sync_errors: collections.deque[float] = collections.deque(maxlen=5000)
         self._frames = 0
         self._last_truth_mode: str | None = None
@@ -331,9 +332,8 @@ class Session:
             truth = getattr(self._imu, "true_time_ns", None)
             if truth is not None and sample.sample_time_fine is not None:
                 self._sync_errors.append(abs(t - truth(sample.sample_time_fine)) * 1e-6)
-            rec = self._recorder
-            if rec is not None:
-                rec.write_imu(sample)
+            for out in self._outputs():
+                out.write_imu(sample)
 
     def _frame_loop(self) -> None:
         while not self._stop.is_set():
@@ -350,7 +350,7 @@ class Session:
 
     def _camera_finished(self) -> bool:
         status = self._camera.status()
-        return status.state == "stopped" and not self._stop.is_set()
+        return status.state == DeviceState.STOPPED and not self._stop.is_set()
 
     def _monitor_loop(self) -> None:
         while not self._stop.wait(0.2):
@@ -361,9 +361,30 @@ class Session:
     def _event(self, event: DeviceEvent) -> None:
         with self._lock:
             self._events.append(event)
+        for out in self._outputs():
+            out.write_event(event)
+
+    def _outputs(self) -> tuple:
+        """Where the session's data goes: the recorder (while recording), then the taps."""
         rec = self._recorder
-        if rec is not None:
-            rec.write_event(event)
+        return self._taps if rec is None else (rec, *self._taps)
+
+    def add_event(self, event: DeviceEvent) -> None:
+        """An event from beside the devices (an LSL peer, a lab tool): shown and recorded."""
+        self._event(event)
+
+    def active_recorder(self):
+        """The recorder of the trial being recorded, or None between trials."""
+        return self._recorder
+
+    def add_tap(self, tap) -> None:
+        """A live output beside the recorder: it gets the recorder's write_* calls (frames,
+        IMU samples, labels, events) whether or not a trial is recording. Each call must
+        return at once (queue, or a non-blocking send) and must not raise."""
+        self._taps = (*self._taps, tap)
+
+    def remove_tap(self, tap) -> None:
+        self._taps = tuple(t for t in self._taps if t is not tap)
 
     # ---- per frame --------------------------------------------------------------------
 
@@ -375,9 +396,8 @@ class Session:
         if self.auto_label and truth_mode and truth_mode != self._last_truth_mode:
             self.set_label(truth_mode, source="simulator", time_ns=t)
         self._last_truth_mode = truth_mode
-        rec = self._recorder
-        if rec is not None:
-            record_result(rec, frame, result)
+        for out in self._outputs():
+            record_result(out, frame, result)
         self._publish(result, truth_mode)
         return result
 
@@ -432,9 +452,8 @@ class Session:
         with self._lock:
             self._label_history.append(change)
             self._label = mode
-        rec = self._recorder
-        if rec is not None:
-            rec.write_label(change.time_ns, mode, source)
+        for out in self._outputs():
+            out.write_label(change.time_ns, mode, source)
         return change
 
     def undo_label(self) -> LabelChange | None:
@@ -446,9 +465,8 @@ class Session:
             previous = self._label_history[-1].mode if self._label_history else None
             self._label = previous
         change = LabelChange(now_ns(), previous or "", "undo")
-        rec = self._recorder
-        if rec is not None:
-            rec.write_label(change.time_ns, previous or "", f"undo:{undone.mode}")
+        for out in self._outputs():
+            out.write_label(change.time_ns, previous or "", f"undo:{undone.mode}")
         return change
 
     def add_marker(self, note: str = "", time_ns: int | None = None) -> None:

@@ -238,11 +238,15 @@ def topic_spec(topic: str) -> TopicSpec:
             "protobuf",
             build_file_descriptor_set(cls).SerializeToString(),
         )
-    schema = JSON_SCHEMAS[topic]
+    return json_topic_spec(topic, JSON_SCHEMAS[topic])
+
+
+def json_topic_spec(topic: str, schema: dict) -> TopicSpec:
+    """A JSON topic's spec from its JSON Schema (its title names the schema)."""
     return TopicSpec(
         topic,
         "json",
-        schema["title"],
+        schema.get("title", topic),
         "jsonschema",
         json.dumps(schema, separators=(",", ":")).encode(),
     )

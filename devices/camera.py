@@ -28,6 +28,7 @@ from devices.base import (
     STOPPED,
     BoundedBuffer,
     DeviceEvent,
+    DeviceState,
     DeviceStatus,
     RateMeter,
 )
@@ -259,7 +260,7 @@ class Camera:
     def _event(self, kind: str, message: str, **details) -> None:
         self._events.put(DeviceEvent(now_ns(), "camera", kind, message, details))
 
-    def _set_state(self, state: str, message: str) -> None:
+    def _set_state(self, state: DeviceState, message: str) -> None:
         self._state, self._message = state, message
 
     def _count_error(self, n: int = 1) -> None:

@@ -7,14 +7,13 @@ Accuracy is the fraction of frames whose final decision equals the reference, ov
 frames that have a reference (-1 = none); the mean over trials is the mean of the trials'
 accuracies, as in the paper (not pooled over frames); SD uses n-1.
 
-Inputs: score files (CSV, `read_scores`) or recordings (`load_trials_from_recordings`,
-through capture's recording reader), both as `Trial`s.
+Inputs: score files (CSV, `read_scores`) or recordings (capture.reader.read_trials turns
+each into a Trial with `trial_from_recording`), both as `Trial`s.
 """
 
 from __future__ import annotations
 
 import csv
-import importlib
 import logging
 import math
 import re
@@ -56,10 +55,6 @@ SUM_TOLERANCE = 0.01  # score rows must sum to 1 within this (they are often rou
 
 class ScoreFileError(InferenceError):
     """A score CSV is malformed; the message names the file and line."""
-
-
-class RecordingsUnavailable(InferenceError):
-    """capture's recording reader cannot be imported."""
 
 
 @dataclass(frozen=True)
@@ -572,20 +567,6 @@ def trial_from_recording(path: str, data: Any, reference: str = "auto") -> Trial
         probabilities, chosen = probabilities[finite], chosen[finite]
         times_s = times_s[finite] if times_s is not None else None
     return Trial(str(path), probabilities, chosen, metadata, times_s)
-
-
-def load_trials_from_recordings(paths: Sequence[str], reference: str = "auto") -> list[Trial]:
-    """Trials from MCAP recordings through `capture.reader.read_trial(path)`."""
-    try:
-        reader = importlib.import_module("capture.reader")
-    except ModuleNotFoundError as e:
-        if e.name not in ("capture.reader", "capture"):
-            raise
-        raise RecordingsUnavailable(
-            "reading recordings arrives with the [recording] issue; meanwhile evaluate "
-            "score files with 'walkcap eval scores'"
-        ) from None
-    return [trial_from_recording(p, reader.read_trial(p), reference) for p in paths]
 
 
 def synthetic_trial(

@@ -1,9 +1,8 @@
-"""`walkcap eval`: scores, recordings (through a stand-in reader), model registration."""
+"""`walkcap eval`: scores, recordings (through a stand-in reader), the model verb."""
 
 import json
 import subprocess
 import sys
-import types
 
 import numpy as np
 import pytest
@@ -12,6 +11,7 @@ from devices.frames import MODES
 from inference import evaluation as ev
 from inference.fusion import make_fusion
 from tui import cli
+from tui.commands import eval_model
 
 
 def write_scores(path, trial):
@@ -223,23 +223,11 @@ def test_recordings_grouped_with_sweep_and_plots(capsys, fake_reader, tmp_path):
     assert code == 1 and "A1_indoor_t03.mcap: no simulator truth" in err
 
 
-def test_model_not_available_is_one_line(capsys, monkeypatch):
-    monkeypatch.setitem(sys.modules, "tui.commands.eval_model", None)
-    code, _, err = run(capsys, "eval", "model", "sessions")
-    assert code == 2
-    assert err.strip().splitlines() == [
-        "walkcap eval: model: not available yet (it lands with the CNN evaluation issue)"
-    ]
-
-
-def test_model_module_is_registered_when_present(capsys, monkeypatch):
-    module = types.ModuleType("tui.commands.eval_model")
-    module.HELP = "the CNN on unseen synthetic sessions"
-    module.add_arguments = lambda p: p.add_argument("--sessions", type=int, default=1)
-    module.run = lambda args, config: print(f"model with {args.sessions} sessions") or 0
-    monkeypatch.setitem(sys.modules, "tui.commands.eval_model", module)
-    code, out, _ = run(capsys, "eval", "model", "--sessions", "3")
-    assert code == 0 and out.strip() == "model with 3 sessions"
+def test_eval_model_is_the_model_command(capsys, monkeypatch):
+    calls = []
+    monkeypatch.setattr(eval_model, "run", lambda args, config: calls.append(args) or 0)
+    code, _, _ = run(capsys, "eval", "model", "--sessions", "3", "--preset", "indoor")
+    assert code == 0 and (calls[0].sessions, calls[0].preset) == (3, "indoor")
 
 
 def test_real_recording_end_to_end(capsys, tmp_path):

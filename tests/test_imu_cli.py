@@ -88,6 +88,27 @@ def test_info_against_the_emulator(capsys):
     out = capsys.readouterr().out
     assert "03881234" in out and "MTi-3-8A7G6" in out and "1.8.2" in out
     assert "quaternion" in out and "every packet" in out
+    assert "MTi-1 series, AHRS" in out
+    assert "link budget   100 messages/s x 73 bytes = 73.0 kbit/s of 115.2 kbit/s" in out
+
+
+def test_info_of_an_imu_only_model_says_leveling_needs_orientation(capsys):
+    with ImuEmulator(model="MTi-1") as emulator:
+        assert cli.main(["imu", "info", emulator.port]) == 0
+    out = capsys.readouterr().out
+    assert "MTi-1 series, IMU" in out and "quaternion" not in out
+    assert "leveling needs a VRU or AHRS" in out
+
+
+def test_set_baud_then_the_device_answers_at_the_new_rate(capsys):
+    with ImuEmulator(model="MTi-630") as emulator:
+        assert cli.main(["imu", "set-baud", emulator.port, "460800"]) == 0
+        assert emulator.baudrate == 460800
+        assert "115200 -> 460800 baud" in capsys.readouterr().out
+        assert cli.main(["imu", "info", emulator.port, "--baudrate", "460800"]) == 0
+        assert "at 460800 baud" in capsys.readouterr().out
+        assert cli.main(["imu", "set-baud", emulator.port, "1234"]) == 1
+        assert "not a baud rate an MTi has" in capsys.readouterr().err
 
 
 def test_info_on_a_missing_port_is_one_line(capsys, tmp_path):

@@ -178,7 +178,7 @@ def test_last_session_is_remembered_under_home(tmp_path):
 
 
 def test_write_rate_and_recording_rows():
-    from capture.recorder import RecorderStats
+    from capture.recorder import RecorderState, RecorderStats
     from tui.widgets.recording_panel import ByteRate, recording_rows
 
     rate = ByteRate(window_s=2.0)
@@ -190,7 +190,7 @@ def test_write_rate_and_recording_rows():
     assert rate.add(5_000_000_000, 100) is None  # a new file starts over
     stats = RecorderStats(
         path="/r/S01_indoor_t01.mcap",
-        state="failed",
+        state=RecorderState.FAILED,
         message="disk full",
         bytes_written=2_000_000,
         queue_depth=1500,
@@ -207,12 +207,12 @@ def test_write_rate_and_recording_rows():
 
 
 def test_device_rows_show_state_rates_errors_clock():
-    from devices.base import DeviceStatus
+    from devices.base import DeviceState, DeviceStatus
     from tui.widgets.device_panel import device_rows
 
     imu = DeviceStatus(
         "serial",
-        "degraded",
+        DeviceState.DEGRADED,
         "3 packets missing",
         100.0,
         80.0,

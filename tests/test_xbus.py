@@ -298,3 +298,37 @@ def test_bench_parse_rate_measures_something():
     from capture.bench.components import bench_parse_rate
 
     assert bench_parse_rate(0.05) > 1000
+
+
+def test_every_device_error_code_is_named():
+    for code in (0x03, 0x04, 0x1E, 0x20, 0x21, 0x28, 0x29, 0x2A, 0x2B, 0x30, 0x33, 0x35):
+        assert "does not know" not in xbus.error_text(code)
+    assert "data overflow" in xbus.error_text(0x29)
+    assert "buffer overflow" in xbus.error_text(0x2A)
+    assert "output configuration" in xbus.error_text(0x35)
+    # 0x28 carries the kind of device error in four more bytes
+    assert "DSP crashed" in xbus.error_text(0x28, bytes([0x28, 0, 0, 0, 6]))
+    assert "does not know" in xbus.error_text(0x99)
+
+
+def test_baud_codes_include_3_5_mbaud_and_send_0x0a_for_921600():
+    assert xbus.BAUD_CODES[0x0E] == 3_500_000
+    assert xbus.BAUD_CODE[921600] == 0x0A and xbus.BAUD_CODE[115200] == 0x02
+
+
+def test_only_the_timestamp_group_is_asked_for_in_every_packet():
+    settings = xbus.output_settings(xbus.DEFAULT_OUTPUTS, 100)
+    at_ffff = {s.name for s in settings if s.rate_hz == xbus.EVERY_PACKET}
+    assert at_ffff == {"packet_counter", "sample_time_fine"}
+    assert {s.name: s.rate_hz for s in settings}["status_word"] == 100
+
+
+def test_the_link_budget_of_the_default_outputs():
+    """73 bytes a message (68 of data, 5 of frame); 10 bits a byte on the line."""
+    settings = xbus.output_settings(xbus.DEFAULT_OUTPUTS, 100)
+    budget = xbus.link_budget(settings, 115200)
+    assert budget.bytes_per_message == 73 and budget.bits_per_s == 73_000
+    assert budget.fits
+    assert not xbus.link_budget(xbus.output_settings(xbus.DEFAULT_OUTPUTS, 200), 115200).fits
+    assert xbus.baud_that_fits(xbus.output_settings(xbus.DEFAULT_OUTPUTS, 400)) == 460800
+    assert xbus.baud_that_fits(xbus.output_settings(xbus.DEFAULT_OUTPUTS, 2000)) == 2_000_000

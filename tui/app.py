@@ -18,6 +18,7 @@ from textual.app import App
 from textual.reactive import reactive
 
 from capture.config import Config
+from capture.recorder import RecorderState
 from capture.session import SubjectInfo
 from tui import messages
 from tui.live_screen import LiveScreen
@@ -89,6 +90,7 @@ class WalkcapApp(App):
         self._start_failed = False
         self.start_error: str | None = None  # why the devices did not start, for the CLI
         self._subject_confirmed = not ask_subject
+        self.lab = None  # LSL, remote control, Foxglove: capture.labtools.LabTools
 
     @property
     def source(self):
@@ -119,7 +121,48 @@ class WalkcapApp(App):
             log.exception("starting the session")
             self.post_message(messages.SessionFailed(describe_error(e)))
             return
+        self._start_lab_tools()
         self.post_message(messages.SessionStarted())
+
+    def _start_lab_tools(self) -> None:
+        """What [lsl] and [foxglove] ask for; one that cannot start is a notice, no more."""
+        lsl, fox = self.config.lsl, self.config.foxglove
+        if not (lsl.enabled or lsl.record or lsl.remote_control or fox.enabled):
+            return
+        from capture.labtools import LabTools
+
+        self.lab = LabTools(self.session, self.config, _RemoteForApp(self)).start()
+        for line in self.lab.describe():
+            log.info("%s", line)
+            self.call_from_thread(self.notify, line, timeout=6)
+        for problem in self.lab.problems:
+            self.call_from_thread(self.notify, problem, severity="warning", timeout=10)
+
+    def remote_start(self, request) -> None:
+        """The remote control's start: the trial it named, as if the operator pressed r."""
+        from capture.errors import CaptureError
+        from capture.labtools import trial_info
+
+        source = self.source
+        if source is None or source.recording or self._busy_recording:
+            return
+        try:
+            self.subject = trial_info(self.subject, request)
+        except CaptureError as e:
+            self.notify(f"remote start refused: {e}", severity="error", timeout=10)
+            return
+        if request.root:
+            self.config.session.recordings = request.root
+        self._subject_confirmed = True
+        self._busy_recording = True
+        self._start_recording(dataclasses.replace(self.subject))
+
+    def remote_stop(self) -> None:
+        source = self.source
+        if source is not None and source.recording and not self._busy_recording:
+            self._busy_recording = True
+            self._set_status("finalising the recording…")
+            self._stop_recording()
 
     def on_session_started(self, _: messages.SessionStarted) -> None:
         self.ready = True
@@ -172,6 +215,9 @@ class WalkcapApp(App):
 
     @work(thread=True, exclusive=True, group="session")
     def _stop_worker(self) -> None:
+        if self.lab is not None:
+            self.lab.stop()
+            self.lab = None
         try:
             stats = self.session.stop()
         except Exception as e:
@@ -269,7 +315,7 @@ class WalkcapApp(App):
         save_last_session(self.subject)
         stats = message.stats
         name = Path(getattr(stats, "path", "") or message.path or "recording").name
-        if getattr(stats, "state", "") == "failed":
+        if getattr(stats, "state", "") == RecorderState.FAILED:
             self.notify(
                 f"{name}: {stats.message} (what reached the disk is readable)",
                 title="recording failed",
@@ -322,3 +368,18 @@ class WalkcapApp(App):
         for screen in self.screen_stack:
             if isinstance(screen, LiveScreen) and not screen.frozen:
                 screen.refresh_view()
+
+
+class _RemoteForApp:
+    """Remote control in the UI: commands go to the app's thread, which shows them."""
+
+    def __init__(self, app: WalkcapApp) -> None:
+        self.app = app
+
+    def remote_start(self, request) -> str:
+        self.app.call_from_thread(self.app.remote_start, request)
+        return "start passed to the UI"
+
+    def remote_stop(self) -> str:
+        self.app.call_from_thread(self.app.remote_stop)
+        return "stop passed to the UI"

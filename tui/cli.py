@@ -32,10 +32,6 @@ COMMANDS = (
 )
 
 
-class NotYetAvailable(Exception):
-    """A subcommand that is not available in this installation."""
-
-
 class _Parser(argparse.ArgumentParser):
     """argparse, but a usage error is one line naming the command and the fix."""
 
@@ -48,7 +44,7 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     from devices.errors import DeviceError
     from inference.errors import InferenceError
 
-    return (CaptureError, DeviceError, InferenceError, OSError, NotYetAvailable)
+    return (CaptureError, DeviceError, InferenceError, OSError)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -110,9 +106,6 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     except Exception as e:
         if isinstance(e, _user_errors()):
-            if isinstance(e, NotYetAvailable):
-                print(f"walkcap {args.command}: {e}", file=sys.stderr)
-                return 2
             print(f"walkcap {args.command}: error: {_describe(e)}", file=sys.stderr)
             return 1
         if os.environ.get("WALKCAP_DEBUG"):

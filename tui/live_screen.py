@@ -17,6 +17,7 @@ from textual.containers import Horizontal, Vertical
 from textual.screen import Screen
 from textual.widgets import Footer
 
+from capture.recorder import RecorderState
 from capture.session import Snapshot
 from devices.clock import now_ns
 from devices.frames import MODE_NAMES, MODES
@@ -214,7 +215,7 @@ class LiveScreen(Screen):
         self._w[RecordingPanel].present(
             snap.recording, elapsed, app.recording_path, idle, snap.time_ns
         )
-        failed = getattr(snap.recording, "state", "") == "failed"
+        failed = getattr(snap.recording, "state", "") == RecorderState.FAILED
         if failed and not self._failure_shown:
             self.notify(
                 f"{getattr(snap.recording, 'message', '')} — press {key} to close the file",

@@ -29,7 +29,7 @@ from capture.corpus import derivation
 from capture.errors import CaptureError
 from capture.pipeline import FrameResult
 from capture.session import LabelChange, Snapshot, SubjectInfo, TimelineEntry
-from devices.base import DeviceEvent, DeviceStatus
+from devices.base import DeviceEvent, DeviceState, DeviceStatus
 from devices.clock import now_ns
 from devices.frames import MODES
 
@@ -197,7 +197,7 @@ class ReplaySource:
         name = self.path.name
         camera = DeviceStatus(
             backend=f"replay of {devices.get('camera_backend', '?')}",
-            state="ok",
+            state=DeviceState.OK,
             message=name,
             configured_rate_hz=float(devices.get("camera_fps") or 0),
             measured_rate_hz=frames / seconds,
@@ -205,7 +205,7 @@ class ReplaySource:
         )
         imu = DeviceStatus(
             backend=f"replay of {devices.get('imu_backend', '?')}",
-            state="ok",
+            state=DeviceState.OK,
             configured_rate_hz=float(devices.get("imu_rate_hz") or 0),
             measured_rate_hz=imu_count / seconds,
             delivered=imu_count,

@@ -33,7 +33,7 @@ from devices.child import Child
 from devices.clock import now_ns
 from devices.errors import DeviceInitError
 from devices.frames import DepthFrame
-from devices.imu import XbusImu, mock_baudrate
+from devices.imu import XbusImu
 from devices.scheduling import realtime_priority
 
 log = logging.getLogger(__name__)
@@ -100,7 +100,7 @@ class MockRig:
     def imu(self) -> RigImu:
         self._users += 1
         cfg = self.imu_config
-        return RigImu(self, self.port, mock_baudrate(cfg), cfg.rate_hz)
+        return RigImu(self, self.port, cfg.baudrate, cfg.rate_hz)
 
     def release(self) -> None:
         """One device closed; the last one ends the child."""
@@ -335,7 +335,8 @@ def _serve(conn, camera_config, simulator_config, imu_config) -> None:
             jitter_ms=imu_config.jitter_ms,
             seed=getattr(imu_config, "seed", 0),
             orientation_at=thigh,
-            baudrate=mock_baudrate(imu_config),
+            baudrate=imu_config.baudrate,
+            model=getattr(imu_config, "emulate", "MTi-3"),
         )
         port = emulator.start()
     except Exception as e:

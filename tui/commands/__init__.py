@@ -22,7 +22,9 @@ def finish_recording(command: str, stats, path) -> int:
     """Print the file path last (scripts take it); a failed recording is one error line."""
     import sys
 
-    if stats.state == "failed":
+    from capture.recorder import RecorderState
+
+    if stats.state == RecorderState.FAILED:
         print(f"walkcap {command}: error: {stats.message}", file=sys.stderr)
         print(path)
         return 1

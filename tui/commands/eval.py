@@ -10,18 +10,13 @@ Accuracies are per trial (file), then mean +- SD across trials, as in the paper.
 from __future__ import annotations
 
 import argparse
-import importlib
 import json
-import logging
 import math
 from pathlib import Path
 
-from tui.cli import NotYetAvailable
-from tui.commands import count
+from tui.commands import count, eval_model
 
 HELP = "evaluate classifiers and fusion on score files or recordings"
-
-log = logging.getLogger(__name__)
 
 DEFAULT_METHODS = "cnn,cnn+voting,hmm,hmm+voting"
 SWEEP_DEFAULT = 6  # frames; the paper's trade-off figure reaches 6
@@ -100,20 +95,6 @@ def _common_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print JSON instead of tables")
 
 
-def _model_module():
-    """tui.commands.eval_model when it imports, else (None, reason)."""
-    try:
-        return importlib.import_module("tui.commands.eval_model"), ""
-    except ModuleNotFoundError as e:
-        if e.name == "tui.commands.eval_model":
-            return None, "not available yet (it lands with the CNN evaluation issue)"
-        reason = f"not available: tui.commands.eval_model needs {e.name}"
-    except Exception as e:  # a broken module must not break every other command
-        reason = f"not available: tui.commands.eval_model failed to import: {e}"
-    log.debug("walkcap eval model %s", reason)
-    return None, reason
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     verbs = parser.add_subparsers(dest="eval_command", metavar="VERB", required=True)
 
@@ -148,25 +129,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     _common_arguments(p)
 
-    module, reason = _model_module()
-    if module is not None:
-        p = verbs.add_parser("model", help=module.HELP, description=module.HELP)
-        module.add_arguments(p)
-        p.set_defaults(_eval_run=module.run)
-    else:
-        p = verbs.add_parser(
-            "model", help="the CNN on unseen synthetic sessions (not available yet)"
-        )
-        p.add_argument("rest", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
-        p.set_defaults(_eval_unavailable=reason)
+    p = verbs.add_parser("model", help=eval_model.HELP, description=eval_model.HELP)
+    eval_model.add_arguments(p)
 
 
 def run(args, config) -> int:
     if args.eval_command == "model":
-        if getattr(args, "_eval_run", None) is None:
-            raise NotYetAvailable(f"model: {args._eval_unavailable}")
-        return args._eval_run(args, config)
+        return eval_model.run(args, config)
 
+    from capture.reader import read_trials
     from inference import evaluation as ev
     from inference.errors import InferenceError
     from inference.fusion import PAPER_TRANSITION, validate_transition
@@ -187,12 +158,7 @@ def run(args, config) -> int:
     if args.eval_command == "scores":
         trials = [ev.read_scores(path) for path in args.files]
     else:
-        try:
-            trials = ev.load_trials_from_recordings(
-                _recordings(args.files, args.replays), args.reference
-            )
-        except ev.RecordingsUnavailable as e:
-            raise NotYetAvailable(f"recordings: {e}") from None
+        trials = read_trials(_recordings(args.files, args.replays), args.reference)
     per_trial = params
     if args.transition == "estimated":
         per_trial = [

@@ -45,6 +45,17 @@ def add_arguments(parser) -> None:
     p.add_argument("--baudrate", type=int, help="default: [imu] baudrate")
 
     p = verbs.add_parser(
+        "set-baud",
+        help="change the device's baud rate (it keeps it)",
+        description="Set the baud rate of the device on PORT as Xsens' tools do "
+        "(SetBaudrate, then a reset). The device keeps it across power cycles; "
+        "set [imu] baudrate to the same value.",
+    )
+    p.add_argument("port", help="serial port, e.g. /dev/ttyUSB0")
+    p.add_argument("baud", type=int, help="the new baud rate, e.g. 460800 or 921600")
+    p.add_argument("--baudrate", type=int, help="its baud rate now (default: [imu] baudrate)")
+
+    p = verbs.add_parser(
         "stream",
         help="live values, rate and errors",
         description="Configure the device on PORT and show live values. "
@@ -74,6 +85,10 @@ def add_arguments(parser) -> None:
     p.add_argument("--drift-ppm", type=float, help="device clock drift (default: [imu] drift_ppm)")
     p.add_argument("--jitter-ms", type=float, help="transmit jitter (default: [imu] jitter_ms)")
     p.add_argument("--seed", type=int, default=0, help="seed of the emulated motion (default 0)")
+    p.add_argument(
+        "--model", help="the model it plays, e.g. MTi-3, MTi-630 (default: [imu] emulate)"
+    )
+    p.add_argument("--baudrate", type=int, help="its baud rate (default: [imu] baudrate)")
     p.add_argument("--seconds", type=float, help="stop after this long (default: Ctrl-C)")
 
     p = verbs.add_parser(
@@ -91,6 +106,7 @@ def run(args, config) -> int:
     return {
         "list": _list,
         "info": _info,
+        "set-baud": _set_baud,
         "stream": _stream,
         "emulate": _emulate,
         "decode": _decode,
@@ -113,9 +129,11 @@ def _list(args, config) -> int:
 
 
 def _info(args, config) -> int:
+    from devices import xbus
     from devices.imu import XbusImu
 
-    imu = XbusImu(args.port, args.baudrate or config.imu.baudrate, outputs=None)
+    baudrate = args.baudrate or config.imu.baudrate
+    imu = XbusImu(args.port, baudrate, outputs=None)
     try:
         imu.open()
     finally:
@@ -123,13 +141,40 @@ def _info(args, config) -> int:
     info = imu.info
     print(f"port          {args.port} at {info['baudrate']} baud")
     print(f"device id     {info['device_id']}")
-    print(f"product code  {info['product_code']}")
+    print(f"product code  {info['product_code']} ({info['family']}, {info['function']})")
     print(f"firmware      {info['firmware']}")
-    print("output configuration:")
+    print("output configuration (stored in the device):")
     for o in info["output_configuration"]:
         extra = " ".join(str(o[k]) for k in ("precision", "coordinate_system") if k in o)
         rate = o["rate_hz"] if isinstance(o["rate_hz"], str) else f"{o['rate_hz']} Hz"
         print(f"  {o['output']:<20} {o['xdi']}  {rate:<14} {extra}".rstrip())
+    print(f"link budget   {info['link_budget']}")
+    # What a session would ask for: walkcap's outputs at [imu] rate_hz, fitted to the family.
+    wanted = xbus.output_settings(xbus.DEFAULT_OUTPUTS, config.imu.rate_hz)
+    family = imu.family
+    if family is not None:
+        wanted = [
+            xbus.OutputSetting(s.xdi, family.fit(s.xdi, s.rate_hz))
+            for s in wanted
+            if family.has(s.name)
+        ]
+    budget = xbus.link_budget(wanted, baudrate)
+    verdict = "fits" if budget.fits else f"does not fit: use {xbus.baud_that_fits(wanted)} baud"
+    print(f"session       at {config.imu.rate_hz} Hz: {budget.describe()}: {verdict}")
+    if family is not None and not family.has_orientation:
+        print("note          an IMU-only model: no orientation, leveling needs a VRU or AHRS")
+    return 0
+
+
+def _set_baud(args, config) -> int:
+    from devices.imu import XbusImu
+
+    before = args.baudrate or config.imu.baudrate
+    XbusImu(args.port, before, outputs=None).change_baudrate(args.baud)
+    print(
+        f"IMU on {args.port}: {before} -> {args.baud} baud (kept across power cycles); "
+        f"set [imu] baudrate = {args.baud}"
+    )
     return 0
 
 
@@ -149,6 +194,7 @@ def _stream(args, config) -> int:
             drift_ppm=config.imu.drift_ppm,
             jitter_ms=config.imu.jitter_ms,
             baudrate=baudrate,
+            model=config.imu.emulate,
             raw_sink=sink,
         )
     else:
@@ -213,19 +259,26 @@ def _stream_line(sample, status) -> str:
 
 
 def _emulate(args, config) -> int:
+    from devices.errors import DeviceInitError
     from devices.imu_emulator import ImuEmulator
 
-    emulator = ImuEmulator(
-        rate_hz=args.rate or config.imu.rate_hz,
-        drift_ppm=config.imu.drift_ppm if args.drift_ppm is None else args.drift_ppm,
-        jitter_ms=config.imu.jitter_ms if args.jitter_ms is None else args.jitter_ms,
-        seed=args.seed,
-    )
+    try:
+        emulator = ImuEmulator(
+            rate_hz=args.rate or config.imu.rate_hz,
+            drift_ppm=config.imu.drift_ppm if args.drift_ppm is None else args.drift_ppm,
+            jitter_ms=config.imu.jitter_ms if args.jitter_ms is None else args.jitter_ms,
+            seed=args.seed,
+            model=args.model or config.imu.emulate,
+            baudrate=args.baudrate or config.imu.baudrate,
+        )
+    except ValueError as e:
+        raise DeviceInitError(str(e)) from None
     try:
         port = emulator.start()
         print(port, flush=True)
         print(
-            f"IMU emulator at {emulator.rate_hz} Hz, drift {emulator.drift_ppm:g} ppm, jitter "
+            f"IMU emulator ({emulator.product_code}, {emulator.baudrate} baud) at "
+            f"{emulator.rate_hz} Hz, drift {emulator.drift_ppm:g} ppm, jitter "
             f"{emulator.jitter_ms:g} ms; try: walkcap imu stream {port}",
             file=sys.stderr,
             flush=True,

@@ -6,6 +6,7 @@ import signal
 import sys
 import time
 
+from tui import lab_flags
 from tui.commands import count, finish_recording
 
 HELP = "record a session headless into an MCAP file"
@@ -76,6 +77,7 @@ def add_arguments(parser) -> None:
         help="residual limb length in cm",
     )
     g.add_argument("--notes", default="", help="free text kept with the recording")
+    lab_flags.add_arguments(parser)
 
 
 def apply_device_flags(args, config) -> None:
@@ -102,9 +104,12 @@ def apply_device_flags(args, config) -> None:
 
 def run(args, config) -> int:
     from capture.corpus import trial_conflict
+    from capture.labtools import LabTools, SessionController
+    from capture.recorder import RecorderState
     from capture.session import Session, SubjectInfo
 
     apply_device_flags(args, config)
+    lab_flags.apply(args, config)
     info = SubjectInfo(
         subject=args.subject,
         height_m=args.height_m,
@@ -126,26 +131,44 @@ def run(args, config) -> int:
     # SIGTERM finalises the file like Ctrl-C does
     signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
     stats = None
+    lab = None
+    remote = config.lsl.remote_control
     try:
         session.start()
-        path = session.start_recording(info, existing)
-        if session.trial_notice:
-            print(f"walkcap record: {session.trial_notice}", file=sys.stderr)
-        print(f"recording {path}", file=sys.stderr)
+        lab = LabTools(session, config, SessionController(session, info)).start()
+        for line in lab.describe():
+            print(line, file=sys.stderr)
+        for problem in lab.problems:
+            print(f"walkcap record: {problem}", file=sys.stderr)
+        if remote:  # the experiment script says when: start, stop, start, ...
+            print("waiting for the remote control's start (Ctrl-C ends)", file=sys.stderr)
+        else:
+            path = session.start_recording(info, existing)
+            if session.trial_notice:
+                print(f"walkcap record: {session.trial_notice}", file=sys.stderr)
+            print(f"recording {path}", file=sys.stderr)
         deadline = time.monotonic() + args.duration if args.duration else None
         while not session.finished.is_set():
             if deadline is not None and time.monotonic() >= deadline:
                 break
             rec = session.snapshot().recording
-            if rec is not None and rec.state == "failed":
+            if rec is not None and rec.state == RecorderState.FAILED:
                 break
             time.sleep(0.05)
     except KeyboardInterrupt:
         print("stopping: finalising the recording", file=sys.stderr)
     finally:
+        remote_log = list(lab.remote.log) if lab is not None and lab.remote is not None else []
+        if lab is not None:
+            lab.stop()
         stats = session.stop()
+    saved = [r.removeprefix("saved ") for _, r in remote_log if r.startswith("saved ")]
+    for path in saved:  # the trials the remote control started and stopped
+        print(path)
     if stats is None:
-        return 1
+        if remote and not saved:
+            print("walkcap record: no trial was recorded (no remote start)", file=sys.stderr)
+        return 0 if saved else 1
     snap_lat = session.snapshot().latency_ms
     print(
         f"{stats.messages} messages, {stats.bytes_written / 1e6:.1f} MB, dropped {stats.dropped}"

@@ -35,7 +35,7 @@ def add_arguments(parser) -> None:
         type=int,
         default=0,
         metavar="S",
-        help="seed of the first session; session i uses S + i (default 0)",
+        help="seed S: synthesized session i uses seed S + i (default 0)",
     )
     parser.add_argument(
         "--format",

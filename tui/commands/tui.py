@@ -6,6 +6,8 @@ import contextlib
 import logging
 import os
 
+from tui import lab_flags
+
 HELP = "open the terminal UI (mock devices and the bundled model by default)"
 
 
@@ -15,6 +17,7 @@ def add_arguments(parser) -> None:
     )
     parser.add_argument("--imu", metavar="BACKEND", help="IMU backend: mock | serial")
     parser.add_argument("--port", help="serial port of the IMU (backend serial)")
+    lab_flags.add_arguments(parser)
 
 
 def log_path() -> str:
@@ -50,6 +53,7 @@ def run(args, config) -> int:
         override(config, "imu.backend", args.imu)
     if args.port:
         override(config, "imu.port", args.port)
+    lab_flags.apply(args, config)
     config.simulator.loop = True  # a mock subject keeps walking until the operator quits
     app = WalkcapApp(config)
     with logging_to_file(log_path()):

@@ -6,7 +6,7 @@ from rich.table import Table
 from rich.text import Text
 from textual.widget import Widget
 
-from devices.base import DeviceEvent, DeviceStatus
+from devices.base import DeviceEvent, DeviceState, DeviceStatus
 from tui.widgets.modes import STATE_COLORS
 from tui.widgets.pacing import Pacer
 
@@ -18,7 +18,7 @@ _ERROR_PARTS = (
     ("missing_packets", "missing"),
     ("reconnects", "reconnects"),
 )
-_RED, _AMBER = STATE_COLORS["lost"], STATE_COLORS["degraded"]
+_RED, _AMBER = STATE_COLORS[DeviceState.LOST], STATE_COLORS[DeviceState.DEGRADED]
 
 Row = tuple[str, str, str]  # label, value, style of the value
 
@@ -43,14 +43,16 @@ def device_rows(name: str, status: DeviceStatus | None, sync: dict | None = None
     rows = [
         (name, f"{status.state}  {status.backend}", f"bold {STATE_COLORS.get(status.state, '')}")
     ]
-    if status.message and status.state != "ok":  # "streaming" says nothing the state does not
+    if (
+        status.message and status.state != DeviceState.OK
+    ):  # "streaming" says nothing the state does not
         rows.append(("", status.message, STATE_COLORS.get(status.state, "")))
     slow = status.configured_rate_hz and status.measured_rate_hz < 0.9 * status.configured_rate_hz
     rows.append(
         (
             "rate",
             f"{status.measured_rate_hz:5.1f}/{status.configured_rate_hz:g} Hz",
-            _AMBER if slow and status.state == "ok" else "",
+            _AMBER if slow and status.state == DeviceState.OK else "",
         )
     )
     parts = [f"{status.details[k]} {name}" for k, name in _ERROR_PARTS if status.details.get(k)]

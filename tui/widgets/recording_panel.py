@@ -9,6 +9,7 @@ from rich.table import Table
 from rich.text import Text
 from textual.widget import Widget
 
+from capture.recorder import RecorderState
 from tui.widgets.pacing import Pacer
 
 
@@ -60,7 +61,7 @@ def recording_rows(
     if elapsed_s is None:
         return [(idle, "", "bold")] + ([(next_trial, "", "dim")] if next_trial else [])
     rows = [("● REC", clock_text(elapsed_s), "bold")]
-    if _stat(stats, "state") == "failed":
+    if _stat(stats, "state") == RecorderState.FAILED:
         rows.append(
             ("FAILED", _stat(stats, "message", "") or "the recording stopped", "bold #e04040")
         )
