@@ -333,3 +333,22 @@ def test_the_replay_screen_shows_the_reference_with_the_undo_applied(tmp_path):
     source.start()
     labels = source._labels_at(source.frames.time_ns)
     assert (labels == 0).all()  # LG throughout: the DS keyed by mistake never shows
+
+
+def test_a_session_records_the_next_free_trial_and_says_so(tmp_path):
+    from capture.config import Config
+    from capture.session import Session, SubjectInfo
+
+    write_trial(tmp_path / "S01_indoor_t01_x.mcap", [])
+    config = Config()
+    config.session.recordings = str(tmp_path)
+    session = Session(config)  # devices not started: recording needs only the folder
+    path = session.start_recording(SubjectInfo(subject="S01", condition="indoor", trial=1))
+    try:
+        assert "_t02_" in path.name and "recording trial 2" in session.trial_notice
+        assert session.trial.trial == 2
+    finally:
+        session.stop_recording()
+    assert open_recording(path).metadata["session"]["trial"] == 2
+    with pytest.raises(CaptureError, match="exists"):
+        session.start_recording(SubjectInfo(subject="S01", condition="indoor"), "error")

@@ -140,6 +140,11 @@ def add_arguments(parser) -> None:
         help="train in float32 even where the CPU has native bfloat16",
     )
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
+    parser.add_argument(
+        "--json",
+        action="store_true",
+        help="print the result (split, best epoch, test metrics, files) as JSON (no bars)",
+    )
 
 
 def run(args, config) -> int:
@@ -179,11 +184,35 @@ def run(args, config) -> int:
         print(line, file=sys.stderr)
     sessions = read_sessions(files)
     frames = sum(len(s) for s in sessions)
-    print(f"{len(sessions)} sessions, {frames} frames from {', '.join(args.data)}")
+    if not args.json:
+        print(f"{len(sessions)} sessions, {frames} frames from {', '.join(args.data)}")
     preprocess = _preprocess_params(sessions) or PreprocessParams.from_config(config).to_dict()
-    result = train(sessions, settings, show_progress=not args.quiet)
+    result = train(sessions, settings, show_progress=not (args.quiet or args.json))
     path = save_result(result, args.out, settings, preprocess, [str(f) for f in files])
     split = result.split
+    if args.json:
+        import json
+
+        print(
+            json.dumps(
+                {
+                    "sessions": len(sessions),
+                    "frames": frames,
+                    "best_epoch": result.best_epoch,
+                    "epochs": len(result.history),
+                    "stopped_early": result.stopped_early,
+                    "seconds": result.seconds,
+                    "split": {k: len(v) for k, v in split.items()},
+                    "test": {k: v.to_dict() for k, v in result.test_metrics.items()},
+                    "weights": str(path),
+                    "sha256": file_sha256(path),
+                    "metadata": str(path.with_suffix(".json")),
+                },
+                indent=2,
+                default=str,
+            )
+        )
+        return 0
     print(
         f"best epoch {result.best_epoch} of {len(result.history)}"
         f"{' (early stop)' if result.stopped_early else ''}, {result.seconds:.0f} s; "
