@@ -658,8 +658,8 @@ def write_plots(
 
 
 def _sd_clipped(means: np.ndarray, sds: np.ndarray) -> np.ndarray:
-    """Error bars of mean +- SD in %, cut at 0 and 100 (accuracy cannot pass them)."""
-    sds = np.nan_to_num(sds)
+    """Error bars of mean +- SD in %, cut at 0 and 100 (accuracy cannot pass them); NaN
+    (no bar) where the SD is undefined (a single trial)."""
     return np.vstack([np.minimum(sds, means), np.minimum(sds, 100 - means)])
 
 
@@ -718,7 +718,7 @@ def _plot_sweep(plt, results, sweep):
                 mean, sd = 100 * _nanmean(sub), 100 * _nansd(sub)
             bars = _sd_clipped(np.nan_to_num(mean), sd)
             if np.isfinite(mean).any():
-                lowest = min(lowest, float(np.nanmin(mean - bars[0])))
+                lowest = min(lowest, float(np.nanmin(mean - np.nan_to_num(bars[0]))))
             ax.errorbar(
                 sweep.delays,
                 mean,
