@@ -20,7 +20,9 @@ from pathlib import Path
 from typing import Any
 
 from capture.errors import ConfigError
+from devices.config import DOCS as DEVICE_DOCS
 from devices.config import CameraConfig, ImuConfig, MountingConfig, SimulatorConfig
+from inference.config import DOCS as INFERENCE_DOCS
 from inference.config import FusionConfig, ModelConfig, PreprocessConfig
 
 DEFAULT_PATH = Path("walkcap.toml")
@@ -85,6 +87,44 @@ class Config:
     lsl: LslConfig = field(default_factory=LslConfig)
     foxglove: FoxgloveConfig = field(default_factory=FoxgloveConfig)
     source: str = ""  # the file it was read from, empty for defaults
+
+
+_KEY_DOC = "key for {}"  # Textual key names: 1, u, space, question_mark, ctrl+x, ...
+# One line per key for `walkcap config`; the devices' and algorithms' come from their packages.
+DOCS: dict[type, dict[str, str]] = {
+    SessionConfig: {
+        "recordings": "folder the recordings are written to (created when missing)",
+        "operator": "who runs the session, written into every recording",
+        "realtime_priority": "pipeline thread SCHED_FIFO priority 1-99 where allowed; 0: normal",
+    },
+    KeysConfig: {
+        "mode_lg": _KEY_DOC.format("the true mode LG (level ground)"),
+        "mode_us": _KEY_DOC.format("the true mode US (stairs up)"),
+        "mode_ds": _KEY_DOC.format("the true mode DS (stairs down)"),
+        "mode_ur": _KEY_DOC.format("the true mode UR (ramp up)"),
+        "mode_dr": _KEY_DOC.format("the true mode DR (ramp down)"),
+        "undo": _KEY_DOC.format("undoing the last label change"),
+        "marker": _KEY_DOC.format("a marker with an optional note"),
+        "record": _KEY_DOC.format("starting / stopping a trial"),
+        "freeze": _KEY_DOC.format("freezing the display"),
+        "help": _KEY_DOC.format("the help screen"),
+        "quit": _KEY_DOC.format("quitting (ctrl+q always quits too)"),
+    },
+    LslConfig: {
+        "enabled": "LSL outlets: walkcap IMU, walkcap Terrain, walkcap Markers",
+        "record": "names of other devices' LSL streams recorded into each trial",
+        "remote_control": "LabRecorder's start / stop / filename commands on 127.0.0.1",
+        "remote_port": "the remote control's TCP port (LabRecorder's)",
+    },
+    FoxgloveConfig: {
+        "enabled": "serve the live session's topics to Foxglove over a WebSocket",
+        "host": "address the Foxglove server listens on (localhost only unless changed)",
+        "port": "the Foxglove server's port",
+        "image_hz": "depth, images and clouds sent at most this often, per second",
+    },
+    **DEVICE_DOCS,
+    **INFERENCE_DOCS,
+}
 
 
 def _type_name(tp: Any) -> str:
@@ -205,6 +245,38 @@ def dumps(config: Config) -> str:
     for section, table in to_dict(config).items():
         lines.append(f"[{section}]")
         lines += [f"{k} = {_toml_value(v)}" for k, v in table.items()]
+        lines.append("")
+    return "\n".join(lines)
+
+
+def documented(config: Config) -> str:
+    """The configuration as TOML with a comment per key: what it is and its default.
+
+    What `walkcap config` prints; it loads back as the same configuration.
+    """
+    defaults = to_dict(Config())
+    lines = [
+        "# walkcap configuration: every key with what it does and its default.",
+        "# Save as walkcap.toml (or pass --config FILE); keys left out take their default.",
+        "# [keys] take Textual key names: 1, u, space, question_mark, ctrl+x, ...",
+        "",
+    ]
+    for f in dataclasses.fields(Config):
+        if f.name == "source":
+            continue
+        section = getattr(config, f.name)
+        docs = DOCS.get(type(section), {})
+        lines.append(f"[{f.name}]")
+        for key, value in dataclasses.asdict(section).items():
+            default = _toml_value(defaults[f.name][key])
+            if len(default) > 40:  # a matrix: `walkcap config --default` shows it in full
+                default = "printed by --default"
+            lines.append(f"# {docs.get(key, key)} [default: {default}]")
+            if value and isinstance(value, list) and isinstance(value[0], list):
+                rows = [f"    {_toml_value(row)}," for row in value]
+                lines += [f"{key} = [", *rows, "]"]
+            else:
+                lines.append(f"{key} = {_toml_value(value)}")
         lines.append("")
     return "\n".join(lines)
 

@@ -792,14 +792,19 @@ def _frame(
     )
 
 
-def find_gaps(times_ns: np.ndarray, factor: float = 2.5) -> list[tuple[int, float]]:
-    """Gaps in a regular stream: intervals longer than `factor` x the median interval,
-    as (start time ns, length s)."""
+def find_gaps(
+    times_ns: np.ndarray, factor: float | None = None, period_s: float | None = None
+) -> list[tuple[int, float]]:
+    """Gaps in a regular stream: intervals longer than `factor` (default: the live alarms'
+    GAP_PERIODS) x the period (default: the median interval), as (start time ns, length s)."""
+    from capture.alarms import GAP_PERIODS
+
+    factor = GAP_PERIODS if factor is None else factor
     t = np.asarray(times_ns, dtype=np.int64)
     if len(t) < 3:
         return []
     dt = np.diff(t)
-    median = float(np.median(dt))
+    median = period_s * 1e9 if period_s else float(np.median(dt))
     if median <= 0:
         return []
     long = np.nonzero(dt > factor * median)[0]

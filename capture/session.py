@@ -26,6 +26,7 @@ import numpy as np
 from capture import __version__
 from capture import config as config_mod
 from capture import topics as T
+from capture.alarms import AlarmState, TrialAlarms
 from capture.errors import CaptureError, ConfigError
 from capture.pipeline import (
     CNN_THREADS,
@@ -124,6 +125,12 @@ class Snapshot:
     recording_started_ns: int | None
     frames: int
     latency_ms: dict
+    alarms: AlarmState | None = None  # gaps this trial, and what the operator must see now
+
+
+def stream_periods(config: config_mod.Config) -> dict[str, float]:
+    """The configured period of each sensor stream (what a gap is measured against)."""
+    return {"camera": 1.0 / config.camera.fps, "imu": 1.0 / config.imu.rate_hz}
 
 
 def open_devices(config: config_mod.Config, camera=None, imu=None):
@@ -238,6 +245,7 @@ class Session:
         self.finished = threading.Event()  # the camera ran out of frames (end of a mock course)
         self.trial_notice = ""  # why the last recording has another trial number than asked
         self.trial: SubjectInfo | None = None  # the form of the recording in progress
+        self.alarms = TrialAlarms(config.session.recordings, stream_periods(config))
 
     # ---- life cycle -------------------------------------------------------------------
 
@@ -327,6 +335,7 @@ class Session:
             if sample is None:
                 continue
             t = sample.time_ns if sample.time_ns is not None else sample.host_time_ns
+            self.alarms.sample("imu", sample.host_time_ns)  # the recorder's log time
             if sample.quaternion is not None:
                 self.track.add(t, sample.quaternion, sample.rate_of_turn)
             truth = getattr(self._imu, "true_time_ns", None)
@@ -396,6 +405,7 @@ class Session:
         if self.auto_label and truth_mode and truth_mode != self._last_truth_mode:
             self.set_label(truth_mode, source="simulator", time_ns=t)
         self._last_truth_mode = truth_mode
+        self.alarms.sample("camera", frame.host_time_ns)  # the recorder's log time
         for out in self._outputs():
             record_result(out, frame, result)
         self._publish(result, truth_mode)
@@ -477,6 +487,21 @@ class Session:
             )
         )
 
+    def recent_sync_ms(self, samples: int = 100) -> dict:
+        """The IMU-to-frame sync error of the last `samples` IMU samples (p50, p99 in ms):
+        what the clock fit achieves now, without its first seconds of settling."""
+        recent = list(self._sync_errors)[-samples:]
+        if not recent:
+            return {}
+        return {"p50_ms": float(np.median(recent)), "p99_ms": float(np.percentile(recent, 99))}
+
+    def inject(self, device: str, fault: str, **kw) -> None:
+        """A fault of a mock device, for drills and tests ("imu", "disconnect", seconds=2)."""
+        target = self._imu if device == "imu" else self._camera
+        if getattr(target, "backend", "") != "mock" or not hasattr(target, "inject"):
+            raise CaptureError(f"faults can be injected into mock devices only, not {device}")
+        target.inject(fault, **kw)
+
     @property
     def label(self) -> str | None:
         return self._label
@@ -513,6 +538,8 @@ class Session:
             metadata["session"]["supersedes"] = supersedes
         recorder = Recorder(path, metadata=metadata, attachments=self._attachments())
         recorder.start()
+        self.alarms.recordings = folder
+        self.alarms.new_trial()
         self._recorder = recorder
         self.trial = info
         self._recording_started_ns = now_ns()
@@ -535,6 +562,7 @@ class Session:
     def stop_recording(self):
         rec, self._recorder = self._recorder, None
         self._recording_started_ns = None
+        self.alarms.end_trial()
         return rec.close() if rec is not None else None
 
     def _metadata(self, info: SubjectInfo) -> dict[str, dict]:
@@ -606,4 +634,5 @@ class Session:
             snap.sync = {"p50_ms": float(np.median(sync)), "p99_ms": float(np.percentile(sync, 99))}
         rec = self._recorder
         snap.recording = rec.stats() if rec is not None else None
+        snap.alarms = self.alarms.state(snap.time_ns, snap.recording, snap.events)
         return snap

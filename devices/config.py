@@ -58,3 +58,41 @@ class MountingConfig:
     roll_deg: float = 0.0
     pitch_deg: float = 35.0
     yaw_deg: float = 0.0
+
+
+# One line per key for `walkcap config` (capture.config.documented); every field has one.
+DOCS: dict[type, dict[str, str]] = {
+    CameraConfig: {
+        "backend": "camera backend: mock (simulated walk) | royale (pmd pico flexx) | replay",
+        "fps": "frame rate, frames per second (the paper: 15)",
+        "use_case": "royale use case name; empty: the one matching fps",
+        "camera_id": "royale camera serial or .rrf file (replay: the .mcap); empty: the first one",
+        "buffer_frames": "frames buffered for the pipeline before the oldest is dropped",
+    },
+    SimulatorConfig: {
+        "course": "mock walk preset: indoor | outdoor",
+        "seed": "mock walk seed (the same seed walks the same course)",
+        "speed_mps": "mock walking speed, metres per second",
+        "cadence_spm": "mock cadence, steps per minute",
+        "camera_height_m": "mock camera height on the thigh when standing, metres",
+        "camera_tilt_deg": "mock camera tilt down relative to the thigh, degrees",
+        "realtime": "mock devices deliver in real time (false: as fast as the pipeline runs)",
+        "stand": "the mock walker stands still at the start (calibration on mock devices)",
+        "loop": "walk the mock course again at its end (the UI and `record --duration` loop)",
+        "process": "real-time mock devices run in a child process, as hardware runs outside",
+    },
+    ImuConfig: {
+        "backend": "IMU backend: mock (emulator on a pseudo-terminal) | serial (Xsens MTi)",
+        "port": "IMU serial port for backend serial, e.g. /dev/ttyUSB0",
+        "baudrate": "IMU line speed: the device's (walkcap imu set-baud changes it)",
+        "rate_hz": "IMU output rate, samples per second; fitted to the model (1-series: 100 Hz)",
+        "drift_ppm": "mock IMU clock drift against the host, parts per million",
+        "jitter_ms": "mock IMU transmit jitter, milliseconds",
+        "emulate": "mock IMU model it plays (MTi-1, MTi-630, ...); above 100 Hz a 600-series",
+    },
+    MountingConfig: {
+        "roll_deg": "camera roll about its optical axis relative to the IMU, degrees",
+        "pitch_deg": "camera pitch down relative to the IMU, degrees (walkcap calibrate)",
+        "yaw_deg": "camera yaw relative to the IMU, degrees (not observable from a floor)",
+    },
+}

@@ -35,3 +35,28 @@ class FusionConfig:
     window: int = 5  # l_w, smoothing window (frames)
     vote_delay: int = 1  # l_v, voting half-window (frames)
     transition: list[list[float]] = field(default_factory=lambda: PAPER_TRANSITION.tolist())
+
+
+# One line per key for `walkcap config` (capture.config.documented); every field has one.
+DOCS: dict[type, dict[str, str]] = {
+    PreprocessConfig: {
+        "corridor_width_m": "width of the walking corridor kept, across the direction, metres",
+        "min_forward_m": "nearest point kept ahead of the camera, metres",
+        "max_forward_m": "farthest point kept ahead of the camera, metres",
+        "grid_size": "the CNN's image is grid_size x grid_size cells",
+        "cell_m": "cell size of the image, metres",
+        "min_confidence": "lowest camera confidence a point needs to be used",
+        "outlier_min_points": "isolated-point removal: neighbours needed in 3 x 3 cm (0: off)",
+        "max_elevation_deg": "camera looking higher than this above level: no image, degrees",
+        "backend": "point-cloud backend: numpy | open3d (same result; numpy is faster)",
+    },
+    ModelConfig: {
+        "path": "classifier weights (.pt); empty: the bundled model",
+        "device": "where the CNN runs: auto | cpu | cuda",
+    },
+    FusionConfig: {
+        "window": "HMM smoothing window l_w, frames",
+        "vote_delay": "voting half-window l_v, frames (decisions lag by this many)",
+        "transition": "HMM transition matrix (the paper's), rows and columns LG US DS UR DR",
+    },
+}

@@ -7,11 +7,12 @@ import pytest
 
 from tui import cli
 
+ROOT = Path(__file__).resolve().parents[1]
+
 
 def walkcap(*args: str) -> subprocess.CompletedProcess:
-    """The command from this source tree (tests run in a temporary folder, where
-    `python -m` would find the installed copy instead)."""
-    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    """The command from this tree (the tests run in a temporary folder)."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
     return subprocess.run(
         [sys.executable, "-m", "tui.cli", *args],
         capture_output=True,

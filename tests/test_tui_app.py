@@ -175,7 +175,7 @@ async def test_record_key_starts_and_stops_a_trial_and_the_trial_advances():
         assert fake.recording and fake.recordings_started[0].subject == "S02"
         assert fake.recordings_started[0].trial == 1
         await wait_for(pilot, lambda: "REC" in rendered(live.query_one("#recording")))
-        assert "S02_indoor_t01.mcap" in rendered(live.query_one("#recording"))
+        assert "S02_indoor_t01.mcap" in rendered(live.query_one("#banner"))
         await pilot.press("s")  # no form while recording
         assert isinstance(app.screen, LiveScreen)
         await pilot.press("r")

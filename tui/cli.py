@@ -29,6 +29,8 @@ COMMANDS = (
     "calibrate",
     "bench",
     "imu",
+    "check",
+    "config",
 )
 
 
@@ -54,16 +56,14 @@ def build_parser() -> argparse.ArgumentParser:
         "live terrain classification with HMM fusion, synchronized MCAP recordings.",
     )
     parser.add_argument("--version", action="version", version=f"walkcap {__version__}")
-    parser.add_argument(
-        "--config",
-        metavar="PATH",
-        help="configuration file (TOML); default: $WALKCAP_CONFIG or ./walkcap.toml when present",
-    )
-    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
+    _add_common(parser, argparse.SUPPRESS)
+    parser.set_defaults(config=None, verbose=0)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for name in COMMANDS:
         module = importlib.import_module(f"tui.commands.{name}")
         p = sub.add_parser(name, help=module.HELP, description=module.HELP)
+        # before or after the subcommand alike: `walkcap --config X tui` = `walkcap tui --config X`
+        _add_common(p, argparse.SUPPRESS)
         module.add_arguments(p)
         p.set_defaults(_module=module)
         _mark_parsers(p)
@@ -78,6 +78,16 @@ def _mark_parsers(parser: argparse.ArgumentParser) -> None:
         if isinstance(action, argparse._SubParsersAction):
             for sub in action.choices.values():
                 _mark_parsers(sub)
+
+
+def _add_common(parser: argparse.ArgumentParser, default) -> None:
+    parser.add_argument(
+        "--config",
+        metavar="PATH",
+        default=default,
+        help="configuration file (TOML); default: $WALKCAP_CONFIG or ./walkcap.toml when present",
+    )
+    parser.add_argument("-v", "--verbose", action="count", default=default, help="more log output")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -103,9 +103,10 @@ def describe(rec) -> list[str]:
         hz = f"{(len(t) - 1) / span:6.1f} Hz" if span > 0 and regular else "      - "
         lines.append(f"    {topic:<22} {info.count:7d} {hz}  {info.schema_name}")
     gaps = []
+    periods = recorded_periods(rec.metadata)
     for topic in GAP_TOPICS:
         if topic in times:
-            found = find_gaps(times[topic])
+            found = find_gaps(times[topic], period_s=periods.get(topic))
             if found:
                 start, longest = max(found, key=lambda g: g[1])
                 at = (start - rec.start_ns) * 1e-9 if rec.start_ns is not None else 0.0
@@ -141,6 +142,21 @@ def describe(rec) -> list[str]:
             + ", ".join(f"{name} ({_size(n)})" for name, n in rec.attachment_sizes.items())
         )
     return lines
+
+
+def recorded_periods(metadata: dict) -> dict[str, float]:
+    """Each sensor topic's configured period from the file's metadata (the live alarms
+    count gaps against it); a topic without one falls back on its median interval."""
+    devices = metadata.get("devices", {})
+    out = {}
+    for topic, key in (("/camera/depth", "camera_fps"), ("/imu", "imu_rate_hz")):
+        try:
+            rate = float(devices.get(key, ""))
+        except (TypeError, ValueError):
+            continue
+        if rate > 0:
+            out[topic] = 1.0 / rate
+    return out
 
 
 def _short(value, width: int = 60) -> str:
