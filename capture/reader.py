@@ -12,6 +12,10 @@ Finished files are read through their index. Unfinished ones (a crash, a full di
 read record by record up to where they stop (capture.recovery.scan), so everything that
 reached the disk is readable without `walkcap recover`.
 Messages are decoded with the schema stored in the file (protobuf descriptors, JSON).
+Metadata comes back typed (JSON values; older files' known fields parsed from text).
+Times are session-clock nanoseconds; `Recording.unix_time_ns` and
+`RecordedMessage.unix_time_ns` give the same instants as Unix time. The operator's labels
+are read with their undos applied (`effective_changes`); the file keeps both.
 """
 
 from __future__ import annotations
