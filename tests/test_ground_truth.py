@@ -134,6 +134,16 @@ def test_a_folder_with_a_trial_its_copies_and_a_recovered_trial_counts_two_trial
 
     with_replays = corpus.select([folder], replays=True)
     assert [p.name for p in with_replays.files] == ["S01_indoor_t01_20260101-100000.replay.mcap"]
+    assert cli.main(["eval", "recordings", str(folder), "--replays", "--json"]) == 0
+    out = capsys.readouterr()
+    assert len(json.loads(out.out)["files"]) == 1 and "no replay of this trial" in out.err
+
+    # training takes one file per trial too: no trial in both training and test
+    from capture.dataset import select_session_files
+
+    files, lines = select_session_files([folder])
+    assert sorted(f.name for f in files) == sorted([corrected.name, recovered.name])
+    assert any("left out 3 file(s)" in line for line in lines)
 
 
 def test_old_derived_files_are_recognised_by_their_names_and_records(tmp_path):
