@@ -712,7 +712,7 @@ def _plot_sweep(plt, results, sweep):
     lowest = 100.0
     for ax, (condition, rs) in zip(axes[0], conditions.items()):
         rows = [index[id(r)] for r in rs]
-        for m, a in sweep.accuracy.items():
+        for k, (m, a) in enumerate(sweep.accuracy.items()):
             sub = a[rows]
             with np.errstate(all="ignore"):
                 mean, sd = 100 * _nanmean(sub), 100 * _nansd(sub)
@@ -724,8 +724,10 @@ def _plot_sweep(plt, results, sweep):
                 mean,
                 yerr=bars,
                 capsize=2,
-                marker="o",
-                markersize=3,
+                # methods that agree still show: each its own marker and dash
+                marker="osD^v*"[k % 6],
+                markersize=6 - k % 4,
+                linestyle=("-", "--", ":", "-.")[k % 4],
                 linewidth=1,
                 label=TITLES.get(m, m),
             )
