@@ -138,12 +138,14 @@ def test_info_reports_damaged_chunks(recording, tmp_path, capsys):
         ["replay", "--fast"],
         ["eval", "recordings", "--reference", "truth"],
         ["train", "--epochs", "1", "--data"],
+        ["export", "--format", "csv"],
     ],
 )
 def test_every_reader_stops_at_damage_with_one_line_naming_it(recording, tmp_path, capsys, command):
     offset, _, _, _ = chunks(recording)[2]
     bad = flipped(recording, tmp_path, offset + 100)
-    extra = ["--out", str(tmp_path / "m.pt")] if command[0] == "train" else []
+    extra = {"train": ["--out", str(tmp_path / "m.pt")], "export": ["-o", str(tmp_path / "t")]}
+    extra = extra.get(command[0], [])
     assert cli.main([*command, str(bad), *extra]) == 1
     line = one_line(capsys.readouterr().err)
     assert f"at byte {offset}" in line and "walkcap recover" in line

@@ -115,7 +115,7 @@ def add_arguments(parser) -> None:
         "false frame that passed the 8-bit checksum. Exit status 1 on any exception.",
     )
     p.add_argument("--streams", type=count(1), default=1_000_000, help="default 1000000")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="the streams' random seed (default 0)")
     p.add_argument("--json", action="store_true", help="machine-readable results")
 
 
