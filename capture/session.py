@@ -207,32 +207,35 @@ def close_devices(*devices) -> None:
 
 
 class _FrameInbox:
-    """The camera thread's hand-over to the pipeline thread: one (frame, recorder). In real
-    time a new frame replaces one not yet taken (which then goes unclassified: it is
-    already recorded); `blocking`, the camera thread waits for the pipeline instead."""
+    """The camera thread's hand-over to the pipeline thread: (frame, recorder) items, up to
+    `size` (a hiccup of the pipeline is caught up, as the camera's buffer did). Full in real
+    time, the oldest item goes unclassified (it is already recorded); `blocking`, the camera
+    thread waits for the pipeline instead."""
 
-    def __init__(self) -> None:
-        self._frame: tuple | None = None
+    def __init__(self, size: int = 8) -> None:
+        self._items: collections.deque[tuple] = collections.deque()
+        self.size = max(1, size)
         self._closed = False
         self.blocking = False
         self._cond = threading.Condition()
 
-    def put(self, frame: tuple) -> tuple | None:
-        """Hand `frame` over; the one it replaced, if any."""
+    def put(self, item: tuple) -> tuple | None:
+        """Hand `item` over; the oldest one it pushed out, if any."""
         with self._cond:
-            while self.blocking and self._frame is not None and not self._closed:
+            while self.blocking and len(self._items) >= self.size and not self._closed:
                 self._cond.wait(0.1)
-            replaced, self._frame = self._frame, frame
+            dropped = self._items.popleft() if len(self._items) >= self.size else None
+            self._items.append(item)
             self._cond.notify_all()
-            return replaced
+            return dropped
 
     def take(self, timeout_s: float) -> tuple | None:
         with self._cond:
-            if self._frame is None:
+            if not self._items and timeout_s > 0:
                 self._cond.wait(timeout_s)
-            frame, self._frame = self._frame, None
+            item = self._items.popleft() if self._items else None
             self._cond.notify_all()
-            return frame
+            return item
 
     def close(self) -> None:
         with self._cond:
@@ -245,8 +248,8 @@ class _Streak:
     it ends (`settle` frames in a row go through again, or the trial stops) with how many
     frames it cost. A flaky classifier is one run, not an event per frame."""
 
-    def __init__(self, device: str, kind: str, what: str, settle: int = 30) -> None:
-        self.device, self.kind, self.what = device, kind, what
+    def __init__(self, device: str, kind: str, why: str, settle: int = 30) -> None:
+        self.device, self.kind, self.why = device, kind, why
         self.settle = settle
         self.count = 0
         self.first = ""
@@ -260,7 +263,7 @@ class _Streak:
             if self.count > 1:
                 return None
             self.first = message
-        text = f"{message}; further {self.what} are counted"
+        text = f"{message} ({self.why}; frames not classified from here on are counted)"
         return DeviceEvent(t_ns, self.device, self.kind, text, {"count": 1})
 
     def ok(self, t_ns: int, final: bool = False) -> DeviceEvent | None:
@@ -272,7 +275,7 @@ class _Streak:
             if self._good < self.settle and not final:
                 return None
             self.count = self._good = 0
-        text = f"{n} {self.what} (first: {first})"
+        text = f"{n} frames not classified: {self.why} (first: {first})"
         return DeviceEvent(t_ns, self.device, self.kind, text, {"count": n})
 
 
@@ -312,10 +315,8 @@ class Session:
         self._frames = 0
         self._last_truth_mode: str | None = None
         self._inbox = _FrameInbox()
-        self._failures = _Streak("pipeline", "error", "frames not classified")
-        self._behind = _Streak(
-            "pipeline", "behind", "frames not classified: the pipeline fell behind"
-        )
+        self._failures = _Streak("pipeline", "error", "the pipeline failed on it")
+        self._behind = _Streak("pipeline", "behind", "the pipeline fell behind")
         self.pipeline: Pipeline | None = None
         self.pipeline_priority = NORMAL_PRIORITY  # how the pipeline thread is scheduled
         self.model_metadata: dict = {}
@@ -379,6 +380,7 @@ class Session:
         # As fast as the pipeline runs (a mock camera not in real time): every frame waits
         # for its classification; in real time the pipeline takes the newest frame.
         self._inbox.blocking = cfg.camera.backend == "mock" and not cfg.simulator.realtime
+        self._inbox.size = cfg.camera.buffer_frames
         self._spawn(self._imu_loop, "imu")
         self._spawn(self._frame_loop, "camera")
         pipeline = self._spawn(self._pipeline_loop, "pipeline")
@@ -441,20 +443,20 @@ class Session:
             skipped = self._inbox.put((frame, recorder))
             t = frame.device_time_ns
             if skipped is not None:
-                self._report(self._behind.fail(t, f"frame {skipped[0].index}"), say=True)
+                self._report(self._behind.fail(t, f"frame {skipped[0].index}"))
             else:
                 self._report(self._behind.ok(t))
 
     def _pipeline_loop(self) -> None:
-        # On stop, the frame the camera thread handed over last is classified too, so
-        # that a trial's last recorded frame has its decision like the others.
+        # On stop, the frames the camera thread handed over last are classified too, so
+        # that a trial's last recorded frames have their decisions like the others.
         camera = next(t for t in self._threads if t.name == "walkcap-camera")
         while not (self._stop.is_set() and not camera.is_alive()):
             item = self._inbox.take(0.1)
             if item is not None:
                 self.classify_frame(*item)
-        item = self._inbox.take(0.0)
-        if item is not None:
+        deadline = now_ns() + 1_000_000_000  # a slow classifier must not hold the stop up
+        while now_ns() < deadline and (item := self._inbox.take(0.0)) is not None:
             self.classify_frame(*item)
 
     def _camera_finished(self) -> bool:
