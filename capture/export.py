@@ -268,7 +268,7 @@ def corpus_tables(
         chosen = corpus_mod.select(paths, replays=replays)
         files = chosen.files
     if not files:
-        raise CaptureError("nothing to export: every file was left out")
+        raise chosen.nothing_left("nothing to export")
     parts: dict[str, list] = {name: [] for name in TABLES}
     iterator = files
     if progress and len(files) > 1:

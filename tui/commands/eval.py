@@ -290,11 +290,10 @@ def _recordings(paths: list[str], replays: bool = False) -> list[str]:
     import sys
 
     from capture.corpus import select
-    from capture.errors import CaptureError
 
     corpus = select(paths, replays=replays)
+    if not corpus.chosen:
+        raise corpus.nothing_left("no recordings to evaluate")
     for line in corpus.report_lines():
         print(line, file=sys.stderr)
-    if not corpus.chosen:
-        raise CaptureError("no recordings to evaluate: every file was left out")
     return [str(p) for p in corpus.files]
