@@ -10,19 +10,36 @@ from __future__ import annotations
 import collections
 import threading
 from dataclasses import dataclass, field
+from enum import StrEnum
 from typing import Generic, TypeVar
 
 from devices.clock import now_ns
 
 T = TypeVar("T")
 
-OK, DEGRADED, LOST, STOPPED = "ok", "degraded", "lost", "stopped"
+
+class DeviceState(StrEnum):
+    """A device's state: a str equal to its text ("ok", ...) in comparisons, f-strings, JSON."""
+
+    OK = "ok"
+    DEGRADED = "degraded"  # delivering, but stalled, slow or with recent errors
+    LOST = "lost"  # gone while running (unplugged, no answer)
+    STOPPED = "stopped"
+
+
+# The backends' short names for the states
+OK, DEGRADED, LOST, STOPPED = (
+    DeviceState.OK,
+    DeviceState.DEGRADED,
+    DeviceState.LOST,
+    DeviceState.STOPPED,
+)
 
 
 @dataclass
 class DeviceStatus:
     backend: str
-    state: str = STOPPED  # ok | degraded | lost | stopped
+    state: DeviceState = DeviceState.STOPPED
     message: str = ""
     configured_rate_hz: float = 0.0
     measured_rate_hz: float = 0.0

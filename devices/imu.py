@@ -11,6 +11,15 @@ clock estimator (devices/imu_clock.py), `host_time_ns` the receive time. Quatern
 always sensor -> ENU world (z up), whatever coordinate system the device reports in.
 A vanished or silent port is reported within a second, retried until it returns, and the
 gap reported; the reader thread never dies with the device.
+
+Configuring follows Xsens' own rules (devices/imu_family.py): the family comes from the
+product code; every output is asked for at an explicit rate the family has (0xFFFF only
+for the packet counter and SampleTimeFine, which ride in every message); outputs the
+model lacks are left out with a warning (an IMU-only model sends no orientation, so its
+samples carry no quaternion and leveling needs a VRU or AHRS model); the device's reply
+is compared with the request and every rate it granted instead is said; and the stream
+must fit the baud rate before GoToMeasurement, else one line names a rate or baud rate
+that fits.
 """
 
 from __future__ import annotations
@@ -24,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from devices import xbus
+from devices import imu_family, xbus
 from devices.base import (
     DEGRADED,
     LOST,
@@ -39,6 +48,7 @@ from devices.clock import now_ns
 from devices.errors import DeviceError, DeviceInitError, DeviceNotAvailable
 from devices.frames import ImuSample
 from devices.imu_clock import DeviceClock
+from devices.imu_family import Family
 from devices.rotations import matrix_to_quat, quat_from_euler, quat_multiply, quat_normalize
 from devices.xbus import MID
 
@@ -56,6 +66,9 @@ _FRAME_TO_ENU = {
 }
 _VECTOR_OUTPUTS = ("acceleration", "rate_of_turn")
 _EVENT_INTERVAL_NS = 1_000_000_000  # repeated faults of one kind: one event a second
+_NOT_MEASUREMENTS = frozenset(
+    {"packet_counter", "sample_time_fine", "sample_time_coarse", "status_word"}
+)
 
 
 def open_imu(config: Any, orientation_at: Callable[[float], np.ndarray] | None = None) -> Imu:
@@ -191,6 +204,11 @@ class XbusImu(Imu):
             raise DeviceInitError(f"IMU outputs: {e}") from None
         self.request_timeout_s = request_timeout_s
         self.config_timeout_s = config_timeout_s
+        self.family: Family | None = None
+        self.budget: xbus.LinkBudget | None = None
+        self.adjusted: list[str] = []  # what walkcap changed to fit the family
+        self.granted: list[str] = []  # what the device granted instead of the request
+        self._said: set[str] = set()
         # Silence longer than this is a lost device: half a second, or 3 periods when slow.
         self.silence_ns = int(
             (silence_s if silence_s is not None else max(0.5, 3.0 / max(self.rate_hz, 1))) * 1e9
@@ -254,42 +272,181 @@ class XbusImu(Imu):
             raise DeviceNotAvailable(f"cannot open IMU port {self.port}: {_reason(e)}") from None
 
     def _configure(self, ser) -> None:
-        """WakeUp/GoToConfig, identify, set (or read) the outputs, GoToMeasurement."""
+        """WakeUp/GoToConfig, identify, set (or read) the outputs, check the link budget,
+        GoToMeasurement."""
         self._parser.clear()
         self._woke_up = False
         self._goto_config(ser)
         device_id = self._request(ser, MID.REQ_DID, reply=MID.DEVICE_ID)
         product = self._request(ser, MID.REQ_PRODUCT_CODE, reply=MID.PRODUCT_CODE)
         firmware = self._request(ser, MID.REQ_FW_REV, reply=MID.FIRMWARE_REV)
-        request = xbus.encode_output_configuration(self._settings) if self._settings else b""
+        product_code = product.decode("ascii", "replace").strip("\x00 ")
+        self.family = imu_family.family_of(product_code)
+        if self.family is None:
+            log.warning(
+                "IMU on %s: product code %r is not a family this driver knows: "
+                "asking for the configured outputs as they are",
+                self.port,
+                product_code,
+            )
+        request = self._fit(self._settings, product_code) if self._settings else None
         reply = self._request(
-            ser, MID.SET_OUTPUT_CONFIGURATION, request, reply=MID.OUTPUT_CONFIGURATION
+            ser,
+            MID.SET_OUTPUT_CONFIGURATION,
+            xbus.encode_output_configuration(request) if request else b"",
+            reply=MID.OUTPUT_CONFIGURATION,
+            timeout=self._settings_timeout_s(),
         )
         try:
             settings = xbus.decode_output_configuration(reply)
         except ValueError as e:
             raise DeviceInitError(f"IMU on {self.port}: bad OutputConfiguration: {e}") from None
-        if self._settings and settings != self._settings:
-            log.warning(
-                "IMU on %s adjusted the output configuration: %s",
-                self.port,
-                [s.describe() for s in settings],
-            )
+        if request:
+            self._compare(request, settings, product_code)
+        self.budget = xbus.link_budget(settings, self.baudrate)
+        if request and not self.budget.fits:
+            raise DeviceInitError(self._budget_refusal(settings, product_code))
         self._request(ser, MID.GOTO_MEASUREMENT, reply=MID.GOTO_MEASUREMENT_ACK)
-        rates = [s.rate_hz for s in settings if s.rate_hz != xbus.EVERY_PACKET]
-        self.configured_rate_hz = float(max(rates)) if rates else float(self.rate_hz)
+        self.configured_rate_hz = _sampling_rate(settings) or float(self.rate_hz)
         self.info = {
             "device_id": f"{int.from_bytes(device_id[:4], 'big'):08X}"
             if len(device_id) >= 4
             else device_id.hex(),
-            "product_code": product.decode("ascii", "replace").strip("\x00 "),
+            "product_code": product_code,
+            "family": self.family.name if self.family else "unknown",
+            "function": self.family.function if self.family else "unknown",
             "firmware": _firmware_text(firmware),
             "output_configuration": [s.describe() for s in settings],
+            "adjusted": list(self.adjusted),
+            "granted": list(self.granted),
+            "link_budget": self.budget.describe(),
             "port": self.port,
             "baudrate": self.baudrate,
             "woke_up": self._woke_up,  # it had just powered up and sent WakeUp
         }
         self._last_counter = None
+
+    def _settings_timeout_s(self) -> float:
+        """Settings writes are slow (about 900 ms on the 1-series): twice that, at least."""
+        slowest = self.family.settings_write_s if self.family else 0.9
+        return max(self.request_timeout_s, 2.0 * slowest + 0.2)
+
+    def _fit(self, settings: list[xbus.OutputSetting], product_code: str) -> list:
+        """The request fitted to the family: outputs it lacks left out, each rate one it
+        has (said once, as `adjusted`)."""
+        family = self.family
+        if family is None:
+            return settings
+        fitted, self.adjusted = [], []
+        for s in settings:
+            if not family.has(s.name):
+                why = (
+                    "an IMU-only model has no orientation (leveling needs a VRU or AHRS)"
+                    if s.name in imu_family.NEEDS_ORIENTATION and not family.has_orientation
+                    else f"the {family.name} has no such output"
+                )
+                self.adjusted.append(f"{s.name} left out: {why}")
+                continue
+            rate = family.fit(s.xdi, s.rate_hz)
+            if rate != s.rate_hz:
+                self.adjusted.append(
+                    f"{s.name} at {rate} Hz, not {s.rate_hz} Hz "
+                    f"({product_code}: {imu_family.describe_rates(family, s.xdi)} Hz)"
+                )
+            fitted.append(xbus.OutputSetting(s.xdi, rate))
+        for text in self.adjusted:
+            self._say("output_adjusted", f"IMU: {text}")
+        return fitted
+
+    def _say(self, kind: str, text: str) -> None:
+        """A warning and an event, once per driver (a reconnect configures again)."""
+        if text in self._said:
+            return
+        self._said.add(text)
+        log.warning("%s (%s)", text, self.port)
+        self._event(kind, text)
+
+    def _compare(self, request: list, reply: list, product_code: str) -> None:
+        """Say every difference between the request and what the device uses."""
+        asked = {s.xdi: s.rate_hz for s in request}
+        got = {s.xdi: s.rate_hz for s in reply}
+        self.granted = []
+        for xdi, rate in asked.items():
+            name = xbus.OutputSetting(xdi, rate).name
+            if xdi not in got:
+                self.granted.append(f"{name}: asked for at {_rate_text(rate)}, not granted")
+            elif got[xdi] != rate:
+                self.granted.append(
+                    f"{name}: asked for {_rate_text(rate)}, the device uses {_rate_text(got[xdi])}"
+                )
+        for xdi, rate in got.items():
+            if xdi not in asked:
+                name = xbus.OutputSetting(xdi, rate).name
+                self.granted.append(f"{name}: not asked for, the device adds it")
+        for text in self.granted:
+            self._say("output_granted", f"IMU {product_code}: {text}")
+
+    def _budget_refusal(self, settings: list, product_code: str) -> str:
+        """One line: what the stream needs, and a rate or baud rate that carries it."""
+        budget = self.budget
+        assert budget is not None
+        fits = xbus.baud_that_fits(settings)
+        hints = []
+        if fits is not None:
+            hints.append(
+                f"set [imu] baudrate = {fits} (the device too: walkcap imu set-baud "
+                f"{self.port} {fits})"
+            )
+        rate = _rate_that_fits(settings, self.baudrate, self.family)
+        if rate:
+            hints.append(f"or rate_hz = {rate}")
+        return (
+            f"IMU {product_code} on {self.port}: the output needs {budget.describe()}: "
+            f"more than {self.baudrate} baud carries; " + " ".join(hints)
+        )
+
+    def change_baudrate(self, baudrate: int) -> None:
+        """Set the device's baud rate as Xsens' tools do: SetBaudrate (acknowledged at the
+        old rate), Reset, then the new rate on both ends. The device keeps it across power
+        cycles. The port must not be open in this driver."""
+        if baudrate not in xbus.BAUD_CODE:
+            known = ", ".join(str(b) for b in xbus.BAUDRATES)
+            raise DeviceInitError(f"{baudrate} is not a baud rate an MTi has (known: {known})")
+        import serial
+
+        ser = self._open_port()
+        try:
+            self._parser.clear()
+            self._woke_up = False
+            self._goto_config(ser)
+            product = self._request(ser, MID.REQ_PRODUCT_CODE, reply=MID.PRODUCT_CODE)
+            self.family = imu_family.family_of(product.decode("ascii", "replace"))
+            code = xbus.BAUD_CODE[baudrate]
+            self._request(
+                ser,
+                MID.REQ_BAUDRATE,
+                bytes([code]),
+                reply=MID.REQ_BAUDRATE_ACK,
+                timeout=self._settings_timeout_s(),
+            )
+            self._request(ser, MID.RESET, reply=MID.RESET_ACK)  # the new rate applies now
+            try:
+                ser.baudrate = baudrate
+            except (serial.SerialException, OSError, ValueError) as e:
+                raise DeviceNotAvailable(
+                    f"IMU port {self.port} cannot run at {baudrate} baud: {_reason(e)}"
+                ) from None
+            self._parser.clear()
+            self.baudrate = baudrate
+            self._goto_config(ser)  # acknowledges the WakeUp after the reset: stays in config
+            reply = self._request(ser, MID.REQ_BAUDRATE, reply=MID.REQ_BAUDRATE_ACK)
+            if not reply or xbus.BAUD_CODES.get(reply[0]) != baudrate:
+                raise DeviceInitError(
+                    f"IMU on {self.port} reports baud code {reply.hex() or 'none'} "
+                    f"after SetBaudrate {baudrate}"
+                )
+        finally:
+            _close_quietly(ser)
 
     def _goto_config(self, ser) -> None:
         """Into configuration: acknowledge a WakeUp, else GoToConfig until it is acked."""
@@ -304,14 +461,15 @@ class XbusImu(Imu):
             f"{self.baudrate} baud?)"
         )
 
-    def _request(self, ser, mid: int, data: bytes = b"", *, reply: int) -> bytes:
+    def _request(
+        self, ser, mid: int, data: bytes = b"", *, reply: int, timeout: float | None = None
+    ) -> bytes:
         name = _request_name(mid, data)
+        timeout = self.request_timeout_s if timeout is None else timeout
         self._write(ser, xbus.build(mid, data), name)
-        answer = self._await(ser, reply, name, self.request_timeout_s)
+        answer = self._await(ser, reply, name, timeout)
         if answer is None:
-            raise DeviceInitError(
-                f"IMU on {self.port}: no answer to {name} within {self.request_timeout_s:g} s"
-            )
+            raise DeviceInitError(f"IMU on {self.port}: no answer to {name} within {timeout:g} s")
         return answer
 
     def _write(self, ser, frame: bytes, name: str) -> None:
@@ -345,7 +503,7 @@ class XbusImu(Imu):
                 if msg.mid == MID.ERROR:
                     code = msg.data[0] if msg.data else 0
                     raise DeviceInitError(
-                        f"IMU on {self.port} answered {name} with {xbus.error_text(code)}"
+                        f"IMU on {self.port} answered {name} with {xbus.error_text(code, msg.data)}"
                     )
                 if msg.mid == MID.WAKEUP:  # just powered up: keep it in configuration
                     self._write(ser, xbus.build(MID.WAKEUP_ACK), "WakeUpAck")
@@ -458,7 +616,7 @@ class XbusImu(Imu):
         elif msg.mid == MID.ERROR:
             self.device_errors += 1
             code = msg.data[0] if msg.data else 0
-            self._event("device_error", f"IMU sent {xbus.error_text(code)}", t, code=code)
+            self._event("device_error", f"IMU sent {xbus.error_text(code, msg.data)}", t, code=code)
         elif msg.mid == MID.WAKEUP:
             self._event("device_restarted", "IMU restarted (WakeUp) while streaming", t)
 
@@ -487,6 +645,8 @@ class XbusImu(Imu):
         else:
             time_ns = t_sent
         self._last_sample_ns = t
+        if values.keys() <= _NOT_MEASUREMENTS:
+            return  # a status-only message (status faster than the data): no sample
         self._deliver(_sample(values, data.coordinate_systems, t, time_ns))
 
     def _reconnected(self, t: int) -> None:
@@ -568,7 +728,12 @@ class XbusImu(Imu):
             details={
                 "device_id": self.info.get("device_id", ""),
                 "product_code": self.info.get("product_code", ""),
+                "family": self.info.get("family", ""),
+                "function": self.info.get("function", ""),
                 "firmware": self.info.get("firmware", ""),
+                "link_budget": self.info.get("link_budget", ""),
+                "adjusted": self.info.get("adjusted", []),
+                "granted": self.info.get("granted", []),
                 "port": self.port,
                 "offset_ms": clock.offset_ms,
                 "drift_ppm": clock.drift_ppm,
@@ -582,14 +747,6 @@ class XbusImu(Imu):
                 "reconnects": self.reconnects,
             },
         )
-
-
-def mock_baudrate(config: Any) -> int:
-    """The emulated line's speed: as configured, raised to 921600 baud above 100 Hz, which
-    115200 baud cannot carry (about 157 messages/s of the default outputs). A real MTi's
-    baud rate is whatever it was set to; only a mock can choose."""
-    baudrate = int(getattr(config, "baudrate", 115200))
-    return max(baudrate, 921600) if getattr(config, "rate_hz", 100) > 100 else baudrate
 
 
 class EmulatedImu(XbusImu):
@@ -606,6 +763,8 @@ class EmulatedImu(XbusImu):
         orientation_at: Callable[[float], np.ndarray] | None = None,
         noise: bool = True,
         baudrate: int = 115200,
+        model: str = "MTi-3",
+        settings_write_s: float | None = None,
         **driver: Any,
     ) -> None:
         from devices.imu_emulator import ImuEmulator
@@ -619,6 +778,8 @@ class EmulatedImu(XbusImu):
                 orientation_at=orientation_at,
                 noise=noise,
                 baudrate=baudrate,
+                model=model,
+                settings_write_s=settings_write_s,
             )
         except ValueError as e:
             raise DeviceInitError(str(e)) from None
@@ -637,7 +798,8 @@ class EmulatedImu(XbusImu):
             jitter_ms=getattr(config, "jitter_ms", 0.0),
             seed=getattr(config, "seed", 0),
             orientation_at=orientation_at,
-            baudrate=mock_baudrate(config),
+            baudrate=getattr(config, "baudrate", 115200),
+            model=getattr(config, "emulate", "MTi-3"),
         )
 
     def true_time_ns(self, sample_time_fine: int) -> int:
@@ -697,6 +859,40 @@ def _orientation(values: dict[str, Any], systems: dict[str, str]) -> np.ndarray 
     return quat_normalize(q)
 
 
+def _rate_text(rate: int) -> str:
+    return "every packet" if rate == xbus.EVERY_PACKET else f"{rate} Hz"
+
+
+def _sampling_rate(settings: list[xbus.OutputSetting]) -> float:
+    """The rate of the measurements (the status word and timestamps left aside)."""
+    rates = [
+        s.rate_hz
+        for s in settings
+        if s.rate_hz not in (0, xbus.EVERY_PACKET) and s.name not in _NOT_MEASUREMENTS
+    ]
+    return float(max(rates)) if rates else 0.0
+
+
+def _rate_that_fits(settings: list, baudrate: int, family: Family | None) -> int | None:
+    """The highest rate (one the family has) at which these outputs fit the baud rate."""
+    top = int(_sampling_rate(settings) or 0)
+    if not top:
+        return None
+    candidates = family.rates(xbus.XDI["acceleration"]) if family else imu_family.divisor_rates(top)
+    for rate in candidates:
+        if rate >= top:
+            continue
+        scaled = [
+            xbus.OutputSetting(
+                s.xdi, s.rate_hz if s.rate_hz == xbus.EVERY_PACKET else min(s.rate_hz, rate)
+            )
+            for s in settings
+        ]
+        if xbus.link_budget(scaled, baudrate).fits:
+            return rate
+    return None
+
+
 def _plain(value: Any) -> Any:
     """JSON-friendly: tuples to lists, recursively."""
     if isinstance(value, tuple):
@@ -722,6 +918,7 @@ def _request_name(mid: int, data: bytes) -> str:
         MID.GOTO_CONFIG: "GoToConfig",
         MID.GOTO_MEASUREMENT: "GoToMeasurement",
         MID.RESET: "Reset",
+        MID.REQ_BAUDRATE: "SetBaudrate" if data else "ReqBaudrate",
         MID.SET_OUTPUT_CONFIGURATION: "SetOutputConfiguration"
         if data
         else "ReqOutputConfiguration",

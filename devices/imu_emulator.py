@@ -13,6 +13,16 @@ sensor -> world (ENU)): the simulated walk's thigh when the mock camera runs, el
 simple gait-like swing. Acceleration is gravity in the sensor frame, rate of turn the
 orientation's derivative, both with noise and bias.
 
+It plays one model (`model`, `[imu] emulate`: "MTi-3", "MTi-630", "MTi-1", ...) by that
+family's rules (devices/imu_family.py): it grants each output the rate the family has
+(the ack carries the rates it uses, as a device's does), answers Error 0x21 (invalid
+parameter) for an output the model lacks (an IMU-only model has no orientation), takes
+its time over settings writes, keeps its baud rate until SetBaudrate and a Reset change
+it, and hears only a host whose line runs at that rate. Output beyond what the baud rate
+carries fills its buffer: messages are lost and it reports Error 0x29 (data overflow).
+How a firmware rounds an unsupported rate is not documented publicly: the emulator grants
+the highest supported rate not above the request.
+
 Runs in a daemon thread of the calling process (tests, the mock backend) or standalone
 (`walkcap imu emulate`).
 """
@@ -30,6 +40,7 @@ import select
 import shutil
 import struct
 import tempfile
+import termios
 import threading
 import time
 import tty
@@ -37,7 +48,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from devices import xbus
+from devices import imu_family, xbus
 from devices.clock import now_ns
 from devices.orientation_error import OrientationError, OrientationErrorModel
 from devices.rotations import (
@@ -54,16 +65,15 @@ from devices.xbus import MID
 log = logging.getLogger(__name__)
 
 GRAVITY = 9.81  # m/s^2
-MAX_RATE_HZ = 400
 MAGNETIC_FIELD_ENU = np.array([0.0, 0.42, -0.91])  # arbitrary units: north and down
 FAULTS = ("corrupt", "drop", "hang", "disconnect", "reconnect")
-_COUNTERS = frozenset({"packet_counter", "sample_time_fine", "sample_time_coarse", "status_word"})
 # Requests a device in measurement mode accepts; the rest need GoToConfig first.
 _MEASUREMENT_OK = frozenset(
     {MID.GOTO_CONFIG, MID.GOTO_MEASUREMENT, MID.RESET, MID.REQ_DID, MID.WAKEUP_ACK}
 )
 _SPIN_NS = 200_000
-_BAUD_CODE = {baud: code for code, baud in sorted(xbus.BAUD_CODES.items(), reverse=True)}
+_SPEEDS = {getattr(termios, f"B{b}"): b for b in xbus.BAUDRATES if hasattr(termios, f"B{b}")}
+_OVERFLOW_REPORT_NS = 1_000_000_000  # Error 0x29 at most once a second
 
 
 def _precise_timers() -> None:
@@ -124,22 +134,34 @@ class ImuEmulator:
         *,
         baudrate: int = 115200,
         start_ticks: int | None = None,
-        device_id: int = 0x03881234,
-        product_code: str = "MTi-3-8A7G6",
+        model: str = "MTi-3",
+        device_id: int | None = None,
+        product_code: str | None = None,
         firmware: tuple[int, int, int] = (1, 8, 2),
         wakeup_s: float = 0.5,
         orientation_error: OrientationErrorModel | None = None,
+        settings_write_s: float | None = None,
     ) -> None:
-        if not 1 <= rate_hz <= MAX_RATE_HZ:
-            raise ValueError(f"IMU emulator rate {rate_hz} Hz: must be 1..{MAX_RATE_HZ}")
-        self.rate_hz = int(rate_hz)
+        code, model_id, self.family = imu_family.emulated_model(model)
+        self.model = model
+        accel = xbus.XDI["acceleration"]
+        if not 1 <= int(rate_hz) <= self.family.max_rate():
+            raise ValueError(
+                f"IMU emulator ({model}): rate {rate_hz} Hz is beyond the {self.family.name} "
+                f"(1..{self.family.max_rate()} Hz)"
+            )
+        self.rate_hz = self.family.fit(accel, int(rate_hz))  # its stored power-up rate
+        # How long a settings write takes here (the family's usual time unless given).
+        self.settings_write_s = (
+            self.family.typical_write_s if settings_write_s is None else settings_write_s
+        )
         self.drift_ppm = float(drift_ppm)
         self.jitter_ms = float(jitter_ms)
         self.baudrate = baudrate
         self.noise = noise
         self.orientation_error = orientation_error
-        self.device_id = device_id
-        self.product_code = product_code
+        self.device_id = model_id if device_id is None else device_id
+        self.product_code = code if product_code is None else product_code
         self.firmware = firmware
         self.wakeup_s = wakeup_s
         self.orientation_at = orientation_at or gait_orientation
@@ -153,7 +175,16 @@ class ImuEmulator:
         self._filter_error = (
             OrientationError(orientation_error, self._rng) if orientation_error else None
         )
-        self._outputs = xbus.output_settings(xbus.DEFAULT_OUTPUTS, self.rate_hz)
+        # Stored settings at power-up: the default outputs this model has, at rate_hz.
+        self._outputs = [
+            s
+            for s in xbus.output_settings(xbus.DEFAULT_OUTPUTS, self.rate_hz)
+            if self.family.has(s.name)
+        ]
+        self._pending_baudrate: int | None = None  # SetBaudrate: applies after a Reset
+        self._last_overflow_report = 0
+        self.overflow_reports = 0  # Error 0x29 messages sent
+        self.last_output_request: list[xbus.OutputSetting] = []
         self._commands: queue.SimpleQueue = queue.SimpleQueue()
         self._lock = threading.Lock()
         self._thread: threading.Thread | None = None
@@ -248,9 +279,13 @@ class ImuEmulator:
     def _start_measurement(self, t: int) -> None:
         self._measuring = True
         self._wakeup_until = 0
-        rates = [s.rate_hz for s in self._outputs if s.name not in _COUNTERS]
-        rates = [MAX_RATE_HZ if r == xbus.EVERY_PACKET else r for r in rates]
-        self._rate = max(rates) if rates else MAX_RATE_HZ
+        rates = [
+            s.rate_hz
+            for s in self._outputs
+            if not xbus.rides_every_packet(s.xdi) and s.rate_hz not in (0, xbus.EVERY_PACKET)
+        ]
+        # Messages go out at the fastest output's rate (the others divide it).
+        self._rate = max(rates) if rates else self.rate_hz
         self._period_ticks = 10_000 / self._rate
         self._meas_ticks0 = int(self._ticks_at(t)) + 1  # the next tick
         self._sample_index = 0
@@ -258,6 +293,7 @@ class ImuEmulator:
     def _plug(self) -> None:
         master, slave = os.openpty()
         tty.setraw(slave)  # no echo, no line editing: a binary serial line
+        self._set_line_speed(slave, self.baudrate)
         flags = fcntl.fcntl(master, fcntl.F_GETFL)
         fcntl.fcntl(master, fcntl.F_SETFL, flags | os.O_NONBLOCK)
         self._master, self._slave = master, slave
@@ -351,6 +387,8 @@ class ImuEmulator:
             return
         if hung:
             return  # a hung device does not read its UART
+        if not self._line_matches():
+            return  # the host's UART runs at another rate: the device hears noise
         for msg in self._parser.feed(data):
             self.requests.append(msg.mid)
             del self.requests[:-200]
@@ -414,10 +452,10 @@ class ImuEmulator:
         encodings: dict[str, tuple[int, str]] = {}  # name -> (precision, coordinate system)
         for setting in self._outputs:
             name = setting.name
-            if (
-                name not in _COUNTERS
-                and setting.rate_hz != xbus.EVERY_PACKET
-                and index % max(1, self._rate // setting.rate_hz)
+            if setting.rate_hz == 0:
+                continue
+            if not xbus.rides_every_packet(setting.xdi) and index % max(
+                1, self._rate // setting.rate_hz
             ):
                 continue
             system = xbus.COORDINATE_SYSTEMS.get(setting.xdi & 0xC, "ENU")
@@ -468,6 +506,13 @@ class ImuEmulator:
         time later. More than the line carries piles up, then overflows the device."""
         if len(self._queue) >= 64:  # the device's output buffer is full: the frame is lost
             self.overflowed += 1
+            if ready_at - self._last_overflow_report >= _OVERFLOW_REPORT_NS:
+                self._last_overflow_report = ready_at
+                self.overflow_reports += 1
+                error = xbus.build(MID.ERROR, bytes([xbus.DATA_OVERFLOW]))
+                start = max(ready_at, self._last_send)
+                self._last_send = start + xbus.wire_time_ns(len(error), self.baudrate)
+                self._queue.append((self._last_send, error))
             return
         start = max(ready_at, self._last_send)
         self._last_send = start + xbus.wire_time_ns(len(frame), self.baudrate)
@@ -481,6 +526,8 @@ class ImuEmulator:
             self._out += self._queue.popleft()[1]
         if not self._out or not self.plugged:
             return
+        if not self._line_matches():  # another rate on the host's side: it reads noise
+            self._out = bytearray(b ^ 0x5A for b in self._out)
         try:
             n = os.write(self._master, self._out)
             del self._out[:n]
@@ -495,6 +542,32 @@ class ImuEmulator:
 
     def _reply(self, mid: int, data: bytes, t: int) -> None:
         self._send_now(xbus.build(mid, data), t)
+
+    def _reply_after_write(self, mid: int, data: bytes, t: int) -> None:
+        """The ack of a settings write, once the (slow) write to flash is done."""
+        self._transmit(xbus.build(mid, data), t + int(self.settings_write_s * 1e9))
+
+    # ---- the line -----------------------------------------------------------------------
+
+    @staticmethod
+    def _set_line_speed(fd: int, baudrate: int) -> None:
+        speed = next((k for k, v in _SPEEDS.items() if v == baudrate), None)
+        if speed is None:
+            return
+        attrs = termios.tcgetattr(fd)
+        attrs[4] = attrs[5] = speed
+        termios.tcsetattr(fd, termios.TCSANOW, attrs)
+
+    def _line_matches(self) -> bool:
+        """Whether the host's end of the line runs at the device's baud rate."""
+        if self._slave is None:
+            return True
+        try:
+            speed = termios.tcgetattr(self._slave)[5]
+        except termios.error:
+            return True
+        host = _SPEEDS.get(speed)
+        return host is None or host == self.baudrate
 
     def _error(self, code: int, t: int) -> None:
         self._reply(MID.ERROR, bytes([code]), t)
@@ -543,14 +616,31 @@ class ImuEmulator:
             queued, last = self._queue, self._last_send
             self._power_up(t)
             self._queue, self._last_send = queued, last  # the ack still goes out
+            if self._pending_baudrate is not None:  # SetBaudrate applies from the reset
+                # The ack leaves at the old rate; then the UART switches.
+                self._flush_at_old_rate()
+                self.baudrate, self._pending_baudrate = self._pending_baudrate, None
         else:  # ReqConfiguration (legacy MTi) and anything unknown
             self._error(xbus.INVALID_MESSAGE, t)
 
+    def _flush_at_old_rate(self) -> None:
+        """Send what is queued now, before the line changes speed."""
+        while self._queue:
+            self._out += self._queue.popleft()[1]
+        if self._out and self.plugged:
+            try:
+                n = os.write(self._master, self._out)
+                del self._out[:n]
+            except OSError:
+                pass
+        self._last_send = now_ns()
+
     def _baudrate_request(self, data: bytes, t: int) -> None:
         if not data:
-            self._reply(MID.REQ_BAUDRATE_ACK, bytes([_BAUD_CODE.get(self.baudrate, 0x02)]), t)
+            self._reply(MID.REQ_BAUDRATE_ACK, bytes([xbus.BAUD_CODE.get(self.baudrate, 0x02)]), t)
         elif len(data) == 1 and data[0] in xbus.BAUD_CODES:
-            self._reply(MID.REQ_BAUDRATE_ACK, b"", t)  # effective after a reset
+            self._pending_baudrate = xbus.BAUD_CODES[data[0]]  # effective after a reset
+            self._reply_after_write(MID.REQ_BAUDRATE_ACK, b"", t)
         elif len(data) == 1:
             self._error(xbus.INVALID_BAUDRATE, t)
         else:
@@ -567,23 +657,23 @@ class ImuEmulator:
         except ValueError:
             self._error(xbus.INVALID_MESSAGE, t)
             return
-        rates = []
+        self.last_output_request = settings  # as the host sent it (tests look at it)
+        granted = []
         for s in settings:
             known = xbus.OUTPUTS.get(s.xdi & 0xFFF0)
             if known is None or (s.xdi & 0xC) not in xbus.COORDINATE_SYSTEMS:
                 self._error(xbus.INVALID_PARAMETER, t)
                 return
-            if s.rate_hz != xbus.EVERY_PACKET and s.name not in _COUNTERS:
-                rates.append(s.rate_hz)
-        if any(not 1 <= r <= MAX_RATE_HZ or MAX_RATE_HZ % r for r in rates):
-            self._error(xbus.INVALID_PERIOD, t)
-            return
-        top = max(rates, default=MAX_RATE_HZ)
-        if any(top % r for r in rates):
-            self._error(xbus.INVALID_PERIOD, t)
-            return
-        self._outputs = settings
-        self._reply(MID.OUTPUT_CONFIGURATION, xbus.encode_output_configuration(settings), t)
+            if not self.family.has(known[0]):  # e.g. a quaternion from an IMU-only model
+                self._error(xbus.INVALID_PARAMETER, t)
+                return
+            # 0xFFFF: every message for the timestamp group, the group's maximum otherwise
+            rate = 0 if s.rate_hz == 0 else self.family.fit(s.xdi, s.rate_hz)
+            granted.append(xbus.OutputSetting(s.xdi, rate))
+        self._outputs = granted
+        self._reply_after_write(
+            MID.OUTPUT_CONFIGURATION, xbus.encode_output_configuration(granted), t
+        )
 
     # ---- faults -----------------------------------------------------------------------
 

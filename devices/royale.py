@@ -14,12 +14,28 @@ the points out and returns at once (a slow callback makes the SDK drop frames). 
 pixels (depthConfidence 0) get xyz 0. Device timestamps (microseconds) are mapped onto
 the session clock with the smallest host-minus-device offset seen so far: the frame that
 arrived with the least delay fixes the mapping.
+
+The binding differs between SDK generations, and the backend takes what each offers:
+
+- frames: `npoints()` (4.x, one numpy array a frame) when present; else (3.x) `points()`
+  read with one C-level attribute getter a point, else the per-index getters.
+- lens: `getLensParameters()` (4.x/5.x) or `getLensParameters(LensParameters())` (3.x,
+  where the binding has the class). Any failure costs only the intrinsics: nominal pico
+  flexx values, a warning, and `details["intrinsics"]` (in the recording's metadata) says
+  which were used.
+- unplug: a roypy `IEventListener` (DEVICE_DISCONNECTED) where the binding has one, else
+  `isConnected()` and frame silence, checked every 0.2 s: the camera is reported lost
+  within a second and reopened when it is connected again.
+- .rrf playback: `asReplay()` with `loop(False)` and `frameCount()` (4.x); without them
+  (3.x) playback has ended when frames stop coming for a second.
 """
 
 from __future__ import annotations
 
 import logging
+import operator
 import re
+import threading
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
@@ -27,6 +43,7 @@ from typing import Any
 
 import numpy as np
 
+from devices.base import LOST, OK
 from devices.camera import Camera
 from devices.clock import now_ns
 from devices.errors import DeviceInitError, DeviceNotAvailable, DeviceOperationError
@@ -73,18 +90,33 @@ def choose_use_case(available: list[str], fps: float, requested: str = "") -> st
 def geometry_from_lens(
     lens: Any, width: int, height: int, name: str = "", serial: str = ""
 ) -> CameraGeometry:
-    """CameraGeometry from getLensParameters() (royale 3/4 or royale 5 key names)."""
+    """CameraGeometry from getLensParameters() (royale 3/4 or royale 5 key names); a lens
+    this does not understand gives the nominal pico flexx intrinsics."""
+    return lens_geometry(lens, width, height, name, serial)[0]
+
+
+def lens_geometry(
+    lens: Any, width: int, height: int, name: str = "", serial: str = ""
+) -> tuple[CameraGeometry, str]:
+    """(geometry, "device" or "nominal: why") from what getLensParameters gave."""
+    source = "device"
     try:
-        if "fx" in lens:
+        if hasattr(lens, "asdict"):  # a SWIG map (LensParamMap)
+            lens = lens.asdict()
+        if isinstance(lens, dict) and "fx" in lens:
             fx, fy, cx, cy = (float(lens[k]) for k in ("fx", "fy", "cx", "cy"))
-        else:
+        elif isinstance(lens, dict):
             fx, fy = (float(v) for v in lens["focalLength"])
             cx, cy = (float(v) for v in lens["principalPoint"])
-    except (KeyError, TypeError, ValueError) as e:
+        else:  # a LensParameters struct
+            fx, fy = (float(v) for v in lens.focalLength)
+            cx, cy = (float(v) for v in lens.principalPoint)
+    except (KeyError, TypeError, ValueError, AttributeError) as e:
         log.warning("lens parameters not understood (%s): nominal pico flexx intrinsics", e)
+        source = f"nominal: lens parameters not understood ({e})"
         d = CameraGeometry()
         fx, fy, cx, cy = d.fx, d.fy, d.cx, d.cy
-    return CameraGeometry(
+    geometry = CameraGeometry(
         width=width,
         height=height,
         fx=fx,
@@ -94,16 +126,50 @@ def geometry_from_lens(
         name=name or "pmd camera",
         serial=serial,
     )
+    return geometry, source
+
+
+def read_lens(roypy, device) -> tuple[Any, str]:
+    """getLensParameters as this binding takes it: (lens, "") or (None, why it failed)."""
+    try:
+        return device.getLensParameters(), ""
+    except TypeError as e:  # royale 3.x: the call fills a LensParameters it is given
+        cls = getattr(roypy, "LensParameters", None)
+        if cls is None:
+            return None, f"this roypy has getLensParameters(param) and no LensParameters ({e})"
+        try:
+            lens = cls()
+            device.getLensParameters(lens)
+            return lens, ""
+        except Exception as e2:
+            return None, f"getLensParameters failed: {e2}"
+    except Exception as e:  # roypy raises RuntimeError with the SDK's status text
+        return None, f"getLensParameters failed: {e}"
+
+
+_POINT_FIELDS = operator.attrgetter("x", "y", "z", "grayValue", "depthConfidence")
+
+
+def frame_path(data: Any) -> str:
+    """How depth_data_arrays reads this binding's DepthData."""
+    if hasattr(data, "npoints"):
+        return "npoints"
+    if hasattr(data, "points"):
+        return "points"
+    return "getters"
 
 
 def depth_data_arrays(data: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(xyz float32 (h, w, 3), confidence uint8, gray uint16) copied out of royale DepthData.
 
-    `npoints()` gives x, y, z, noise, grayValue, depthConfidence per pixel (royale 3/4) or
-    x, y, z, grayValue, depthConfidence (royale 5); older bindings only have getters.
+    `npoints()` gives x, y, z, noise, grayValue, depthConfidence per pixel (royale 4) or
+    x, y, z, grayValue, depthConfidence (royale 5); royale 3 has `points()`, a vector of
+    DepthPoint read with one C-level getter a point (the fastest path it offers), and
+    per-index getters, five Python calls a pixel, as the last resort.
     """
     h, w = int(data.height), int(data.width)
-    if hasattr(data, "npoints"):
+    path = frame_path(data)
+    if path == "npoints":
         points = np.asarray(data.npoints(), dtype=np.float32).reshape(h, w, -1)
         if points.shape[-1] < 5:
             raise DeviceOperationError(f"unexpected royale point layout {points.shape}")
@@ -111,15 +177,24 @@ def depth_data_arrays(data: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         xyz = points[..., :3].copy()
         gray = points[..., gray_channel]
         confidence = points[..., -1]
-    else:  # per-pixel getters: slow, but some bindings have nothing else
-        n = h * w
-        xyz = np.array(
-            [(data.getX(i), data.getY(i), data.getZ(i)) for i in range(n)], dtype=np.float32
-        ).reshape(h, w, 3)
-        gray = np.array([data.getGrayValue(i) for i in range(n)], np.float32).reshape(h, w)
-        confidence = np.array([data.getDepthConfidence(i) for i in range(n)], np.float32).reshape(
-            h, w
-        )
+    else:
+        if path == "points":
+            rows = list(map(_POINT_FIELDS, data.points()))
+        else:
+            rows = [
+                (
+                    data.getX(i),
+                    data.getY(i),
+                    data.getZ(i),
+                    data.getGrayValue(i),
+                    data.getDepthConfidence(i),
+                )
+                for i in range(h * w)
+            ]
+        points = np.array(rows, dtype=np.float32).reshape(h, w, 5)
+        xyz = points[..., :3].copy()
+        gray = points[..., 3]
+        confidence = points[..., 4]
     confidence = np.clip(confidence, 0, 255).astype(np.uint8)
     xyz[confidence == 0] = 0.0  # royale already does this; make sure of it
     return xyz, confidence, np.clip(gray, 0, 65535).astype(np.uint16)
@@ -136,8 +211,49 @@ def _make_listener(roypy, on_data: Callable[[Any], None]):
     return _Listener()
 
 
+DEVICE_DISCONNECTED = "DEVICE_DISCONNECTED"
+
+
+def _make_event_listener(roypy, on_lost: Callable[[str], None]):
+    """A roypy IEventListener reporting DEVICE_DISCONNECTED, or None: not in this binding."""
+    base = getattr(roypy, "IEventListener", None)
+    if base is None:
+        return None
+    disconnected = getattr(roypy, "EventType_DEVICE_DISCONNECTED", DEVICE_DISCONNECTED)
+
+    class _Events(base):
+        def onEvent(self, event):  # the SDK's thread: never raise into C++
+            try:
+                kind = event.type() if callable(getattr(event, "type", None)) else None
+                text = str(event.describe()) if hasattr(event, "describe") else str(event)
+                if kind == disconnected or str(kind) == DEVICE_DISCONNECTED:
+                    on_lost(text or "USB device disconnected")
+            except Exception:
+                log.exception("royale event")
+
+    return _Events()
+
+
+def device_time_us(data: Any) -> int | None:
+    """DepthData.timeStamp in microseconds: an int in the bindings, a std::chrono duration
+    (`.count()`) where SWIG leaves it wrapped; None when neither reads."""
+    stamp = getattr(data, "timeStamp", None)
+    for read in (int, lambda s: int(s.count())):
+        try:
+            return read(stamp)
+        except (TypeError, ValueError, AttributeError):
+            continue
+    return None
+
+
+WATCH_INTERVAL_S = 0.2
+SILENT_LOST_S = 0.8  # no frame for this long (and no other way to tell): lost within 1 s
+REOPEN_INTERVAL_S = 0.5
+
+
 class RoyaleCamera(Camera):
     backend = "royale"
+    watchdog = False  # its own watcher: unplug events, isConnected and silence
 
     def __init__(self, config=None, *, source: str | None = None) -> None:
         super().__init__(config)
@@ -149,6 +265,15 @@ class RoyaleCamera(Camera):
         self._recording_frames = 0  # a .rrf playback ends after this many (0: unknown)
         self._offset_ns: int | None = None
         self._index = 0
+        self._serial_id = ""
+        self._use_case = ""
+        self._events_listener = None
+        self._watcher: threading.Thread | None = None
+        self._watching = threading.Event()
+        self._lost_reason: str | None = None  # set by the event listener (SDK thread)
+        self._copying = False  # onNewData is copying a frame out
+        self._warned_stamp = False
+        self._activity_ns = 0  # the last onNewData's end
 
     @property
     def is_recording(self) -> bool:
@@ -204,24 +329,134 @@ class RoyaleCamera(Camera):
         serial = str(self._sdk("getId", device.getId))
         width = int(getattr(device, "getMaxSensorWidth", lambda: 224)())
         height = int(getattr(device, "getMaxSensorHeight", lambda: 171)())
-        self.geometry = geometry_from_lens(
-            self._sdk("getLensParameters", device.getLensParameters), width, height, name, serial
-        )
+        lens, why = read_lens(self._roypy, device)
+        if lens is None:
+            log.warning("royale: %s: nominal pico flexx intrinsics", why)
+            self.geometry = replace(CameraGeometry(), width=width, height=height, serial=serial)
+            self.geometry = replace(self.geometry, name=name or self.geometry.name)
+            intrinsics = f"nominal: {why}"
+        else:
+            self.geometry, intrinsics = lens_geometry(lens, width, height, name, serial)
+        self._serial_id = serial
+        self._use_case = use_case
         self.details = {
             "camera": name,
             "id": serial,
             "use_case": use_case,
             "source": self.source or serial,
+            "intrinsics": intrinsics,
+            "roypy": str(getattr(self._roypy, "__version__", "") or _roypy_version(self._roypy)),
         }
 
     def _start(self) -> None:
         self._index = 0
         self._offset_ns = None
+        self._lost_reason = None
+        self._capture()
+        self._watching.set()
+        self._watcher = threading.Thread(target=self._watch, name="walkcap-royale", daemon=True)
+        self._watcher.start()
+
+    def _capture(self) -> None:
+        """Listeners on, capture started (at start and after a reconnect)."""
+        device = self._device
         self._listener = _make_listener(self._roypy, self._on_data)
-        self._sdk("registerDataListener", self._device.registerDataListener, self._listener)
-        self._sdk("startCapture", self._device.startCapture)
+        self._sdk("registerDataListener", device.registerDataListener, self._listener)
+        self._events_listener = _make_event_listener(self._roypy, self._on_lost_event)
+        if self._events_listener is not None and hasattr(device, "registerEventListener"):
+            self._sdk("registerEventListener", device.registerEventListener, self._events_listener)
+        self.details["unplug_detection"] = (
+            "event listener" if self._events_listener is not None else "isConnected and silence"
+        )
+        self._sdk("startCapture", device.startCapture)
+
+    def _on_lost_event(self, text: str) -> None:
+        self._lost_reason = text  # the watcher acts on it (off the SDK's thread)
+
+    def _watch(self) -> None:
+        """Every 0.2 s: lost (an event, isConnected() False, or a second without frames),
+        reopened when the camera is back; a 3.x replay ends when its frames stop."""
+        next_reopen = 0.0
+        while self._watching.wait(0) and not self._stopped_watching():
+            t = now_ns()
+            if self._state == LOST:
+                if t >= next_reopen:
+                    next_reopen = t + REOPEN_INTERVAL_S * 1e9
+                    self._reopen()
+            elif self._state == OK:
+                # A frame being copied (slow on 3.x) is not silence.
+                since = max(self._last_frame_ns or self._started_ns, self._activity_ns)
+                silent = not self._copying and (t - since) * 1e-9 > max(
+                    SILENT_LOST_S, 2.0 / max(self.config.fps, 1)
+                )
+                if self.is_recording:
+                    if silent and not self._recording_frames and self._index:
+                        self._finish(
+                            "end_of_recording",
+                            f"end of {Path(self.source).name} after {self._index} frames",
+                        )
+                else:
+                    reason = self._lost_reason or self._disconnected(silent)
+                    if reason:
+                        self._lose(reason)
+            self._watching.wait(WATCH_INTERVAL_S)
+            if not self._running:
+                return
+
+    def _stopped_watching(self) -> bool:
+        return not self._running
+
+    def _disconnected(self, silent: bool) -> str | None:
+        is_connected = getattr(self._device, "isConnected", None)
+        try:
+            if is_connected is not None and not is_connected():
+                return "camera disconnected"
+        except Exception as e:  # a vanished device may raise instead
+            return f"camera disconnected ({e})"
+        if silent and is_connected is None:
+            return "no frame for a second"
+        return None
+
+    def _lose(self, reason: str) -> None:
+        self._fail(f"camera lost: {reason}; reopening when it is connected")
+        self._lost_reason = None
+        device, self._device = self._device, None
+        try:
+            if device is not None:
+                device.stopCapture()
+        except Exception:  # an unplugged camera cannot stop
+            pass
+
+    def _reopen(self) -> None:
+        try:
+            connected = [str(c) for c in self._manager.getConnectedCameraList()]
+        except Exception:
+            return
+        wanted = self.source or self._serial_id
+        if wanted not in connected:
+            return
+        try:
+            device = self._manager.createCamera(wanted)
+            device.initialize()
+            if self._use_case:
+                device.setUseCase(self._use_case)
+            self._device = device
+            self._capture()
+        except Exception as e:
+            log.info("royale reopen: %s", e)
+            self._device = None
+            return
+        self._started_ns = now_ns()
+        self._last_frame_ns = 0
+        self._set_state(OK, "streaming")
+        self._event("reconnected", f"camera {wanted} is back")
 
     def _stop(self) -> None:
+        self._watching.clear()
+        self._running = False
+        if self._watcher is not None and self._watcher is not threading.current_thread():
+            self._watcher.join(timeout=2.0)
+        self._watcher = None
         device = self._device
         if device is None:
             return
@@ -229,15 +464,26 @@ class RoyaleCamera(Camera):
             device.stopCapture()
             if hasattr(device, "unregisterDataListener"):
                 device.unregisterDataListener()
+            if self._events_listener is not None and hasattr(device, "unregisterEventListener"):
+                device.unregisterEventListener()
         except Exception as e:  # an unplugged camera cannot stop: nothing left to do
             log.warning("royale stopCapture: %s", e)
         self._listener = None
+        self._events_listener = None
 
     def _close(self) -> None:
         self._device = None
         self._manager = None
 
     def _on_data(self, data) -> None:
+        self._copying = True
+        try:
+            self._take(data)
+        finally:
+            self._copying = False
+            self._activity_ns = now_ns()
+
+    def _take(self, data) -> None:
         host = now_ns()
         try:
             xyz, confidence, gray = depth_data_arrays(data)
@@ -245,7 +491,13 @@ class RoyaleCamera(Camera):
             self._count_error()
             self._event("bad_frame", f"royale frame not understood: {e}")
             return
-        device_ns = int(data.timeStamp) * 1000  # microseconds
+        stamp_us = device_time_us(data)
+        if stamp_us is None:  # a binding whose timestamp Python cannot read: arrival time
+            stamp_us = host // 1000
+            if not self._warned_stamp:
+                self._warned_stamp = True
+                self._event("no_device_time", "royale timestamps unreadable: arrival times used")
+        device_ns = stamp_us * 1000
         offset = host - device_ns
         if self._offset_ns is None or offset < self._offset_ns:
             self._offset_ns = offset
@@ -263,3 +515,11 @@ class RoyaleCamera(Camera):
             self._finish(
                 "end_of_recording", f"end of {Path(self.source).name} after {self._index} frames"
             )
+
+
+def _roypy_version(roypy) -> str:
+    get = getattr(roypy, "getVersionString", None)
+    try:
+        return str(get()) if get else "unknown"
+    except Exception:
+        return "unknown"

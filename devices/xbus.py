@@ -64,19 +64,62 @@ def mid_name(mid: int) -> str:
         return f"0x{mid:02X}"
 
 
-# Error message codes (XsResultValue). The shared notes say 0x20 "invalid period": in
-# Xsens' drivers 0x03 is the invalid period and 0x20 an invalid baud rate.
+# Error codes a device sends in an Error message (MID 0x42): XsResultValue below 256
+# (xsresultvalue.h in Xsens' public SDK; values from 256 up are host-side results).
 ERROR_CODES = {
+    0x00: "ok",
+    0x01: "no bus communication",
+    0x02: "bus not ready: InitBus or SetBID not issued",
     0x03: "invalid period",
-    0x04: "invalid message",
-    0x1E: "timer overflow",
+    0x04: "invalid message: not valid or not implemented",
+    0x10: "bus initialisation failed (1)",
+    0x11: "bus initialisation failed (2)",
+    0x12: "bus initialisation failed (3)",
+    0x14: "setting the bus id failed (1)",
+    0x15: "setting the bus id failed (2)",
+    0x18: "measurement failed: timer overflow, the period is too short",
+    0x19: "measurement failed (2)",
+    0x1A: "measurement failed: more than 255 bytes of data",
+    0x1B: "measurement failed: timer overflow (4)",
+    0x1C: "measurement failed: timer overflow (5)",
+    0x1D: "measurement failed: no correct response",
+    0x1E: "timer overflow during measurement",
     0x20: "invalid baud rate",
     0x21: "invalid parameter",
-    0x28: "device error",
+    0x23: "measurement failed: transmit buffer full",
+    0x24: "measurement failed: transmit buffer overflow",
+    0x25: "wireless failure",
+    0x28: "device error (try updating the firmware)",
+    0x29: "data overflow: more output than the baud rate carries",
+    0x2A: "buffer overflow: the sample buffer filled during a communication outage",
+    0x2B: "external trigger error",
+    0x2C: "sample stream error",
+    0x2D: "power dip",
+    0x2E: "power overcurrent",
+    0x2F: "overheating",
+    0x30: "battery low",
+    0x31: "invalid filter profile",
+    0x32: "invalid stored settings",
+    0x33: "access denied",
+    0x34: "file error",
+    0x35: "output configuration error: cannot go to measurement",
 }
 INVALID_PERIOD, INVALID_MESSAGE, INVALID_BAUDRATE, INVALID_PARAMETER = 0x03, 0x04, 0x20, 0x21
+DEVICE_ERROR, DATA_OVERFLOW, BUFFER_OVERFLOW, OUTPUT_CONFIG_ERROR = 0x28, 0x29, 0x2A, 0x35
+# Error 0x28 carries a u32 XsDeviceErrorType after the code.
+DEVICE_ERROR_TYPES = {
+    0: "unknown",
+    1: "IMCU timeout",
+    2: "IMCU settings invalid",
+    3: "IMCU settings failure",
+    4: "IMCU EMTS write failure",
+    5: "IMCU EMTS read failure",
+    6: "DSP crashed",
+    7: "DSP booting timeout",
+    8: "DSP settings invalid",
+}
 
-BAUD_CODES = {  # SetBaudrate code -> baud
+BAUD_CODES = {  # SetBaudrate code -> baud (xsbaudcode.h)
     0x00: 460800,
     0x01: 230400,
     0x02: 115200,
@@ -85,15 +128,24 @@ BAUD_CODES = {  # SetBaudrate code -> baud
     0x07: 19200,
     0x09: 9600,
     0x0B: 4800,
-    0x0A: 921600,
-    0x80: 921600,
+    0x0A: 921600,  # MTi firmware 2.4.6 and later
+    0x80: 921600,  # the legacy code
     0x0C: 2000000,
+    0x0E: 3500000,
     0x0D: 4000000,
 }
+# The code a host sends for each baud rate (0x0A, not the legacy 0x80, for 921600).
+BAUD_CODE = {baud: code for code, baud in BAUD_CODES.items() if code != 0x80}
+BAUDRATES = tuple(sorted(BAUD_CODE))
 
 
-def error_text(code: int) -> str:
-    return f"Error 0x{code:02X} ({ERROR_CODES.get(code, 'unknown error')})"
+def error_text(code: int, data: bytes = b"") -> str:
+    """'Error 0x29 (data overflow: ...)'; with the Error message's data, 0x28's type too."""
+    text = f"Error 0x{code:02X} ({ERROR_CODES.get(code, 'a code this driver does not know')})"
+    if code == DEVICE_ERROR and len(data) >= 5:
+        kind = int.from_bytes(data[1:5], "big")
+        text = text[:-1] + f": {DEVICE_ERROR_TYPES.get(kind, f'type {kind}')})"
+    return text
 
 
 # --------------------------------------------------------------------------- frames
@@ -124,7 +176,7 @@ class MTData2:
     # Output name -> "ENU" | "NED" | "NWU" for orientation and free acceleration outputs.
     # Shared between messages of the same layout: read it, do not modify it.
     coordinate_systems: dict[str, str] = field(default_factory=dict)
-    skipped: tuple[int, ...] = ()  # XDIs skipped: unknown identifier or unexpected size
+    skipped: tuple[int, ...] = ()  # XDIs skipped: unknown, unexpected size or a repeat
     truncated: bool = False  # a packet ran past the end of the payload
 
 
@@ -222,11 +274,16 @@ class XbusParser:
             mid = buf[i + 2]
             data = bytes(buf[start:end])
             if mid == 0x36 and decode:
-                decoded = decode_mtdata2(data)
+                try:
+                    decoded = decode_mtdata2(data)
+                except (struct.error, IndexError, TypeError, ValueError, KeyError):
+                    # A payload no layout explains: counted, its values not given.
+                    decoded = None
+                    self.malformed += 1
                 out.append(Message(mid, data, bid, decoded))
-                if decoded.skipped:
+                if decoded is not None and decoded.skipped:
                     self.unknown_ids += len(decoded.skipped)
-                if decoded.truncated:
+                if decoded is not None and decoded.truncated:
                     self.malformed += 1
             else:
                 out.append(Message(mid, data, bid))
@@ -365,7 +422,8 @@ class _Layout:
             expected += [xdi, size]
             idx += 2
             known = OUTPUTS.get(xdi & 0xFFF0)
-            if known is None or value_size(xdi) != size:
+            # A repeated output is skipped: decoding it twice would convert one value twice.
+            if known is None or value_size(xdi) != size or known[0] in names:
                 fmt.append(f"{size}x")
                 skipped.append(xdi)
                 continue
@@ -502,13 +560,23 @@ def encode_mtdata2(
 
 # --------------------------------------------------------------------------- configuration
 
-EVERY_PACKET = 0xFFFF  # output frequency for counters and timestamps
+# Frequency 0xFFFF in SetOutputConfiguration: for the timestamp group (0x10xx: packet
+# counter, SampleTimeFine, ...) "in every message"; for any other output "the highest
+# rate the device has for it" (xsoutputconfiguration.h). walkcap sends 0xFFFF only for
+# the timestamp group and an explicit rate for everything else.
+EVERY_PACKET = 0xFFFF
+TIMESTAMP_GROUP = 0x1000
+
+
+def rides_every_packet(xdi: int) -> bool:
+    """Whether 0xFFFF means "in every message" for this identifier."""
+    return xdi & 0xFF00 == TIMESTAMP_GROUP
 
 
 @dataclass(frozen=True)
 class OutputSetting:
     xdi: int  # with precision and coordinate-system bits
-    rate_hz: int  # EVERY_PACKET: in every message
+    rate_hz: int  # EVERY_PACKET: in every message (timestamp group only)
 
     @property
     def name(self) -> str:
@@ -516,11 +584,11 @@ class OutputSetting:
         return known[0] if known else f"0x{self.xdi:04X}"
 
     def describe(self) -> dict[str, Any]:
-        d: dict[str, Any] = {
-            "output": self.name,
-            "xdi": f"0x{self.xdi:04X}",
-            "rate_hz": "every packet" if self.rate_hz == EVERY_PACKET else self.rate_hz,
-        }
+        if self.rate_hz == EVERY_PACKET:
+            rate: Any = "every packet" if rides_every_packet(self.xdi) else "maximum"
+        else:
+            rate = self.rate_hz
+        d: dict[str, Any] = {"output": self.name, "xdi": f"0x{self.xdi:04X}", "rate_hz": rate}
         known = OUTPUTS.get(self.xdi & 0xFFF0)
         if known and known[1] == "real":
             d["precision"] = PRECISION_NAMES[self.xdi & 0x3]
@@ -539,10 +607,6 @@ def decode_output_configuration(data: bytes) -> list[OutputSetting]:
     return [OutputSetting(*struct.unpack_from(">HH", data, i)) for i in range(0, len(data), 4)]
 
 
-# Counters and status go in every message; measurements at the session's rate.
-_EVERY_PACKET_OUTPUTS = frozenset(
-    {"packet_counter", "sample_time_fine", "sample_time_coarse", "status_word"}
-)
 DEFAULT_OUTPUTS = (
     "packet_counter",
     "sample_time_fine",
@@ -553,22 +617,27 @@ DEFAULT_OUTPUTS = (
 )
 
 
+def xdi_of(name: str, precision: int = FLOAT32, coordinate_system: str = "ENU") -> int:
+    """The identifier of a named output with its precision and coordinate-system bits."""
+    if name not in XDI:
+        raise ValueError(f"unknown IMU output {name!r} (known: {', '.join(sorted(XDI))})")
+    xdi = XDI[name]
+    if OUTPUTS[xdi][1] == "real":
+        xdi |= precision
+        if name in WORLD_FRAME_OUTPUTS:
+            xdi |= _COORDINATE_CODES[coordinate_system]
+    return xdi
+
+
 def output_settings(
     names: Iterable[str], rate_hz: int, precision: int = FLOAT32, coordinate_system: str = "ENU"
 ) -> list[OutputSetting]:
-    """SetOutputConfiguration entries for named outputs at one rate."""
+    """SetOutputConfiguration entries: the timestamp group in every message, every other
+    output (the status word too) at `rate_hz`. devices.imu_family fits them to a model."""
     settings = []
     for name in names:
-        if name not in XDI:
-            raise ValueError(f"unknown IMU output {name!r} (known: {', '.join(sorted(XDI))})")
-        xdi = XDI[name]
-        if OUTPUTS[xdi][1] == "real":
-            xdi |= precision
-            if name in WORLD_FRAME_OUTPUTS:
-                xdi |= _COORDINATE_CODES[coordinate_system]
-        settings.append(
-            OutputSetting(xdi, EVERY_PACKET if name in _EVERY_PACKET_OUTPUTS else int(rate_hz))
-        )
+        xdi = xdi_of(name, precision, coordinate_system)
+        settings.append(OutputSetting(xdi, EVERY_PACKET if rides_every_packet(xdi) else rate_hz))
     return settings
 
 
@@ -577,4 +646,68 @@ def wire_time_ns(nbytes: int, baudrate: int) -> int:
     return nbytes * 10 * 1_000_000_000 // baudrate if baudrate > 0 else 0
 
 
-# --------------------------------------------------------------------------- benchmark
+# --------------------------------------------------------------------------- link budget
+
+BITS_PER_BYTE = 10  # 8N1: a start bit, 8 data bits, a stop bit
+LINK_MARGIN = 0.8  # use at most this share of the line: bursts and replies need room
+
+
+@dataclass(frozen=True)
+class LinkBudget:
+    """What an output configuration costs on the serial line."""
+
+    message_rate_hz: float  # MTData2 messages a second
+    bytes_per_message: float  # on average, frame included
+    bytes_per_s: float
+    baudrate: int
+
+    @property
+    def bits_per_s(self) -> float:
+        return self.bytes_per_s * BITS_PER_BYTE
+
+    @property
+    def load(self) -> float:
+        """The share of the line's capacity used (1.0: full)."""
+        return self.bits_per_s / self.baudrate if self.baudrate > 0 else float("inf")
+
+    @property
+    def fits(self) -> bool:
+        return self.load <= LINK_MARGIN
+
+    def describe(self) -> str:
+        return (
+            f"{self.message_rate_hz:g} messages/s x {self.bytes_per_message:.0f} bytes = "
+            f"{self.bits_per_s / 1000:.1f} kbit/s of {self.baudrate / 1000:g} kbit/s "
+            f"({self.load:.0%}, at most {LINK_MARGIN:.0%})"
+        )
+
+
+def link_budget(settings: Iterable[OutputSetting], baudrate: int) -> LinkBudget:
+    """Bytes a second of an MTData2 stream: each output (3 header bytes + its data) at its
+    rate, timestamp-group outputs in every message, 5 frame bytes (7 when extended) a
+    message. Messages go out at the highest output rate (the rates divide it)."""
+    settings = list(settings)
+    rates = [s.rate_hz for s in settings if s.rate_hz != EVERY_PACKET and s.rate_hz > 0]
+    message_rate = float(max(rates)) if rates else 0.0
+    data_per_s = 0.0
+    payload_max = 0
+    for s in settings:
+        size = value_size(s.xdi)
+        if size is None or s.rate_hz == 0:
+            continue
+        rate = message_rate if s.rate_hz == EVERY_PACKET else float(s.rate_hz)
+        data_per_s += (3 + size) * rate
+        payload_max += 3 + size
+    frame = 5 if payload_max < EXTENDED_LENGTH else 7
+    per_s = data_per_s + frame * message_rate
+    per_message = per_s / message_rate if message_rate else 0.0
+    return LinkBudget(message_rate, per_message, per_s, int(baudrate))
+
+
+def baud_that_fits(settings: Iterable[OutputSetting]) -> int | None:
+    """The lowest standard baud rate that carries these outputs (None: none does)."""
+    settings = list(settings)
+    for baud in BAUDRATES:
+        if baud >= 115200 and link_budget(settings, baud).fits:
+            return baud
+    return None

@@ -196,7 +196,8 @@ def group_metrics(labels: np.ndarray, predictions: np.ndarray) -> GroupMetrics:
     labels = np.asarray(labels)
     predictions = np.asarray(predictions)
     cm = confusion_matrix(predictions, labels)
-    totals = cm.sum(axis=1)
+    # every labelled frame counts, an undecided one (-1: no finite output) as wrong
+    totals = np.bincount(labels[labels >= 0], minlength=len(MODES))[: len(MODES)]
     per_class = {
         m: (float(cm[i, i] / totals[i]) if totals[i] else None) for i, m in enumerate(MODES)
     }
@@ -269,6 +270,8 @@ def evaluate_sessions(
 ) -> dict[str, GroupMetrics]:
     """Per-frame quality, all frames and per preset ("all", "indoor", "outdoor", ...);
     with the error breakdown when every session carries the simulator's truth."""
+    from inference.evaluation import decisions_of
+
     labels: dict[str, list[np.ndarray]] = {"all": []}
     preds: dict[str, list[np.ndarray]] = {"all": []}
     per_session: dict[str, list[float]] = {"all": []}
@@ -280,7 +283,7 @@ def evaluate_sessions(
         s = s.labelled()
         if not len(s):
             continue
-        p = np.argmax(classifier.predict_batch(s.images), axis=1)
+        p = decisions_of(classifier.predict_batch(s.images))
         for key in ("all", s.preset or "unknown"):
             labels.setdefault(key, []).append(s.labels)
             preds.setdefault(key, []).append(p)

@@ -213,17 +213,66 @@ def test_mock_keeps_a_start_time_chosen_before_start(short_sim):
         assert cam.recv(2.0).device_time_ns == chosen
 
 
-def test_mock_paces_frames_in_real_time(short_sim):
-    cam = MockCamera(CameraConfig(fps=20), simulator=short_sim, realtime=True)
+class SteppedClock:
+    """A session clock that moves only when the camera sleeps on it (or a test moves it)."""
+
+    def __init__(self, t_ns: int = 10**12, sleeps_until_stop: int | None = None) -> None:
+        self.t = self.start = t_ns
+        self.sleeps: list[float] = []
+        self._sleeps_until_stop = sleeps_until_stop
+
+    def __call__(self) -> int:
+        return self.t
+
+    def sleep(self, seconds: float) -> bool:
+        self.sleeps.append(seconds)
+        self.t += round(seconds * 1e9)
+        return len(self.sleeps) == self._sleeps_until_stop  # True: stopped meanwhile
+
+
+def test_mock_sends_frame_k_at_k_periods_on_its_clock(short_sim):
+    clock = SteppedClock(sleeps_until_stop=7)  # stopped while waiting for frame 7
+    cam = MockCamera(
+        CameraConfig(fps=20), simulator=short_sim, realtime=True, clock=clock, sleep=clock.sleep
+    )
     with cam:
         cam.start()
-        t0 = time.monotonic()
-        frames = [cam.recv(2.0) for _ in range(8)]
-        elapsed = time.monotonic() - t0
-    assert all(f is not None for f in frames)
-    assert 0.25 < elapsed < 1.0  # 7 periods of 50 ms after the first frame
-    gaps = np.diff([f.device_time_ns for f in frames]) * 1e-9
-    np.testing.assert_allclose(gaps, 0.05, atol=1e-6)
+        frames = [cam.recv(5.0) for _ in range(7)]
+        assert cam.recv(0.05) is None
+    assert [f.index for f in frames] == list(range(7))
+    assert [f.device_time_ns - clock.start for f in frames] == [k * 50_000_000 for k in range(7)]
+    assert [f.host_time_ns for f in frames] == [f.device_time_ns for f in frames]  # when due
+    np.testing.assert_allclose(clock.sleeps, 0.05)  # one period before each frame after 0
+
+
+def test_a_mock_too_slow_for_its_rate_skips_to_the_current_frame_counted(short_sim, monkeypatch):
+    clock = SteppedClock()
+    render = short_sim.render
+
+    def slow_render(*args, **kw):
+        clock.t += 250_000_000  # five periods at 20 fps
+        return render(*args, **kw)
+
+    monkeypatch.setattr(short_sim, "render", slow_render)
+    cam = MockCamera(
+        CameraConfig(fps=20, buffer_frames=64),
+        simulator=short_sim,
+        realtime=True,
+        clock=clock,
+        sleep=clock.sleep,
+    )
+    with cam:
+        cam.start()
+        frames = list(cam)  # to the end of the course (2.46 s: frames 0 to 49)
+    sent = list(range(0, 50, 5))  # each render ends 4 periods late: those 4 frames are skipped
+    assert [f.index for f in frames] == sent
+    assert [f.device_time_ns - clock.start for f in frames] == [k * 50_000_000 for k in sent]
+    assert [f.host_time_ns - clock.start for f in frames] == [
+        (i + 1) * 250_000_000 for i in range(len(sent))
+    ]
+    gaps = [e for e in cam.poll_events() if e.kind == "gap"]
+    assert [e.details["skipped"] for e in gaps] == [4] * len(sent)
+    assert cam.status().errors == 4 * len(sent) and clock.sleeps == []
 
 
 def test_mock_loops_when_asked(short_sim):

@@ -28,6 +28,7 @@ from recording_fixtures import (
     write_recording,
 )
 
+from capture import recorder as recorder_module
 from capture import topics as T
 from capture.errors import CaptureError
 from capture.journal import read_journal
@@ -129,8 +130,8 @@ def test_every_topic_round_trips_and_decodes_with_the_schema_in_the_file(tmp_pat
     assert rec.complete
     for name, values in METADATA.items():
         assert rec.metadata[name] == values
-    assert rec.metadata["camera"]["width"] == "224"
-    assert rec.metadata["recording_end"]["messages"] == str(stats.messages)
+    assert rec.metadata["camera"]["width"] == 224  # typed metadata
+    assert rec.metadata["recording_end"]["messages"] == stats.messages
     assert int(rec.metadata["recording"]["unix_offset_ns"]) > 0
     for name, data in ATTACHMENTS.items():
         assert rec.attachments[name] == data
@@ -179,26 +180,37 @@ def test_a_full_queue_drops_counts_and_records_but_never_blocks_or_loses_labels(
     tmp_path, monkeypatch
 ):
     path = tmp_path / "slow.mcap"
-    real = Recorder._encode_frame
+    real = recorder_module.encode_depth
+    encoding, disk_free = threading.Event(), threading.Event()
 
-    def slow(self, frame, time_ns):
-        time.sleep(0.02)  # a disk or CPU that cannot keep up
-        return real(self, frame, time_ns)
+    def stuck(*args):  # a disk or CPU that cannot keep up: the writer holds its first frame
+        encoding.set()
+        disk_free.wait(10.0)
+        return real(*args)
 
-    monkeypatch.setattr(Recorder, "_encode_frame", slow)
+    monkeypatch.setattr(recorder_module, "encode_depth", stuck)
     rec = Recorder(path, metadata={}, queue_size=4)
     rec.start()
-    longest = 0.0
-    for i in range(60):
-        start = time.perf_counter()
-        rec.write_frame(frame_at(i))
-        rec.write_imu(imu_sample(i))
-        longest = max(longest, time.perf_counter() - start)
-        if i % 10 == 0:
-            rec.write_label(frame_time(i), "US", "operator")
+    rec.write_frame(frame_at(0))
+    assert encoding.wait(5.0)
+
+    def writes():
+        for i in range(60):
+            if i:
+                rec.write_frame(frame_at(i))
+            rec.write_imu(imu_sample(i))
+            if i % 10 == 0:
+                rec.write_label(frame_time(i), "US", "operator")
+
+    caller = threading.Thread(target=writes)
+    caller.start()
+    caller.join(5.0)
+    assert not caller.is_alive()  # every write returned while the writer was stuck
+    # The queue holds imu 0, frame 1, imu 1 and frame 2; the other 115 writes are dropped.
+    assert rec.stats().dropped_by_kind == {"frame": 57, "imu": 58}
+    disk_free.set()
     stats = rec.close()
-    assert longest < 0.01  # each write is a queue put, never a wait for the disk
-    assert stats.dropped > 0 and stats.state == "stopped"
+    assert stats.dropped == 115 and stats.state == "stopped"
     msgs = decode_all(path)
     drops = [d for _, d in msgs[T.EVENTS] if d["kind"] == "drop"]
     assert sum(sum(d["details"].values()) for d in drops) == stats.dropped
@@ -217,7 +229,8 @@ def test_labels_are_on_disk_in_the_journal_when_write_label_returns(tmp_path):
     assert {"type": "label", "time_ns": T0, "mode": "DS", "source": "operator"} in entries
     assert any(e["type"] == "event" and e["message"] == "here" for e in entries)
     rec.close()
-    assert read_journal(rec.journal_path)[-1]["type"] == "end"
+    end = read_journal(rec.journal_path)[-1]
+    assert end["type"] == "end" and end["state"] == "stopped"  # the state's text, as JSON
 
 
 def sensor_spans_per_chunk(path) -> list[int]:

@@ -145,14 +145,20 @@ def test_a_rig_that_cannot_start_is_one_clear_error():
         open_devices(config)
 
 
-def test_a_fast_mock_imu_gets_a_line_that_carries_it():
+def test_a_fast_mock_imu_needs_a_model_and_line_that_carry_it():
     config = Config()
-    config.imu.rate_hz = 400  # 115200 baud carries about 157 messages/s
+    config.imu.rate_hz = 400  # 115200 baud carries about 157 messages/s; a 1-series 100 Hz
+    config.imu.emulate, config.imu.baudrate = "MTi-630", 921600
     camera, imu = open_devices(config)
     try:
         imu.start()
-        time.sleep(1.2)
-        assert 360 <= imu.status().measured_rate_hz <= 440
+        # A second of samples: a line too slow for them would overflow the device's buffer
+        # within a quarter of that, losing packets.
+        samples = [imu.recv(2.0) for _ in range(400)]
+        assert all(s is not None for s in samples)
+        packets = np.diff([s.packet_counter for s in samples]) % 2**16
+        ticks = np.diff([s.sample_time_fine for s in samples]) % 2**32
+        assert set(packets) == {1} and set(ticks) == {25}  # 400 Hz on the 10 kHz clock
         assert imu.missing_packets == 0
     finally:
         close_devices(camera, imu)

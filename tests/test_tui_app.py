@@ -10,7 +10,7 @@ from capture.session import SubjectInfo
 from devices.base import DeviceEvent
 from devices.clock import now_ns
 from tui.app import WalkcapApp
-from tui.live_screen import LiveScreen
+from tui.live_screen import REFRESH_HZ, LiveScreen
 from tui.session_screen import SessionScreen, last_session_path, save_last_session
 from tui.widgets.device_panel import DevicePanel
 from tui.widgets.help_screen import HelpScreen
@@ -175,7 +175,7 @@ async def test_record_key_starts_and_stops_a_trial_and_the_trial_advances():
         assert fake.recording and fake.recordings_started[0].subject == "S02"
         assert fake.recordings_started[0].trial == 1
         await wait_for(pilot, lambda: "REC" in rendered(live.query_one("#recording")))
-        assert "S02_indoor_t01.mcap" in rendered(live.query_one("#recording"))
+        assert "S02_indoor_t01.mcap" in rendered(live.query_one("#banner"))
         await pilot.press("s")  # no form while recording
         assert isinstance(app.screen, LiveScreen)
         await pilot.press("r")
@@ -222,14 +222,29 @@ async def test_freeze_stops_the_refresh_but_not_the_labels():
         assert not live.frozen and live.refreshes > before
 
 
-async def test_refresh_is_capped_near_20_per_second():
+async def test_the_view_pulls_one_snapshot_per_tick_of_a_20_hz_timer(monkeypatch):
+    timers = []
+    set_interval = LiveScreen.set_interval
+
+    def held(screen, interval, callback=None, **kw):
+        if callback == screen.refresh_view:  # Textual's own timers run as they are
+            timers.append(interval)
+            kw["pause"] = True  # ticked by the test
+        return set_interval(screen, interval, callback, **kw)
+
+    monkeypatch.setattr(LiveScreen, "set_interval", held)
     fake = FakeSession()
     app = WalkcapApp(Config(), session=fake, ask_subject=False)
     async with app.run_test(size=SIZE) as pilot:
-        await wait_for(pilot, lambda: app.ready)
+        await wait_for(pilot, lambda: app.ready and isinstance(app.screen, LiveScreen))
+        live = app.screen
+        assert REFRESH_HZ == 20 and timers == [1 / REFRESH_HZ]
         start = fake.snapshots
-        await pilot.pause(1.0)
-        assert 5 <= fake.snapshots - start <= 22
+        await pilot.pause(0.2)
+        assert fake.snapshots == start  # the timer held: nothing else pulls snapshots
+        for _ in range(3):
+            live.refresh_view()  # a tick
+        assert fake.snapshots == start + 3
 
 
 async def test_help_lists_the_keys():

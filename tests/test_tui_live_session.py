@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 from capture.config import Config
-from capture.reader import read_trial
+from capture.reader import find_gaps, open_recording, read_trial
 from capture.session import Session, SubjectInfo
 from tui.app import WalkcapApp
+from tui.commands.info import recorded_periods
 from tui.live_screen import LiveScreen
 
 pytestmark = pytest.mark.timeout(30)
@@ -51,12 +52,19 @@ async def test_real_session_on_mock_devices(tmp_path, monkeypatch):
         return sessions[-1]
 
     app = WalkcapApp(
-        config, session_factory=factory, subject=SubjectInfo(subject="S09"), ask_subject=False
+        config,
+        session_factory=factory,
+        subject=SubjectInfo(subject="S09"),
+        ask_subject=False,
+        drills=True,
     )
     async with app.run_test(size=(120, 40)) as pilot:
         await wait_for(pilot, lambda: app.ready, 15)
         session = sessions[0]
         await wait_for(pilot, lambda: session.snapshot().frames >= 5, 5)
+        # the pre-flight check (a probe trial, deleted) passes before a trial can record
+        await wait_for(pilot, lambda: app.preflight_state == "ok", 15)
+        assert not list((tmp_path / "recordings").iterdir())
         await pilot.press("2")
         assert session.label == "US"
         await pilot.press("r")
@@ -66,6 +74,12 @@ async def test_real_session_on_mock_devices(tmp_path, monkeypatch):
         await pilot.pause(0.3)
         live = app.screen
         assert isinstance(live, LiveScreen) and live.refreshes > 10
+        assert "● REC" in str(live.query_one("#banner").render())
+        await pilot.press("ctrl+u")  # drill: the IMU unplugged for 2 s, in the middle of a trial
+        alarms = live.query_one("#alarms")
+        await wait_for(pilot, lambda: "ALARM IMU: no data" in str(alarms.render()), 2)
+        await wait_for(pilot, lambda: session.alarms.counters["imu"].longest_s > 1.5, 6)
+        await pilot.pause(0.5)
         await pilot.press("r")
         await wait_for(pilot, lambda: app.recording_path is None and not session.recording, 5)
         await pilot.press("q")
@@ -77,3 +91,14 @@ async def test_real_session_on_mock_devices(tmp_path, monkeypatch):
     assert [c[1] for c in trial["label_changes"]] == ["US", "UR"]
     assert trial["metadata"]["session"]["subject"] == "S09"
     assert app.subject.trial == 2
+    # the gaps the screen counted are the ones `walkcap info` finds in the file
+    rec = open_recording(files[0])
+    times = rec.log_times()
+    periods = recorded_periods(rec.metadata)
+    imu_gaps = find_gaps(times["/imu"], period_s=periods["/imu"])
+    assert max(g for _, g in imu_gaps) > 1.5
+    (record,) = app.trials
+    assert record.gaps["imu"] == len(imu_gaps)
+    cam_gaps = find_gaps(times["/camera/depth"], period_s=periods["/camera/depth"])
+    assert record.gaps["camera"] == len(cam_gaps)
+    assert str(files[0].resolve()) in app.trials_summary()[1]

@@ -118,7 +118,7 @@ def test_feature_rows_format_known_and_unknown():
     rows = feature_rows({"slope_deg": 12.34, "riser_m": 0.1612, "width": 0.5, "none": None})
     assert rows == [("slope", "+12.3°"), ("riser", "0.161 m"), ("width", "0.5")]
     rows = feature_rows({"kind": "stairs", "direction": "down", "steps": 2, "inlier_fraction": 0.9})
-    assert rows == [("", "stairs down, 2 steps"), ("fit", "90%")]
+    assert rows == [("", "fits stairs down, 2 steps"), ("fit", "90%")]
 
 
 def test_small_formatters():
@@ -178,7 +178,7 @@ def test_last_session_is_remembered_under_home(tmp_path):
 
 
 def test_write_rate_and_recording_rows():
-    from capture.recorder import RecorderStats
+    from capture.recorder import RecorderState, RecorderStats
     from tui.widgets.recording_panel import ByteRate, recording_rows
 
     rate = ByteRate(window_s=2.0)
@@ -190,7 +190,7 @@ def test_write_rate_and_recording_rows():
     assert rate.add(5_000_000_000, 100) is None  # a new file starts over
     stats = RecorderStats(
         path="/r/S01_indoor_t01.mcap",
-        state="failed",
+        state=RecorderState.FAILED,
         message="disk full",
         bytes_written=2_000_000,
         queue_depth=1500,
@@ -201,18 +201,20 @@ def test_write_rate_and_recording_rows():
         label: (value, style) for label, value, style in recording_rows(stats, 61.0, None, "", 1e6)
     }
     assert rows["● REC"][0] == "0:01:01" and rows["FAILED"][0] == "disk full"
-    assert rows["file"][0] == "S01_indoor_t01.mcap" and rows["write"][0] == "1.0 MB/s"
-    assert rows["queue"] == ("1500/2048", "bold #f0a020") and rows["dropped"][0] == "7"
+    assert rows["file"][0] == "S01_indoor_\nt01.mcap" and rows["write"][0] == "1.0 MB/s"
+    assert rows["queue"] == ("73 % full", "bold #f0a020") and rows["dropped"][0] == "7 messages"
+    gaps = recording_rows(stats, 61.0, None, "", 1e6, gaps={"camera": 2, "imu": 35})
+    assert ("gaps", "camera 2, IMU 35", "bold #f0a020") in gaps
     assert recording_rows(None, None, None, "r: record trial 3")[1][0] == "r: record trial 3"
 
 
 def test_device_rows_show_state_rates_errors_clock():
-    from devices.base import DeviceStatus
+    from devices.base import DeviceState, DeviceStatus
     from tui.widgets.device_panel import device_rows
 
     imu = DeviceStatus(
         "serial",
-        "degraded",
+        DeviceState.DEGRADED,
         "3 packets missing",
         100.0,
         80.0,
@@ -223,10 +225,12 @@ def test_device_rows_show_state_rates_errors_clock():
     rows = {
         label: value for label, value, _ in device_rows("imu", imu, {"p50_ms": 0.5, "p99_ms": 2.0})
     }
-    assert rows["imu"] == "degraded  serial" and rows[""] == "3 packets missing"
-    assert rows["rate"] == " 80.0/100 Hz"
-    assert rows["drops"] == "1  errors 5 (2 checksum, 3 missing)"
-    assert rows["clock"] == "-2.5 ms +51 ppm" and rows["sync"] == "0.5 ms p99 2.0"
+    lines = device_rows("imu", imu, {"p50_ms": 0.5, "p99_ms": 2.0})
+    assert lines[0][:2] == ("IMU", "degraded  serial") and lines[1][1] == "3 packets missing"
+    assert rows["rate"] == "80.0 of 100 Hz" and rows["drops"] == "1 samples, errors 5"
+    assert ("", "bad checksums: 2") in [r[:2] for r in lines]
+    assert ("", "missing packets: 3") in [r[:2] for r in lines]
+    # drift and sync error, never the raw device-to-host clock offset
+    assert rows["drift"] == "+51 ppm (clock)" and rows["sync"] == "error p99 2.0 ms"
+    assert not any("-2.5" in value for _, value, _ in lines)
     assert device_rows("camera", None) == [("camera", "not open", "dim")]
-    imu.details["offset_ms"] = -363984801.48
-    assert dict((r[0], r[1]) for r in device_rows("imu", imu))["clock"] == "-363984.801 s +51 ppm"

@@ -270,6 +270,48 @@ def test_decoding_random_payloads_never_raises(payload):
     xbus.decode_mtdata2(payload)
 
 
+@pytest.mark.parametrize(
+    "first, second",
+    [
+        (
+            ("quaternion", (1.0, 0.0, 0.0, 0.0), xbus.FP1632),
+            ("quaternion", (0.0, 1.0, 0.0, 0.0), xbus.FP1632),
+        ),
+        (("temperature", 20.0, xbus.FP1632), ("temperature", 21.0, xbus.FLOAT32)),
+        (
+            ("acceleration", (1.0, 0.0, 0.0), xbus.FP1220),
+            ("acceleration", (2.0, 0.0, 0.0), xbus.FP1220),
+        ),
+        (("euler", (1.0, 2.0, 3.0), xbus.FLOAT32), ("euler", (4.0, 5.0, 6.0), xbus.FP1220)),
+    ],
+)
+def test_a_repeated_output_is_decoded_once_never_converted_twice(first, second):
+    payload = (
+        xbus.encode_packet("packet_counter", 3)
+        + xbus.encode_packet(*first)
+        + xbus.encode_packet(*second)
+    )
+    for _ in range(2):  # the first decode compiles the layout, the second uses the cache
+        parser = XbusParser()
+        (msg,) = parser.feed(xbus.build(MID.MTDATA2, payload) + xbus.build(MID.GOTO_CONFIG_ACK))[:1]
+        assert msg.mtdata2.values["packet_counter"] == 3
+        assert msg.mtdata2.values[first[0]] == pytest.approx(first[1], abs=1e-5)
+        assert parser.unknown_ids == 1 and parser.buffered == 0
+
+
+def test_a_payload_the_decoder_cannot_explain_is_counted_and_the_stream_goes_on(monkeypatch):
+    def broken(payload):
+        raise IndexError("tuple index out of range")
+
+    monkeypatch.setattr(xbus, "decode_mtdata2", broken)
+    parser = XbusParser()
+    frame = xbus.build(MID.MTDATA2, sample_payload(1))
+    msgs = parser.feed(frame + xbus.build(MID.GOTO_CONFIG_ACK))
+    assert [m.mid for m in msgs] == [MID.MTDATA2, MID.GOTO_CONFIG_ACK]
+    assert msgs[0].mtdata2 is None and parser.malformed == 1 and parser.buffered == 0
+    assert parser.feed(b"") == []  # nothing left in the buffer to raise again
+
+
 def test_the_layout_cache_tells_apart_payloads_of_equal_length():
     a = xbus.encode_mtdata2({"packet_counter": 1, "status_word": 5})
     b = xbus.encode_mtdata2({"status_word": 6, "packet_counter": 2})
@@ -298,3 +340,37 @@ def test_bench_parse_rate_measures_something():
     from capture.bench.components import bench_parse_rate
 
     assert bench_parse_rate(0.05) > 1000
+
+
+def test_every_device_error_code_is_named():
+    for code in (0x03, 0x04, 0x1E, 0x20, 0x21, 0x28, 0x29, 0x2A, 0x2B, 0x30, 0x33, 0x35):
+        assert "does not know" not in xbus.error_text(code)
+    assert "data overflow" in xbus.error_text(0x29)
+    assert "buffer overflow" in xbus.error_text(0x2A)
+    assert "output configuration" in xbus.error_text(0x35)
+    # 0x28 carries the kind of device error in four more bytes
+    assert "DSP crashed" in xbus.error_text(0x28, bytes([0x28, 0, 0, 0, 6]))
+    assert "does not know" in xbus.error_text(0x99)
+
+
+def test_baud_codes_include_3_5_mbaud_and_send_0x0a_for_921600():
+    assert xbus.BAUD_CODES[0x0E] == 3_500_000
+    assert xbus.BAUD_CODE[921600] == 0x0A and xbus.BAUD_CODE[115200] == 0x02
+
+
+def test_only_the_timestamp_group_is_asked_for_in_every_packet():
+    settings = xbus.output_settings(xbus.DEFAULT_OUTPUTS, 100)
+    at_ffff = {s.name for s in settings if s.rate_hz == xbus.EVERY_PACKET}
+    assert at_ffff == {"packet_counter", "sample_time_fine"}
+    assert {s.name: s.rate_hz for s in settings}["status_word"] == 100
+
+
+def test_the_link_budget_of_the_default_outputs():
+    """73 bytes a message (68 of data, 5 of frame); 10 bits a byte on the line."""
+    settings = xbus.output_settings(xbus.DEFAULT_OUTPUTS, 100)
+    budget = xbus.link_budget(settings, 115200)
+    assert budget.bytes_per_message == 73 and budget.bits_per_s == 73_000
+    assert budget.fits
+    assert not xbus.link_budget(xbus.output_settings(xbus.DEFAULT_OUTPUTS, 200), 115200).fits
+    assert xbus.baud_that_fits(xbus.output_settings(xbus.DEFAULT_OUTPUTS, 400)) == 460800
+    assert xbus.baud_that_fits(xbus.output_settings(xbus.DEFAULT_OUTPUTS, 2000)) == 2_000_000

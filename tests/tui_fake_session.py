@@ -11,9 +11,9 @@ import numpy as np
 
 from capture.errors import CaptureError
 from capture.pipeline import FrameResult
-from capture.recorder import RecorderStats
+from capture.recorder import RecorderState, RecorderStats
 from capture.session import LabelChange, Snapshot, SubjectInfo, TimelineEntry
-from devices.base import DeviceEvent, DeviceStatus
+from devices.base import DeviceEvent, DeviceState, DeviceStatus
 from devices.clock import now_ns
 from devices.frames import MODES
 
@@ -91,10 +91,10 @@ class FakeSession:
         self.snapshots = 0
         self._label: str | None = "US"
         self._recording_path: Path | None = None
-        self.recorder_state, self.recorder_message = "recording", ""
+        self.recorder_state, self.recorder_message = RecorderState.RECORDING, ""
         self.camera = DeviceStatus(
             backend="mock",
-            state="ok",
+            state=DeviceState.OK,
             configured_rate_hz=15.0,
             measured_rate_hz=14.9,
             delivered=4500,
@@ -103,7 +103,7 @@ class FakeSession:
         )
         self.imu = DeviceStatus(
             backend="mock",
-            state="ok",
+            state=DeviceState.OK,
             configured_rate_hz=100.0,
             measured_rate_hz=99.8,
             delivered=30000,
@@ -203,7 +203,7 @@ class FakeSession:
         path, self._recording_path = self._recording_path, None
         self.recordings_stopped += 1
         return RecorderStats(
-            path=str(path), state="stopped", bytes_written=12_345_678, messages=4321
+            path=str(path), state=RecorderState.STOPPED, bytes_written=12_345_678, messages=4321
         )
 
     # ---- what the UI reads

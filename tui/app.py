@@ -11,19 +11,22 @@ from __future__ import annotations
 import dataclasses
 import logging
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from textual import work
 from textual.app import App
+from textual.binding import Binding
 from textual.reactive import reactive
 
 from capture.config import Config
+from capture.recorder import RecorderState
 from capture.session import SubjectInfo
 from tui import messages
 from tui.live_screen import LiveScreen
 from tui.session_screen import SessionScreen, load_last_session, save_last_session
 from tui.widgets.quit_dialog import QuitDialog
-from tui.widgets.recording_panel import human_bytes
+from tui.widgets.recording_panel import clock_text, human_bytes
 
 log = logging.getLogger(__name__)
 
@@ -47,6 +50,34 @@ def describe_error(e: BaseException) -> str:
     return f"{type(e).__name__}: {e}"
 
 
+def default_preflight(session):
+    from capture import preflight
+
+    return preflight.run(session)
+
+
+@dataclass
+class TrialRecord:
+    """A trial recorded in this session, for the trials panel and the list printed on quit."""
+
+    trial: int
+    path: str
+    duration_s: float = 0.0
+    size_bytes: int = 0
+    labels: int = 0
+    gaps: dict = field(default_factory=dict)
+    failed: str = ""  # why the recording failed (what reached the disk is readable)
+
+    def line(self) -> str:
+        gaps = f"gaps camera {self.gaps.get('camera', 0)}, IMU {self.gaps.get('imu', 0)}"
+        state = f"  FAILED: {self.failed}" if self.failed else ""
+        size = human_bytes(self.size_bytes)
+        return (
+            f"trial {self.trial:<3} {clock_text(self.duration_s)}  {size:>8}  "
+            f"{self.labels} label{'s' if self.labels != 1 else ''}  {gaps}  {self.path}{state}"
+        )
+
+
 def keymap(config: Config) -> dict[str, str]:
     """config.keys -> Textual keymap over the live screen's binding ids."""
     return {
@@ -58,7 +89,10 @@ class WalkcapApp(App):
     TITLE = "walkcap"
     CSS_PATH = "walkcap.tcss"
     HORIZONTAL_BREAKPOINTS = [(0, "-narrow"), (120, "-normal"), (150, "-wide")]
+    VERTICAL_BREAKPOINTS = [(0, "-short"), (40, "-tall")]
     ENABLE_COMMAND_PALETTE = False
+    # a key no form field takes, shown in every footer
+    BINDINGS = [Binding("ctrl+q", "quit", "Quit", priority=True)]
 
     status: reactive[str] = reactive("")  # starting devices… / stopping… / an error
 
@@ -71,9 +105,14 @@ class WalkcapApp(App):
         subject: SubjectInfo | None = None,
         ask_subject: bool = True,
         start_status: str = "starting devices…",
+        drills: bool = False,
+        preflight: Callable[[object], object] | None = None,
     ) -> None:
         """`session`: a ready-made source (tests pass a fake); otherwise `session_factory`
-        (default: capture.session.Session) builds one from the configuration in a worker."""
+        (default: capture.session.Session) builds one from the configuration in a worker.
+        `preflight(session) -> PreflightReport` runs before the first trial (default: the
+        full check for a session built here; none for a ready-made source). `drills`: keys
+        that inject faults into mock devices."""
         super().__init__()
         self.config = config or Config()
         self.session = session
@@ -89,6 +128,13 @@ class WalkcapApp(App):
         self._start_failed = False
         self.start_error: str | None = None  # why the devices did not start, for the CLI
         self._subject_confirmed = not ask_subject
+        self._builds_session = session is None
+        self.drills = drills
+        self._preflight = preflight or (default_preflight if session is None else None)
+        self.preflight_state = "none"  # none | running | ok | failed
+        self.preflight_report = None
+        self.trials: list[TrialRecord] = []
+        self.lab = None  # LSL, remote control, Foxglove: capture.labtools.LabTools
 
     @property
     def source(self):
@@ -119,7 +165,48 @@ class WalkcapApp(App):
             log.exception("starting the session")
             self.post_message(messages.SessionFailed(describe_error(e)))
             return
+        self._start_lab_tools()
         self.post_message(messages.SessionStarted())
+
+    def _start_lab_tools(self) -> None:
+        """What [lsl] and [foxglove] ask for; one that cannot start is a notice, no more."""
+        lsl, fox = self.config.lsl, self.config.foxglove
+        if not (lsl.enabled or lsl.record or lsl.remote_control or fox.enabled):
+            return
+        from capture.labtools import LabTools
+
+        self.lab = LabTools(self.session, self.config, _RemoteForApp(self)).start()
+        for line in self.lab.describe():
+            log.info("%s", line)
+            self.call_from_thread(self.notify, line, timeout=6)
+        for problem in self.lab.problems:
+            self.call_from_thread(self.notify, problem, severity="warning", timeout=10)
+
+    def remote_start(self, request) -> None:
+        """The remote control's start: the trial it named, as if the operator pressed r."""
+        from capture.errors import CaptureError
+        from capture.labtools import trial_info
+
+        source = self.source
+        if source is None or source.recording or self._busy_recording:
+            return
+        try:
+            self.subject = trial_info(self.subject, request)
+        except CaptureError as e:
+            self.notify(f"remote start refused: {e}", severity="error", timeout=10)
+            return
+        if request.root:
+            self.config.session.recordings = request.root
+        self._subject_confirmed = True
+        self._busy_recording = True
+        self._start_recording(dataclasses.replace(self.subject))
+
+    def remote_stop(self) -> None:
+        source = self.source
+        if source is not None and source.recording and not self._busy_recording:
+            self._busy_recording = True
+            self._set_status("finalising the recording…")
+            self._stop_recording()
 
     def on_session_started(self, _: messages.SessionStarted) -> None:
         self.ready = True
@@ -129,11 +216,85 @@ class WalkcapApp(App):
         self._set_status("")
         if self._quitting:  # quit was asked while the devices were opening
             self.stop_session()
+        elif self._preflight is not None and self.preflight_state != "ok":
+            self.start_preflight()
+
+    # ---- pre-flight -------------------------------------------------------------------
+
+    def start_preflight(self) -> None:
+        self.preflight_state = "running"
+        self._set_status("pre-flight check: devices, model, output folder, disk…")
+        self._refresh_live()
+        self._preflight_worker()
+
+    @work(thread=True, exclusive=True, group="preflight")
+    def _preflight_worker(self) -> None:
+        try:
+            report = self._preflight(self.session)
+        except Exception as e:
+            log.exception("pre-flight")
+            from capture.preflight import CheckItem, PreflightReport
+
+            report = PreflightReport([CheckItem("check", False, "", describe_error(e))])
+        self.post_message(messages.PreflightDone(report))
+
+    def on_preflight_done(self, message: messages.PreflightDone) -> None:
+        report = message.report
+        self.preflight_report = report
+        self.preflight_state = "ok" if report.ok else "failed"
+        if report.ok:
+            self._set_status("")
+        else:
+            self._set_status(
+                f"pre-flight failed: {report.reason()} (c checks again; ctrl+r in the form)",
+                error=True,
+            )
+            self.notify(
+                f"{report.reason()} — c checks again",
+                title="pre-flight failed: recording blocked",
+                severity="error",
+                timeout=15,
+            )
+        self._refresh_live()
+
+    @property
+    def preflight_reason(self) -> str:
+        report = self.preflight_report
+        return report.reason() if report is not None else ""
+
+    def retry(self) -> None:
+        """c (ctrl+r in the form): start the devices again after a failure, or re-run the
+        pre-flight check; in place, with the form's values kept."""
+        if self._start_failed:
+            self._start_failed = False
+            self.start_error = None
+            if self._builds_session:
+                self.session = None
+            self._set_status("starting devices again…")
+            self.start_session()
+        elif self.ready and self._preflight is not None and self.preflight_state != "running":
+            if self.session is not None and self.session.recording:
+                return
+            self.start_preflight()
+
+    def inject(self, device: str, fault: str, **kw) -> None:
+        """--drills: a fault of a mock device (the IMU unplugged, the camera stalled)."""
+        if not self.drills or not self.ready:
+            return
+        try:
+            self.session.inject(device, fault, **kw)
+        except Exception as e:
+            self.notify(describe_error(e), severity="error")
+            return
+        self.notify(f"drill: {device} {fault}", severity="warning", timeout=3)
 
     def on_session_failed(self, message: messages.SessionFailed) -> None:
         self._start_failed = True
         self.start_error = message.error
-        self._set_status(f"could not start: {message.error} (q quits)", error=True)
+        self._set_status(
+            f"could not start: {message.error} (c retries; ctrl+r in the form; ctrl+q quits)",
+            error=True,
+        )
         self.notify(message.error, title="could not start", severity="error", timeout=30)
         if self._quitting:
             self.exit(return_code=1)
@@ -172,13 +333,16 @@ class WalkcapApp(App):
 
     @work(thread=True, exclusive=True, group="session")
     def _stop_worker(self) -> None:
+        if self.lab is not None:
+            self.lab.stop()
+            self.lab = None
         try:
             stats = self.session.stop()
         except Exception as e:
             log.exception("stopping the session")
             self.call_from_thread(self.notify, describe_error(e), severity="error")
             stats = None
-        if stats is not None:
+        if stats is not None and self.preflight_state != "running":  # not the check's probe
             self.post_message(messages.RecordingStopped(stats, self.recording_path))
         self.post_message(messages.SessionStopped())
 
@@ -215,19 +379,38 @@ class WalkcapApp(App):
     def toggle_recording(self) -> None:
         source = self.source
         if source is None:
-            self.notify("the devices are not running yet", severity="warning", timeout=3)
+            if self.start_error:
+                self.notify(
+                    f"the devices did not start: {self.start_error} — c retries",
+                    severity="error",
+                    timeout=6,
+                )
+            else:
+                self.notify("the devices are still starting", severity="warning", timeout=3)
             return
         if self._busy_recording:
             return  # a start or stop is under way: one press, one action
         if not self._subject_confirmed:
             self.open_session_form(then_record=True)
             return
-        self._busy_recording = True
-        if source.recording:
+        if source.recording and self.preflight_state != "running":
+            self._busy_recording = True
             self._set_status("finalising the recording…")
             self._stop_recording()
-        else:
-            self._start_recording(dataclasses.replace(self.subject))
+            return
+        if self.preflight_state == "running":
+            self.notify("the pre-flight check is running (a few seconds)", timeout=3)
+            return
+        if self.preflight_state == "failed":
+            self.notify(
+                f"{self.preflight_reason} — c checks again",
+                title="pre-flight failed: recording blocked",
+                severity="error",
+                timeout=8,
+            )
+            return
+        self._busy_recording = True
+        self._start_recording(dataclasses.replace(self.subject))
 
     @work(thread=True, group="recording")
     def _start_recording(self, info: SubjectInfo) -> None:
@@ -252,19 +435,27 @@ class WalkcapApp(App):
     def on_recording_started(self, message: messages.RecordingStarted) -> None:
         self._busy_recording = False
         self.recording_path = message.path
+        self.bell()  # the operator watches the subject: a sound as well as the banner
         self.notify(f"recording {message.path.name}", timeout=4)
+        notice = getattr(self.session, "trial_notice", "")  # the trial existed: the next one
+        recorded = getattr(self.session, "trial", None)
+        if notice and recorded is not None:
+            self.subject = dataclasses.replace(self.subject, trial=recorded.trial)
+            self.notify(notice, severity="warning", timeout=10)
         self._refresh_live()
 
     def on_recording_stopped(self, message: messages.RecordingStopped) -> None:
         self._busy_recording = False
         self._set_status("")
+        self.bell()
+        self._add_trial(message.stats, message.path)
         self.recording_path = None
         # the next trial of the same subject: advance and remember, even if the app dies now
         self.subject = dataclasses.replace(self.subject, trial=self.subject.trial + 1)
         save_last_session(self.subject)
         stats = message.stats
         name = Path(getattr(stats, "path", "") or message.path or "recording").name
-        if getattr(stats, "state", "") == "failed":
+        if getattr(stats, "state", "") == RecorderState.FAILED:
             self.notify(
                 f"{name}: {stats.message} (what reached the disk is readable)",
                 title="recording failed",
@@ -282,6 +473,32 @@ class WalkcapApp(App):
                 timeout=6,
             )
         self._refresh_live()
+
+    def _add_trial(self, stats, path) -> None:
+        if stats is None:
+            return
+        alarms = getattr(self.session, "alarms", None)
+        failed = getattr(stats, "state", "") == RecorderState.FAILED
+        self.trials.append(
+            TrialRecord(
+                trial=self.subject.trial,
+                path=str(Path(getattr(stats, "path", "") or path or "").resolve()),
+                duration_s=float(getattr(stats, "duration_s", 0.0) or 0.0),
+                size_bytes=int(getattr(stats, "bytes_written", 0) or 0),
+                labels=int(getattr(stats, "labels", 0) or 0),
+                gaps=dict(getattr(alarms, "trial_gaps", {}) or {}),
+                failed=str(getattr(stats, "message", "")) if failed else "",
+            )
+        )
+
+    def trials_summary(self) -> list[str]:
+        """What this session saved, for the terminal after quit."""
+        if not self.trials:
+            return ["walkcap: no trial recorded in this session"]
+        n = len(self.trials)
+        return [f"walkcap: {n} trial{'s' if n != 1 else ''} saved in this session"] + [
+            "  " + t.line() for t in self.trials
+        ]
 
     def on_recording_failed(self, message: messages.RecordingFailed) -> None:
         self._busy_recording = False
@@ -317,3 +534,18 @@ class WalkcapApp(App):
         for screen in self.screen_stack:
             if isinstance(screen, LiveScreen) and not screen.frozen:
                 screen.refresh_view()
+
+
+class _RemoteForApp:
+    """Remote control in the UI: commands go to the app's thread, which shows them."""
+
+    def __init__(self, app: WalkcapApp) -> None:
+        self.app = app
+
+    def remote_start(self, request) -> str:
+        self.app.call_from_thread(self.app.remote_start, request)
+        return "start passed to the UI"
+
+    def remote_stop(self) -> str:
+        self.app.call_from_thread(self.app.remote_stop)
+        return "stop passed to the UI"

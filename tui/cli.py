@@ -21,6 +21,7 @@ COMMANDS = (
     "record",
     "replay",
     "info",
+    "export",
     "recover",
     "eval",
     "train",
@@ -28,11 +29,9 @@ COMMANDS = (
     "calibrate",
     "bench",
     "imu",
+    "check",
+    "config",
 )
-
-
-class NotYetAvailable(Exception):
-    """A subcommand that is not available in this installation."""
 
 
 class _Parser(argparse.ArgumentParser):
@@ -47,7 +46,7 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     from devices.errors import DeviceError
     from inference.errors import InferenceError
 
-    return (CaptureError, DeviceError, InferenceError, OSError, NotYetAvailable)
+    return (CaptureError, DeviceError, InferenceError, OSError)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -57,30 +56,50 @@ def build_parser() -> argparse.ArgumentParser:
         "live terrain classification with HMM fusion, synchronized MCAP recordings.",
     )
     parser.add_argument("--version", action="version", version=f"walkcap {__version__}")
-    parser.add_argument(
-        "--config",
-        metavar="PATH",
-        help="configuration file (TOML); default: $WALKCAP_CONFIG or ./walkcap.toml when present",
-    )
-    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
+    _add_common(parser, argparse.SUPPRESS)
+    parser.set_defaults(config=None, verbose=0)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for name in COMMANDS:
         module = importlib.import_module(f"tui.commands.{name}")
         p = sub.add_parser(name, help=module.HELP, description=module.HELP)
+        # before or after the subcommand alike: `walkcap --config X tui` = `walkcap tui --config X`
+        _add_common(p, argparse.SUPPRESS)
         module.add_arguments(p)
         p.set_defaults(_module=module)
+        _mark_parsers(p)
     return parser
+
+
+def _mark_parsers(parser: argparse.ArgumentParser) -> None:
+    """Each (sub)command's parser in its parsed arguments: a flag it does not know is
+    reported by it, with its own `--help`."""
+    parser.set_defaults(_parser=parser)
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                _mark_parsers(sub)
+
+
+def _add_common(parser: argparse.ArgumentParser, default) -> None:
+    parser.add_argument(
+        "--config",
+        metavar="PATH",
+        default=default,
+        help="configuration file (TOML); default: $WALKCAP_CONFIG or ./walkcap.toml when present",
+    )
+    parser.add_argument("-v", "--verbose", action="count", default=default, help="more log output")
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
     if args.command is None:  # plain `walkcap` opens the terminal UI
-        args = parser.parse_args(["tui", *(argv if argv is not None else sys.argv[1:])])
-    logging.basicConfig(
-        level=logging.WARNING - 10 * min(args.verbose, 2),
-        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
-    )
+        args, extra = parser.parse_known_args(
+            ["tui", *(argv if argv is not None else sys.argv[1:])]
+        )
+    if extra:
+        getattr(args, "_parser", parser).error(f"unrecognized arguments: {' '.join(extra)}")
+    _log_to_stderr(args.command, args.verbose)
     try:
         from capture import config as config_mod
 
@@ -94,10 +113,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     except Exception as e:
         if isinstance(e, _user_errors()):
-            if isinstance(e, NotYetAvailable):
-                print(f"walkcap {args.command}: {e}", file=sys.stderr)
-                return 2
-            print(f"walkcap {args.command}: error: {_describe(e)}", file=sys.stderr)
+            error_line(args.command, _describe(e))
             return 1
         if os.environ.get("WALKCAP_DEBUG"):
             raise
@@ -108,6 +124,56 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 70
+
+
+class _StderrLog(logging.Handler):
+    """Log records on stderr. By default one line each, named like the command's errors
+    (`walkcap record: error: ...`), without timestamps or tracebacks; with -v the logger's
+    name and time, and tracebacks. It remembers what it said, so that the command's last
+    error line is not said twice."""
+
+    def __init__(self, command: str, verbose: int) -> None:
+        super().__init__(logging.WARNING - 10 * min(verbose, 2))
+        self.command = command
+        self.verbose = verbose
+        self.said: list[str] = []
+        if verbose:
+            self.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            message = record.getMessage()
+            if self.verbose:
+                line = self.format(record)
+            else:
+                text = " ".join(message.split())  # one line, whatever the message holds
+                line = f"walkcap {self.command}: {record.levelname.lower()}: {text}"
+            self.said.append(message)
+            del self.said[:-50]
+            print(line, file=sys.stderr, flush=True)
+        except Exception:
+            self.handleError(record)
+
+
+_handler: _StderrLog | None = None
+
+
+def _log_to_stderr(command: str | None, verbose: int) -> None:
+    global _handler
+    root = logging.getLogger()
+    if _handler is not None:
+        root.removeHandler(_handler)
+    _handler = _StderrLog(command or "walkcap", verbose)
+    root.addHandler(_handler)
+    if root.level > _handler.level:  # -v lowers it; never raised over what is set
+        root.setLevel(_handler.level)
+
+
+def error_line(command: str, text: str) -> None:
+    """The command's error, once: not again when a log line just said the same."""
+    if _handler is not None and any(text in said for said in _handler.said):
+        return
+    print(f"walkcap {command}: error: {text}", file=sys.stderr)
 
 
 def _describe(e: BaseException) -> str:

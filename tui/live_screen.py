@@ -15,8 +15,9 @@ from textual.app import ComposeResult
 from textual.binding import Binding
 from textual.containers import Horizontal, Vertical
 from textual.screen import Screen
-from textual.widgets import Footer
+from textual.widgets import Footer, Static
 
+from capture.recorder import RecorderState
 from capture.session import Snapshot
 from devices.clock import now_ns
 from devices.frames import MODE_NAMES, MODES
@@ -56,11 +57,12 @@ def _binding(key: str, action: str, description: str, field: str, **kw) -> Bindi
 
 
 def pipeline_rows(snap: Snapshot) -> list[tuple[str, str, str]]:
-    """Frames processed and the frame-to-decision latency, for the device panel."""
-    text = f"{snap.frames}"
-    if snap.latency_ms:  # frame received -> fused decision ready
-        text += f"  {snap.latency_ms.get('p50', 0):.0f} ms p99 {snap.latency_ms.get('p99', 0):.0f}"
-    return [("frames", text, "")]
+    """Frames processed and the pipeline latency (frame received -> fused decision ready)."""
+    rows = [("pipeline", "", "bold"), ("frames", f"{snap.frames}", "")]
+    if snap.latency_ms:
+        p50, p99 = snap.latency_ms.get("p50", 0), snap.latency_ms.get("p99", 0)
+        rows.append(("latency", f"median {p50:.0f}, p99 {p99:.0f} ms", ""))
+    return rows
 
 
 class LiveScreen(Screen):
@@ -80,6 +82,9 @@ class LiveScreen(Screen):
         Binding("p", "play", "play/pause"),
         Binding("left", "seek(-1)", "-5 s"),
         Binding("right", "seek(1)", "+5 s"),
+        Binding("c", "check", "check again"),
+        Binding("ctrl+u", "drill('imu', 'disconnect')", "drill: unplug IMU", show=False),
+        Binding("ctrl+t", "drill('camera', 'stall')", "drill: stall camera", show=False),
     ]
     # What each action does, for the help screen (keys come from the live bindings).
     HELP = {
@@ -91,6 +96,9 @@ class LiveScreen(Screen):
         "help": "this help",
         "quit": "quit (asks first while recording; the file is finalised)",
         "session_form": "the session form (subject, condition, trial); not while recording",
+        "check": "run the pre-flight check again, or start the devices again after a failure",
+        "drill('imu', 'disconnect')": "drill (--drills, mock only): unplug the IMU for 2 s",
+        "drill('camera', 'stall')": "drill (--drills, mock only): stall the camera for 2 s",
         "save_corrections": "replay: write the labels with your corrections to a new file",
         "play": "replay: play / pause",
         "seek(-1)": "replay: back 5 s",
@@ -108,6 +116,8 @@ class LiveScreen(Screen):
 
     def compose(self) -> ComposeResult:
         yield TopBar(id="topbar")
+        yield Static("", id="banner")
+        yield Static("", id="alarms")
         with Horizontal(id="main"):
             with Vertical(id="left"):
                 yield DevicePanel(id="devices")
@@ -119,6 +129,7 @@ class LiveScreen(Screen):
                 yield DecisionDisplay(id="decision")
                 yield ProbabilityBars(id="probabilities")
                 yield FeaturesPanel(id="features")
+        yield Static("", id="trials")
         yield TimelineStrips(id="timeline")
         yield Footer(compact=True)
 
@@ -128,10 +139,11 @@ class LiveScreen(Screen):
             "recording": "recording",
             "image": "image",
             "profile": "profile",
-            "decision": "fused decision",
-            "probabilities": "CNN",
-            "features": "terrain",
+            "decision": "fused decision (HMM)",
+            "probabilities": "CNN probabilities",
+            "features": "terrain geometry",
             "timeline": "last 20 s",
+            "trials": "trials this session",
         }
         for wid, title in titles.items():
             self.query_one(f"#{wid}").border_title = title
@@ -149,6 +161,11 @@ class LiveScreen(Screen):
         source = self.app.source
         if source is None:
             self._show_topbar()
+            self._show_banner(None)
+            error = getattr(self.app, "start_error", None)
+            if error:  # say why, and how to try again, where the devices would be
+                rows = [("", f"could not start: {error}", "bold #e04040"), ("", "c retries", "")]
+                self._w[DevicePanel].present(None, None, {}, None, rows)
             return
         try:
             snap = source.snapshot()
@@ -181,6 +198,9 @@ class LiveScreen(Screen):
         self._show_recording(snap)
         self._notify_new_events(snap)
         self._show_topbar()
+        self._show_banner(snap)
+        self._show_alarms(snap)
+        self._show_trials()
 
     def settled(self) -> bool:
         """The paced widgets show the latest snapshot's frame (for tests and screenshots)."""
@@ -190,11 +210,81 @@ class LiveScreen(Screen):
         index = snap.latest.index
         return self._w[BinaryImage].shown_key == index and self._w[ProfilePlot].shown_key == index
 
+    def _elapsed(self, snap: Snapshot | None) -> float | None:
+        """Seconds into the trial; None when no trial records (the check's probe is none)."""
+        if snap is None or snap.recording_started_ns is None:
+            return None
+        if getattr(self.app, "preflight_state", "") == "running":
+            return None
+        return (snap.time_ns - snap.recording_started_ns) * 1e-9
+
+    def _show_banner(self, snap: Snapshot | None) -> None:
+        """The full-width line that says at a glance whether a trial records."""
+        app = self.app
+        banner = self.query_one("#banner", Static)
+        key = key_label(app.config.keys.record)
+        elapsed = self._elapsed(snap)
+        if isinstance(app.source, Playback):
+            text, cls = Text(" ▶ REPLAY — nothing records; 1-5 correct labels, w saves"), "-idle"
+        elif elapsed is not None:
+            path = app.recording_path
+            text = Text(
+                f" ● REC  trial {app.subject.trial}  {clock_text(elapsed)}  "
+                f"{path.resolve() if path else ''}"
+            )
+            cls = "-rec"
+        else:
+            state = getattr(app, "preflight_state", "none")
+            if app.source is None:
+                text, cls = Text(" ○ devices not running"), "-idle"
+            elif state == "running":
+                text, cls = (
+                    Text(" ○ pre-flight check running… (recording after it passes)"),
+                    "-idle",
+                )
+            elif state == "failed":
+                text = Text(f" ✖ PRE-FLIGHT FAILED: {app.preflight_reason} — c checks again")
+                cls = "-failed"
+            else:
+                ok = "pre-flight ok  " if state == "ok" else ""
+                text = Text(f" ○ not recording  {ok}{key}: record trial {app.subject.trial}")
+                cls = "-idle"
+        if (str(text), cls) != getattr(self, "_banner_shown", None):
+            self._banner_shown = (str(text), cls)
+            banner.update(text)
+            banner.set_classes(cls)
+
+    def _show_alarms(self, snap: Snapshot) -> None:
+        """What needs the operator now, in words and colour (nothing to read when all is well)."""
+        state = snap.alarms
+        alarms = list(state.alarms) if state is not None else []
+        line = Text(no_wrap=True, overflow="ellipsis")
+        if not alarms:
+            line.append(" no alarms", style="dim")
+        for i, alarm in enumerate(alarms):
+            if i:
+                line.append("  ")
+            style = (
+                "bold #ffffff on #b02020" if alarm.level == "error" else "bold #000000 on #f0a020"
+            )
+            line.append(f" {'ALARM' if alarm.level == 'error' else 'WARNING'} {alarm.text} ", style)
+        if str(line) != getattr(self, "_alarms_shown", None):
+            self._alarms_shown = str(line)
+            self.query_one("#alarms", Static).update(line)
+
+    def _show_trials(self) -> None:
+        trials = getattr(self.app, "trials", [])
+        lines = [t.line() for t in trials[-3:]]
+        if len(trials) > 3:
+            lines.insert(0, f"… {len(trials) - 3} earlier (all are listed on quit)")
+        text = "\n".join(lines) if lines else "none yet (each trial's file is listed here)"
+        if text != getattr(self, "_trials_shown", None):
+            self._trials_shown = text
+            self.query_one("#trials", Static).update(Text(text, style="" if lines else "dim"))
+
     def _show_recording(self, snap: Snapshot) -> None:
         app = self.app
-        elapsed = None
-        if snap.recording_started_ns is not None:
-            elapsed = (snap.time_ns - snap.recording_started_ns) * 1e-9
+        elapsed = self._elapsed(snap)
         info = app.subject
         key = key_label(app.config.keys.record)
         source = app.source
@@ -211,10 +301,16 @@ class LiveScreen(Screen):
             self._w[RecordingPanel].present(None, None, None, hint, snap.time_ns, idle="▶ replay")
             return
         idle = f"{key}: record trial {info.trial}"
+        gaps = snap.alarms.gaps if snap.alarms is not None and elapsed is not None else None
         self._w[RecordingPanel].present(
-            snap.recording, elapsed, app.recording_path, idle, snap.time_ns
+            snap.recording if elapsed is not None else None,
+            elapsed,
+            app.recording_path,
+            idle,
+            snap.time_ns,
+            gaps=gaps,
         )
-        failed = getattr(snap.recording, "state", "") == "failed"
+        failed = getattr(snap.recording, "state", "") == RecorderState.FAILED
         if failed and not self._failure_shown:
             self.notify(
                 f"{getattr(snap.recording, 'message', '')} — press {key} to close the file",
@@ -247,12 +343,9 @@ class LiveScreen(Screen):
         )
         label = snap.label if snap is not None else None
         bar.append_text(Text.assemble("true ", mode_text(label), "  "))
-        if snap is not None:
-            if snap.recording_started_ns is not None:
-                bar.append(
-                    f"● REC {clock_text((snap.time_ns - snap.recording_started_ns) * 1e-9)}  ",
-                    style="bold #e04040",
-                )
+        elapsed = self._elapsed(snap)
+        if elapsed is not None:
+            bar.append(f"● REC {clock_text(elapsed)}  ", style="bold #e04040")
         source = app.source
         if isinstance(source, Playback):
             pos, duration = source.position()
@@ -275,14 +368,22 @@ class LiveScreen(Screen):
         replay = isinstance(self.app.session, Playback)
         if action in ("play", "seek", "save_corrections"):
             return replay
-        if action in ("record", "session_form"):
+        if action in ("record", "session_form", "check"):
             return not replay
+        if action == "drill":
+            return bool(getattr(self.app, "drills", False))
         return True
 
     def _source_or_warn(self):
         source = self.app.source
         if source is None:
-            self.notify("the devices are not running yet", severity="warning", timeout=3)
+            error = getattr(self.app, "start_error", None)
+            text = (
+                f"the devices did not start: {error} — c retries"
+                if error
+                else ("the devices are still starting")
+            )
+            self.notify(text, severity="warning", timeout=4)
         return source
 
     def action_label(self, mode: str) -> None:
@@ -344,6 +445,12 @@ class LiveScreen(Screen):
 
     def action_quit(self) -> None:
         self.app.request_quit()
+
+    def action_check(self) -> None:
+        self.app.retry()
+
+    def action_drill(self, device: str, fault: str) -> None:
+        self.app.inject(device, fault, seconds=2.0)
 
     def action_session_form(self) -> None:
         self.app.open_session_form()

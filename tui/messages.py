@@ -48,3 +48,11 @@ class CorrectionsSaved(Message):
     def __init__(self, path: Path) -> None:
         super().__init__()
         self.path = path
+
+
+class PreflightDone(Message):
+    """The pre-flight check finished; `report` is a capture.preflight.PreflightReport."""
+
+    def __init__(self, report: object) -> None:
+        super().__init__()
+        self.report = report

@@ -122,6 +122,7 @@ class SessionScreen(Screen[SubjectInfo | None]):
     BINDINGS = [
         Binding("ctrl+s", "confirm", "Start", priority=True),
         Binding("escape", "cancel", "Back"),
+        Binding("ctrl+r", "retry", "Retry devices", priority=True),
         Binding("ctrl+q", "app.quit", "Quit", priority=True),
     ]
 
@@ -129,6 +130,7 @@ class SessionScreen(Screen[SubjectInfo | None]):
         super().__init__()
         self.info = info
         self.can_cancel = can_cancel
+        self.operator = ""
 
     def compose(self) -> ComposeResult:
         values = form_values(self.info)
@@ -138,6 +140,14 @@ class SessionScreen(Screen[SubjectInfo | None]):
                 for name, (label, kind) in FIELDS.items():
                     yield Label(label, classes="form-label")
                     yield self._field(name, kind, values[name])
+                yield Label("Operator", classes="form-label")
+                yield Input(
+                    value=self._operator(),
+                    id="f-operator",
+                    compact=True,
+                    max_length=64,
+                    select_on_focus=False,
+                )
             yield Static("", id="form-error")
             yield Static("", id="device-status")
             with Horizontal(id="form-buttons"):
@@ -153,7 +163,8 @@ class SessionScreen(Screen[SubjectInfo | None]):
             return Select(options, value=value, allow_blank=False, id=f"f-{name}", compact=True)
         if kind == "bool":
             return Checkbox("", value=bool(value), id=f"f-{name}", compact=True)
-        common = dict(value=str(value), id=f"f-{name}", compact=True)
+        # a remembered value is kept: typing goes on from its end, it does not replace it
+        common = dict(value=str(value), id=f"f-{name}", compact=True, select_on_focus=False)
         if kind == "id":
             suggester = SuggestFromList(["indoor", "outdoor"]) if name == "condition" else None
             return Input(restrict=_ID_CHARS, max_length=32, suggester=suggester, **common)
@@ -162,6 +173,10 @@ class SessionScreen(Screen[SubjectInfo | None]):
         if kind == "float":
             return Input(type="number", **common)
         return Input(max_length=500, **common)
+
+    def _operator(self) -> str:
+        config = getattr(self.app, "config", None)
+        return config.session.operator if config is not None else ""
 
     def on_mount(self) -> None:
         self.watch(self.app, "status", self._show_status)
@@ -184,7 +199,16 @@ class SessionScreen(Screen[SubjectInfo | None]):
             self.query_one("#form-error", Static).update(f"[b red]{e}[/]")
             return
         save_last_session(info)
+        self.operator = str(self.query_one("#f-operator", Input).value).strip()
+        config = getattr(self.app, "config", None)
+        if config is not None:  # who runs the session goes into every recording
+            config.session.operator = self.operator
         self.dismiss(info)
+
+    def action_retry(self) -> None:
+        retry = getattr(self.app, "retry", None)
+        if retry is not None:
+            retry()
 
     def check_action(self, action: str, parameters: tuple) -> bool | None:
         return self.can_cancel if action == "cancel" else True

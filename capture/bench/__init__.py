@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from capture.config import Config
+from capture.errors import CaptureError
 
 
 @dataclass
@@ -170,6 +171,7 @@ class SessionRun:
     sync_p99_ms: float
     rss_mib: list  # (elapsed s, MiB of this process, MiB of the mock rig's process)
     pipeline_priority: str = ""  # how the pipeline thread was scheduled
+    lab_received: dict | None = None  # with lab tools: what the LSL inlet and Foxglove got
 
 
 def session_run(
@@ -181,17 +183,26 @@ def session_run(
     clf=None,
     sample_every_s: float = 0.0,
     on_sample=None,
+    lab_tools: bool = False,
 ) -> SessionRun:
-    """A real mock session (devices, pipeline, recorder) for `seconds`, recording."""
+    """A real mock session (devices, pipeline, recorder) for `seconds`, recording.
+
+    `lab_tools`: with LSL outlets pulled by an inlet and a Foxglove server whose client
+    subscribes to every topic, as a lab running both would.
+    """
     from capture.session import Session, SubjectInfo
 
     cfg = Config()
     cfg.camera.fps = fps
     cfg.imu.rate_hz = imu_hz
+    if imu_hz > 100:  # beyond the 1-series: a 600-series model on a line that carries it
+        cfg.imu.emulate = "MTi-630"
+        cfg.imu.baudrate = 921600
     cfg.session.recordings = folder
     cfg.simulator.loop = True  # the walk repeats for as long as the run lasts
     session = Session(cfg, classifier=clf or classifier(), auto_label=True)
     session.start()
+    peers = _LabPeers(session, cfg) if lab_tools else None
     log = LatencyLog(seconds * fps * 1.2)
     session.add_latency_sink(log)
     memory = []
@@ -218,6 +229,8 @@ def session_run(
             time.sleep(0.05)
         snap = session.snapshot()
     finally:
+        if peers is not None:
+            peers.close()
         stats = session.stop()
     # Read once the pipeline has stopped: every frame it counted, and no other.
     latencies = log.since(0)
@@ -236,7 +249,80 @@ def session_run(
         sync_p99_ms=snap.sync.get("p99_ms", float("nan")),
         rss_mib=memory,
         pipeline_priority=session.pipeline_priority,
+        lab_received=dict(peers.received) if peers is not None else None,
     )
+
+
+class _LabPeers:
+    """The lab's side of the lab tools, on loopback: an LSL inlet pulling walkcap's IMU and
+    terrain streams and a Foxglove client subscribed to every topic."""
+
+    def __init__(self, session, cfg) -> None:
+        import asyncio
+
+        from capture.labtools import LabTools
+
+        cfg.lsl.enabled = True
+        cfg.foxglove.enabled = True
+        cfg.foxglove.port = 0
+        self.lab = LabTools(session, cfg).start()
+        if self.lab.problems:
+            raise CaptureError("; ".join(self.lab.problems))
+        self._halt = threading.Event()
+        self.received = {"lsl": 0, "foxglove": 0}
+        self._threads = [
+            threading.Thread(target=self._pull_lsl, daemon=True),
+            threading.Thread(
+                target=lambda: asyncio.run(self._watch(self.lab.foxglove.url)), daemon=True
+            ),
+        ]
+        for t in self._threads:
+            t.start()
+
+    def _pull_lsl(self) -> None:
+        from capture.lsl import pylsl
+
+        lsl = pylsl()
+        inlets = []
+        for name in ("walkcap IMU", "walkcap Terrain"):
+            found = lsl.resolve_byprop("name", name, 1, 5.0)
+            if found:
+                inlets.append(lsl.StreamInlet(found[0]))
+        while not self._halt.wait(0.02):
+            for inlet in inlets:
+                samples, _ = inlet.pull_chunk(timeout=0.0)
+                self.received["lsl"] += len(samples)
+
+    async def _watch(self, url: str) -> None:
+        import asyncio
+        import json
+
+        import websockets
+
+        async with websockets.connect(url, subprotocols=["foxglove.sdk.v1"]) as ws:
+            subscribed = False
+            while not self._halt.is_set():
+                try:
+                    msg = await asyncio.wait_for(ws.recv(), 0.2)
+                except TimeoutError:
+                    continue
+                if isinstance(msg, str):
+                    info = json.loads(msg)
+                    if info.get("op") == "advertise" and not subscribed:
+                        subs = [
+                            {"id": i, "channelId": ch["id"]}
+                            for i, ch in enumerate(info["channels"])
+                        ]
+                        await ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+                        subscribed = True
+                else:
+                    self.received["foxglove"] += 1
+
+    def close(self) -> None:
+        self._halt.set()
+        for t in self._threads:
+            t.join(timeout=3.0)
+        self.lab.stop()
 
 
 def replay_speedup(path: str, clf=None, runs: int = 3) -> float:
@@ -352,6 +438,30 @@ def run_all(seconds: float = 15.0, progress=print) -> list[Result]:
                 progress("replay --fast of the 15 fps recording")
                 results.append(
                     Result("replay_speedup", replay_speedup(run.path, clf), "x", 20, "higher")
+                )
+                progress(f"the same with LSL outlets and a Foxglove client, {seconds:g} s")
+                lab = session_run(fps, imu_hz, seconds, tmp, clf=clf, lab_tools=True)
+                p50 = float(np.median(lab.latency_ms))
+                results.append(Result("latency_p50_15fps_lab_tools", p50, "ms", None, "lower"))
+                results.append(
+                    Result(
+                        "latency_p99_15fps_lab_tools",
+                        float(np.percentile(lab.latency_ms, 99)),
+                        "ms",
+                        10.0,
+                        "lower",
+                    )
+                )
+                results.append(
+                    Result(
+                        "lab_tools_latency_cost_p50",
+                        p50 - float(np.median(lat)),
+                        "ms",
+                        1.0,
+                        "lower",
+                        f"LSL inlet got {lab.lab_received['lsl']} samples, Foxglove client "
+                        f"{lab.lab_received['foxglove']} messages",
+                    )
                 )
     progress("recorder alone (synthetic frames)")
     rec = bench_record(45, 10)

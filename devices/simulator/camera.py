@@ -12,6 +12,9 @@ The IMU emulator must see the same walk on the same time base: give it
 `camera.orientation_at` (or `camera.simulator.thigh_quaternion` without looping), with t in
 seconds since `camera.start_time_ns`. Set `start_time_ns` before `start()` to share a
 start time chosen elsewhere; otherwise `start()` sets it.
+
+`clock` (session clock, ns) and `sleep` (seconds; True when the camera is stopped
+meanwhile) pace the frames: a test passes a fake pair and steps through time exactly.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections.abc import Callable
 
 import numpy as np
 
@@ -47,6 +51,8 @@ class MockCamera(Camera):
         loop: bool = False,
         realtime: bool | None = None,
         geometry: CameraGeometry | None = None,
+        clock: Callable[[], int] = now_ns,
+        sleep: Callable[[float], bool] | None = None,
     ) -> None:
         super().__init__(config, geometry=geometry)
         if simulator is None:
@@ -71,8 +77,11 @@ class MockCamera(Camera):
         self.realtime = True if realtime is None else realtime
         self.start_time_ns: int | None = None
         self._halt = threading.Event()
+        self._clock = clock
+        self._sleep = sleep or self._halt.wait
         self._thread: threading.Thread | None = None
         self._stall_until_ns = 0
+        self._resume_k: int | None = None
         course = simulator.course
         self.details = {
             "course": course.preset,
@@ -98,7 +107,7 @@ class MockCamera(Camera):
         """A fault for tests and drills: "stall" delivers no frame for `seconds`."""
         if fault != "stall":
             raise ValueError(f"unknown camera fault {fault!r} (known: stall)")
-        self._stall_until_ns = now_ns() + int(seconds * 1e9)
+        self._stall_until_ns = self._clock() + int(seconds * 1e9)
 
     def orientation_at(self, t_s: float) -> np.ndarray:
         """The thigh orientation t_s seconds after start_time_ns (what the IMU should see)."""
@@ -111,7 +120,7 @@ class MockCamera(Camera):
 
     def _start(self) -> None:
         if self.start_time_ns is None:
-            self.start_time_ns = now_ns()
+            self.start_time_ns = self._clock()
         self._halt.clear()
         self._thread = threading.Thread(target=self._run, name="walkcap-mock-camera", daemon=True)
         self._thread.start()
@@ -122,6 +131,19 @@ class MockCamera(Camera):
             self._thread.join(timeout=5.0)
             self._thread = None
         self.start_time_ns = None  # a new start() begins a new walk
+
+    def _restart(self) -> None:
+        """The producer restarted where the walk is now (the walk goes on while silent)."""
+        self._halt.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+        if self.start_time_ns is None:
+            self._start()
+            return
+        self._resume_k = max(0, int((now_ns() - self.start_time_ns) * 1e-9 * self.config.fps))
+        self._halt.clear()
+        self._thread = threading.Thread(target=self._run, name="walkcap-mock-camera", daemon=True)
+        self._thread.start()
 
     def _run(self) -> None:
         try:
@@ -134,14 +156,16 @@ class MockCamera(Camera):
         period = 1.0 / self.config.fps
         start = self.start_time_ns
         k = 0
+        if self._resume_k is not None:  # reopened: the frame due now, the walk went on
+            k, self._resume_k = self._resume_k, None
         while not self._halt.is_set():
             t = k * period
             if t > self.simulator.duration_s and not self.loop:
                 self._finish("end_of_course", f"end of the course after {k} frames")
                 return
             if self.realtime:
-                wait = (start + t * 1e9 - now_ns()) * 1e-9
-                if wait > 0 and self._halt.wait(wait):
+                wait = (start + t * 1e9 - self._clock()) * 1e-9
+                if wait > 0 and self._sleep(wait):
                     return
                 behind = int(-wait / period)
                 if behind >= CATCH_UP_FRAMES:  # too late: skip to the current frame
@@ -156,7 +180,7 @@ class MockCamera(Camera):
                     time.sleep(0.002)  # as fast as the consumer takes frames, losing none
             frame = self.simulator.render(self.walk_time(t), index=k)
             frame.device_time_ns = start + int(round(t * 1e9))
-            frame.host_time_ns = now_ns()
+            frame.host_time_ns = self._clock()
             if frame.host_time_ns >= self._stall_until_ns:  # a stalled camera sends nothing
                 self._deliver(frame)
             k += 1

@@ -33,7 +33,7 @@ from devices.child import Child
 from devices.clock import now_ns
 from devices.errors import DeviceInitError
 from devices.frames import DepthFrame
-from devices.imu import XbusImu, mock_baudrate
+from devices.imu import XbusImu
 from devices.scheduling import realtime_priority
 
 log = logging.getLogger(__name__)
@@ -100,7 +100,7 @@ class MockRig:
     def imu(self) -> RigImu:
         self._users += 1
         cfg = self.imu_config
-        return RigImu(self, self.port, mock_baudrate(cfg), cfg.rate_hz)
+        return RigImu(self, self.port, cfg.baudrate, cfg.rate_hz)
 
     def release(self) -> None:
         """One device closed; the last one ends the child."""
@@ -245,6 +245,9 @@ class RigCamera(Camera):
     def _close(self) -> None:
         self.rig.release()
 
+    def _restart(self) -> None:
+        self.rig.command("reopen_camera")
+
     def inject(self, fault: str, **kw) -> None:
         self.rig.inject_camera(fault, **kw)
 
@@ -320,6 +323,7 @@ def _serve(conn, camera_config, simulator_config, imu_config) -> None:
         from devices.simulator.camera import MockCamera
 
         camera = MockCamera(camera_config, simulator_config)
+        camera.watchdog = False  # the host's camera watches the frames that reach it
         camera.open()
 
         def thigh(t_s: float) -> np.ndarray:
@@ -335,7 +339,8 @@ def _serve(conn, camera_config, simulator_config, imu_config) -> None:
             jitter_ms=imu_config.jitter_ms,
             seed=getattr(imu_config, "seed", 0),
             orientation_at=thigh,
-            baudrate=mock_baudrate(imu_config),
+            baudrate=imu_config.baudrate,
+            model=getattr(imu_config, "emulate", "MTi-3"),
         )
         port = emulator.start()
     except Exception as e:
@@ -380,6 +385,8 @@ def _handle(name: str, args: list, camera, emulator):
         camera.start()
     elif name == "stop_camera":
         camera.stop()
+    elif name == "reopen_camera":
+        camera._restart()
     elif name == "inject_imu":
         fault, kw = args
         emulator.inject(fault, **kw)

@@ -3,28 +3,162 @@
 import argparse
 
 
-def count(minimum: int):
-    """An argparse type: an integer of at least `minimum`, else a one-line usage error."""
+def count(minimum: int, maximum: int | None = None):
+    """An argparse type: an integer of at least `minimum` (and at most `maximum`), else a
+    one-line usage error."""
 
     def parse(text: str) -> int:
         try:
             value = int(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {value}")
+        if value < minimum or (maximum is not None and value > maximum):
+            valid = f">= {minimum}" if maximum is None else f"within {minimum}..{maximum}"
+            raise argparse.ArgumentTypeError(f"must be {valid}, got {value}")
         return value
 
     return parse
 
 
+def seconds(text: str) -> float:
+    """An argparse type: a positive, finite number of seconds."""
+    import math
+
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected seconds, got {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a positive number of seconds, got {text}")
+    return value
+
+
 def finish_recording(command: str, stats, path) -> int:
     """Print the file path last (scripts take it); a failed recording is one error line."""
-    import sys
+    from capture.recorder import RecorderState
 
-    if stats.state == "failed":
-        print(f"walkcap {command}: error: {stats.message}", file=sys.stderr)
+    if stats.state == RecorderState.FAILED:
+        from tui.cli import error_line
+
+        error_line(command, stats.message)
         print(path)
         return 1
     print(path)
     return 0
+
+
+def add_device_arguments(parser, camera_backends: str = "mock | royale") -> None:
+    """The device and model flags `record` and `tui` share (they override the config file)."""
+    g = parser.add_argument_group("devices")
+    g.add_argument("--camera", metavar="BACKEND", help=f"camera backend: {camera_backends}")
+    g.add_argument("--imu", metavar="BACKEND", help="IMU backend: mock | serial")
+    g.add_argument("--port", help="IMU serial port (backend serial)")
+    g.add_argument("--fps", type=float, help="camera frame rate")
+    g.add_argument("--imu-rate", type=int, metavar="HZ", help="IMU output rate")
+    g.add_argument(
+        "-o", "--out", metavar="DIR", help="recordings folder (default: [session] recordings)"
+    )
+    g.add_argument("--course", choices=("indoor", "outdoor"), help="mock walk preset")
+    g.add_argument("--seed", type=int, help="mock walk seed")
+    g.add_argument("--model", metavar="PATH", help="classifier weights (default: bundled)")
+    g.add_argument("--operator", help="who runs the session (written into each recording)")
+
+
+def add_session_arguments(parser) -> None:
+    """The session form's fields as flags (`record` and `tui` share them); unset: not given."""
+    g = parser.add_argument_group("session metadata")
+    g.add_argument("--subject", help="pseudonymous subject id (default: S01)")
+    g.add_argument("--condition", help="e.g. indoor / outdoor (default: the mock course)")
+    g.add_argument(
+        "--trial",
+        type=count(1),
+        metavar="N",
+        help="trial number (default: the next free one for subject and condition in the "
+        "recordings folder); `record` refuses one that exists unless --overwrite, the UI "
+        "moves on to the next free number and says so",
+    )
+    g.add_argument("--height", type=float, metavar="M", dest="height_m", help="height in metres")
+    g.add_argument("--weight", type=float, metavar="KG", dest="weight_kg", help="weight in kg")
+    g.add_argument("--age", type=int, help="age in years")
+    g.add_argument("--sex", choices=("female", "male", "other"), help="(default: not given)")
+    g.add_argument("--amputee", action="store_true", default=None, help="the subject is an amputee")
+    g.add_argument(
+        "--side", choices=("left", "right"), help="amputated side (required with --amputee)"
+    )
+    g.add_argument(
+        "--residual-limb",
+        type=float,
+        metavar="CM",
+        dest="residual_limb_cm",
+        help="residual limb length in cm",
+    )
+    g.add_argument("--notes", help="free text kept with the recording")
+
+
+SESSION_FLAGS = (
+    "subject",
+    "condition",
+    "trial",
+    "height_m",
+    "weight_kg",
+    "age",
+    "sex",
+    "amputee",
+    "side",
+    "residual_limb_cm",
+    "notes",
+)
+
+
+def apply_device_flags(args, config) -> None:
+    """The device flags given override the configuration."""
+    from capture.config import override
+
+    for flag, key in (
+        ("camera", "camera.backend"),
+        ("imu", "imu.backend"),
+        ("port", "imu.port"),
+        ("fps", "camera.fps"),
+        ("imu_rate", "imu.rate_hz"),
+        ("out", "session.recordings"),
+        ("course", "simulator.course"),
+        ("seed", "simulator.seed"),
+        ("model", "model.path"),
+        ("operator", "session.operator"),
+    ):
+        value = getattr(args, flag, None)
+        if value is not None:
+            override(config, key, value, flag="--" + flag.replace("_", "-"))
+
+
+def subject_from_flags(args, base):
+    """`base` (a SubjectInfo) with the session flags given on top, validated."""
+    import dataclasses
+
+    given = {k: getattr(args, k) for k in SESSION_FLAGS if getattr(args, k, None) is not None}
+    info = dataclasses.replace(base, **given)
+    info.validate()
+    return info
+
+
+def course_condition(args, config) -> str | None:
+    """Make a mock walk's course and the condition agree; a warning when they cannot.
+
+    `--condition outdoor` alone walks the outdoor course; `--course` alone names the
+    condition. Returns the warning to print, or None.
+    """
+    if config.camera.backend != "mock":
+        return None
+    condition, course = getattr(args, "condition", None), getattr(args, "course", None)
+    if condition is None:
+        args.condition = config.simulator.course
+        return None
+    if course is None and condition in ("indoor", "outdoor"):
+        config.simulator.course = condition
+        return None
+    if condition != config.simulator.course:
+        return (
+            f"condition {condition!r} differs from the mock course "
+            f"{config.simulator.course!r} (the file records both)"
+        )
+    return None

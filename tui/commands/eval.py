@@ -10,20 +10,17 @@ Accuracies are per trial (file), then mean +- SD across trials, as in the paper.
 from __future__ import annotations
 
 import argparse
-import importlib
 import json
-import logging
 import math
+from pathlib import Path
 
-from tui.cli import NotYetAvailable
-from tui.commands import count
+from tui.commands import count, eval_model
 
 HELP = "evaluate classifiers and fusion on score files or recordings"
 
-log = logging.getLogger(__name__)
-
 DEFAULT_METHODS = "cnn,cnn+voting,hmm,hmm+voting"
 SWEEP_DEFAULT = 6  # frames; the paper's trade-off figure reaches 6
+SWEEP_MAX = 100  # frames: several seconds of delay, beyond any use for a prosthesis
 
 
 def _methods(text: str) -> list[str]:
@@ -75,28 +72,28 @@ def _common_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--sweep-delay",
-        type=count(0),
+        type=count(0, SWEEP_MAX),
         nargs="?",
         const=SWEEP_DEFAULT,
         metavar="N",
         help=f"also accuracy against 0..N delayed frames (default N: {SWEEP_DEFAULT})",
     )
-    p.add_argument("--plot", metavar="DIR", help="write the paper's figures as PNG into DIR")
+    p.add_argument(
+        "--plot",
+        metavar="DIR",
+        help="write the paper's figures into DIR, each as vector PDF and 300-dpi PNG: "
+        "accuracy per subject, against delay (with --sweep-delay), sequential decisions "
+        "and probability traces of every trial, confusion matrices per condition",
+    )
+    p.add_argument(
+        "--plot-trials",
+        type=lambda text: [t.strip() for t in text.split(",") if t.strip()],
+        metavar="LIST",
+        help="with --plot: the decision and probability figures only for trials whose "
+        "file name or title (subject, condition, trial) contains one of these "
+        "comma-separated words (default: every trial)",
+    )
     p.add_argument("--json", action="store_true", help="print JSON instead of tables")
-
-
-def _model_module():
-    """tui.commands.eval_model when it imports, else (None, reason)."""
-    try:
-        return importlib.import_module("tui.commands.eval_model"), ""
-    except ModuleNotFoundError as e:
-        if e.name == "tui.commands.eval_model":
-            return None, "not available yet (it lands with the CNN evaluation issue)"
-        reason = f"not available: tui.commands.eval_model needs {e.name}"
-    except Exception as e:  # a broken module must not break every other command
-        reason = f"not available: tui.commands.eval_model failed to import: {e}"
-    log.debug("walkcap eval model %s", reason)
-    return None, reason
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -108,7 +105,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         description="Evaluate per-frame scores: each CSV has the header "
         "LG,US,DS,UR,DR,label and one row per frame in capture order.",
     )
-    p.add_argument("files", nargs="+", metavar="FILE.csv")
+    p.add_argument("files", nargs="+", metavar="FILE.csv", help="score files, one per trial")
     _common_arguments(p)
 
     p = verbs.add_parser(
@@ -125,27 +122,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="what is true: operator labels, simulator truth, or auto (labels "
         "when the recording has any)",
     )
+    p.add_argument(
+        "--replays",
+        action="store_true",
+        help="evaluate the newest replay of each trial instead of its recording "
+        "(another model's output on the same trial)",
+    )
     _common_arguments(p)
 
-    module, reason = _model_module()
-    if module is not None:
-        p = verbs.add_parser("model", help=module.HELP, description=module.HELP)
-        module.add_arguments(p)
-        p.set_defaults(_eval_run=module.run)
-    else:
-        p = verbs.add_parser(
-            "model", help="the CNN on unseen synthetic sessions (not available yet)"
-        )
-        p.add_argument("rest", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
-        p.set_defaults(_eval_unavailable=reason)
+    p = verbs.add_parser("model", help=eval_model.HELP, description=eval_model.HELP)
+    eval_model.add_arguments(p)
 
 
 def run(args, config) -> int:
     if args.eval_command == "model":
-        if getattr(args, "_eval_run", None) is None:
-            raise NotYetAvailable(f"model: {args._eval_unavailable}")
-        return args._eval_run(args, config)
+        return eval_model.run(args, config)
 
+    from capture.reader import read_trials
     from inference import evaluation as ev
     from inference.errors import InferenceError
     from inference.fusion import PAPER_TRANSITION, validate_transition
@@ -166,10 +159,7 @@ def run(args, config) -> int:
     if args.eval_command == "scores":
         trials = [ev.read_scores(path) for path in args.files]
     else:
-        try:
-            trials = ev.load_trials_from_recordings(_recordings(args.files), args.reference)
-        except ev.RecordingsUnavailable as e:
-            raise NotYetAvailable(f"recordings: {e}") from None
+        trials = read_trials(_recordings(args.files, args.replays), args.reference)
     per_trial = params
     if args.transition == "estimated":
         per_trial = [
@@ -188,7 +178,10 @@ def run(args, config) -> int:
     data["parameters"]["transition"] = args.transition
     if args.plot:
         data["plots"] = [
-            str(p) for p in ev.write_plots(results, args.plot, args.methods, params, sweep)
+            str(p)
+            for p in ev.write_plots(
+                results, args.plot, args.methods, params, sweep, args.plot_trials
+            )
         ]
     if args.json:
         print(json.dumps(data, indent=2))
@@ -278,7 +271,11 @@ def format_report(data: dict, methods: list[str]) -> str:
         rows = [[_title(m), *(_pct(x) for x in sweep["mean"][m])] for m in methods]
         out += _table(["method", *map(str, sweep["delays"])], rows)
     if data.get("plots"):
-        out += ["", f"wrote {len(data['plots'])} figure(s): {', '.join(data['plots'])}"]
+        folders = sorted({str(Path(p).parent) for p in data["plots"]})
+        out += [
+            "",
+            f"wrote {len(data['plots'])} figure file(s) (PDF and PNG) to {', '.join(folders)}",
+        ]
     return "\n".join(out)
 
 
@@ -287,20 +284,16 @@ def _mean_sd(entry: dict, method: str) -> str:
     return _pct(mean) if sd is None else f"{_pct(mean)} ± {_pct(sd)}"
 
 
-def _recordings(paths: list[str]) -> list[str]:
-    """Files as given; a folder stands for the recordings in it (replays included)."""
-    from pathlib import Path
+def _recordings(paths: list[str], replays: bool = False) -> list[str]:
+    """One file per trial from the files and folders given (capture.corpus.select); the
+    files left out are listed on stderr, with why."""
+    import sys
 
-    from inference.errors import InferenceError
+    from capture.corpus import select
 
-    out = []
-    for p in paths:
-        folder = Path(p)
-        if folder.is_dir():
-            found = sorted(str(f) for f in folder.glob("*.mcap"))
-            if not found:
-                raise InferenceError(f"{folder}: no .mcap recordings in this folder")
-            out += found
-        else:
-            out.append(p)
-    return out
+    corpus = select(paths, replays=replays)
+    if not corpus.chosen:
+        raise corpus.nothing_left("no recordings to evaluate")
+    for line in corpus.report_lines():
+        print(line, file=sys.stderr)
+    return [str(p) for p in corpus.files]

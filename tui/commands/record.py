@@ -6,26 +6,29 @@ import signal
 import sys
 import time
 
-from tui.commands import finish_recording
+from tui import lab_flags
+from tui.commands import (
+    add_device_arguments,
+    add_session_arguments,
+    apply_device_flags,
+    course_condition,
+    finish_recording,
+    seconds,
+    subject_from_flags,
+)
 
 HELP = "record a session headless into an MCAP file"
+STATUS_EVERY_S = 0.5
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--camera", metavar="BACKEND", help="mock | royale")
-    parser.add_argument("--imu", metavar="BACKEND", help="mock | serial")
-    parser.add_argument("--port", help="IMU serial port (backend serial)")
     parser.add_argument(
         "--duration",
-        type=float,
+        type=seconds,
         metavar="S",
-        help="seconds to record (default: until the mock course ends, or Ctrl-C)",
+        help="seconds to record (a mock course loops to fill them; default: until the mock "
+        "course ends, or Ctrl-C)",
     )
-    parser.add_argument("--fps", type=float, help="camera frame rate")
-    parser.add_argument("--imu-rate", type=int, metavar="HZ", help="IMU output rate")
-    parser.add_argument("--out", metavar="DIR", help="recordings folder")
-    parser.add_argument("--course", choices=("indoor", "outdoor"), help="mock walk preset")
-    parser.add_argument("--seed", type=int, help="mock walk seed")
     parser.add_argument(
         "--fast",
         action="store_true",
@@ -36,88 +39,115 @@ def add_arguments(parser) -> None:
         action="store_true",
         help="labels from the simulator's truth (unattended mock runs)",
     )
-    parser.add_argument("--model", metavar="PATH", help="classifier weights (default: bundled)")
-    g = parser.add_argument_group("session metadata")
-    g.add_argument("--subject", default="S01", help="pseudonymous subject id")
-    g.add_argument("--condition", help="e.g. indoor / outdoor (default: the course)")
-    g.add_argument("--trial", type=int, default=1)
-    g.add_argument("--height", type=float, metavar="M", dest="height_m")
-    g.add_argument("--weight", type=float, metavar="KG", dest="weight_kg")
-    g.add_argument("--age", type=int)
-    g.add_argument("--sex", default="", choices=("", "female", "male", "other"))
-    g.add_argument("--amputee", action="store_true")
-    g.add_argument("--side", default="", choices=("", "left", "right"))
-    g.add_argument("--residual-limb", type=float, metavar="CM", dest="residual_limb_cm")
-    g.add_argument("--notes", default="")
+    add_device_arguments(parser)
+    add_session_arguments(parser)
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="record an existing --trial again: the new file supersedes the earlier one, "
+        "which stays on disk and is left out of eval, train and export",
+    )
+    lab_flags.add_arguments(parser)
 
 
-def apply_device_flags(args, config) -> None:
-    """Flags shared by record and tui: they override the configuration file."""
-    from capture.config import override
+def status_line(elapsed_s: float, total_s: float | None, snap) -> str:
+    """One line for a terminal: elapsed / total, frames, drops, gaps, size."""
+    from tui.widgets.recording_panel import clock_text, human_bytes
 
-    for flag, key in (
-        ("camera", "camera.backend"),
-        ("imu", "imu.backend"),
-        ("port", "imu.port"),
-        ("fps", "camera.fps"),
-        ("imu_rate", "imu.rate_hz"),
-        ("out", "session.recordings"),
-        ("course", "simulator.course"),
-        ("seed", "simulator.seed"),
-        ("model", "model.path"),
-    ):
-        value = getattr(args, flag, None)
-        if value is not None:
-            override(config, key, value)
-    if getattr(args, "fast", False):
-        config.simulator.realtime = False
+    rec = snap.recording
+    total = f" / {clock_text(total_s)}" if total_s else ""
+    drops = (getattr(rec, "dropped", 0) or 0) + sum(
+        s.dropped for s in (snap.camera, snap.imu) if s is not None
+    )
+    gaps = snap.alarms.gaps if snap.alarms is not None else {}
+    size = human_bytes(getattr(rec, "bytes_written", 0) or 0)
+    line = (
+        f"REC {clock_text(elapsed_s)}{total}  frames {snap.frames}  drops {drops}  "
+        f"gaps camera {gaps.get('camera', 0)} IMU {gaps.get('imu', 0)}  size {size}"
+    )
+    alarms = snap.alarms.alarms if snap.alarms is not None else []
+    return line + (f"  ! {alarms[0].text}" if alarms else "")
 
 
 def run(args, config) -> int:
+    from capture.corpus import trial_conflict
+    from capture.labtools import LabTools, SessionController
+    from capture.recorder import RecorderState
     from capture.session import Session, SubjectInfo
 
     apply_device_flags(args, config)
-    info = SubjectInfo(
-        subject=args.subject,
-        height_m=args.height_m,
-        weight_kg=args.weight_kg,
-        age=args.age,
-        sex=args.sex,
-        amputee=args.amputee,
-        side=args.side,
-        residual_limb_cm=args.residual_limb_cm,
-        condition=args.condition or _default_condition(config),
-        trial=args.trial,
-        notes=args.notes,
-    )
-    info.validate()
+    lab_flags.apply(args, config)
+    warning = course_condition(args, config)
+    if warning:
+        print(f"walkcap record: warning: {warning}", file=sys.stderr)
+    if args.fast:
+        config.simulator.realtime = False
+    if args.duration and config.camera.backend == "mock":
+        config.simulator.loop = True  # the walk goes on for as long as asked, as in the UI
+    info = subject_from_flags(args, SubjectInfo(condition=args.condition or "session"))
+    existing = _on_existing(args)
+    # Checked before the devices open: a refused trial costs no set-up time.
+    trial_conflict(config.session.recordings, info.subject, info.condition, info.trial, existing)
     session = Session(config, auto_label=args.auto_label)
     # SIGTERM finalises the file like Ctrl-C does
     signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
+    tty = sys.stderr.isatty()
     stats = None
+    lab = None
+    remote = config.lsl.remote_control
     try:
         session.start()
-        path = session.start_recording(info)
-        print(f"recording {path}", file=sys.stderr)
-        deadline = time.monotonic() + args.duration if args.duration else None
+        lab = LabTools(session, config, SessionController(session, info)).start()
+        for line in lab.describe():
+            print(line, file=sys.stderr)
+        for problem in lab.problems:
+            print(f"walkcap record: {problem}", file=sys.stderr)
+        if remote:  # the experiment script says when: start, stop, start, ...
+            print("waiting for the remote control's start (Ctrl-C ends)", file=sys.stderr)
+        else:
+            path = session.start_recording(info, existing)
+            if session.trial_notice:
+                print(f"walkcap record: {session.trial_notice}", file=sys.stderr)
+            print(f"recording {path}", file=sys.stderr)
+        started = time.monotonic()
+        deadline = started + args.duration if args.duration else None
+        shown = 0.0
         while not session.finished.is_set():
-            if deadline is not None and time.monotonic() >= deadline:
+            now = time.monotonic()
+            if deadline is not None and now >= deadline:
                 break
-            rec = session.snapshot().recording
-            if rec is not None and rec.state == "failed":
+            snap = session.snapshot()
+            if snap.recording is not None and snap.recording.state == RecorderState.FAILED:
                 break
+            if tty and now - shown >= STATUS_EVERY_S and snap.recording is not None:
+                shown = now
+                line = status_line(now - started, args.duration, snap)
+                print(f"\r\x1b[K{line}", end="", file=sys.stderr, flush=True)
             time.sleep(0.05)
     except KeyboardInterrupt:
-        print("stopping: finalising the recording", file=sys.stderr)
+        print("\nstopping: finalising the recording", file=sys.stderr)
     finally:
+        if tty:
+            print(file=sys.stderr)
+        remote_log = list(lab.remote.log) if lab is not None and lab.remote is not None else []
+        if lab is not None:
+            lab.stop()
         stats = session.stop()
+    saved = [r.removeprefix("saved ") for _, r in remote_log if r.startswith("saved ")]
+    for path in saved:  # the trials the remote control started and stopped
+        print(path)
     if stats is None:
-        return 1
+        if remote and not saved:
+            print("walkcap record: no trial was recorded (no remote start)", file=sys.stderr)
+        return 0 if saved else 1
     snap_lat = session.snapshot().latency_ms
+    gaps = session.alarms.trial_gaps
     print(
-        f"{stats.messages} messages, {stats.bytes_written / 1e6:.1f} MB, dropped {stats.dropped}"
+        f"{stats.duration_s:.1f} s, {stats.messages} messages, "
+        f"{stats.bytes_written / 1e6:.1f} MB, dropped {stats.dropped}, "
+        f"gaps camera {gaps.get('camera', 0)} IMU {gaps.get('imu', 0)}"
         + (
-            f", latency p50 {snap_lat['p50']:.1f} ms p99 {snap_lat['p99']:.1f} ms"
+            f", pipeline latency median {snap_lat['p50']:.1f} ms p99 {snap_lat['p99']:.1f} ms"
             if snap_lat
             else ""
         ),
@@ -126,5 +156,10 @@ def run(args, config) -> int:
     return finish_recording("record", stats, stats.path)
 
 
-def _default_condition(config) -> str:
-    return config.simulator.course if config.camera.backend == "mock" else "session"
+def _on_existing(args) -> str:
+    """What an existing trial means: the next free number unless --trial was given."""
+    from capture.corpus import NEXT_TRIAL, OVERWRITE, TRIAL_ERROR
+
+    if args.trial is None:
+        return NEXT_TRIAL
+    return OVERWRITE if args.overwrite else TRIAL_ERROR

@@ -6,15 +6,22 @@ import contextlib
 import logging
 import os
 
+from tui import lab_flags
+from tui.commands import add_device_arguments, add_session_arguments
+
 HELP = "open the terminal UI (mock devices and the bundled model by default)"
 
 
 def add_arguments(parser) -> None:
     parser.add_argument(
-        "--camera", metavar="BACKEND", help="camera backend: mock | royale | replay"
+        "--drills",
+        action="store_true",
+        help="mock devices only: keys that inject faults (ctrl+u unplugs the IMU for 2 s, "
+        "ctrl+t stalls the camera for 2 s), to rehearse what the alarms show",
     )
-    parser.add_argument("--imu", metavar="BACKEND", help="IMU backend: mock | serial")
-    parser.add_argument("--port", help="serial port of the IMU (backend serial)")
+    add_device_arguments(parser, "mock | royale | replay")
+    add_session_arguments(parser)
+    lab_flags.add_arguments(parser)
 
 
 def log_path() -> str:
@@ -41,25 +48,34 @@ def logging_to_file(path: str):
 
 
 def run(args, config) -> int:
-    from capture.config import override
-    from tui.app import WalkcapApp
+    import sys
 
-    if args.camera:
-        override(config, "camera.backend", args.camera)
-    if args.imu:
-        override(config, "imu.backend", args.imu)
-    if args.port:
-        override(config, "imu.port", args.port)
+    from capture.errors import CaptureError
+    from tui.app import WalkcapApp
+    from tui.commands import apply_device_flags, course_condition, subject_from_flags
+    from tui.session_screen import load_last_session
+
+    apply_device_flags(args, config)
+    lab_flags.apply(args, config)
+    given_condition = args.condition is not None
+    warning = course_condition(args, config)
+    if warning:
+        print(f"walkcap tui: warning: {warning}", file=sys.stderr)
+    if not given_condition and args.course is None:
+        args.condition = None  # the form's remembered condition stands
+    subject = subject_from_flags(args, load_last_session())
+    if args.drills and (config.camera.backend != "mock" or config.imu.backend != "mock"):
+        raise CaptureError("--drills injects faults into mock devices only")
     config.simulator.loop = True  # a mock subject keeps walking until the operator quits
-    app = WalkcapApp(config)
+    app = WalkcapApp(config, subject=subject, drills=args.drills)
     with logging_to_file(log_path()):
         try:
             app.run()
         finally:
             if app.session is not None:  # however the UI ended, finalise a recording
                 app.session.stop()
+    for line in app.trials_summary():  # what this session saved, once the screen is gone
+        print(line)
     if app.start_error:
-        from capture.errors import CaptureError
-
         raise CaptureError(f"the session did not start: {app.start_error}")
     return app.return_code or 0

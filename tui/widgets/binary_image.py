@@ -51,8 +51,10 @@ class BinaryImage(CachedLines):
             return [[("no frame yet", _DIM)]]
         lines, factor, style = fit_binary_image(self._image, width, height - 1)
         out: list[Line] = [[(line, None)] for line in lines]
-        caption = f"{self._image.shape[1]}x{self._image.shape[0]} {style}" + (
-            f" 1:{factor}" if factor > 1 else ""
-        )
+        w, h = self._image.shape[1], self._image.shape[0]
+        pooled = f", shown 1:{factor}" if factor > 1 else ""
+        # the longest wording that fits: abbreviated deliberately, never cut
+        captions = (f"leveled image {w} x {h} cells{pooled}", f"{w} x {h} cells{pooled}", "")
+        caption = next(c for c in captions if len(c) + len(self._flag) + 2 <= width)
         out.append([(caption, _DIM), (f"  {self._flag}" if self._flag else "", _FLAG)])
         return out

@@ -1,24 +1,28 @@
-"""Both devices at a glance: state, rates, drops, errors, clock and sync; the latest fault."""
+"""Both devices at a glance: state, rates, drops, errors, clock drift and sync error; the
+latest fault. Every figure has its label and unit."""
 
 from __future__ import annotations
 
+from rich.console import Group
 from rich.table import Table
 from rich.text import Text
 from textual.widget import Widget
 
-from devices.base import DeviceEvent, DeviceStatus
+from devices.base import DeviceEvent, DeviceState, DeviceStatus
 from tui.widgets.modes import STATE_COLORS
 from tui.widgets.pacing import Pacer
 
 # Backends name their clock figures slightly differently; the first key present is shown.
-_OFFSET_KEYS = ("clock_offset_ms", "offset_ms")
 _DRIFT_KEYS = ("clock_drift_ppm", "drift_ppm")
+# What a device's error count is made of, in words.
 _ERROR_PARTS = (
-    ("checksum_errors", "checksum"),
-    ("missing_packets", "missing"),
+    ("checksum_errors", "bad checksums"),
+    ("missing_packets", "missing packets"),
     ("reconnects", "reconnects"),
+    ("renderer_skipped", "frames not rendered"),
 )
-_RED, _AMBER = STATE_COLORS["lost"], STATE_COLORS["degraded"]
+_UNITS = {"camera": ("fps", "frames"), "imu": ("Hz", "samples")}
+_RED, _AMBER = STATE_COLORS[DeviceState.LOST], STATE_COLORS[DeviceState.DEGRADED]
 
 Row = tuple[str, str, str]  # label, value, style of the value
 
@@ -30,41 +34,37 @@ def _first(details: dict, keys: tuple[str, ...]):
     return None
 
 
-def offset_text(offset_ms: float) -> str:
-    """A device clock offset: milliseconds when small, seconds when the device counts from
-    its own power-up (then only its steadiness matters, shown by the drift)."""
-    return f"{offset_ms:+.1f} ms" if abs(offset_ms) < 1000 else f"{offset_ms / 1000:+.3f} s"
-
-
 def device_rows(name: str, status: DeviceStatus | None, sync: dict | None = None) -> list[Row]:
     """The lines shown for one device, already formatted (so an unchanged view costs nothing)."""
+    title = "IMU" if name == "imu" else name
     if status is None:
-        return [(name, "not open", "dim")]
+        return [(title, "not open", "dim")]
+    unit, things = _UNITS.get(name, ("Hz", "items"))
     rows = [
-        (name, f"{status.state}  {status.backend}", f"bold {STATE_COLORS.get(status.state, '')}")
+        (title, f"{status.state}  {status.backend}", f"bold {STATE_COLORS.get(status.state, '')}")
     ]
-    if status.message and status.state != "ok":  # "streaming" says nothing the state does not
+    if (
+        status.message and status.state != DeviceState.OK
+    ):  # "streaming" says nothing the state does not
         rows.append(("", status.message, STATE_COLORS.get(status.state, "")))
     slow = status.configured_rate_hz and status.measured_rate_hz < 0.9 * status.configured_rate_hz
     rows.append(
         (
             "rate",
-            f"{status.measured_rate_hz:5.1f}/{status.configured_rate_hz:g} Hz",
-            _AMBER if slow and status.state == "ok" else "",
+            f"{status.measured_rate_hz:.1f} of {status.configured_rate_hz:g} {unit}",
+            _AMBER if slow and status.state == DeviceState.OK else "",
         )
     )
-    parts = [f"{status.details[k]} {name}" for k, name in _ERROR_PARTS if status.details.get(k)]
-    errors = f"{status.errors}" + (f" ({', '.join(parts)})" if parts else "")
+    # drops: lost on this side (walkcap fell behind); errors: faults of the device or link
     style = f"bold {_RED}" if status.dropped else (_AMBER if status.errors else "")
-    rows.append(("drops", f"{status.dropped}  errors {errors}", style))
-    offset, drift = _first(status.details, _OFFSET_KEYS), _first(status.details, _DRIFT_KEYS)
-    if offset is not None or drift is not None:
-        parts = ([offset_text(float(offset))] if offset is not None else []) + (
-            [f"{float(drift):+.0f} ppm"] if drift is not None else []
-        )
-        rows.append(("clock", " ".join(parts), ""))
-    if sync:
-        rows.append(("sync", f"{sync.get('p50_ms', 0):.1f} ms p99 {sync.get('p99_ms', 0):.1f}", ""))
+    rows.append(("drops", f"{status.dropped} {things}, errors {status.errors}", style))
+    parts = [f"{what}: {status.details[k]}" for k, what in _ERROR_PARTS if status.details.get(k)]
+    rows += [("", part, _AMBER) for part in parts]
+    drift = _first(status.details, _DRIFT_KEYS)
+    if drift is not None:  # how fast the device clock runs against the host's
+        rows.append(("drift", f"{float(drift):+.0f} ppm (clock)", ""))
+    if sync:  # how far a sample's host time is from when it was taken
+        rows.append(("sync", f"error p99 {sync.get('p99_ms', 0):.1f} ms", ""))
     return rows
 
 
@@ -73,7 +73,7 @@ def event_row(event: DeviceEvent) -> Row:
     return ("", f"{event.device} {event.kind}: {event.message}", style)
 
 
-_PACED = ("rate", "clock", "sync", "frames")
+_PACED = ("rate", "drift", "sync", "frames", "latency")
 
 
 def _significant(rows: list[Row]) -> list[Row]:
@@ -114,9 +114,9 @@ class DevicePanel(Widget):
 
     def render(self) -> Table:
         table = Table.grid(padding=(0, 1))
-        table.add_column(style="dim", no_wrap=True, min_width=6)
-        table.add_column(no_wrap=True, overflow="ellipsis")
+        table.add_column(style="dim", no_wrap=True, min_width=7)
+        table.add_column(overflow="fold")  # a long message wraps, never cut mid-word
         for label, value, style in self._rows:
-            is_name = label in ("camera", "imu")
+            is_name = label in ("camera", "IMU", "pipeline")
             table.add_row(Text(label, style="bold" if is_name else ""), Text(value, style=style))
-        return table
+        return Group(table)

@@ -22,10 +22,11 @@ def feature_rows(features: dict) -> list[tuple[str, str]]:
     """(name, value) lines: what the terrain is first ("stairs up, 3 steps"), then numbers."""
     rows = []
     kind = features.get("kind")
-    if kind:
-        head = f"{kind} {features.get('direction') or ''}".strip()
-        if features.get("steps"):
-            head += f", {features['steps']} steps"
+    if kind:  # what the profile's geometry looks like, not the decision (that is the HMM's)
+        head = f"fits {kind} {features.get('direction') or ''}".strip()
+        steps = features.get("steps")
+        if steps:
+            head += f", {steps} step{'s' if steps != 1 else ''}"
         rows.append(("", head))
     for key, value in features.items():
         if value is None or key in _HEADLINE:
@@ -65,6 +66,7 @@ class FeaturesPanel(Widget):
         width = max(len(name) for name, _ in self._rows)
         text = Text(no_wrap=True, overflow="ellipsis")
         for i, (name, value) in enumerate(self._rows):
-            text.append(f"{name:<{width}} ", style="dim")
+            if name:  # the headline ("fits stairs up, 3 steps") starts at the edge
+                text.append(f"{name:<{width}} ", style="dim")
             text.append(value + ("\n" if i < len(self._rows) - 1 else ""))
         return text

@@ -12,10 +12,26 @@ from textual.screen import ModalScreen
 from textual.widgets import Static
 
 ABOUT = (
-    "Left: both devices (state, rate, drops, errors, clock, sync) and the recording.\n"
-    "Middle: the leveled 100x100 image the CNN sees and the sagittal profile.\n"
-    "Right: the fused decision, the CNN's probabilities, terrain features.\n"
-    "Bottom: the last 20 s — true mode (yours), CNN decision, fused decision.\n"
+    "Top: subject · condition · trial, the true mode in force; below it the banner (red while "
+    "a trial records: elapsed time and the file; amber when the pre-flight check failed and "
+    "recording is blocked) and the alarm line (red: act now, amber: worth knowing).\n"
+    "devices — per device: state and backend; rate = measured of configured (fps, Hz); drops = "
+    "frames or samples lost because walkcap fell behind; errors = device-side faults "
+    "(bad checksums, missing packets, reconnects, frames the mock did not render); "
+    "drift = how fast the IMU clock runs against the computer's, ppm; sync error p99 = how far "
+    "an IMU sample's time is from when it was taken, 99th percentile, ms. pipeline: frames "
+    "processed; latency = frame received to fused decision, median and p99, ms.\n"
+    "recording — elapsed time, file, size, write rate, writer queue (how full; full loses "
+    "data), gaps this trial (a stream silent for more than 3 periods; walkcap info counts the "
+    "same), messages dropped.\n"
+    "image — the leveled 100 x 100 image the CNN sees (1 cm cells, seen from the left, "
+    "walking to the right). profile — the terrain's height along the walk.\n"
+    "fused decision (HMM) — the mode after fusion; CNN probabilities — each mode's "
+    "probability for the latest frame, 0.00-1.00; terrain geometry — what a fit of the "
+    "profile finds (slope, riser, tread), not a decision.\n"
+    "last 20 s — rows: true (your labels), CNN (the per-frame decision), fused (after the "
+    "HMM), sim (mock devices: the simulator's truth).\n"
+    "trials this session — trial, duration, size, labels, gaps, the file's full path.\n"
     "A label key applies from the moment it is pressed until the next one."
 )
 
@@ -34,7 +50,7 @@ class HelpScreen(ModalScreen[None]):
     DEFAULT_CSS = """
     HelpScreen { align: center middle; }
     HelpScreen > Vertical {
-        width: 84; max-width: 95%; height: auto; max-height: 95%;
+        width: 100; max-width: 95%; height: auto; max-height: 95%;
         border: round $accent; padding: 0 1; background: $surface;
     }
     """

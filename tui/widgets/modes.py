@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from rich.text import Text
 
+from devices.base import DeviceState
 from devices.frames import MODES
 
 # Distinct hues that stay apart on dark and light themes and for the common colour-vision
@@ -18,10 +19,10 @@ MODE_COLORS = {
 NO_MODE_COLOR = "#555555"
 
 STATE_COLORS = {
-    "ok": "#4caf50",
-    "degraded": "#f0a020",
-    "lost": "#e04040",
-    "stopped": "#888888",
+    DeviceState.OK: "#4caf50",
+    DeviceState.DEGRADED: "#f0a020",
+    DeviceState.LOST: "#e04040",
+    DeviceState.STOPPED: "#888888",
 }
 
 

@@ -39,7 +39,7 @@ class ProbabilityBars(Widget):
         self.refresh()
 
     def render(self) -> Text:
-        width = max(4, self.size.width - 9)
+        width = max(4, self.size.width - 8)
         finite = self._probs is not None and np.isfinite(self._probs).any()
         best = int(np.nanargmax(self._probs)) if finite else -1
         text = Text(no_wrap=True)
@@ -51,9 +51,7 @@ class ProbabilityBars(Widget):
             text.append(
                 bar(p, width), style=f"bold {MODE_COLORS[mode]}" if strong else MODE_COLORS[mode]
             )
-            text.append(
-                " " + (f"{p:.2f}"[1:] if p < 1 else "1.0"), style="bold" if strong else "dim"
-            )
+            text.append(f" {p:.2f}", style="bold" if strong else "dim")
             if i < len(MODES) - 1:
                 text.append("\n")
         return text

@@ -1,4 +1,4 @@
-"""The trial being recorded: file, elapsed time, size, write rate, writer queue."""
+"""The trial being recorded: file, elapsed time, size, write rate, writer queue, gaps."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ from rich.table import Table
 from rich.text import Text
 from textual.widget import Widget
 
+from capture.recorder import RecorderState
 from tui.widgets.pacing import Pacer
 
 
@@ -55,35 +56,34 @@ def recording_rows(
     next_trial: str = "",
     write_rate: float | None = None,
     idle: str = "○ not recording",
+    gaps: dict | None = None,
 ) -> list[tuple[str, str, str]]:
     """(label, value, style) lines for the panel, formatted. `stats`: RecorderStats."""
     if elapsed_s is None:
         return [(idle, "", "bold")] + ([(next_trial, "", "dim")] if next_trial else [])
     rows = [("● REC", clock_text(elapsed_s), "bold")]
-    if _stat(stats, "state") == "failed":
+    if _stat(stats, "state") == RecorderState.FAILED:
         rows.append(
             ("FAILED", _stat(stats, "message", "") or "the recording stopped", "bold #e04040")
         )
     file = path or _stat(stats, "path")
-    if file is not None:
-        rows.append(("file", Path(file).name, ""))
+    if file is not None:  # two lines at the name's last "_" rather than cut anywhere
+        head, sep, tail = Path(file).name.rpartition("_")
+        rows.append(("file", f"{head}{sep}\n{tail}" if sep else tail, ""))
     size = _stat(stats, "bytes_written")
     if size is not None:
         rows.append(("size", human_bytes(size), ""))
     rows.append(("write", f"{human_bytes(write_rate)}/s" if write_rate is not None else "—", ""))
     depth, capacity = _stat(stats, "queue_depth"), _stat(stats, "queue_size")
-    if depth is not None:
+    if depth is not None:  # items waiting for the writer thread; full means lost data
         busy = bool(capacity) and depth > capacity / 2
-        rows.append(
-            (
-                "queue",
-                f"{depth}/{capacity}" if capacity else str(depth),
-                "bold #f0a020" if busy else "",
-            )
-        )
+        pct = f"{100 * depth / capacity:.0f} % full" if capacity else f"{depth} items"
+        rows.append(("queue", pct, "bold #f0a020" if busy else ""))
+    if gaps is not None:
+        cam, imu = gaps.get("camera", 0), gaps.get("imu", 0)
+        rows.append(("gaps", f"camera {cam}, IMU {imu}", "bold #f0a020" if cam or imu else ""))
     dropped = _stat(stats, "dropped")
-    if dropped:
-        rows.append(("dropped", str(dropped), "bold #e04040"))
+    rows.append(("dropped", f"{dropped or 0} messages", "bold #e04040" if dropped else ""))
     return rows
 
 
@@ -106,13 +106,14 @@ class RecordingPanel(Widget):
         next_trial: str = "",
         now_ns: int = 0,
         idle: str = "○ not recording",
+        gaps: dict | None = None,
     ) -> None:
         """`next_trial` describes what the record key would start (shown while idle)."""
         size = _stat(stats, "bytes_written")
         rate = self._rate.add(now_ns, size) if size is not None else None
         if rate is None:
             rate = _stat(stats, "bytes_per_s") or None
-        rows = recording_rows(stats, elapsed_s, path, next_trial, rate, idle)
+        rows = recording_rows(stats, elapsed_s, path, next_trial, rate, idle, gaps)
         if rows == self._rows:
             return
         urgent = [r for r in rows if r[0] not in ("size", "write", "queue")] != [
@@ -125,7 +126,7 @@ class RecordingPanel(Widget):
     def render(self) -> Table:
         table = Table.grid(padding=(0, 1))
         table.add_column(style="dim", no_wrap=True, min_width=5)
-        table.add_column(no_wrap=True, overflow="ellipsis")
+        table.add_column(overflow="fold")  # the file name wraps, never cut
         for i, (label, value, style) in enumerate(self._rows):
             if i == 0:
                 color = "#e04040" if label.startswith("●") else ""

@@ -1,0 +1,179 @@
+"""Remote control (LabRecorder's commands) and the live Foxglove server, on loopback."""
+
+import asyncio
+import base64
+import json
+import socket
+import struct
+import time
+
+import numpy as np
+import pytest
+
+from capture import topics as T
+from capture.config import Config
+from capture.foxglove_live import LAYOUT, FoxgloveLive
+from capture.labtools import SessionController
+from capture.reader import open_recording
+from capture.remote import RemoteControl, TrialRequest, parse_filename
+from capture.session import Session, SubjectInfo
+from devices.base import DeviceEvent
+from devices.frames import ImuSample
+from devices.simulator.synthetic import synthetic_frame
+
+
+def test_filename_options_map_onto_the_trial():
+    request = parse_filename(
+        "filename {root:/data/study} {template:exp%n/block_%b.xdf} {participant:P07} "
+        "{task:stairs} {run:3} {session:S2} {acquisition:a}",
+        TrialRequest(),
+    )
+    assert (request.root, request.subject, request.condition, request.trial) == (
+        "/data/study",
+        "P07",
+        "stairs",
+        3,
+    )
+    assert request.notes == {"template": "exp%n/block_%b.xdf", "session": "S2", "acquisition": "a"}
+
+
+def _send(sock: socket.socket, line: str) -> bytes:
+    sock.sendall(line.encode() + b"\n")
+    return sock.recv(16)
+
+
+def test_remote_commands_start_and_stop_a_recording(tmp_path):
+    cfg = Config()
+    cfg.session.recordings = str(tmp_path / "unused")
+    cfg.simulator.realtime = False  # as fast as the pipeline: no real time to wait for
+    cfg.simulator.loop = True
+    session = Session(cfg, auto_label=True)
+    session.start()
+    remote = RemoteControl(SessionController(session, SubjectInfo()), port=0).start()
+    try:
+        with socket.create_connection(("127.0.0.1", remote.port), timeout=5) as sock:
+            assert _send(sock, "select all") == b"OK"
+            reply = _send(
+                sock, f"filename {{root:{tmp_path}}} {{participant:P07}} {{task:stairs}} {{run:3}}"
+            )
+            assert reply == b"OK"
+            assert _send(sock, "start") == b"OK"
+            deadline = time.monotonic() + 5
+            while session.snapshot().frames < 10 and time.monotonic() < deadline:
+                time.sleep(0.05)
+            assert session.recording
+            assert _send(sock, "stop") == b"OK"
+            assert not session.recording
+    finally:
+        remote.close()
+        session.stop()
+    (path,) = tmp_path.glob("P07_stairs_t03_*.mcap")
+    meta = open_recording(path).metadata["session"]
+    assert meta["subject"] == "P07" and meta["condition"] == "stairs"
+    assert [r for _, r in remote.log][-1].startswith("saved ")
+
+
+def test_a_port_in_use_is_one_clear_error():
+    from capture.errors import CaptureError
+
+    with socket.create_server(("127.0.0.1", 0)) as busy:
+        port = busy.getsockname()[1]
+        with pytest.raises(CaptureError, match=f"cannot listen on 127.0.0.1:{port}"):
+            RemoteControl(SessionController(None, SubjectInfo()), port=port)
+
+
+# ---- Foxglove -----------------------------------------------------------------------------
+
+
+async def _subscribe_all(url: str, fox: FoxgloveLive, publish) -> tuple[dict, dict]:
+    import websockets
+
+    async with websockets.connect(url, subprotocols=["foxglove.sdk.v1"]) as ws:
+        channels = {}
+        deadline = time.monotonic() + 5
+        while len(channels) < len(T.TOPICS) and time.monotonic() < deadline:
+            msg = await asyncio.wait_for(ws.recv(), 5)
+            if isinstance(msg, str) and json.loads(msg)["op"] == "advertise":
+                for ch in json.loads(msg)["channels"]:
+                    channels[ch["topic"]] = ch
+        subs = [{"id": i, "channelId": ch["id"]} for i, ch in enumerate(channels.values())]
+        await ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+        by_sub = {s["id"]: ch["topic"] for s, ch in zip(subs, channels.values())}
+        while sum(fox._subscriptions.count.values()) < len(subs):
+            await asyncio.sleep(0.02)
+        publish()
+        got: dict[str, bytes] = {}
+        deadline = time.monotonic() + 10
+        while len(got) < len(channels) - 1 and time.monotonic() < deadline:  # no /camera/gray
+            try:
+                msg = await asyncio.wait_for(ws.recv(), 1)
+            except TimeoutError:
+                continue
+            if isinstance(msg, bytes) and msg[0] == 0x01:
+                sub_id, _ = struct.unpack_from("<IQ", msg, 1)
+                got.setdefault(by_sub[sub_id], msg[13:])
+        return channels, got
+
+
+def _decode(channel: dict, payload: bytes):
+    if channel["encoding"] == "json":
+        import jsonschema
+
+        message = json.loads(payload)
+        jsonschema.validate(message, json.loads(channel["schema"]))
+        return message
+    from mcap.records import Schema
+    from mcap_protobuf.decoder import DecoderFactory
+
+    schema = Schema(
+        id=1,
+        name=channel["schemaName"],
+        encoding=channel["schemaEncoding"],
+        data=base64.b64decode(channel["schema"]),
+    )
+    return DecoderFactory().decoder_for("protobuf", schema)(payload)
+
+
+def test_foxglove_server_publishes_every_topic_with_the_recordings_schemas():
+    fox = FoxgloveLive(port=0, image_hz=0)
+    frame = synthetic_frame(3, 1_000_000_000)
+    frame.truth = {"mode": "LG"}
+    t = frame.device_time_ns
+
+    def publish():
+        fox.write_frame(frame, t)
+        image = np.zeros((100, 100), np.uint8)
+        image[80:, :] = 1
+        cloud = np.array([[0.5, 0.0, 0.0], [0.6, 0.0, 0.01]], np.float32)
+        fox.write_processed(3, t, t, cloud, image, np.array([1.0, 0, 0, 0]), "")
+        fused = {"frame_index": 1, "decision": "LG", "posterior": [0.2] * 5, "voted": None}
+        fox.write_inference(3, t, t, np.full(5, 0.2), fused)
+        fox.write_features(3, t, {"slope_deg": 0.5})
+        fox.write_truth(3, t, frame.truth)
+        fox.write_imu(ImuSample(host_time_ns=t, time_ns=t, quaternion=np.array([1.0, 0, 0, 0])))
+        fox.write_label(t, "LG", "operator")
+        fox.write_event(DeviceEvent(t, "operator", "marker", "start"))
+
+    try:
+        channels, got = asyncio.run(_subscribe_all(fox.url, fox, publish))
+    finally:
+        fox.close()
+    for topic in T.TOPICS:
+        spec = T.topic_spec(topic)
+        assert channels[topic]["schemaName"] == spec.schema_name  # the recording's schemas
+        assert channels[topic]["encoding"] == spec.message_encoding
+    assert set(got) == set(T.TOPICS) - {T.GRAY}
+    decoded = {topic: _decode(channels[topic], payload) for topic, payload in got.items()}
+    assert decoded[T.DEPTH].width == frame.geometry.width
+    assert decoded[T.LABELS]["mode"] == "LG"
+    assert decoded[T.CNN]["frame_index"] == 3
+    assert decoded[T.EVENTS]["message"] == "start"
+
+
+def test_the_shipped_layout_names_only_walkcaps_topics():
+    layout = json.loads(LAYOUT.read_text())
+    text = json.dumps(layout["configById"])
+    named = {t for t in T.TOPICS if f'"{t}' in text or f"{t}." in text}
+    assert {T.DEPTH, T.BINARY_IMAGE, T.CLOUD, T.CNN, T.LABELS, T.FUSED} <= named
+    panels = {key.split("!")[0] for key in layout["configById"]}
+    assert panels <= {"Image", "3D", "Plot", "StateTransitions", "RawMessages"}
