@@ -13,7 +13,7 @@ import argparse
 import json
 import math
 
-from tui.commands import count, eval_model
+from tui.commands import add_cluster_argument, count, eval_model
 
 HELP = "evaluate classifiers and fusion on score files or recordings"
 
@@ -106,6 +106,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="what is true: operator labels, simulator truth, or auto (labels "
         "when the recording has any)",
     )
+    add_cluster_argument(p, "the reading of each recording")
     _common_arguments(p)
 
     p = verbs.add_parser("model", help=eval_model.HELP, description=eval_model.HELP)
@@ -137,7 +138,11 @@ def run(args, config) -> int:
     if args.eval_command == "scores":
         trials = [ev.read_scores(path) for path in args.files]
     else:
-        trials = read_trials(_recordings(args.files), args.reference)
+        files = _recordings(args.files)
+        if args.cluster:
+            trials = _trials_on_cluster(files, args.reference, args.cluster)
+        else:
+            trials = read_trials(files, args.reference)
     per_trial = params
     if args.transition == "estimated":
         per_trial = [
@@ -272,3 +277,18 @@ def _recordings(paths: list[str]) -> list[str]:
         else:
             out.append(p)
     return out
+
+
+def _trials_on_cluster(files: list[str], reference: str, address: str) -> list:
+    """read_trials with one Ray task per recording; the trials in the order given."""
+    from pathlib import Path
+
+    from capture import cluster
+    from capture.reader import read_evaluation_trial
+
+    tasks = [  # absolute paths for the nodes; each trial keeps the path as given
+        cluster.Task(Path(f).name, read_evaluation_trial, (str(Path(f).resolve()), reference, f))
+        for f in files
+    ]
+    with cluster.connect(address):
+        return cluster.run(tasks, desc="eval", unit="recording")

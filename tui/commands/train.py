@@ -1,6 +1,7 @@
 """`walkcap train`: train the terrain classifier
 
     walkcap train --data DIR|FILE ... [--out PATH] [--epochs N] [--seed S] ...
+                  [--cluster ADDRESS|local [--workers N]]
 
 Reads labelled sessions (`walkcap synth --format dataset` output; recordings with
 operator labels), splits them by session into train / validation /
@@ -117,6 +118,22 @@ def add_arguments(parser) -> None:
         help="train in float32 even where the CPU has native bfloat16",
     )
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
+    parser.add_argument(
+        "--cluster",
+        metavar="ADDRESS|local",
+        help="train on a Ray cluster with torch DistributedDataParallel (Ray Train): "
+        "'local' starts one on this machine's cores, an address joins a running one; "
+        "each worker reads the sessions (the files at the same paths on every node) and "
+        "takes its share of every batch (default: this process)",
+    )
+    parser.add_argument(
+        "--workers",
+        type=count(1),
+        default=None,
+        metavar="N",
+        help="with --cluster: training processes (default: one per CPU of the cluster, "
+        "at most one per 16 images of a batch)",
+    )
 
 
 def run(args, config) -> int:
@@ -152,11 +169,24 @@ def run(args, config) -> int:
     )
     keep_freed_memory()  # this process only trains
     files = find_session_files(args.data)
-    sessions = read_sessions(files)
-    frames = sum(len(s) for s in sessions)
-    print(f"{len(sessions)} sessions, {frames} frames from {', '.join(args.data)}")
+    if args.cluster:  # the workers read the sessions; here only the first, for its metadata
+        result = _train_on_cluster(args, settings, files)
+        sessions = read_sessions(files[:1])
+        print(
+            f"{len(files)} sessions, {sum(result.data[p]['frames'] for p in result.data)} "
+            f"labelled frames from {', '.join(args.data)}"
+        )
+    else:
+        if args.workers:
+            from inference.errors import InferenceError
+
+            raise InferenceError("--workers is for --cluster (training processes)")
+        sessions = read_sessions(files)
+        frames = sum(len(s) for s in sessions)
+        print(f"{len(sessions)} sessions, {frames} frames from {', '.join(args.data)}")
     preprocess = _preprocess_params(sessions) or PreprocessParams.from_config(config).to_dict()
-    result = train(sessions, settings, show_progress=not args.quiet)
+    if not args.cluster:
+        result = train(sessions, settings, show_progress=not args.quiet)
     path = save_result(result, args.out, settings, preprocess, [str(f) for f in files])
     split = result.split
     print(
@@ -180,3 +210,14 @@ def _preprocess_params(sessions) -> dict | None:
         if params:
             return {k: v for k, v in params.items() if not k.startswith("mounting_")}
     return None
+
+
+def _train_on_cluster(args, settings, files):
+    from capture import cluster
+
+    with cluster.connect(args.cluster) as resources:
+        workers = cluster.training_workers(
+            settings.batch_size, resources.get("CPU", 1), args.workers or 0
+        )
+        print(f"training on {workers} worker(s) of the cluster (DDP, gloo)")
+        return cluster.train(files, settings, workers, show_progress=not args.quiet)
