@@ -65,6 +65,23 @@ def find_session_files(paths: list[str | os.PathLike]) -> list[Path]:
     return files
 
 
+def select_session_files(
+    paths: list[str | os.PathLike], replays: bool = False
+) -> tuple[list[Path], list[str]]:
+    """Like find_session_files, with one recording per trial (capture.corpus.select): a
+    trial's derived copies never stand beside it (one trial in both training and test).
+    Returns the files and the lines that say which recordings were left out, and why."""
+    from capture.corpus import select
+
+    files = find_session_files(paths)
+    recordings = [f for f in files if f.suffix.lower() == ".mcap"]
+    if not recordings:
+        return files, []
+    corpus = select(recordings, replays=replays)
+    chosen = set(corpus.files)
+    return [f for f in files if f.suffix.lower() != ".mcap" or f in chosen], corpus.report_lines()
+
+
 def read_sessions(paths: list[str | os.PathLike]) -> list[LabeledSession]:
     """Every session under `paths` (files or folders), whatever its source."""
     sessions = []

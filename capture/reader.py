@@ -12,6 +12,10 @@ Finished files are read through their index. Unfinished ones (a crash, a full di
 read record by record up to where they stop (capture.recovery.scan), so everything that
 reached the disk is readable without `walkcap recover`.
 Messages are decoded with the schema stored in the file (protobuf descriptors, JSON).
+Metadata comes back typed (JSON values; older files' known fields parsed from text).
+Times are session-clock nanoseconds; `Recording.unix_time_ns` and
+`RecordedMessage.unix_time_ns` give the same instants as Unix time. The operator's labels
+are read with their undos applied (`effective_changes`); the file keeps both.
 """
 
 from __future__ import annotations
@@ -41,6 +45,12 @@ class RecordedMessage:
     publish_time_ns: int  # sample time, session clock
     sequence: int  # frame index for camera topics, packet counter for /imu
     data: Any  # numpy array (images, clouds, quaternions) or dict (JSON topics)
+    unix_offset_ns: int | None = None  # the recording's session clock -> Unix time
+
+    @property
+    def unix_time_ns(self) -> int | None:
+        """The sample time (publish time) as Unix time, ns; None if the file has no offset."""
+        return None if self.unix_offset_ns is None else self.publish_time_ns + self.unix_offset_ns
 
 
 @dataclass
@@ -59,14 +69,15 @@ class Recording:
     reason: str  # why an unfinished file stops where it does
     size: int
     library: str
-    metadata: dict[str, dict[str, str]]  # the last record of each name
-    metadata_records: list[tuple[str, dict[str, str]]]  # all, in file order
+    metadata: dict[str, dict[str, Any]]  # the last record of each name, values typed
+    metadata_records: list[tuple[str, dict[str, Any]]]  # all, in file order, typed
     attachments: dict[str, bytes]  # the last attachment of each name
     attachment_sizes: dict[str, int]
     topics: dict[str, TopicInfo]
     start_ns: int | None  # first and last log time of any message
     end_ns: int | None
     _log_times: dict[str, np.ndarray] | None = field(default=None, repr=False)
+    raw_metadata_records: list[tuple[str, dict[str, str]]] = field(default_factory=list)
 
     @property
     def duration_s(self) -> float:
@@ -74,8 +85,39 @@ class Recording:
 
     @property
     def unix_offset_ns(self) -> int | None:
+        """Add to a session-clock time (any log or publish time) for Unix time in ns."""
         value = self.metadata.get("recording", {}).get("unix_offset_ns")
-        return int(value) if value else None
+        try:
+            return int(value) if value not in (None, "") else None
+        except (TypeError, ValueError):
+            return None
+
+    def unix_time_ns(self, session_ns):
+        """Session-clock time(s) as Unix time in ns (None when the file has no offset)."""
+        offset = self.unix_offset_ns
+        if offset is None or session_ns is None:
+            return None
+        if isinstance(session_ns, np.ndarray):
+            return session_ns.astype(np.int64) + offset
+        return int(session_ns) + offset
+
+    @property
+    def id(self) -> str:
+        """The recording's unique id; files without one get a stand-in from their name."""
+        derived = self.metadata.get("derivation", {}).get("id")
+        return str(
+            derived or self.metadata.get("recording", {}).get("id") or f"file:{self.path.name}"
+        )
+
+    @property
+    def trial(self) -> tuple[str, str, int | None]:
+        """(subject, condition, trial) from the session metadata."""
+        session = self.metadata.get("session", {})
+        try:
+            number = int(session.get("trial"))
+        except (TypeError, ValueError):
+            number = None
+        return str(session.get("subject") or ""), str(session.get("condition") or ""), number
 
     def messages(
         self, topics: Iterable[str] | str | None = None, *, raw: bool = False
@@ -86,13 +128,19 @@ class Recording:
             topics = [topics]
         wanted = None if topics is None else set(topics)
         decoders = _Decoders()
+        offset = self.unix_offset_ns
         with _damage_is_an_error(self.path):
             for schema, channel, message in _iter_raw(self.path, self.complete, wanted):
                 decoded = decoders.decode(schema, channel, message.data)
                 if not raw:
                     decoded = convert(channel.topic, decoded)
                 yield RecordedMessage(
-                    channel.topic, message.log_time, message.publish_time, message.sequence, decoded
+                    channel.topic,
+                    message.log_time,
+                    message.publish_time,
+                    message.sequence,
+                    decoded,
+                    offset,
                 )
 
     def read(self, topic: str, *, raw: bool = False) -> list[RecordedMessage]:
@@ -301,7 +349,8 @@ def _open(p: Path) -> Recording:
         except Exception:  # no footer, cut-off summary: read it record by record
             summary = None
         if summary is not None and summary.statistics is not None:
-            records = [(m.name, dict(m.metadata)) for m in reader.iter_metadata()]
+            raw = [(m.name, dict(m.metadata)) for m in reader.iter_metadata()]
+            records = decode_metadata_records(raw)
             attachments = {a.name: a.data for a in reader.iter_attachments()}
             sizes = {a.name: a.data_size for a in summary.attachment_indexes}
             stats = summary.statistics
@@ -331,6 +380,7 @@ def _open(p: Path) -> Recording:
                 topics,
                 start,
                 end,
+                raw_metadata_records=raw,
             )
     return _open_unfinished(p, size)
 
@@ -340,7 +390,7 @@ def _open_unfinished(p: Path, size: int) -> Recording:
 
     result = ScanResult()
     schemas, channels = {}, {}
-    records, attachments = [], {}
+    raw, attachments = [], {}
     counts: dict[int, int] = {}
     times: dict[int, list[int]] = {}
     library = ""
@@ -354,7 +404,7 @@ def _open_unfinished(p: Path, size: int) -> Recording:
             elif isinstance(record, Channel):
                 channels[record.id] = record
             elif isinstance(record, Metadata):
-                records.append((record.name, dict(record.metadata)))
+                raw.append((record.name, dict(record.metadata)))
             elif isinstance(record, Attachment):
                 attachments[record.name] = record.data
             elif isinstance(record, Header):
@@ -371,6 +421,7 @@ def _open_unfinished(p: Path, size: int) -> Recording:
         )
         log_times[channel.topic] = np.sort(np.asarray(times.get(cid, []), dtype=np.int64))
     every = [t for ts in log_times.values() for t in (ts[:1].tolist() + ts[-1:].tolist())]
+    records = decode_metadata_records(raw)
     return Recording(
         p,
         False,
@@ -385,7 +436,76 @@ def _open_unfinished(p: Path, size: int) -> Recording:
         min(every) if every else None,
         max(every) if every else None,
         log_times,
+        raw,
     )
+
+
+# Files written before metadata values were JSON hold strings: the known fields are typed
+# here so that old and new files read alike.
+_INT, _FLOAT, _BOOL = "int", "float", "bool"
+_STRING_FIELDS = {
+    "session": {
+        "height_m": _FLOAT,
+        "weight_kg": _FLOAT,
+        "age": _INT,
+        "amputee": _BOOL,
+        "residual_limb_cm": _FLOAT,
+        "trial": _INT,
+    },
+    "recording": {
+        "unix_offset_ns": _INT,
+        "chunk_interval_s": _FLOAT,
+        "cloud_quantum_m": _FLOAT,
+        "cloud_max_points": _INT,
+        "cloud_voxel_m": _FLOAT,
+    },
+    "recording_end": {
+        k: _INT
+        for k in ("messages", "chunks", "dropped", "errors", "labels", "closed_unix_time_ns")
+    },
+    "camera": {
+        "width": _INT,
+        "height": _INT,
+        "fx": _FLOAT,
+        "fy": _FLOAT,
+        "cx": _FLOAT,
+        "cy": _FLOAT,
+        "min_range_m": _FLOAT,
+        "max_range_m": _FLOAT,
+        "from_frame_index": _INT,
+    },
+}
+
+
+def _typed_string(text: str, kind: str | None) -> Any:
+    if kind is None:
+        return text
+    if text == "" or text == "None":
+        return None
+    try:
+        if kind == _BOOL:
+            return {"true": True, "false": False}.get(text.lower(), text)
+        return int(text) if kind == _INT else float(text)
+    except ValueError:
+        return text
+
+
+def decode_metadata_records(
+    raw: list[tuple[str, dict[str, str]]],
+) -> list[tuple[str, dict[str, Any]]]:
+    """Metadata records with typed values: JSON values decoded (capture.topics), or, in
+    files from before JSON values, the known fields parsed from their strings."""
+    json_values = any(
+        name == "recording" and T.METADATA_VALUES_KEY in values for name, values in raw
+    )
+    out = []
+    for name, values in raw:
+        if json_values or name in T.JSON_ONLY_RECORDS:
+            out.append((name, {k: T.decode_metadata_value(v) for k, v in values.items()}))
+        else:
+            kinds = _STRING_FIELDS.get(name, {})
+            out.append((name, {k: _typed_string(v, kinds.get(k)) for k, v in values.items()}))
+    return out
 
 
 def _log_times(path: Path, complete: bool) -> dict[str, np.ndarray]:
@@ -448,13 +568,17 @@ def mode_index(mode: str | None) -> int:
 def read_trial(path: str | os.PathLike) -> dict:
     """Per-frame arrays of one trial, in frame order (frames with a CNN output):
 
-    - frame_index (N,), time_ns (N,): the frame's sample time, session clock
+    - frame_index (N,), time_ns (N,): the frame's sample time, session clock;
+      unix_time_ns (N,): the same instant as Unix time (None if the file has no offset)
     - probabilities (N, 5): CNN softmax, mode order MODES
     - cnn_decisions (N,): argmax; decisions (N,): the fused (HMM) decision recorded for
       the frame, -1 if none; voted (N,): the voted decision, -1 if none
-    - labels (N,): the operator's mode in force at the frame's time (-1: none yet)
+    - labels (N,): the operator's mode in force at the frame's time (-1: none yet), undos
+      applied (effective_changes: an undone change never happened)
     - truth (N,) simulator's true mode, or None when the recording has no /sim/truth
-    - label_changes: [(time_ns, mode, source)] in time order; metadata; modes: MODES
+    - label_changes: every recorded change [(time_ns, mode, source)] in time order, undos
+      and what they undid included (the audit trail); reference_changes: the ones that
+      define `labels`; metadata (typed); id; modes: MODES
     """
     rec = open_recording(path)
     cnn: dict[int, dict] = {}
@@ -482,21 +606,25 @@ def read_trial(path: str | os.PathLike) -> dict:
         dtype=np.float64,
     ).reshape(-1, len(MODES))
     changes.sort(key=lambda c: c[0])  # stable: same-time changes keep their file order
+    reference = effective_changes(changes)
     return {
         "frame_index": index,
         "time_ns": times,
+        "unix_time_ns": rec.unix_time_ns(times),
         "probabilities": probs,
         "cnn_decisions": np.array([mode_index(cnn[i]["decision"]) for i in index], dtype=int),
         "decisions": np.array([fused.get(int(i), -1) for i in index], dtype=int),
         "voted": np.array([voted.get(int(i), -1) for i in index], dtype=int),
-        "labels": labels_at(times, changes),
+        "labels": labels_at(times, reference),
         "truth": (
             np.array([truth.get(int(i), -1) for i in index], dtype=int)
             if T.TRUTH in rec.topics
             else None
         ),
         "label_changes": changes,
+        "reference_changes": reference,
         "metadata": rec.metadata,
+        "id": rec.id,
         "modes": MODES,
     }
 
@@ -548,7 +676,7 @@ def labeled_session(path: str | os.PathLike, reference: str = "labels"):
             ),
             key=lambda c: c[0],
         )
-        labels = labels_at(t, changes).astype(np.int64)
+        labels = labels_at(t, effective_changes(changes)).astype(np.int64)
     session = rec.metadata.get("session", {})
     return LabeledSession(
         name=Path(rec.path).stem,
@@ -558,6 +686,41 @@ def labeled_session(path: str | os.PathLike, reference: str = "labels"):
         source="recording",
         meta={"path": str(rec.path), "session": dict(session), "reference": reference},
     )
+
+
+UNDO = "undo"  # a label whose source is "undo" or "undo:MODE" takes back a change
+CORRECTION = "correction"  # labels added in the replay UI (tui.replay), over the originals
+
+
+def is_undo(source: str) -> bool:
+    return source == UNDO or source.startswith(UNDO + ":")
+
+
+def effective_changes(changes: list[tuple[int, str, str]]) -> list[tuple[int, str, str]]:
+    """The label changes that define the reference, in time order: each undo removes the
+    latest change still in force before it, as if it never happened (the mode before it
+    holds from its time); two undos remove two changes. The undo itself records the mode
+    the operator went back to: where that differs from what is left (the undone change was
+    the first in the file, e.g. the mode in force at the start), that mode holds from the
+    undone change's time. Corrections (source "correction") are laid over the result:
+    they apply from their time until the next change."""
+    ordered = sorted(changes, key=lambda c: c[0])  # stable: same-time changes keep file order
+    kept: list[tuple[int, str, str]] = []
+    for change in ordered:
+        t, mode, source = change
+        if source == CORRECTION:
+            continue
+        if not is_undo(source):
+            kept.append(change)
+            continue
+        if not kept:
+            continue  # nothing in this file to take back
+        undone = kept.pop()
+        before = kept[-1][1] if kept else ""
+        if mode and mode != before:
+            kept.append((undone[0], mode, source))
+    corrections = [c for c in ordered if c[2] == CORRECTION]
+    return sorted(kept + corrections, key=lambda c: c[0])
 
 
 def labels_at(times_ns: np.ndarray, changes: list[tuple[int, str, str]]) -> np.ndarray:

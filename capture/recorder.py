@@ -31,6 +31,7 @@ import os
 import queue
 import threading
 import time
+import uuid
 from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
@@ -277,7 +278,7 @@ class Recorder:
         self,
         path: str | os.PathLike,
         *,
-        metadata: dict[str, dict[str, str]] | None = None,
+        metadata: dict[str, dict] | None = None,
         attachments: dict[str, bytes] | None = None,
         queue_size: int = 512,
         chunk_interval_s: float = 1.0,
@@ -286,13 +287,14 @@ class Recorder:
         cloud_voxel_m: float = CLOUD_VOXEL_M,
         blocking: bool = False,
         zstd_level: int = ZSTD_LEVEL,
+        recording_id: str | None = None,
     ) -> None:
         self.path = Path(path)
         self.journal_path = journal_path(self.path)
-        self._metadata = {
-            name: {str(k): str(v) for k, v in values.items()}
-            for name, values in (metadata or {}).items()
-        }
+        # Values of any JSON type: written as JSON (capture.topics.encode_metadata).
+        self._metadata = {name: dict(values) for name, values in (metadata or {}).items()}
+        # The recording's identity, in its "recording" record.
+        self.id = recording_id or str(uuid.uuid4())
         self._attachments = dict(attachments or {})
         self._queue: queue.Queue = queue.Queue(maxsize=queue_size)
         self._queue_size = queue_size
@@ -361,7 +363,7 @@ class Recorder:
             )
             self._writer.start(profile="", library=f"walkcap {__version__}; {LIBRARY_IDENTIFIER}")
             for name, values in self._recording_metadata().items():
-                self._writer.add_metadata(name, values)
+                self._writer.add_metadata(name, T.encode_metadata(values))
             created = time.time_ns()
             for name, data in self._attachments.items():
                 self._writer.add_attachment(created, now_ns(), name, _media_type(name), bytes(data))
@@ -401,23 +403,23 @@ class Recorder:
             except OSError:
                 pass
 
-    def _recording_metadata(self) -> dict[str, dict[str, str]]:
-        import json
-
+    def _recording_metadata(self) -> dict[str, dict]:
         unix_offset = time.time_ns() - now_ns()
         recording = {
+            "id": self.id,
+            T.METADATA_VALUES_KEY: T.METADATA_VALUES,
             "format_version": T.FORMAT_VERSION,
             "writer": f"walkcap {__version__}",
             "clock": "session clock: time.monotonic_ns of the recording host",
-            "unix_offset_ns": str(unix_offset),  # add to a log time for Unix time
-            "chunk_interval_s": str(self._chunk_interval_s),
+            "unix_offset_ns": unix_offset,  # add to a log time for Unix time
+            "chunk_interval_s": self._chunk_interval_s,
             "depth": "range along each pixel's ray in mm (16UC1) x attachment "
             f"{T.RAYS_ATTACHMENT} = xyz; within 0.5 mm",
-            "cloud_quantum_m": repr(T.CLOUD_QUANTUM_M),
-            "cloud_max_points": str(self._cloud_max_points),
-            "cloud_voxel_m": str(self._cloud_voxel_m),
+            "cloud_quantum_m": T.CLOUD_QUANTUM_M,
+            "cloud_max_points": self._cloud_max_points,
+            "cloud_voxel_m": self._cloud_voxel_m,
             "journal": self.journal_path.name,
-            "topics": json.dumps(T.DESCRIPTIONS),
+            "topics": T.DESCRIPTIONS,
         }
         return {**self._metadata, "recording": recording}
 
@@ -650,14 +652,14 @@ class Recorder:
     def _finish(self) -> None:
         self._flush()  # the last chunk first: a file cut during finish() still has it
         end = {
-            "messages": str(self._messages),
-            "chunks": str(self._chunks),
-            "dropped": str(sum(self._dropped.values())),
-            "errors": str(self._errors),
-            "labels": str(self._labels),
-            "closed_unix_time_ns": str(time.time_ns()),
+            "messages": self._messages,
+            "chunks": self._chunks,
+            "dropped": sum(self._dropped.values()),
+            "errors": self._errors,
+            "labels": self._labels,
+            "closed_unix_time_ns": time.time_ns(),
         }
-        self._writer.add_metadata("recording_end", end)
+        self._writer.add_metadata("recording_end", T.encode_metadata(end))
         self._writer.finish()
         self._file.fsync()
         self._file.close()
@@ -791,10 +793,10 @@ class Recorder:
             "application/x-npy",
             buf.getvalue(),
         )
-        camera = {k: str(v) for k, v in dataclasses.asdict(g).items()}
+        camera = dict(dataclasses.asdict(g))
         camera["rays_attachment"] = T.RAYS_ATTACHMENT
-        camera["from_frame_index"] = str(frame.index)
-        self._writer.add_metadata("camera", camera)
+        camera["from_frame_index"] = frame.index
+        self._writer.add_metadata("camera", T.encode_metadata(camera))
         self._geometry = g
         off_ray = T.ray_error_m(frame.xyz, rays, frame.confidence)
         if off_ray > 0.0005:  # the rays do not fit royale's points: say so in the file

@@ -278,6 +278,7 @@ def recover(
                 "events_added_from_journal": str(events_added),
             },
         )
+        _add_derivation(writer, source, result)
         writer.finish()
         g.flush()
         os.fsync(g.fileno())
@@ -352,3 +353,23 @@ def _merge_journal(
         counts[topic] = counts.get(topic, 0) + 1
         added[topic] += 1
     return added[T.LABELS], added[T.EVENTS]
+
+
+def _add_derivation(writer, source: Path, result: ScanResult) -> None:
+    """The recovered copy's own identity and lineage (capture.corpus)."""
+    import uuid
+
+    from capture.corpus import RECOVERED, derivation
+    from capture.reader import open_recording
+
+    try:
+        original = open_recording(source)
+    except CaptureError:
+        return  # its metadata is unreadable: the "recovery" record names the source
+    how = f"recovered: {result.valid_end} of {result.size} bytes readable"
+    if result.reason:
+        how += f" ({result.reason})"
+    writer.add_metadata(
+        "derivation",
+        T.encode_metadata(derivation(original, str(uuid.uuid4()), RECOVERED, how)),
+    )

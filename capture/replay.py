@@ -19,12 +19,12 @@ core), run in this process alone.
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 import queue
 import socket
 import threading
 import time
+import uuid
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from capture import topics as T
+from capture.corpus import REPLAY, derivation
 from capture.errors import CaptureError
 from capture.pipeline import CNN_THREADS, OrientationTrack, Pipeline, model_hash, record_decisions
 from capture.reader import imu_sample
@@ -378,16 +379,26 @@ def _replay(
             "replay_of": source.name,
             "model_path": config.model.path or "bundled",
             "model_hash": model_hash(classifier),
-            "fusion_window": str(cfg.window),
-            "fusion_vote_delay": str(cfg.vote_delay),
-            "fusion_transition": json.dumps(cfg.transition),
-            "preprocess": json.dumps(pipeline.params.to_dict()),
+            "fusion_window": cfg.window,
+            "fusion_vote_delay": cfg.vote_delay,
+            "fusion_transition": T.jsonable(cfg.transition),
+            "preprocess": T.jsonable(pipeline.params.to_dict()),
         }
     )
     metadata["software"] = software
+    replay_id = str(uuid.uuid4())
+    metadata["derivation"] = derivation(
+        rec,
+        replay_id,
+        REPLAY,
+        f"replay with model {software['model_hash'][:12] or '?'} ({software['model_path']})",
+        model_hash=software["model_hash"],
+        model_path=software["model_path"],
+    )
     attachments = {name: data for name, data in rec.attachments.items()}
     recorder = Recorder(
         output,
+        recording_id=replay_id,
         metadata=metadata,
         attachments=attachments,
         blocking=True,

@@ -25,6 +25,7 @@ import numpy as np
 
 from capture import __version__
 from capture import config as config_mod
+from capture import topics as T
 from capture.alarms import AlarmState, TrialAlarms
 from capture.errors import CaptureError, ConfigError
 from capture.pipeline import (
@@ -84,8 +85,9 @@ class SubjectInfo:
         if self.trial < 1:
             raise CaptureError("trial: a number from 1")
 
-    def to_metadata(self) -> dict[str, str]:
-        return {k: "" if v is None else str(v) for k, v in dataclasses.asdict(self).items()}
+    def to_metadata(self) -> dict:
+        """The form as the "session" metadata record: typed values (None: not given)."""
+        return dataclasses.asdict(self)
 
 
 @dataclass
@@ -241,6 +243,8 @@ class Session:
         self.pipeline_priority = NORMAL_PRIORITY  # how the pipeline thread is scheduled
         self.model_metadata: dict = {}
         self.finished = threading.Event()  # the camera ran out of frames (end of a mock course)
+        self.trial_notice = ""  # why the last recording has another trial number than asked
+        self.trial: SubjectInfo | None = None  # the form of the recording in progress
         self.alarms = TrialAlarms(config.session.recordings, stream_periods(config))
 
     # ---- life cycle -------------------------------------------------------------------
@@ -506,8 +510,14 @@ class Session:
     def recording(self) -> bool:
         return self._recorder is not None
 
-    def start_recording(self, info: SubjectInfo) -> Path:
-        """One MCAP file per trial, named from subject, condition, trial and time."""
+    def start_recording(self, info: SubjectInfo, existing: str = "next") -> Path:
+        """One MCAP file per trial, named from subject, condition, trial and time.
+
+        A trial that has files in the folder already is never recorded twice by accident
+        (capture.corpus.trial_conflict): `existing` "next" records the next free trial
+        number instead (and says so in `trial_notice`), "error" refuses, "overwrite"
+        records it again, the new file superseding the earlier ones (kept on disk;
+        corpora leave them out)."""
         from capture.recorder import Recorder
 
         info.validate()
@@ -520,17 +530,34 @@ class Session:
             raise CaptureError(
                 f"cannot create the recordings folder {folder}: {e.strerror}"
             ) from None
+        info, supersedes = self._free_trial(folder, info, existing)
         stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
         path = folder / f"{info.subject}_{info.condition}_t{info.trial:02d}_{stamp}.mcap"
-        recorder = Recorder(path, metadata=self._metadata(info), attachments=self._attachments())
+        metadata = self._metadata(info)
+        if supersedes:
+            metadata["session"]["supersedes"] = supersedes
+        recorder = Recorder(path, metadata=metadata, attachments=self._attachments())
         recorder.start()
         self.alarms.recordings = folder
         self.alarms.new_trial()
         self._recorder = recorder
+        self.trial = info
         self._recording_started_ns = now_ns()
         if self._label is not None:  # the mode in force when the trial starts
             recorder.write_label(self._recording_started_ns, self._label, "start")
         return path
+
+    def _free_trial(
+        self, folder: Path, info: SubjectInfo, existing: str
+    ) -> tuple[SubjectInfo, list[str]]:
+        from capture.corpus import trial_conflict
+
+        self.trial_notice = ""
+        trial, supersedes, notice = trial_conflict(
+            folder, info.subject, info.condition, info.trial, existing
+        )
+        self.trial_notice = notice
+        return dataclasses.replace(info, trial=trial), supersedes
 
     def stop_recording(self):
         rec, self._recorder = self._recorder, None
@@ -538,31 +565,31 @@ class Session:
         self.alarms.end_trial()
         return rec.close() if rec is not None else None
 
-    def _metadata(self, info: SubjectInfo) -> dict[str, dict[str, str]]:
+    def _metadata(self, info: SubjectInfo) -> dict[str, dict]:
         cfg = self.config
         cam = self._camera.status() if self._camera else None
         imu = self._imu.status() if self._imu else None
         devices = {
             "camera_backend": cfg.camera.backend,
-            "camera_fps": str(cfg.camera.fps),
+            "camera_fps": cfg.camera.fps,
             "camera_use_case": cfg.camera.use_case,
-            "camera_details": json.dumps(cam.details if cam else {}, default=str),
+            "camera_details": T.jsonable(cam.details if cam else {}),
             "imu_backend": cfg.imu.backend,
             "imu_port": cfg.imu.port,
-            "imu_rate_hz": str(cfg.imu.rate_hz),
-            "imu_info": json.dumps(getattr(self._imu, "info", {}) or {}, default=str),
-            "imu_details": json.dumps(imu.details if imu else {}, default=str),
+            "imu_rate_hz": cfg.imu.rate_hz,
+            "imu_info": T.jsonable(getattr(self._imu, "info", {}) or {}),
+            "imu_details": T.jsonable(imu.details if imu else {}),
         }
         if cfg.camera.backend == "mock":
-            devices["simulator"] = json.dumps(dataclasses.asdict(cfg.simulator))
+            devices["simulator"] = T.jsonable(dataclasses.asdict(cfg.simulator))
         software = {
             "walkcap_version": __version__,
             "model_path": cfg.model.path or "bundled",
             "model_hash": model_hash(self._classifier),
-            "fusion_window": str(cfg.fusion.window),
-            "fusion_vote_delay": str(cfg.fusion.vote_delay),
-            "fusion_transition": json.dumps(cfg.fusion.transition),
-            "preprocess": json.dumps(self.pipeline.params.to_dict() if self.pipeline else {}),
+            "fusion_window": cfg.fusion.window,
+            "fusion_vote_delay": cfg.fusion.vote_delay,
+            "fusion_transition": T.jsonable(cfg.fusion.transition),
+            "preprocess": T.jsonable(self.pipeline.params.to_dict() if self.pipeline else {}),
             "pipeline_priority": self.pipeline_priority,
         }
         session = info.to_metadata()

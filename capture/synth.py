@@ -11,13 +11,13 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import json
 from pathlib import Path
 
 import numpy as np
 
 from capture import __version__
 from capture import config as config_mod
+from capture import topics as T
 from capture.pipeline import OrientationTrack, Pipeline, model_hash, record_result
 from devices.clock import now_ns
 from devices.frames import ImuSample
@@ -90,24 +90,24 @@ def synth_recording(
         "session": {
             "subject": subject,
             "condition": preset,
-            "trial": str(trial),
+            "trial": trial,
             "notes": f"simulated: preset {preset}, seed {seed}",
         },
         "devices": {
             "camera_backend": "mock",
-            "camera_fps": str(cfg.camera.fps),
+            "camera_fps": cfg.camera.fps,
             "imu_backend": "synthetic",
-            "imu_rate_hz": str(cfg.imu.rate_hz),
-            "simulator": json.dumps(dataclasses.asdict(cfg.simulator)),
+            "imu_rate_hz": cfg.imu.rate_hz,
+            "simulator": T.jsonable(dataclasses.asdict(cfg.simulator)),
         },
         "software": {
             "walkcap_version": __version__,
             "model_path": cfg.model.path or "bundled",
             "model_hash": model_hash(classifier),
-            "fusion_window": str(cfg.fusion.window),
-            "fusion_vote_delay": str(cfg.fusion.vote_delay),
-            "fusion_transition": json.dumps(cfg.fusion.transition),
-            "preprocess": json.dumps(pipeline.params.to_dict()),
+            "fusion_window": cfg.fusion.window,
+            "fusion_vote_delay": cfg.fusion.vote_delay,
+            "fusion_transition": T.jsonable(cfg.fusion.transition),
+            "preprocess": T.jsonable(pipeline.params.to_dict()),
         },
     }
     recorder = Recorder(

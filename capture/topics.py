@@ -308,6 +308,31 @@ def encode_json(value: dict) -> bytes:
     return orjson.dumps(value, default=jsonable, option=_ORJSON_OPTIONS)
 
 
+# ---- metadata ---------------------------------------------------------------------------
+
+# MCAP metadata maps strings to strings. walkcap stores each value as JSON (numbers,
+# booleans, lists and objects keep their type) and says so with this key in the
+# "recording" record; files without it hold plain strings.
+METADATA_VALUES_KEY = "metadata_values"
+METADATA_VALUES = "json"
+# Records only ever written with JSON values, whatever the rest of the file holds (a
+# recovered or corrected copy of an older file adds them).
+JSON_ONLY_RECORDS = ("derivation",)
+
+
+def encode_metadata(values: dict) -> dict[str, str]:
+    """A metadata record's values as JSON text, ready for MCAP."""
+    return {str(k): encode_json({"v": v})[5:-1].decode() for k, v in values.items()}
+
+
+def decode_metadata_value(text: str) -> Any:
+    """A JSON-encoded metadata value; text that is not JSON stays text."""
+    try:
+        return orjson.loads(text)
+    except orjson.JSONDecodeError:
+        return text
+
+
 # ---- depth --------------------------------------------------------------------------------
 
 

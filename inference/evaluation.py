@@ -79,9 +79,12 @@ class Trial:
     probabilities: np.ndarray  # (N, 5), index order MODES
     reference: Any  # (N,) mode names or indices; None / "" / -1: no reference
     metadata: dict = field(default_factory=dict)  # "subject", "condition", ...
+    times_s: np.ndarray | None = None  # (N,) seconds since the first frame; None: unknown
 
     def __post_init__(self) -> None:
         self.probabilities = np.asarray(self.probabilities, dtype=float)
+        if self.times_s is not None:
+            self.times_s = np.asarray(self.times_s, dtype=float)
         if self.probabilities.ndim != 2 or self.probabilities.shape[1] != N_MODES:
             raise InferenceError(
                 f"{self.path}: expected probabilities of shape (N, 5), "
@@ -104,6 +107,19 @@ class Trial:
     @property
     def condition(self) -> str:
         return str(self.metadata.get("condition") or "")
+
+    @property
+    def title(self) -> str:
+        """The trial as a reader names it: subject, condition, trial number."""
+        subject, trial = self.metadata.get("subject"), self.metadata.get("trial")
+        if not subject:
+            return Path(self.path).stem
+        parts = [f"subject {subject}"]
+        if self.condition:
+            parts.append(self.condition)
+        if trial not in (None, ""):
+            parts.append(f"trial {trial}")
+        return ", ".join(parts)
 
 
 @dataclass
@@ -540,11 +556,17 @@ def trial_from_recording(path: str, data: Any, reference: str = "auto") -> Trial
     metadata = {**metadata, **(metadata.get("session") or {})}  # capture nests the form
     probabilities = np.asarray(get("probabilities"), dtype=float)
     chosen = mode_indices(chosen)
+    times = get("time_ns")
+    times_s = None
+    if times is not None and len(times) == len(chosen) and len(times):
+        t = np.asarray(times, dtype=np.int64)
+        times_s = (t - t[0]) * 1e-9
     finite = np.isfinite(probabilities).all(axis=1) if probabilities.ndim == 2 else None
     if finite is not None and not finite.all():
         log.warning("%s: %d frame(s) without a CNN output left out", path, (~finite).sum())
         probabilities, chosen = probabilities[finite], chosen[finite]
-    return Trial(str(path), probabilities, chosen, metadata)
+        times_s = times_s[finite] if times_s is not None else None
+    return Trial(str(path), probabilities, chosen, metadata, times_s)
 
 
 def synthetic_trial(
@@ -576,7 +598,7 @@ def synthetic_trial(
 
 
 # ---------------------------------------------------------------------------------------
-# figures (matplotlib, Agg, PNG)
+# figures (matplotlib: vector PDF and 300-dpi PNG)
 
 
 def _safe(name: str) -> str:
@@ -589,12 +611,16 @@ def write_plots(
     methods: Sequence[str],
     params: FusionParameters = FusionParameters(),
     sweep: DelaySweep | None = None,
+    trials: Sequence[str] | None = None,
 ) -> list[Path]:
-    """The paper's figures as PNGs in out_dir; returns the files written.
+    """The paper's figures in out_dir, each as a vector PDF and a 300-dpi PNG; returns the
+    files written.
 
-    accuracy_per_subject[_<condition>].png (mean +- SD per subject and method),
-    accuracy_vs_delay.png (with a sweep), decisions_<trial>.png and
-    probabilities_<trial>.png (the first trial of each condition), confusion.png.
+    accuracy_per_subject[_<condition>] (mean and SD over each subject's trials, per
+    method), accuracy_vs_delay (with a sweep; mean and SD over trials), decisions_<trial>
+    and probabilities_<trial> (every trial, or those whose file name or title contains
+    one of `trials`), confusion[_<condition>] (row-normalised, with counts).
+    Time is in seconds from the trial's first frame when the trial has frame times.
     """
     import matplotlib
 
@@ -606,157 +632,214 @@ def write_plots(
     written: list[Path] = []
 
     def save(fig, name: str) -> None:
-        path = out / name
-        fig.tight_layout()
-        fig.savefig(path, dpi=100)
+        for suffix, kwargs in ((".pdf", {}), (".png", {"dpi": 300})):
+            path = out / f"{name}{suffix}"
+            fig.savefig(path, bbox_inches="tight", **kwargs)
+            written.append(path)
         plt.close(fig)
-        written.append(path)
 
     conditions = by_condition(results)
     for condition, rs in conditions.items():
-        save(
-            _plot_per_subject(plt, rs, methods, condition),
-            f"accuracy_per_subject{'_' + _safe(condition) if condition else ''}.png",
-        )
+        suffix = f"_{_safe(condition)}" if condition else ""
+        save(_plot_per_subject(plt, rs, methods, condition), f"accuracy_per_subject{suffix}")
     if sweep is not None:
-        save(_plot_sweep(plt, results, sweep), "accuracy_vs_delay.png")
-    for rs in conditions.values():
-        example = rs[0]
-        stem = _safe(Path(example.trial.path).stem)
-        save(_plot_decisions(plt, example, methods), f"decisions_{stem}.png")
-        save(_plot_probabilities(plt, example, params), f"probabilities_{stem}.png")
-    save(_plot_confusion(plt, results, methods), "confusion.png")
+        save(_plot_sweep(plt, results, sweep), "accuracy_vs_delay")
+    for r in results:
+        name = Path(r.trial.path).stem
+        if trials and not any(t in name or t in r.trial.title for t in trials):
+            continue
+        stem = _safe(name)
+        save(_plot_decisions(plt, r, methods), f"decisions_{stem}")
+        save(_plot_probabilities(plt, r, params), f"probabilities_{stem}")
+    for condition, rs in conditions.items():
+        suffix = f"_{_safe(condition)}" if condition else ""
+        save(_plot_confusion(plt, rs, methods, condition), f"confusion{suffix}")
     return written
+
+
+def _sd_clipped(means: np.ndarray, sds: np.ndarray) -> np.ndarray:
+    """Error bars of mean +- SD in %, cut at 0 and 100 (accuracy cannot pass them); NaN
+    (no bar) where the SD is undefined (a single trial)."""
+    return np.vstack([np.minimum(sds, means), np.minimum(sds, 100 - means)])
+
+
+def _legend_right(ax, **kwargs) -> None:
+    """The legend beside the axes, never over the data."""
+    ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), frameon=False, fontsize=8, **kwargs)
 
 
 def _plot_per_subject(plt, results, methods, condition):
     groups = group_results(results)
-    subjects = [s for (_, s) in groups]
-    fig, ax = plt.subplots(figsize=(max(6.0, 1.2 * len(subjects) + 2), 4))
+    subjects = [f"{s}\n(n = {len(rs)})" for (_, s), rs in groups.items()]
+    fig, ax = plt.subplots(figsize=(max(5.0, 1.1 * len(subjects) + 2.5), 3.6))
     width = 0.8 / len(methods)
     x = np.arange(len(subjects))
     for k, m in enumerate(methods):
         stats = [mean_sd([r.accuracy[m] for r in rs]) for rs in groups.values()]
-        means = [100 * s[0] for s in stats]
-        sds = [0 if math.isnan(s[1]) else 100 * s[1] for s in stats]
+        means = np.array([100 * st[0] for st in stats])
+        sds = np.array([100 * st[1] for st in stats])
         ax.bar(
             x + (k - (len(methods) - 1) / 2) * width,
             means,
             width,
-            yerr=sds,
-            capsize=3,
+            yerr=_sd_clipped(means, sds),
+            capsize=2,
+            error_kw={"linewidth": 0.8},
             label=TITLES.get(m, m),
         )
-    ax.set_xticks(x, subjects, rotation=30 if len(subjects) > 6 else 0)
+    ax.set_xticks(x, subjects)
+    ax.set_xlabel("subject (number of trials)")
     ax.set_ylabel("accuracy (%)")
-    low = min(100 * min(r.accuracy[m] for r in results for m in methods), 100)
-    ax.set_ylim(max(0, low - 5), 100.5)
-    where = f" ({condition})" if condition else ""
-    ax.set_title(f"Classification accuracy per subject{where}")
-    ax.legend(fontsize=8, ncol=2)
+    ax.set_ylim(0, 100)
+    where = f", {condition}" if condition else ""
+    ax.set_title(f"Accuracy per subject{where}: mean ± SD over trials", fontsize=10)
+    _legend_right(ax, title="method", title_fontsize=8)
+    _footnote(fig, "Error bars: standard deviation across the subject's trials, cut at 0 and "
+              "100 %; none for a single trial.")  # fmt: skip
     return fig
+
+
+def _footnote(fig, text: str) -> None:
+    fig.text(0.0, -0.06, text, fontsize=7, va="top", ha="left", transform=fig.transFigure)
 
 
 def _plot_sweep(plt, results, sweep):
     conditions = by_condition(results)
     index = {id(r): i for i, r in enumerate(results)}
-    fig, axes = plt.subplots(1, len(conditions), figsize=(6 * len(conditions), 4), squeeze=False)
+    fig, axes = plt.subplots(
+        1, len(conditions), figsize=(4.5 * len(conditions), 3.6), squeeze=False, sharey=True
+    )
+    lowest = 100.0
     for ax, (condition, rs) in zip(axes[0], conditions.items()):
         rows = [index[id(r)] for r in rs]
-        for m, a in sweep.accuracy.items():
+        for k, (m, a) in enumerate(sweep.accuracy.items()):
             sub = a[rows]
             with np.errstate(all="ignore"):
-                mean, sd = _nanmean(sub), _nansd(sub)
+                mean, sd = 100 * _nanmean(sub), 100 * _nansd(sub)
+            bars = _sd_clipped(np.nan_to_num(mean), sd)
+            if np.isfinite(mean).any():
+                lowest = min(lowest, float(np.nanmin(mean - np.nan_to_num(bars[0]))))
             ax.errorbar(
                 sweep.delays,
-                100 * mean,
-                yerr=100 * np.nan_to_num(sd),
-                capsize=3,
-                marker="o",
+                mean,
+                yerr=bars,
+                capsize=2,
+                # methods that agree still show: each its own marker and dash
+                marker="osD^v*"[k % 6],
+                markersize=6 - k % 4,
+                linestyle=("-", "--", ":", "-.")[k % 4],
+                linewidth=1,
                 label=TITLES.get(m, m),
             )
         ax.set_xticks(sweep.delays)
-        ax.set_xlabel("delayed frames")
-        ax.set_ylabel("accuracy (%)")
-        ax.set_title(f"Accuracy against delay{' (' + condition + ')' if condition else ''}")
-        ax.legend(fontsize=8)
+        ax.set_xlabel("decision delay (frames)")
+        n = len(rs)
+        ax.set_title(
+            f"{condition or 'all trials'} (n = {n} trial{'s' if n != 1 else ''})", fontsize=10
+        )
+    # a line plot may start above 0 (the bars of the per-subject figure do not), never
+    # past 100 %
+    axes[0][0].set_ylim(max(0.0, 5 * math.floor(lowest / 5)), 100)
+    axes[0][0].set_ylabel("accuracy (%), mean ± SD over trials")
+    _legend_right(axes[0][-1], title="method", title_fontsize=8)
+    fig.suptitle("Accuracy against decision delay", fontsize=11)
+    _footnote(fig, "Error bars: standard deviation across trials, cut at 100 %. A delay of d "
+              "frames: the decision for a frame is made d frames later.")  # fmt: skip
     return fig
+
+
+def _time_axis(trial: Trial) -> tuple[np.ndarray, str]:
+    if trial.times_s is not None and len(trial.times_s) == len(trial.reference):
+        return trial.times_s, "time (s)"
+    return np.arange(len(trial.reference), dtype=float), "frame"
 
 
 def _plot_decisions(plt, result, methods):
     trial = result.trial
-    frames = np.arange(len(trial.reference))
-    fig, ax = plt.subplots(figsize=(10, 4))
+    t, xlabel = _time_axis(trial)
+    fig, ax = plt.subplots(figsize=(8, 3.4))
     ref = np.where(trial.reference >= 0, trial.reference, np.nan)
-    ax.step(frames, ref, where="mid", color="black", linewidth=3, label="reference")
+    ax.step(t, ref, where="post", color="black", linewidth=2.5, label="reference")
     styles = {
-        "cnn": dict(linestyle="none", marker="o", markersize=3, fillstyle="none"),
+        "cnn": dict(linestyle="none", marker="o", markersize=2, fillstyle="none"),
         "cnn+voting": dict(linewidth=1),
-        "hmm": dict(linestyle="--", linewidth=1.5),
+        "hmm": dict(linestyle="--", linewidth=1.2),
         "hmm+voting": dict(linestyle=":", linewidth=1.5),
     }
     for m in methods:
-        ax.step(
-            frames,
-            result.runs[m].final,
-            where="mid",
-            label=TITLES.get(m, m),
-            **styles.get(m, dict(linewidth=1)),
-        )
+        final = np.where(result.runs[m].final >= 0, result.runs[m].final, np.nan)
+        ax.step(t, final, where="post", label=TITLES.get(m, m), **styles.get(m, dict(linewidth=1)))
     ax.set_yticks(range(N_MODES), MODES)
-    ax.set_xlabel("frame")
-    ax.set_title(f"Sequential decisions: {Path(trial.path).name}")
-    ax.legend(
-        fontsize=8,
-        loc="upper center",
-        bbox_to_anchor=(0.5, -0.2),
-        ncol=len(methods) + 1,
-        frameon=False,
-    )
+    ax.set_ylim(-0.5, N_MODES - 0.5)
+    ax.set_ylabel("locomotion mode")
+    ax.set_xlabel(xlabel)
+    ax.set_xlim(t[0] if len(t) else 0, t[-1] if len(t) else 1)
+    accuracy = ", ".join(f"{TITLES.get(m, m)} {100 * result.accuracy[m]:.1f} %" for m in methods)
+    ax.set_title(f"Sequential decisions: {trial.title}\naccuracy: {accuracy}", fontsize=9)
+    _legend_right(ax)
     return fig
 
 
 def _plot_probabilities(plt, result, params):
     trial = result.trial
+    t, xlabel = _time_axis(trial)
     run = result.runs.get("hmm") or result.runs.get("hmm+voting")
     if run is None:
         run = run_offline(HmmFusion(params.window, params.transition), trial.probabilities)
-    fig, axes = plt.subplots(2, 1, figsize=(10, 5), sharex=True)
+    fig, axes = plt.subplots(2, 1, figsize=(8, 4.4), sharex=True)
     for ax, p, title in (
-        (axes[0], trial.probabilities, "CNN probabilities"),
-        (axes[1], run.posteriors, "HMM smoothed posterior p(s_t)"),
+        (axes[0], trial.probabilities, "CNN softmax output"),
+        (axes[1], run.posteriors, f"HMM smoothed posterior (window {params.window} frames)"),
     ):
         for j, mode in enumerate(MODES):
-            ax.plot(p[:, j], label=mode, linewidth=1)
-        ax.set_ylim(-0.02, 1.02)
+            ax.plot(t, p[:, j], label=mode, linewidth=1)
+        ax.set_ylim(0, 1)
         ax.set_ylabel("probability")
-        ax.set_title(title)
-    axes[0].legend(fontsize=8, ncol=N_MODES, loc="upper right")
-    axes[1].set_xlabel("frame")
+        ax.set_title(title, fontsize=9)
+    axes[1].set_xlabel(xlabel)
+    axes[1].set_xlim(t[0] if len(t) else 0, t[-1] if len(t) else 1)
+    axes[0].legend(
+        title="mode", fontsize=8, title_fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0)
+    )
+    fig.suptitle(f"Probability traces: {trial.title}", fontsize=10)
     return fig
 
 
-def _plot_confusion(plt, results, methods):
-    fig, axes = plt.subplots(1, len(methods), figsize=(3.2 * len(methods), 3.4), squeeze=False)
+def _plot_confusion(plt, results, methods, condition=""):
+    fig, axes = plt.subplots(
+        1, len(methods), figsize=(2.9 * len(methods) + 0.8, 3.3), squeeze=False
+    )
+    image = None
     for ax, m in zip(axes[0], methods):
         counts = pooled_confusion(results, m)
         with np.errstate(all="ignore"):
-            rate = counts / counts.sum(axis=1, keepdims=True)
-        ax.imshow(np.nan_to_num(rate), vmin=0, vmax=1, cmap="Blues")
+            rate = 100 * counts / counts.sum(axis=1, keepdims=True)
+        image = ax.imshow(np.nan_to_num(rate), vmin=0, vmax=100, cmap="Blues")
         for i in range(N_MODES):
             for j in range(N_MODES):
+                if counts[i].sum() == 0:
+                    continue
                 ax.text(
                     j,
                     i,
-                    str(counts[i, j]),
+                    f"{rate[i, j]:.0f}\n({counts[i, j]})",
                     ha="center",
                     va="center",
-                    fontsize=7,
-                    color="white" if np.nan_to_num(rate[i, j]) > 0.5 else "black",
+                    fontsize=5.5,
+                    color="white" if rate[i, j] > 50 else "black",
                 )
-        ax.set_xticks(range(N_MODES), MODES)
-        ax.set_yticks(range(N_MODES), MODES)
-        ax.set_xlabel("decided")
-        ax.set_ylabel("reference")
-        ax.set_title(TITLES.get(m, m))
+        ax.set_xticks(range(N_MODES), MODES, fontsize=7)
+        ax.set_yticks(range(N_MODES), MODES, fontsize=7)
+        ax.set_xlabel("decided", fontsize=8)
+        ax.set_title(TITLES.get(m, m), fontsize=9)
+    axes[0][0].set_ylabel("reference", fontsize=8)
+    bar = fig.colorbar(image, ax=list(axes[0]), fraction=0.02, pad=0.02)
+    bar.set_label("% of the reference row", fontsize=8)
+    bar.ax.tick_params(labelsize=7)
+    n = len(results)
+    where = condition or "all trials"
+    fig.suptitle(
+        f"Confusion matrices, {where} (n = {n} trial{'s' if n != 1 else ''}): row % (frame count)",
+        fontsize=10,
+    )
     return fig

@@ -157,3 +157,32 @@ def write_recording(
     if close:
         rec.close()
     return rec
+
+
+def write_trial(
+    path: str | Path,
+    labels: list[tuple[int, str, str]],
+    *,
+    session: dict | None = None,
+    frames: int = 90,
+    metadata: dict | None = None,
+    close: bool = True,
+) -> Recorder:
+    """A small trial: CNN outputs (the truth mode at 0.8), fused decisions and the given
+    label changes, no images; fast to write and to read."""
+    meta = {"session": session or {"subject": "S01", "condition": "indoor", "trial": 1}}
+    meta.update(metadata or {})
+    rec = Recorder(path, metadata=meta, queue_size=100_000)
+    rec.start()
+    pending = sorted(labels)
+    for i in range(frames):
+        t = frame_time(i)
+        while pending and pending[0][0] <= t:
+            rec.write_label(*pending.pop(0))
+        fused = {"frame_index": i, "decision": truth_mode(i), "posterior": probabilities(i)}
+        rec.write_inference(i, t, t + 1_000_000, probabilities(i), fused)
+    for change in pending:
+        rec.write_label(*change)
+    if close:
+        rec.close()
+    return rec

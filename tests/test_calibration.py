@@ -1,3 +1,4 @@
+import json
 import re
 
 import numpy as np
@@ -200,6 +201,12 @@ def test_calibrate_dry_run_and_write_elsewhere(devices, tmp_path, capsys):
     other = tmp_path / "rig.toml"
     assert cli.main(["calibrate", "--seconds", "0.2", "--write", str(other)]) == 0
     assert cfg.load(other).mounting.pitch_deg == pytest.approx(38.5, abs=0.1)
+    capsys.readouterr()
+    devices(*standing(count=2, sway_deg=0.0))
+    assert cli.main(["calibrate", "--seconds", "0.2", "--dry-run", "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["ok"] and data["written"] is None
+    assert data["pitch_deg"] == pytest.approx(38.5, abs=0.1)
 
 
 def test_calibrate_on_mock_devices_recovers_the_simulated_mounting(tmp_path, capsys):

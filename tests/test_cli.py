@@ -91,3 +91,34 @@ def test_a_closed_pipe_is_not_an_error(tmp_path):
     )
     assert out.stdout.strip() == str(path)
     assert "error" not in out.stderr.lower() and "Traceback" not in out.stderr
+
+
+def _every_action(parser, name="walkcap"):
+    import argparse
+
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for verb, sub in action.choices.items():
+                yield from _every_action(sub, f"{name} {verb}")
+        elif not isinstance(action, argparse._HelpAction):
+            yield name, action
+
+
+def test_one_vocabulary_every_flag_has_help_no_empty_choice_outputs_are_o_out():
+    problems = []
+    for name, action in _every_action(cli.build_parser()):
+        flags = action.option_strings
+        if not action.help:
+            problems.append(f"{name} {flags or action.dest}: no help")
+        if action.choices and "" in action.choices:
+            problems.append(f"{name} {flags}: an empty choice")
+        if "--output" in flags or (("-o" in flags) != ("--out" in flags)):
+            problems.append(f"{name} {flags}: outputs are -o/--out")
+    assert problems == []
+
+
+def test_an_unknown_flag_of_a_subcommand_points_to_its_help(capsys):
+    with pytest.raises(SystemExit):
+        cli.main(["eval", "recordings", "x.mcap", "--bogus"])
+    err = capsys.readouterr().err
+    assert "walkcap eval recordings --help" in err and "--bogus" in err

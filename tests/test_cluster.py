@@ -107,6 +107,16 @@ def test_replay_outputs_equal_and_eval_tables_equal(recordings, tmp_path, capsys
     assert table_one == table_ray and '"files"' in table_one
 
 
+def test_export_tables_equal(recordings, tmp_path, capsys):
+    base = ["export", str(recordings / "one"), "--format", "csv", "--quiet"]
+    assert _run(capsys, *base, "-o", str(tmp_path / "one"))[0] == 0
+    assert _run(capsys, *base, "-o", str(tmp_path / "ray"), "--cluster", "local")[0] == 0
+    one = sorted((tmp_path / "one").glob("*.csv"))
+    assert len(one) >= 4
+    for p in one:
+        assert p.read_bytes() == (tmp_path / "ray" / p.name).read_bytes(), p.name
+
+
 def test_a_failed_trial_is_named_and_the_others_are_written(recordings, tmp_path, capsys):
     bad = tmp_path / "bad.mcap"
     bad.write_bytes(b"not a recording")
@@ -176,7 +186,7 @@ def test_train_on_the_cluster_with_ddp(tmp_path, capsys):
         "2",
     )
     assert code == 0, err
-    assert "training on 2 worker(s)" in text
+    assert "training on 2 worker(s)" in err
     assert out.exists() and out.with_suffix(".json").exists()
     import json
 

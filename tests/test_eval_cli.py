@@ -163,22 +163,20 @@ def test_missing_score_file(capsys):
 
 
 @pytest.fixture
-def fake_reader(monkeypatch):
-    trials = {}
+def fake_reader(tmp_path):
+    """Four small recordings (two trials of S1 indoor, A1 indoor and outdoor)."""
+    from recording_fixtures import T0, frame_time, write_trial
+
+    paths = []
     for i, (subject, condition) in enumerate(
         [("S1", "indoor"), ("S1", "indoor"), ("A1", "indoor"), ("A1", "outdoor")]
     ):
-        t = ev.synthetic_trial(10 + i)
-        trials[f"r{i}.mcap"] = {
-            "probabilities": t.probabilities,
-            "labels": [MODES[r] for r in t.reference],
-            "truth": None,
-            "metadata": {"subject": subject, "condition": condition},
-        }
-    from capture import reader
-
-    monkeypatch.setattr(reader, "read_trial", lambda path: trials[path])
-    return list(trials)
+        path = tmp_path / f"{subject}_{condition}_t{i + 1:02d}.mcap"
+        labels = [(T0, "LG", "operator"), (frame_time(40 + 3 * i), "US", "operator")]
+        session = {"subject": subject, "condition": condition, "trial": i + 1}
+        write_trial(path, labels, session=session, frames=80)
+        paths.append(str(path))
+    return paths
 
 
 def test_recordings_grouped_with_sweep_and_plots(capsys, fake_reader, tmp_path):
@@ -194,11 +192,27 @@ def test_recordings_grouped_with_sweep_and_plots(capsys, fake_reader, tmp_path):
     )
     assert code == 0, err
     assert "condition" in out and "S1" in out and "A1" in out and "±" in out
-    assert "against delayed frames" in out and "wrote 8 figure(s)" in out
-    assert (tmp_path / "fig" / "accuracy_vs_delay.png").exists()
+    assert "against delayed frames" in out and "wrote 26 figure file(s)" in out
+    fig = tmp_path / "fig"
+    assert (fig / "accuracy_vs_delay.pdf").read_bytes().startswith(b"%PDF")
+    from PIL import Image
+
+    with Image.open(fig / "accuracy_vs_delay.png") as png:
+        assert round(png.info["dpi"][0]) == 300
+    # every trial's sequential figures, confusion matrices per condition
+    assert len(list(fig.glob("decisions_*.png"))) == 4
+    assert {p.name for p in fig.glob("confusion*.png")} == {
+        "confusion_indoor.png",
+        "confusion_outdoor.png",
+    }
+    code, out, _ = run(
+        capsys, "eval", "recordings", *fake_reader, "--plot", str(tmp_path / "f2"),
+        "--plot-trials", "A1_",
+    )  # fmt: skip
+    assert code == 0 and len(list((tmp_path / "f2").glob("decisions_*.png"))) == 2
     code, out, _ = run(capsys, "eval", "recordings", *fake_reader, "--json")
     data = json.loads(out)
-    assert [f["subject"] for f in data["files"]] == ["S1", "S1", "A1", "A1"]
+    assert sorted(f["subject"] for f in data["files"]) == ["A1", "A1", "S1", "S1"]
     assert {(g["condition"], g["subject"], g["trials"]) for g in data["groups"]} == {
         ("indoor", "S1", 2),
         ("indoor", "A1", 1),
@@ -206,7 +220,7 @@ def test_recordings_grouped_with_sweep_and_plots(capsys, fake_reader, tmp_path):
     }
     assert set(data) >= {"files", "mean", "sd", "delay_frames", "paired_t_tests"}
     code, _, err = run(capsys, "eval", "recordings", *fake_reader, "--reference", "truth")
-    assert code == 1 and "r0.mcap: no simulator truth" in err
+    assert code == 1 and "A1_indoor_t03.mcap: no simulator truth" in err
 
 
 def test_eval_model_is_the_model_command(capsys, monkeypatch):
@@ -241,24 +255,10 @@ def test_real_recording_end_to_end(capsys, tmp_path):
     )
 
 
-def test_a_folder_stands_for_its_recordings(capsys, monkeypatch, tmp_path):
-    trials = {}
-    for i in range(2):
-        t = ev.synthetic_trial(30 + i)
-        path = tmp_path / f"S1_indoor_t0{i + 1}.mcap"
-        path.write_bytes(b"")  # read through the stand-in reader below
-        trials[str(path)] = {
-            "probabilities": t.probabilities,
-            "labels": [MODES[r] for r in t.reference],
-            "truth": None,
-            "metadata": {"subject": "S1", "condition": "indoor"},
-        }
-    from capture import reader
-
-    monkeypatch.setattr(reader, "read_trial", lambda path: trials[str(path)])
+def test_a_folder_stands_for_its_recordings(capsys, fake_reader, tmp_path):
     code, out, err = run(capsys, "eval", "recordings", str(tmp_path), "--json")
     assert code == 0, err
-    assert len(json.loads(out)["files"]) == 2
+    assert len(json.loads(out)["files"]) == 4
     empty = tmp_path / "empty"
     empty.mkdir()
     code, _, err = run(capsys, "eval", "recordings", str(empty))

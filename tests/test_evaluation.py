@@ -278,19 +278,19 @@ def test_write_plots_writes_the_papers_figures(tmp_path, trials):
     sweep = ev.delay_sweep(trials, methods, 2)
     written = ev.write_plots(results, tmp_path / "fig", methods, sweep=sweep)
     names = sorted(p.name for p in written)
-    assert names == sorted(
-        [
-            "accuracy_per_subject_indoor.png",
-            "accuracy_per_subject_outdoor.png",
-            "accuracy_vs_delay.png",
-            "decisions_t0.png",
-            "probabilities_t0.png",
-            "decisions_t2.png",
-            "probabilities_t2.png",
-            "confusion.png",
-        ]
-    )
+    stems = [
+        "accuracy_per_subject_indoor",
+        "accuracy_per_subject_outdoor",
+        "accuracy_vs_delay",
+        *(f"{kind}_t{i}" for kind in ("decisions", "probabilities") for i in range(len(trials))),
+        "confusion_indoor",
+        "confusion_outdoor",
+    ]
+    assert names == sorted(f"{stem}.{ext}" for stem in stems for ext in ("pdf", "png"))
     for p in written:
+        if p.suffix == ".pdf":
+            assert p.read_bytes()[:4] == b"%PDF"
+            continue
         assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and p.stat().st_size > 5000
 
 

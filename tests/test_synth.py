@@ -137,6 +137,12 @@ def test_train_and_eval_model_commands(tmp_path, capsys, monkeypatch):
     assert set(meta["metrics"]["test"]) >= {"all", "indoor", "outdoor"}
     assert meta["training"]["seed"] == 0 and meta["preprocess"] is not None
     assert meta["split"]["test"] and len(meta["weights_sha256"]) == 64
+    argv = ["train", "--data", str(data), "--out", str(tmp_path / "j.pt"), "--epochs", "1"]
+    argv += ["--max-steps", "2", "--hidden", "4", "--threads", "1", "--json"]
+    assert cli.main(argv) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["sessions"] == 6 and set(summary["test"]) >= {"all", "indoor", "outdoor"}
+    assert summary["weights"].endswith("j.pt") and len(summary["sha256"]) == 64
 
     parser = argparse.ArgumentParser()
     eval_model.add_arguments(parser)

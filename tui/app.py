@@ -437,6 +437,11 @@ class WalkcapApp(App):
         self.recording_path = message.path
         self.bell()  # the operator watches the subject: a sound as well as the banner
         self.notify(f"recording {message.path.name}", timeout=4)
+        notice = getattr(self.session, "trial_notice", "")  # the trial existed: the next one
+        recorded = getattr(self.session, "trial", None)
+        if notice and recorded is not None:
+            self.subject = dataclasses.replace(self.subject, trial=recorded.trial)
+            self.notify(notice, severity="warning", timeout=10)
         self._refresh_live()
 
     def on_recording_stopped(self, message: messages.RecordingStopped) -> None:

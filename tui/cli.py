@@ -21,6 +21,7 @@ COMMANDS = (
     "record",
     "replay",
     "info",
+    "export",
     "recover",
     "eval",
     "train",
@@ -65,7 +66,18 @@ def build_parser() -> argparse.ArgumentParser:
         _add_common(p, argparse.SUPPRESS)
         module.add_arguments(p)
         p.set_defaults(_module=module)
+        _mark_parsers(p)
     return parser
+
+
+def _mark_parsers(parser: argparse.ArgumentParser) -> None:
+    """Each (sub)command's parser in its parsed arguments: a flag it does not know is
+    reported by it, with its own `--help`."""
+    parser.set_defaults(_parser=parser)
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                _mark_parsers(sub)
 
 
 def _add_common(parser: argparse.ArgumentParser, default) -> None:
@@ -80,9 +92,13 @@ def _add_common(parser: argparse.ArgumentParser, default) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
     if args.command is None:  # plain `walkcap` opens the terminal UI
-        args = parser.parse_args(["tui", *(argv if argv is not None else sys.argv[1:])])
+        args, extra = parser.parse_known_args(
+            ["tui", *(argv if argv is not None else sys.argv[1:])]
+        )
+    if extra:
+        getattr(args, "_parser", parser).error(f"unrecognized arguments: {' '.join(extra)}")
     logging.basicConfig(
         level=logging.WARNING - 10 * min(args.verbose, 2),
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",

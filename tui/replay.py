@@ -16,15 +16,16 @@ from __future__ import annotations
 import bisect
 import dataclasses
 import datetime as dt
-import json
 import logging
 import os
+import uuid
 from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 
 from capture import topics as T
+from capture.corpus import derivation
 from capture.errors import CaptureError
 from capture.pipeline import FrameResult
 from capture.session import LabelChange, Snapshot, SubjectInfo, TimelineEntry
@@ -36,7 +37,7 @@ log = logging.getLogger(__name__)
 
 TIMELINE_S = 20.0
 PROFILE_POINTS = 600  # per frame kept for the profile plot (the display is ~100 dots wide)
-CORRECTION = "correction"
+CORRECTION = "correction"  # capture.reader.CORRECTION
 
 
 def _mode_index(mode) -> int:
@@ -252,9 +253,12 @@ class ReplaySource:
     # ---- labels -----------------------------------------------------------------------
 
     def label_changes(self) -> list[tuple[int, str, str]]:
-        """The original changes and the corrections, in time order (corrections last on ties)."""
+        """The reference: the original changes with their undos applied (capture.reader
+        effective_changes), and the corrections, in time order (corrections last on ties)."""
+        from capture.reader import effective_changes
+
         merged = self.original_labels + [(c.time_ns, c.mode, CORRECTION) for c in self.corrections]
-        return sorted(merged, key=lambda c: c[0])
+        return effective_changes(merged)
 
     def _labels_at(self, times_ns: np.ndarray) -> np.ndarray:
         from capture.reader import labels_at
@@ -393,7 +397,7 @@ def _subject_from_metadata(session: dict) -> SubjectInfo | None:
             continue
         try:
             if f.name == "amputee":
-                kwargs[f.name] = raw in ("True", "true", "1")
+                kwargs[f.name] = raw is True or raw in ("True", "true", "1")
             elif f.name in ("trial", "age"):
                 kwargs[f.name] = int(raw)
             elif f.name in ("height_m", "weight_kg", "residual_limb_cm"):
@@ -438,19 +442,33 @@ def write_corrected(
         with open(tmp, "wb") as out:  # a leftover partial file of ours is replaced
             writer = Writer(out, compression=CompressionType.ZSTD)
             writer.start(profile="", library=rec.library or "walkcap")
+            # The copy is a new recording (its own id) derived from the original; values
+            # are written as JSON, whatever the original held.
+            copy_id = str(uuid.uuid4())
             for name, values in rec.metadata_records:
-                writer.add_metadata(name, values)
+                if name == "recording":
+                    values = {**values, "id": copy_id, T.METADATA_VALUES_KEY: T.METADATA_VALUES}
+                if name != "derivation":
+                    writer.add_metadata(name, T.encode_metadata(values))
+            writer.add_metadata(
+                "derivation",
+                T.encode_metadata(
+                    derivation(rec, copy_id, "corrected", f"{len(corrections)} label correction(s)")
+                ),
+            )
             writer.add_metadata(
                 "corrections",
-                {
-                    "source": original.name,
-                    "source_size": str(rec.size),
-                    "written": dt.datetime.now().isoformat(timespec="seconds"),
-                    "labels": json.dumps([[c.time_ns, c.mode] for c in corrections]),
-                    "markers": str(len(markers)),
-                    "rule": "label changes apply from their time until the next; corrections "
-                    f"have source '{CORRECTION}'",
-                },
+                T.encode_metadata(
+                    {
+                        "source": original.name,
+                        "source_size": rec.size,
+                        "written": dt.datetime.now().isoformat(timespec="seconds"),
+                        "labels": [[c.time_ns, c.mode] for c in corrections],
+                        "markers": len(markers),
+                        "rule": "label changes apply from their time until the next; "
+                        f"corrections have source '{CORRECTION}'",
+                    }
+                ),
             )
             t0 = rec.start_ns or 0
             for name, data in rec.attachments.items():

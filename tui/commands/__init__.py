@@ -40,7 +40,9 @@ def add_device_arguments(parser, camera_backends: str = "mock | royale") -> None
     g.add_argument("--port", help="IMU serial port (backend serial)")
     g.add_argument("--fps", type=float, help="camera frame rate")
     g.add_argument("--imu-rate", type=int, metavar="HZ", help="IMU output rate")
-    g.add_argument("--out", metavar="DIR", help="recordings folder")
+    g.add_argument(
+        "-o", "--out", metavar="DIR", help="recordings folder (default: [session] recordings)"
+    )
     g.add_argument("--course", choices=("indoor", "outdoor"), help="mock walk preset")
     g.add_argument("--seed", type=int, help="mock walk seed")
     g.add_argument("--model", metavar="PATH", help="classifier weights (default: bundled)")
@@ -52,15 +54,30 @@ def add_session_arguments(parser) -> None:
     g = parser.add_argument_group("session metadata")
     g.add_argument("--subject", help="pseudonymous subject id (default: S01)")
     g.add_argument("--condition", help="e.g. indoor / outdoor (default: the mock course)")
-    g.add_argument("--trial", type=int, help="trial number (default: 1)")
-    g.add_argument("--height", type=float, metavar="M", dest="height_m")
-    g.add_argument("--weight", type=float, metavar="KG", dest="weight_kg")
-    g.add_argument("--age", type=int)
-    g.add_argument("--sex", choices=("", "female", "male", "other"))
-    g.add_argument("--amputee", action="store_true", default=None)
-    g.add_argument("--side", choices=("", "left", "right"))
-    g.add_argument("--residual-limb", type=float, metavar="CM", dest="residual_limb_cm")
-    g.add_argument("--notes")
+    g.add_argument(
+        "--trial",
+        type=count(1),
+        metavar="N",
+        help="trial number (default: the next free one for subject and condition in the "
+        "recordings folder); `record` refuses one that exists unless --overwrite, the UI "
+        "moves on to the next free number and says so",
+    )
+    g.add_argument("--height", type=float, metavar="M", dest="height_m", help="height in metres")
+    g.add_argument("--weight", type=float, metavar="KG", dest="weight_kg", help="weight in kg")
+    g.add_argument("--age", type=int, help="age in years")
+    g.add_argument("--sex", choices=("female", "male", "other"), help="(default: not given)")
+    g.add_argument("--amputee", action="store_true", default=None, help="the subject is an amputee")
+    g.add_argument(
+        "--side", choices=("left", "right"), help="amputated side (required with --amputee)"
+    )
+    g.add_argument(
+        "--residual-limb",
+        type=float,
+        metavar="CM",
+        dest="residual_limb_cm",
+        help="residual limb length in cm",
+    )
+    g.add_argument("--notes", help="free text kept with the recording")
 
 
 SESSION_FLAGS = (

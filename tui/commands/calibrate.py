@@ -11,6 +11,7 @@ On mock devices the simulated walker stands at the start of its course.
 
 from __future__ import annotations
 
+import sys
 import threading
 import time
 from pathlib import Path
@@ -40,10 +41,12 @@ def add_arguments(parser) -> None:
     parser.add_argument(
         "--dry-run", action="store_true", help="estimate and show the result, write nothing"
     )
+    parser.add_argument(
+        "--json", action="store_true", help="print the result as JSON instead of the table"
+    )
 
 
 def run(args, config) -> int:
-    from capture import config as config_mod
     from capture.session import close_devices
     from inference.calibration import CalibrationError, estimate_mounting
 
@@ -52,6 +55,7 @@ def run(args, config) -> int:
     print(
         f"stand still on level ground, camera unobstructed: collecting {args.seconds:g} s ...",
         flush=True,
+        file=sys.stderr if args.json else sys.stdout,  # stdout is the JSON's
     )
     camera, imu = open_devices(config)
     try:
@@ -68,6 +72,8 @@ def run(args, config) -> int:
         current,
         config.preprocess.min_confidence,
     )
+    if args.json:
+        return _json_result(args, config, result, current)
     print(
         f"frames: {result.frames_used} of {result.frames_total} show the floor; "
         f"floor inliers {100 * result.inlier_fraction:.0f}%, "
@@ -84,6 +90,34 @@ def run(args, config) -> int:
         print("dry run: nothing written")
         return 0
 
+    path = _write(args, config, result)
+    print(f"wrote [mounting] to {path}")
+    return 0
+
+
+def _json_result(args, config, result, current) -> int:
+    import dataclasses
+    import json
+
+    from capture.topics import jsonable
+    from inference.calibration import CalibrationError
+
+    data = {k: v for k, v in dataclasses.asdict(result).items() if k != "per_frame"}
+    data["ok"] = result.ok
+    data["current"] = {"roll_deg": current[0], "pitch_deg": current[1], "yaw_deg": current[2]}
+    data["written"] = None
+    if result.ok and not args.dry_run:
+        data["written"] = str(_write(args, config, result))
+    print(json.dumps(jsonable(data), indent=2))
+    if not result.ok:
+        raise CalibrationError(f"calibration refused, nothing written: {result.problem}")
+    return 0
+
+
+def _write(args, config, result) -> Path:
+    """[mounting] into the configuration file; returns its path."""
+    from capture import config as config_mod
+
     path = Path(args.write or config.source or config_mod.DEFAULT_PATH)
     # Another existing file keeps its own settings; only [mounting] changes there.
     same_file = bool(config.source) and path.resolve() == Path(config.source).resolve()
@@ -91,8 +125,7 @@ def run(args, config) -> int:
     target.mounting.roll_deg = round(result.roll_deg, 2)
     target.mounting.pitch_deg = round(result.pitch_deg, 2)
     config_mod.save(target, path)
-    print(f"wrote [mounting] to {path}")
-    return 0
+    return path
 
 
 def open_devices(config):

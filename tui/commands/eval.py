@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from pathlib import Path
 
 from tui.commands import add_cluster_argument, count, eval_model
 
@@ -76,7 +77,21 @@ def _common_arguments(p: argparse.ArgumentParser) -> None:
         metavar="N",
         help=f"also accuracy against 0..N delayed frames (default N: {SWEEP_DEFAULT})",
     )
-    p.add_argument("--plot", metavar="DIR", help="write the paper's figures as PNG into DIR")
+    p.add_argument(
+        "--plot",
+        metavar="DIR",
+        help="write the paper's figures into DIR, each as vector PDF and 300-dpi PNG: "
+        "accuracy per subject, against delay (with --sweep-delay), sequential decisions "
+        "and probability traces of every trial, confusion matrices per condition",
+    )
+    p.add_argument(
+        "--plot-trials",
+        type=lambda text: [t.strip() for t in text.split(",") if t.strip()],
+        metavar="LIST",
+        help="with --plot: the decision and probability figures only for trials whose "
+        "file name or title (subject, condition, trial) contains one of these "
+        "comma-separated words (default: every trial)",
+    )
     p.add_argument("--json", action="store_true", help="print JSON instead of tables")
 
 
@@ -89,7 +104,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         description="Evaluate per-frame scores: each CSV has the header "
         "LG,US,DS,UR,DR,label and one row per frame in capture order.",
     )
-    p.add_argument("files", nargs="+", metavar="FILE.csv")
+    p.add_argument("files", nargs="+", metavar="FILE.csv", help="score files, one per trial")
     _common_arguments(p)
 
     p = verbs.add_parser(
@@ -105,6 +120,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="auto",
         help="what is true: operator labels, simulator truth, or auto (labels "
         "when the recording has any)",
+    )
+    p.add_argument(
+        "--replays",
+        action="store_true",
+        help="evaluate the newest replay of each trial instead of its recording "
+        "(another model's output on the same trial)",
     )
     add_cluster_argument(p, "the reading of each recording")
     _common_arguments(p)
@@ -138,7 +159,7 @@ def run(args, config) -> int:
     if args.eval_command == "scores":
         trials = [ev.read_scores(path) for path in args.files]
     else:
-        files = _recordings(args.files)
+        files = _recordings(args.files, args.replays)
         if args.cluster:
             trials = _trials_on_cluster(files, args.reference, args.cluster)
         else:
@@ -161,7 +182,10 @@ def run(args, config) -> int:
     data["parameters"]["transition"] = args.transition
     if args.plot:
         data["plots"] = [
-            str(p) for p in ev.write_plots(results, args.plot, args.methods, params, sweep)
+            str(p)
+            for p in ev.write_plots(
+                results, args.plot, args.methods, params, sweep, args.plot_trials
+            )
         ]
     if args.json:
         print(json.dumps(data, indent=2))
@@ -251,7 +275,11 @@ def format_report(data: dict, methods: list[str]) -> str:
         rows = [[_title(m), *(_pct(x) for x in sweep["mean"][m])] for m in methods]
         out += _table(["method", *map(str, sweep["delays"])], rows)
     if data.get("plots"):
-        out += ["", f"wrote {len(data['plots'])} figure(s): {', '.join(data['plots'])}"]
+        folders = sorted({str(Path(p).parent) for p in data["plots"]})
+        out += [
+            "",
+            f"wrote {len(data['plots'])} figure file(s) (PDF and PNG) to {', '.join(folders)}",
+        ]
     return "\n".join(out)
 
 
@@ -260,23 +288,20 @@ def _mean_sd(entry: dict, method: str) -> str:
     return _pct(mean) if sd is None else f"{_pct(mean)} ± {_pct(sd)}"
 
 
-def _recordings(paths: list[str]) -> list[str]:
-    """Files as given; a folder stands for the recordings in it (replays included)."""
-    from pathlib import Path
+def _recordings(paths: list[str], replays: bool = False) -> list[str]:
+    """One file per trial from the files and folders given (capture.corpus.select); the
+    files left out are listed on stderr, with why."""
+    import sys
 
-    from inference.errors import InferenceError
+    from capture.corpus import select
+    from capture.errors import CaptureError
 
-    out = []
-    for p in paths:
-        folder = Path(p)
-        if folder.is_dir():
-            found = sorted(str(f) for f in folder.glob("*.mcap"))
-            if not found:
-                raise InferenceError(f"{folder}: no .mcap recordings in this folder")
-            out += found
-        else:
-            out.append(p)
-    return out
+    corpus = select(paths, replays=replays)
+    for line in corpus.report_lines():
+        print(line, file=sys.stderr)
+    if not corpus.chosen:
+        raise CaptureError("no recordings to evaluate: every file was left out")
+    return [str(p) for p in corpus.files]
 
 
 def _trials_on_cluster(files: list[str], reference: str, address: str) -> list:

@@ -41,7 +41,12 @@ def add_arguments(parser) -> None:
         metavar="N",
         help="fresh synthetic sessions to render (default 4)",
     )
-    parser.add_argument("--preset", choices=("indoor", "outdoor", "both"), default="both")
+    parser.add_argument(
+        "--preset",
+        choices=("indoor", "outdoor", "both"),
+        default="both",
+        help="course preset of the sessions; both alternates (default: both)",
+    )
     parser.add_argument(
         "--seed",
         type=int,

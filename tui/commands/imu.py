@@ -84,7 +84,7 @@ def add_arguments(parser) -> None:
     )
     p.add_argument("--drift-ppm", type=float, help="device clock drift (default: [imu] drift_ppm)")
     p.add_argument("--jitter-ms", type=float, help="transmit jitter (default: [imu] jitter_ms)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="seed of the emulated motion (default 0)")
     p.add_argument(
         "--model", help="the model it plays, e.g. MTi-3, MTi-630 (default: [imu] emulate)"
     )

@@ -12,11 +12,20 @@ GAP_TOPICS = ("/camera/depth", "/imu")  # the sensor streams; the rest derive fr
 
 def add_arguments(parser) -> None:
     parser.add_argument("files", nargs="+", metavar="FILE", help="MCAP recording(s)")
+    parser.add_argument(
+        "--json",
+        action="store_true",
+        help="print JSON (one object per file, in a list) with typed metadata",
+    )
 
 
 def run(args, config) -> int:
     from capture.reader import open_recording
 
+    if args.json:
+        data = [summary(open_recording(path)) for path in args.files]
+        print(json.dumps(data, indent=2))
+        return 0
     for i, path in enumerate(args.files):
         if i:
             print()
@@ -33,16 +42,28 @@ def _size(n: float) -> str:
 
 
 def _wall(rec, t_ns: int) -> str:
+    """Clock time (local, with its zone) of a session-clock time."""
     offset = rec.unix_offset_ns
     if offset is None:
         return f"{t_ns * 1e-9:.3f} s (session clock)"
-    return dt.datetime.fromtimestamp((t_ns + offset) * 1e-9).strftime("%Y-%m-%d %H:%M:%S")
+    return _clock(t_ns + offset)
+
+
+def _clock(unix_ns: int) -> str:
+    return dt.datetime.fromtimestamp(unix_ns * 1e-9).astimezone().strftime("%Y-%m-%d %H:%M:%S %Z")
+
+
+def _iso(unix_ns: int | None) -> str | None:
+    if unix_ns is None:
+        return None
+    return dt.datetime.fromtimestamp(unix_ns * 1e-9, dt.UTC).isoformat(timespec="milliseconds")
 
 
 def describe(rec) -> list[str]:
     """The recording in a few readable lines."""
+    from capture import corpus
     from capture import topics as T
-    from capture.reader import find_gaps
+    from capture.reader import find_gaps, is_undo
 
     lines = [str(rec.path)]
     if rec.complete:
@@ -54,10 +75,23 @@ def describe(rec) -> list[str]:
         )
     rate = f" ({_size(rec.size / rec.duration_s)}/s)" if rec.duration_s > 0 else ""
     lines.append(f"  size        {_size(rec.size)}{rate}")
+    member = corpus.describe(rec)
+    subject, condition, trial = rec.trial
+    lines.append(f"  trial       {member.trial_name}; id {member.id}")
+    if member.kind != corpus.RECORDING:
+        lines.append(
+            f"  derived     {member.kind} of {member.source_name or '?'}"
+            + (f" (id {member.source_id})" if member.source_id else "")
+            + (f": {member.how}" if member.how else "")
+        )
     if rec.start_ns is not None:
         lines.append(
             f"  time        {_wall(rec, rec.start_ns)} -> {_wall(rec, rec.end_ns)}, "
             f"{rec.duration_s:.1f} s"
+        )
+        lines.append(
+            f"  session     {rec.start_ns * 1e-9:.3f} -> {rec.end_ns * 1e-9:.3f} s "
+            "(session clock: the message times; + unix_offset_ns = Unix time)"
         )
     times = rec.log_times()
     lines.append("  topics      messages    rate  schema" if rec.topics else "  topics      none")
@@ -82,22 +116,25 @@ def describe(rec) -> list[str]:
     if gaps:
         lines.append("  gaps        " + "; ".join(gaps))
     small = [t for t in (T.LABELS, T.EVENTS) if t in rec.topics]
-    labels, kinds = [], {}
+    labels, kinds, undo_sources = [], {}, []
     for m in rec.messages(small):
         if m.topic == T.LABELS:
             labels.append((m.data["time_ns"], m.data["mode"] or "-"))
+            undo_sources.append(m.data.get("source", ""))
         else:
             kinds[m.data["kind"]] = kinds.get(m.data["kind"], 0) + 1
     if labels:
         sequence = " ".join(mode for _, mode in sorted(labels))
-        lines.append(f"  labels      {len(labels)} changes: {_clip(sequence)}")
+        undos = sum(1 for source in undo_sources if is_undo(source))
+        undone = f" ({undos} undo(s), applied to the reference)" if undos else ""
+        lines.append(f"  labels      {len(labels)} changes{undone}: {_clip(sequence)}")
     if kinds:
         lines.append("  events      " + ", ".join(f"{k} {v}" for k, v in sorted(kinds.items())))
     lines.append("  metadata")
     for name, values in rec.metadata.items():
         if name == "recording":
             values = {k: v for k, v in values.items() if k != "topics"}
-        text = ", ".join(f"{k}={_short(v)}" for k, v in values.items() if v != "")
+        text = ", ".join(f"{k}={_short(v)}" for k, v in values.items() if v not in ("", None))
         lines.append(f"    {name:<11} {text}")
     if rec.attachment_sizes:
         lines.append(
@@ -115,22 +152,104 @@ def recorded_periods(metadata: dict) -> dict[str, float]:
     for topic, key in (("/camera/depth", "camera_fps"), ("/imu", "imu_rate_hz")):
         try:
             rate = float(devices.get(key, ""))
-        except ValueError:
+        except (TypeError, ValueError):
             continue
         if rate > 0:
             out[topic] = 1.0 / rate
     return out
 
 
-def _short(value: str, width: int = 60) -> str:
-    try:
-        parsed = json.loads(value)
-        if isinstance(parsed, (dict, list)):
-            value = json.dumps(parsed, separators=(",", ":"))
-    except ValueError:
-        pass
-    return _clip(value, width)
+def _short(value, width: int = 60) -> str:
+    if isinstance(value, str):
+        try:
+            value = json.loads(value)  # an older file's JSON text
+        except ValueError:
+            return _clip(value, width)
+    if isinstance(value, (dict, list)):
+        return _clip(json.dumps(value, separators=(",", ":")), width)
+    return _clip(str(value), width)
 
 
 def _clip(text: str, width: int = 100) -> str:
     return text if len(text) <= width else text[: width - 3] + "..."
+
+
+def summary(rec) -> dict:
+    """Everything `describe` shows, as JSON-ready data: times on the session clock (ns)
+    with their Unix time (ns) and UTC ISO text, metadata typed."""
+    from capture import corpus
+    from capture import topics as T
+    from capture.reader import effective_changes, find_gaps
+
+    member = corpus.describe(rec)
+    subject, condition, trial = rec.trial
+    times = rec.log_times()
+    topics = {}
+    for topic in sorted(rec.topics):
+        info = rec.topics[topic]
+        t = times.get(topic, [])
+        span = (t[-1] - t[0]) * 1e-9 if len(t) > 1 else 0.0
+        regular = topic not in (T.LABELS, T.EVENTS)
+        topics[topic] = {
+            "messages": info.count,
+            "rate_hz": (len(t) - 1) / span if span > 0 and regular else None,
+            "schema": info.schema_name,
+            "encoding": info.message_encoding,
+        }
+    gaps = {}
+    for topic in GAP_TOPICS:
+        if topic in times:
+            gaps[topic] = [
+                {
+                    "start_s": (start - rec.start_ns) * 1e-9 if rec.start_ns is not None else None,
+                    "length_s": length,
+                }
+                for start, length in find_gaps(times[topic])
+            ]
+    labels, events = [], {}
+    small = [t for t in (T.LABELS, T.EVENTS) if t in rec.topics]
+    for m in rec.messages(small):
+        if m.topic == T.LABELS:
+            labels.append(
+                (int(m.data["time_ns"]), m.data.get("mode", ""), m.data.get("source", ""))
+            )
+        else:
+            events[m.data["kind"]] = events.get(m.data["kind"], 0) + 1
+    labels.sort(key=lambda c: c[0])
+    in_force = set(effective_changes(labels))
+
+    def when(t):
+        unix = rec.unix_time_ns(t)
+        return {"session_ns": t, "unix_ns": unix, "utc": _iso(unix)}
+
+    return {
+        "path": str(rec.path),
+        "complete": rec.complete,
+        "reason": rec.reason,
+        "size_bytes": rec.size,
+        "bytes_per_s": rec.size / rec.duration_s if rec.duration_s > 0 else None,
+        "id": member.id,
+        "kind": member.kind,
+        "source": {"id": member.source_id, "name": member.source_name, "how": member.how}
+        if member.kind != corpus.RECORDING
+        else None,
+        "trial": {"subject": subject, "condition": condition, "trial": trial},
+        "start": when(rec.start_ns) if rec.start_ns is not None else None,
+        "end": when(rec.end_ns) if rec.end_ns is not None else None,
+        "duration_s": rec.duration_s,
+        "unix_offset_ns": rec.unix_offset_ns,
+        "topics": topics,
+        "gaps": gaps,
+        "labels": [
+            {
+                **when(t),
+                "mode": mode,
+                "source": source,
+                "in_reference": (t, mode, source) in in_force,
+            }
+            for t, mode, source in labels
+        ],
+        "events": events,
+        "metadata": T.jsonable(rec.metadata),
+        "attachments": dict(rec.attachment_sizes),
+    }

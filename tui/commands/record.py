@@ -40,6 +40,12 @@ def add_arguments(parser) -> None:
     )
     add_device_arguments(parser)
     add_session_arguments(parser)
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="record an existing --trial again: the new file supersedes the earlier one, "
+        "which stays on disk and is left out of eval, train and export",
+    )
     lab_flags.add_arguments(parser)
 
 
@@ -63,6 +69,7 @@ def status_line(elapsed_s: float, total_s: float | None, snap) -> str:
 
 
 def run(args, config) -> int:
+    from capture.corpus import trial_conflict
     from capture.labtools import LabTools, SessionController
     from capture.recorder import RecorderState
     from capture.session import Session, SubjectInfo
@@ -77,6 +84,9 @@ def run(args, config) -> int:
     if args.duration and config.camera.backend == "mock":
         config.simulator.loop = True  # the walk goes on for as long as asked, as in the UI
     info = subject_from_flags(args, SubjectInfo(condition=args.condition or "session"))
+    existing = _on_existing(args)
+    # Checked before the devices open: a refused trial costs no set-up time.
+    trial_conflict(config.session.recordings, info.subject, info.condition, info.trial, existing)
     session = Session(config, auto_label=args.auto_label)
     # SIGTERM finalises the file like Ctrl-C does
     signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
@@ -94,7 +104,9 @@ def run(args, config) -> int:
         if remote:  # the experiment script says when: start, stop, start, ...
             print("waiting for the remote control's start (Ctrl-C ends)", file=sys.stderr)
         else:
-            path = session.start_recording(info)
+            path = session.start_recording(info, existing)
+            if session.trial_notice:
+                print(f"walkcap record: {session.trial_notice}", file=sys.stderr)
             print(f"recording {path}", file=sys.stderr)
         started = time.monotonic()
         deadline = started + args.duration if args.duration else None
@@ -141,3 +153,12 @@ def run(args, config) -> int:
         file=sys.stderr,
     )
     return finish_recording("record", stats, stats.path)
+
+
+def _on_existing(args) -> str:
+    """What an existing trial means: the next free number unless --trial was given."""
+    from capture.corpus import NEXT_TRIAL, OVERWRITE, TRIAL_ERROR
+
+    if args.trial is None:
+        return NEXT_TRIAL
+    return OVERWRITE if args.overwrite else TRIAL_ERROR

@@ -9,8 +9,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("file", metavar="FILE", help="the cut-off recording (kept unchanged)")
     parser.add_argument(
         "-o",
-        "--output",
-        metavar="OUT",
+        "--out",
+        metavar="FILE",
         help="the rebuilt file (default: FILE with .recovered before .mcap)",
     )
     parser.add_argument(
@@ -24,7 +24,7 @@ def add_arguments(parser) -> None:
 def run(args, config) -> int:
     from capture.recovery import recover
 
-    r = recover(args.file, args.output, journal=args.journal, overwrite=args.force)
+    r = recover(args.file, args.out, journal=args.journal, overwrite=args.force)
     source = (
         "complete file" if r.complete else f"{r.reason}; {r.lost_bytes} bytes after it unreadable"
     )

@@ -20,7 +20,7 @@ _positive = count(1)
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--out", metavar="DIR", required=True, help="output folder")
+    parser.add_argument("-o", "--out", metavar="DIR", required=True, help="output folder")
     parser.add_argument(
         "--sessions", type=_positive, default=1, metavar="N", help="number of sessions (default 1)"
     )

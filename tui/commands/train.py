@@ -12,6 +12,8 @@ the confusion matrix on the held-out test sessions, indoor and outdoor.
 
 from __future__ import annotations
 
+import sys
+
 from tui.commands import count
 
 HELP = "train the terrain classifier"
@@ -30,6 +32,7 @@ def add_arguments(parser) -> None:
         "recordings (labelled by the operator)",
     )
     parser.add_argument(
+        "-o",
         "--out",
         default="runs/terrain_cnn.pt",
         metavar="PATH",
@@ -43,7 +46,13 @@ def add_arguments(parser) -> None:
         metavar="N",
         help=f"at most N epochs (default {d.epochs})",
     )
-    parser.add_argument("--batch-size", type=count(1), default=d.batch_size, metavar="N")
+    parser.add_argument(
+        "--batch-size",
+        type=count(1),
+        default=d.batch_size,
+        metavar="N",
+        help=f"images per training step (default {d.batch_size})",
+    )
     parser.add_argument("--lr", type=float, default=d.lr, help=f"learning rate (default {d.lr})")
     parser.add_argument(
         "--patience",
@@ -100,8 +109,22 @@ def add_arguments(parser) -> None:
         metavar="N",
         help="CPU threads for torch (default: torch's choice)",
     )
-    parser.add_argument("--val-fraction", type=float, default=d.val_fraction, metavar="F")
-    parser.add_argument("--test-fraction", type=float, default=d.test_fraction, metavar="F")
+    parser.add_argument(
+        "--val-fraction",
+        type=float,
+        default=d.val_fraction,
+        metavar="F",
+        help="share of the sessions held out for early stopping, whole sessions "
+        f"(default {d.val_fraction})",
+    )
+    parser.add_argument(
+        "--test-fraction",
+        type=float,
+        default=d.test_fraction,
+        metavar="F",
+        help="share of the sessions held out for the final test, unseen in training "
+        f"(default {d.test_fraction})",
+    )
     parser.add_argument("--no-augment", action="store_true", help="no augmentation")
     parser.add_argument("--no-balance", action="store_true", help="no class balancing")
     parser.add_argument(
@@ -118,6 +141,11 @@ def add_arguments(parser) -> None:
         help="train in float32 even where the CPU has native bfloat16",
     )
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
+    parser.add_argument(
+        "--json",
+        action="store_true",
+        help="print the result (split, best epoch, test metrics, files) as JSON (no bars)",
+    )
     parser.add_argument(
         "--cluster",
         metavar="ADDRESS|local",
@@ -137,7 +165,7 @@ def add_arguments(parser) -> None:
 
 
 def run(args, config) -> int:
-    from capture.dataset import find_session_files, read_sessions
+    from capture.dataset import read_sessions, select_session_files
     from inference.model import file_sha256
     from inference.preprocess import PreprocessParams
     from inference.training import (
@@ -168,27 +196,52 @@ def run(args, config) -> int:
         test_fraction=args.test_fraction,
     )
     keep_freed_memory()  # this process only trains
-    files = find_session_files(args.data)
+    files, left_out = select_session_files(args.data)
+    for line in left_out:
+        print(line, file=sys.stderr)
+    quiet = args.quiet or args.json
     if args.cluster:  # the workers read the sessions; here only the first, for its metadata
-        result = _train_on_cluster(args, settings, files)
+        result = _train_on_cluster(args, settings, files, quiet)
         sessions = read_sessions(files[:1])
-        print(
-            f"{len(files)} sessions, {sum(result.data[p]['frames'] for p in result.data)} "
-            f"labelled frames from {', '.join(args.data)}"
-        )
+        n_sessions, frames = len(files), sum(part["frames"] for part in result.data.values())
+        what = "labelled frames"
     else:
         if args.workers:
             from inference.errors import InferenceError
 
             raise InferenceError("--workers is for --cluster (training processes)")
         sessions = read_sessions(files)
-        frames = sum(len(s) for s in sessions)
-        print(f"{len(sessions)} sessions, {frames} frames from {', '.join(args.data)}")
+        n_sessions, frames, what = len(sessions), sum(len(s) for s in sessions), "frames"
+    if not args.json:
+        print(f"{n_sessions} sessions, {frames} {what} from {', '.join(args.data)}")
     preprocess = _preprocess_params(sessions) or PreprocessParams.from_config(config).to_dict()
     if not args.cluster:
-        result = train(sessions, settings, show_progress=not args.quiet)
+        result = train(sessions, settings, show_progress=not quiet)
     path = save_result(result, args.out, settings, preprocess, [str(f) for f in files])
     split = result.split
+    if args.json:
+        import json
+
+        print(
+            json.dumps(
+                {
+                    "sessions": n_sessions,
+                    "frames": frames,
+                    "best_epoch": result.best_epoch,
+                    "epochs": len(result.history),
+                    "stopped_early": result.stopped_early,
+                    "seconds": result.seconds,
+                    "split": {k: len(v) for k, v in split.items()},
+                    "test": {k: v.to_dict() for k, v in result.test_metrics.items()},
+                    "weights": str(path),
+                    "sha256": file_sha256(path),
+                    "metadata": str(path.with_suffix(".json")),
+                },
+                indent=2,
+                default=str,
+            )
+        )
+        return 0
     print(
         f"best epoch {result.best_epoch} of {len(result.history)}"
         f"{' (early stop)' if result.stopped_early else ''}, {result.seconds:.0f} s; "
@@ -212,12 +265,12 @@ def _preprocess_params(sessions) -> dict | None:
     return None
 
 
-def _train_on_cluster(args, settings, files):
+def _train_on_cluster(args, settings, files, quiet: bool):
     from capture import cluster
 
     with cluster.connect(args.cluster) as resources:
         workers = cluster.training_workers(
             settings.batch_size, resources.get("CPU", 1), args.workers or 0
         )
-        print(f"training on {workers} worker(s) of the cluster (DDP, gloo)")
-        return cluster.train(files, settings, workers, show_progress=not args.quiet)
+        print(f"training on {workers} worker(s) of the cluster (DDP, gloo)", file=sys.stderr)
+        return cluster.train(files, settings, workers, show_progress=not quiet)

@@ -1,0 +1,375 @@
+"""A corpus: recordings folders as a set of trials, each trial counted once.
+
+Every recording carries its identity: a unique id (the "recording" metadata record) and
+the trial (subject, condition, trial in "session"). A derived file (a replay, a copy with
+corrected labels, a recovered copy) has its own id and a "derivation" record naming its
+source (id and file name) and how it was made. Derived files sit beside their source
+with a name that says what they are (`.replay.mcap`, `_corrected.mcap`,
+`.recovered.mcap`); the metadata, not the name, decides. Files from before derivation
+records are recognised by the records their writers left (software.replay_of,
+corrections, recovery) and by their names.
+
+`select(paths)` picks one file per trial and says which files it leaves out and why:
+- a copy with corrected labels stands for its source (the newest copy when there are
+  several): the corrected labels win;
+- a recovered copy stands for its unfinished original; a finished original wins over a
+  recovered copy of it;
+- a replay is another model's output on the same trial: left out unless replays are asked
+  for (`replays=True`: the newest replay of each trial stands for it);
+- a recording made with `--overwrite` supersedes the earlier recordings of its trial.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from capture.errors import CaptureError
+from capture.reader import Recording, open_recording
+
+RECORDING, REPLAY, CORRECTED, RECOVERED = "recording", "replay", "corrected", "recovered"
+DERIVED_KINDS = (REPLAY, CORRECTED, RECOVERED)
+
+_DERIVED_NAMES = (
+    (re.compile(r"^(?P<source>.+)\.replay\d*\.mcap$"), REPLAY),
+    (re.compile(r"^(?P<source>.+)_corrected\d*\.mcap$"), CORRECTED),
+    (re.compile(r"^(?P<source>.+)\.recovered\d*\.mcap$"), RECOVERED),
+)
+
+
+def derivation(source: Recording, new_id: str, kind: str, how: str, **extra) -> dict:
+    """The "derivation" metadata record of a file made from `source`."""
+    subject, condition, trial = source.trial
+    return {
+        "id": new_id,
+        "kind": kind,
+        "source_id": source.id,
+        "source_name": source.path.name,
+        "how": how,
+        "subject": subject,
+        "condition": condition,
+        "trial": trial,
+        **extra,
+    }
+
+
+@dataclass
+class Member:
+    """One recording of a corpus: its identity and lineage."""
+
+    path: Path
+    id: str
+    kind: str  # recording | replay | corrected | recovered
+    trial: tuple[str, str, int | None]
+    complete: bool
+    source_id: str = ""
+    source_name: str = ""
+    how: str = ""
+    supersedes: list[str] = field(default_factory=list)
+    mtime: float = 0.0
+
+    @property
+    def trial_name(self) -> str:
+        subject, condition, trial = self.trial
+        return f"{subject or '?'} {condition or '?'} trial {trial if trial is not None else '?'}"
+
+
+def describe(rec: Recording) -> Member:
+    """The identity and lineage of an open recording (any age of file)."""
+    meta = rec.metadata
+    d = meta.get("derivation") or {}
+    kind, source_id, source_name, how = RECORDING, "", "", ""
+    if d.get("kind") in DERIVED_KINDS:
+        kind = d["kind"]
+        source_id, source_name, how = (
+            str(d.get("source_id") or ""),
+            str(d.get("source_name") or ""),
+            str(d.get("how") or ""),
+        )
+    elif "corrections" in meta:
+        kind, source_name = CORRECTED, str(meta["corrections"].get("source") or "")
+        how = "label corrections"
+    elif "recovery" in meta:
+        kind, source_name = RECOVERED, str(meta["recovery"].get("source") or "")
+        how = "recovered"
+    elif meta.get("software", {}).get("replay_of"):
+        kind, source_name = REPLAY, str(meta["software"]["replay_of"])
+        how = f"replay with model {str(meta['software'].get('model_hash', ''))[:12] or '?'}"
+    else:
+        for pattern, named in _DERIVED_NAMES:
+            m = pattern.match(rec.path.name)
+            if m:
+                kind, source_name, how = named, m.group("source") + ".mcap", f"{named} (by name)"
+                break
+    # Only an original's "recording" id is its own: older derived files copy their source's.
+    own_id = rec.id if kind == RECORDING or d else "file:"
+    if own_id.startswith("file:"):  # no id in the file: its path stands in
+        own_id = f"file:{rec.path.resolve()}"
+    supersedes = meta.get("session", {}).get("supersedes") or []
+    try:
+        mtime = rec.path.stat().st_mtime
+    except OSError:
+        mtime = 0.0
+    return Member(
+        path=rec.path,
+        id=own_id,
+        kind=kind,
+        trial=rec.trial,
+        complete=rec.complete,
+        source_id=source_id,
+        source_name=source_name,
+        how=how,
+        supersedes=list(supersedes) if isinstance(supersedes, list) else [],
+        mtime=mtime,
+    )
+
+
+@dataclass
+class Corpus:
+    chosen: list[Member]  # one per trial, in path order
+    left_out: list[tuple[Path, str]]  # (file, why)
+    notes: list[str] = field(default_factory=list)  # things worth saying, not errors
+
+    @property
+    def files(self) -> list[Path]:
+        return [m.path for m in self.chosen]
+
+    def report_lines(self) -> list[str]:
+        """What a corpus command prints (to stderr) about the files it did not count."""
+        lines = []
+        if self.left_out:
+            lines.append(f"{len(self.chosen)} trial(s); left out {len(self.left_out)} file(s):")
+            lines += [f"  {path}: {why}" for path, why in self.left_out]
+        lines += self.notes
+        return lines
+
+
+def recording_files(paths: Iterable[str | os.PathLike]) -> list[Path]:
+    """The .mcap files given, and those in the given folders (and their subfolders)."""
+    out: list[Path] = []
+    for p in map(Path, paths):
+        if p.is_dir():
+            found = sorted(
+                f
+                for f in p.rglob("*.mcap")
+                if f.is_file() and not f.name.startswith(".")  # ".NAME.partial": in progress
+            )
+            if not found:
+                raise CaptureError(f"{p}: no .mcap recordings in this folder")
+            out += found
+        elif p.exists():
+            out.append(p)
+        else:
+            raise CaptureError(f"{p}: no such file or folder")
+    return list(dict.fromkeys(out))
+
+
+def select(
+    paths: Iterable[str | os.PathLike],
+    *,
+    replays: bool = False,
+    progress: Callable[[Iterable], Iterable] | None = None,
+) -> Corpus:
+    """One file per trial from `paths` (files and folders), and what was left out, why."""
+    files = recording_files(paths)
+    left: list[tuple[Path, str]] = []
+    members: list[Member] = []
+    for f in progress(files) if progress is not None else files:
+        try:
+            members.append(describe(open_recording(f)))
+        except CaptureError as e:
+            left.append((f, f"unreadable: {e}"))
+    by_id = {m.id: m for m in members}
+    by_name: dict[str, list[Member]] = {}
+    for m in members:
+        by_name.setdefault(m.path.name, []).append(m)
+
+    def source_of(m: Member) -> Member | None:
+        if m.kind == RECORDING:
+            return None
+        if m.source_id and m.source_id in by_id:
+            return by_id[m.source_id]
+        named = by_name.get(m.source_name, [])
+        same_folder = [n for n in named if n.path.parent == m.path.parent]
+        found = (same_folder or named or [None])[0]
+        return found if found is not m else None
+
+    def root_of(m: Member) -> tuple[str, Member | None]:
+        seen = {m.id}
+        while True:
+            s = source_of(m)
+            if s is None or s.id in seen:
+                break
+            seen.add(s.id)
+            m = s
+        if m.kind == RECORDING:
+            return m.id, m
+        return f"missing:{m.source_id or m.source_name}", None  # its source is not here
+
+    groups: dict[str, list[Member]] = {}
+    root_ids: dict[int, str] = {}  # member (by object) -> its trial's original id
+    for m in members:
+        key, root = root_of(m)
+        groups.setdefault(key, []).append(m)
+        root_ids[id(m)] = key
+    chosen: list[Member] = []
+    for key, group in groups.items():
+        original = by_id.get(key)
+        pick, why = _pick(group, original if original in group else None, replays)
+        if pick is not None:
+            chosen.append(pick)
+        left += [
+            (m.path, why.get(id(m), "another file of the same trial"))
+            for m in group
+            if m is not pick
+        ]
+    superseded = {i: m for m in chosen for i in m.supersedes}
+    kept = []
+    for m in chosen:
+        by = superseded.get(root_ids[id(m)])
+        if by is not None and by is not m:
+            left.append((m.path, f"superseded by {by.path.name} (recorded again with --overwrite)"))
+        else:
+            kept.append(m)
+    notes = []
+    by_trial: dict[tuple, list[Member]] = {}
+    for m in kept:
+        if m.trial[0] and m.trial[2] is not None:
+            by_trial.setdefault(m.trial, []).append(m)
+    for same in by_trial.values():
+        if len(same) > 1:
+            names = ", ".join(m.path.name for m in same)
+            notes.append(
+                f"note: {same[0].trial_name} has {len(same)} separate recordings ({names}): "
+                "each is counted"
+            )
+    kept.sort(key=lambda m: str(m.path))
+    left.sort(key=lambda x: str(x[0]))
+    return Corpus(kept, left, notes)
+
+
+def _newest(members: list[Member]) -> Member:
+    return max(members, key=lambda m: (m.mtime, str(m.path)))
+
+
+def _pick(
+    group: list[Member], original: Member | None, replays: bool
+) -> tuple[Member | None, dict[int, str]]:
+    """The file that stands for one trial, and why each other file of it is left out."""
+    why: dict[int, str] = {}  # by member object
+    by_kind: dict[str, list[Member]] = {}
+    for m in group:
+        by_kind.setdefault(m.kind, []).append(m)
+    replay_list = by_kind.get(REPLAY, [])
+    if replays:
+        if not replay_list:
+            for m in group:
+                why[id(m)] = "no replay of this trial (replays were asked for)"
+            return None, why
+        pick = _newest(replay_list)
+        for m in group:
+            why[id(m)] = (
+                f"an older replay of the same trial ({pick.path.name} is newer)"
+                if m.kind == REPLAY
+                else f"replay {pick.path.name} stands for this trial"
+            )
+        return pick, why
+    name = (original.path.name if original is not None else None) or "its source"
+    for m in replay_list:
+        why[id(m)] = (
+            f"replay of {m.source_name or name} ({m.how or 'another model'}): another model's "
+            "output on the same trial (--replays takes replays instead)"
+        )
+    corrected = by_kind.get(CORRECTED, [])
+    recovered = by_kind.get(RECOVERED, [])
+    if corrected:
+        pick = _newest(corrected)
+        for m in corrected:
+            if m is not pick:
+                why[id(m)] = f"an older copy with corrected labels ({pick.path.name} is newer)"
+        for m in [*recovered, *([original] if original else [])]:
+            why[id(m)] = f"its labels are corrected in {pick.path.name}"
+        return pick, why
+    if recovered and (original is None or not original.complete):
+        pick = _newest(recovered)
+        for m in recovered:
+            if m is not pick:
+                why[id(m)] = f"another recovered copy ({pick.path.name} is newer)"
+        if original is not None:
+            why[id(original)] = f"unfinished; the recovered copy {pick.path.name} stands for it"
+        return pick, why
+    for m in recovered:
+        why[id(m)] = f"a recovered copy of {name}, which is finished"
+    return original, why
+
+
+# ---- trial numbers -------------------------------------------------------------------
+
+
+def trial_files(folder: str | os.PathLike, subject: str, condition: str) -> dict[int, list[Path]]:
+    """The trial numbers of `subject` and `condition` that have files in `folder`, from the
+    file names walkcap gives recordings (SUBJECT_CONDITION_tNN_...)."""
+    pattern = re.compile(rf"^{re.escape(subject)}_{re.escape(condition)}_t(\d+)[_.]")
+    out: dict[int, list[Path]] = {}
+    folder = Path(folder)
+    if not folder.is_dir():
+        return out
+    for f in sorted(folder.glob("*.mcap")):
+        m = pattern.match(f.name)
+        if m and not f.name.startswith("."):
+            out.setdefault(int(m.group(1)), []).append(f)
+    return out
+
+
+def next_free_trial(taken: Iterable[int], start: int = 1) -> int:
+    taken = set(taken)
+    n = max(1, start)
+    while n in taken:
+        n += 1
+    return n
+
+
+# What to do when a new recording's trial has files already (Session.start_recording).
+NEXT_TRIAL, TRIAL_ERROR, OVERWRITE = "next", "error", "overwrite"
+
+
+def trial_conflict(
+    folder: str | os.PathLike, subject: str, condition: str, trial: int, existing: str
+) -> tuple[int, list[str], str]:
+    """(trial number to record, ids it supersedes, what to tell the operator) for a new
+    recording of `trial`; CaptureError when it exists and `existing` is TRIAL_ERROR."""
+    files = trial_files(folder, subject, condition)
+    same = files.get(trial)
+    if not same:
+        return trial, [], ""
+    names = ", ".join(f.name for f in same)
+    free = next_free_trial(files, trial)
+    if existing == NEXT_TRIAL:
+        return (
+            free,
+            [],
+            f"{subject} {condition} trial {trial} exists ({names}): recording trial {free}",
+        )
+    if existing == OVERWRITE:
+        ids = []
+        for f in same:
+            try:
+                member = describe(open_recording(f))
+            except CaptureError:
+                continue
+            if member.kind == RECORDING:
+                ids.append(member.id)
+        return (
+            trial,
+            ids,
+            f"recording {subject} {condition} trial {trial} again: the new file supersedes "
+            f"{names} (kept on disk, left out of corpora)",
+        )
+    raise CaptureError(
+        f"{subject} {condition} trial {trial} exists in {Path(folder)} ({names}); "
+        f"--overwrite records it again (the earlier file stays on disk, left out of "
+        f"corpora), or leave --trial out for the next free number ({free})"
+    )
