@@ -67,10 +67,12 @@ def _ray():
 
 
 @contextmanager
-def connect(address: str, num_cpus: int | None = None) -> Iterator[dict]:
+def connect(address: str, num_cpus: int | None = None, worker_logs: bool = True) -> Iterator[dict]:
     """Ray connected for the block: a local cluster started on this machine (`local`,
     `num_cpus` cores, default all) or a running cluster joined at `address`. Yields the
-    cluster's resources. Already connected (a test's cluster), the connection is kept."""
+    cluster's resources. Already connected (a test's cluster), the connection is kept.
+    `worker_logs`: the workers' log lines shown here (training leaves them out: Ray
+    Train's own actors log their every retry)."""
     ray = _ray()
     if ray.is_initialized():
         yield ray.cluster_resources()
@@ -79,8 +81,8 @@ def connect(address: str, num_cpus: int | None = None) -> Iterator[dict]:
         "logging_level": logging.ERROR,
         "include_dashboard": False,
         "configure_logging": True,
-        # worker modules' own warnings (a damaged chunk, a skipped frame) still reach stderr
-        "log_to_driver": True,
+        # the tasks' own warnings (a damaged chunk, a skipped frame) reach stderr
+        "log_to_driver": worker_logs,
     }
     try:
         if address == LOCAL:
@@ -220,9 +222,8 @@ def train(
     """inference.training.train over `workers` DDP processes (Ray Train's TorchTrainer,
     gloo): every worker reads the sessions from `files`, the batches and the validation
     are split between them. Returns rank 0's TrainResult; a bar over epochs here."""
+    import shutil
     import tempfile
-
-    from tqdm import tqdm
 
     ray = _ray()
     try:
@@ -232,6 +233,8 @@ def train(
         raise ClusterError(INSTALL_HINT) from None
 
     sink = ray.remote(num_cpus=0)(_Sink).remote()
+    # Ray Train's run state; nothing in it is kept (the result comes back by `sink`)
+    storage = tempfile.mkdtemp(prefix="walkcap-ray-train-")
     trainer = TorchTrainer(
         _train_worker,
         train_loop_config={
@@ -245,7 +248,7 @@ def train(
         ),
         run_config=RunConfig(
             name="walkcap-train",
-            storage_path=tempfile.mkdtemp(prefix="walkcap-ray-train-"),
+            storage_path=storage,
         ),
     )
     outcome: dict = {}
@@ -258,19 +261,11 @@ def train(
 
     thread = threading.Thread(target=fit, name="walkcap-train-fit", daemon=True)
     thread.start()
-    with tqdm(
-        total=settings.epochs, desc="train (cluster)", unit="epoch", disable=not show_progress
-    ) as bar:
-        while True:
-            finished = not thread.is_alive()
-            for entry in ray.get(sink.epochs.remote()):
-                bar.update(1)
-                bar.set_postfix(
-                    loss=f"{entry['train_loss']:.3f}", val_acc=f"{entry['val_accuracy']:.3f}"
-                )
-            if finished:
-                break
-            time.sleep(0.5)
+    try:
+        _follow(ray, sink, thread, settings.epochs, show_progress)
+        thread.join()
+    finally:  # interrupted, the cluster's end (connect) stops the workers
+        shutil.rmtree(storage, ignore_errors=True)
     if "error" in outcome:
         raise ClusterError(f"training on the cluster failed: {describe(outcome['error'])}")
     result = ray.get(sink.result.remote())
@@ -279,6 +274,23 @@ def train(
     if isinstance(result, BaseException):
         raise result
     return result
+
+
+def _follow(ray, sink, thread: threading.Thread, epochs: int, show_progress: bool) -> None:
+    """A bar over epochs from rank 0's figures, until the training thread ends."""
+    from tqdm import tqdm
+
+    with tqdm(total=epochs, desc="train (cluster)", unit="epoch", disable=not show_progress) as bar:
+        while True:
+            finished = not thread.is_alive()
+            for entry in ray.get(sink.epochs.remote()):
+                bar.update(1)
+                bar.set_postfix(
+                    loss=f"{entry['train_loss']:.3f}", val_acc=f"{entry['val_accuracy']:.3f}"
+                )
+            if finished:
+                return
+            time.sleep(0.5)
 
 
 class _Sink:

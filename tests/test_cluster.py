@@ -176,7 +176,7 @@ def test_train_on_the_cluster_with_ddp(tmp_path, capsys):
         "--epochs",
         "2",
         "--samples-per-epoch",
-        "128",
+        "96",
         "--batch-size",
         "32",
         "--quiet",
@@ -193,6 +193,5 @@ def test_train_on_the_cluster_with_ddp(tmp_path, capsys):
     meta = json.loads(out.with_suffix(".json").read_text())
     history = meta["training"]["history"]
     assert len(history) == 2
-    # each worker drew 64 of the 128 frames; the tallies are the sum of both
-    assert all(0 <= h["val_accuracy"] <= 1 for h in history)
+    assert all(0 <= h["val_accuracy"] <= 1 and h["train_loss"] > 0 for h in history)
     assert "test sessions" in text

@@ -268,7 +268,7 @@ def _preprocess_params(sessions) -> dict | None:
 def _train_on_cluster(args, settings, files, quiet: bool):
     from capture import cluster
 
-    with cluster.connect(args.cluster) as resources:
+    with cluster.connect(args.cluster, worker_logs=False) as resources:
         workers = cluster.training_workers(
             settings.batch_size, resources.get("CPU", 1), args.workers or 0
         )
