@@ -30,11 +30,22 @@ def add_arguments(parser) -> None:
     )
 
 
+def _env() -> dict:
+    """This environment, with the walkcap this process runs first on the path."""
+    root = str(Path(__file__).resolve().parents[2])
+    path = os.environ.get("PYTHONPATH", "")
+    return {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (root, path) if p)}
+
+
 def _walkcap(*argv: str) -> float:
     """Seconds that `walkcap argv` takes, as its own process; its errors are ours."""
     t = time.perf_counter()
     done = subprocess.run(
-        [sys.executable, "-m", "tui.cli", *argv], capture_output=True, text=True, check=False
+        [sys.executable, "-m", "tui.cli", *argv],
+        capture_output=True,
+        text=True,
+        check=False,
+        env=_env(),
     )
     seconds = time.perf_counter() - t
     if done.returncode != 0:
@@ -60,7 +71,7 @@ def _startup(address: str) -> dict:
         "print(json.dumps({'connect_s': up, 'workers_s': warm, 'total_s':"
         " time.perf_counter() - t}))\n"
     )
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=_env())
     if done.returncode != 0:
         from capture.errors import CaptureError
 
