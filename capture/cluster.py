@@ -95,14 +95,37 @@ def connect(address: str, num_cpus: int | None = None, worker_logs: bool = True)
                 os.environ["PYTHONPATH"] = os.pathsep.join(p for p in (root, path) if p)
             ray.init(num_cpus=num_cpus or os.cpu_count() or 1, **options)
         else:
+            _reachable(address)
             ray.init(address=address, **options)
     except (ConnectionError, ValueError, RuntimeError) as e:
         first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-        raise ClusterError(f"cannot join the Ray cluster at {address}: {first}") from None
+        hint = (
+            ""
+            if address == LOCAL
+            else (" (a cluster with token authentication needs RAY_AUTH_MODE=token here too)")
+        )
+        raise ClusterError(f"cannot join the Ray cluster at {address}: {first}{hint}") from None
     try:
         yield ray.cluster_resources()
     finally:
         ray.shutdown()
+
+
+def _reachable(address: str, timeout_s: float = 3.0) -> None:
+    """A head node's host:port answers, or one line now (Ray itself would retry for
+    minutes, logging each attempt)."""
+    import socket
+
+    host, sep, port = address.rpartition(":")
+    if not sep or not port.isdigit() or "://" in host:
+        return  # "auto", ray:// client addresses: Ray's own rules
+    try:
+        socket.create_connection((host or "127.0.0.1", int(port)), timeout=timeout_s).close()
+    except OSError as e:
+        raise ClusterError(
+            f"no Ray cluster answers at {address} ({e.strerror or e}); start one with "
+            "`ray start --head` on the head node and give the address it prints"
+        ) from None
 
 
 def run(

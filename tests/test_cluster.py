@@ -195,3 +195,13 @@ def test_train_on_the_cluster_with_ddp(tmp_path, capsys):
     assert len(history) == 2
     assert all(0 <= h["val_accuracy"] <= 1 and h["train_loss"] > 0 for h in history)
     assert "test sessions" in text
+
+
+def test_an_address_where_no_cluster_answers_is_one_line(capsys):
+    import socket
+
+    with socket.socket() as free:  # a port nobody listens on
+        free.bind(("127.0.0.1", 0))
+        port = free.getsockname()[1]
+    with pytest.raises(cluster.ClusterError, match="no Ray cluster answers at 127.0.0.1"):
+        cluster._reachable(f"127.0.0.1:{port}")
