@@ -86,14 +86,14 @@ def connect(address: str, num_cpus: int | None = None, worker_logs: bool = True)
     }
     try:
         if address == LOCAL:
-            # a new cluster, never one that RAY_ADDRESS names; its workers import the
-            # walkcap this process runs (they inherit the environment)
-            os.environ.pop("RAY_ADDRESS", None)
+            # address "local": a new cluster, never one that RAY_ADDRESS or `ray start`
+            # names. Its workers import the walkcap this process runs (they inherit the
+            # environment).
             root = str(Path(__file__).resolve().parent.parent)
             path = os.environ.get("PYTHONPATH", "")
             if root not in path.split(os.pathsep):
                 os.environ["PYTHONPATH"] = os.pathsep.join(p for p in (root, path) if p)
-            ray.init(num_cpus=num_cpus or os.cpu_count() or 1, **options)
+            ray.init(address="local", num_cpus=num_cpus or os.cpu_count() or 1, **options)
         else:
             _reachable(address)
             ray.init(address=address, **options)
