@@ -93,7 +93,14 @@ def connect(address: str, num_cpus: int | None = None, worker_logs: bool = True)
             path = os.environ.get("PYTHONPATH", "")
             if root not in path.split(os.pathsep):
                 os.environ["PYTHONPATH"] = os.pathsep.join(p for p in (root, path) if p)
-            ray.init(address="local", num_cpus=num_cpus or os.cpu_count() or 1, **options)
+            ray.init(
+                address="local",
+                num_cpus=num_cpus or os.cpu_count() or 1,
+                # Ray runs its workers at nice 15; here they are this command's own work,
+                # not to lose every core to whatever else runs on the machine
+                _system_config={"worker_niceness": 0},
+                **options,
+            )
         else:
             _reachable(address)
             ray.init(address=address, **options)
