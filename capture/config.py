@@ -1,8 +1,10 @@
 """walkcap configuration: one TOML file, defaults that run out of the box, flags on top.
 
 Where it is read from: `--config PATH`, else `$WALKCAP_CONFIG`, else `./walkcap.toml` when
-it exists, else the defaults. An unknown key or a value of the wrong type is a
-ConfigError naming the key (`camera.fps: expected a number, got "fast"`).
+it exists, else the defaults. An unknown key, a value of the wrong type or out of its range
+is a ConfigError naming the key (`camera.fps: expected a number, got "fast"`; `camera.fps
+= 0.0: expected a frame rate 0 < fps <= 45 (the pico flexx's modes)`), before any device
+opens. Ranges are each section's `problems()`.
 Each package owns its sections (devices.config, inference.config, the session's and the
 keys' here); `Config` composes them. A section extends by adding a field to its dataclass:
 the loader validates by type.
@@ -35,6 +37,12 @@ class SessionConfig:
     # The pipeline thread's SCHED_FIFO priority (1-99; 0: normal scheduling), where the
     # system allows it (root, CAP_SYS_NICE or an rtprio limit); otherwise it runs normally.
     realtime_priority: int = 10
+
+    def problems(self) -> list[tuple[str, str]]:
+        out = [] if self.recordings else [("recordings", "a folder name")]
+        if not 0 <= self.realtime_priority <= 99:
+            out.append(("realtime_priority", "0 (normal scheduling) to 99"))
+        return out
 
 
 @dataclass
@@ -172,7 +180,22 @@ def _build(cls: type, table: dict, prefix: str = "") -> Any:
             known = ", ".join(sorted(n for n in names if n != "source"))
             raise ConfigError(f"unknown key {full!r} (known here: {known})")
         kwargs[key] = _convert(value, hints[key], full)
-    return cls(**kwargs)
+    built = cls(**kwargs)
+    check_range(built, prefix)
+    return built
+
+
+def check_range(section: Any, name: str, flag: str = "") -> None:
+    """ConfigError for the section's first key out of range, naming it (and the flag that
+    set it) with the valid range."""
+    problems = section.problems() if hasattr(section, "problems") else []
+    if not problems:
+        return
+    key, valid = problems[0]
+    value = getattr(section, key)
+    shown = "a ragged or invalid matrix" if key == "transition" else repr(value)
+    where = f"{flag} ({name}.{key})" if flag else f"{name}.{key}"
+    raise ConfigError(f"{where} = {shown}: expected {valid}")
 
 
 def from_dict(table: dict) -> Config:
@@ -207,6 +230,10 @@ def load(path: str | os.PathLike | None = None) -> Config:
         raise ConfigError(f"configuration file not found: {found}") from None
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{found}: not valid TOML: {e}") from None
+    except UnicodeDecodeError as e:  # TOML is UTF-8: a UTF-16 or Latin-1 file stops here
+        raise ConfigError(
+            f"{found}: not UTF-8 text (byte {e.start}); save it as UTF-8 without a BOM"
+        ) from None
     except OSError as e:
         raise ConfigError(f"cannot read configuration {found}: {e.strerror}") from None
     try:
@@ -217,14 +244,21 @@ def load(path: str | os.PathLike | None = None) -> Config:
     return config
 
 
-def override(config: Config, dotted: str, value: Any) -> None:
-    """Set `section.key` from a command-line flag, with the same type checks."""
+def override(config: Config, dotted: str, value: Any, flag: str = "") -> None:
+    """Set `section.key` from a command-line flag, with the same type and range checks;
+    the section is left as it was when the value is refused."""
     section_name, _, key = dotted.partition(".")
     section = getattr(config, section_name)
     hints = typing.get_type_hints(type(section))
     if key not in hints:
         raise ConfigError(f"unknown key {dotted!r}")
-    setattr(section, key, _convert(value, hints[key], dotted))
+    old = getattr(section, key)
+    setattr(section, key, _convert(value, hints[key], flag or dotted))
+    try:
+        check_range(section, section_name, flag)
+    except ConfigError:
+        setattr(section, key, old)
+        raise
 
 
 def _toml_value(value: Any) -> str:

@@ -137,6 +137,19 @@ class Corpus:
     def files(self) -> list[Path]:
         return [m.path for m in self.chosen]
 
+    def nothing_left(self, what: str) -> CaptureError:
+        """The one-line error when every file was left out: why, for one file; how many and
+        the first reason, for more."""
+        if len(self.left_out) == 1:
+            path, why = self.left_out[0]
+            return CaptureError(f"{what}: {path}: {why}")
+        if self.left_out:
+            path, why = self.left_out[0]
+            return CaptureError(
+                f"{what}: all {len(self.left_out)} files were left out (first: {path}: {why})"
+            )
+        return CaptureError(f"{what}: no recordings")
+
     def report_lines(self) -> list[str]:
         """What a corpus command prints (to stderr) about the files it did not count."""
         lines = []

@@ -270,7 +270,7 @@ def corpus_tables(
         chosen = corpus_mod.select(paths, replays=replays)
         files = chosen.files
     if not files:
-        raise CaptureError("nothing to export: every file was left out")
+        raise chosen.nothing_left("nothing to export")
     parts: dict[str, list] = {name: [] for name in TABLES}
     if cluster:
         from capture import cluster as cluster_mod

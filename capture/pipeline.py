@@ -15,6 +15,7 @@ import numpy as np
 from devices.clock import now_ns
 from devices.frames import MODES, DepthFrame
 from devices.rotations import quat_multiply, quat_slerp
+from inference.errors import InferenceError
 
 # One torch thread for the per-frame CNN: the pipeline shares the cores with the devices and
 # the recorder, and torch's thread pool spinning against them costs far more than it gains.
@@ -187,6 +188,9 @@ class Pipeline:
             probabilities if probabilities is not None else self.classifier.predict(pre.image),
             dtype=np.float64,
         )
+        if probs.shape != (len(MODES),) or not np.all(np.isfinite(probs)):
+            # before the fusion: one NaN would stay in the HMM's state for good
+            raise InferenceError(f"the classifier's output is not finite: {probs.tolist()}")
         fused = self._push(frame.index, probs)
         done_ns = now_ns()  # the decision is out; features are for display and recording
         hint = (

@@ -24,6 +24,7 @@ import contextlib
 import io
 import os
 import struct
+import zlib
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -34,7 +35,7 @@ import orjson
 
 from capture import topics as T
 from capture.errors import CaptureError
-from capture.recovery import RECORD_HEAD, ScanResult, check_magic, scan
+from capture.recovery import RECORD_HEAD, Damage, ScanResult, check_magic, scan
 from devices.frames import MODES, CameraGeometry, DepthFrame, ImuSample
 
 
@@ -78,6 +79,9 @@ class Recording:
     end_ns: int | None
     _log_times: dict[str, np.ndarray] | None = field(default=None, repr=False)
     raw_metadata_records: list[tuple[str, dict[str, str]]] = field(default_factory=list)
+    # Damaged regions found while opening an unfinished file (a finished one is read
+    # through its index: `capture.recovery.check` reads and checks every chunk).
+    damaged: list[Damage] = field(default_factory=list)
 
     @property
     def duration_s(self) -> float:
@@ -186,6 +190,10 @@ def _damage_is_an_error(path: Path):
         ) from None
 
 
+def _damage_line(path: Path, what: str) -> str:
+    return f"{path}: damaged, {what}; copy what is intact with `walkcap recover`"
+
+
 def convert(topic: str, decoded: Any) -> Any:
     """A decoded message as walkcap data: images as arrays, clouds (N, 3), quaternions."""
     if topic in (T.DEPTH, T.CONFIDENCE, T.GRAY, T.BINARY_IMAGE):
@@ -232,7 +240,13 @@ def _iter_raw(path: Path, complete: bool, topics: set[str] | None):
             return
         schemas: dict[int, Schema] = {}
         channels: dict[int, Channel] = {}
-        for record in scan(f):
+        result = ScanResult()
+        origin = None
+        for record in scan(f, result):
+            if result.damaged:  # every reader stops at damage, with the same line
+                raise CaptureError(_damage_line(path, result.damaged[0].describe(origin)))
+            if isinstance(record, Message) and origin is None:
+                origin = record.log_time
             if isinstance(record, Schema):
                 schemas[record.id] = record
             elif isinstance(record, Channel):
@@ -259,12 +273,32 @@ def _iter_indexed(f, topics: set[str] | None):
     wanted = {cid for cid, c in summary.channels.items() if topics is None or c.topic in topics}
     if not wanted:
         return
+    stats = summary.statistics
+    origin = stats.message_start_time if stats is not None and stats.message_count else None
     for index in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
         if index.message_index_offsets and wanted.isdisjoint(index.message_index_offsets):
             continue
-        for cid, sequence, log_time, publish_time, data in _chunk_messages(
-            f, index.chunk_start_offset, index.chunk_length, wanted
-        ):
+        try:
+            messages = list(
+                _chunk_messages(f, index.chunk_start_offset, index.chunk_length, wanted)
+            )
+        except Exception as e:  # CRC, zstd or a record running past the chunk's end
+            damage = Damage(
+                index.chunk_start_offset,
+                index.chunk_length,
+                str(e) or type(e).__name__,
+                index.message_start_time,
+                index.message_end_time,
+                tuple(
+                    sorted(
+                        summary.channels[c].topic
+                        for c in index.message_index_offsets
+                        if c in summary.channels
+                    )
+                ),
+            )
+            raise CaptureError(_damage_line(Path(f.name), damage.describe(origin))) from None
+        for cid, sequence, log_time, publish_time, data in messages:
             channel = summary.channels[cid]
             yield (
                 summary.schemas.get(channel.schema_id),
@@ -307,6 +341,8 @@ def _chunk_messages(f, offset: int, length: int, wanted: set[int]):
         raise ValueError(
             f"chunk at byte {offset}: {len(records)} bytes, not {chunk.uncompressed_size}"
         )
+    if chunk.uncompressed_crc and zlib.crc32(records) != chunk.uncompressed_crc:
+        raise ValueError("chunk CRC mismatch")
     at, end = 0, len(records)
     while at < end:
         opcode, body_length = RECORD_HEAD.unpack_from(records, at)
@@ -409,6 +445,8 @@ def _open_unfinished(p: Path, size: int) -> Recording:
                 attachments[record.name] = record.data
             elif isinstance(record, Header):
                 library = record.library
+    if result.records == 0 and result.reason.startswith(("unreadable", "damaged")):
+        raise CaptureError(f"{p}: no MCAP record can be read after the magic ({result.reason})")
     topics, log_times = {}, {}
     for cid, channel in channels.items():
         schema = schemas.get(channel.schema_id)
@@ -437,6 +475,7 @@ def _open_unfinished(p: Path, size: int) -> Recording:
         max(every) if every else None,
         log_times,
         raw,
+        result.damaged,
     )
 
 

@@ -1,7 +1,8 @@
 """A data-collection session: devices in; pipeline, recording and UI snapshots out.
 
-Threads: one reads the IMU into the orientation track (and the recorder); one takes
-camera frames through the pipeline; the recorder writes on its own thread. Nothing here
+Threads: one reads the IMU into the orientation track (and the recorder); one reads camera
+frames, records each at once (raw data and labels first, whatever the pipeline does) and
+hands the newest to the pipeline thread; the recorder writes on its own thread. Nothing here
 waits on the UI or the disk: the UI pulls `snapshot()` at its own pace and sends commands
 (`set_label`, `add_marker`, `start_recording`, ...) that only touch memory and queues.
 """
@@ -34,12 +35,13 @@ from capture.pipeline import (
     OrientationTrack,
     Pipeline,
     model_hash,
-    record_result,
+    record_decisions,
 )
 from devices.base import DeviceEvent, DeviceState, DeviceStatus
 from devices.clock import now_ns
 from devices.frames import MODES, DepthFrame
 from devices.scheduling import NORMAL_PRIORITY, realtime_priority
+from inference.errors import InferenceError
 
 log = logging.getLogger(__name__)
 
@@ -204,6 +206,79 @@ def close_devices(*devices) -> None:
                 log.warning("%s %s: %s", step, type(device).__name__, e)
 
 
+class _FrameInbox:
+    """The camera thread's hand-over to the pipeline thread: (frame, recorder) items, up to
+    `size` (a hiccup of the pipeline is caught up, as the camera's buffer did). Full in real
+    time, the oldest item goes unclassified (it is already recorded); `blocking`, the camera
+    thread waits for the pipeline instead."""
+
+    def __init__(self, size: int = 8) -> None:
+        self._items: collections.deque[tuple] = collections.deque()
+        self.size = max(1, size)
+        self._closed = False
+        self.blocking = False
+        self._cond = threading.Condition()
+
+    def put(self, item: tuple) -> tuple | None:
+        """Hand `item` over; the oldest one it pushed out, if any."""
+        with self._cond:
+            while self.blocking and len(self._items) >= self.size and not self._closed:
+                self._cond.wait(0.1)
+            dropped = self._items.popleft() if len(self._items) >= self.size else None
+            self._items.append(item)
+            self._cond.notify_all()
+            return dropped
+
+    def take(self, timeout_s: float) -> tuple | None:
+        with self._cond:
+            if not self._items and timeout_s > 0:
+                self._cond.wait(timeout_s)
+            item = self._items.popleft() if self._items else None
+            self._cond.notify_all()
+            return item
+
+    def close(self) -> None:
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+
+
+class _Streak:
+    """A run of frames that failed the same way, as two events: when it starts, and when
+    it ends (`settle` frames in a row go through again, or the trial stops) with how many
+    frames it cost. A flaky classifier is one run, not an event per frame."""
+
+    def __init__(self, device: str, kind: str, why: str, settle: int = 30) -> None:
+        self.device, self.kind, self.why = device, kind, why
+        self.settle = settle
+        self.count = 0
+        self.first = ""
+        self._good = 0
+        self._lock = threading.Lock()
+
+    def fail(self, t_ns: int, message: str) -> DeviceEvent | None:
+        with self._lock:
+            self._good = 0
+            self.count += 1
+            if self.count > 1:
+                return None
+            self.first = message
+        text = f"{message} ({self.why}; frames not classified from here on are counted)"
+        return DeviceEvent(t_ns, self.device, self.kind, text, {"count": 1})
+
+    def ok(self, t_ns: int, final: bool = False) -> DeviceEvent | None:
+        with self._lock:
+            n, first = self.count, self.first
+            if n == 0:
+                return None
+            self._good += 1
+            if self._good < self.settle and not final:
+                return None
+            self.count = self._good = 0
+        text = f"{n} frames not classified: {self.why} (first: {first})"
+        return DeviceEvent(t_ns, self.device, self.kind, text, {"count": n})
+
+
 class Session:
     """Open devices, run the pipeline, record trials, serve snapshots and commands."""
 
@@ -239,6 +314,9 @@ class Session:
         self._sync_errors: collections.deque[float] = collections.deque(maxlen=5000)
         self._frames = 0
         self._last_truth_mode: str | None = None
+        self._inbox = _FrameInbox()
+        self._failures = _Streak("pipeline", "error", "the pipeline failed on it")
+        self._behind = _Streak("pipeline", "behind", "the pipeline fell behind")
         self.pipeline: Pipeline | None = None
         self.pipeline_priority = NORMAL_PRIORITY  # how the pipeline thread is scheduled
         self.model_metadata: dict = {}
@@ -273,8 +351,11 @@ class Session:
         self.pipeline = Pipeline(PreprocessParams.from_config(cfg), self._classifier, fusion)
         # First calls are slow (torch's lazy set-up, numpy caches, the recorder's schema
         # modules): pay for them before the camera runs, not in the first frames of a trial.
-        for _ in range(3):
-            self._classifier.predict(np.zeros((100, 100), np.uint8))
+        try:
+            for _ in range(3):
+                self._classifier.predict(np.zeros((100, 100), np.uint8))
+        except Exception as e:  # refused before any device opens, as a model file is
+            raise InferenceError(f"the classifier fails on a blank image: {e}") from None
         import capture.recorder  # noqa: F401  (mcap, protobuf: a second of imports)
 
         # The pipeline thread gives the GIL up hundreds of times a frame (numpy, torch) and
@@ -296,8 +377,13 @@ class Session:
         except BaseException:
             close_devices(self._camera, self._imu)
             raise
+        # As fast as the pipeline runs (a mock camera not in real time): every frame waits
+        # for its classification; in real time the pipeline takes the newest frame.
+        self._inbox.blocking = cfg.camera.backend == "mock" and not cfg.simulator.realtime
+        self._inbox.size = cfg.camera.buffer_frames
         self._spawn(self._imu_loop, "imu")
-        pipeline = self._spawn(self._frame_loop, "pipeline")
+        self._spawn(self._frame_loop, "camera")
+        pipeline = self._spawn(self._pipeline_loop, "pipeline")
         self.pipeline_priority = realtime_priority(
             pipeline.native_id, cfg.session.realtime_priority
         )
@@ -312,6 +398,7 @@ class Session:
     def stop(self):
         """Stop the threads and devices; finalise a recording in progress. Idempotent."""
         self._stop.set()
+        self._inbox.close()
         for t in self._threads:
             t.join(timeout=3.0)
         self._threads.clear()
@@ -345,17 +432,32 @@ class Session:
                 out.write_imu(sample)
 
     def _frame_loop(self) -> None:
+        """Camera frames in: each recorded at once, then handed to the pipeline thread."""
         while not self._stop.is_set():
             frame = self._camera.recv(0.1)
             if frame is None:
                 if self._camera_finished():
                     self.finished.set()
                 continue
-            try:
-                self.process_frame(frame)
-            except Exception as e:  # one bad frame must not end the session
-                log.exception("frame %d", frame.index)
-                self._event(DeviceEvent(now_ns(), "pipeline", "error", f"frame {frame.index}: {e}"))
+            recorder = self.record_frame(frame)
+            skipped = self._inbox.put((frame, recorder))
+            t = frame.device_time_ns
+            if skipped is not None:
+                self._report(self._behind.fail(t, f"frame {skipped[0].index}"))
+            else:
+                self._report(self._behind.ok(t))
+
+    def _pipeline_loop(self) -> None:
+        # On stop, the frames the camera thread handed over last are classified too, so
+        # that a trial's last recorded frames have their decisions like the others.
+        camera = next(t for t in self._threads if t.name == "walkcap-camera")
+        while not (self._stop.is_set() and not camera.is_alive()):
+            item = self._inbox.take(0.1)
+            if item is not None:
+                self.classify_frame(*item)
+        deadline = now_ns() + 1_000_000_000  # a slow classifier must not hold the stop up
+        while now_ns() < deadline and (item := self._inbox.take(0.0)) is not None:
+            self.classify_frame(*item)
 
     def _camera_finished(self) -> bool:
         status = self._camera.status()
@@ -397,19 +499,76 @@ class Session:
 
     # ---- per frame --------------------------------------------------------------------
 
-    def process_frame(self, frame: DepthFrame) -> FrameResult:
+    def process_frame(self, frame: DepthFrame) -> FrameResult | None:
+        """One frame, start to end: recorded, then classified (None when that fails)."""
+        return self.classify_frame(frame, self.record_frame(frame))
+
+    def record_frame(self, frame: DepthFrame):
+        """The raw frame, its truth and an automatic label: written before any processing.
+        Returns the recorder it went to (None between trials)."""
         t = frame.device_time_ns
-        quaternion, _ = self.track.at(t)  # interpolated, or carried on by the rate of turn
-        result = self.pipeline.process(frame, quaternion, t)
         truth_mode = frame.truth.get("mode") if frame.truth else None
         if self.auto_label and truth_mode and truth_mode != self._last_truth_mode:
             self.set_label(truth_mode, source="simulator", time_ns=t)
         self._last_truth_mode = truth_mode
         self.alarms.sample("camera", frame.host_time_ns)  # the recorder's log time
+        rec = self._recorder
         for out in self._outputs():
-            record_result(out, frame, result)
+            out.write_frame(frame, t)
+            if frame.truth:
+                out.write_truth(frame.index, t, frame.truth)
+        return rec
+
+    def classify_frame(self, frame: DepthFrame, recorder=None) -> FrameResult | None:
+        """Preprocess, classify, fuse; the results recorded (into `recorder`, the one the
+        raw frame went to, if it still records) and published. A failure (a classifier that
+        raises or returns NaN) is one event for a run of failed frames."""
+        t = frame.device_time_ns
+        outputs = (
+            (recorder, *self._taps)
+            if recorder is not None and recorder is self._recorder
+            else self._taps
+        )
+        quaternion, _ = self.track.at(t)  # interpolated, or carried on by the rate of turn
+        pre = None
+        try:
+            pre = self.pipeline.prepare(frame, quaternion)
+            result = self.pipeline.process(frame, quaternion, t, prepared=pre)
+        except Exception as e:  # one bad frame (or a broken model) must not end the session
+            log.debug("frame %d", frame.index, exc_info=True)
+            self._report(self._failures.fail(t, f"frame {frame.index}: {e}"), say=True)
+            if pre is not None:
+                q = (
+                    quaternion
+                    if quaternion is not None and np.all(np.isfinite(quaternion))
+                    else None
+                )
+                for out in outputs:
+                    out.write_processed(
+                        frame.index, t, frame.host_time_ns, pre.cloud, pre.image, q, pre.flag
+                    )
+            return None
+        self._report(self._failures.ok(t))
+        for out in outputs:
+            out.write_processed(
+                result.index,
+                result.time_ns,
+                result.host_time_ns,
+                result.cloud,
+                result.image,
+                result.quaternion,
+                result.flag,
+            )
+            record_decisions(out, result)
+        truth_mode = frame.truth.get("mode") if frame.truth else None
         self._publish(result, truth_mode)
         return result
+
+    def _report(self, event: DeviceEvent | None, say: bool = False) -> None:
+        if event is not None:
+            if say:  # the start of a run, once: the rest is counted in the events
+                log.warning("%s: %s", event.device, event.message)
+            self._event(event)
 
     def _publish(self, r: FrameResult, truth_mode: str | None) -> None:
         entry = TimelineEntry(r.index, r.time_ns, self._label, r.cnn_decision, truth=truth_mode)
@@ -560,6 +719,8 @@ class Session:
         return dataclasses.replace(info, trial=trial), supersedes
 
     def stop_recording(self):
+        for streak in (self._failures, self._behind):  # a run still going: its count
+            self._report(streak.ok(now_ns(), final=True))
         rec, self._recorder = self._recorder, None
         self._recording_started_ns = None
         self.alarms.end_trial()

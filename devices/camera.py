@@ -10,7 +10,9 @@
 A backend subclasses `Camera`, implements the hooks `_open`, `_start`, `_stop`, `_close`,
 and hands frames from its own thread (or the SDK's) to `_deliver`. The base class does the
 rest: a bounded buffer that drops the oldest frame when the consumer is slow (and counts
-it), the measured rate, stall detection, events, the life cycle and the context manager.
+it), the measured rate, events, the life cycle and the context manager, and a watchdog:
+a silent camera is a "stall" (and "resumed", with the gap, when frames come again); silent
+for `lost_after_s` it is "lost" and reopened (`_restart`) until frames come ("reconnected").
 Backends are named in `BACKENDS` and imported only when chosen, so a missing vendor SDK
 costs nothing until someone asks for that camera (as python-can does).
 """
@@ -85,6 +87,9 @@ class Camera:
     """Base of every depth camera backend. Thread-safe between one producer and consumers."""
 
     backend = "camera"
+    # False where something else watches for silence (the mock rig's child process, a
+    # backend with its own watcher): stalls and resumed frames are still reported.
+    watchdog = True
 
     def __init__(self, config=None, *, geometry: CameraGeometry | None = None) -> None:
         if config is None:
@@ -108,6 +113,16 @@ class Camera:
         self._reported_drops = 0
         self._drop_event_ns = 0
         self._stalled = False
+        self._watch_lock = threading.RLock()  # the watchdog's and the producer's transitions
+        self._watchdog: threading.Thread | None = None
+        self._watch_stop = threading.Event()
+        self._next_reopen_ns = 0
+        self._lost_at_ns = 0
+        self.reopens = 0
+        # After a reopen a device may number its frames from 0 again: they go on from here.
+        self._last_index = -1
+        self._index_base: int | None = None
+        self._index_shift = 0
         self.details: dict = {}  # backend facts for status(): camera name, use case, ...
 
     @classmethod
@@ -128,6 +143,13 @@ class Camera:
 
     def _close(self) -> None:
         """Release the device."""
+
+    def _restart(self) -> None:
+        """Get a silent device streaming again (raise DeviceError if it cannot be yet)."""
+        self._stop()
+        self._close()
+        self._open()
+        self._start()
 
     # ---- life cycle ---------------------------------------------------------------------
 
@@ -155,12 +177,23 @@ class Camera:
             self._running = False
             self._set_state(STOPPED, "failed to start")
             raise
+        self._watch_stop.clear()
+        if self.watchdog:
+            self._watchdog = threading.Thread(
+                target=self._watchdog_run, name="walkcap-camera-watchdog", daemon=True
+            )
+            self._watchdog.start()
 
     def stop(self) -> None:
         """Stop streaming; frames already buffered can still be received. Idempotent."""
+        self._watch_stop.set()
+        if self._watchdog is not None and self._watchdog is not threading.current_thread():
+            self._watchdog.join(timeout=5.0)
+        self._watchdog = None
         if self._running:
             self._running = False
-            self._stop()
+            with self._watch_lock:  # not while the watchdog reopens the device
+                self._stop()
         if self._state != STOPPED:
             self._set_state(STOPPED, "stopped")
 
@@ -203,15 +236,13 @@ class Camera:
 
     def status(self) -> DeviceStatus:
         t = now_ns()
+        self._check(t)
         state, message = self._state, self._message
         if state == OK:
             since = self._last_frame_ns or self._started_ns
             silent_s = (t - since) * 1e-9
             if silent_s > self._stall_after_s():
                 state, message = DEGRADED, f"no frame for {silent_s:.1f} s"
-                if not self._stalled:
-                    self._stalled = True
-                    self._event("stall", message)
         with self._lock:
             rate = self._rate.rate(t)
         return DeviceStatus(
@@ -238,13 +269,59 @@ class Camera:
     def _stall_after_s(self) -> float:
         return max(1.0, 5.0 / max(self.config.fps, 1e-3))
 
+    def _lost_after_s(self) -> float:
+        return max(self._stall_after_s(), float(getattr(self.config, "lost_after_s", 5.0)))
+
+    def _watchdog_run(self) -> None:
+        while not self._watch_stop.wait(0.1):
+            try:
+                self._check(now_ns())
+            except Exception as e:  # the watchdog must outlive an odd device
+                self._message = f"watchdog: {e}"
+
+    def _check(self, t: int) -> None:
+        """Stall, lost and reopen: from the watchdog thread (and status())."""
+        with self._watch_lock:
+            if self._state == OK and self._running:
+                since = self._last_frame_ns or self._started_ns
+                silent_s = (t - since) * 1e-9
+                if silent_s > self._stall_after_s() and not self._stalled:
+                    self._stalled = True
+                    self._event("stall", f"no frame for {silent_s:.1f} s")
+                if not self.watchdog:
+                    return
+                if silent_s > self._lost_after_s():
+                    self._fail(f"no frame for {silent_s:.1f} s")
+                    self._next_reopen_ns = t
+            if (
+                self._state == LOST
+                and self._running
+                and self.watchdog
+                and t >= self._next_reopen_ns
+            ):
+                self._next_reopen_ns = t + int(self._lost_after_s() * 1e9)
+                try:
+                    self._restart()
+                except Exception as e:  # not back yet: again after lost_after_s
+                    self._message = f"lost: {e}; retrying"
+                    return
+                self.reopens += 1
+                self._index_base, self._index_shift = self._last_index + 1, -1
+                self._message = f"lost: reopened ({self.reopens}), waiting for frames"
+
     def _deliver(self, frame: DepthFrame) -> None:
         """Hand a frame to consumers; never blocks (the oldest buffered frame is dropped)."""
+        if self._index_base is not None:
+            if self._index_shift < 0:  # the first frame since a reopen
+                self._index_shift = max(0, self._index_base - frame.index)
+            frame.index += self._index_shift
+        if self._stalled or self._state == LOST:
+            self._resumed(frame.host_time_ns)
         with self._lock:
             self._rate.tick(frame.host_time_ns)
             self._delivered += 1
             self._last_frame_ns = frame.host_time_ns
-        self._stalled = False
+            self._last_index = frame.index
         self._buffer.put(frame)
         dropped = self._buffer.dropped
         if dropped > self._reported_drops and frame.host_time_ns - self._drop_event_ns > 1e9:
@@ -256,6 +333,29 @@ class Camera:
             )
             self._reported_drops = dropped
             self._drop_event_ns = frame.host_time_ns
+
+    def _resumed(self, t: int) -> None:
+        with self._watch_lock:
+            last = self._last_frame_ns or self._started_ns
+            gap_s = (t - last) * 1e-9
+            if self._state == LOST and self._running:
+                self._set_state(OK, "streaming")
+                self._event(
+                    "reconnected",
+                    f"camera back after a gap of {gap_s:.2f} s ({self.reopens} reopens)",
+                    gap_s=gap_s,
+                    gap_start_ns=last,
+                    gap_end_ns=t,
+                )
+            elif self._stalled:
+                self._event(
+                    "resumed",
+                    f"frames again after a gap of {gap_s:.2f} s",
+                    gap_s=gap_s,
+                    gap_start_ns=last,
+                    gap_end_ns=t,
+                )
+            self._stalled = False
 
     def _event(self, kind: str, message: str, **details) -> None:
         self._events.put(DeviceEvent(now_ns(), "camera", kind, message, details))

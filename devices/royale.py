@@ -253,6 +253,7 @@ REOPEN_INTERVAL_S = 0.5
 
 class RoyaleCamera(Camera):
     backend = "royale"
+    watchdog = False  # its own watcher: unplug events, isConnected and silence
 
     def __init__(self, config=None, *, source: str | None = None) -> None:
         super().__init__(config)

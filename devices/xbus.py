@@ -176,7 +176,7 @@ class MTData2:
     # Output name -> "ENU" | "NED" | "NWU" for orientation and free acceleration outputs.
     # Shared between messages of the same layout: read it, do not modify it.
     coordinate_systems: dict[str, str] = field(default_factory=dict)
-    skipped: tuple[int, ...] = ()  # XDIs skipped: unknown identifier or unexpected size
+    skipped: tuple[int, ...] = ()  # XDIs skipped: unknown, unexpected size or a repeat
     truncated: bool = False  # a packet ran past the end of the payload
 
 
@@ -274,11 +274,16 @@ class XbusParser:
             mid = buf[i + 2]
             data = bytes(buf[start:end])
             if mid == 0x36 and decode:
-                decoded = decode_mtdata2(data)
+                try:
+                    decoded = decode_mtdata2(data)
+                except (struct.error, IndexError, TypeError, ValueError, KeyError):
+                    # A payload no layout explains: counted, its values not given.
+                    decoded = None
+                    self.malformed += 1
                 out.append(Message(mid, data, bid, decoded))
-                if decoded.skipped:
+                if decoded is not None and decoded.skipped:
                     self.unknown_ids += len(decoded.skipped)
-                if decoded.truncated:
+                if decoded is not None and decoded.truncated:
                     self.malformed += 1
             else:
                 out.append(Message(mid, data, bid))
@@ -417,7 +422,8 @@ class _Layout:
             expected += [xdi, size]
             idx += 2
             known = OUTPUTS.get(xdi & 0xFFF0)
-            if known is None or value_size(xdi) != size:
+            # A repeated output is skipped: decoding it twice would convert one value twice.
+            if known is None or value_size(xdi) != size or known[0] in names:
                 fmt.append(f"{size}x")
                 skipped.append(xdi)
                 continue

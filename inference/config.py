@@ -1,14 +1,16 @@
 """The algorithms' configuration sections: [preprocess], [model], [fusion].
 
 capture.config composes every package's sections into the one TOML file and validates
-each key by the type of its field here.
+each key by the type of its field here, then by its range (each section's `problems()`).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
-from inference.fusion import PAPER_TRANSITION  # the authors' matrix, defined once
+from devices.config import Problems, number_in, one_of
+from inference.fusion import N_MODES, PAPER_TRANSITION  # the authors' matrix, defined once
 
 
 @dataclass
@@ -23,11 +25,34 @@ class PreprocessConfig:
     max_elevation_deg: float = 30.0  # camera looking higher than this: no image
     backend: str = "numpy"  # numpy | open3d (same result; numpy is faster)
 
+    def problems(self) -> Problems:
+        out = one_of("backend", self.backend, ("numpy", "open3d"))
+        if not number_in(self.corridor_width_m, 0.0, 10.0, low_open=True):
+            out.append(("corridor_width_m", "0 < corridor_width_m <= 10"))
+        if not number_in(self.min_forward_m, 0.0, 20.0):
+            out.append(("min_forward_m", "0 to 20 m"))
+        if not number_in(self.max_forward_m, self.min_forward_m, 20.0, low_open=True):
+            out.append(("max_forward_m", "min_forward_m < max_forward_m <= 20 m"))
+        if not 1 <= self.grid_size <= 2000:
+            out.append(("grid_size", "1 to 2000 cells"))
+        if not number_in(self.cell_m, 0.0, 1.0, low_open=True):
+            out.append(("cell_m", "0 < cell_m <= 1 m"))
+        if not 0 <= self.min_confidence <= 255:
+            out.append(("min_confidence", "0 to 255"))
+        if not 0 <= self.outlier_min_points <= 9:
+            out.append(("outlier_min_points", "0 (off) to 9 points of a 3 x 3 neighbourhood"))
+        if not number_in(self.max_elevation_deg, 0.0, 90.0):
+            out.append(("max_elevation_deg", "0 to 90 degrees"))
+        return out
+
 
 @dataclass
 class ModelConfig:
     path: str = ""  # empty: the bundled model
     device: str = "auto"  # auto | cpu | cuda
+
+    def problems(self) -> Problems:
+        return one_of("device", self.device, ("auto", "cpu", "cuda"))
 
 
 @dataclass
@@ -35,6 +60,25 @@ class FusionConfig:
     window: int = 5  # l_w, smoothing window (frames)
     vote_delay: int = 1  # l_v, voting half-window (frames)
     transition: list[list[float]] = field(default_factory=lambda: PAPER_TRANSITION.tolist())
+
+    def problems(self) -> Problems:
+        out = []
+        if not 1 <= self.window <= 1000:
+            out.append(("window", "1 to 1000 frames"))
+        if not 0 <= self.vote_delay <= 1000:
+            out.append(("vote_delay", "0 to 1000 frames"))
+        rows = self.transition
+        shape_ok = len(rows) == N_MODES and all(len(r) == N_MODES for r in rows)
+        values_ok = shape_ok and all(math.isfinite(v) and v >= 0 for r in rows for v in r)
+        if not (values_ok and all(sum(r) > 0 for r in rows)):
+            out.append(
+                (
+                    "transition",
+                    f"{N_MODES} rows of {N_MODES} finite, non-negative numbers, "
+                    "each row with a positive sum",
+                )
+            )
+        return out
 
 
 # One line per key for `walkcap config` (capture.config.documented); every field has one.

@@ -160,9 +160,22 @@ class DelaySweep:
 # running methods
 
 
+def decisions_of(probabilities: np.ndarray) -> np.ndarray:
+    """The argmax of each row; -1 (never right) for a row that is not finite."""
+    p = np.asarray(probabilities, dtype=float).reshape(len(probabilities), -1)
+    out = np.argmax(np.nan_to_num(p, nan=-np.inf), axis=1)
+    out[~np.all(np.isfinite(p), axis=1)] = -1
+    return out
+
+
 def run_offline(fusion: Fusion, probabilities: np.ndarray) -> FusionRun:
-    """Push every frame through a fresh streaming object, then flush: the live decisions."""
-    e = np.asarray(probabilities, dtype=float)
+    """Push every frame through a fresh streaming object, then flush: the live decisions.
+
+    A frame whose probabilities are not finite (a broken classifier) is pushed as uniform,
+    carrying no evidence, and left undecided (-1): it is never scored as right."""
+    e = np.array(probabilities, dtype=float)
+    unusable = ~np.all(np.isfinite(e), axis=1) if e.ndim == 2 else np.zeros(len(e), bool)
+    e[unusable] = 1.0 / N_MODES
     n = len(e)
     decisions = np.full(n, -1)
     voted = np.full(n, -1)
@@ -186,6 +199,9 @@ def run_offline(fusion: Fusion, probabilities: np.ndarray) -> FusionRun:
     final = voted if fusion.votes else decisions
     if np.any(final < 0):  # every frame must be decided once flushed
         raise AssertionError(f"{fusion.method}: frames without a decision")
+    decisions[unusable] = -1
+    if fusion.votes:
+        final[unusable] = -1
     return FusionRun(fusion.method, decisions, final, posteriors)
 
 
@@ -305,11 +321,13 @@ def by_condition(results: Sequence[TrialResult]) -> dict[str, list[TrialResult]]
 
 
 def confusion_matrix(decisions: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """Counts: rows the reference mode, columns the decided mode (frames with a reference)."""
+    """Counts: rows the reference mode, columns the decided mode (frames with a reference
+    and a decision; an undecided frame, -1, is in no column)."""
     reference = np.asarray(reference)
-    labeled = reference >= 0
+    decisions = np.asarray(decisions)
+    used = (reference >= 0) & (decisions >= 0)
     counts = np.zeros((N_MODES, N_MODES), dtype=int)
-    np.add.at(counts, (reference[labeled], np.asarray(decisions)[labeled]), 1)
+    np.add.at(counts, (reference[used], decisions[used]), 1)
     return counts
 
 

@@ -28,6 +28,7 @@ import json
 import logging
 import os
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -468,6 +469,27 @@ def read_metadata(path: str | os.PathLike) -> dict:
     return meta
 
 
+def probe_images(size: int = INPUT_SIZE) -> np.ndarray:
+    """Images the classifier must answer with finite probabilities: empty, level ground
+    ahead, and a step up."""
+    empty = np.zeros((size, size), np.uint8)
+    ground = empty.copy()
+    ground[size // 2 :, :] = 1
+    step = ground.copy()
+    step[size // 4 : size // 2, size // 2 :] = 1
+    return np.stack([empty, ground, step])
+
+
+def probe(clf: Classifier, weights: str | os.PathLike = "") -> None:
+    """Refuse a model whose outputs are not finite (what a diverged training run writes)."""
+    probabilities = clf.predict_batch(probe_images(clf.input_size))
+    if not np.all(np.isfinite(probabilities)):
+        raise InferenceError(
+            f"model file {weights or clf.path} gives no finite output on a probe image "
+            "(NaN or infinite weights: a diverged training run?)"
+        )
+
+
 def load_classifier(
     path: str | os.PathLike | None = None, device: str = "auto", threads: int | None = None
 ) -> Classifier:
@@ -491,7 +513,11 @@ def load_classifier(
             f"{metadata_path(weights).name}"
         )
     try:
-        state = torch.load(weights, map_location="cpu", weights_only=True)
+        # torch warns about what it reads (pickle protocols) before failing on a file that
+        # is no state dict: the one-line error below says all the user needs
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            state = torch.load(weights, map_location="cpu", weights_only=True)
     except Exception as e:  # torch raises many types for a bad file
         raise InferenceError(
             f"model file {weights} is corrupt or not a state dict: {type(e).__name__}"
@@ -515,6 +541,7 @@ def load_classifier(
     if threads:
         torch.set_num_threads(threads)
     clf = Classifier(net, meta, choose_device(device), str(weights))
+    probe(clf, weights)
     log.info("loaded terrain classifier %s (%s)", weights, meta.get("weights_sha256", "")[:12])
     return clf
 

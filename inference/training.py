@@ -198,11 +198,17 @@ def augment_image(
 def group_metrics(labels: np.ndarray, predictions: np.ndarray) -> GroupMetrics:
     from inference.evaluation import confusion_matrix
 
-    return confusion_metrics(confusion_matrix(np.asarray(predictions), np.asarray(labels)))
+    labels = np.asarray(labels)
+    cm = confusion_matrix(np.asarray(predictions), labels)
+    # every labelled frame counts, an undecided one (-1: no finite output) as wrong
+    return confusion_metrics(
+        cm, np.bincount(labels[labels >= 0], minlength=len(MODES))[: len(MODES)]
+    )
 
 
-def confusion_metrics(cm: np.ndarray) -> GroupMetrics:
-    totals = cm.sum(axis=1)
+def confusion_metrics(cm: np.ndarray, totals: np.ndarray | None = None) -> GroupMetrics:
+    """Metrics from a confusion matrix; `totals`: frames per true mode (default: its rows)."""
+    totals = cm.sum(axis=1) if totals is None else totals
     per_class = {
         m: (float(cm[i, i] / totals[i]) if totals[i] else None) for i, m in enumerate(MODES)
     }
@@ -271,6 +277,8 @@ def evaluate_sessions(
 ) -> dict[str, GroupMetrics]:
     """Per-frame quality, all frames and per preset ("all", "indoor", "outdoor", ...);
     with the error breakdown when every session carries the simulator's truth."""
+    from inference.evaluation import decisions_of
+
     labels: dict[str, list[np.ndarray]] = {"all": []}
     preds: dict[str, list[np.ndarray]] = {"all": []}
     per_session: dict[str, list[float]] = {"all": []}
@@ -282,7 +290,7 @@ def evaluate_sessions(
         s = s.labelled()
         if not len(s):
             continue
-        p = np.argmax(classifier.predict_batch(s.images), axis=1)
+        p = decisions_of(classifier.predict_batch(s.images))
         for key in ("all", s.preset or "unknown"):
             labels.setdefault(key, []).append(s.labels)
             preds.setdefault(key, []).append(p)

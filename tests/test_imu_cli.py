@@ -1,6 +1,7 @@
 """`walkcap imu`: decode captures, identify and stream a device, run the emulator."""
 
 import json
+import math
 import subprocess
 import sys
 
@@ -62,7 +63,13 @@ def test_decode_json_lines_and_summary(tmp_path, capsys):
     # resyncs: the corrupted and the cut message (no good one between); the junk before
     # the first message is a start mid-stream
     assert summary == {
-        "summary": {"messages": 2, "checksum_errors": 2, "resyncs": 1, "unknown_ids": 1}
+        "summary": {
+            "messages": 2,
+            "checksum_errors": 2,
+            "resyncs": 1,
+            "unknown_ids": 1,
+            "malformed": 0,
+        }
     }
 
 
@@ -74,6 +81,55 @@ def test_decode_table(tmp_path, capsys):
     assert "quaternion" in out[0] and len(out) == 4
     assert out[1].split()[:2] == ["1", "1000"]
     assert "2 messages, 2 checksum errors" in out[-1]
+
+
+def test_decode_json_writes_null_for_nan_and_infinity(tmp_path, capsys):
+    values = {"packet_counter": 1, "acceleration": (math.nan, math.inf, 1.0)}
+    values2 = {"packet_counter": 2, "temperature": -math.inf}
+    path = tmp_path / "capture.bin"
+    path.write_bytes(
+        xbus.build(xbus.MID.MTDATA2, xbus.encode_mtdata2(values))
+        + xbus.build(xbus.MID.MTDATA2, xbus.encode_mtdata2(values2, xbus.FLOAT64))
+    )
+    assert cli.main(["imu", "decode", str(path), "--json"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    strict = [
+        json.loads(line, parse_constant=lambda c: pytest.fail(f"{c} in JSON")) for line in out
+    ]
+    assert strict[0]["acceleration"] == [None, None, 1.0]
+    assert strict[1]["temperature"] is None
+
+
+def test_decode_keeps_going_after_a_payload_with_a_repeated_output(tmp_path, capsys):
+    quaternion = xbus.encode_packet("quaternion", (1.0, 0.0, 0.0, 0.0), xbus.FP1632)
+    counter = xbus.encode_packet("packet_counter", 5)
+    path = tmp_path / "capture.bin"
+    path.write_bytes(
+        xbus.build(xbus.MID.MTDATA2, xbus.encode_packet("packet_counter", 4))
+        + xbus.build(xbus.MID.MTDATA2, counter + quaternion + quaternion)
+        + xbus.build(xbus.MID.MTDATA2, xbus.encode_packet("packet_counter", 6))
+    )
+    assert cli.main(["imu", "decode", str(path), "--json"]) == 0
+    lines = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert [obj.get("packet_counter") for obj in lines[:3]] == [4, 5, 6]
+    assert lines[1]["quaternion"] == [1.0, 0.0, 0.0, 0.0]
+    assert lines[3]["summary"]["messages"] == 3
+
+
+def test_fuzz_command_reports_streams_and_no_exceptions(capsys):
+    assert cli.main(["imu", "fuzz", "--streams", "2000", "--seed", "3", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["streams"] == 2000 and report["exceptions"] == 0
+    assert sum(report["by_kind"].values()) == 2000
+    assert 0 <= report["lost_next"] < 20 and report["malformed"] > 0
+
+
+def test_fuzz_with_no_streams_is_one_line(capsys):
+    with pytest.raises(SystemExit) as e:
+        cli.main(["imu", "fuzz", "--streams", "0"])
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--streams" in err[0]
 
 
 def test_decode_missing_file_is_one_line(capsys):

@@ -270,6 +270,48 @@ def test_decoding_random_payloads_never_raises(payload):
     xbus.decode_mtdata2(payload)
 
 
+@pytest.mark.parametrize(
+    "first, second",
+    [
+        (
+            ("quaternion", (1.0, 0.0, 0.0, 0.0), xbus.FP1632),
+            ("quaternion", (0.0, 1.0, 0.0, 0.0), xbus.FP1632),
+        ),
+        (("temperature", 20.0, xbus.FP1632), ("temperature", 21.0, xbus.FLOAT32)),
+        (
+            ("acceleration", (1.0, 0.0, 0.0), xbus.FP1220),
+            ("acceleration", (2.0, 0.0, 0.0), xbus.FP1220),
+        ),
+        (("euler", (1.0, 2.0, 3.0), xbus.FLOAT32), ("euler", (4.0, 5.0, 6.0), xbus.FP1220)),
+    ],
+)
+def test_a_repeated_output_is_decoded_once_never_converted_twice(first, second):
+    payload = (
+        xbus.encode_packet("packet_counter", 3)
+        + xbus.encode_packet(*first)
+        + xbus.encode_packet(*second)
+    )
+    for _ in range(2):  # the first decode compiles the layout, the second uses the cache
+        parser = XbusParser()
+        (msg,) = parser.feed(xbus.build(MID.MTDATA2, payload) + xbus.build(MID.GOTO_CONFIG_ACK))[:1]
+        assert msg.mtdata2.values["packet_counter"] == 3
+        assert msg.mtdata2.values[first[0]] == pytest.approx(first[1], abs=1e-5)
+        assert parser.unknown_ids == 1 and parser.buffered == 0
+
+
+def test_a_payload_the_decoder_cannot_explain_is_counted_and_the_stream_goes_on(monkeypatch):
+    def broken(payload):
+        raise IndexError("tuple index out of range")
+
+    monkeypatch.setattr(xbus, "decode_mtdata2", broken)
+    parser = XbusParser()
+    frame = xbus.build(MID.MTDATA2, sample_payload(1))
+    msgs = parser.feed(frame + xbus.build(MID.GOTO_CONFIG_ACK))
+    assert [m.mid for m in msgs] == [MID.MTDATA2, MID.GOTO_CONFIG_ACK]
+    assert msgs[0].mtdata2 is None and parser.malformed == 1 and parser.buffered == 0
+    assert parser.feed(b"") == []  # nothing left in the buffer to raise again
+
+
 def test_the_layout_cache_tells_apart_payloads_of_equal_length():
     a = xbus.encode_mtdata2({"packet_counter": 1, "status_word": 5})
     b = xbus.encode_mtdata2({"status_word": 6, "packet_counter": 2})

@@ -99,10 +99,7 @@ def main(argv: list[str] | None = None) -> int:
         )
     if extra:
         getattr(args, "_parser", parser).error(f"unrecognized arguments: {' '.join(extra)}")
-    logging.basicConfig(
-        level=logging.WARNING - 10 * min(args.verbose, 2),
-        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
-    )
+    _log_to_stderr(args.command, args.verbose)
     try:
         from capture import config as config_mod
 
@@ -116,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     except Exception as e:
         if isinstance(e, _user_errors()):
-            print(f"walkcap {args.command}: error: {_describe(e)}", file=sys.stderr)
+            error_line(args.command, _describe(e))
             return 1
         if os.environ.get("WALKCAP_DEBUG"):
             raise
@@ -127,6 +124,56 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 70
+
+
+class _StderrLog(logging.Handler):
+    """Log records on stderr. By default one line each, named like the command's errors
+    (`walkcap record: error: ...`), without timestamps or tracebacks; with -v the logger's
+    name and time, and tracebacks. It remembers what it said, so that the command's last
+    error line is not said twice."""
+
+    def __init__(self, command: str, verbose: int) -> None:
+        super().__init__(logging.WARNING - 10 * min(verbose, 2))
+        self.command = command
+        self.verbose = verbose
+        self.said: list[str] = []
+        if verbose:
+            self.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            message = record.getMessage()
+            if self.verbose:
+                line = self.format(record)
+            else:
+                text = " ".join(message.split())  # one line, whatever the message holds
+                line = f"walkcap {self.command}: {record.levelname.lower()}: {text}"
+            self.said.append(message)
+            del self.said[:-50]
+            print(line, file=sys.stderr, flush=True)
+        except Exception:
+            self.handleError(record)
+
+
+_handler: _StderrLog | None = None
+
+
+def _log_to_stderr(command: str | None, verbose: int) -> None:
+    global _handler
+    root = logging.getLogger()
+    if _handler is not None:
+        root.removeHandler(_handler)
+    _handler = _StderrLog(command or "walkcap", verbose)
+    root.addHandler(_handler)
+    if root.level > _handler.level:  # -v lowers it; never raised over what is set
+        root.setLevel(_handler.level)
+
+
+def error_line(command: str, text: str) -> None:
+    """The command's error, once: not again when a log line just said the same."""
+    if _handler is not None and any(text in said for said in _handler.said):
+        return
+    print(f"walkcap {command}: error: {text}", file=sys.stderr)
 
 
 def _describe(e: BaseException) -> str:

@@ -76,6 +76,7 @@ class MockCamera(Camera):
         self._sleep = sleep or self._halt.wait
         self._thread: threading.Thread | None = None
         self._stall_until_ns = 0
+        self._resume_k: int | None = None
         course = simulator.course
         self.details = {
             "course": course.preset,
@@ -126,6 +127,19 @@ class MockCamera(Camera):
             self._thread = None
         self.start_time_ns = None  # a new start() begins a new walk
 
+    def _restart(self) -> None:
+        """The producer restarted where the walk is now (the walk goes on while silent)."""
+        self._halt.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+        if self.start_time_ns is None:
+            self._start()
+            return
+        self._resume_k = max(0, int((now_ns() - self.start_time_ns) * 1e-9 * self.config.fps))
+        self._halt.clear()
+        self._thread = threading.Thread(target=self._run, name="walkcap-mock-camera", daemon=True)
+        self._thread.start()
+
     def _run(self) -> None:
         try:
             self._produce()
@@ -137,6 +151,8 @@ class MockCamera(Camera):
         period = 1.0 / self.config.fps
         start = self.start_time_ns
         k = 0
+        if self._resume_k is not None:  # reopened: the frame due now, the walk went on
+            k, self._resume_k = self._resume_k, None
         while not self._halt.is_set():
             t = k * period
             if t > self.simulator.duration_s and not self.loop:

@@ -245,6 +245,9 @@ class RigCamera(Camera):
     def _close(self) -> None:
         self.rig.release()
 
+    def _restart(self) -> None:
+        self.rig.command("reopen_camera")
+
     def inject(self, fault: str, **kw) -> None:
         self.rig.inject_camera(fault, **kw)
 
@@ -320,6 +323,7 @@ def _serve(conn, camera_config, simulator_config, imu_config) -> None:
         from devices.simulator.camera import MockCamera
 
         camera = MockCamera(camera_config, simulator_config)
+        camera.watchdog = False  # the host's camera watches the frames that reach it
         camera.open()
 
         def thigh(t_s: float) -> np.ndarray:
@@ -381,6 +385,8 @@ def _handle(name: str, args: list, camera, emulator):
         camera.start()
     elif name == "stop_camera":
         camera.stop()
+    elif name == "reopen_camera":
+        camera._restart()
     elif name == "inject_imu":
         fault, kw = args
         emulator.inject(fault, **kw)

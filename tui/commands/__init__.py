@@ -3,29 +3,44 @@
 import argparse
 
 
-def count(minimum: int):
-    """An argparse type: an integer of at least `minimum`, else a one-line usage error."""
+def count(minimum: int, maximum: int | None = None):
+    """An argparse type: an integer of at least `minimum` (and at most `maximum`), else a
+    one-line usage error."""
 
     def parse(text: str) -> int:
         try:
             value = int(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {value}")
+        if value < minimum or (maximum is not None and value > maximum):
+            valid = f">= {minimum}" if maximum is None else f"within {minimum}..{maximum}"
+            raise argparse.ArgumentTypeError(f"must be {valid}, got {value}")
         return value
 
     return parse
 
 
+def seconds(text: str) -> float:
+    """An argparse type: a positive, finite number of seconds."""
+    import math
+
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected seconds, got {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a positive number of seconds, got {text}")
+    return value
+
+
 def finish_recording(command: str, stats, path) -> int:
     """Print the file path last (scripts take it); a failed recording is one error line."""
-    import sys
-
     from capture.recorder import RecorderState
 
     if stats.state == RecorderState.FAILED:
-        print(f"walkcap {command}: error: {stats.message}", file=sys.stderr)
+        from tui.cli import error_line
+
+        error_line(command, stats.message)
         print(path)
         return 1
     print(path)
@@ -113,7 +128,7 @@ def apply_device_flags(args, config) -> None:
     ):
         value = getattr(args, flag, None)
         if value is not None:
-            override(config, key, value)
+            override(config, key, value, flag="--" + flag.replace("_", "-"))
 
 
 def subject_from_flags(args, base):

@@ -20,6 +20,7 @@ HELP = "evaluate classifiers and fusion on score files or recordings"
 
 DEFAULT_METHODS = "cnn,cnn+voting,hmm,hmm+voting"
 SWEEP_DEFAULT = 6  # frames; the paper's trade-off figure reaches 6
+SWEEP_MAX = 100  # frames: several seconds of delay, beyond any use for a prosthesis
 
 
 def _methods(text: str) -> list[str]:
@@ -71,7 +72,7 @@ def _common_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--sweep-delay",
-        type=count(0),
+        type=count(0, SWEEP_MAX),
         nargs="?",
         const=SWEEP_DEFAULT,
         metavar="N",
@@ -294,13 +295,12 @@ def _recordings(paths: list[str], replays: bool = False) -> list[str]:
     import sys
 
     from capture.corpus import select
-    from capture.errors import CaptureError
 
     corpus = select(paths, replays=replays)
+    if not corpus.chosen:
+        raise corpus.nothing_left("no recordings to evaluate")
     for line in corpus.report_lines():
         print(line, file=sys.stderr)
-    if not corpus.chosen:
-        raise CaptureError("no recordings to evaluate: every file was left out")
     return [str(p) for p in corpus.files]
 
 

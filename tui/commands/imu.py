@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 import sys
 import time
+
+from tui.commands import count, seconds
 
 HELP = "IMU tools: list ports, device info, stream, emulate, decode captures"
 
@@ -63,9 +66,9 @@ def add_arguments(parser) -> None:
     )
     p.add_argument("port", help="serial port, or 'mock'")
     p.add_argument("--baudrate", type=int, help="default: [imu] baudrate")
-    p.add_argument("--rate", type=int, help="output rate in Hz (default: [imu] rate_hz)")
-    p.add_argument("--seconds", type=float, help="stop after this long (default: Ctrl-C)")
-    p.add_argument("--interval", type=float, default=0.5, help="seconds between lines")
+    p.add_argument("--rate", type=count(1, 2000), help="output rate in Hz (default: [imu] rate_hz)")
+    p.add_argument("--seconds", type=seconds, help="stop after this long (default: Ctrl-C)")
+    p.add_argument("--interval", type=seconds, default=0.5, help="seconds between lines")
     p.add_argument(
         "--raw",
         metavar="FILE",
@@ -80,7 +83,9 @@ def add_arguments(parser) -> None:
         "it. Ctrl-C stops it.",
     )
     p.add_argument(
-        "--rate", type=int, help="output rate at power-up in Hz (default: [imu] rate_hz)"
+        "--rate",
+        type=count(1, 2000),
+        help="output rate at power-up in Hz (default: [imu] rate_hz)",
     )
     p.add_argument("--drift-ppm", type=float, help="device clock drift (default: [imu] drift_ppm)")
     p.add_argument("--jitter-ms", type=float, help="transmit jitter (default: [imu] jitter_ms)")
@@ -89,7 +94,7 @@ def add_arguments(parser) -> None:
         "--model", help="the model it plays, e.g. MTi-3, MTi-630 (default: [imu] emulate)"
     )
     p.add_argument("--baudrate", type=int, help="its baud rate (default: [imu] baudrate)")
-    p.add_argument("--seconds", type=float, help="stop after this long (default: Ctrl-C)")
+    p.add_argument("--seconds", type=seconds, help="stop after this long (default: Ctrl-C)")
 
     p = verbs.add_parser(
         "decode",
@@ -101,6 +106,18 @@ def add_arguments(parser) -> None:
     p.add_argument("file", help="capture file, '-' for standard input")
     p.add_argument("--json", action="store_true", help="JSON lines instead of a table")
 
+    p = verbs.add_parser(
+        "fuzz",
+        help="feed the Xbus parser random streams; count exceptions and lost messages",
+        description="Feed the Xbus parser STREAMS random byte streams (random MTData2 "
+        "layouts, damaged frames, garbage), each followed by valid messages. Reports "
+        "exceptions (there must be none) and how often the next valid message was lost to a "
+        "false frame that passed the 8-bit checksum. Exit status 1 on any exception.",
+    )
+    p.add_argument("--streams", type=count(1), default=1_000_000, help="default 1000000")
+    p.add_argument("--seed", type=int, default=0, help="the streams' random seed (default 0)")
+    p.add_argument("--json", action="store_true", help="machine-readable results")
+
 
 def run(args, config) -> int:
     return {
@@ -110,6 +127,7 @@ def run(args, config) -> int:
         "stream": _stream,
         "emulate": _emulate,
         "decode": _decode,
+        "fuzz": _fuzz,
     }[args.verb](args, config)
 
 
@@ -128,11 +146,20 @@ def _list(args, config) -> int:
     return 0
 
 
+def _baudrate(args, config) -> int:
+    """--baudrate, checked as [imu] baudrate is, else the configured one."""
+    from capture.config import override
+
+    if args.baudrate is not None:
+        override(config, "imu.baudrate", args.baudrate, flag="--baudrate")
+    return config.imu.baudrate
+
+
 def _info(args, config) -> int:
     from devices import xbus
     from devices.imu import XbusImu
 
-    baudrate = args.baudrate or config.imu.baudrate
+    baudrate = _baudrate(args, config)
     imu = XbusImu(args.port, baudrate, outputs=None)
     try:
         imu.open()
@@ -185,7 +212,7 @@ def _stream(args, config) -> int:
     from devices.imu import EmulatedImu, XbusImu
 
     rate = args.rate or config.imu.rate_hz
-    baudrate = args.baudrate or config.imu.baudrate
+    baudrate = _baudrate(args, config)
     raw = open(args.raw, "wb") if args.raw else None
     sink = raw.write if raw else None
     if args.port == "mock":
@@ -319,15 +346,19 @@ def decode_capture(stream, chunk_size: int = 65536):
             "checksum_errors": parser.checksum_errors,
             "resyncs": parser.resyncs,
             "unknown_ids": parser.unknown_ids,
+            "malformed": parser.malformed,
         }
     }
 
 
 def _plain(value):
+    """Lists for tuples; None for NaN and infinities, which strict JSON has no word for."""
     if isinstance(value, (tuple, list)):
         return [_plain(v) for v in value]
     if isinstance(value, dict):
         return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
     return value
 
 
@@ -336,7 +367,7 @@ def _decode(args, config) -> int:
     try:
         if args.json:
             for obj in decode_capture(source):
-                print(json.dumps(obj))
+                print(json.dumps(obj, allow_nan=False))
         else:
             _decode_table(decode_capture(source))
     except BrokenPipeError:  # `walkcap imu decode FILE | head`: the reader has had enough
@@ -349,7 +380,9 @@ def _decode(args, config) -> int:
 
 def _decode_table(objects) -> None:
     def vec(values, fmt="{:+8.3f}"):
-        return " ".join(fmt.format(v) for v in values) if values is not None else "-"
+        if values is None:
+            return "-"
+        return " ".join("nan" if v is None else fmt.format(v) for v in values)
 
     print(
         f"{'counter':>7} {'time_fine':>10}  {'quaternion w x y z':<35}  "
@@ -360,7 +393,8 @@ def _decode_table(objects) -> None:
             s = obj["summary"]
             print(
                 f"{s['messages']} messages, {s['checksum_errors']} checksum errors, "
-                f"{s['resyncs']} resyncs, {s['unknown_ids']} unknown identifiers"
+                f"{s['resyncs']} resyncs, {s['unknown_ids']} unknown identifiers, "
+                f"{s['malformed']} malformed"
             )
             continue
         other = [
@@ -388,3 +422,29 @@ def _decode_table(objects) -> None:
 
 def _or_dash(value) -> str:
     return "-" if value is None else str(value)
+
+
+# ---- fuzz ----------------------------------------------------------------------------------
+
+
+def _fuzz(args, config) -> int:
+    from capture.bench.fuzz import fuzz_parser
+
+    say = (lambda line: None) if args.json else (lambda line: print(f"… {line}", file=sys.stderr))
+    report = fuzz_parser(args.streams, args.seed, progress=say)
+    if args.json:
+        print(json.dumps(report.to_dict(), indent=2))
+    else:
+        kinds = ", ".join(f"{n} {k}" for k, n in sorted(report.by_kind.items()))
+        print(f"streams          {report.streams} (seed {report.seed}: {kinds})")
+        print(f"exceptions       {report.exceptions}")
+        print(
+            f"next valid lost  {report.lost_next} "
+            f"({report.lost_next / report.streams:.4%}) to a false frame passing the checksum"
+        )
+        print(f"false frames     {report.false_frames} accepted from damaged or random bytes")
+        print(f"malformed        {report.malformed} MTData2 payloads counted and skipped")
+        print(f"time             {report.seconds:.1f} s")
+        for example in report.examples:
+            print(f"  {example}")
+    return 1 if report.exceptions else 0

@@ -63,10 +63,21 @@ def describe(rec) -> list[str]:
     """The recording in a few readable lines."""
     from capture import corpus
     from capture import topics as T
+    from capture.errors import CaptureError
     from capture.reader import find_gaps, is_undo
+    from capture.recovery import check
 
     lines = [str(rec.path)]
-    if rec.complete:
+    damaged = check(rec.path).damaged  # every chunk's CRC, finished file or not
+    if damaged:
+        lines.append(
+            f"  state       damaged: {len(damaged)} region(s), "
+            f"{sum(d.length for d in damaged)} bytes unreadable; "
+            f"`walkcap recover {rec.path}` copies every intact message"
+        )
+        for d in damaged:
+            lines.append(f"    damaged   {d.describe(rec.start_ns)}")
+    elif rec.complete:
         lines.append("  state       complete")
     else:
         lines.append(
@@ -117,12 +128,16 @@ def describe(rec) -> list[str]:
         lines.append("  gaps        " + "; ".join(gaps))
     small = [t for t in (T.LABELS, T.EVENTS) if t in rec.topics]
     labels, kinds, undo_sources = [], {}, []
-    for m in rec.messages(small):
-        if m.topic == T.LABELS:
-            labels.append((m.data["time_ns"], m.data["mode"] or "-"))
-            undo_sources.append(m.data.get("source", ""))
-        else:
-            kinds[m.data["kind"]] = kinds.get(m.data["kind"], 0) + 1
+    try:
+        for m in rec.messages(small):
+            if m.topic == T.LABELS:
+                labels.append((m.data["time_ns"], m.data["mode"] or "-"))
+                undo_sources.append(m.data.get("source", ""))
+            else:
+                kinds[m.data["kind"]] = kinds.get(m.data["kind"], 0) + 1
+    except CaptureError:  # damaged: the labels and events before the damage are listed
+        if not damaged:
+            raise
     if labels:
         sequence = " ".join(mode for _, mode in sorted(labels))
         undos = sum(1 for source in undo_sources if is_undo(source))
@@ -179,7 +194,9 @@ def summary(rec) -> dict:
     with their Unix time (ns) and UTC ISO text, metadata typed."""
     from capture import corpus
     from capture import topics as T
+    from capture.errors import CaptureError
     from capture.reader import effective_changes, find_gaps
+    from capture.recovery import check
 
     member = corpus.describe(rec)
     subject, condition, trial = rec.trial
@@ -208,13 +225,18 @@ def summary(rec) -> dict:
             ]
     labels, events = [], {}
     small = [t for t in (T.LABELS, T.EVENTS) if t in rec.topics]
-    for m in rec.messages(small):
-        if m.topic == T.LABELS:
-            labels.append(
-                (int(m.data["time_ns"]), m.data.get("mode", ""), m.data.get("source", ""))
-            )
-        else:
-            events[m.data["kind"]] = events.get(m.data["kind"], 0) + 1
+    damaged = check(rec.path).damaged  # every chunk's CRC, finished file or not
+    try:
+        for m in rec.messages(small):
+            if m.topic == T.LABELS:
+                labels.append(
+                    (int(m.data["time_ns"]), m.data.get("mode", ""), m.data.get("source", ""))
+                )
+            else:
+                events[m.data["kind"]] = events.get(m.data["kind"], 0) + 1
+    except CaptureError:  # damaged: the labels and events before the damage
+        if not damaged:
+            raise
     labels.sort(key=lambda c: c[0])
     in_force = set(effective_changes(labels))
 
@@ -226,6 +248,17 @@ def summary(rec) -> dict:
         "path": str(rec.path),
         "complete": rec.complete,
         "reason": rec.reason,
+        "damaged": [
+            {
+                "offset": d.offset,
+                "bytes": d.length,
+                "reason": d.reason,
+                "start_ns": d.start_ns,
+                "end_ns": d.end_ns,
+                "topics": list(d.topics),
+            }
+            for d in damaged
+        ],
         "size_bytes": rec.size,
         "bytes_per_s": rec.size / rec.duration_s if rec.duration_s > 0 else None,
         "id": member.id,

@@ -13,6 +13,7 @@ from tui.commands import (
     apply_device_flags,
     course_condition,
     finish_recording,
+    seconds,
     subject_from_flags,
 )
 
@@ -23,7 +24,7 @@ STATUS_EVERY_S = 0.5
 def add_arguments(parser) -> None:
     parser.add_argument(
         "--duration",
-        type=float,
+        type=seconds,
         metavar="S",
         help="seconds to record (a mock course loops to fill them; default: until the mock "
         "course ends, or Ctrl-C)",

@@ -16,7 +16,8 @@ def add_arguments(parser) -> None:
     parser.add_argument(
         "--journal",
         metavar="PATH",
-        help="label journal to merge (default: FILE.journal.jsonl if present)",
+        help="label journal to merge (default: FILE.journal.jsonl if present; "
+        "a named journal must exist)",
     )
     parser.add_argument("--force", action="store_true", help="replace OUT if it exists")
 
@@ -29,9 +30,13 @@ def run(args, config) -> int:
         "complete file" if r.complete else f"{r.reason}; {r.lost_bytes} bytes after it unreadable"
     )
     print(f"{r.source}: {source}")
+    for d in r.damaged:
+        print(f"skipped damaged {d.describe(r.first_ns)}")
+    if r.unknown_channel_messages:
+        print(f"skipped {r.unknown_channel_messages} messages whose channel was in damaged bytes")
     print(
         f"wrote {r.output}: {r.messages} messages, {r.duration_s:.1f} s of sensor data, "
         f"{r.labels_added} labels and {r.events_added} markers added from the journal"
         + ("" if r.journal else " (no journal found)")
     )
-    return 0
+    return 0 if r.salvaged else 1
