@@ -222,8 +222,10 @@ def synth_dataset(
     simulator_config=None,
     workers: int = 1,
     show_progress: bool = True,
+    cluster: str | None = None,
 ) -> list[Path]:
-    """Render `count` sessions into `out` (one .npz each) with a progress bar over frames."""
+    """Render `count` sessions into `out` (one .npz each) with a progress bar over sessions.
+    `cluster`: a Ray cluster's address or "local" (capture.cluster), one task a session."""
     from tqdm import tqdm
 
     plan = session_plan(count, preset, base_seed)
@@ -232,6 +234,18 @@ def synth_dataset(
     jobs = [
         (p, s, params, settings, simulator_config, str(out / f"{p}-{s:06d}.npz")) for p, s in plan
     ]
+    if cluster:
+        from capture import cluster as cluster_mod
+
+        tasks = [  # absolute paths: a node's worker need not start in this folder
+            cluster_mod.Task(
+                Path(job[-1]).name, _synth_job, ((*job[:-1], str(Path(job[-1]).resolve())),)
+            )
+            for job in jobs
+        ]
+        with cluster_mod.connect(cluster):
+            cluster_mod.run(tasks, desc="synth", unit="session", show_progress=show_progress)
+        return [Path(job[-1]) for job in jobs]
     paths: list[Path] = []
     with tqdm(total=len(jobs), unit="session", desc="synth", disable=not show_progress) as bar:
         if workers > 1 and len(jobs) > 1:

@@ -257,9 +257,11 @@ def corpus_tables(
     replays: bool = False,
     every_file: bool = False,
     progress: bool = False,
+    cluster: str | None = None,
 ):
     """Tables of many recordings, rows concatenated, and the corpus they came from: one
-    file per trial (capture.corpus.select), or `every_file` as found."""
+    file per trial (capture.corpus.select), or `every_file` as found. `cluster`: a Ray
+    cluster's address or "local" (capture.cluster), one task a recording."""
     pd = _pd()
     if every_file:
         files = corpus_mod.recording_files(paths)
@@ -270,13 +272,23 @@ def corpus_tables(
     if not files:
         raise chosen.nothing_left("nothing to export")
     parts: dict[str, list] = {name: [] for name in TABLES}
-    iterator = files
-    if progress and len(files) > 1:
-        from tqdm import tqdm
+    if cluster:
+        from capture import cluster as cluster_mod
 
-        iterator = tqdm(files, unit="file", desc="export", leave=False)
-    for f in iterator:
-        for name, df in tables(f).items():
+        tasks = [cluster_mod.Task(Path(f).name, tables, (str(Path(f).resolve()),)) for f in files]
+        with cluster_mod.connect(cluster):
+            per_file = cluster_mod.run(
+                tasks, desc="export", unit="recording", show_progress=progress
+            )
+    else:
+        iterator = files
+        if progress and len(files) > 1:
+            from tqdm import tqdm
+
+            iterator = tqdm(files, unit="file", desc="export", leave=False)
+        per_file = (tables(f) for f in iterator)
+    for file_tables in per_file:
+        for name, df in file_tables.items():
             parts[name].append(df)
     out = {}
     for name, dfs in parts.items():

@@ -674,9 +674,15 @@ def read_trials(paths, reference: str = "auto") -> list:
     reference: "labels" (the operator's), "truth" (the simulator's) or "auto" (labels
     where there are any).
     """
+    return [read_evaluation_trial(p, reference) for p in paths]
+
+
+def read_evaluation_trial(path, reference: str = "auto", name: str | None = None):
+    """One recording's evaluation trial (see read_trials), named `name` (default: the
+    path); one task of a corpus job (capture.cluster)."""
     from inference.evaluation import trial_from_recording
 
-    return [trial_from_recording(str(p), read_trial(p), reference) for p in paths]
+    return trial_from_recording(str(name or path), read_trial(path), reference)
 
 
 def labeled_session(path: str | os.PathLike, reference: str = "labels"):

@@ -9,7 +9,11 @@ Python process cannot use a second core: a reader process decodes the frames, le
 preprocesses them and encodes what the new recording keeps of them (depth, cloud, image,
 orientation, truth); this one classifies them in batches, fuses, measures the terrain and
 records. While the reader process starts, this one prepares the first frames itself.
-Paced replays (`speed=X`) run in this process alone.
+The frames are classified in batches of BATCH from the first frame on, whatever the reader
+process has sent so far: the CNN's float results depend on the batch's size, and fixed
+batches give the same file on every run. Paced replays (`speed=X`), and replays that are
+one task of a corpus job (`reader_process=False`: the cluster has given each task one
+core), run in this process alone.
 """
 
 from __future__ import annotations
@@ -261,9 +265,11 @@ def replay(
     speed: float | None = None,
     classifier=None,
     progress=None,
+    reader_process: bool = True,
 ) -> ReplayReport:
-    """Run the pipeline on `source` into `output`. speed None: as fast as possible;
-    else paced at `speed` x the recorded rate."""
+    """Run the pipeline on `source` into `output`. speed None: as fast as possible (with
+    a reader process unless `reader_process` is False); else paced at `speed` x the
+    recorded rate."""
     from capture.reader import open_recording
     from inference.preprocess import PreprocessParams
 
@@ -277,18 +283,20 @@ def replay(
     params = PreprocessParams.from_config(config)
     fast = not speed
     # the reader process starts first: its imports overlap with reading the IMU here
-    frames_in = _ReaderProcess(source, params) if fast else None
+    frames_in = _ReaderProcess(source, params) if fast and reader_process else None
     try:
         imu, labels, events = recorded(rec)
         imu_orientations = orientations(imu)
-        if fast:  # classified in batches as they come
+        if frames_in is not None:
             frames_in.start(imu_orientations)
             blocks = _head_start(source, params, imu_orientations, frames_in)
-        else:  # one by one, at the recorded pace
+        else:  # one by one, in this process
             blocks = (
                 [_encoded(frame, q, pre)]
                 for frame, q, pre in prepared_frames(source, params, imu_orientations)
             )
+        if fast:
+            blocks = _fixed_batches(blocks, BATCH)
         return _replay(
             source,
             rec,
@@ -304,6 +312,20 @@ def replay(
     finally:
         if frames_in is not None:
             frames_in.close()
+
+
+def _fixed_batches(blocks, size: int):
+    """The frames of `blocks` regrouped into lists of exactly `size` (the last may be
+    shorter), however they came."""
+    batch: list = []
+    for block in blocks:
+        for item in block:
+            batch.append(item)
+            if len(batch) == size:
+                yield batch
+                batch = []
+    if batch:
+        yield batch
 
 
 def _head_start(source, params, imu_orientations, frames_in: _ReaderProcess):
@@ -423,3 +445,12 @@ def _replay(
     taken = time.monotonic() - wall0
     recorded = (last_t - first_t) * 1e-9 if frames > 1 else 0.0
     return ReplayReport(str(source), str(output), frames, recorded, taken, stats)
+
+
+def replay_file(source: str, config, output: str) -> ReplayReport:
+    """One recording's replay as a task of a corpus job (capture.cluster): as fast as
+    possible in this process, the same file as `replay` writes."""
+    report = replay(source, config, output=output, reader_process=False)
+    if report.stats.state == "failed":
+        raise CaptureError(f"{output}: {report.stats.message}")
+    return report

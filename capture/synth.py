@@ -149,3 +149,32 @@ def synth_recording(
     finally:
         stats = recorder.close()
     return stats
+
+
+_classifiers: dict = {}  # per process: a cluster worker loads the model once for its tasks
+
+
+def synth_recording_file(
+    path: str | Path, config: config_mod.Config, preset: str, seed: int, trial: int, max_frames: int
+) -> str:
+    """synth_recording with the configured model, as one task of a corpus job (capture.
+    cluster): the path written, or CaptureError when the recording failed."""
+    from capture.errors import CaptureError
+    from capture.pipeline import CNN_THREADS
+    from inference.model import load_classifier
+
+    key = config.model.path or ""
+    if key not in _classifiers:
+        _classifiers[key] = load_classifier(key or None, threads=CNN_THREADS)
+    stats = synth_recording(
+        path,
+        config,
+        _classifiers[key],
+        preset=preset,
+        seed=seed,
+        trial=trial,
+        max_frames=max_frames,
+    )
+    if stats.state == "failed":
+        raise CaptureError(f"{path}: {stats.message}")
+    return str(path)

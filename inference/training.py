@@ -13,6 +13,10 @@
   training stops after `patience` epochs without improvement, keeping the best weights.
 - Deterministic for a seed on one machine (one process, seeded generators, deterministic
   algorithms); CPU by default, the GPU when there is one (device "auto").
+- Distributed when torch.distributed is set up (capture.cluster starts it): the model in
+  DistributedDataParallel, each epoch's frames and each batch split between the processes
+  (the batch size is the total), validation split and summed, so every process takes the
+  same early-stopping and learning-rate steps.
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ import ctypes
 import logging
 import math
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -194,10 +199,16 @@ def group_metrics(labels: np.ndarray, predictions: np.ndarray) -> GroupMetrics:
     from inference.evaluation import confusion_matrix
 
     labels = np.asarray(labels)
-    predictions = np.asarray(predictions)
-    cm = confusion_matrix(predictions, labels)
+    cm = confusion_matrix(np.asarray(predictions), labels)
     # every labelled frame counts, an undecided one (-1: no finite output) as wrong
-    totals = np.bincount(labels[labels >= 0], minlength=len(MODES))[: len(MODES)]
+    return confusion_metrics(
+        cm, np.bincount(labels[labels >= 0], minlength=len(MODES))[: len(MODES)]
+    )
+
+
+def confusion_metrics(cm: np.ndarray, totals: np.ndarray | None = None) -> GroupMetrics:
+    """Metrics from a confusion matrix; `totals`: frames per true mode (default: its rows)."""
+    totals = cm.sum(axis=1) if totals is None else totals
     per_class = {
         m: (float(cm[i, i] / totals[i]) if totals[i] else None) for i, m in enumerate(MODES)
     }
@@ -415,9 +426,13 @@ def _validate(
     device: torch.device,
     power: float = 1.0,
     batch_size: int = 256,
+    world: _World | None = None,
 ) -> tuple[float, float, float]:
     """Mean loss with the class weights the balanced sampling gives (frequency ** -power),
-    accuracy and balanced accuracy."""
+    accuracy and balanced accuracy. Distributed, each process takes every world.size-th
+    frame and the sums are added up."""
+    from inference.evaluation import confusion_matrix
+
     net.eval()
     if not len(labels):
         return float("nan"), float("nan"), float("nan")
@@ -425,6 +440,8 @@ def _validate(
     weights = torch.tensor(
         np.where(freq > 0, np.maximum(freq, 1) ** -power, 0.0), dtype=torch.float32, device=device
     )
+    if world is not None:
+        images, labels = images[world.rank :: world.size], labels[world.rank :: world.size]
     loss_sum, weight_sum, preds = 0.0, 0.0, []
     for i in range(0, len(labels), batch_size):
         x = images_to_tensor(images[i : i + batch_size]).to(device)
@@ -433,8 +450,38 @@ def _validate(
         loss_sum += float(F.cross_entropy(scores, y, weight=weights, reduction="sum"))
         weight_sum += float(weights[y].sum())
         preds.append(scores.argmax(1).cpu().numpy())
-    m = group_metrics(labels, np.concatenate(preds))
+    cm = confusion_matrix(np.concatenate(preds) if preds else np.zeros(0, int), labels)
+    if world is not None:
+        loss_sum, weight_sum, *counts = world.sum([loss_sum, weight_sum, *cm.ravel()])
+        cm = np.rint(np.array(counts)).astype(int).reshape(cm.shape)
+    m = confusion_metrics(cm)
     return loss_sum / weight_sum, m.accuracy, m.balanced_accuracy
+
+
+@dataclass(frozen=True)
+class _World:
+    """This process's place in a torch.distributed group."""
+
+    rank: int
+    size: int
+
+    @staticmethod
+    def current() -> _World | None:
+        import torch.distributed as dist
+
+        if dist.is_available() and dist.is_initialized() and dist.get_world_size() > 1:
+            return _World(dist.get_rank(), dist.get_world_size())
+        return None
+
+    def sum(self, values: list[float]) -> list[float]:
+        import torch.distributed as dist
+
+        t = torch.tensor(values, dtype=torch.float64)
+        dist.all_reduce(t)
+        return t.tolist()
+
+    def any(self, flag: bool) -> bool:
+        return self.sum([float(flag)])[0] > 0
 
 
 def _native_bf16() -> bool:
@@ -488,16 +535,22 @@ def train(
     sessions: list[LabeledSession],
     settings: TrainSettings = TrainSettings(),
     show_progress: bool = True,
+    on_epoch: Callable[[dict], None] | None = None,
 ) -> TrainResult:
-    """Train a TerrainCNN on sessions (split by session); see the module docstring."""
+    """Train a TerrainCNN on sessions (split by session); see the module docstring.
+    `on_epoch`: called with each epoch's entry of the history."""
     from tqdm import tqdm
 
     started = time.perf_counter()
+    world = _World.current()
     if settings.threads:
         torch.set_num_threads(settings.threads)
     torch.manual_seed(settings.seed)
     torch.use_deterministic_algorithms(True, warn_only=True)
     rng = np.random.default_rng(settings.seed)
+    # Distributed, every process draws the same epochs (`rng`) and augments its own share
+    # with its own generator.
+    augment_rng = rng if world is None else np.random.default_rng([settings.seed, world.rank])
     device = choose_device(settings.device)
 
     train_s, val_s, test_s = split_by_session(
@@ -517,6 +570,13 @@ def train(
     )
     scheduler = torch.optim.lr_scheduler.ReduceLROnPlateau(optimiser, factor=0.5, patience=0)
     _warm_start_batch_norm(net, x_train, device, rng)
+    model = net
+    batch_size = settings.batch_size
+    if world is not None:
+        from torch.nn.parallel import DistributedDataParallel
+
+        model = DistributedDataParallel(net)  # the same start everywhere: rank 0's weights
+        batch_size = max(1, settings.batch_size // world.size)
     per_epoch = settings.samples_per_epoch or len(y_train)
     bf16 = settings.bf16 and device.type == "cpu" and _native_bf16()
     best_loss, best_state, best_epoch, stale = math.inf, None, 0, 0
@@ -525,7 +585,9 @@ def train(
     for epoch in range(1, settings.epochs + 1):
         net.train()
         order = _epoch_indices(y_train, per_epoch, settings.balance, rng, settings.balance_power)
-        n_batches = math.ceil(len(order) / settings.batch_size)
+        if world is not None:  # equal shares: every process takes as many steps
+            order = order[: len(order) - len(order) % world.size][world.rank :: world.size]
+        n_batches = math.ceil(len(order) / batch_size)
         loss_sum = correct = seen = 0
         with tqdm(
             total=n_batches,
@@ -539,13 +601,13 @@ def train(
                 x_train,
                 y_train,
                 order,
-                settings.batch_size,
+                batch_size,
                 settings.augment_probability if settings.augment else 0.0,
-                rng,
+                augment_rng,
             ):
                 x, y = x.to(device), y.to(device)
                 with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
-                    scores = net(x)
+                    scores = model(x)
                 loss = F.cross_entropy(scores.float(), y)
                 optimiser.zero_grad(set_to_none=True)
                 loss.backward()
@@ -558,11 +620,20 @@ def train(
                 bar.update(1)
                 if settings.max_steps and steps >= settings.max_steps:
                     break
-                if settings.max_seconds and time.perf_counter() - started > settings.max_seconds:
-                    out_of_time = True
-                    break
+                if settings.max_seconds:
+                    late = time.perf_counter() - started > settings.max_seconds
+                    if late if world is None else world.any(late):  # all stop at one step
+                        out_of_time = True
+                        break
+            if world is not None:
+                loss_sum, correct, seen = world.sum([loss_sum, correct, seen])
             val_loss, val_acc, val_bal = _validate(
-                net, x_val, y_val, device, settings.balance_power if settings.balance else 0.0
+                net,
+                x_val,
+                y_val,
+                device,
+                settings.balance_power if settings.balance else 0.0,
+                world=world,
             )
             bar.set_postfix(
                 loss=f"{loss_sum / seen:.3f}",
@@ -582,6 +653,8 @@ def train(
                 "lr": lr,
             }
         )
+        if on_epoch is not None:
+            on_epoch(dict(history[-1]))
         improved = not math.isnan(val_loss) and val_loss < best_loss - 1e-4
         if improved or best_state is None:
             best_loss = val_loss if not math.isnan(val_loss) else best_loss
@@ -615,7 +688,7 @@ def train(
         },
         stopped_early=stopped_early,
     )
-    if test_s:
+    if test_s and (world is None or world.rank == 0):
         result.test_metrics = evaluate_sessions(Classifier(result.net), test_s)
     result.seconds = time.perf_counter() - started
     return result

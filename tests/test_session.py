@@ -248,9 +248,19 @@ def test_fast_replay_in_two_processes_matches_a_paced_one(recorded, tmp_path):
     assert sum(d["kind"] != "unknown" for _, d in features(fast.output)) > 10
 
 
-def test_fast_replay_classifies_what_has_come_without_waiting_for_a_full_batch():
-    """The first frame is classified as soon as it arrives; frames already waiting join
-    its batch (up to the size), and an error still gives the frames before it first."""
+def test_fast_replay_classifies_in_batches_of_a_fixed_size_however_frames_come():
+    """The CNN's float results depend on a batch's size: fixed batches from the first
+    frame on make every fast replay of a file the same."""
+    import capture.replay as R
+
+    blocks = [[0], [1, 2, 3], [4], [5, 6, 7, 8, 9], [10]]
+    assert list(R._fixed_batches(iter(blocks), 4)) == [[0, 1, 2, 3], [4, 5, 6, 7], [8, 9, 10]]
+    assert list(R._fixed_batches(iter([]), 4)) == []
+
+
+def test_the_reader_process_hands_over_what_has_come_without_waiting_for_a_full_batch():
+    """Frames already waiting join the first frame's block (up to the size), and an
+    error still gives the frames before it first."""
     import queue
 
     import capture.replay as R

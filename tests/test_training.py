@@ -194,7 +194,7 @@ def test_early_stopping_restores_the_best_epoch(monkeypatch):
 
     losses = iter([1.0, 0.5, 0.7, 0.8, 0.9, 1.0])
     monkeypatch.setattr(
-        training, "_validate", lambda net, x, y, device, power: (next(losses), 0.5, 0.5)
+        training, "_validate", lambda net, x, y, device, power, world=None: (next(losses), 0.5, 0.5)
     )
     result = train(
         drawn_sessions(6, 2),

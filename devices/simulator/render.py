@@ -27,6 +27,7 @@ analytically in the camera frame, so the scene never changes per frame.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -176,12 +177,19 @@ def _subdivide(x, z, labels, step):
     return np.array(out_x), np.array(out_z), np.array(out_l, dtype=np.int32)
 
 
+def _threads_allowed() -> int:
+    """OMP_NUM_THREADS when it is a positive integer, else 0 (all cores)."""
+    text = os.environ.get("OMP_NUM_THREADS", "")
+    return int(text) if text.isdigit() else 0
+
+
 class TerrainScene:
     """The course as an Open3D RaycastingScene, cast from a camera pose, one ray per pixel."""
 
     def __init__(self, course: Course, rays_cam: np.ndarray, threads: int = 0) -> None:
         """`rays_cam`: unit ray per pixel in the camera frame, (n, 3) float32; `threads`:
-        Open3D's threads per cast, 0 for all cores."""
+        Open3D's threads per cast, 0 for all cores, or for OMP_NUM_THREADS where it is set
+        (a cluster task's share of a node: Ray sets it to the task's CPUs)."""
         import open3d as o3d
 
         self._o3d = o3d
@@ -200,7 +208,7 @@ class TerrainScene:
         # rays = [1, direction] @ [[origin, 0], [0, R^T]]: origin and direction in one product
         self._homogeneous = np.hstack([np.ones((len(rays_cam), 1), np.float32), rays_cam])
         self._transform = np.zeros((4, 6), np.float32)
-        self._threads = threads
+        self._threads = threads or _threads_allowed()
         # the first cast commits the scene: do it here, not in racing threads
         self.scene.cast_rays(o3d.core.Tensor(np.zeros((1, 6), np.float32)))
 

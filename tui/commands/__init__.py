@@ -162,3 +162,14 @@ def course_condition(args, config) -> str | None:
             f"{config.simulator.course!r} (the file records both)"
         )
     return None
+
+
+def add_cluster_argument(parser, work: str) -> None:
+    """`--cluster ADDRESS|local`: `work` as one task each on a Ray cluster (capture.cluster)."""
+    parser.add_argument(
+        "--cluster",
+        metavar="ADDRESS|local",
+        help=f"run {work} as Ray tasks: 'local' starts a cluster on this machine's cores, "
+        "an address (host:port) joins a running one; every node needs walkcap and the "
+        "files at the same paths (default: this process)",
+    )

@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 import sys
 
+from tui.commands import bench_corpus
+
 HELP = "measure speed, latency and size on mock devices"
 
 
@@ -20,6 +22,13 @@ def add_arguments(parser) -> None:
         help="instead: a full mock session at 45 fps for MINUTES; "
         "memory and latency over time, drops",
     )
+    parser.add_argument(
+        "--cluster",
+        metavar="ADDRESS|local",
+        help="instead: synth and replay of --sessions sessions with --cluster against one "
+        "process, --rounds interleaved rounds; the cluster's start-up; throughput per core",
+    )
+    bench_corpus.add_arguments(parser)
 
 
 def run(args, config) -> int:
@@ -31,6 +40,8 @@ def run(args, config) -> int:
     say = (lambda line: None) if args.json else (lambda line: print(f"… {line}", file=sys.stderr))
     if args.soak is not None:
         return _soak(bench, args.soak, args.json)
+    if args.cluster:
+        return bench_corpus.run(args, config)
     results = bench.run_all(args.seconds, progress=say)
     machine = bench.machine()
     if args.json:

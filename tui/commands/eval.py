@@ -14,7 +14,7 @@ import json
 import math
 from pathlib import Path
 
-from tui.commands import count, eval_model
+from tui.commands import add_cluster_argument, count, eval_model
 
 HELP = "evaluate classifiers and fusion on score files or recordings"
 
@@ -128,6 +128,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="evaluate the newest replay of each trial instead of its recording "
         "(another model's output on the same trial)",
     )
+    add_cluster_argument(p, "the reading of each recording")
     _common_arguments(p)
 
     p = verbs.add_parser("model", help=eval_model.HELP, description=eval_model.HELP)
@@ -159,7 +160,11 @@ def run(args, config) -> int:
     if args.eval_command == "scores":
         trials = [ev.read_scores(path) for path in args.files]
     else:
-        trials = read_trials(_recordings(args.files, args.replays), args.reference)
+        files = _recordings(args.files, args.replays)
+        if args.cluster:
+            trials = _trials_on_cluster(files, args.reference, args.cluster)
+        else:
+            trials = read_trials(files, args.reference)
     per_trial = params
     if args.transition == "estimated":
         per_trial = [
@@ -297,3 +302,18 @@ def _recordings(paths: list[str], replays: bool = False) -> list[str]:
     for line in corpus.report_lines():
         print(line, file=sys.stderr)
     return [str(p) for p in corpus.files]
+
+
+def _trials_on_cluster(files: list[str], reference: str, address: str) -> list:
+    """read_trials with one Ray task per recording; the trials in the order given."""
+    from pathlib import Path
+
+    from capture import cluster
+    from capture.reader import read_evaluation_trial
+
+    tasks = [  # absolute paths for the nodes; each trial keeps the path as given
+        cluster.Task(Path(f).name, read_evaluation_trial, (str(Path(f).resolve()), reference, f))
+        for f in files
+    ]
+    with cluster.connect(address):
+        return cluster.run(tasks, desc="eval", unit="recording")

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import sys
 
+from tui.commands import add_cluster_argument
+
 HELP = "recordings as tables for analysis: Parquet, CSV or MATLAB .mat"
 
 
@@ -39,6 +41,7 @@ def add_arguments(parser) -> None:
         action="store_true",
         help="every file given, derived copies included, without picking one per trial",
     )
+    add_cluster_argument(parser, "the reading of each recording")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.add_argument("--json", action="store_true", help="print what was written as JSON")
 
@@ -53,6 +56,7 @@ def run(args, config) -> int:
         replays=args.replays,
         every_file=args.every_file,
         progress=not args.quiet and not args.json,
+        cluster=args.cluster,
     )
     for line in corpus.report_lines():
         print(line, file=sys.stderr)

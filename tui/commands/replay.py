@@ -1,17 +1,19 @@
-"""`walkcap replay`: the pipeline again on a recording (e.g. with another model), into a
-new recording; or `--tui` to view it in the session screens and correct labels."""
+"""`walkcap replay`: the pipeline again on recordings (e.g. with another model), each into
+a new recording; or `--tui` to view one in the session screens and correct labels."""
 
 from __future__ import annotations
 
 import sys
 
-from tui.commands import finish_recording
+from tui.commands import add_cluster_argument, finish_recording
 
-HELP = "run the pipeline again on a recording into a new recording (or view it with --tui)"
+HELP = "run the pipeline again on recordings into new recordings (or view one with --tui)"
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("file", metavar="FILE", help="a walkcap recording (.mcap)")
+    parser.add_argument(
+        "files", nargs="+", metavar="FILE", help="walkcap recordings (.mcap), one or more"
+    )
     pace = parser.add_mutually_exclusive_group()
     pace.add_argument("--speed", type=float, metavar="X", help="X times the recorded pace")
     pace.add_argument("--fast", action="store_true", help="as fast as possible (default)")
@@ -19,9 +21,11 @@ def add_arguments(parser) -> None:
     parser.add_argument(
         "-o",
         "--out",
-        metavar="FILE",
-        help="output file (default: FILE.replay.mcap beside the original)",
+        metavar="FILE|DIR",
+        help="output file (default: FILE.replay.mcap beside the original); with several "
+        "FILEs, the folder for their replays",
     )
+    add_cluster_argument(parser, "each recording's replay")
     # viewing with play/pause/seek and label corrections into a new file
     parser.add_argument(
         "--tui",
@@ -35,14 +39,56 @@ def run(args, config) -> int:
     from capture.config import override
     from capture.errors import CaptureError
 
+    several = len(args.files) > 1
     if args.tui:
+        if several:
+            raise CaptureError("--tui shows one recording: give one FILE")
         from tui.replay import run_tui
 
-        return run_tui(args.file, config)
+        return run_tui(args.files[0], config)
     if args.speed is not None and args.speed <= 0:
         raise CaptureError("--speed must be positive")
+    if args.cluster and args.speed is not None:
+        raise CaptureError("--cluster replays as fast as possible: leave out --speed")
     if args.model:
         override(config, "model.path", args.model)
+    outputs = _outputs(args.files, args.out)
+    if args.cluster:
+        return _on_cluster(args, config, outputs)
+    status = 0
+    for source, output in zip(args.files, outputs):
+        status = max(status, _replay_one(args, config, source, output))
+    return status
+
+
+def _outputs(files: list[str], out: str | None) -> list[str | None]:
+    """Each FILE's output: --out for one FILE; for several, their default names, in the
+    --out folder when given (None: decided by replay, beside the original)."""
+    from pathlib import Path
+
+    from capture.errors import CaptureError
+    from capture.replay import default_output
+
+    if len(files) == 1:
+        return [out]
+    names = [Path(f).name for f in files]
+    if out is not None and len(set(names)) != len(names):
+        raise CaptureError("two FILEs have the same name: their replays would meet in --out")
+    if out is not None and Path(out).suffix.lower() == ".mcap":
+        raise CaptureError(f"--out {out}: with several FILEs, --out names a folder")
+    folder = Path(out) if out is not None else None
+    if folder is not None:
+        folder.mkdir(parents=True, exist_ok=True)
+    outputs = []
+    for f in files:
+        o = default_output(Path(f), folder)
+        while str(o) in outputs:  # one FILE given twice: its replays one after the other
+            o = o.with_name(o.stem + "+.mcap")
+        outputs.append(str(o))
+    return outputs
+
+
+def _replay_one(args, config, source: str, output: str | None) -> int:
     from tqdm import tqdm
 
     from capture.replay import replay
@@ -50,7 +96,7 @@ def run(args, config) -> int:
     bar = tqdm(unit="frame", desc="replay", file=sys.stderr, disable=not sys.stderr.isatty())
     try:
         report = replay(
-            args.file, config, output=args.out, speed=args.speed, progress=lambda n: bar.update(1)
+            source, config, output=output, speed=args.speed, progress=lambda n: bar.update(1)
         )
     finally:
         bar.close()
@@ -61,3 +107,36 @@ def run(args, config) -> int:
         file=sys.stderr,
     )
     return finish_recording("replay", stats, report.output)
+
+
+def _on_cluster(args, config, outputs: list[str | None]) -> int:
+    """One task per recording; the new files' paths printed in the order given."""
+    from pathlib import Path
+
+    from capture import cluster
+    from capture.replay import default_output, replay_file
+
+    outputs = [o or str(default_output(Path(f))) for f, o in zip(args.files, outputs)]
+    tasks = [  # absolute paths: a node's worker need not start in this folder
+        cluster.Task(
+            Path(f).name, replay_file, (str(Path(f).resolve()), config, str(Path(o).resolve()))
+        )
+        for f, o in zip(args.files, outputs)
+    ]
+    with cluster.connect(args.cluster):
+        try:
+            reports = cluster.run(tasks, desc="replay", unit="recording")
+        except cluster.ClusterError as e:  # the replays written are still said
+            for o, report in zip(outputs, e.results):
+                if report is not None:
+                    print(o)
+            raise
+    frames = sum(r.frames for r in reports)
+    recorded = sum(r.seconds_recorded for r in reports)
+    print(
+        f"{len(reports)} recording(s), {frames} frames, {recorded:.1f} s recorded",
+        file=sys.stderr,
+    )
+    for o in outputs:
+        print(o)
+    return 0

@@ -1,7 +1,7 @@
 """`walkcap synth`: write simulated sessions (training sets and recordings)
 
     walkcap synth --out DIR [--sessions N] [--preset indoor|outdoor|both] [--seed S]
-                  [--format dataset] [--frames N] [--workers N]
+                  [--format dataset] [--frames N] [--workers N] [--cluster ADDRESS|local]
 
 `--format recording` writes each session as a walkcap recording (MCAP, every topic of a
 live mock session, labels from the simulator's truth), for eval, train and replay.
@@ -13,7 +13,7 @@ metadata) for `walkcap train`. Session i uses seed S + i; "both" alternates pres
 
 from __future__ import annotations
 
-from tui.commands import count
+from tui.commands import add_cluster_argument, count
 
 HELP = "write simulated sessions (training sets and recordings)"
 _positive = count(1)
@@ -56,6 +56,7 @@ def add_arguments(parser) -> None:
         metavar="N",
         help="processes rendering sessions in parallel (default 1)",
     )
+    add_cluster_argument(parser, "each session")
     parser.add_argument(
         "--imu-error-deg",
         type=float,
@@ -96,6 +97,7 @@ def run(args, config) -> int:
         settings=settings,
         simulator_config=config.simulator,
         workers=args.workers,
+        cluster=args.cluster,
     )
     print(f"wrote {len(paths)} session(s) to {args.out}")
     return 0
@@ -115,10 +117,30 @@ def _recordings(args, config) -> int:
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    plan = session_plan(args.sessions, args.preset, args.seed)
+    names = [f"SIM_{preset}_t{i + 1:02d}_seed{seed}.mcap" for i, (preset, seed) in enumerate(plan)]
+    if args.cluster:
+        from capture import cluster
+        from capture.synth import synth_recording_file
+
+        tasks = [
+            cluster.Task(
+                name,
+                synth_recording_file,
+                (str((out / name).resolve()), config, preset, seed, i + 1, args.frames or 0),
+            )
+            for i, (name, (preset, seed)) in enumerate(zip(names, plan))
+        ]
+        with cluster.connect(args.cluster):
+            cluster.run(tasks, desc="synth", unit="recording")
+        for name in names:
+            print(out / name)
+        print(f"wrote {len(names)} recording(s) to {out}", file=sys.stderr)
+        return 0
     classifier = load_classifier(config.model.path or None, threads=CNN_THREADS)
     written = []
-    for i, (preset, seed) in enumerate(session_plan(args.sessions, args.preset, args.seed)):
-        path = out / f"SIM_{preset}_t{i + 1:02d}_seed{seed}.mcap"
+    for i, (name, (preset, seed)) in enumerate(zip(names, plan)):
+        path = out / name
         with tqdm(
             desc=path.name, unit="frame", file=sys.stderr, disable=not sys.stderr.isatty()
         ) as bar:

@@ -1,6 +1,7 @@
 """`walkcap train`: train the terrain classifier
 
     walkcap train --data DIR|FILE ... [--out PATH] [--epochs N] [--seed S] ...
+                  [--cluster ADDRESS|local [--workers N]]
 
 Reads labelled sessions (`walkcap synth --format dataset` output; recordings with
 operator labels), splits them by session into train / validation /
@@ -145,6 +146,22 @@ def add_arguments(parser) -> None:
         action="store_true",
         help="print the result (split, best epoch, test metrics, files) as JSON (no bars)",
     )
+    parser.add_argument(
+        "--cluster",
+        metavar="ADDRESS|local",
+        help="train on a Ray cluster with torch DistributedDataParallel (Ray Train): "
+        "'local' starts one on this machine's cores, an address joins a running one; "
+        "each worker reads the sessions (the files at the same paths on every node) and "
+        "takes its share of every batch (default: this process)",
+    )
+    parser.add_argument(
+        "--workers",
+        type=count(1),
+        default=None,
+        metavar="N",
+        help="with --cluster: training processes (default: one per CPU of the cluster, "
+        "at most one per 16 images of a batch)",
+    )
 
 
 def run(args, config) -> int:
@@ -182,12 +199,24 @@ def run(args, config) -> int:
     files, left_out = select_session_files(args.data)
     for line in left_out:
         print(line, file=sys.stderr)
-    sessions = read_sessions(files)
-    frames = sum(len(s) for s in sessions)
+    quiet = args.quiet or args.json
+    if args.cluster:  # the workers read the sessions; here only the first, for its metadata
+        result = _train_on_cluster(args, settings, files, quiet)
+        sessions = read_sessions(files[:1])
+        n_sessions, frames = len(files), sum(part["frames"] for part in result.data.values())
+        what = "labelled frames"
+    else:
+        if args.workers:
+            from inference.errors import InferenceError
+
+            raise InferenceError("--workers is for --cluster (training processes)")
+        sessions = read_sessions(files)
+        n_sessions, frames, what = len(sessions), sum(len(s) for s in sessions), "frames"
     if not args.json:
-        print(f"{len(sessions)} sessions, {frames} frames from {', '.join(args.data)}")
+        print(f"{n_sessions} sessions, {frames} {what} from {', '.join(args.data)}")
     preprocess = _preprocess_params(sessions) or PreprocessParams.from_config(config).to_dict()
-    result = train(sessions, settings, show_progress=not (args.quiet or args.json))
+    if not args.cluster:
+        result = train(sessions, settings, show_progress=not quiet)
     path = save_result(result, args.out, settings, preprocess, [str(f) for f in files])
     split = result.split
     if args.json:
@@ -196,7 +225,7 @@ def run(args, config) -> int:
         print(
             json.dumps(
                 {
-                    "sessions": len(sessions),
+                    "sessions": n_sessions,
                     "frames": frames,
                     "best_epoch": result.best_epoch,
                     "epochs": len(result.history),
@@ -234,3 +263,14 @@ def _preprocess_params(sessions) -> dict | None:
         if params:
             return {k: v for k, v in params.items() if not k.startswith("mounting_")}
     return None
+
+
+def _train_on_cluster(args, settings, files, quiet: bool):
+    from capture import cluster
+
+    with cluster.connect(args.cluster, worker_logs=False) as resources:
+        workers = cluster.training_workers(
+            settings.batch_size, resources.get("CPU", 1), args.workers or 0
+        )
+        print(f"training on {workers} worker(s) of the cluster (DDP, gloo)", file=sys.stderr)
+        return cluster.train(files, settings, workers, show_progress=not quiet)

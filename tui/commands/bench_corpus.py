@@ -1,0 +1,202 @@
+"""`walkcap bench --cluster ADDRESS|local`: corpus jobs on the cluster against this process.
+
+Each round runs, as a user would, `walkcap synth` (dataset) and `walkcap replay` of the
+same sessions once in one process and once with `--cluster`, alternating which goes first
+(the machine may be shared: interleaving spreads its load over both). Each run is a fresh
+`walkcap` process, so the cluster's figure includes starting it; that start-up is also
+measured alone (connect, then one no-op task per CPU). Reported: each run's seconds, the
+median and range per side, the speed-up, and throughput per core.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument(
+        "--sessions", type=int, default=16, metavar="N", help="sessions (default 16)"
+    )
+    parser.add_argument("--rounds", type=int, default=2, metavar="N", help="A/B rounds (default 2)")
+    parser.add_argument(
+        "--frames", type=int, default=0, metavar="N", help="at most N frames a session"
+    )
+
+
+def _env() -> dict:
+    """This environment, with the walkcap this process runs first on the path."""
+    root = str(Path(__file__).resolve().parents[2])
+    path = os.environ.get("PYTHONPATH", "")
+    return {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (root, path) if p)}
+
+
+def _walkcap(*argv: str) -> float:
+    """Seconds that `walkcap argv` takes, as its own process; its errors are ours."""
+    t = time.perf_counter()
+    done = subprocess.run(
+        [sys.executable, "-m", "tui.cli", *argv],
+        capture_output=True,
+        text=True,
+        check=False,
+        env=_env(),
+    )
+    seconds = time.perf_counter() - t
+    if done.returncode != 0:
+        from capture.errors import CaptureError
+
+        last = (done.stderr.strip().splitlines() or ["(no message)"])[-1]
+        raise CaptureError(f"walkcap {argv[0]} failed during the benchmark: {last}")
+    return seconds
+
+
+def _startup(address: str) -> dict:
+    """Seconds to start (or join) the cluster, and for a no-op task on each CPU to return
+    (the workers' start), in a fresh process as the commands pay them."""
+    code = (
+        "import time, json; t = time.perf_counter()\n"
+        "from capture import cluster\n"
+        f"with cluster.connect({address!r}) as r:\n"
+        "    up = time.perf_counter() - t\n"
+        "    n = int(r.get('CPU', 1))\n"
+        "    cluster.run([cluster.Task(str(i), time.sleep, (0.2,)) for i in range(n)],"
+        " show_progress=False)\n"
+        "    warm = time.perf_counter() - t - up - 0.2\n"
+        "print(json.dumps({'connect_s': up, 'workers_s': warm, 'total_s':"
+        " time.perf_counter() - t}))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=_env())
+    if done.returncode != 0:
+        from capture.errors import CaptureError
+
+        raise CaptureError(f"the cluster did not start: {done.stderr.strip().splitlines()[-1:]}")
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def _frames(folder: Path, suffix: str) -> int:
+    if suffix == ".npz":
+        from inference.dataset import read_session
+
+        return sum(len(read_session(p)) for p in folder.glob("*.npz"))
+    from capture.reader import open_recording
+    from capture.topics import DEPTH
+
+    return sum(open_recording(p).topics[DEPTH].count for p in folder.glob("*.replay.mcap"))
+
+
+def run(args, config) -> int:
+    import shutil
+
+    from capture import bench
+    from capture.errors import CaptureError
+
+    if args.sessions < 2 or args.rounds < 1:
+        raise CaptureError("--sessions must be at least 2 and --rounds at least 1")
+    address, n = args.cluster, str(args.sessions)
+    frames = ["--frames", str(args.frames)] if args.frames else []
+    say = lambda line: print(f"… {line}", file=sys.stderr, flush=True)  # noqa: E731
+    cores = os.cpu_count() or 1
+    times: dict[str, dict[str, list[float]]] = {
+        job: {"one": [], "cluster": []} for job in ("synth", "replay")
+    }
+    load = [os.getloadavg()[0]]
+    with tempfile.TemporaryDirectory(prefix="walkcap-bench-") as tmp:
+        tmp = Path(tmp)
+        say(f"{args.sessions} recordings to replay (synth --format recording, on the cluster)")
+        _walkcap("synth", "--format", "recording", "--out", str(tmp / "rec"), "--sessions", n,
+                 *frames, "--cluster", address)  # fmt: skip
+        recordings = sorted(str(p) for p in (tmp / "rec").glob("*.mcap"))
+        startups = []
+        for r in range(args.rounds):
+            order = ("one", "cluster") if r % 2 == 0 else ("cluster", "one")
+            for job in ("synth", "replay"):
+                for side in order:
+                    out = tmp / f"{job}-{side}"
+                    shutil.rmtree(out, ignore_errors=True)
+                    extra = ["--cluster", address] if side == "cluster" else []
+                    if job == "synth":
+                        argv = ["synth", "--out", str(out), "--sessions", n, *frames, *extra]
+                    else:
+                        argv = ["replay", *recordings, "-o", str(out), *extra]
+                    seconds = _walkcap(*argv)
+                    times[job][side].append(seconds)
+                    load.append(os.getloadavg()[0])
+                    say(f"round {r + 1}: {job} {side}: {seconds:.1f} s")
+            startups.append(_startup(address))
+            say(f"round {r + 1}: cluster start-up {startups[-1]['total_s']:.1f} s")
+        counted = {
+            "synth": _frames(tmp / "synth-one", ".npz"),
+            "replay": _frames(tmp / "replay-one", ".mcap"),
+        }
+    report = _report(args.sessions, cores, times, counted, startups, load, bench.machine())
+    if args.json:
+        print(json.dumps(report, indent=2))
+    else:
+        print(_format(report))
+    return 0
+
+
+def _spread(values: list[float]) -> dict:
+    return {"median": statistics.median(values), "min": min(values), "max": max(values)}
+
+
+def _report(sessions, cores, times, frames, startups, load, machine) -> dict:
+    start = statistics.median(s["total_s"] for s in startups)
+    jobs = {}
+    for job, sides in times.items():
+        one, clu = statistics.median(sides["one"]), statistics.median(sides["cluster"])
+        jobs[job] = {
+            "sessions": sessions,
+            "frames": frames[job],
+            "one_process_s": {**_spread(sides["one"]), "runs": sides["one"]},
+            "cluster_s": {**_spread(sides["cluster"]), "runs": sides["cluster"]},
+            "speedup": one / clu,
+            "speedup_without_startup": one / max(clu - start, 1e-9),
+            # per core of the cluster, start-up included
+            "cluster_sessions_per_min_per_core": sessions / (clu / 60) / cores,
+            "cluster_frames_per_s_per_core": frames[job] / clu / cores,
+            "one_process_sessions_per_min": sessions / (one / 60),
+            "one_process_frames_per_s": frames[job] / one,
+        }
+    return {
+        "machine": machine,
+        "cores": cores,
+        "load_avg_1min": {"start": load[0], "max": max(load), "end": load[-1]},
+        "startup_s": {
+            **_spread([s["total_s"] for s in startups]),
+            "connect_median": statistics.median(s["connect_s"] for s in startups),
+            "workers_median": statistics.median(s["workers_s"] for s in startups),
+        },
+        "jobs": jobs,
+    }
+
+
+def _format(r: dict) -> str:
+    s = r["startup_s"]
+    lines = [
+        f"machine: {r['machine']['cpu']}, {r['cores']} cores; load average (1 min) "
+        f"{r['load_avg_1min']['start']:.1f} at the start, {r['load_avg_1min']['max']:.1f} at "
+        f"most, {r['load_avg_1min']['end']:.1f} at the end",
+        f"cluster start-up: {s['median']:.1f} s median ({s['min']:.1f}-{s['max']:.1f}): "
+        f"connect {s['connect_median']:.1f} s, workers {s['workers_median']:.1f} s",
+    ]
+    for job, j in r["jobs"].items():
+        one, clu = j["one_process_s"], j["cluster_s"]
+        lines += [
+            f"{job}: {j['sessions']} sessions, {j['frames']} frames",
+            f"  one process  {one['median']:6.1f} s median ({one['min']:.1f}-{one['max']:.1f}), "
+            f"{j['one_process_sessions_per_min']:.1f} sessions/min, "
+            f"{j['one_process_frames_per_s']:.0f} frames/s",
+            f"  cluster      {clu['median']:6.1f} s median ({clu['min']:.1f}-{clu['max']:.1f}), "
+            f"{j['cluster_sessions_per_min_per_core']:.1f} sessions/min and "
+            f"{j['cluster_frames_per_s_per_core']:.0f} frames/s per core",
+            f"  speed-up     {j['speedup']:.2f}x with the start-up, "
+            f"{j['speedup_without_startup']:.2f}x without",
+        ]
+    return "\n".join(lines)
