@@ -470,8 +470,9 @@ def test_unplug_is_reported_within_a_second_and_the_camera_reopened(generation):
         t0 = time.monotonic()
         while cam.status().state != "ok" and time.monotonic() - t0 < 3:
             time.sleep(0.02)
-        while cam.recv(0.05) is not None:
-            pass  # frames from before the unplug
+        for _ in range(64):  # frames from before the unplug, still buffered (not new ones)
+            if cam.recv(0.0) is None:
+                break
         assert frames_from(cam, 1, timeout=5.0), "no frames after the camera came back"
         kinds = [e.kind for e in cam.poll_events()]
     finally:
