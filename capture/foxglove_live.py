@@ -46,7 +46,7 @@ class FoxgloveLive:
     """A Foxglove WebSocket server publishing the live session; `port=0` picks a free one."""
 
     def __init__(
-        self, host: str = "127.0.0.1", port: int = 8765, image_hz: float = 15.0, name="walkcap"
+        self, host: str = "127.0.0.1", port: int = 8765, image_hz: float = 5.0, name="walkcap"
     ) -> None:
         try:
             import foxglove
@@ -85,6 +85,7 @@ class FoxgloveLive:
             )
         self._min_image_s = 1.0 / image_hz if image_hz > 0 else 0.0
         self._next_image = 0.0
+        self._next_processed = 0.0
         self._queue: collections.deque = collections.deque(maxlen=QUEUE_ITEMS)
         self._ready = threading.Event()
         self._halt = threading.Event()
@@ -120,8 +121,13 @@ class FoxgloveLive:
         self._put(("frame", frame, time_ns))
 
     def write_processed(self, index, time_ns, log_time_ns, cloud, image, quaternion, flag) -> None:
-        if self._watched(T.CLOUD, T.BINARY_IMAGE, T.TF, T.PREPROCESS):
-            self._put(("processed", index, time_ns, log_time_ns, cloud, image, quaternion, flag))
+        if not self._watched(T.CLOUD, T.BINARY_IMAGE, T.TF, T.PREPROCESS):
+            return
+        now = time.monotonic()
+        if now < self._next_processed:
+            return
+        self._next_processed = now + self._min_image_s
+        self._put(("processed", index, time_ns, log_time_ns, cloud, image, quaternion, flag))
 
     def write_inference(self, index, time_ns, log_time_ns, probabilities, fused) -> None:
         if self._watched(T.CNN, T.FUSED):
