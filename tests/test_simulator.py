@@ -61,7 +61,7 @@ def test_presets_randomise_within_the_issue_ranges(preset):
     segs = [s for c in courses for s in c.segments]
     stairs = [s for s in segs if s.mode in ("US", "DS")]
     ramps = [s for s in segs if s.mode in ("UR", "DR")]
-    assert all(0.12 <= s.riser_m <= 0.20 and 0.25 <= s.tread_m <= 0.35 for s in stairs)
+    assert all(0.10 <= s.riser_m <= 0.20 and 0.25 <= s.tread_m <= 0.38 for s in stairs)
     assert all(5 <= s.slope_deg <= 15 for s in ramps)
     assert np.ptp([s.riser_m for s in stairs]) > 0.05  # really randomised
     assert len({round(c.length_m, 6) for c in courses}) == len(courses)

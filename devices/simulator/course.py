@@ -11,8 +11,9 @@ level-ground segments and one each of up stairs, up ramp, down ramp, down stairs
 (LG US UR LG DR DS LG: ascents meet ascents, descents meet descents, as the paper's
 transition matrix suggests). Where a custom order turns from going up to going down (or
 back), a short level landing is inserted as its own LG segment: it is level ground.
-Presets: "indoor" and "outdoor", randomised by a seed: risers 0.12-0.20 m, treads
-0.25-0.35 m, ramps 5-15 degrees; outdoors also curbs (one-step height changes inside
+Presets: "indoor" and "outdoor", randomised by a seed: risers 0.10-0.20 m, treads
+0.25-0.38 m (the authors' stairs, risers 0.15 +- 0.05 m and treads 0.33 +- 0.05 m, lie
+inside), ramps 5-15 degrees; outdoors also curbs (one-step height changes inside
 level-ground segments), uneven ground and clutter beside the walkway.
 """
 
@@ -26,6 +27,8 @@ import numpy as np
 from devices.frames import MODES
 
 PRESETS = ("indoor", "outdoor")
+RISER_M = (0.10, 0.20)  # stairs' riser height and tread depth, drawn per staircase
+TREAD_M = (0.25, 0.38)
 # One trial of the paper: three level-ground segments, one of each other mode.
 PAPER_TRIAL = ("LG", "US", "UR", "LG", "DR", "DS", "LG")
 ASCENTS, DESCENTS = ("US", "UR"), ("DS", "DR")
@@ -163,8 +166,8 @@ def _stairs(
     mode: str, x0: float, z0: float, rng: np.random.Generator, steps: tuple[int, int]
 ) -> Segment:
     n = int(rng.integers(steps[0], steps[1] + 1))
-    riser = float(rng.uniform(0.12, 0.20))
-    tread = float(rng.uniform(0.25, 0.35))
+    riser = float(rng.uniform(*RISER_M))
+    tread = float(rng.uniform(*TREAD_M))
     return Segment(mode, x0, z0, n * tread, steps=n, riser_m=riser, tread_m=tread)
 
 
