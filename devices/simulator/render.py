@@ -178,9 +178,12 @@ def _subdivide(x, z, labels, step):
 
 
 def _threads_allowed() -> int:
-    """OMP_NUM_THREADS when it is a positive integer, else 0 (all cores)."""
+    """OMP_NUM_THREADS when it is a positive integer, else the cores this process may run
+    on (a CPU set or `taskset` may give it fewer than the machine has)."""
     text = os.environ.get("OMP_NUM_THREADS", "")
-    return int(text) if text.isdigit() else 0
+    if text.isdigit() and int(text) > 0:
+        return int(text)
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 0
 
 
 class TerrainScene:

@@ -1,11 +1,16 @@
 """`walkcap bench --cluster ADDRESS|local`: corpus jobs on the cluster against this process.
 
 Each round runs, as a user would, `walkcap synth` (dataset) and `walkcap replay` of the
-same sessions once in one process and once with `--cluster`, alternating which goes first
-(the machine may be shared: interleaving spreads its load over both). Each run is a fresh
+same sessions three ways: in one process as the command runs by default, in one process
+held to one core (the per-core baseline), and with `--cluster`, rotating which goes first
+(the machine may be shared: interleaving spreads its load over all). Each run is a fresh
 `walkcap` process, so the cluster's figure includes starting it; that start-up is also
-measured alone (connect, then one no-op task per CPU). Reported: each run's seconds, the
-median and range per side, the speed-up, and throughput per core.
+measured alone (connect, then one no-op task per CPU). Reported: each run's seconds and
+CPU seconds, the median and range per side, the speed-ups, and throughput per core.
+
+One process is not one core: synth's ray casts run on every core the process may use, and
+replay reads in a second process. The speed-up over the default path is bounded by the
+cores that path leaves idle; the speed-up over one core is how the cluster scales.
 """
 
 from __future__ import annotations
@@ -37,23 +42,39 @@ def _env() -> dict:
     return {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (root, path) if p)}
 
 
-def _walkcap(*argv: str) -> float:
-    """Seconds that `walkcap argv` takes, as its own process; its errors are ours."""
+SIDES = ("one", "one_core", "cluster")
+
+
+def _one_core() -> None:
+    """In the child before it starts: this process and its children on one core."""
+    os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
+
+
+def _walkcap(*argv: str, one_core: bool = False) -> tuple[float, float]:
+    """(seconds, CPU seconds of it and its children) that `walkcap argv` takes, as its own
+    process; its errors are ours. The CPU time of a cluster's own processes (started and
+    ended by the command) is included; that of a running cluster joined is not."""
     t = time.perf_counter()
+    before = os.times()
     done = subprocess.run(
         [sys.executable, "-m", "tui.cli", *argv],
         capture_output=True,
         text=True,
         check=False,
         env=_env(),
+        preexec_fn=_one_core if one_core else None,
     )
     seconds = time.perf_counter() - t
+    after = os.times()
+    cpu = (after.children_user - before.children_user) + (
+        after.children_system - before.children_system
+    )
     if done.returncode != 0:
         from capture.errors import CaptureError
 
         last = (done.stderr.strip().splitlines() or ["(no message)"])[-1]
         raise CaptureError(f"walkcap {argv[0]} failed during the benchmark: {last}")
-    return seconds
+    return seconds, cpu
 
 
 def _startup(address: str) -> dict:
@@ -102,8 +123,13 @@ def run(args, config) -> int:
     frames = ["--frames", str(args.frames)] if args.frames else []
     say = lambda line: print(f"… {line}", file=sys.stderr, flush=True)  # noqa: E731
     cores = os.cpu_count() or 1
+    if not hasattr(os, "sched_setaffinity"):
+        raise CaptureError("bench --cluster needs a system that can hold a process to one core")
     times: dict[str, dict[str, list[float]]] = {
-        job: {"one": [], "cluster": []} for job in ("synth", "replay")
+        job: {side: [] for side in SIDES} for job in ("synth", "replay")
+    }
+    cpu: dict[str, dict[str, list[float]]] = {
+        job: {side: [] for side in SIDES} for job in ("synth", "replay")
     }
     load = [os.getloadavg()[0]]
     with tempfile.TemporaryDirectory(prefix="walkcap-bench-") as tmp:
@@ -114,7 +140,7 @@ def run(args, config) -> int:
         recordings = sorted(str(p) for p in (tmp / "rec").glob("*.mcap"))
         startups = []
         for r in range(args.rounds):
-            order = ("one", "cluster") if r % 2 == 0 else ("cluster", "one")
+            order = SIDES[r % 3 :] + SIDES[: r % 3]
             for job in ("synth", "replay"):
                 for side in order:
                     out = tmp / f"{job}-{side}"
@@ -124,17 +150,18 @@ def run(args, config) -> int:
                         argv = ["synth", "--out", str(out), "--sessions", n, *frames, *extra]
                     else:
                         argv = ["replay", *recordings, "-o", str(out), *extra]
-                    seconds = _walkcap(*argv)
+                    seconds, used = _walkcap(*argv, one_core=side == "one_core")
                     times[job][side].append(seconds)
+                    cpu[job][side].append(used)
                     load.append(os.getloadavg()[0])
-                    say(f"round {r + 1}: {job} {side}: {seconds:.1f} s")
+                    say(f"round {r + 1}: {job} {side}: {seconds:.1f} s, {used:.1f} CPU s")
             startups.append(_startup(address))
             say(f"round {r + 1}: cluster start-up {startups[-1]['total_s']:.1f} s")
         counted = {
             "synth": _frames(tmp / "synth-one", ".npz"),
             "replay": _frames(tmp / "replay-one", ".mcap"),
         }
-    report = _report(args.sessions, cores, times, counted, startups, load, bench.machine())
+    report = _report(args.sessions, cores, times, cpu, counted, startups, load, bench.machine())
     if args.json:
         print(json.dumps(report, indent=2))
     else:
@@ -146,21 +173,34 @@ def _spread(values: list[float]) -> dict:
     return {"median": statistics.median(values), "min": min(values), "max": max(values)}
 
 
-def _report(sessions, cores, times, frames, startups, load, machine) -> dict:
+def _report(sessions, cores, times, cpu, frames, startups, load, machine) -> dict:
     start = statistics.median(s["total_s"] for s in startups)
     jobs = {}
     for job, sides in times.items():
-        one, clu = statistics.median(sides["one"]), statistics.median(sides["cluster"])
+        one, core, clu = (statistics.median(sides[side]) for side in SIDES)
         jobs[job] = {
             "sessions": sessions,
             "frames": frames[job],
-            "one_process_s": {**_spread(sides["one"]), "runs": sides["one"]},
-            "cluster_s": {**_spread(sides["cluster"]), "runs": sides["cluster"]},
+            **{
+                f"{side}_s": {
+                    **_spread(sides[side]),
+                    "runs": sides[side],
+                    "cpu_s_median": statistics.median(cpu[job][side]),
+                }
+                for side in SIDES
+            },
+            # the default path already uses more than one core (module doc)
+            "one_cores_used": statistics.median(
+                c / s for c, s in zip(cpu[job]["one"], sides["one"])
+            ),
             "speedup": one / clu,
+            "speedup_over_one_core": core / clu,
             "speedup_without_startup": one / max(clu - start, 1e-9),
             # per core of the cluster, start-up included
             "cluster_sessions_per_min_per_core": sessions / (clu / 60) / cores,
             "cluster_frames_per_s_per_core": frames[job] / clu / cores,
+            "one_core_sessions_per_min": sessions / (core / 60),
+            "one_core_frames_per_s": frames[job] / core,
             "one_process_sessions_per_min": sessions / (one / 60),
             "one_process_frames_per_s": frames[job] / one,
         }
@@ -187,16 +227,20 @@ def _format(r: dict) -> str:
         f"connect {s['connect_median']:.1f} s, workers {s['workers_median']:.1f} s",
     ]
     for job, j in r["jobs"].items():
-        one, clu = j["one_process_s"], j["cluster_s"]
+        one, core, clu = j["one_s"], j["one_core_s"], j["cluster_s"]
         lines += [
             f"{job}: {j['sessions']} sessions, {j['frames']} frames",
             f"  one process  {one['median']:6.1f} s median ({one['min']:.1f}-{one['max']:.1f}), "
             f"{j['one_process_sessions_per_min']:.1f} sessions/min, "
-            f"{j['one_process_frames_per_s']:.0f} frames/s",
+            f"{j['one_process_frames_per_s']:.0f} frames/s, on {j['one_cores_used']:.2f} cores",
+            f"  one core     {core['median']:6.1f} s median ({core['min']:.1f}-{core['max']:.1f}),"
+            f" {j['one_core_sessions_per_min']:.1f} sessions/min, "
+            f"{j['one_core_frames_per_s']:.0f} frames/s",
             f"  cluster      {clu['median']:6.1f} s median ({clu['min']:.1f}-{clu['max']:.1f}), "
             f"{j['cluster_sessions_per_min_per_core']:.1f} sessions/min and "
             f"{j['cluster_frames_per_s_per_core']:.0f} frames/s per core",
-            f"  speed-up     {j['speedup']:.2f}x with the start-up, "
-            f"{j['speedup_without_startup']:.2f}x without",
+            f"  speed-up     {j['speedup']:.2f}x over one process "
+            f"({j['speedup_without_startup']:.2f}x without the start-up), "
+            f"{j['speedup_over_one_core']:.2f}x over one core",
         ]
     return "\n".join(lines)
