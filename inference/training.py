@@ -8,7 +8,13 @@
 - Augmentation imitates the sensor, on the occupied cells of the binary image: a small
   rotation of the profile (IMU pitch error, mounting error), a small scale (depth scale,
   camera height), missing returns, a stray cell; then the authors' shift of the minimum to
-  one cell, as the preprocessing does. No flips: left-right reverses up and down.
+  one cell, as the preprocessing does. No left-right flips: they reverse up and down.
+- Mirrored ascents: a share of the up-stairs and up-ramp frames is mirrored in height and
+  trained as down stairs and down ramp. The simulator shows a descent as its geometry
+  does, treads stepping down with gaps where the nosings hide the risers; a person, and
+  the authors' textbook set, read a staircase drawn with its risers going down as down
+  stairs too (and the camera's mixed pixels at a nosing draw part of one). A mirrored
+  ascent is that staircase.
 - Adam with cross-entropy; the learning rate halves when the validation loss stalls, and
   training stops after `patience` epochs without improvement, keeping the best weights.
 - Deterministic for a seed on one machine (one process, seeded generators, deterministic
@@ -68,6 +74,7 @@ class TrainSettings:
     # cost in down-stairs recall.
     balance_power: float = 0.3
     augment_probability: float = 0.5  # share of training frames that are augmented
+    mirror_probability: float = 0.2  # share of US and UR frames mirrored into DS and DR
     bf16: bool = True  # bfloat16 autocast on CPUs with native support (about 1.7x faster)
     samples_per_epoch: int = 0  # frames drawn per epoch; 0: as many as the training set
     max_steps: int = 0  # stop after this many optimiser steps in total (0: no limit)
@@ -150,14 +157,20 @@ def split_by_session(
 # ---- augmentation ------------------------------------------------------------------------
 
 
+# An ascent mirrored in height is the descent of the same shape (module docstring).
+MIRRORED = {MODES.index("US"): MODES.index("DS"), MODES.index("UR"): MODES.index("DR")}
+
+
 def augment_image(
     image: np.ndarray,
     rng: np.random.Generator,
     tilt_deg: float = 1.0,
     scale: float = 0.04,
     dropout: float = 0.15,
+    mirror: bool = False,
 ) -> np.ndarray:
-    """A plausible other view of the same terrain (see the module docstring).
+    """A plausible other view of the same terrain (see the module docstring); `mirror`:
+    of the terrain mirrored in height (an ascent's image becomes a descent's).
 
     The tilt is small: synthetic sessions already carry the IMU's and the mounting's
     errors (about 1.4 degrees of pitch together), and 2 degrees more turns 5-6 degree
@@ -173,6 +186,8 @@ def augment_image(
     # Two sub-cell samples per occupied cell so that rotation leaves no holes.
     x = np.repeat(cols, 2) + rng.random(2 * len(cols))
     z = np.repeat(grid - 1 - rows, 2) + rng.random(2 * len(rows))
+    if mirror:
+        z = -z
     angle = np.radians(rng.normal(0.0, tilt_deg))
     s = 1.0 + rng.uniform(-scale, scale)
     c, sn = math.cos(angle) * s, math.sin(angle) * s
@@ -406,16 +421,26 @@ def _batches(
     batch_size: int,
     augment: float,
     rng: np.random.Generator,
+    mirror: float = 0.0,
 ):
-    """Batches in `order`; each frame augmented with probability `augment`."""
+    """Batches in `order`; each frame augmented with probability `augment`, each ascent
+    mirrored into a descent with probability `mirror` (MIRRORED)."""
     for i in range(0, len(order), batch_size):
         idx = order[i : i + batch_size]
-        batch = images[idx]
-        if augment > 0:
-            batch = np.stack(
-                [augment_image(img, rng) if rng.random() < augment else img for img in batch]
-            )
-        yield images_to_tensor(batch), torch.from_numpy(labels[idx])
+        batch, target = images[idx], labels[idx]
+        if augment > 0 or mirror > 0:
+            target = target.copy()
+            out = []
+            for k, img in enumerate(batch):
+                if mirror > 0 and int(target[k]) in MIRRORED and rng.random() < mirror:
+                    target[k] = MIRRORED[int(target[k])]
+                    out.append(augment_image(img, rng, mirror=True))
+                elif augment > 0 and rng.random() < augment:
+                    out.append(augment_image(img, rng))
+                else:
+                    out.append(img)
+            batch = np.stack(out)
+        yield images_to_tensor(batch), torch.from_numpy(target)
 
 
 @torch.no_grad()
@@ -604,6 +629,7 @@ def train(
                 batch_size,
                 settings.augment_probability if settings.augment else 0.0,
                 augment_rng,
+                settings.mirror_probability if settings.augment else 0.0,
             ):
                 x, y = x.to(device), y.to(device)
                 with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):

@@ -36,23 +36,7 @@ def test_textbook_set_follows_the_recipe():
             assert _risers(image) == 0
 
 
-# The simulator's stairs have risers of 0.12-0.20 m, the recipe's 0.10-0.20 m: the bundled
-# model reads the recipe's lowest stairs (risers under 0.11 m) as ramps.
-SHORT_OF_THE_GOAL = pytest.mark.xfail(
-    strict=True, reason="bundled model: US 93 %, DS 97 % of the textbook set (goal 98 %)"
-)
-
-
-@pytest.mark.parametrize(
-    "mode",
-    [
-        "LG",
-        pytest.param("US", marks=SHORT_OF_THE_GOAL),
-        pytest.param("DS", marks=SHORT_OF_THE_GOAL),
-        "UR",
-        "DR",
-    ],
-)
+@pytest.mark.parametrize("mode", MODES)
 def test_the_bundled_model_reads_the_textbook_set(mode, textbook_predictions):
     images, labels, predictions = textbook_predictions
     assert len(images) == 5 * PER_CLASS

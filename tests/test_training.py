@@ -121,6 +121,27 @@ def test_augmentation_keeps_a_plausible_binary_profile():
     assert not augment_image(empty, rng).any()
 
 
+def test_a_mirrored_ascent_is_trained_as_the_descent_of_its_shape():
+    from inference.training import _batches
+
+    rng = np.random.default_rng(3)
+    up = draw_profile("US", rng)
+    down = augment_image(up, rng, tilt_deg=0.0, scale=0.0, dropout=0.0, mirror=True)
+    rows, cols = np.nonzero(down)
+    near, far = rows[cols < 20].mean(), rows[cols > 80].mean()
+    assert far > near + 20  # image rows grow downwards: the far end lies lower
+    assert rows.max() >= 97 and cols.min() <= 2  # the authors' shift, as for any frame
+
+    modes = ["LG", "US", "DS", "UR", "DR"]
+    images = np.stack([draw_profile(m, rng) for m in modes])
+    labels = np.array([MODES.index(m) for m in modes])
+    order = np.arange(len(modes))
+    ((_, mirrored),) = _batches(images, labels, order, 8, 0.0, np.random.default_rng(0), 1.0)
+    assert [MODES[i] for i in mirrored] == ["LG", "DS", "DS", "DR", "DR"]
+    ((_, plain),) = _batches(images, labels, order, 8, 1.0, np.random.default_rng(0), 0.0)
+    assert plain.tolist() == labels.tolist()
+
+
 def test_group_metrics_and_report():
     labels = np.array([0, 0, 0, 1, 1, 2])
     preds = np.array([0, 0, 1, 1, 1, 0])

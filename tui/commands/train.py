@@ -125,7 +125,9 @@ def add_arguments(parser) -> None:
         help="share of the sessions held out for the final test, unseen in training "
         f"(default {d.test_fraction})",
     )
-    parser.add_argument("--no-augment", action="store_true", help="no augmentation")
+    parser.add_argument(
+        "--no-augment", action="store_true", help="no augmentation (nor mirrored ascents)"
+    )
     parser.add_argument("--no-balance", action="store_true", help="no class balancing")
     parser.add_argument(
         "--balance-power",
