@@ -6,7 +6,8 @@ held to one core (the per-core baseline), and with `--cluster`, rotating which g
 (the machine may be shared: interleaving spreads its load over all). Each run is a fresh
 `walkcap` process, so the cluster's figure includes starting it; that start-up is also
 measured alone (connect, then one no-op task per CPU). Reported: each run's seconds and
-CPU seconds, the median and range per side, the speed-ups, and throughput per core.
+the machine's busy CPU seconds meanwhile, the median and range per side, the speed-ups,
+and throughput per core.
 
 One process is not one core: synth's ray casts run on every core the process may use, and
 replay reads in a second process. The speed-up over the default path is bounded by the
@@ -50,12 +51,23 @@ def _one_core() -> None:
     os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
 
 
+def _busy_cpu_s() -> float:
+    """CPU seconds this machine has spent busy since boot, all processes (/proc/stat): Ray's
+    processes are not the command's children, so only the machine's count sees them."""
+    try:
+        with open("/proc/stat") as f:
+            ticks = [int(v) for v in f.readline().split()[1:]]
+    except (OSError, ValueError):
+        return float("nan")
+    idle = ticks[3] + (ticks[4] if len(ticks) > 4 else 0)  # idle and iowait
+    return (sum(ticks[:8]) - idle) / os.sysconf("SC_CLK_TCK")
+
+
 def _walkcap(*argv: str, one_core: bool = False) -> tuple[float, float]:
-    """(seconds, CPU seconds of it and its children) that `walkcap argv` takes, as its own
-    process; its errors are ours. The CPU time of a cluster's own processes (started and
-    ended by the command) is included; that of a running cluster joined is not."""
+    """(seconds, CPU seconds the machine spent meanwhile) that `walkcap argv` takes, as its
+    own process; its errors are ours. The CPU count includes whatever else runs here."""
     t = time.perf_counter()
-    before = os.times()
+    before = _busy_cpu_s()
     done = subprocess.run(
         [sys.executable, "-m", "tui.cli", *argv],
         capture_output=True,
@@ -65,10 +77,7 @@ def _walkcap(*argv: str, one_core: bool = False) -> tuple[float, float]:
         preexec_fn=_one_core if one_core else None,
     )
     seconds = time.perf_counter() - t
-    after = os.times()
-    cpu = (after.children_user - before.children_user) + (
-        after.children_system - before.children_system
-    )
+    cpu = _busy_cpu_s() - before
     if done.returncode != 0:
         from capture.errors import CaptureError
 
