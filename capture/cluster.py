@@ -105,19 +105,51 @@ def connect(address: str, num_cpus: int | None = None, worker_logs: bool = True)
             )
         else:
             _reachable(address)
-            ray.init(address=address, **options)
-    except (ConnectionError, ValueError, RuntimeError) as e:
+            _join(ray, address, options)
+    except (ConnectionError, ValueError, RuntimeError, ray.exceptions.RayError) as e:
         first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-        hint = (
-            ""
-            if address == LOCAL
-            else (" (a cluster with token authentication needs RAY_AUTH_MODE=token here too)")
-        )
-        raise ClusterError(f"cannot join the Ray cluster at {address}: {first}{hint}") from None
+        raise ClusterError(f"cannot join the Ray cluster at {address}: {first}") from None
     try:
         yield ray.cluster_resources()
     finally:
         ray.shutdown()
+
+
+TOKEN_HINT = (
+    "the cluster uses token authentication: set RAY_AUTH_MODE=token here, with the cluster's "
+    "token in RAY_AUTH_TOKEN (`ray get-auth-token` on the head node prints it)"
+)
+JOIN_ATTEMPTS = "10"  # Ray's attempts at the head's GCS, about a second each (Ray: 20)
+
+
+def _join(ray, address: str, options: dict) -> None:
+    """ray.init at a running cluster. Ray's core logs each failed attempt on stderr, 20
+    lines for a missing token: they are held back, and a refusal for want of a token
+    becomes TOKEN_HINT. Ray never sends this machine's token to an address it is given
+    unless RAY_AUTH_MODE=token says so, and neither does walkcap."""
+    import tempfile
+
+    os.environ.setdefault("RAY_gcs_server_port_wait_time_s", JOIN_ATTEMPTS)
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as held:
+        os.dup2(held.fileno(), 2)
+        try:
+            ray.init(address=address, **options)
+        except (ConnectionError, RuntimeError, ray.exceptions.RayError) as e:
+            held.seek(0)
+            said = held.read().decode(errors="replace")
+            if "InvalidAuthToken" in said or "Unauthenticated" in said:
+                raise ConnectionError(TOKEN_HINT) from None
+            if "no authentication token was found" in str(e):
+                raise ConnectionError(
+                    "RAY_AUTH_MODE=token is set but no token is: give the cluster's token in "
+                    "RAY_AUTH_TOKEN (`ray get-auth-token` on the head node prints it)"
+                ) from None
+            raise
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
 
 
 def _reachable(address: str, timeout_s: float = 3.0) -> None:

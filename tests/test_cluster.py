@@ -205,3 +205,115 @@ def test_an_address_where_no_cluster_answers_is_one_line(capsys):
         port = free.getsockname()[1]
     with pytest.raises(cluster.ClusterError, match="no Ray cluster answers at 127.0.0.1"):
         cluster._reachable(f"127.0.0.1:{port}")
+
+
+@pytest.fixture(scope="module")
+def running_head(tmp_path_factory):
+    """A cluster started as the README says (`ray start --head`), with token
+    authentication; its token in a home of its own. Yields (address, home)."""
+    import re
+    import signal
+    import socket
+    import subprocess
+    import time
+
+    home = tmp_path_factory.mktemp("head-home")
+    with socket.socket() as free:
+        free.bind(("127.0.0.1", 0))
+        port = free.getsockname()[1]
+    env = {**os.environ, "HOME": str(home), "RAY_AUTH_MODE": "token"}
+    env.pop("RAY_ADDRESS", None)
+    ray_cli = str(Path(sys.executable).parent / "ray")
+    generate = [ray_cli, "get-auth-token", "--generate"]
+    subprocess.run(generate, env=env, capture_output=True, check=True)
+    head = subprocess.Popen(
+        [
+            ray_cli,
+            "start",
+            "--head",
+            "--block",
+            f"--port={port}",
+            "--num-cpus=1",
+            "--include-dashboard=false",
+            "--disable-usage-stats",
+        ],  # fmt: skip
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        start_new_session=True,
+    )
+    address, deadline = None, time.monotonic() + 60
+    while address is None and time.monotonic() < deadline and head.poll() is None:
+        line = head.stdout.readline()
+        found = re.search(r"--address='([^']+)'", line)
+        address = found.group(1) if found else None
+    if address is None:
+        head.kill()
+        pytest.fail(f"ray start --head did not give an address: {head.stdout.read()[-500:]}")
+    yield address, home
+    os.killpg(head.pid, signal.SIGTERM)
+    try:
+        head.wait(timeout=3)
+    except subprocess.TimeoutExpired:
+        pass
+    try:  # the head's processes, raylet's workers included, share its session
+        os.killpg(head.pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
+
+
+def _walkcap_at(address: str, out: Path, **env: str | None) -> tuple[int, str, float]:
+    import subprocess
+    import time
+
+    t = time.monotonic()
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "tui.cli",
+            "synth",
+            "--out",
+            str(out),
+            "--sessions",
+            "2",
+            "--frames",
+            "3",
+            "--cluster",
+            address,
+        ],  # fmt: skip
+        # None: unset (a local cluster of this process sets RAY_AUTH_MODE in its environment)
+        env={k: v for k, v in {**os.environ, **env}.items() if v is not None},
+        capture_output=True,
+        text=True,
+        cwd=Path(__file__).resolve().parent.parent,
+    )
+    return done.returncode, done.stderr, time.monotonic() - t
+
+
+def test_a_running_cluster_is_joined_by_its_address(running_head, tmp_path):
+    address, home = running_head
+    rc, err, _ = _walkcap_at(address, tmp_path / "out", HOME=str(home), RAY_AUTH_MODE="token")
+    assert rc == 0, err
+    assert len(list((tmp_path / "out").glob("*.npz"))) == 2
+
+
+def test_a_cluster_that_wants_a_token_is_one_line_soon(running_head, tmp_path):
+    address, _ = running_head
+    elsewhere = tmp_path / "home"  # a machine without the cluster's token
+    elsewhere.mkdir()
+    rc, err, seconds = _walkcap_at(
+        address,
+        tmp_path / "out",
+        HOME=str(elsewhere),
+        RAY_AUTH_MODE=None,
+        RAY_gcs_server_port_wait_time_s="2",
+    )
+    lines = err.strip().splitlines()
+    assert rc == 1 and len(lines) == 1, err
+    assert "uses token authentication: set RAY_AUTH_MODE=token" in lines[0]
+    assert seconds < 30
+    rc, err, _ = _walkcap_at(address, tmp_path / "out", HOME=str(elsewhere), RAY_AUTH_MODE="token")
+    assert rc == 1 and "no token is: give the cluster's token in RAY_AUTH_TOKEN" in err
+    assert not list((tmp_path / "out").glob("*.npz"))
