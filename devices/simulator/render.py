@@ -371,27 +371,39 @@ class ToFSensor:
         footprint straddles it): the depth measured is the amplitude-weighted mix. Changes
         `depth` in place; returns the mask of mixed pixels."""
         g, p = self.geometry, self.params
-        img = np.where(valid, depth, np.float32(np.nan)).reshape(g.height, g.width)
-        amp = amplitude.reshape(g.height, g.width)
-        jump = np.zeros_like(img)  # the neighbour's depth - own, of the largest jump
-        other = np.zeros_like(img)  # that neighbour's amplitude
+        h, w = g.height, g.width
+        img = np.where(valid, depth, np.float32(np.nan)).reshape(h, w)
+        # The largest jump to a neighbour, on every pixel (NaN beside an invalid one: fmax
+        # passes it over); then, on the few edge pixels, which neighbour it is.
+        across, down = np.abs(img[:, 1:] - img[:, :-1]), np.abs(img[1:] - img[:-1])
+        largest = np.zeros((h, w), np.float32)
+        for view, jumps in (
+            (largest[:, 1:], across),
+            (largest[:, :-1], across),
+            (largest[1:], down),
+            (largest[:-1], down),
+        ):
+            np.fmax(view, jumps, out=view)
         with np.errstate(invalid="ignore"):
-            for a, b in (
-                ((slice(None), slice(1, None)), (slice(None), slice(None, -1))),
-                ((slice(1, None), slice(None)), (slice(None, -1), slice(None))),
-            ):
-                for x, y in ((a, b), (b, a)):
-                    d = img[y] - img[x]
-                    bigger = np.abs(d) > np.abs(jump[x])
-                    jump[x] = np.where(bigger, d, jump[x])
-                    other[x] = np.where(bigger, amp[y], other[x])
-            edge = np.flatnonzero(np.abs(jump) > p.edge_jump_m + 0.03 * img)
+            edge = np.flatnonzero(largest.ravel() > p.edge_jump_m + 0.03 * img.ravel())
+        # each edge pixel's neighbour depth - own: left, right, up, down; the first of
+        # equal jumps wins
+        row, col = np.divmod(edge, w)
+        flat = img.ravel()
+        step = np.array([-1, 1, -w, w])
+        inside = np.stack([col > 0, col < w - 1, row > 0, row < h - 1])
+        neighbour = np.where(inside, edge + step[:, None], edge)
+        jumps = np.where(inside, flat[neighbour] - flat[edge], np.float32(np.nan))
+        side = np.nan_to_num(np.abs(jumps), nan=0.0).argmax(axis=0)
+        pick = np.arange(len(edge))
+        jump = jumps[side, pick]
+        other = amplitude[neighbour[side, pick]]  # that neighbour's amplitude
         u = self._draws(rng, self._uniform)  # drawn whatever the edges: same later draws
         if len(edge):
             share = 0.5 * u[edge]  # of the footprint
-            a_own, a_other = amplitude[edge], other.ravel()[edge]
-            weight = share * a_other / np.maximum((1 - share) * a_own + share * a_other, 1e-9)
-            depth[edge] += weight * jump.ravel()[edge]
+            a_own = amplitude[edge]
+            weight = share * other / np.maximum((1 - share) * a_own + share * other, 1e-9)
+            depth[edge] += weight * jump
         mixed = np.zeros(len(depth), bool)
         mixed[edge] = True
         return mixed
