@@ -89,8 +89,6 @@ def connect(address: str, num_cpus: int | None = None, worker_logs: bool = True)
             # address "local": a new cluster, never one that RAY_ADDRESS or `ray start`
             # names. Its workers import the walkcap this process runs (they inherit the
             # environment).
-            # a lab's cluster reports nothing to Ray's usage statistics server
-            os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
             root = str(Path(__file__).resolve().parent.parent)
             path = os.environ.get("PYTHONPATH", "")
             if root not in path.split(os.pathsep):

@@ -24,11 +24,12 @@ def test_report_gives_both_speedups_and_the_cores_the_default_path_uses():
     assert synth["speedup"] == pytest.approx(30 / 25)
     assert synth["speedup_over_one_core"] == pytest.approx(50 / 25)
     assert synth["speedup_without_startup"] == pytest.approx(30 / 20)
+    assert synth["speedup_over_one_core_without_startup"] == pytest.approx(50 / 20)
     assert synth["one_cores_used"] == pytest.approx(1.3)
     assert synth["cluster_frames_per_s_per_core"] == pytest.approx(5200 / 25 / 2)
     assert synth["one_core_sessions_per_min"] == pytest.approx(16 / (50 / 60))
     text = bench_corpus._format(report)
-    assert "1.20x over one process" in text and "2.00x over one core" in text
+    assert "1.20x over one process" in text and "2.00x over one core (2.50x without)" in text
     assert "on 1.30 cores" in text
 
 

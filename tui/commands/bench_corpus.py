@@ -205,6 +205,7 @@ def _report(sessions, cores, times, cpu, frames, startups, load, machine) -> dic
             "speedup": one / clu,
             "speedup_over_one_core": core / clu,
             "speedup_without_startup": one / max(clu - start, 1e-9),
+            "speedup_over_one_core_without_startup": core / max(clu - start, 1e-9),
             # per core of the cluster, start-up included
             "cluster_sessions_per_min_per_core": sessions / (clu / 60) / cores,
             "cluster_frames_per_s_per_core": frames[job] / clu / cores,
@@ -250,6 +251,7 @@ def _format(r: dict) -> str:
             f"{j['cluster_frames_per_s_per_core']:.0f} frames/s per core",
             f"  speed-up     {j['speedup']:.2f}x over one process "
             f"({j['speedup_without_startup']:.2f}x without the start-up), "
-            f"{j['speedup_over_one_core']:.2f}x over one core",
+            f"{j['speedup_over_one_core']:.2f}x over one core "
+            f"({j['speedup_over_one_core_without_startup']:.2f}x without)",
         ]
     return "\n".join(lines)
