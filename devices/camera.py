@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import importlib
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 from devices.base import (
     DEGRADED,
@@ -91,13 +91,22 @@ class Camera:
     # backend with its own watcher): stalls and resumed frames are still reported.
     watchdog = True
 
-    def __init__(self, config=None, *, geometry: CameraGeometry | None = None) -> None:
+    def __init__(
+        self,
+        config=None,
+        *,
+        geometry: CameraGeometry | None = None,
+        clock: Callable[[], int] = now_ns,
+    ) -> None:
         if config is None:
             from devices.config import CameraConfig
 
             config = CameraConfig()
         self.config = config
         self.geometry = geometry or CameraGeometry()
+        # The session clock; a backend on an injected clock (tests) passes its own, so the
+        # watchdog measures silence on the clock the frames are stamped with.
+        self._now = clock
         self._buffer: BoundedBuffer[DepthFrame] = BoundedBuffer(max(1, config.buffer_frames))
         self._events: BoundedBuffer[DeviceEvent] = BoundedBuffer(256)
         self._rate = RateMeter()
@@ -166,7 +175,7 @@ class Camera:
         self.open()
         if self._running:
             return
-        self._started_ns = now_ns()
+        self._started_ns = self._now()
         self._last_frame_ns = 0
         self._stalled = False
         self._set_state(OK, "streaming")
@@ -235,7 +244,7 @@ class Camera:
                 return
 
     def status(self) -> DeviceStatus:
-        t = now_ns()
+        t = self._now()
         self._check(t)
         state, message = self._state, self._message
         if state == OK:
@@ -275,7 +284,7 @@ class Camera:
     def _watchdog_run(self) -> None:
         while not self._watch_stop.wait(0.1):
             try:
-                self._check(now_ns())
+                self._check(self._now())
             except Exception as e:  # the watchdog must outlive an odd device
                 self._message = f"watchdog: {e}"
 
@@ -358,7 +367,7 @@ class Camera:
             self._stalled = False
 
     def _event(self, kind: str, message: str, **details) -> None:
-        self._events.put(DeviceEvent(now_ns(), "camera", kind, message, details))
+        self._events.put(DeviceEvent(self._now(), "camera", kind, message, details))
 
     def _set_state(self, state: DeviceState, message: str) -> None:
         self._state, self._message = state, message

@@ -504,6 +504,10 @@ class ImuEmulator:
     def _transmit(self, frame: bytes, ready_at: int) -> None:
         """Send a frame from ready_at, after the one before it: the host has it all one wire
         time later. More than the line carries piles up, then overflows the device."""
+        # The device's buffer at ready_at: frames on the wire by then have left it (this
+        # thread catching up after the host starved it is no overflow of the device).
+        while self._queue and self._queue[0][0] <= ready_at:
+            self._out += self._queue.popleft()[1]
         if len(self._queue) >= 64:  # the device's output buffer is full: the frame is lost
             self.overflowed += 1
             if ready_at - self._last_overflow_report >= _OVERFLOW_REPORT_NS:

@@ -550,9 +550,15 @@ def test_a_use_case_the_camera_refuses_is_an_init_error(roypy):
 # ---- a recording ---------------------------------------------------------------------------
 
 
-def test_plays_an_rrf_recording_through_the_sdk(generation, tmp_path):
+def test_plays_an_rrf_recording_through_the_sdk(generation, tmp_path, monkeypatch):
     """4.x/5.x: asReplay, loop(False), frameCount; 3.x has none: the frames stopping ends
     the playback."""
+    import devices.royale
+
+    # The session clock stands still until the frames are in, then moves on: silence is
+    # what the test makes it, not what a loaded machine's scheduler happens to leave.
+    clock = [time.monotonic_ns()]
+    monkeypatch.setattr(devices.royale, "now_ns", lambda: clock[0])
     roypy = generation(frames=3)
     rrf = tmp_path / "stairs.rrf"
     rrf.write_bytes(b"\0")
@@ -563,8 +569,9 @@ def test_plays_an_rrf_recording_through_the_sdk(generation, tmp_path):
         if roypy.generation != "3":
             assert roypy.replay_loop is False
         cam.start()
-        frames = frames_from(cam, 3, timeout=5.0)
-        deadline = time.monotonic() + 4
+        frames = frames_from(cam, 3, timeout=60.0)
+        clock[0] += 2_000_000_000  # two seconds without a frame
+        deadline = time.monotonic() + 60
         while cam.status().state != "stopped" and time.monotonic() < deadline:
             time.sleep(0.01)
         state = cam.status().state
