@@ -40,6 +40,7 @@ from mcap.stream_reader import breakup_chunk
 from capture import topics as T
 from capture.errors import CaptureError
 from capture.journal import journal_path, read_journal
+from devices.files import check_replaceable
 
 log = logging.getLogger(__name__)
 
@@ -370,7 +371,10 @@ def recover(
 
     source = Path(path)
     check_magic(source)
+    if output is not None and not os.fspath(output):
+        raise CaptureError("the output path is empty: name the file to write")
     out = Path(output) if output is not None else default_output(source)
+    check_replaceable(out)
     if out.resolve() == source.resolve():
         raise CaptureError("the output must be a new file: the original is kept as it is")
     if out.exists() and not overwrite:
