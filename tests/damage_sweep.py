@@ -331,16 +331,13 @@ def main(argv=None) -> int:
             f"FAIL {case.kind} byte {case.offset} bit {case.bit} cut {case.cut} ({case.what}): "
             + "; ".join(outcome.notes)
         )
-    print(
-        f"{'class':8} {'cases':>7} {'silent':>7} {'phantom':>8} {'internal':>9} {'lost, reported':>15}"[
-            :200
-        ]
-    )
+    columns = ("class", "cases", "silent", "phantom", "internal", "lost, reported")
+    print(f"{columns[0]:8} " + " ".join(f"{c:>15}" for c in columns[1:]))
     sums = [0] * 5
     for kind, t in totals.items():
-        print(f"{kind:8} {t[0]:7} {t[1]:7} {t[2]:8} {t[3]:9} {t[4]:15}")
+        print(f"{kind:8} " + " ".join(f"{v:15}" for v in t))
         sums = [a + b for a, b in zip(sums, t)]
-    print(f"{'total':8} {sums[0]:7} {sums[1]:7} {sums[2]:8} {sums[3]:9} {sums[4]:15}")
+    print(f"{'total':8} " + " ".join(f"{v:15}" for v in sums))
     if args.json:
         print(
             json.dumps(
