@@ -37,7 +37,7 @@ from mcap.records import (
 
 from capture import topics as T
 from capture.errors import CaptureError
-from capture.journal import journal_path, read_journal
+from capture.journal import check_journal, journal_path
 from devices.files import check_replaceable
 
 log = logging.getLogger(__name__)
@@ -679,6 +679,7 @@ class RecoveryReport:
     damaged: list[Damage] = field(default_factory=list)  # skipped inside the file
     unknown_channel_messages: int = 0  # messages whose channel record was in damaged bytes
     finished: bool = False  # the source ends with its footer (damaged or not)
+    journal_skipped: list[str] = field(default_factory=list)  # "line N: why"
 
     @property
     def salvaged(self) -> bool:
@@ -720,7 +721,8 @@ def recover(
     if journal is not None and not Path(journal).is_file():
         raise CaptureError(f"{journal}: no such journal (its labels would be missing)")
     jpath = Path(journal) if journal is not None else journal_path(source)
-    entries = read_journal(jpath)
+    journal_read = check_journal(jpath)
+    entries = journal_read.entries
 
     result = ScanResult()
     schema_ids: dict[int, int] = {}
@@ -811,6 +813,7 @@ def recover(
                 "damaged_bytes": str(result.damaged_bytes),
                 "damaged": "; ".join(d.describe() for d in result.damaged),
                 "journal": jpath.name if entries else "",
+                "journal_skipped": "; ".join(journal_read.skipped),
                 "labels_added_from_journal": str(labels_added),
                 "events_added_from_journal": str(events_added),
             },
@@ -825,6 +828,7 @@ def recover(
         output=str(out),
         complete=result.complete,
         finished=result.finished,
+        journal_skipped=journal_read.skipped,
         reason=result.reason,
         valid_bytes=result.valid_end,
         lost_bytes=result.lost_bytes,

@@ -35,6 +35,8 @@ def run(args, config) -> int:
     print(f"{r.source}: {source}")
     for d in r.damaged:
         print(f"{'skipped' if d.lost else 'found'} damaged {d.describe(r.first_ns)}")
+    for why in r.journal_skipped:
+        print(f"skipped journal {why}")
     if r.unknown_channel_messages:
         print(f"skipped {r.unknown_channel_messages} messages whose channel was in damaged bytes")
     print(
