@@ -24,6 +24,7 @@ from typing import Any
 from capture.errors import ConfigError
 from devices.config import DOCS as DEVICE_DOCS
 from devices.config import CameraConfig, ImuConfig, MountingConfig, SimulatorConfig
+from devices.files import check_replaceable
 from inference.config import DOCS as INFERENCE_DOCS
 from inference.config import FusionConfig, ModelConfig, PreprocessConfig
 
@@ -167,6 +168,8 @@ def _convert(value: Any, tp: Any, key: str) -> Any:
         if isinstance(value, int) and not isinstance(value, bool):
             return value
     elif tp is str:
+        if isinstance(value, str) and "\x00" in value:  # no path or name can hold one
+            raise ConfigError(f"{key}: a NUL character is not allowed")
         if isinstance(value, str):
             return value
     raise ConfigError(f"{key}: expected {_type_name(tp)}, got {value!r}")
@@ -232,6 +235,8 @@ def load(path: str | os.PathLike | None = None) -> Config:
         raise ConfigError(f"configuration file not found: {found}") from None
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{found}: not valid TOML: {e}") from None
+    except RecursionError:  # tomllib recurses once per nested table or array
+        raise ConfigError(f"{found}: tables or arrays nested too deeply") from None
     except UnicodeDecodeError as e:  # TOML is UTF-8: a UTF-16 or Latin-1 file stops here
         raise ConfigError(
             f"{found}: not UTF-8 text (byte {e.start}); save it as UTF-8 without a BOM"
@@ -319,7 +324,7 @@ def documented(config: Config) -> str:
 
 def save(config: Config, path: str | os.PathLike) -> Path:
     """Write the whole configuration atomically (a crash never leaves half a file)."""
-    path = Path(path)
+    path = check_replaceable(path)
     tmp = path.with_suffix(path.suffix + ".tmp")
     tmp.write_text(dumps(config))
     os.replace(tmp, path)

@@ -35,7 +35,15 @@ import orjson
 
 from capture import topics as T
 from capture.errors import CaptureError
-from capture.recovery import RECORD_HEAD, Damage, ScanResult, check_magic, scan
+from capture.recovery import (
+    RECORD_HEAD,
+    Damage,
+    ScanResult,
+    check_magic,
+    file_bytes,
+    scan,
+    summary_damage,
+)
 from devices.frames import MODES, CameraGeometry, DepthFrame, ImuSample
 
 
@@ -243,8 +251,8 @@ def _iter_raw(path: Path, complete: bool, topics: set[str] | None):
         result = ScanResult()
         origin = None
         for record in scan(f, result):
-            if result.damaged:  # every reader stops at damage, with the same line
-                raise CaptureError(_damage_line(path, result.damaged[0].describe(origin)))
+            if result.lost:  # every reader stops at damage, with the same line
+                raise CaptureError(_damage_line(path, result.lost[0].describe(origin)))
             if isinstance(record, Message) and origin is None:
                 origin = record.log_time
             if isinstance(record, Schema):
@@ -324,7 +332,7 @@ def _chunk_messages(f, offset: int, length: int, wanted: set[int]):
 
     f.seek(offset)
     record = f.read(length)
-    if len(record) != length or record[0] != Opcode.CHUNK:
+    if len(record) != length:  # the record's head is not read: the index (CRC) says where
         raise ValueError(f"no chunk at byte {offset}")
     chunk = Chunk.read(ReadDataStream(io.BytesIO(memoryview(record)[RECORD_HEAD.size :])))
     if chunk.compression == "zstd":
@@ -381,7 +389,7 @@ def _open(p: Path) -> Recording:
     with open(p, "rb") as f:
         try:
             reader = make_reader(f)
-            summary = reader.get_summary()
+            summary = None if summary_damage(file_bytes(f)) else reader.get_summary()
         except Exception:  # no footer, cut-off summary: read it record by record
             summary = None
         if summary is not None and summary.statistics is not None:

@@ -46,6 +46,7 @@ from inference.errors import InferenceError
 log = logging.getLogger(__name__)
 
 TIMELINE_S = 20.0
+TRIAL_MAX = 99_999  # trial numbers name files (t01 ... t99999) and fit every integer field
 SWITCH_INTERVAL_S = 0.0005
 
 
@@ -84,8 +85,8 @@ class SubjectInfo:
             raise CaptureError("side: required for an amputee (left or right)")
         if not re.fullmatch(r"[A-Za-z0-9_-]{1,32}", self.condition):
             raise CaptureError("condition: 1-32 letters, digits, '-' or '_' (e.g. indoor)")
-        if self.trial < 1:
-            raise CaptureError("trial: a number from 1")
+        if not 1 <= self.trial <= TRIAL_MAX:
+            raise CaptureError(f"trial: a number from 1 to {TRIAL_MAX}")
 
     def to_metadata(self) -> dict:
         """The form as the "session" metadata record: typed values (None: not given)."""

@@ -21,6 +21,7 @@ from textual.widgets import Button, Checkbox, Footer, Input, Label, Select, Stat
 
 from capture.errors import CaptureError
 from capture.session import SubjectInfo
+from devices.files import check_replaceable
 
 log = logging.getLogger(__name__)
 
@@ -64,6 +65,7 @@ def load_last_session(path: Path | None = None) -> SubjectInfo:
 def save_last_session(info: SubjectInfo, path: Path | None = None) -> None:
     path = path or last_session_path()
     try:
+        check_replaceable(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(".tmp")
         tmp.write_text(json.dumps(dataclasses.asdict(info), indent=2))

@@ -2,6 +2,10 @@
 
 import argparse
 
+# capture.session.TRIAL_MAX and devices.config.SEED_MAX, not imported: `--help` stays instant
+TRIAL_MAX = 99_999
+SEED_MAX = 2**32 - 1
+
 
 def count(minimum: int, maximum: int | None = None):
     """An argparse type: an integer of at least `minimum` (and at most `maximum`), else a
@@ -59,7 +63,7 @@ def add_device_arguments(parser, camera_backends: str = "mock | royale") -> None
         "-o", "--out", metavar="DIR", help="recordings folder (default: [session] recordings)"
     )
     g.add_argument("--course", choices=("indoor", "outdoor"), help="mock walk preset")
-    g.add_argument("--seed", type=int, help="mock walk seed")
+    g.add_argument("--seed", type=count(0, SEED_MAX), help="mock walk seed")
     g.add_argument("--model", metavar="PATH", help="classifier weights (default: bundled)")
     g.add_argument("--operator", help="who runs the session (written into each recording)")
 
@@ -71,7 +75,7 @@ def add_session_arguments(parser) -> None:
     g.add_argument("--condition", help="e.g. indoor / outdoor (default: the mock course)")
     g.add_argument(
         "--trial",
-        type=count(1),
+        type=count(1, TRIAL_MAX),
         metavar="N",
         help="trial number (default: the next free one for subject and condition in the "
         "recordings folder); `record` refuses one that exists unless --overwrite, the UI "

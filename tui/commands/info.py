@@ -72,7 +72,7 @@ def describe(rec) -> list[str]:
     if damaged:
         lines.append(
             f"  state       damaged: {len(damaged)} region(s), "
-            f"{sum(d.length for d in damaged)} bytes unreadable; "
+            f"{sum(d.length for d in damaged if d.lost)} bytes unreadable; "
             f"`walkcap recover {rec.path}` copies every intact message"
         )
         for d in damaged:
