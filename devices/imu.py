@@ -19,7 +19,9 @@ model lacks are left out with a warning (an IMU-only model sends no orientation,
 samples carry no quaternion and leveling needs a VRU or AHRS model); the device's reply
 is compared with the request and every rate it granted instead is said; and the stream
 must fit the baud rate before GoToMeasurement, else one line names a rate or baud rate
-that fits.
+that fits. As in Xsens' library (MidReplyObject::isReplyFor), an Error 0x29 (data
+overflow) the device sends on its own while the driver waits for a reply is an event,
+not the reply; any other Error is the reply.
 """
 
 from __future__ import annotations
@@ -408,8 +410,9 @@ class XbusImu(Imu):
 
     def change_baudrate(self, baudrate: int) -> None:
         """Set the device's baud rate as Xsens' tools do: SetBaudrate (acknowledged at the
-        old rate), Reset, then the new rate on both ends. The device keeps it across power
-        cycles. The port must not be open in this driver."""
+        old rate; 921600 as code 0x80, as xsbaud.c sends it), Reset, then the new rate on
+        both ends, the device found again within reset_timeout_s. The device keeps it
+        across power cycles. The port must not be open in this driver."""
         if baudrate not in xbus.BAUD_CODE:
             known = ", ".join(str(b) for b in xbus.BAUDRATES)
             raise DeviceInitError(f"{baudrate} is not a baud rate an MTi has (known: {known})")

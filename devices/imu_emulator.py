@@ -1,8 +1,12 @@
 """An Xsens-style IMU on a pseudo-terminal: the mock backend is the real driver against this.
 
 The emulator is the device side of a serial line. It opens a pty, points a stable path
-(a symlink in a temporary folder) at the slave end, and speaks Xbus on the master end:
-it answers configuration messages as an MTi does, streams MTData2 at the configured rate
+(/tmp/walkcap-XXXXXXXX/ttyIMU, a symlink; short, as Xsens' tools keep a port name in 32
+bytes) at the slave end, and speaks Xbus on the master end: it answers what a device of
+its family answers on open and configuration, so that Xsens' own host library (xspublic)
+opens it (DeviceID, a 20-character ProductCode, HardwareVersion, FirmwareRev, InitBus,
+ReqConfiguration in the vendor's layout, option flags, location id, filter profiles,
+alignment rotation, string output type), streams MTData2 at the configured rate
 from its own clock (which drifts against the host's by `drift_ppm`), paces each message
 by its wire time at `baudrate` plus random transmit jitter, and injects faults on command.
 Unplugging removes the symlink and closes the pty; replugging opens a new pty and
@@ -15,10 +19,13 @@ orientation's derivative, both with noise and bias.
 
 It plays one model (`model`, `[imu] emulate`: "MTi-3", "MTi-630", "MTi-1", ...) by that
 family's rules (devices/imu_family.py): it grants each output the rate the family has
-(the ack carries the rates it uses, as a device's does), answers Error 0x21 (invalid
+(the ack carries the rates it uses, as a device's does; timestamps, UtcTime among them,
+and the status word asked at 0 or 0xFFFF go with every message, reported as 0xFFFF),
+answers Error 0x21 (invalid
 parameter) for an output the model lacks (an IMU-only model has no orientation), takes
 its time over settings writes, keeps its baud rate until SetBaudrate and a Reset change
-it, and hears only a host whose line runs at that rate. Output beyond what the baud rate
+it (it then boots for `reset_s`, deaf and silent, before its WakeUp), and hears only a
+host whose line runs at that rate. Output beyond what the baud rate
 carries fills its buffer: messages are lost and it reports Error 0x29 (data overflow).
 How a firmware rounds an unsupported rate is not documented publicly: the emulator grants
 the highest supported rate not above the request.

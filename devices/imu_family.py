@@ -6,7 +6,10 @@ a family is known from the product code ("MTi-3-8A7G6", "MTi-630-...", "MTi-G-71
 xsdeviceid.c); each data group has a base rate, and a device outputs a group at the base
 rate divided by a whole number (mtibasedevice.cpp, supportedUpdateRates; the base rates
 per family are each device class's getBaseFrequencyInternal). The timestamp group
-(packet counter, SampleTimeFine) rides along with every message instead.
+(UtcTime, packet counter, SampleTimeFine) rides along with every message instead, and so
+does the status word asked at 0 or 0xFFFF (as Xsens' example and ROS driver ask for it).
+Families as xspublic's device classes: MtiXDevice (1-series), Mti3X0Device (MTi-310/320/
+330), MtiX0Device, MtiX00Device, MtigDevice, Mti6X0Device.
 
 The function digit of the product code: 1 = IMU (inertial data only, no orientation),
 2 = VRU, 3 = AHRS; 7 (and MTi-G, 670, 680, 8) = GNSS/INS. walkcap levels point clouds with
