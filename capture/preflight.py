@@ -98,6 +98,9 @@ def device_item(name: str, status, sync: dict | None = None) -> CheckItem:
     unit = "fps" if name == "camera" else "Hz"
     parts.append(f"rate {status.measured_rate_hz:.1f} of {status.configured_rate_hz:g} {unit}")
     parts.append(f"drops {status.dropped}")
+    if d.get("frame_path"):  # how the camera's binding hands over frames
+        details["frame_path"] = str(d["frame_path"])
+        parts.append(f"frames via {d['frame_path']}")
     drift = d.get("drift_ppm", d.get("clock_drift_ppm"))
     warning = ""
     if drift is not None:

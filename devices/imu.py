@@ -19,7 +19,9 @@ model lacks are left out with a warning (an IMU-only model sends no orientation,
 samples carry no quaternion and leveling needs a VRU or AHRS model); the device's reply
 is compared with the request and every rate it granted instead is said; and the stream
 must fit the baud rate before GoToMeasurement, else one line names a rate or baud rate
-that fits.
+that fits. As in Xsens' library (MidReplyObject::isReplyFor), an Error 0x29 (data
+overflow) the device sends on its own while the driver waits for a reply is an event,
+not the reply; any other Error is the reply.
 """
 
 from __future__ import annotations
@@ -67,7 +69,7 @@ _FRAME_TO_ENU = {
 _VECTOR_OUTPUTS = ("acceleration", "rate_of_turn")
 _EVENT_INTERVAL_NS = 1_000_000_000  # repeated faults of one kind: one event a second
 _NOT_MEASUREMENTS = frozenset(
-    {"packet_counter", "sample_time_fine", "sample_time_coarse", "status_word"}
+    {"packet_counter", "sample_time_fine", "sample_time_coarse", "utc_time", "status_word"}
 )
 
 
@@ -176,6 +178,7 @@ class XbusImu(Imu):
         coordinate_system: str = "ENU",
         request_timeout_s: float = 1.0,
         config_timeout_s: float = 2.0,
+        reset_timeout_s: float = 10.0,
         silence_s: float | None = None,
         retry_s: float = 0.5,
         buffer_size: int = 1024,
@@ -204,6 +207,8 @@ class XbusImu(Imu):
             raise DeviceInitError(f"IMU outputs: {e}") from None
         self.request_timeout_s = request_timeout_s
         self.config_timeout_s = config_timeout_s
+        # After a Reset (SetBaudrate): how long the device may take to answer again.
+        self.reset_timeout_s = reset_timeout_s
         self.family: Family | None = None
         self.budget: xbus.LinkBudget | None = None
         self.adjusted: list[str] = []  # what walkcap changed to fit the family
@@ -309,9 +314,7 @@ class XbusImu(Imu):
         self._request(ser, MID.GOTO_MEASUREMENT, reply=MID.GOTO_MEASUREMENT_ACK)
         self.configured_rate_hz = _sampling_rate(settings) or float(self.rate_hz)
         self.info = {
-            "device_id": f"{int.from_bytes(device_id[:4], 'big'):08X}"
-            if len(device_id) >= 4
-            else device_id.hex(),
+            "device_id": device_id_text(device_id),
             "product_code": product_code,
             "family": self.family.name if self.family else "unknown",
             "function": self.family.function if self.family else "unknown",
@@ -407,12 +410,12 @@ class XbusImu(Imu):
 
     def change_baudrate(self, baudrate: int) -> None:
         """Set the device's baud rate as Xsens' tools do: SetBaudrate (acknowledged at the
-        old rate), Reset, then the new rate on both ends. The device keeps it across power
-        cycles. The port must not be open in this driver."""
+        old rate; 921600 as code 0x80, as xsbaud.c sends it), Reset, then the new rate on
+        both ends, the device found again within reset_timeout_s. The device keeps it
+        across power cycles. The port must not be open in this driver."""
         if baudrate not in xbus.BAUD_CODE:
             known = ", ".join(str(b) for b in xbus.BAUDRATES)
             raise DeviceInitError(f"{baudrate} is not a baud rate an MTi has (known: {known})")
-        import serial
 
         ser = self._open_port()
         try:
@@ -430,15 +433,9 @@ class XbusImu(Imu):
                 timeout=self._settings_timeout_s(),
             )
             self._request(ser, MID.RESET, reply=MID.RESET_ACK)  # the new rate applies now
-            try:
-                ser.baudrate = baudrate
-            except (serial.SerialException, OSError, ValueError) as e:
-                raise DeviceNotAvailable(
-                    f"IMU port {self.port} cannot run at {baudrate} baud: {_reason(e)}"
-                ) from None
-            self._parser.clear()
-            self.baudrate = baudrate
-            self._goto_config(ser)  # acknowledges the WakeUp after the reset: stays in config
+            before = self.baudrate
+            self._line_speed(ser, baudrate)
+            self._redetect(ser, before)
             reply = self._request(ser, MID.REQ_BAUDRATE, reply=MID.REQ_BAUDRATE_ACK)
             if not reply or xbus.BAUD_CODES.get(reply[0]) != baudrate:
                 raise DeviceInitError(
@@ -448,16 +445,49 @@ class XbusImu(Imu):
         finally:
             _close_quietly(ser)
 
-    def _goto_config(self, ser) -> None:
+    def _line_speed(self, ser, baudrate: int) -> None:
+        import serial
+
+        try:
+            ser.baudrate = baudrate
+        except (serial.SerialException, OSError, ValueError) as e:
+            raise DeviceNotAvailable(
+                f"IMU port {self.port} cannot run at {baudrate} baud: {_reason(e)}"
+            ) from None
+        self._parser.clear()
+        self.baudrate = baudrate
+
+    def _redetect(self, ser, before: int) -> None:
+        """Find the device again after the Reset of a baud-rate change. It boots for a while
+        (Xsens' scanner waits 2 s, then scans the baud rates): GoToConfig at the new rate
+        until reset_timeout_s; then one look at the old rate, to say which it is."""
+        after = self.baudrate
+        if self._goto_config(ser, self.reset_timeout_s, raise_=False):
+            return  # acknowledges the WakeUp after the reset: stays in configuration
+        self._line_speed(ser, before)
+        if self._goto_config(ser, self.config_timeout_s, raise_=False):
+            raise DeviceInitError(
+                f"IMU on {self.port} still answers at {before} baud, not {after}, after "
+                f"SetBaudrate and Reset: the change did not take"
+            )
+        raise DeviceInitError(
+            f"IMU on {self.port}: no answer at {after} baud within {self.reset_timeout_s:g} s "
+            f"of the Reset, nor at {before} baud"
+        )
+
+    def _goto_config(self, ser, timeout: float | None = None, *, raise_: bool = True) -> bool:
         """Into configuration: acknowledge a WakeUp, else GoToConfig until it is acked."""
-        deadline = time.monotonic() + self.config_timeout_s
+        timeout = self.config_timeout_s if timeout is None else timeout
+        deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             self._write(ser, xbus.build(MID.GOTO_CONFIG), "GoToConfig")
             if self._await(ser, MID.GOTO_CONFIG_ACK, "GoToConfig", 0.25) is not None:
-                return
+                return True
+        if not raise_:
+            return False
         raise DeviceInitError(
             f"IMU on {self.port}: no answer to GoToConfig within "
-            f"{self.config_timeout_s:g} s (is an Xsens device on it, at "
+            f"{timeout:g} s (is an Xsens device on it, at "
             f"{self.baudrate} baud?)"
         )
 
@@ -500,6 +530,17 @@ class XbusImu(Imu):
             for msg in self._parser.feed(chunk):
                 if msg.mid == reply:
                     return msg.data
+                if msg.mid == MID.ERROR and msg.data[:1] == bytes([xbus.DATA_OVERFLOW]):
+                    # Output the line could not carry, sent on its own: an event, not the
+                    # answer (Xsens' MidReplyObject::isReplyFor skips it the same way).
+                    self.device_errors += 1
+                    self._event(
+                        "device_error",
+                        f"IMU sent {xbus.error_text(xbus.DATA_OVERFLOW)} while waiting for "
+                        f"the answer to {name}",
+                        code=xbus.DATA_OVERFLOW,
+                    )
+                    continue
                 if msg.mid == MID.ERROR:
                     code = msg.data[0] if msg.data else 0
                     raise DeviceInitError(
@@ -898,6 +939,24 @@ def _plain(value: Any) -> Any:
     if isinstance(value, tuple):
         return [_plain(v) for v in value]
     return value
+
+
+def device_id_text(data: bytes) -> str:
+    """A DeviceID as Xsens' library shows it (xsdeviceid.c, XsDeviceId_toString): a legacy
+    id in 8 hex digits, a 64-bit one (XS_DID64_BIT, 0x8000_0000, set) in 10 or more. An
+    8-byte DeviceID is one 64-bit value when either half is a 64-bit id
+    (devicecommunicator.cpp), else its first half."""
+    if len(data) == 8:
+        high, low = int.from_bytes(data[:4], "big"), int.from_bytes(data[4:], "big")
+        value = int.from_bytes(data, "big") if (high | low) & _DID64_BIT else high
+    elif len(data) >= 4:
+        value = int.from_bytes(data[:4], "big")
+    else:
+        return data.hex()
+    return f"{value:08X}" if not value & _DID64_BIT else f"{value:010X}"
+
+
+_DID64_BIT = 0x8000_0000
 
 
 def _firmware_text(data: bytes) -> str:

@@ -159,7 +159,7 @@ def test_emulator_answers_malformed_and_unsupported_requests_with_error():
             MID.ERROR,
             bytes([xbus.INVALID_MESSAGE]),
         )
-        assert ask(MID.REQ_CONFIGURATION).data == bytes([xbus.INVALID_MESSAGE])
+        assert ask(MID.REQ_CONFIGURATION, b"x").data == bytes([xbus.INVALID_MESSAGE])
         assert ask(0x77).data == bytes([xbus.INVALID_MESSAGE])
         assert ask(MID.SET_OUTPUT_CONFIGURATION, b"\x20\x10\x00").data == bytes(
             [xbus.INVALID_MESSAGE]
