@@ -124,7 +124,9 @@ class LabTools:
     def _start_remote(self) -> None:
         from capture.remote import RemoteControl
 
-        self.remote = RemoteControl(self.controller, self.config.lsl.remote_port).start()
+        self.remote = RemoteControl(
+            self.controller, self.config.lsl.remote_port, on_event=self.session.add_event
+        ).start()
 
     def _start_foxglove(self) -> None:
         from capture.foxglove_live import FoxgloveLive

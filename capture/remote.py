@@ -14,6 +14,10 @@ and answers each with "OK", as LabRecorder does:
 
 What a command does is the `Controller`'s: the headless session's or the terminal UI's,
 so the screen always tells the truth.
+
+A command line is at most `MAX_LINE` bytes (LabRecorder's commands are short): a client
+that sends more without a newline loses its connection, with one event, before its bytes
+cost the session anything.
 """
 
 from __future__ import annotations
@@ -22,14 +26,18 @@ import logging
 import re
 import socket
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
 
 from capture.errors import CaptureError
+from devices.base import DeviceEvent
+from devices.clock import now_ns
 
 log = logging.getLogger(__name__)
 
 DEFAULT_PORT = 22345
+MAX_LINE = 4096  # bytes of one command line, newline included
 _OPTION = re.compile(r"\{(\w+?):([^}]*)\}")
 
 
@@ -75,8 +83,15 @@ class Controller(Protocol):
 class RemoteControl:
     """The LabRecorder-compatible command server; `port=0` picks a free port."""
 
-    def __init__(self, controller: Controller, port: int = DEFAULT_PORT, host: str = "127.0.0.1"):
+    def __init__(
+        self,
+        controller: Controller,
+        port: int = DEFAULT_PORT,
+        host: str = "127.0.0.1",
+        on_event: Callable[[DeviceEvent], None] | None = None,
+    ):
         self.controller = controller
+        self._on_event = on_event
         self.request = TrialRequest()
         self.log: list[tuple[str, str]] = []  # (command, what happened), newest last
         self._lock = threading.Lock()
@@ -130,6 +145,11 @@ class RemoteControl:
         self.log.append((command, result))
         return result
 
+    def _event(self, kind: str, message: str, details: dict | None = None) -> None:
+        log.warning("remote control: %s", message)
+        if self._on_event is not None:
+            self._on_event(DeviceEvent(now_ns(), "remote", kind, message, details or {}))
+
     def _serve(self) -> None:
         while not self._halt.is_set():
             try:
@@ -142,7 +162,7 @@ class RemoteControl:
 
     def _client(self, conn: socket.socket) -> None:
         conn.settimeout(0.5)
-        buffer = b""
+        buffer = bytearray()
         with conn:
             while not self._halt.is_set():
                 try:
@@ -153,11 +173,21 @@ class RemoteControl:
                     return
                 if not data:
                     return
+                searched = len(buffer)  # the buffer before `data` holds no newline
                 buffer += data
-                while b"\n" in buffer:
-                    line, buffer = buffer.split(b"\n", 1)
+                while (end := buffer.find(b"\n", searched)) >= 0:
+                    line = bytes(buffer[:end])
+                    del buffer[: end + 1]
+                    searched = 0
                     self.handle(line.decode("utf-8", "replace"))
                     try:
                         conn.sendall(b"OK")  # LabRecorder answers every line so
                     except OSError:
                         return
+                if len(buffer) >= MAX_LINE:
+                    self._event(
+                        "line_too_long",
+                        f"a command line over {MAX_LINE} bytes: connection closed",
+                        {"limit_bytes": MAX_LINE},
+                    )
+                    return

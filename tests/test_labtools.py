@@ -177,3 +177,46 @@ def test_the_shipped_layout_names_only_walkcaps_topics():
     assert {T.DEPTH, T.BINARY_IMAGE, T.CLOUD, T.CNN, T.LABELS, T.FUSED} <= named
     panels = {key.split("!")[0] for key in layout["configById"]}
     assert panels <= {"Image", "3D", "Plot", "StateTransitions", "RawMessages"}
+
+
+# ---- remote control facing a misbehaving local program ------------------------------------
+
+
+def _wait_for(condition, timeout_s: float = 20.0) -> None:
+    """A condition, waited for with a generous bound (never a timing claim)."""
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        assert time.monotonic() < deadline, "condition not reached"
+        time.sleep(0.02)
+
+
+class _Controller:
+    def __init__(self) -> None:
+        self.started: list[TrialRequest] = []
+
+    def remote_start(self, request: TrialRequest) -> str:
+        self.started.append(request)
+        return "recording"
+
+    def remote_stop(self) -> str:
+        return "saved"
+
+
+def test_an_over_long_line_closes_its_connection_with_one_event():
+    events: list[DeviceEvent] = []
+    remote = RemoteControl(_Controller(), port=0, on_event=events.append).start()
+    try:
+        with socket.create_connection(("127.0.0.1", remote.port), timeout=20) as sock:
+            try:
+                sock.sendall(b"x" * (4 << 20))  # 4 MB, no newline
+                closed = sock.recv(16) == b""
+            except (ConnectionResetError, BrokenPipeError):
+                closed = True
+            assert closed
+        _wait_for(lambda: events)
+        with socket.create_connection(("127.0.0.1", remote.port), timeout=20) as sock:
+            assert _send(sock, "update") == b"OK"  # the next client is served as ever
+    finally:
+        remote.close()
+    assert [e.kind for e in events] == ["line_too_long"]
+    assert events[0].device == "remote"
