@@ -15,15 +15,18 @@ and answers each with "OK", as LabRecorder does:
 What a command does is the `Controller`'s: the headless session's or the terminal UI's,
 so the screen always tells the truth.
 
-A command line is at most `MAX_LINE` bytes (LabRecorder's commands are short): a client
-that sends more without a newline loses its connection, with one event, before its bytes
-cost the session anything.
+One thread serves every client (a selector loop), at most `MAX_CLIENTS` at a time: one
+more is told so in one line and closed, and reaching the limit is one event. A command line
+is at most `MAX_LINE` bytes (LabRecorder's commands are short): a client that sends more
+without a newline loses its connection, with one event, before its bytes cost the session
+anything.
 """
 
 from __future__ import annotations
 
 import logging
 import re
+import selectors
 import socket
 import threading
 from collections.abc import Callable
@@ -38,6 +41,8 @@ log = logging.getLogger(__name__)
 
 DEFAULT_PORT = 22345
 MAX_LINE = 4096  # bytes of one command line, newline included
+MAX_CLIENTS = 8  # an experiment script holds one; a few more for tools beside it
+BUSY = b"busy: walkcap takes %d remote-control connections at a time\n" % MAX_CLIENTS
 _OPTION = re.compile(r"\{(\w+?):([^}]*)\}")
 
 
@@ -96,16 +101,25 @@ class RemoteControl:
         self.log: list[tuple[str, str]] = []  # (command, what happened), newest last
         self._lock = threading.Lock()
         self._halt = threading.Event()
+        self.refused = 0  # connections turned away: MAX_CLIENTS were open
         try:
-            self._server = socket.create_server((host, port))
+            self._server = socket.create_server((host, port), backlog=128)
         except OSError as e:
             raise CaptureError(
                 f"remote control: cannot listen on {host}:{port}: {e.strerror} "
                 f"(another LabRecorder or walkcap? set [lsl] remote_port)"
             ) from None
-        self._server.settimeout(0.2)
+        self._server.setblocking(False)
         self.port = self._server.getsockname()[1]
+        self._wake, self._waker = socket.socketpair()  # close() wakes the selector loop
+        self._clients: dict[socket.socket, _Client] = {}
+        self._full = False
         self._thread = threading.Thread(target=self._serve, name="walkcap-remote", daemon=True)
+
+    @property
+    def connections(self) -> int:
+        """Clients connected now."""
+        return len(self._clients)
 
     def start(self) -> RemoteControl:
         self._thread.start()
@@ -113,8 +127,14 @@ class RemoteControl:
 
     def close(self) -> None:
         self._halt.set()
+        try:
+            self._waker.send(b"x")
+        except OSError:
+            pass
         self._thread.join(timeout=2.0)
         self._server.close()
+        self._wake.close()
+        self._waker.close()
 
     def handle(self, line: str) -> str:
         """One command line; what it did, in words (also logged)."""
@@ -151,43 +171,101 @@ class RemoteControl:
             self._on_event(DeviceEvent(now_ns(), "remote", kind, message, details or {}))
 
     def _serve(self) -> None:
-        while not self._halt.is_set():
+        selector = selectors.DefaultSelector()
+        selector.register(self._server, selectors.EVENT_READ)
+        selector.register(self._wake, selectors.EVENT_READ)
+        try:
+            while not self._halt.is_set():
+                for key, _ in selector.select():
+                    if key.fileobj is self._server:
+                        self._accept(selector)
+                    elif key.fileobj is not self._wake:
+                        self._read(selector, key.data)
+        except Exception:  # the server stops; the session never does
+            log.exception("remote control")
+        finally:
+            for client in list(self._clients.values()):
+                self._drop(selector, client)
+            selector.close()
+
+    def _accept(self, selector: selectors.BaseSelector) -> None:
+        while True:
             try:
                 conn, _ = self._server.accept()
-            except TimeoutError:
-                continue
-            except OSError:
+            except (BlockingIOError, InterruptedError):
                 return
-            threading.Thread(target=self._client, args=(conn,), daemon=True).start()
-
-    def _client(self, conn: socket.socket) -> None:
-        conn.settimeout(0.5)
-        buffer = bytearray()
-        with conn:
-            while not self._halt.is_set():
-                try:
-                    data = conn.recv(4096)
-                except TimeoutError:
-                    continue
-                except OSError:
-                    return
-                if not data:
-                    return
-                searched = len(buffer)  # the buffer before `data` holds no newline
-                buffer += data
-                while (end := buffer.find(b"\n", searched)) >= 0:
-                    line = bytes(buffer[:end])
-                    del buffer[: end + 1]
-                    searched = 0
-                    self.handle(line.decode("utf-8", "replace"))
+            except OSError:  # the client gave up before it was accepted
+                return
+            if len(self._clients) >= MAX_CLIENTS:
+                self.refused += 1
+                with conn:
                     try:
-                        conn.sendall(b"OK")  # LabRecorder answers every line so
+                        conn.setblocking(False)
+                        conn.send(BUSY)
                     except OSError:
-                        return
-                if len(buffer) >= MAX_LINE:
+                        pass
+                if not self._full:  # once each time the limit is reached
+                    self._full = True
                     self._event(
-                        "line_too_long",
-                        f"a command line over {MAX_LINE} bytes: connection closed",
-                        {"limit_bytes": MAX_LINE},
+                        "busy",
+                        f"{MAX_CLIENTS} connections open: further ones refused",
+                        {"limit": MAX_CLIENTS},
                     )
-                    return
+                continue
+            conn.setblocking(False)
+            client = _Client(conn)
+            self._clients[conn] = client
+            selector.register(conn, selectors.EVENT_READ, client)
+
+    def _drop(self, selector: selectors.BaseSelector, client: _Client) -> None:
+        self._clients.pop(client.conn, None)
+        try:
+            selector.unregister(client.conn)
+        except (KeyError, ValueError):
+            pass
+        client.conn.close()
+        if len(self._clients) < MAX_CLIENTS:
+            self._full = False
+
+    def _read(self, selector: selectors.BaseSelector, client: _Client) -> None:
+        try:
+            data = client.conn.recv(4096)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError:
+            data = b""
+        if not data:
+            self._drop(selector, client)
+            return
+        buffer = client.buffer
+        searched = len(buffer)  # the buffer before `data` holds no newline
+        buffer += data
+        while (end := buffer.find(b"\n", searched)) >= 0:
+            line = bytes(buffer[:end])
+            del buffer[: end + 1]
+            searched = 0
+            self.handle(line.decode("utf-8", "replace"))
+            try:  # LabRecorder answers every line so
+                sent = client.conn.send(b"OK")
+            except OSError:
+                sent = 0
+            if sent != 2:  # gone, or not reading its answers: it takes no more of the loop
+                self._drop(selector, client)
+                return
+        if len(buffer) >= MAX_LINE:
+            self._event(
+                "line_too_long",
+                f"a command line over {MAX_LINE} bytes: connection closed",
+                {"limit_bytes": MAX_LINE},
+            )
+            self._drop(selector, client)
+
+
+class _Client:
+    """One connection and the part of a line it has sent so far."""
+
+    __slots__ = ("buffer", "conn")
+
+    def __init__(self, conn: socket.socket) -> None:
+        self.conn = conn
+        self.buffer = bytearray()

@@ -5,6 +5,7 @@ import base64
 import json
 import socket
 import struct
+import threading
 import time
 
 import numpy as np
@@ -15,7 +16,7 @@ from capture.config import Config
 from capture.foxglove_live import LAYOUT, FoxgloveLive
 from capture.labtools import SessionController
 from capture.reader import open_recording
-from capture.remote import RemoteControl, TrialRequest, parse_filename
+from capture.remote import MAX_CLIENTS, RemoteControl, TrialRequest, parse_filename
 from capture.session import Session, SubjectInfo
 from devices.base import DeviceEvent
 from devices.frames import ImuSample
@@ -220,3 +221,34 @@ def test_an_over_long_line_closes_its_connection_with_one_event():
         remote.close()
     assert [e.kind for e in events] == ["line_too_long"]
     assert events[0].device == "remote"
+
+
+def test_idle_connections_beyond_a_small_bound_are_refused_politely_by_one_thread():
+    events: list[DeviceEvent] = []
+    threads_before = threading.active_count()
+    remote = RemoteControl(_Controller(), port=0, on_event=events.append).start()
+    idle: list[socket.socket] = []
+    try:
+        for _ in range(MAX_CLIENTS):
+            idle.append(socket.create_connection(("127.0.0.1", remote.port), timeout=20))
+        assert _send(idle[0], "update") == b"OK"  # the first ones are served
+        answers = []
+        for _ in range(50):
+            with socket.create_connection(("127.0.0.1", remote.port), timeout=20) as extra:
+                answers.append(extra.makefile("rb").read())  # one line, then closed
+        assert set(answers) == {
+            b"busy: walkcap takes %d remote-control connections at a time\n" % MAX_CLIENTS
+        }
+        assert threading.active_count() <= threads_before + 1  # one thread serves them all
+        assert remote.refused == 50
+        for sock in idle:
+            sock.close()
+        idle.clear()
+        _wait_for(lambda: remote.connections == 0)
+        with socket.create_connection(("127.0.0.1", remote.port), timeout=20) as sock:
+            assert _send(sock, "update") == b"OK"  # room again once they are gone
+    finally:
+        for sock in idle:
+            sock.close()
+        remote.close()
+    assert [e.kind for e in events] == ["busy"]  # reaching the limit: one event
