@@ -6,14 +6,17 @@ and answers each with "OK", as LabRecorder does:
     start                       start recording a trial
     stop                        stop it
     filename {root:DIR} {participant:P01} {task:indoor} {run:2} {session:S1} ...
-                                what the next trial is: root -> recordings folder,
+                                what the next remote trial is: root -> its folder,
                                 participant -> subject, task -> condition, run -> trial;
                                 session, acquisition, modality -> the trial's notes
     update, select all, select none
                                 accepted (walkcap records all of its own streams)
 
 What a command does is the `Controller`'s: the headless session's or the terminal UI's,
-so the screen always tells the truth.
+so the screen always tells the truth. A command refused (unknown, a bad value, a root the
+`check` refuses, a start the session refuses) is answered "OK" all the same, as LabRecorder
+answers every line, and is one event. With a `token`, a connection's first line must be
+`token <it>`; any other first line closes the connection with one event.
 
 One thread serves every client (a selector loop), at most `MAX_CLIENTS` at a time: one
 more is told so in one line and closed, and reaching the limit is one event. A command line
@@ -24,11 +27,14 @@ anything.
 
 from __future__ import annotations
 
+import dataclasses
+import hmac
 import logging
 import re
 import selectors
 import socket
 import threading
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
@@ -43,6 +49,8 @@ DEFAULT_PORT = 22345
 MAX_LINE = 4096  # bytes of one command line, newline included
 MAX_CLIENTS = 8  # an experiment script holds one; a few more for tools beside it
 BUSY = b"busy: walkcap takes %d remote-control connections at a time\n" % MAX_CLIENTS
+LOG_ENTRIES = 1000  # the newest commands kept in `log`
+MAX_RUN = 9999
 _OPTION = re.compile(r"\{(\w+?):([^}]*)\}")
 
 
@@ -62,18 +70,17 @@ def parse_filename(line: str, request: TrialRequest) -> TrialRequest:
     for option, value in _OPTION.findall(line):
         option = option.lower()
         if option == "root":
+            if not value.isprintable():
+                raise CaptureError("root: a folder name without control characters")
             request.root = value
         elif option == "participant":
             request.subject = value
         elif option == "task":
             request.condition = value
         elif option == "run":
-            try:
-                request.trial = int(value)
-            except ValueError:
-                raise CaptureError(
-                    f"remote control: run must be a whole number, got {value!r}"
-                ) from None
+            if not re.fullmatch(r"[0-9]{1,9}", value.strip()) or not 1 <= int(value) <= MAX_RUN:
+                raise CaptureError(f"run: a whole number from 1 to {MAX_RUN}, got {value!r}")
+            request.trial = int(value)
         else:
             request.notes[option] = value
     return request
@@ -93,12 +100,19 @@ class RemoteControl:
         controller: Controller,
         port: int = DEFAULT_PORT,
         host: str = "127.0.0.1",
+        *,
         on_event: Callable[[DeviceEvent], None] | None = None,
+        check: Callable[[TrialRequest], TrialRequest] | None = None,
+        token: str = "",
     ):
         self.controller = controller
         self._on_event = on_event
+        self._check = check  # a `filename`'s request as the session takes it, or CaptureError
+        self._token = token.encode()
         self.request = TrialRequest()
-        self.log: list[tuple[str, str]] = []  # (command, what happened), newest last
+        # (command, what happened), newest last; a flood of commands keeps the newest
+        self.log: deque[tuple[str, str]] = deque(maxlen=LOG_ENTRIES)
+        self.saved: list[str] = []  # the files remote trials were saved to
         self._lock = threading.Lock()
         self._halt = threading.Event()
         self.refused = 0  # connections turned away: MAX_CLIENTS were open
@@ -137,33 +151,49 @@ class RemoteControl:
         self._waker.close()
 
     def handle(self, line: str) -> str:
-        """One command line; what it did, in words (also logged)."""
+        """One command line; what it did, in words (also logged; a refusal is an event)."""
         command = line.strip()
+        if not command:
+            return ""
+        refused = False
         with self._lock:
             try:
-                if command == "start":
-                    result = self.controller.remote_start(self.request)
-                    self.request = TrialRequest(
-                        root=self.request.root,
-                        subject=self.request.subject,
-                        condition=self.request.condition,
-                    )
-                elif command == "stop":
-                    result = self.controller.remote_stop()
-                elif command.startswith("filename"):
-                    parse_filename(command, self.request)
-                    result = f"next trial: {self.request}"
-                elif command in ("update", "select all", "select none"):
-                    result = "accepted"
-                elif not command:
-                    return ""
-                else:
-                    result = f"unknown command {command!r}"
+                result = self._command(command)
             except CaptureError as e:
-                result = f"refused: {e}"
+                result, refused = f"refused: {e}", True
+            except Exception as e:  # a command never takes the server down
+                log.debug("remote control: %s", command, exc_info=True)
+                result, refused = f"refused: {type(e).__name__}: {e}", True
+            if result.startswith("saved "):
+                self.saved.append(result.removeprefix("saved "))
         log.info("remote control: %s -> %s", command, result)
         self.log.append((command, result))
+        if refused:
+            self._event("refused", f"{command[:80]!r}: {result}", {"command": command[:200]})
         return result
+
+    def _command(self, command: str) -> str:
+        if command == "start":
+            result = self.controller.remote_start(self.request)
+            self.request = TrialRequest(
+                root=self.request.root,
+                subject=self.request.subject,
+                condition=self.request.condition,
+            )
+            return result
+        if command == "stop":
+            return self.controller.remote_stop()
+        if command.split(maxsplit=1)[0] == "filename":
+            # on a copy: a refused filename leaves the next trial as it was
+            request = dataclasses.replace(self.request, notes=dict(self.request.notes))
+            request = parse_filename(command, request)
+            if self._check is not None:
+                request = self._check(request)
+            self.request = request
+            return f"next trial: {request}"
+        if command in ("update", "select all", "select none"):
+            return "accepted"
+        raise CaptureError("unknown command")
 
     def _event(self, kind: str, message: str, details: dict | None = None) -> None:
         log.warning("remote control: %s", message)
@@ -213,9 +243,14 @@ class RemoteControl:
                     )
                 continue
             conn.setblocking(False)
-            client = _Client(conn)
+            client = _Client(conn, trusted=not self._token)
             self._clients[conn] = client
             selector.register(conn, selectors.EVENT_READ, client)
+
+    def _trust(self, line: bytes) -> bool:
+        """Whether `line` is `token <the token>` (compared in constant time)."""
+        word, _, given = line.strip().partition(b" ")
+        return word == b"token" and hmac.compare_digest(given.strip(), self._token)
 
     def _drop(self, selector: selectors.BaseSelector, client: _Client) -> None:
         self._clients.pop(client.conn, None)
@@ -244,7 +279,14 @@ class RemoteControl:
             line = bytes(buffer[:end])
             del buffer[: end + 1]
             searched = 0
-            self.handle(line.decode("utf-8", "replace"))
+            if not client.trusted:
+                if not self._trust(line):
+                    self._event("unauthorized", "a connection without the token: closed")
+                    self._drop(selector, client)
+                    return
+                client.trusted = True
+            else:
+                self.handle(line.decode("utf-8", "replace"))
             try:  # LabRecorder answers every line so
                 sent = client.conn.send(b"OK")
             except OSError:
@@ -264,8 +306,9 @@ class RemoteControl:
 class _Client:
     """One connection and the part of a line it has sent so far."""
 
-    __slots__ = ("buffer", "conn")
+    __slots__ = ("buffer", "conn", "trusted")
 
-    def __init__(self, conn: socket.socket) -> None:
+    def __init__(self, conn: socket.socket, trusted: bool) -> None:
         self.conn = conn
         self.buffer = bytearray()
+        self.trusted = trusted  # no token asked for, or it was given

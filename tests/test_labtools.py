@@ -14,7 +14,7 @@ import pytest
 from capture import topics as T
 from capture.config import Config
 from capture.foxglove_live import LAYOUT, FoxgloveLive
-from capture.labtools import SessionController
+from capture.labtools import LabTools, SessionController
 from capture.reader import open_recording
 from capture.remote import MAX_CLIENTS, RemoteControl, TrialRequest, parse_filename
 from capture.session import Session, SubjectInfo
@@ -252,3 +252,80 @@ def test_idle_connections_beyond_a_small_bound_are_refused_politely_by_one_threa
             sock.close()
         remote.close()
     assert [e.kind for e in events] == ["busy"]  # reaching the limit: one event
+
+
+def _lab_session(recordings):
+    cfg = Config()
+    cfg.session.recordings = str(recordings)
+    cfg.simulator.realtime = False
+    cfg.simulator.loop = True
+    cfg.lsl.remote_control = True
+    cfg.lsl.remote_port = 0
+    session = Session(cfg, auto_label=True)
+    session.start()
+    lab = LabTools(session, cfg, SessionController(session, SubjectInfo())).start()
+    assert lab.remote is not None, lab.problems
+    return cfg, session, lab
+
+
+def _remote_events(session) -> list[DeviceEvent]:
+    return [e for e in session.snapshot().events if e.device == "remote"]
+
+
+def test_a_remote_root_is_the_remote_trials_only_and_bad_commands_are_one_event_each(
+    tmp_path, capfd
+):
+    recordings = tmp_path / "recordings"
+    cfg, session, lab = _lab_session(recordings)
+    try:
+        with socket.create_connection(("127.0.0.1", lab.remote.port), timeout=20) as sock:
+            bad = [
+                "filename {root:x\x00y}",  # a NUL in the folder
+                "filename {root:/proc/1/nope}",  # outside the recordings folder
+                "filename {root:../elsewhere}",
+                "filename {run:99999999999999999999}",
+                "filename {participant:../P07}",
+                "frobnicate \x1b[2J",
+            ]
+            for line in bad:
+                assert _send(sock, line) == b"OK"  # answered as LabRecorder answers
+            _wait_for(lambda: len(_remote_events(session)) == len(bad))
+            assert {e.kind for e in _remote_events(session)} == {"refused"}
+            line = "filename {root:study} {participant:P07} {task:stairs} {run:2}"
+            assert _send(sock, line) == b"OK"
+            assert _send(sock, "start") == b"OK"
+            _wait_for(lambda: session.snapshot().frames >= 10)
+            assert _send(sock, "stop") == b"OK"
+        assert cfg.session.recordings == str(recordings)  # the operator's folder as it was
+        local = session.start_recording(SubjectInfo(subject="OP1"))
+        session.stop_recording()
+    finally:
+        lab.stop()
+        session.stop()
+    assert len(_remote_events(session)) == len(bad)  # one event each, nothing more
+    (remote_trial,) = (recordings / "study").glob("P07_stairs_t02_*.mcap")
+    assert local.parent == recordings
+    trials = {str(p.relative_to(recordings)).split(".mcap")[0] for p in recordings.rglob("*.*")}
+    assert trials == {str(p.relative_to(recordings))[:-5] for p in (remote_trial, local)}
+    assert not (tmp_path / "elsewhere").exists()
+    err = capfd.readouterr().err
+    assert "Traceback" not in err and "\x1b" not in err
+
+
+def test_with_a_shared_token_only_a_connection_that_gives_it_is_obeyed():
+    events: list[DeviceEvent] = []
+    controller = _Controller()
+    remote = RemoteControl(controller, port=0, on_event=events.append, token="s3cret").start()
+    try:
+        for first in ("start", "token wrong"):
+            with socket.create_connection(("127.0.0.1", remote.port), timeout=20) as sock:
+                sock.sendall(first.encode() + b"\n")
+                assert sock.makefile("rb").read() == b""  # closed, unanswered
+        with socket.create_connection(("127.0.0.1", remote.port), timeout=20) as sock:
+            assert _send(sock, "token s3cret") == b"OK"
+            assert _send(sock, "start") == b"OK"
+    finally:
+        remote.close()
+    assert len(controller.started) == 1
+    assert [e.kind for e in events] == ["unauthorized", "unauthorized"]
+    assert all("s3cret" not in command for command, _ in remote.log)
