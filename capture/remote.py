@@ -15,7 +15,9 @@ and answers each with "OK", as LabRecorder does:
 What a command does is the `Controller`'s: the headless session's or the terminal UI's,
 so the screen always tells the truth. A command refused (unknown, a bad value, a root the
 `check` refuses, a start the session refuses) is answered "OK" all the same, as LabRecorder
-answers every line, and is one event. With a `token`, a connection's first line must be
+answers every line, and is one event (a kind of event that repeats is counted:
+capture.safetext.Repeats). Client text is escaped before it is logged or put into an
+event (capture.safetext.escape). With a `token`, a connection's first line must be
 `token <it>`; any other first line closes the connection with one event.
 
 One thread serves every client (a selector loop), at most `MAX_CLIENTS` at a time: one
@@ -40,6 +42,7 @@ from dataclasses import dataclass, field
 from typing import Protocol
 
 from capture.errors import CaptureError
+from capture.safetext import Repeats, escape
 from devices.base import DeviceEvent
 from devices.clock import now_ns
 
@@ -49,6 +52,7 @@ DEFAULT_PORT = 22345
 MAX_LINE = 4096  # bytes of one command line, newline included
 MAX_CLIENTS = 8  # an experiment script holds one; a few more for tools beside it
 BUSY = b"busy: walkcap takes %d remote-control connections at a time\n" % MAX_CLIENTS
+EVENT_BURST = 10  # events of one kind shown before only every power of ten is
 LOG_ENTRIES = 1000  # the newest commands kept in `log`
 MAX_RUN = 9999
 _OPTION = re.compile(r"\{(\w+?):([^}]*)\}")
@@ -116,6 +120,7 @@ class RemoteControl:
         self._lock = threading.Lock()
         self._halt = threading.Event()
         self.refused = 0  # connections turned away: MAX_CLIENTS were open
+        self._repeats = Repeats(burst=EVENT_BURST)
         try:
             self._server = socket.create_server((host, port), backlog=128)
         except OSError as e:
@@ -162,14 +167,15 @@ class RemoteControl:
             except CaptureError as e:
                 result, refused = f"refused: {e}", True
             except Exception as e:  # a command never takes the server down
-                log.debug("remote control: %s", command, exc_info=True)
+                log.debug("remote control: %s", escape(command, 80), exc_info=True)
                 result, refused = f"refused: {type(e).__name__}: {e}", True
             if result.startswith("saved "):
                 self.saved.append(result.removeprefix("saved "))
-        log.info("remote control: %s -> %s", command, result)
+        shown = escape(command, 80)  # the client's text, fit for a terminal
+        log.info("remote control: %s -> %s", shown, escape(result))
         self.log.append((command, result))
         if refused:
-            self._event("refused", f"{command[:80]!r}: {result}", {"command": command[:200]})
+            self._event("refused", f"{shown} -> {escape(result)}", {"command": shown})
         return result
 
     def _command(self, command: str) -> str:
@@ -196,9 +202,18 @@ class RemoteControl:
         raise CaptureError("unknown command")
 
     def _event(self, kind: str, message: str, details: dict | None = None) -> None:
+        """One event and log line; a kind that repeats is counted, and shown at the first
+        EVENT_BURST and then at each power of ten with its count."""
+        show, n = self._repeats.check(kind)
+        if not show:
+            return
+        details = dict(details or {})
+        if n > self._repeats.burst:
+            message = f"{message} ({n} like it so far)"
+            details["count"] = n
         log.warning("remote control: %s", message)
         if self._on_event is not None:
-            self._on_event(DeviceEvent(now_ns(), "remote", kind, message, details or {}))
+            self._on_event(DeviceEvent(now_ns(), "remote", kind, message, details))
 
     def _serve(self) -> None:
         selector = selectors.DefaultSelector()

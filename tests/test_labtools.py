@@ -3,6 +3,7 @@
 import asyncio
 import base64
 import json
+import logging
 import socket
 import struct
 import threading
@@ -329,3 +330,53 @@ def test_with_a_shared_token_only_a_connection_that_gives_it_is_obeyed():
     assert len(controller.started) == 1
     assert [e.kind for e in events] == ["unauthorized", "unauthorized"]
     assert all("s3cret" not in command for command, _ in remote.log)
+
+
+CONTROL = "\x1b]0;owned\x07\x1b[2J\x1b[31mFAKE: recording stopped\u202e"
+
+
+def _raw_control(text: str) -> bool:
+    return any(not ch.isprintable() for ch in text)
+
+
+def test_repeated_bad_commands_are_escaped_and_counted_not_flooded():
+    events: list[DeviceEvent] = []
+    remote = RemoteControl(_Controller(), port=0, on_event=events.append).start()
+    try:
+        with socket.create_connection(("127.0.0.1", remote.port), timeout=20) as sock:
+            stream = sock.makefile("rb")
+            sock.sendall((CONTROL + "\n").encode() * 500)
+            assert stream.read(2 * 500) == b"OK" * 500  # every line answered
+    finally:
+        remote.close()
+    counts = [e.details.get("count") for e in events]
+    assert counts == [None] * 10 + [100]  # the first ten, then the hundredth with its count
+    assert not any(_raw_control(e.message) for e in events)
+    assert "\\x1b]0;owned\\x07" in events[0].message  # shown, escaped
+
+
+def test_foxglove_client_text_is_escaped_and_its_repeats_counted(caplog):
+    import websockets
+
+    fox = FoxgloveLive(port=0)
+
+    async def misbehave():
+        async with websockets.connect(fox.url, subprotocols=["foxglove.sdk.v1"]) as ws:
+            await ws.send(json.dumps({"op": CONTROL}))
+            subs = [{"id": i, "channelId": 10_000_000 + i} for i in range(20_000)]
+            await ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+            deadline = time.monotonic() + 60
+            while fox.client_messages < 20_001 and time.monotonic() < deadline:
+                await asyncio.sleep(0.05)
+
+    caplog.set_level(logging.WARNING)
+    try:
+        asyncio.run(misbehave())
+        assert fox.client_messages >= 20_001  # each seen, and counted
+    finally:
+        fox.close()
+    lines = [r.getMessage() for r in caplog.records]
+    assert not any(_raw_control(line) for line in lines)
+    assert any("\\x1b]0;owned\\x07" in line for line in lines)
+    assert len(lines) <= 20  # the first few, the powers of ten, the tally at close
+    assert "not shown" in lines[-1]
