@@ -70,6 +70,10 @@ class LslConfig:
     # LabRecorder-compatible remote control (start, stop, filename) on localhost
     remote_control: bool = False
     remote_port: int = 22345  # LabRecorder's default
+    # a remote `filename {root:DIR}` outside the recordings folder: refused unless allowed
+    remote_any_root: bool = False
+    # when set, each remote-control connection's first line is `token <this>`
+    remote_token: str = ""
 
 
 @dataclass
@@ -126,6 +130,8 @@ DOCS: dict[type, dict[str, str]] = {
         "record": "names of other devices' LSL streams recorded into each trial",
         "remote_control": "LabRecorder's start / stop / filename commands on 127.0.0.1",
         "remote_port": "the remote control's TCP port (LabRecorder's)",
+        "remote_any_root": "let a remote {root:DIR} name any folder, not only one in recordings",
+        "remote_token": "if set, a remote-control connection starts with the line `token <it>`",
     },
     FoxgloveConfig: {
         "enabled": "serve the live session's topics to Foxglove over a WebSocket",

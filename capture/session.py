@@ -670,20 +670,23 @@ class Session:
     def recording(self) -> bool:
         return self._recorder is not None
 
-    def start_recording(self, info: SubjectInfo, existing: str = "next") -> Path:
+    def start_recording(
+        self, info: SubjectInfo, existing: str = "next", folder: str | Path | None = None
+    ) -> Path:
         """One MCAP file per trial, named from subject, condition, trial and time.
 
         A trial that has files in the folder already is never recorded twice by accident
         (capture.corpus.trial_conflict): `existing` "next" records the next free trial
         number instead (and says so in `trial_notice`), "error" refuses, "overwrite"
         records it again, the new file superseding the earlier ones (kept on disk;
-        corpora leave them out)."""
+        corpora leave them out). `folder` is this trial's only (a remote `filename`'s root);
+        by default the configured recordings folder."""
         from capture.recorder import Recorder
 
         info.validate()
         if self._recorder is not None:
             raise CaptureError("already recording")
-        folder = Path(self.config.session.recordings)
+        folder = Path(self.config.session.recordings if folder is None else folder)
         try:
             folder.mkdir(parents=True, exist_ok=True)
         except OSError as e:

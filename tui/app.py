@@ -195,11 +195,10 @@ class WalkcapApp(App):
         except CaptureError as e:
             self.notify(f"remote start refused: {e}", severity="error", timeout=10)
             return
-        if request.root:
-            self.config.session.recordings = request.root
         self._subject_confirmed = True
         self._busy_recording = True
-        self._start_recording(dataclasses.replace(self.subject))
+        # the remote trial's folder is its own: the configured one stays the operator's
+        self._start_recording(dataclasses.replace(self.subject), request.root or None)
 
     def remote_stop(self) -> None:
         source = self.source
@@ -413,9 +412,12 @@ class WalkcapApp(App):
         self._start_recording(dataclasses.replace(self.subject))
 
     @work(thread=True, group="recording")
-    def _start_recording(self, info: SubjectInfo) -> None:
+    def _start_recording(self, info: SubjectInfo, folder: str | None = None) -> None:
         try:
-            path = self.session.start_recording(info)
+            if folder is None:
+                path = self.session.start_recording(info)
+            else:
+                path = self.session.start_recording(info, folder=folder)
         except Exception as e:
             log.exception("starting a recording")
             self.post_message(messages.RecordingFailed(describe_error(e)))

@@ -129,11 +129,10 @@ def run(args, config) -> int:
     finally:
         if tty:
             print(file=sys.stderr)
-        remote_log = list(lab.remote.log) if lab is not None and lab.remote is not None else []
+        saved = list(lab.remote.saved) if lab is not None and lab.remote is not None else []
         if lab is not None:
             lab.stop()
         stats = session.stop()
-    saved = [r.removeprefix("saved ") for _, r in remote_log if r.startswith("saved ")]
     for path in saved:  # the trials the remote control started and stopped
         print(path)
     if stats is None:
