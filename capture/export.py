@@ -216,6 +216,10 @@ def tables(path: str | os.PathLike) -> dict:
             "end_unix_time_ns": rec.unix_time_ns(rec.end_ns),
             "duration_s": rec.duration_s,
             "frames": len(index),
+            # frames left undecided: their IMU orientation was too old to level the cloud
+            "stale_orientation_frames": sum(
+                1 for d in pre.values() if d.get("flag") == "stale_orientation"
+            ),
             "unix_offset_ns": offset,
         }
     )

@@ -126,6 +126,14 @@ def describe(rec) -> list[str]:
                 gaps.append(f"{topic} none")
     if gaps:
         lines.append("  gaps        " + "; ".join(gaps))
+    flags = frame_flags(rec)
+    if flags is not None:
+        stale = flags.get(STALE_ORIENTATION, 0)
+        empty = ", ".join(f"{k} {v}" for k, v in sorted(flags.items()) if k != STALE_ORIENTATION)
+        lines.append(
+            f"  frames      {rec.topics[T.PREPROCESS].count} processed; stale orientation "
+            f"{stale} (no image, no decision)" + (f"; no image: {empty}" if empty else "")
+        )
     small = [t for t in (T.LABELS, T.EVENTS) if t in rec.topics]
     labels, kinds, undo_sources = [], {}, []
     try:
@@ -157,6 +165,28 @@ def describe(rec) -> list[str]:
             + ", ".join(f"{name} ({_size(n)})" for name, n in rec.attachment_sizes.items())
         )
     return lines
+
+
+STALE_ORIENTATION = "stale_orientation"  # inference.preprocess's flag of an undecided frame
+
+
+def frame_flags(rec) -> dict[str, int] | None:
+    """How many frames have each preprocessing flag (why their image is empty); None when
+    the file has no /camera/preprocess. Damage ends the count where it starts."""
+    from capture import topics as T
+    from capture.errors import CaptureError
+
+    if T.PREPROCESS not in rec.topics:
+        return None
+    counts: dict[str, int] = {}
+    try:
+        for m in rec.messages([T.PREPROCESS]):
+            flag = m.data.get("flag") or ""
+            if flag:
+                counts[flag] = counts.get(flag, 0) + 1
+    except CaptureError:
+        pass  # the damage is listed on its own line
+    return counts
 
 
 def recorded_periods(metadata: dict) -> dict[str, float]:
@@ -223,6 +253,7 @@ def summary(rec) -> dict:
                 }
                 for start, length in find_gaps(times[topic])
             ]
+    flags = frame_flags(rec)
     labels, events = [], {}
     small = [t for t in (T.LABELS, T.EVENTS) if t in rec.topics]
     damaged = check(rec.path).damaged  # every chunk's CRC, finished file or not
@@ -273,6 +304,8 @@ def summary(rec) -> dict:
         "unix_offset_ns": rec.unix_offset_ns,
         "topics": topics,
         "gaps": gaps,
+        "frame_flags": flags,
+        "stale_orientation_frames": (flags or {}).get(STALE_ORIENTATION, 0),
         "labels": [
             {
                 **when(t),
