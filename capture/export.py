@@ -18,7 +18,8 @@ Tables (every row names its file, recording id, subject, condition and trial):
 - labels: every recorded change, undos included, with in_reference (whether it defines
   `label`) and undone (taken back by a later undo).
 - events: device events and operator markers.
-- trials: one row per file: identity, lineage, session form, times, model.
+- trials: one row per file: identity, lineage, session form, model; start_time_ns and
+  end_time_ns (session clock), start_unix_time_ns and end_unix_time_ns, duration_s.
 Modes are names (LG, US, DS, UR, DR); "" where there is none.
 """
 
@@ -212,6 +213,8 @@ def tables(path: str | os.PathLike) -> dict:
             "source_name": member.source_name,
             "derived_how": member.how,
             "complete": rec.complete,
+            "start_time_ns": rec.start_ns,
+            "end_time_ns": rec.end_ns,
             "start_unix_time_ns": rec.unix_time_ns(rec.start_ns),
             "end_unix_time_ns": rec.unix_time_ns(rec.end_ns),
             "duration_s": rec.duration_s,
