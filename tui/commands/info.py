@@ -64,7 +64,7 @@ def describe(rec) -> list[str]:
     from capture import corpus
     from capture import topics as T
     from capture.errors import CaptureError
-    from capture.reader import find_gaps, is_undo
+    from capture.reader import effective_changes, find_gaps, is_undo
     from capture.recovery import check
 
     lines = [str(rec.path)]
@@ -135,24 +135,30 @@ def describe(rec) -> list[str]:
             f"{stale} (no image, no decision)" + (f"; no image: {empty}" if empty else "")
         )
     small = [t for t in (T.LABELS, T.EVENTS) if t in rec.topics]
-    labels, kinds, undo_sources = [], {}, []
+    labels, kinds, markers = [], {}, []
     try:
         for m in rec.messages(small):
             if m.topic == T.LABELS:
-                labels.append((m.data["time_ns"], m.data["mode"] or "-"))
-                undo_sources.append(m.data.get("source", ""))
+                d = m.data
+                labels.append((int(d["time_ns"]), d.get("mode", "") or "", d.get("source", "")))
             else:
                 kinds[m.data["kind"]] = kinds.get(m.data["kind"], 0) + 1
+                if m.data["kind"] == "marker":
+                    markers.append((int(m.data["time_ns"]), m.data.get("message", "")))
     except CaptureError:  # damaged: the labels and events before the damage are listed
         if not damaged:
             raise
     if labels:
-        sequence = " ".join(mode for _, mode in sorted(labels))
-        undos = sum(1 for source in undo_sources if is_undo(source))
-        undone = f" ({undos} undo(s), applied to the reference)" if undos else ""
+        # the modes as they stand: an undone change (and the undo) is no mode of the trial
+        sequence = " ".join(mode or "-" for _, mode, _ in effective_changes(labels))
+        undos = sum(1 for _, _, source in labels if is_undo(source))
+        undone = f" ({undos} undone, left out)" if undos else ""
         lines.append(f"  labels      {len(labels)} changes{undone}: {_clip(sequence)}")
     if kinds:
         lines.append("  events      " + ", ".join(f"{k} {v}" for k, v in sorted(kinds.items())))
+    for t, note in sorted(markers):
+        at = (t - rec.start_ns) * 1e-9 if rec.start_ns is not None else t * 1e-9
+        lines.append(f"  marker      +{at:.1f} s  {_clip(note or 'marker')}")
     lines.append("  metadata")
     for name, values in rec.metadata.items():
         if name == "recording":
@@ -254,7 +260,7 @@ def summary(rec) -> dict:
                 for start, length in find_gaps(times[topic])
             ]
     flags = frame_flags(rec)
-    labels, events = [], {}
+    labels, events, markers = [], {}, []
     small = [t for t in (T.LABELS, T.EVENTS) if t in rec.topics]
     damaged = check(rec.path).damaged  # every chunk's CRC, finished file or not
     try:
@@ -265,6 +271,8 @@ def summary(rec) -> dict:
                 )
             else:
                 events[m.data["kind"]] = events.get(m.data["kind"], 0) + 1
+                if m.data["kind"] == "marker":
+                    markers.append((int(m.data["time_ns"]), m.data.get("message", "")))
     except CaptureError:  # damaged: the labels and events before the damage
         if not damaged:
             raise
@@ -316,6 +324,7 @@ def summary(rec) -> dict:
             for t, mode, source in labels
         ],
         "events": events,
+        "markers": [{**when(t), "note": note} for t, note in sorted(markers)],
         "metadata": T.jsonable(rec.metadata),
         "attachments": dict(rec.attachment_sizes),
     }
