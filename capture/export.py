@@ -6,19 +6,22 @@
     t, corpus = export.corpus_tables(["recordings/"])   # one file per trial, rows concatenated
     export.write(t, "out/", "parquet")              # frames.parquet, imu.parquet, ...
 
-Tables (every row names its file, recording id, subject, condition and trial):
+Tables (every row names its file, recording id, subject, condition and trial; every column
+is described in docs/export.md):
 - frames: one row per camera frame: frame_index; time_ns (sample time, session clock),
-  unix_time_ns, time_s (seconds since the recording's first message); label (the
-  operator's mode in force, undos applied), truth (simulator, when recorded); p_<MODE>
-  (CNN softmax) and cnn_decision; posterior_<MODE> (fused HMM posterior for this frame),
-  decision (the fused decision for this frame) and decision_at_frame (the frame at which
-  it was made), voted and voted_at_frame; terrain_* (terrain features); preprocess_flag,
-  oriented, cloud_points; qw, qx, qy, qz (the camera's orientation at the frame time).
+  unix_time_ns, time_s (seconds since the recording's start: its earliest time, receive or
+  sample, the same origin in every table of the file); label (the operator's mode in
+  force, undos applied), truth (simulator, when recorded); p_<MODE> (CNN softmax) and
+  cnn_decision; posterior_<MODE> (fused HMM posterior for this frame), decision (the fused
+  decision for this frame) and decision_at_frame (the frame whose arrival produced it),
+  voted and voted_at_frame; terrain_* (terrain features); preprocess_flag, oriented,
+  cloud_points; qw, qx, qy, qz (the camera's orientation at the frame time).
 - imu: one row per IMU sample (time_ns: sample time, host_time_ns: arrival).
 - labels: every recorded change, undos included, with in_reference (whether it defines
   `label`) and undone (taken back by a later undo).
-- events: device events and operator markers.
-- trials: one row per file: identity, lineage, session form, times, model.
+- events: device events and operator markers, in time order.
+- trials: one row per file: identity, lineage, session form, model; start_time_ns and
+  end_time_ns (session clock), start_unix_time_ns and end_unix_time_ns, duration_s.
 Modes are names (LG, US, DS, UR, DR); "" where there is none.
 """
 
@@ -66,7 +69,6 @@ def tables(path: str | os.PathLike) -> dict:
     member = corpus_mod.describe(rec)
     subject, condition, trial = rec.trial
     offset = rec.unix_offset_ns
-    t0 = rec.start_ns or 0
     identity = {
         "file": rec.path.name,
         "recording_id": member.id,
@@ -123,11 +125,25 @@ def tables(path: str | os.PathLike) -> dict:
             events.append(d)
 
     changes.sort(key=lambda c: c[0])
+    events.sort(key=lambda e: int(e.get("time_ns", 0)))  # in time order, as the rest
     reference = effective_changes(changes)
     index = np.array(sorted(set(cnn) | set(pre)), dtype=np.int64)
     times = np.array(
         [int((cnn.get(i) or pre.get(i))["time_ns"]) for i in index], dtype=np.int64
     ).reshape(-1)
+    imu_t = np.array(
+        [int(s["time_ns"] if s.get("time_ns") is not None else s["host_time_ns"]) for s in imu],
+        dtype=np.int64,
+    )
+    label_t = np.array([c[0] for c in changes], dtype=np.int64)
+    event_t = np.array([int(e.get("time_ns", 0)) for e in events], dtype=np.int64)
+    # time_s counts from the recording's start: its earliest time, receive or sample (an
+    # IMU sample's time precedes its arrival), so that no row has a negative time
+    t0 = min(
+        [int(a.min()) for a in (times, imu_t, label_t, event_t) if len(a)]
+        + ([rec.start_ns] if rec.start_ns is not None else []),
+        default=0,
+    )
 
     frames = {"frame_index": index, "time_ns": times}
     frames.update(_clock(times, offset, t0))
@@ -163,10 +179,6 @@ def tables(path: str | os.PathLike) -> dict:
     for j, name in enumerate(("qw", "qx", "qy", "qz")):
         frames[name] = q[:, j]
 
-    imu_t = np.array(
-        [int(s["time_ns"] if s.get("time_ns") is not None else s["host_time_ns"]) for s in imu],
-        dtype=np.int64,
-    )
     imu_cols = {"time_ns": imu_t, "host_time_ns": _ints([s.get("host_time_ns") for s in imu])}
     imu_cols.update(_clock(imu_t, offset, t0))
     imu_cols["packet_counter"] = _ints([s.get("packet_counter") for s in imu])
@@ -187,7 +199,6 @@ def tables(path: str | os.PathLike) -> dict:
 
     in_force = set(reference)
     undone = _undone(changes)
-    label_t = np.array([c[0] for c in changes], dtype=np.int64)
     labels = {"time_ns": label_t}
     labels.update(_clock(label_t, offset, t0))
     labels["mode"] = [c[1] for c in changes]
@@ -196,7 +207,6 @@ def tables(path: str | os.PathLike) -> dict:
     labels["undone"] = [k in undone for k in range(len(changes))]
     labels["in_reference"] = [c in in_force for c in changes]
 
-    event_t = np.array([int(e.get("time_ns", 0)) for e in events], dtype=np.int64)
     event_cols = {"time_ns": event_t}
     event_cols.update(_clock(event_t, offset, t0))
     event_cols["device"] = [str(e.get("device", "")) for e in events]
@@ -212,10 +222,16 @@ def tables(path: str | os.PathLike) -> dict:
             "source_name": member.source_name,
             "derived_how": member.how,
             "complete": rec.complete,
+            "start_time_ns": rec.start_ns,
+            "end_time_ns": rec.end_ns,
             "start_unix_time_ns": rec.unix_time_ns(rec.start_ns),
             "end_unix_time_ns": rec.unix_time_ns(rec.end_ns),
             "duration_s": rec.duration_s,
             "frames": len(index),
+            # frames left undecided: their IMU orientation was too old to level the cloud
+            "stale_orientation_frames": sum(
+                1 for d in pre.values() if d.get("flag") == "stale_orientation"
+            ),
             "unix_offset_ns": offset,
         }
     )

@@ -131,6 +131,12 @@ class FrameResult:
     done_ns: int = 0  # when the fused decision was ready
 
     @property
+    def decided(self) -> bool:
+        """False for a frame left undecided (stale orientation): no CNN output, and the
+        fusion held, not fed."""
+        return self.cnn_decision >= 0
+
+    @property
     def latency_ms(self) -> float:
         return (self.done_ns - self.host_time_ns) * 1e-6
 
@@ -160,13 +166,16 @@ class Pipeline:
         self._pushed = 0
         self._frame_of_push: dict[int, int] = {}
 
-    def prepare(self, frame: DepthFrame, quaternion: np.ndarray | None):
-        """The preprocessing step alone (inference.preprocess.Preprocessed)."""
+    def prepare(
+        self, frame: DepthFrame, quaternion: np.ndarray | None, orientation_age_ns: int = 0
+    ):
+        """The preprocessing step alone (inference.preprocess.Preprocessed);
+        `orientation_age_ns` as OrientationTrack.at() returns it."""
         from inference.preprocess import preprocess
 
         if quaternion is None:
             quaternion = np.full(4, np.nan)
-        return preprocess(frame.xyz, frame.confidence, quaternion, self.params)
+        return preprocess(frame.xyz, frame.confidence, quaternion, self.params, orientation_age_ns)
 
     def process(
         self,
@@ -176,14 +185,37 @@ class Pipeline:
         *,
         prepared=None,
         probabilities: np.ndarray | None = None,
+        orientation_age_ns: int = 0,
     ) -> FrameResult:
         """The whole frame; `prepared` and `probabilities` when worked out ahead (replay
-        preprocesses in another process and classifies in batches)."""
+        preprocesses in another process and classifies in batches).
+
+        A frame whose orientation is stale gets no decision: the CNN does not see it and
+        the fusion holds (it is not fed), so nothing is decided on a wrongly levelled cloud.
+        """
         from inference.features import terrain_features
+        from inference.preprocess import STALE_ORIENTATION
 
         if quaternion is None:
             quaternion = np.full(4, np.nan)
-        pre = prepared if prepared is not None else self.prepare(frame, quaternion)
+        if prepared is None:
+            prepared = self.prepare(frame, quaternion, orientation_age_ns)
+        pre = prepared
+        if pre.flag == STALE_ORIENTATION:
+            return FrameResult(
+                index=frame.index,
+                time_ns=frame.device_time_ns if time_ns is None else time_ns,
+                host_time_ns=frame.host_time_ns,
+                quaternion=None if not np.all(np.isfinite(quaternion)) else quaternion,
+                image=pre.image,
+                cloud=pre.cloud,
+                profile=pre.profile,
+                flag=pre.flag,
+                probabilities=np.full(len(MODES), np.nan),
+                cnn_decision=-1,
+                fused=None,
+                done_ns=now_ns(),
+            )
         probs = np.asarray(
             probabilities if probabilities is not None else self.classifier.predict(pre.image),
             dtype=np.float64,
@@ -252,7 +284,10 @@ def record_result(
 
 
 def record_decisions(recorder, r: FrameResult, decided_ns: int | None = None) -> None:
-    """The CNN, fused and terrain outputs of a frame (record_result without the sensor data)."""
+    """The CNN, fused and terrain outputs of a frame (record_result without the sensor data);
+    nothing for an undecided frame (its flag on /camera/preprocess says why)."""
+    if not r.decided:
+        return
     recorder.write_inference(
         r.index,
         r.time_ns,

@@ -118,9 +118,9 @@ def prepared_frames(
         while i < len(times) and times[i] <= t + IMU_LOOKAHEAD_NS:
             track.add(int(times[i]), quats[i], rates[i] if np.isfinite(rates[i, 0]) else None)
             i += 1
-        q, _ = track.at(t)
+        q, age_ns = track.at(t)
         level = q if q is not None else np.full(4, np.nan)
-        yield frame, q, preprocess(frame.xyz, frame.confidence, level, params)
+        yield frame, q, preprocess(frame.xyz, frame.confidence, level, params, age_ns)
 
 
 class _ReaderProcess:

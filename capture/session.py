@@ -129,6 +129,7 @@ class Snapshot:
     frames: int
     latency_ms: dict
     alarms: AlarmState | None = None  # gaps this trial, and what the operator must see now
+    stale_frames: int = 0  # frames left undecided: their IMU orientation was stale
 
 
 def stream_periods(config: config_mod.Config) -> dict[str, float]:
@@ -314,6 +315,7 @@ class Session:
         self._taps: tuple = ()  # live outputs beside the recorder (LSL, Foxglove)
         self._sync_errors: collections.deque[float] = collections.deque(maxlen=5000)
         self._frames = 0
+        self._stale_frames = 0
         self._last_truth_mode: str | None = None
         self._inbox = _FrameInbox()
         self._failures = _Streak("pipeline", "error", "the pipeline failed on it")
@@ -530,10 +532,11 @@ class Session:
             if recorder is not None and recorder is self._recorder
             else self._taps
         )
-        quaternion, _ = self.track.at(t)  # interpolated, or carried on by the rate of turn
+        # interpolated, or carried on by the rate of turn; too far from a sample: stale
+        quaternion, age_ns = self.track.at(t)
         pre = None
         try:
-            pre = self.pipeline.prepare(frame, quaternion)
+            pre = self.pipeline.prepare(frame, quaternion, age_ns)
             result = self.pipeline.process(frame, quaternion, t, prepared=pre)
         except Exception as e:  # one bad frame (or a broken model) must not end the session
             log.debug("frame %d", frame.index, exc_info=True)
@@ -577,6 +580,7 @@ class Session:
         with self._lock:
             self._latest = r
             self._frames += 1
+            self._stale_frames += not r.decided
             self._timeline.append(entry)
             self._by_index[r.index] = entry
             while self._timeline and self._timeline[0].time_ns < horizon:
@@ -786,6 +790,7 @@ class Session:
                 recording=None,
                 recording_started_ns=self._recording_started_ns,
                 frames=self._frames,
+                stale_frames=self._stale_frames,
                 latency_ms={}
                 if latencies is None
                 else {

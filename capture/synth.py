@@ -142,8 +142,9 @@ def synth_recording(
             if frame.truth and frame.truth.get("mode") != mode:
                 mode = frame.truth["mode"]
                 recorder.write_label(t, mode, "simulator")
-            q, _ = track.at(t)
-            record_result(recorder, frame, pipeline.process(frame, q, t), frame.host_time_ns)
+            q, age_ns = track.at(t)
+            result = pipeline.process(frame, q, t, orientation_age_ns=age_ns)
+            record_result(recorder, frame, result, frame.host_time_ns)
             if progress is not None:
                 progress(1)
     finally:

@@ -23,6 +23,9 @@ class PreprocessConfig:
     min_confidence: int = 1
     outlier_min_points: int = 4  # isolated-point removal, 3 x 3 cm neighbourhood (0: off)
     max_elevation_deg: float = 30.0  # camera looking higher than this: no image
+    # an orientation farther than this from its nearest IMU sample (an unplugged or silent
+    # IMU) is stale: no image, no decision. 50 ms: five periods at 100 Hz
+    max_orientation_age_ms: float = 50.0
     backend: str = "numpy"  # numpy | open3d (same result; numpy is faster)
 
     def problems(self) -> Problems:
@@ -43,6 +46,8 @@ class PreprocessConfig:
             out.append(("outlier_min_points", "0 (off) to 9 points of a 3 x 3 neighbourhood"))
         if not number_in(self.max_elevation_deg, 0.0, 90.0):
             out.append(("max_elevation_deg", "0 to 90 degrees"))
+        if not number_in(self.max_orientation_age_ms, 0.0, 10_000.0, low_open=True):
+            out.append(("max_orientation_age_ms", "0 < max_orientation_age_ms <= 10000 ms"))
         return out
 
 
@@ -92,6 +97,8 @@ DOCS: dict[type, dict[str, str]] = {
         "min_confidence": "lowest camera confidence a point needs to be used",
         "outlier_min_points": "isolated-point removal: neighbours needed in 3 x 3 cm (0: off)",
         "max_elevation_deg": "camera looking higher than this above level: no image, degrees",
+        "max_orientation_age_ms": "an IMU orientation older than this is stale: the frame "
+        "gets no image and no decision (stale_orientation), ms",
         "backend": "point-cloud backend: numpy | open3d (same result; numpy is faster)",
     },
     ModelConfig: {

@@ -44,6 +44,9 @@ NO_VALID_POINTS = "no_valid_points"
 EMPTY_CORRIDOR = "empty_corridor"
 LOOKING_UP = "looking_up"
 BAD_ORIENTATION = "bad_orientation"
+# The IMU orientation at the frame's time is older than max_orientation_age_ms (the IMU is
+# silent or unplugged): a held orientation would level the cloud wrongly, so no image.
+STALE_ORIENTATION = "stale_orientation"
 NAN_INPUT = "nan_input"
 BAD_INPUT = "bad_input"
 
@@ -72,6 +75,7 @@ class PreprocessParams:
     outlier_min_points: int = 4  # 0 or 1 disables it
     outlier_cell_m: float = 0.01
     max_elevation_deg: float = 30.0  # optical axis above the horizon by more: looking_up
+    max_orientation_age_ms: float = 50.0  # orientation older than this: stale_orientation
     min_points: int = 10  # fewer corridor points than this: empty_corridor
     backend: str = "numpy"  # numpy | open3d
 
@@ -164,17 +168,24 @@ def leveling_matrix(quaternion: np.ndarray, params: PreprocessParams) -> np.ndar
 
 
 def preprocess(
-    xyz: np.ndarray, confidence: np.ndarray, quaternion: np.ndarray, params: PreprocessParams
+    xyz: np.ndarray,
+    confidence: np.ndarray,
+    quaternion: np.ndarray,
+    params: PreprocessParams,
+    orientation_age_ns: int = 0,
 ) -> Preprocessed:
     """Level, crop, clean and rasterise one depth frame (see the module docstring).
 
     xyz: (H, W, 3) metres, camera frame; confidence: (H, W), 0 = invalid;
-    quaternion: [w, x, y, z] IMU -> world at the frame's time.
+    quaternion: [w, x, y, z] IMU -> world at the frame's time; orientation_age_ns: how far
+    the quaternion is from the IMU sample it comes from (capture.pipeline.OrientationTrack).
     """
     xyz = np.asarray(xyz)
     confidence = np.asarray(confidence)
     if xyz.ndim != 3 or xyz.shape[-1] != 3 or confidence.shape != xyz.shape[:2]:
         return empty(params, BAD_INPUT, shape=list(xyz.shape))
+    if orientation_age_ns > params.max_orientation_age_ms * 1e6:
+        return empty(params, STALE_ORIENTATION, age_ms=orientation_age_ns * 1e-6)
     level = leveling_matrix(quaternion, params)
     if level is None:
         return empty(params, BAD_ORIENTATION)
@@ -209,9 +220,11 @@ def preprocess(
     )
 
 
-def preprocess_frame(frame, quaternion: np.ndarray, params: PreprocessParams) -> Preprocessed:
+def preprocess_frame(
+    frame, quaternion: np.ndarray, params: PreprocessParams, orientation_age_ns: int = 0
+) -> Preprocessed:
     """preprocess() on a devices.frames.DepthFrame."""
-    return preprocess(frame.xyz, frame.confidence, quaternion, params)
+    return preprocess(frame.xyz, frame.confidence, quaternion, params, orientation_age_ns)
 
 
 def rasterise(

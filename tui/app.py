@@ -24,7 +24,7 @@ from capture.recorder import RecorderState
 from capture.session import SubjectInfo
 from tui import messages
 from tui.live_screen import LiveScreen
-from tui.session_screen import SessionScreen, load_last_session, save_last_session
+from tui.session_screen import SessionScreen, load_remembered, save_last_session
 from tui.widgets.quit_dialog import QuitDialog
 from tui.widgets.recording_panel import clock_text, human_bytes
 
@@ -117,7 +117,9 @@ class WalkcapApp(App):
         self.config = config or Config()
         self.session = session
         self.session_factory = session_factory or default_session_factory
-        self.subject = subject or load_last_session()
+        if subject is None:
+            subject = self._remembered_subject()
+        self.subject = subject
         self.ask_subject = ask_subject
         self.start_status = start_status
         self.ready = False  # the session started: snapshots and commands go to it
@@ -135,6 +137,15 @@ class WalkcapApp(App):
         self.preflight_report = None
         self.trials: list[TrialRecord] = []
         self.lab = None  # LSL, remote control, Foxglove: capture.labtools.LabTools
+
+    def _remembered_subject(self) -> SubjectInfo:
+        """The form confirmed last, its next free trial in the recordings folder; the
+        remembered operator unless one is configured."""
+        remembered = load_remembered()
+        if not self.config.session.operator:
+            self.config.session.operator = remembered.operator
+        last = remembered.last
+        return remembered.form_for(last.subject, last.condition, self.config.session.recordings)
 
     @property
     def source(self):
@@ -454,7 +465,7 @@ class WalkcapApp(App):
         self.recording_path = None
         # the next trial of the same subject: advance and remember, even if the app dies now
         self.subject = dataclasses.replace(self.subject, trial=self.subject.trial + 1)
-        save_last_session(self.subject)
+        save_last_session(self.subject, operator=self.config.session.operator)
         stats = message.stats
         name = Path(getattr(stats, "path", "") or message.path or "recording").name
         if getattr(stats, "state", "") == RecorderState.FAILED:

@@ -62,6 +62,9 @@ def pipeline_rows(snap: Snapshot) -> list[tuple[str, str, str]]:
     if snap.latency_ms:
         p50, p99 = snap.latency_ms.get("p50", 0), snap.latency_ms.get("p99", 0)
         rows.append(("latency", f"median {p50:.0f}, p99 {p99:.0f} ms", ""))
+    stale = getattr(snap, "stale_frames", 0)
+    if stale:  # frames left undecided: no IMU orientation fresh enough to level them
+        rows.append(("stale", f"{stale} frames, IMU orientation old", "#f0a020"))
     return rows
 
 
@@ -186,7 +189,10 @@ class LiveScreen(Screen):
         )
         self._w[ProfilePlot].present(latest.profile if latest else None, key)
         self._w[DecisionDisplay].present(
-            self._fused, latest.cnn_decision if latest else None, snap.label
+            self._fused,
+            latest.cnn_decision if latest else None,
+            snap.label,
+            unknown=latest is not None and not latest.decided,
         )
         self._w[ProbabilityBars].present(latest.probabilities if latest else None)
         self._w[FeaturesPanel].present(latest.features if latest else None)

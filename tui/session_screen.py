@@ -1,7 +1,10 @@
 """The session form: who walks, under which condition, which trial; validated, remembered.
 
 The last values confirmed are kept in ~/.config/walkcap/last_session.json so that the next
-session (or a restart after a crash) opens with them, trial number included.
+session (or a restart after a crash) opens with them, with the operator. The subject's own
+fields (body data, notes) are remembered per subject id: another subject never inherits
+them. The trial is the next free number for the subject and condition in the recordings
+folder.
 """
 
 from __future__ import annotations
@@ -42,33 +45,103 @@ FIELDS = {
 }
 
 
+# What describes the person, not the session: remembered per subject id.
+SUBJECT_FIELDS = (
+    "height_m",
+    "weight_kg",
+    "age",
+    "sex",
+    "amputee",
+    "side",
+    "residual_limb_cm",
+    "notes",
+)
+
+
 def last_session_path() -> Path:
     return Path(os.path.expanduser("~")) / ".config" / "walkcap" / "last_session.json"
 
 
-def load_last_session(path: Path | None = None) -> SubjectInfo:
-    """The values confirmed last time; defaults when there are none or they are unreadable."""
+@dataclasses.dataclass
+class Remembered:
+    """last_session.json: the form confirmed last, the operator, each subject's own fields."""
+
+    last: SubjectInfo = dataclasses.field(default_factory=SubjectInfo)
+    operator: str = ""
+    subjects: dict[str, dict] = dataclasses.field(default_factory=dict)
+
+    def subject_fields(self, subject: str) -> dict:
+        """`subject`'s own remembered fields; empty ones for a subject not seen before."""
+        blank = SubjectInfo()
+        fields = {k: getattr(blank, k) for k in SUBJECT_FIELDS}
+        if subject == self.last.subject:
+            return {k: getattr(self.last, k) for k in SUBJECT_FIELDS}
+        fields.update(self.subjects.get(subject, {}))
+        return fields
+
+    def form_for(
+        self, subject: str, condition: str, folder: str | os.PathLike | None
+    ) -> SubjectInfo:
+        """The form for `subject` and `condition`: that subject's own fields and the next
+        free trial in `folder` (from the remembered trial when the subject and condition
+        are the ones confirmed last, else from 1)."""
+        from capture.corpus import next_free_trial, trial_files
+
+        same = subject == self.last.subject and condition == self.last.condition
+        start = self.last.trial if same else 1
+        taken = trial_files(folder, subject, condition) if folder is not None else {}
+        return dataclasses.replace(
+            self.last,
+            subject=subject,
+            condition=condition,
+            trial=next_free_trial(taken, start),
+            **self.subject_fields(subject),
+        )
+
+
+def load_remembered(path: Path | None = None) -> Remembered:
+    """What was confirmed last time; defaults when there is none or it is unreadable."""
     path = path or last_session_path()
     try:
         data = json.loads(path.read_text())
         known = {f.name for f in dataclasses.fields(SubjectInfo)}
         info = SubjectInfo(**{k: v for k, v in data.items() if k in known})
         info.validate()
-        return info
     except FileNotFoundError:
-        return SubjectInfo()
-    except (OSError, ValueError, TypeError, CaptureError) as e:
+        return Remembered()
+    except (OSError, ValueError, TypeError, AttributeError, CaptureError) as e:
         log.warning("ignoring %s: %s", path, e)
-        return SubjectInfo()
+        return Remembered()
+    operator = data.get("operator")
+    subjects = {}
+    for subject, fields in (data.get("subjects") or {}).items():
+        if isinstance(fields, dict):
+            subjects[str(subject)] = {k: v for k, v in fields.items() if k in SUBJECT_FIELDS}
+    return Remembered(info, operator if isinstance(operator, str) else "", subjects)
 
 
-def save_last_session(info: SubjectInfo, path: Path | None = None) -> None:
+def load_last_session(path: Path | None = None) -> SubjectInfo:
+    """The form confirmed last time; defaults when there is none or it is unreadable."""
+    return load_remembered(path).last
+
+
+def save_last_session(
+    info: SubjectInfo, path: Path | None = None, *, operator: str | None = None
+) -> None:
+    """Remember `info` (and its subject's own fields) and the operator (None: keep the
+    remembered one)."""
     path = path or last_session_path()
+    remembered = load_remembered(path)
+    subjects = dict(remembered.subjects)
+    subjects[info.subject] = {k: getattr(info, k) for k in SUBJECT_FIELDS}
+    data = dataclasses.asdict(info)
+    data["operator"] = remembered.operator if operator is None else operator
+    data["subjects"] = subjects
     try:
         check_replaceable(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(".tmp")
-        tmp.write_text(json.dumps(dataclasses.asdict(info), indent=2))
+        tmp.write_text(json.dumps(data, indent=2))
         os.replace(tmp, path)
     except OSError as e:  # losing the remembered form must never stop a session
         log.warning("cannot save %s: %s", path, e)
@@ -133,6 +206,10 @@ class SessionScreen(Screen[SubjectInfo | None]):
         self.info = info
         self.can_cancel = can_cancel
         self.operator = ""
+        # what the form filled in for which subject and condition: a field still showing
+        # it is the operator's to replace when the subject or condition changes
+        self._filled = form_values(info)
+        self._filled_for = (info.subject, info.condition)
 
     def compose(self) -> ComposeResult:
         values = form_values(self.info)
@@ -200,8 +277,8 @@ class SessionScreen(Screen[SubjectInfo | None]):
         except CaptureError as e:
             self.query_one("#form-error", Static).update(f"[b red]{e}[/]")
             return
-        save_last_session(info)
         self.operator = str(self.query_one("#f-operator", Input).value).strip()
+        save_last_session(info, operator=self.operator)
         config = getattr(self.app, "config", None)
         if config is not None:  # who runs the session goes into every recording
             config.session.operator = self.operator
@@ -218,6 +295,25 @@ class SessionScreen(Screen[SubjectInfo | None]):
     def action_cancel(self) -> None:
         if self.can_cancel:
             self.dismiss(None)
+
+    def on_input_changed(self, event: Input.Changed) -> None:
+        """Another subject or condition: that subject's own fields (empty for a new one) and
+        its next free trial, in every field the operator has not typed into."""
+        if event.input.id not in ("f-subject", "f-condition"):
+            return
+        values = self.values()
+        key = (str(values["subject"]).strip(), str(values["condition"]).strip())
+        if key == self._filled_for or not all(key):
+            return
+        config = getattr(self.app, "config", None)
+        folder = config.session.recordings if config is not None else None
+        fresh = form_values(load_remembered().form_for(*key, folder))
+        for name in (*SUBJECT_FIELDS, "trial"):
+            widget = self.query_one(f"#f-{name}")
+            if widget.value == self._filled[name]:
+                widget.value = fresh[name]
+                self._filled[name] = fresh[name]
+        self._filled_for = key
 
     def on_input_submitted(self, event: Input.Submitted) -> None:
         event.stop()

@@ -64,7 +64,7 @@ def describe(rec) -> list[str]:
     from capture import corpus
     from capture import topics as T
     from capture.errors import CaptureError
-    from capture.reader import find_gaps, is_undo
+    from capture.reader import effective_changes, find_gaps, is_undo
     from capture.recovery import check
 
     lines = [str(rec.path)]
@@ -126,25 +126,39 @@ def describe(rec) -> list[str]:
                 gaps.append(f"{topic} none")
     if gaps:
         lines.append("  gaps        " + "; ".join(gaps))
+    flags = frame_flags(rec)
+    if flags is not None:
+        stale = flags.get(STALE_ORIENTATION, 0)
+        empty = ", ".join(f"{k} {v}" for k, v in sorted(flags.items()) if k != STALE_ORIENTATION)
+        lines.append(
+            f"  frames      {rec.topics[T.PREPROCESS].count} processed; stale orientation "
+            f"{stale} (no image, no decision)" + (f"; no image: {empty}" if empty else "")
+        )
     small = [t for t in (T.LABELS, T.EVENTS) if t in rec.topics]
-    labels, kinds, undo_sources = [], {}, []
+    labels, kinds, markers = [], {}, []
     try:
         for m in rec.messages(small):
             if m.topic == T.LABELS:
-                labels.append((m.data["time_ns"], m.data["mode"] or "-"))
-                undo_sources.append(m.data.get("source", ""))
+                d = m.data
+                labels.append((int(d["time_ns"]), d.get("mode", "") or "", d.get("source", "")))
             else:
                 kinds[m.data["kind"]] = kinds.get(m.data["kind"], 0) + 1
+                if m.data["kind"] == "marker":
+                    markers.append((int(m.data["time_ns"]), m.data.get("message", "")))
     except CaptureError:  # damaged: the labels and events before the damage are listed
         if not damaged:
             raise
     if labels:
-        sequence = " ".join(mode for _, mode in sorted(labels))
-        undos = sum(1 for source in undo_sources if is_undo(source))
-        undone = f" ({undos} undo(s), applied to the reference)" if undos else ""
+        # the modes as they stand: an undone change (and the undo) is no mode of the trial
+        sequence = " ".join(mode or "-" for _, mode, _ in effective_changes(labels))
+        undos = sum(1 for _, _, source in labels if is_undo(source))
+        undone = f" ({undos} undone, left out)" if undos else ""
         lines.append(f"  labels      {len(labels)} changes{undone}: {_clip(sequence)}")
     if kinds:
         lines.append("  events      " + ", ".join(f"{k} {v}" for k, v in sorted(kinds.items())))
+    for t, note in sorted(markers):
+        at = (t - rec.start_ns) * 1e-9 if rec.start_ns is not None else t * 1e-9
+        lines.append(f"  marker      +{at:.1f} s  {_clip(note or 'marker')}")
     lines.append("  metadata")
     for name, values in rec.metadata.items():
         if name == "recording":
@@ -157,6 +171,28 @@ def describe(rec) -> list[str]:
             + ", ".join(f"{name} ({_size(n)})" for name, n in rec.attachment_sizes.items())
         )
     return lines
+
+
+STALE_ORIENTATION = "stale_orientation"  # inference.preprocess's flag of an undecided frame
+
+
+def frame_flags(rec) -> dict[str, int] | None:
+    """How many frames have each preprocessing flag (why their image is empty); None when
+    the file has no /camera/preprocess. Damage ends the count where it starts."""
+    from capture import topics as T
+    from capture.errors import CaptureError
+
+    if T.PREPROCESS not in rec.topics:
+        return None
+    counts: dict[str, int] = {}
+    try:
+        for m in rec.messages([T.PREPROCESS]):
+            flag = m.data.get("flag") or ""
+            if flag:
+                counts[flag] = counts.get(flag, 0) + 1
+    except CaptureError:
+        pass  # the damage is listed on its own line
+    return counts
 
 
 def recorded_periods(metadata: dict) -> dict[str, float]:
@@ -223,7 +259,8 @@ def summary(rec) -> dict:
                 }
                 for start, length in find_gaps(times[topic])
             ]
-    labels, events = [], {}
+    flags = frame_flags(rec)
+    labels, events, markers = [], {}, []
     small = [t for t in (T.LABELS, T.EVENTS) if t in rec.topics]
     damaged = check(rec.path).damaged  # every chunk's CRC, finished file or not
     try:
@@ -234,6 +271,8 @@ def summary(rec) -> dict:
                 )
             else:
                 events[m.data["kind"]] = events.get(m.data["kind"], 0) + 1
+                if m.data["kind"] == "marker":
+                    markers.append((int(m.data["time_ns"]), m.data.get("message", "")))
     except CaptureError:  # damaged: the labels and events before the damage
         if not damaged:
             raise
@@ -273,6 +312,8 @@ def summary(rec) -> dict:
         "unix_offset_ns": rec.unix_offset_ns,
         "topics": topics,
         "gaps": gaps,
+        "frame_flags": flags,
+        "stale_orientation_frames": (flags or {}).get(STALE_ORIENTATION, 0),
         "labels": [
             {
                 **when(t),
@@ -283,6 +324,7 @@ def summary(rec) -> dict:
             for t, mode, source in labels
         ],
         "events": events,
+        "markers": [{**when(t), "note": note} for t, note in sorted(markers)],
         "metadata": T.jsonable(rec.metadata),
         "attachments": dict(rec.attachment_sizes),
     }

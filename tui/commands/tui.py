@@ -47,13 +47,30 @@ def logging_to_file(path: str):
         handler.close()
 
 
+def starting_form(args, config):
+    """The form the session opens with: the flags given over what is remembered for that
+    subject and condition (another subject never inherits the last one's fields); the
+    remembered operator unless `--operator` names one."""
+    from tui.commands import subject_from_flags
+    from tui.session_screen import load_remembered
+
+    remembered = load_remembered()
+    if args.operator is None and remembered.operator:
+        config.session.operator = remembered.operator
+    base = remembered.form_for(
+        args.subject or remembered.last.subject,
+        args.condition or remembered.last.condition,
+        config.session.recordings,
+    )
+    return subject_from_flags(args, base)
+
+
 def run(args, config) -> int:
     import sys
 
     from capture.errors import CaptureError
     from tui.app import WalkcapApp
-    from tui.commands import apply_device_flags, course_condition, subject_from_flags
-    from tui.session_screen import load_last_session
+    from tui.commands import apply_device_flags, course_condition
 
     apply_device_flags(args, config)
     lab_flags.apply(args, config)
@@ -63,7 +80,7 @@ def run(args, config) -> int:
         print(f"walkcap tui: warning: {warning}", file=sys.stderr)
     if not given_condition and args.course is None:
         args.condition = None  # the form's remembered condition stands
-    subject = subject_from_flags(args, load_last_session())
+    subject = starting_form(args, config)
     if args.drills and (config.camera.backend != "mock" or config.imu.backend != "mock"):
         raise CaptureError("--drills injects faults into mock devices only")
     config.simulator.loop = True  # a mock subject keeps walking until the operator quits

@@ -39,16 +39,24 @@ class DecisionDisplay(Widget):
 
     def __init__(self, **kwargs) -> None:
         super().__init__(**kwargs)
-        self._content: tuple = (None, None, None)
+        self._content: tuple = (None, None, None, False)
 
-    def present(self, fused: int | str | None, cnn: int | str | None, label: str | None) -> None:
-        content = (mode_name(fused), mode_name(cnn), mode_name(label))
+    def present(
+        self,
+        fused: int | str | None,
+        cnn: int | str | None,
+        label: str | None,
+        unknown: bool = False,
+    ) -> None:
+        """`unknown`: the newest frame has no decision (a stale IMU orientation): the
+        fusion holds, and the panel says so instead of showing an old decision as current."""
+        content = (None if unknown else mode_name(fused), mode_name(cnn), mode_name(label), unknown)
         if content != self._content:
             self._content = content
             self.refresh()
 
     def render(self) -> Group:
-        fused, cnn, label = self._content
+        fused, cnn, label, unknown = self._content
         color = MODE_COLORS[fused] if fused else "#555555"
         big = Text("\n".join(big_letters(fused or "--")), style=f"bold {color}", justify="center")
         name = Text(
@@ -56,6 +64,8 @@ class DecisionDisplay(Widget):
             style="bold" if fused else "dim",
             justify="center",
         )
+        if unknown:
+            name = Text("unknown: IMU orientation stale", style="bold #f0a020", justify="center")
         below = Text.assemble(
             "CNN ", mode_text(cnn), "   true ", mode_text(label), justify="center"
         )
