@@ -2,9 +2,10 @@
 
 Offline and deterministic for a seed: the terrain-walk simulator renders every frame, the
 IMU samples are the walker's thigh orientation at the IMU rate with sensor noise (no pty:
-there is no real time to keep), the pipeline runs as live, labels come from the simulator's
-truth, and a blocking recorder loses nothing. The file has the same topics as a live
-recording, so eval, train and replay read both alike.
+there is no real time to keep), the pipeline runs as live, the labels key the walker's
+locomotion mode as an operator keys it (the `locomotion` reference; `/sim/truth` carries
+what each image shows, the `terrain` reference), and a blocking recorder loses nothing.
+The file has the same topics as a live recording, so eval, train and replay read both alike.
 """
 
 from __future__ import annotations
@@ -139,8 +140,8 @@ def synth_recording(
                 pending = next(imu, None)
             frame = simulator.render(k / cfg.camera.fps, index=k)
             frame.device_time_ns, frame.host_time_ns = t, t + FRAME_TRANSFER_NS
-            if frame.truth and frame.truth.get("mode") != mode:
-                mode = frame.truth["mode"]
+            if frame.truth and frame.truth.get("locomotion_mode") != mode:
+                mode = frame.truth["locomotion_mode"]
                 recorder.write_label(t, mode, "simulator")
             q, _ = track.at(t)
             record_result(recorder, frame, pipeline.process(frame, q, t), frame.host_time_ns)
