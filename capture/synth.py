@@ -86,10 +86,12 @@ def synth_recording(
     simulator = Simulator.from_config(cfg.simulator, fps=cfg.camera.fps)
     rng = np.random.default_rng([seed, 4242])
     fusion = make_fusion(
-        "hmm+voting",
+        cfg.fusion.method,
         window=cfg.fusion.window,
         vote_delay=cfg.fusion.vote_delay,
         transition=np.asarray(cfg.fusion.transition),
+        stay=cfg.fusion.stay,
+        evidence=cfg.fusion.evidence,
     )
     pipeline = Pipeline(PreprocessParams.from_config(cfg), classifier, fusion)
     metadata = {
@@ -110,6 +112,7 @@ def synth_recording(
             "walkcap_version": __version__,
             "model_path": cfg.model.path or "bundled",
             "model_hash": model_hash(classifier),
+            "fusion_method": cfg.fusion.method,
             "fusion_window": cfg.fusion.window,
             "fusion_vote_delay": cfg.fusion.vote_delay,
             "fusion_transition": T.jsonable(cfg.fusion.transition),

@@ -37,6 +37,8 @@ from inference.errors import InferenceError
 from inference.fusion import (
     N_MODES,
     PAPER_TRANSITION,
+    STEADY_EVIDENCE,
+    STEADY_STAY,
     FixedLagSmoother,
     Fusion,
     HmmFusion,
@@ -56,6 +58,7 @@ TITLES = {
     "hmm+voting": "HMM + voting",
     "forward": "forward filter",
     "fixed-lag": "fixed-lag smoother",
+    "steady": "steady",
 }
 SCORE_HEADER = (*MODES, "label")  # label: the terrain each image shows
 SCORE_HEADER_LOCOMOTION = (*SCORE_HEADER, "locomotion")  # + the mode keyed live
@@ -72,9 +75,19 @@ class FusionParameters:
     vote_delay: int = 1  # l_v
     transition: np.ndarray = field(default_factory=lambda: PAPER_TRANSITION.copy())
     lag: int = 1  # fixed-lag smoother only
+    stay: float = STEADY_STAY  # "steady" only
+    evidence: float = STEADY_EVIDENCE  # "steady" only
 
     def make(self, method: str) -> Fusion:
-        return make_fusion(method, self.window, self.vote_delay, self.transition, self.lag)
+        return make_fusion(
+            method,
+            self.window,
+            self.vote_delay,
+            self.transition,
+            self.lag,
+            self.stay,
+            self.evidence,
+        )
 
     def delay_frames(self, method: str) -> int:
         return self.make(method).delay_frames
@@ -520,6 +533,7 @@ def report(
             "window": params.window,
             "vote_delay": params.vote_delay,
             **({"lag": params.lag} if "fixed-lag" in methods else {}),
+            **({"stay": params.stay, "evidence": params.evidence} if "steady" in methods else {}),
         },
     }
     if len(results) >= 2:

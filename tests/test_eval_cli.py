@@ -72,7 +72,13 @@ def test_scores_json_equals_live_decisions(capsys, score_files):
     )
     assert code == 0
     data = json.loads(out)
-    assert data["delay_frames"] == {"cnn": 0, "cnn+voting": 2, "hmm": 1, "hmm+voting": 3}
+    assert data["delay_frames"] == {
+        "cnn": 0,
+        "cnn+voting": 2,
+        "hmm": 1,
+        "hmm+voting": 3,
+        "steady": 1,
+    }
     assert data["parameters"]["window"] == 4
     for path, entry in zip(score_files, data["files"]):
         trial = ev.read_scores(path)

@@ -103,3 +103,17 @@ def test_frame_times_are_used_when_given():
     dec = seq((0, 11), (1, 9))
     s = transition_stats(dec, ref, times, min_dwell_s=0.5)
     assert s.delays_s == pytest.approx([0.1])
+
+
+def test_following_a_glance_is_not_spurious_and_ignoring_it_is_not_missed():
+    # terrain: LG, a 2-frame glance at US, LG, then US for good
+    ref = seq((0, 30), (1, 2), (0, 8), (1, 40))
+    follower = transition_stats(ref.copy(), ref, fps=FPS)  # follows every flip
+    assert (follower.changes, follower.switches, follower.missed, follower.spurious) == (1, 3, 0, 0)
+    once = transition_stats(seq((0, 30), (1, 50)), ref, fps=FPS)  # switches once, early
+    assert (once.switches, once.matched, once.missed, once.spurious) == (1, 1, 0, 0)
+    assert once.delays_frames == [-10]
+    # a flip to a mode the terrain never showed nearby is spurious
+    wrong = ref.copy()
+    wrong[60:62] = 3
+    assert transition_stats(wrong, ref, fps=FPS).spurious == 2

@@ -21,7 +21,7 @@ from tui.commands import add_cluster_argument, count, eval_model
 
 HELP = "evaluate classifiers and fusion on score files or recordings"
 
-DEFAULT_METHODS = "cnn,cnn+voting,hmm,hmm+voting"
+DEFAULT_METHODS = "cnn,cnn+voting,hmm,hmm+voting,steady"
 SWEEP_DEFAULT = 6  # frames; the paper's trade-off figure reaches 6
 SWEEP_MAX = 100  # frames: several seconds of delay, beyond any use for a prosthesis
 
@@ -56,8 +56,9 @@ def _common_arguments(p: argparse.ArgumentParser) -> None:
         type=_methods,
         default=DEFAULT_METHODS,
         metavar="LIST",
-        help=f"comma-separated methods (default: {DEFAULT_METHODS}; "
-        "also forward, fixed-lag: standard HMM filter and smoother)",
+        help=f"comma-separated methods (default: {DEFAULT_METHODS}; steady switches once "
+        "per terrain change, with [fusion] stay and evidence; also forward, fixed-lag: "
+        "standard HMM filter and smoother)",
     )
     p.add_argument(
         "--lag",
@@ -170,7 +171,8 @@ def run(args, config) -> int:
         if args.transition == "paper"
         else validate_transition(config.fusion.transition, "fusion.transition")
     )
-    params = ev.FusionParameters(window, vote_delay, transition, args.lag)
+    steady = config.fusion.stay, config.fusion.evidence
+    params = ev.FusionParameters(window, vote_delay, transition, args.lag, *steady)
 
     if args.eval_command == "scores":
         if not 0 < args.fps <= 1000:
@@ -185,7 +187,7 @@ def run(args, config) -> int:
     per_trial = params
     if args.transition == "estimated":
         per_trial = [
-            ev.FusionParameters(window, vote_delay, t, args.lag)
+            ev.FusionParameters(window, vote_delay, t, args.lag, *steady)
             for t in ev.leave_one_out_transitions(trials)
         ]
 
