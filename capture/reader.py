@@ -623,6 +623,10 @@ def read_trial(path: str | os.PathLike) -> dict:
     - labels (N,): the operator's mode in force at the frame's time (-1: none yet), undos
       applied (effective_changes: an undone change never happened)
     - truth (N,) simulator's true mode, or None when the recording has no /sim/truth
+    - the two references (inference.evaluation): locomotion (N,), the subject's mode keyed
+      live (undos applied, offline corrections not); terrain (N,), what each image shows:
+      the simulator's truth, else the labels made offline in `replay --tui` laid over the
+      live keys (`labels`), else None; terrain_source: "simulator", "offline labels" or None
     - label_changes: every recorded change [(time_ns, mode, source)] in time order, undos
       and what they undid included (the audit trail); reference_changes: the ones that
       define `labels`; metadata (typed); id; modes: MODES
@@ -654,6 +658,16 @@ def read_trial(path: str | os.PathLike) -> dict:
     ).reshape(-1, len(MODES))
     changes.sort(key=lambda c: c[0])  # stable: same-time changes keep their file order
     reference = effective_changes(changes)
+    labels = labels_at(times, reference)
+    truth_array = (
+        np.array([truth.get(int(i), -1) for i in index], dtype=int)
+        if T.TRUTH in rec.topics
+        else None
+    )
+    offline = any(c[2] == CORRECTION for c in changes)
+    terrain_source = (
+        "simulator" if truth_array is not None else "offline labels" if offline else None
+    )
     return {
         "frame_index": index,
         "time_ns": times,
@@ -662,12 +676,11 @@ def read_trial(path: str | os.PathLike) -> dict:
         "cnn_decisions": np.array([mode_index(cnn[i]["decision"]) for i in index], dtype=int),
         "decisions": np.array([fused.get(int(i), -1) for i in index], dtype=int),
         "voted": np.array([voted.get(int(i), -1) for i in index], dtype=int),
-        "labels": labels_at(times, reference),
-        "truth": (
-            np.array([truth.get(int(i), -1) for i in index], dtype=int)
-            if T.TRUTH in rec.topics
-            else None
-        ),
+        "labels": labels,
+        "truth": truth_array,
+        "locomotion": labels_at(times, [c for c in reference if c[2] != CORRECTION]),
+        "terrain": truth_array if truth_array is not None else labels if offline else None,
+        "terrain_source": terrain_source,
         "label_changes": changes,
         "reference_changes": reference,
         "metadata": rec.metadata,
@@ -676,16 +689,16 @@ def read_trial(path: str | os.PathLike) -> dict:
     }
 
 
-def read_trials(paths, reference: str = "auto") -> list:
+def read_trials(paths, reference: str = "terrain") -> list:
     """Evaluation trials (inference.evaluation.Trial) from recordings, one a file.
 
-    reference: "labels" (the operator's), "truth" (the simulator's) or "auto" (labels
-    where there are any).
+    reference: what accuracy is scored against, "terrain" (what the images show) or
+    "locomotion" (the subject's mode keyed live); see read_trial.
     """
     return [read_evaluation_trial(p, reference) for p in paths]
 
 
-def read_evaluation_trial(path, reference: str = "auto", name: str | None = None):
+def read_evaluation_trial(path, reference: str = "terrain", name: str | None = None):
     """One recording's evaluation trial (see read_trials), named `name` (default: the
     path); one task of a corpus job (capture.cluster)."""
     from inference.evaluation import trial_from_recording
@@ -693,10 +706,11 @@ def read_evaluation_trial(path, reference: str = "auto", name: str | None = None
     return trial_from_recording(str(name or path), read_trial(path), reference)
 
 
-def labeled_session(path: str | os.PathLike, reference: str = "labels"):
+def labeled_session(path: str | os.PathLike, reference: str = "terrain"):
     """The recording as a training session (inference.dataset.LabeledSession): every
-    classifier input image, labelled with the operator's mode at its time (`reference`
-    "labels"), or with the simulator's truth ("truth"); -1 where there is none."""
+    classifier input image, labelled with what it shows (`reference` "terrain": the
+    simulator's truth where the recording has it, else the labels), the operator's mode at
+    its time ("labels"), or the simulator's truth ("truth"); -1 where there is none."""
     from inference.dataset import LabeledSession
 
     rec = open_recording(path)
@@ -709,6 +723,8 @@ def labeled_session(path: str | os.PathLike, reference: str = "labels"):
         raise CaptureError(f"{rec.path}: no classifier images (/camera/binary_image) to train on")
     index = sorted(images)
     t = np.array([times[i] for i in index], dtype=np.int64)
+    if reference == "terrain":
+        reference = "truth" if T.TRUTH in rec.topics else "labels"
     if reference == "truth":
         truth = {
             int(m.data["frame_index"]): mode_index(m.data.get("mode"))

@@ -346,10 +346,12 @@ class Session:
             self._classifier = load_classifier(cfg.model.path or None, threads=CNN_THREADS)
         self.model_metadata = dict(getattr(self._classifier, "metadata", {}) or {})
         fusion = make_fusion(
-            "hmm+voting",
+            cfg.fusion.method,
             window=cfg.fusion.window,
             vote_delay=cfg.fusion.vote_delay,
             transition=np.asarray(cfg.fusion.transition),
+            stay=cfg.fusion.stay,
+            evidence=cfg.fusion.evidence,
         )
         self.pipeline = Pipeline(PreprocessParams.from_config(cfg), self._classifier, fusion)
         # First calls are slow (torch's lazy set-up, numpy caches, the recorder's schema
@@ -755,6 +757,7 @@ class Session:
             "walkcap_version": __version__,
             "model_path": cfg.model.path or "bundled",
             "model_hash": model_hash(self._classifier),
+            "fusion_method": cfg.fusion.method,
             "fusion_window": cfg.fusion.window,
             "fusion_vote_delay": cfg.fusion.vote_delay,
             "fusion_transition": T.jsonable(cfg.fusion.transition),

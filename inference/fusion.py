@@ -14,6 +14,9 @@ Methods (`make_fusion`), with the number of frames each decision waits for:
 - "hmm+voting": mode of the HMM's smooth states over t-l_v..t+l_v (delay 1 + l_v).
 - "forward": a standard HMM forward filter, argmax of p(z_t | x_1..x_t) (delay 0).
 - "fixed-lag": a standard fixed-lag smoother, argmax of p(z_t | x_1..x_{t+lag}) (delay lag).
+- "steady": a fixed-lag-1 smoother designed to switch once per terrain change (delay 1):
+  the paper's transition rules with a stay probability from walking, and each frame's
+  evidence discounted because the CNN's errors come in runs (`SteadyFusion`).
 The standard HMMs use the CNN output as a scaled emission likelihood, as the paper does.
 
 At the ends of a sequence (documented choices, the paper does not say):
@@ -51,7 +54,34 @@ PAPER_TRANSITION = np.array(
     ]
 )
 
-METHODS = ("cnn", "cnn+voting", "hmm", "hmm+voting", "forward", "fixed-lag")
+METHODS = ("cnn", "cnn+voting", "hmm", "hmm+voting", "forward", "fixed-lag", "steady")
+
+# "steady"'s design, from walking, not from any data set it is evaluated on:
+# - a terrain lasts about a flight of stairs or a ramp: some 8 steps, 4.6 s at 105 steps a
+#   minute; so about 5 s, and at the paper's 15 fps a frame stays in its mode with
+#   probability 1 - 1/(15 * 5) = 0.987;
+# - the CNN's errors come in runs (swing blur, a foot in view): 1.34 frames on average on
+#   12 simulated recordings (`walkcap synth --format recording --sessions 12 --seed
+#   900000`), so one frame carries about 1/1.34 = 0.75 of an independent frame's
+#   evidence: its probabilities enter raised to the power 0.75.
+TERRAIN_DWELL_S = 5.0
+STEADY_EVIDENCE = 0.75
+
+
+def walking_stay(fps: float = 15.0, dwell_s: float = TERRAIN_DWELL_S) -> float:
+    """The per-frame probability of staying in a mode held `dwell_s` on average."""
+    return 1.0 - 1.0 / (fps * dwell_s)
+
+
+STEADY_STAY = round(walking_stay(), 3)  # 0.987 at 15 fps
+
+
+def steady_transition(stay: float = STEADY_STAY) -> np.ndarray:
+    """The paper's transition rules and proportions (of what leaves a non-level mode, 75 %
+    goes to level ground, 15 % to the same direction, 5 % to each opposite one; level
+    ground leaves equally) with the stay probability `stay`."""
+    return design_transition(stay, 0.75 * (1.0 - stay), 0.15 * (1.0 - stay))
+
 
 _INF = float("inf")
 
@@ -520,10 +550,90 @@ class FixedLagSmoother(_Stream):
         return outputs
 
 
+class SteadyFusion(_Stream):
+    """ "steady": the fixed-lag-1 smoother p(z_{t-1} | x_1..x_t) of an HMM built to switch
+    once per terrain change (delay 1 frame).
+
+    The HMM: `steady_transition(stay)` (the paper's rules, a stay from walking) and the
+    CNN's probabilities raised to `evidence` as the emission likelihood (see the design
+    notes at METHODS). Frame t-1 is decided when frame t arrives: alpha_{t-1} (the
+    filter) times T e_t (one frame of look-ahead), normalised; `flush` decides the last
+    frame by its filter. Pure-Python floats, unrolled: one update in a few microseconds.
+    """
+
+    def __init__(self, stay: float = STEADY_STAY, evidence: float = STEADY_EVIDENCE):
+        if not 0.0 < evidence <= 1.0:
+            raise InferenceError(f"steady: evidence must be in (0, 1], got {evidence}")
+        super().__init__(None)
+        self.method = "steady"
+        self.delay_frames = 1
+        self.stay, self.evidence = float(stay), float(evidence)
+        self.transition = validate_transition(steady_transition(self.stay), "steady transition")
+        self._rows = tuple(tuple(r) for r in self.transition.tolist())
+        self._alpha: tuple[float, ...] | None = None  # the filter at the newest frame
+
+    def _reset_state(self) -> None:
+        self._alpha = None
+
+    def push(self, probabilities) -> FusionOutput | None:
+        self._check_open()
+        b = self.evidence
+        e0, e1, e2, e3, e4 = (x**b for x in _row(probabilities))
+        t = self._frame
+        self._frame = t + 1
+        r0, r1, r2, r3, r4 = self._rows
+        last = self._alpha
+        if last is None:
+            q = (e0, e1, e2, e3, e4)
+        else:
+            a0, a1, a2, a3, a4 = last
+            q = (
+                (a0 * r0[0] + a1 * r1[0] + a2 * r2[0] + a3 * r3[0] + a4 * r4[0]) * e0,
+                (a0 * r0[1] + a1 * r1[1] + a2 * r2[1] + a3 * r3[1] + a4 * r4[1]) * e1,
+                (a0 * r0[2] + a1 * r1[2] + a2 * r2[2] + a3 * r3[2] + a4 * r4[2]) * e2,
+                (a0 * r0[3] + a1 * r1[3] + a2 * r2[3] + a3 * r3[3] + a4 * r4[3]) * e3,
+                (a0 * r0[4] + a1 * r1[4] + a2 * r2[4] + a3 * r3[4] + a4 * r4[4]) * e4,
+            )
+        z = q[0] + q[1] + q[2] + q[3] + q[4]
+        if not z > 0.0:  # every mode ruled out (underflow): start again from this frame
+            z = e0 + e1 + e2 + e3 + e4
+            q = (e0, e1, e2, e3, e4)
+        self._alpha = (q[0] / z, q[1] / z, q[2] / z, q[3] / z, q[4] / z)
+        if last is None:
+            return None
+        # frame t-1 with one frame of look-ahead: alpha_{t-1} * (T e_t)
+        g = (
+            a0 * (r0[0] * e0 + r0[1] * e1 + r0[2] * e2 + r0[3] * e3 + r0[4] * e4),
+            a1 * (r1[0] * e0 + r1[1] * e1 + r1[2] * e2 + r1[3] * e3 + r1[4] * e4),
+            a2 * (r2[0] * e0 + r2[1] * e1 + r2[2] * e2 + r2[3] * e3 + r2[4] * e4),
+            a3 * (r3[0] * e0 + r3[1] * e1 + r3[2] * e2 + r3[3] * e3 + r3[4] * e4),
+            a4 * (r4[0] * e0 + r4[1] * e1 + r4[2] * e2 + r4[3] * e3 + r4[4] * e4),
+        )
+        zg = g[0] + g[1] + g[2] + g[3] + g[4]
+        g = (g[0] / zg, g[1] / zg, g[2] / zg, g[3] / zg, g[4] / zg) if zg > 0.0 else last
+        return FusionOutput(t - 1, g.index(max(g)), t - 1, g)
+
+    def flush(self) -> list[FusionOutput]:
+        if self._flushed:
+            return []
+        self._flushed = True
+        if self._alpha is None:
+            return []
+        a = self._alpha
+        return [FusionOutput(self._frame - 1, a.index(max(a)), self._frame - 1, a)]
+
+
 def make_fusion(
-    method: str, window: int = 5, vote_delay: int = 1, transition=PAPER_TRANSITION, lag: int = 1
+    method: str,
+    window: int = 5,
+    vote_delay: int = 1,
+    transition=PAPER_TRANSITION,
+    lag: int = 1,
+    stay: float = STEADY_STAY,
+    evidence: float = STEADY_EVIDENCE,
 ) -> Fusion:
-    """A fresh streaming fusion object; `lag` is used by "fixed-lag" only."""
+    """A fresh streaming fusion object; `lag` is used by "fixed-lag" only, `stay` and
+    `evidence` by "steady" only."""
     if int(vote_delay) != vote_delay or vote_delay < 0:
         raise InferenceError(f"vote delay l_v must be an integer >= 0, got {vote_delay}")
     if method == "cnn":
@@ -538,6 +648,8 @@ def make_fusion(
         return ForwardFilter(transition)
     if method == "fixed-lag":
         return FixedLagSmoother(transition, lag)
+    if method == "steady":
+        return SteadyFusion(stay, evidence)
     raise InferenceError(f"unknown fusion method {method!r} (known: {', '.join(METHODS)})")
 
 

@@ -234,7 +234,7 @@ def test_binary_score_file_is_a_clear_error(tmp_path):
 # --- recordings --------------------------------------------------------------------------
 
 
-def test_trial_from_recording_prefers_operator_labels():
+def test_trial_from_recording_scores_the_terrain_and_keeps_the_live_keys_for_lead_time():
     probs = np.full((3, 5), 0.2)
     data = {
         "probabilities": probs,
@@ -243,12 +243,18 @@ def test_trial_from_recording_prefers_operator_labels():
         "metadata": {"subject": "A1", "condition": "outdoor"},
     }
     trial = ev.trial_from_recording("a.mcap", data)
-    np.testing.assert_array_equal(trial.reference, [-1, 1, 1])
+    assert trial.reference_name == "terrain"
+    np.testing.assert_array_equal(trial.reference, [0, 0, 0])
+    np.testing.assert_array_equal(trial.locomotion, [-1, 1, 1])
+    assert list(trial.references()) == ["terrain", "locomotion"]
     assert (trial.subject, trial.condition) == ("A1", "outdoor")
-    truth = ev.trial_from_recording("a.mcap", dict(data, labels=[None] * 3))
-    np.testing.assert_array_equal(truth.reference, [0, 0, 0])
-    with pytest.raises(InferenceError, match="a.mcap: no simulator truth"):
-        ev.trial_from_recording("a.mcap", dict(data, truth=None), reference="truth")
+    # frame accuracy against the live keys only when asked for
+    loco = ev.trial_from_recording("a.mcap", data, reference="locomotion")
+    assert loco.reference_name == "locomotion" and loco.locomotion is None
+    np.testing.assert_array_equal(loco.reference, [-1, 1, 1])
+    # no terrain reference: refused, never replaced by the live keys
+    with pytest.raises(InferenceError, match="no terrain reference .* --reference locomotion"):
+        ev.trial_from_recording("a.mcap", dict(data, truth=None))
     obj = types.SimpleNamespace(**data)  # an object with attributes works as well
     assert ev.trial_from_recording("a.mcap", obj).subject == "A1"
 

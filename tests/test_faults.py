@@ -179,7 +179,7 @@ def test_garbage_files_are_one_clear_line(garbage_and_cut, command):
     assert "garbage.mcap" in line
 
 
-@pytest.mark.parametrize("command", [["info"], ["eval", "recordings", "--reference", "truth"]])
+@pytest.mark.parametrize("command", [["info"], ["eval", "recordings", "--reference", "terrain"]])
 def test_cut_files_are_read_up_to_the_cut(garbage_and_cut, command):
     _, cut, _, _ = garbage_and_cut
     out = run_cli(*command, str(cut))
@@ -187,7 +187,7 @@ def test_cut_files_are_read_up_to_the_cut(garbage_and_cut, command):
     assert "Traceback" not in out.stderr
 
 
-@pytest.mark.parametrize("command", [["info"], ["eval", "recordings", "--reference", "truth"]])
+@pytest.mark.parametrize("command", [["info"], ["eval", "recordings", "--reference", "terrain"]])
 def test_corrupted_bytes_inside_a_file_never_give_a_traceback(garbage_and_cut, command):
     _, _, _, flipped = garbage_and_cut
     out = run_cli(*command, str(flipped))

@@ -12,12 +12,15 @@ from inference.fusion import (
     FixedLagSmoother,
     ForwardFilter,
     HmmFusion,
+    SteadyFusion,
     Voter,
     design_transition,
     estimate_transition,
     make_fusion,
     paper_viterbi,
+    steady_transition,
     validate_transition,
+    walking_stay,
 )
 
 T = PAPER_TRANSITION
@@ -313,6 +316,7 @@ def test_make_fusion_knows_every_method_and_its_delay():
         "hmm+voting": 4,
         "forward": 0,
         "fixed-lag": 2,
+        "steady": 1,
     }
     with pytest.raises(InferenceError, match="unknown fusion method"):
         make_fusion("kalman")
@@ -326,3 +330,52 @@ def test_bench_fusion_reports_both_timings():
     result = bench_fusion(updates=300)
     assert set(result) == {"fusion_update_us", "paper_loop_us", "speedup"}
     assert result["fusion_update_us"] > 0 and result["paper_loop_us"] > 0
+
+
+def test_steady_is_the_fixed_lag_1_smoother_of_its_walking_hmm():
+    """Frame t-1 decided at frame t: the fixed-lag-1 smoother of the HMM with the paper's
+    rules at the walking stay and the CNN's probabilities to the power `evidence`."""
+    e = random_probabilities(np.random.default_rng(9), 60)
+    steady = SteadyFusion(stay=0.987, evidence=0.75)
+    decisions, _, posteriors = stream(steady, e)
+    reference = FixedLagSmoother(steady_transition(0.987), lag=1)
+    expected, _, expected_posteriors = stream(reference, e**0.75)
+    np.testing.assert_array_equal(decisions, expected)
+    np.testing.assert_allclose(posteriors, expected_posteriors, rtol=1e-9)
+    assert steady.delay_frames == 1
+    outs = [SteadyFusion().push(row) for row in e[:1]]
+    assert outs == [None]  # frame 0 waits for frame 1
+
+
+def test_steady_design_from_walking():
+    assert walking_stay(15.0, 5.0) == pytest.approx(1 - 1 / 75)
+    t = steady_transition(0.987)
+    np.testing.assert_allclose(t.sum(axis=1), 1.0)
+    assert np.all(np.diag(t) == 0.987)
+    # the paper's proportions of what leaves a mode: 75 % of it to level ground
+    assert t[1, 0] == pytest.approx(0.75 * 0.013) and t[1, 3] == pytest.approx(0.15 * 0.013)
+    with pytest.raises(InferenceError, match="evidence"):
+        SteadyFusion(evidence=0.0)
+
+
+def test_steady_ignores_a_two_frame_error_the_hmm_follows():
+    """Level ground at 0.7 with two down-stairs frames at 0.9 (a swing blur), then up
+    stairs: Algorithm 1 switches to down stairs and back, steady holds; both follow the
+    real change on the same frame."""
+
+    def scores(mode: int, p: float) -> list[float]:
+        return [p if j == mode else (1 - p) / 4 for j in range(5)]
+
+    frames = np.array([scores(0, 0.7)] * 30 + [scores(2, 0.9)] * 2 + [scores(0, 0.7)] * 30
+                      + [scores(1, 0.7)] * 30)  # fmt: skip
+    hmm = run_offline(HmmFusion(5, T), frames).final
+    steady = run_offline(SteadyFusion(), frames).final
+    assert 2 in set(hmm[30:33]) and np.count_nonzero(np.diff(hmm)) == 3
+    assert set(steady[:62]) == {0} and np.count_nonzero(np.diff(steady)) == 1
+    assert np.argmax(steady == 1) == np.argmax(hmm == 1) == 64
+
+
+def test_bench_times_the_steady_update():
+    from capture.bench.components import bench_method_update
+
+    assert bench_method_update("steady", updates=200) > 0
