@@ -25,6 +25,7 @@ from capture.session import SubjectInfo
 from tui import messages
 from tui.live_screen import LiveScreen
 from tui.session_screen import SessionScreen, load_last_session, save_last_session
+from tui.widgets.notices import Notice
 from tui.widgets.quit_dialog import QuitDialog
 from tui.widgets.recording_panel import clock_text, human_bytes
 
@@ -135,6 +136,7 @@ class WalkcapApp(App):
         self.preflight_report = None
         self.trials: list[TrialRecord] = []
         self.lab = None  # LSL, remote control, Foxglove: capture.labtools.LabTools
+        self.notices: list[Notice] = []  # this session's notices, oldest first
 
     @property
     def source(self):
@@ -148,6 +150,37 @@ class WalkcapApp(App):
             self.push_screen(SessionScreen(self.subject), self._on_subject)
         self._set_status(self.start_status)
         self.start_session()
+
+    def notify(
+        self,
+        message: str,
+        *,
+        title: str = "",
+        severity="information",
+        timeout: float | None = None,
+        markup: bool = True,
+    ) -> None:
+        """A notice goes to the live screen's notice line, never over its panels (a toast
+        would hide the newest seconds of the strips); only the session form, which has no
+        notice line, shows it as a toast as well. Thread-safe, as App.notify is."""
+        text = f"{title}: {message}" if title else str(message)
+        notice = Notice(" ".join(text.split()), str(severity))
+        self.post_message(messages.NoticePosted(notice, title, message, severity, timeout, markup))
+
+    def on_notice_posted(self, event: messages.NoticePosted) -> None:
+        self.notices.append(event.notice)
+        del self.notices[:-200]
+        live = [s for s in self.screen_stack if isinstance(s, LiveScreen)]
+        for screen in live:
+            screen.show_notice(event.notice)
+        if not live or isinstance(self.screen, SessionScreen):
+            super().notify(
+                event.message,
+                title=event.title,
+                severity=event.severity,
+                timeout=event.timeout,
+                markup=event.markup,
+            )
 
     def _set_status(self, text: str, error: bool = False) -> None:
         self.status_is_error = error

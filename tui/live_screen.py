@@ -29,6 +29,7 @@ from tui.widgets.features import FeaturesPanel
 from tui.widgets.help_screen import HelpScreen, key_label
 from tui.widgets.marker_dialog import MarkerDialog
 from tui.widgets.modes import mode_text
+from tui.widgets.notices import Notice, NoticeLine
 from tui.widgets.probability_bars import ProbabilityBars
 from tui.widgets.profile_plot import ProfilePlot
 from tui.widgets.recording_panel import RecordingPanel, clock_text
@@ -118,6 +119,7 @@ class LiveScreen(Screen):
         yield TopBar(id="topbar")
         yield Static("", id="banner")
         yield Static("", id="alarms")
+        yield NoticeLine(id="notices")
         with Horizontal(id="main"):
             with Vertical(id="left"):
                 yield DevicePanel(id="devices")
@@ -150,11 +152,18 @@ class LiveScreen(Screen):
         self._w = {
             type(w): w for w in self.query("#main *, #timeline, #topbar") if hasattr(w, "present")
         }
+        notices = getattr(self.app, "notices", [])
+        if notices:
+            self.show_notice(notices[-1])
         self._timer = self.set_interval(1 / REFRESH_HZ, self.refresh_view)
         self.watch(self.app, "status", lambda _: self._show_topbar())
         self.refresh_view()
 
     # ---- the view ---------------------------------------------------------------------
+
+    def show_notice(self, notice: Notice) -> None:
+        """The latest notice, on its own line: it never covers the strips or the decision."""
+        self.query_one(NoticeLine).present(notice)
 
     def refresh_view(self) -> None:
         """Pull one snapshot and show it (the timer calls this; commands too, for feedback)."""
