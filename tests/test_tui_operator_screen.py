@@ -4,9 +4,10 @@ fault text; clear form states; a log of what happened; every size class keeps th
 essentials in view."""
 
 from test_tui_app import screen_text, wait_for
-from tui_fake_session import FakeSession
+from tui_fake_session import NOW_NS, FakeSession
 
 from capture.config import Config
+from capture.session import LabelChange, TimelineEntry
 from tui.app import WalkcapApp
 from tui.live_screen import LiveScreen
 
@@ -41,3 +42,59 @@ async def test_notices_never_cover_the_strips_or_the_decision():
             "saved S01_indoor_t01.mcap (12.3 MB)",
             "IMU unplugged; retrying /dev/ttyUSB0",
         ]
+
+
+class LabelledFrames(FakeSession):
+    """Frames carry the label in force when they are taken, as the session's do; its clock
+    moves on one frame (1/15 s) with each snapshot, so nothing depends on the wall clock."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.clock = NOW_NS
+        self.timeline = []
+        self.set_label("US")  # keyed before the screen opened
+
+    def set_label(self, mode, source="operator", time_ns=None):
+        return super().set_label(mode, source, self.clock if time_ns is None else time_ns)
+
+    def undo_label(self):
+        change = super().undo_label()
+        return None if change is None else LabelChange(self.clock, change.mode, change.source)
+
+    def snapshot(self):
+        self.clock += int(1e9 / 15)
+        self.timeline.append(
+            TimelineEntry(len(self.timeline), self.clock, self._label, 1, 1, None, None)
+        )
+        del self.timeline[:-300]
+        snap = super().snapshot()
+        snap.time_ns = self.clock
+        return snap
+
+
+def _row(app, name: str) -> str:
+    return next(line for line in screen_text(app).splitlines() if f"│ {name} " in line)
+
+
+async def test_the_true_strip_shows_the_labels_as_they_stand_after_an_undo():
+    fake = LabelledFrames()
+    app = WalkcapApp(Config(), session=fake, ask_subject=False)
+    async with app.run_test(size=(120, 40)) as pilot:
+        await _live(pilot)
+        frames = len(fake.timeline)
+        await wait_for(pilot, lambda: len(fake.timeline) > frames + 20, timeout=30)
+        await pilot.press("3")
+        frames = len(fake.timeline)
+        await wait_for(pilot, lambda: len(fake.timeline) > frames + 40, timeout=30)
+        await wait_for(pilot, lambda: "DS" in _row(app, "true"), timeout=30)
+        await pilot.press("u")
+        assert fake.label == "US"
+        frames = len(fake.timeline)
+        await wait_for(pilot, lambda: len(fake.timeline) > frames + 20, timeout=30)
+        await pilot.pause(0.1)
+        true = _row(app, "true")
+        assert "US" in true and "DS" not in true  # as in the file, export and replay
+        await pilot.press("3")  # a new change shows again from its own time
+        frames = len(fake.timeline)
+        await wait_for(pilot, lambda: len(fake.timeline) > frames + 20, timeout=30)
+        await wait_for(pilot, lambda: "DS" in _row(app, "true"), timeout=30)

@@ -17,6 +17,7 @@ from pathlib import Path
 from textual import work
 from textual.app import App
 from textual.binding import Binding
+from textual.css.query import NoMatches
 from textual.reactive import reactive
 
 from capture.config import Config
@@ -172,7 +173,10 @@ class WalkcapApp(App):
         del self.notices[:-200]
         live = [s for s in self.screen_stack if isinstance(s, LiveScreen)]
         for screen in live:
-            screen.show_notice(event.notice)
+            try:
+                screen.show_notice(event.notice)
+            except NoMatches:  # the app is closing: its widgets are gone
+                pass
         if not live or isinstance(self.screen, SessionScreen):
             super().notify(
                 event.message,
@@ -566,7 +570,10 @@ class WalkcapApp(App):
     def _refresh_live(self) -> None:
         for screen in self.screen_stack:
             if isinstance(screen, LiveScreen) and not screen.frozen:
-                screen.refresh_view()
+                try:
+                    screen.refresh_view()
+                except NoMatches:  # the app is closing: its widgets are gone
+                    pass
 
 
 class _RemoteForApp:

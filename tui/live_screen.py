@@ -7,6 +7,8 @@ commands that only touch memory: nothing here waits on a device or the disk.
 
 from __future__ import annotations
 
+import bisect
+import dataclasses
 import logging
 from pathlib import Path
 
@@ -17,6 +19,7 @@ from textual.containers import Horizontal, Vertical
 from textual.screen import Screen
 from textual.widgets import Footer, Static
 
+from capture.reader import effective_changes
 from capture.recorder import RecorderState
 from capture.session import Snapshot
 from devices.clock import now_ns
@@ -114,6 +117,10 @@ class LiveScreen(Screen):
         self._fused: int | None = None
         self._last_event_ns: int | None = None
         self._failure_shown = False
+        # The label changes keyed here, undos included (time_ns, mode, source): the true
+        # strip shows them as they stand, an undone change as if it never happened.
+        self._label_changes: list[tuple[int, str, str]] = []
+        self._effective: list[tuple[int, str, str]] = []
 
     def compose(self) -> ComposeResult:
         yield TopBar(id="topbar")
@@ -199,7 +206,7 @@ class LiveScreen(Screen):
         )
         self._w[ProbabilityBars].present(latest.probabilities if latest else None)
         self._w[FeaturesPanel].present(latest.features if latest else None)
-        self._w[TimelineStrips].present(snap.timeline, snap.time_ns)
+        self._w[TimelineStrips].present(self._labels_as_they_stand(snap.timeline), snap.time_ns)
         faults = [e for e in snap.events if e.device != "operator"]
         self._w[DevicePanel].present(
             snap.camera, snap.imu, snap.sync, faults[-1] if faults else None, pipeline_rows(snap)
@@ -210,6 +217,31 @@ class LiveScreen(Screen):
         self._show_banner(snap)
         self._show_alarms(snap)
         self._show_trials()
+
+    def _labels_as_they_stand(self, entries: list) -> list:
+        """Timeline entries with the operator's labels as they stand now: each frame
+        carries the label in force when it was taken, which an undo takes back later."""
+        if not self._label_changes or isinstance(self.app.source, Playback):
+            return entries
+        first = self._label_changes[0][0]
+        times = [c[0] for c in self._effective]
+        out = []
+        for e in entries:
+            if e.time_ns >= first:
+                k = bisect.bisect_right(times, e.time_ns) - 1
+                mode = (self._effective[k][1] if k >= 0 else "") or None
+                if mode != e.label:
+                    e = dataclasses.replace(e, label=mode)
+            out.append(e)
+        return out
+
+    def _keyed(self, time_ns: int | None, mode: str, source: str, before: str | None) -> None:
+        if time_ns is None:
+            return
+        if not self._label_changes and before and source != "undo":
+            self._label_changes.append((time_ns - 1, before, "operator"))  # the mode in force
+        self._label_changes.append((time_ns, mode, source))
+        self._effective = effective_changes(self._label_changes)
 
     def settled(self) -> bool:
         """The paced widgets show the latest snapshot's frame (for tests and screenshots)."""
@@ -399,7 +431,9 @@ class LiveScreen(Screen):
         source = self._source_or_warn()
         if source is None:
             return
-        source.set_label(mode)  # stamped inside, at this call: no waiting on the display
+        before = source.label
+        change = source.set_label(mode)  # stamped inside, at this call: no waiting on the display
+        self._keyed(getattr(change, "time_ns", None), mode, "operator", before)
         self._after_command()
 
     def action_undo(self) -> None:
@@ -409,6 +443,8 @@ class LiveScreen(Screen):
         change = source.undo_label()
         if change is None:
             self.notify("no label to undo", timeout=2)
+        else:
+            self._keyed(change.time_ns, change.mode, "undo", None)
         self._after_command()
 
     def action_marker(self) -> None:
