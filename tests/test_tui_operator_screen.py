@@ -10,6 +10,10 @@ from capture.config import Config
 from capture.session import LabelChange, TimelineEntry
 from tui.app import WalkcapApp
 from tui.live_screen import LiveScreen
+from tui.session_screen import SessionScreen
+from tui.widgets.help_screen import HelpScreen
+from tui.widgets.marker_dialog import MarkerDialog
+from tui.widgets.quit_dialog import QuitDialog
 
 
 async def _live(pilot):
@@ -98,3 +102,34 @@ async def test_the_true_strip_shows_the_labels_as_they_stand_after_an_undo():
         frames = len(fake.timeline)
         await wait_for(pilot, lambda: len(fake.timeline) > frames + 20, timeout=30)
         await wait_for(pilot, lambda: "DS" in _row(app, "true"), timeout=30)
+
+
+async def test_mode_keys_label_while_a_dialog_is_open_during_a_trial():
+    fake = FakeSession()
+    app = WalkcapApp(Config(), session=fake, ask_subject=False)
+    async with app.run_test(size=(120, 40)) as pilot:
+        await _live(pilot)
+        await pilot.press("r")
+        await wait_for(pilot, lambda: fake.recording, timeout=30)
+        await pilot.press("question_mark")
+        assert isinstance(app.screen, HelpScreen)
+        await pilot.press("3")
+        assert [c.mode for c in fake.labels] == ["DS"] and isinstance(app.screen, HelpScreen)
+        await pilot.press("escape", "m")
+        assert isinstance(app.screen, MarkerDialog)
+        assert "still label the trial" in screen_text(app)  # it says so plainly
+        await pilot.press(*"step", "4", *"ok", "enter")
+        assert [c.mode for c in fake.labels] == ["DS", "UR"]
+        assert [note for _, note in fake.markers] == ["stepok"]  # the key labelled, not typed
+        await pilot.press("q")
+        assert isinstance(app.screen, QuitDialog)
+        await pilot.press("5", "n")
+        assert [c.mode for c in fake.labels] == ["DS", "UR", "DR"] and fake.recording
+        await pilot.press("r")
+        await wait_for(pilot, lambda: not fake.recording, timeout=30)
+        await pilot.press("s")  # the form's fields still take digits
+        assert isinstance(app.screen, SessionScreen)
+        app.screen.query_one("#f-trial").value = ""
+        app.screen.query_one("#f-trial").focus()
+        await pilot.press("1", "2")
+        assert app.screen.query_one("#f-trial").value == "12" and len(fake.labels) == 3

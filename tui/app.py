@@ -15,14 +15,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from textual import work
+from textual.actions import SkipAction
 from textual.app import App
 from textual.binding import Binding
 from textual.css.query import NoMatches
 from textual.reactive import reactive
+from textual.screen import ModalScreen
 
 from capture.config import Config
 from capture.recorder import RecorderState
 from capture.session import SubjectInfo
+from devices.frames import MODES
 from tui import messages
 from tui.live_screen import LiveScreen
 from tui.session_screen import SessionScreen, load_last_session, save_last_session
@@ -93,8 +96,22 @@ class WalkcapApp(App):
     HORIZONTAL_BREAKPOINTS = [(0, "-narrow"), (120, "-normal"), (150, "-wide")]
     VERTICAL_BREAKPOINTS = [(0, "-short"), (40, "-tall")]
     ENABLE_COMMAND_PALETTE = False
-    # a key no form field takes, shown in every footer
-    BINDINGS = [Binding("ctrl+q", "quit", "Quit", priority=True)]
+    # a key no form field takes, shown in every footer; the mode keys label with a dialog
+    # open over the live screen (help, marker note, quit question) as they do without one
+    BINDINGS = [
+        Binding("ctrl+q", "quit", "Quit", priority=True),
+        *[
+            Binding(
+                str(i + 1),
+                f"label_through_dialog('{m}')",
+                m,
+                id=f"walkcap.mode_{m.lower()}",
+                priority=True,
+                show=False,
+            )
+            for i, m in enumerate(MODES)
+        ],
+    ]
 
     status: reactive[str] = reactive("")  # starting devices… / stopping… / an error
 
@@ -363,6 +380,21 @@ class WalkcapApp(App):
             self.exit(return_code=1)
         else:  # still opening the devices: on_session_started stops them, then we exit
             self._set_status("quitting as soon as the devices have started…")
+
+    def check_action(self, action: str, parameters: tuple) -> bool | None:
+        if action == "label_through_dialog":  # only a dialog over the live screen
+            return isinstance(self.screen, ModalScreen) and any(
+                isinstance(s, LiveScreen) for s in self.screen_stack
+            )
+        return True
+
+    def action_label_through_dialog(self, mode: str) -> None:
+        """A mode key with a dialog over the live screen labels as on the live screen;
+        anywhere else (the live screen itself, the form) the key goes its usual way."""
+        live = [s for s in self.screen_stack if isinstance(s, LiveScreen)]
+        if not live or not isinstance(self.screen, ModalScreen):
+            raise SkipAction()
+        live[-1].action_label(mode)
 
     async def action_quit(self) -> None:
         """ctrl+q too goes through the clean stop (and the question while recording)."""

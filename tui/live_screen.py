@@ -460,7 +460,16 @@ class LiveScreen(Screen):
             source.add_marker(note, time_ns=pressed_ns)
             self.notify(f"marker{': ' + note if note else ''}", timeout=3)
 
-        self.app.push_screen(MarkerDialog(), place)
+        self.app.push_screen(MarkerDialog(*self._mode_keys()), place)
+
+    def _mode_keys(self) -> tuple[frozenset[str], str]:
+        """The mode keys as configured: Textual key names, and how they read (1-5)."""
+        keys = self.app.config.keys
+        names = [getattr(keys, f"mode_{m.lower()}", "") or str(i + 1) for i, m in enumerate(MODES)]
+        split = [k.strip() for name in names for k in name.split(",") if k.strip()]
+        labels = [key_label(name) for name in names]
+        text = "1-5" if labels == ["1", "2", "3", "4", "5"] else "/".join(labels)
+        return frozenset(split), text
 
     def action_record(self) -> None:
         self.app.toggle_recording()

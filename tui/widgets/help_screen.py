@@ -71,7 +71,9 @@ class HelpScreen(ModalScreen[None]):
             yield Static(Text("walkcap keys", style="bold"))
             yield Static(table, id="help-keys")
             yield Static(Text("\n" + ABOUT, style="dim"))
-            yield Static(Text("\nescape closes", style="dim italic"))
+            yield Static(
+                Text("\nescape closes; the mode keys label while this is open", style="dim italic")
+            )
 
     def action_close(self) -> None:
         self.dismiss(None)
