@@ -3,14 +3,17 @@ them; the true strip as the labels stand; mode keys that label with a dialog ope
 fault text; clear form states; a log of what happened; every size class keeps the
 essentials in view."""
 
+import numpy as np
 from test_tui_app import screen_text, wait_for
 from tui_fake_session import NOW_NS, FakeSession
 
 from capture.config import Config
 from capture.session import LabelChange, TimelineEntry
+from devices.base import DeviceEvent, DeviceState, DeviceStatus
 from tui.app import WalkcapApp
 from tui.live_screen import LiveScreen
 from tui.session_screen import SessionScreen
+from tui.widgets.device_panel import device_rows, event_sentence
 from tui.widgets.help_screen import HelpScreen
 from tui.widgets.marker_dialog import MarkerDialog
 from tui.widgets.quit_dialog import QuitDialog
@@ -133,3 +136,44 @@ async def test_mode_keys_label_while_a_dialog_is_open_during_a_trial():
         app.screen.query_one("#f-trial").focus()
         await pilot.press("1", "2")
         assert app.screen.query_one("#f-trial").value == "12" and len(fake.labels) == 3
+
+
+def test_a_fault_is_one_plain_sentence_and_the_counts_agree():
+    status = DeviceStatus(
+        backend="serial",
+        state=DeviceState.OK,
+        configured_rate_hz=100.0,
+        measured_rate_hz=99.9,
+        errors=0,
+        details={"reconnects": 3, "checksum_errors": 0},
+    )
+    lost = DeviceEvent(1, "imu", "lost", "IMU lost (unplugged, or its port closed); retrying X")
+    assert event_sentence(lost) == "IMU lost (unplugged, or its port closed); retrying X"
+    stall = DeviceEvent(1, "camera", "stall", "no frame for 1.4 s")
+    assert event_sentence(stall) == "camera stall: no frame for 1.4 s"
+    rows = device_rows("imu", status)
+    assert ("reconnects", "3", rows[-1][2]) in rows  # its own count, not an error kind
+    errors = next(value for label, value, _ in rows if label == "drops")
+    assert errors.endswith("errors 0") and not any(v.startswith("reconnects") for _, v, _ in rows)
+
+
+def test_a_catch_up_burst_after_a_gap_is_no_faster_rate(monkeypatch):
+    """100 Hz for 1 s, then 3 s without samples arriving; the samples taken in the last
+    1.5 s of it arrive in one burst (the device sent them, the host read them late)."""
+    from devices import base
+    from devices.frames import ImuSample
+    from devices.imu import Imu
+
+    t0 = 10_000_000_000
+    imu = Imu()
+
+    def sample(taken_ns, arrived_ns):
+        return ImuSample(host_time_ns=arrived_ns, time_ns=taken_ns, quaternion=np.ones(4))
+
+    for k in range(100):  # 1 s streaming
+        imu._deliver(sample(t0 + k * 10_000_000, t0 + k * 10_000_000))
+    burst_at = t0 + 4_000_000_000
+    for k in range(250, 400):  # all arriving within 2 ms
+        imu._deliver(sample(t0 + k * 10_000_000, burst_at + (k - 250) * 10_000))
+    monkeypatch.setattr(base, "now_ns", lambda: burst_at + 2_000_000)
+    assert 95.0 <= imu._measured_rate() <= 101.0

@@ -27,7 +27,7 @@ from devices.frames import MODE_NAMES, MODES
 from tui.source import Playback
 from tui.widgets.binary_image import BinaryImage
 from tui.widgets.decision import DecisionDisplay
-from tui.widgets.device_panel import DevicePanel
+from tui.widgets.device_panel import DevicePanel, event_sentence
 from tui.widgets.features import FeaturesPanel
 from tui.widgets.help_screen import HelpScreen, key_label
 from tui.widgets.marker_dialog import MarkerDialog
@@ -369,7 +369,7 @@ class LiveScreen(Screen):
             severity = FAULT_KINDS.get(e.kind)
             if e.device != "operator" and severity:
                 self.notify(
-                    f"{e.device} {e.kind}: {e.message}",
+                    event_sentence(e),
                     severity=severity,
                     timeout=10 if severity == "error" else 4,
                 )
