@@ -142,8 +142,8 @@ class Imu:
 
     def _deliver(self, sample: ImuSample) -> None:
         self._buffer.put(sample)
-        with self._lock:
-            self._rate.tick(sample.host_time_ns)
+        with self._lock:  # by sample time: a catch-up burst after a gap is no faster rate
+            self._rate.tick(sample.host_time_ns if sample.time_ns is None else sample.time_ns)
         self.delivered += 1
 
     def _event(self, kind: str, message: str, t_ns: int | None = None, **details: Any) -> None:
@@ -603,7 +603,8 @@ class XbusImu(Imu):
             chunk = self._serial.read(waiting if waiting > 0 else 1)
         except (serial.SerialException, OSError, TypeError) as e:
             # TypeError: pyserial reading a port closed under it
-            self._lose(f"port vanished ({_reason(e)})")
+            log.info("IMU port %s: %s", self.port, _reason(e))  # pyserial's words: the log's
+            self._lose("unplugged, or its port closed")
             return
         t = now_ns()
         if chunk:
@@ -613,7 +614,7 @@ class XbusImu(Imu):
                 self._on_message(msg, t)
         last = max(self._last_sample_ns or 0, self._started_ns)  # started: (re)connected
         if t - last > self.silence_ns:
-            self._lose(f"silent for {(t - last) * 1e-9:.1f} s")
+            self._lose(f"no data for {(t - last) * 1e-9:.1f} s")
         self._count_problems(t)
 
     def _lose(self, reason: str) -> None:
@@ -623,13 +624,13 @@ class XbusImu(Imu):
             self._lost_at_ns = t
             self._event(
                 "lost",
-                f"IMU lost: {reason}",
+                f"IMU lost ({reason}); retrying {self.port}",
                 t,
                 reason=reason,
                 port=self.port,
                 last_sample_ns=self._last_sample_ns,
             )
-        self._message = f"lost: {reason}; retrying {self.port}"
+        self._message = f"{reason}; retrying {self.port}"  # the state says lost
         if self._serial is not None:
             _close_quietly(self._serial)
             self._serial = None
@@ -646,7 +647,7 @@ class XbusImu(Imu):
             self._connect()
         except DeviceError as e:
             log.debug("IMU reconnect: %s", e)
-            self._message = f"lost: {e}; retrying"
+            self._message = f"{e}; retrying"
             return
         # Connected and measuring: "reconnected" when the first sample arrives.
         self._started_ns = now_ns()

@@ -304,7 +304,7 @@ async def test_a_device_fault_shows_at_once_and_the_rest_goes_on():
         await pilot.pause(0.2)  # a few refresh periods
         panel = rendered(live.query_one(DevicePanel))
         assert "lost" in panel and "unplugged" in panel
-        assert any("imu lost" in n.message for n in app._notifications)
+        assert any("IMU lost" in n.text for n in app.notices)
         assert fake.recording  # the other streams keep recording
         await pilot.press("2")
         assert fake.labels[-1].mode == "US"

@@ -15,16 +15,21 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from textual import work
+from textual.actions import SkipAction
 from textual.app import App
 from textual.binding import Binding
+from textual.css.query import NoMatches
 from textual.reactive import reactive
+from textual.screen import ModalScreen
 
 from capture.config import Config
 from capture.recorder import RecorderState
 from capture.session import SubjectInfo
+from devices.frames import MODES
 from tui import messages
 from tui.live_screen import LiveScreen
 from tui.session_screen import SessionScreen, load_remembered, save_last_session
+from tui.widgets.notices import Notice
 from tui.widgets.quit_dialog import QuitDialog
 from tui.widgets.recording_panel import clock_text, human_bytes
 
@@ -91,8 +96,22 @@ class WalkcapApp(App):
     HORIZONTAL_BREAKPOINTS = [(0, "-narrow"), (120, "-normal"), (150, "-wide")]
     VERTICAL_BREAKPOINTS = [(0, "-short"), (40, "-tall")]
     ENABLE_COMMAND_PALETTE = False
-    # a key no form field takes, shown in every footer
-    BINDINGS = [Binding("ctrl+q", "quit", "Quit", priority=True)]
+    # a key no form field takes, shown in every footer; the mode keys label with a dialog
+    # open over the live screen (help, marker note, quit question) as they do without one
+    BINDINGS = [
+        Binding("ctrl+q", "quit", "Quit", priority=True),
+        *[
+            Binding(
+                str(i + 1),
+                f"label_through_dialog('{m}')",
+                m,
+                id=f"walkcap.mode_{m.lower()}",
+                priority=True,
+                show=False,
+            )
+            for i, m in enumerate(MODES)
+        ],
+    ]
 
     status: reactive[str] = reactive("")  # starting devices… / stopping… / an error
 
@@ -137,6 +156,7 @@ class WalkcapApp(App):
         self.preflight_report = None
         self.trials: list[TrialRecord] = []
         self.lab = None  # LSL, remote control, Foxglove: capture.labtools.LabTools
+        self.notices: list[Notice] = []  # this session's notices, oldest first
 
     def _remembered_subject(self) -> SubjectInfo:
         """The form confirmed last, its next free trial in the recordings folder; the
@@ -159,6 +179,40 @@ class WalkcapApp(App):
             self.push_screen(SessionScreen(self.subject), self._on_subject)
         self._set_status(self.start_status)
         self.start_session()
+
+    def notify(
+        self,
+        message: str,
+        *,
+        title: str = "",
+        severity="information",
+        timeout: float | None = None,
+        markup: bool = True,
+    ) -> None:
+        """A notice goes to the live screen's notice line, never over its panels (a toast
+        would hide the newest seconds of the strips); only the session form, which has no
+        notice line, shows it as a toast as well. Thread-safe, as App.notify is."""
+        text = f"{title}: {message}" if title else str(message)
+        notice = Notice(" ".join(text.split()), str(severity))
+        self.post_message(messages.NoticePosted(notice, title, message, severity, timeout, markup))
+
+    def on_notice_posted(self, event: messages.NoticePosted) -> None:
+        self.notices.append(event.notice)
+        del self.notices[:-200]
+        live = [s for s in self.screen_stack if isinstance(s, LiveScreen)]
+        for screen in live:
+            try:
+                screen.show_notice(event.notice)
+            except NoMatches:  # the app is closing: its widgets are gone
+                pass
+        if not live or isinstance(self.screen, SessionScreen):
+            super().notify(
+                event.message,
+                title=event.title,
+                severity=event.severity,
+                timeout=event.timeout,
+                markup=event.markup,
+            )
 
     def _set_status(self, text: str, error: bool = False) -> None:
         self.status_is_error = error
@@ -336,6 +390,21 @@ class WalkcapApp(App):
             self.exit(return_code=1)
         else:  # still opening the devices: on_session_started stops them, then we exit
             self._set_status("quitting as soon as the devices have started…")
+
+    def check_action(self, action: str, parameters: tuple) -> bool | None:
+        if action == "label_through_dialog":  # only a dialog over the live screen
+            return isinstance(self.screen, ModalScreen) and any(
+                isinstance(s, LiveScreen) for s in self.screen_stack
+            )
+        return True
+
+    def action_label_through_dialog(self, mode: str) -> None:
+        """A mode key with a dialog over the live screen labels as on the live screen;
+        anywhere else (the live screen itself, the form) the key goes its usual way."""
+        live = [s for s in self.screen_stack if isinstance(s, LiveScreen)]
+        if not live or not isinstance(self.screen, ModalScreen):
+            raise SkipAction()
+        live[-1].action_label(mode)
 
     async def action_quit(self) -> None:
         """ctrl+q too goes through the clean stop (and the question while recording)."""
@@ -546,7 +615,10 @@ class WalkcapApp(App):
     def _refresh_live(self) -> None:
         for screen in self.screen_stack:
             if isinstance(screen, LiveScreen) and not screen.frozen:
-                screen.refresh_view()
+                try:
+                    screen.refresh_view()
+                except NoMatches:  # the app is closing: its widgets are gone
+                    pass
 
 
 class _RemoteForApp:

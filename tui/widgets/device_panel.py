@@ -18,9 +18,13 @@ _DRIFT_KEYS = ("clock_drift_ppm", "drift_ppm")
 _ERROR_PARTS = (
     ("checksum_errors", "bad checksums"),
     ("missing_packets", "missing packets"),
-    ("reconnects", "reconnects"),
-    ("renderer_skipped", "frames not rendered"),
 )
+# Counts of their own, outside the error count: each on its own labelled row.
+_OTHER_COUNTS = (
+    ("reconnects", "reconnects", ""),
+    ("renderer_skipped", "skipped", "frames not rendered"),
+)
+_NAMES = {"imu": "IMU", "camera": "camera"}
 _UNITS = {"camera": ("fps", "frames"), "imu": ("Hz", "samples")}
 _RED, _AMBER = STATE_COLORS[DeviceState.LOST], STATE_COLORS[DeviceState.DEGRADED]
 
@@ -60,6 +64,9 @@ def device_rows(name: str, status: DeviceStatus | None, sync: dict | None = None
     rows.append(("drops", f"{status.dropped} {things}, errors {status.errors}", style))
     parts = [f"{what}: {status.details[k]}" for k, what in _ERROR_PARTS if status.details.get(k)]
     rows += [("", part, _AMBER) for part in parts]
+    for key, label, unit in _OTHER_COUNTS:
+        if status.details.get(key):
+            rows.append((label, f"{status.details[key]} {unit}".strip(), _AMBER))
     drift = _first(status.details, _DRIFT_KEYS)
     if drift is not None:  # how fast the device clock runs against the host's
         rows.append(("drift", f"{float(drift):+.0f} ppm (clock)", ""))
@@ -68,9 +75,18 @@ def device_rows(name: str, status: DeviceStatus | None, sync: dict | None = None
     return rows
 
 
+def event_sentence(event: DeviceEvent) -> str:
+    """A device event as one plain sentence: the device named once, the message's words."""
+    name = _NAMES.get(event.device, event.device)
+    text = " ".join(event.message.split())
+    if text.lower().startswith(name.lower()):
+        return text  # "IMU lost (...); retrying ...": it names the device and what happened
+    return f"{name} {event.kind.replace('_', ' ')}: {text}"
+
+
 def event_row(event: DeviceEvent) -> Row:
     style = f"bold {_RED}" if event.kind in ("lost", "error", "stall") else _AMBER
-    return ("", f"{event.device} {event.kind}: {event.message}", style)
+    return ("", event_sentence(event), style)
 
 
 _PACED = ("rate", "drift", "sync", "frames", "latency")

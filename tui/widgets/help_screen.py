@@ -17,7 +17,8 @@ ABOUT = (
     "recording is blocked) and the alarm line (red: act now, amber: worth knowing).\n"
     "devices — per device: state and backend; rate = measured of configured (fps, Hz); drops = "
     "frames or samples lost because walkcap fell behind; errors = device-side faults "
-    "(bad checksums, missing packets, reconnects, frames the mock did not render); "
+    "(bad checksums, missing packets); reconnects and skipped (frames the mock did not "
+    "render) are counted on rows of their own; "
     "drift = how fast the IMU clock runs against the computer's, ppm; sync error p99 = how far "
     "an IMU sample's time is from when it was taken, 99th percentile, ms. pipeline: frames "
     "processed; latency = frame received to fused decision, median and p99, ms.\n"
@@ -71,7 +72,9 @@ class HelpScreen(ModalScreen[None]):
             yield Static(Text("walkcap keys", style="bold"))
             yield Static(table, id="help-keys")
             yield Static(Text("\n" + ABOUT, style="dim"))
-            yield Static(Text("\nescape closes", style="dim italic"))
+            yield Static(
+                Text("\nescape closes; the mode keys label while this is open", style="dim italic")
+            )
 
     def action_close(self) -> None:
         self.dismiss(None)

@@ -1,0 +1,179 @@
+"""The live screen as an operator on a laptop meets it: notices beside the panels, never over
+them; the true strip as the labels stand; mode keys that label with a dialog open; plain
+fault text; clear form states; a log of what happened; every size class keeps the
+essentials in view."""
+
+import numpy as np
+from test_tui_app import screen_text, wait_for
+from tui_fake_session import NOW_NS, FakeSession
+
+from capture.config import Config
+from capture.session import LabelChange, TimelineEntry
+from devices.base import DeviceEvent, DeviceState, DeviceStatus
+from tui.app import WalkcapApp
+from tui.live_screen import LiveScreen
+from tui.session_screen import SessionScreen
+from tui.widgets.device_panel import device_rows, event_sentence
+from tui.widgets.help_screen import HelpScreen
+from tui.widgets.marker_dialog import MarkerDialog
+from tui.widgets.quit_dialog import QuitDialog
+
+
+async def _live(pilot):
+    app = pilot.app
+    await wait_for(pilot, lambda: app.ready and isinstance(app.screen, LiveScreen), timeout=30)
+    for _ in range(600):
+        await pilot.pause(0.05)
+        if app.screen.settled():
+            break
+    await pilot.pause()
+    return app.screen
+
+
+async def test_notices_never_cover_the_strips_or_the_decision():
+    fake = FakeSession()
+    app = WalkcapApp(Config(), session=fake, ask_subject=False)
+    async with app.run_test(size=(100, 30)) as pilot:
+        await _live(pilot)
+        before = screen_text(app).splitlines()
+        app.notify("saved S01_indoor_t01.mcap (12.3 MB)", timeout=10)
+        app.notify("IMU unplugged; retrying /dev/ttyUSB0", severity="error", timeout=10)
+        await wait_for(pilot, lambda: "IMU unplugged" in screen_text(app), timeout=30)
+        await pilot.pause(0.1)
+        after = screen_text(app).splitlines()
+        notice_rows = [i for i, line in enumerate(after) if "IMU unplugged" in line]
+        assert len(notice_rows) == 1  # one line, not a toast over the panels
+        changed = [i for i, (a, b) in enumerate(zip(before, after)) if a != b]
+        assert changed == notice_rows, "a notice drew over the live panels"
+        assert [n.text for n in app.notices][-2:] == [
+            "saved S01_indoor_t01.mcap (12.3 MB)",
+            "IMU unplugged; retrying /dev/ttyUSB0",
+        ]
+
+
+class LabelledFrames(FakeSession):
+    """Frames carry the label in force when they are taken, as the session's do; its clock
+    moves on one frame (1/15 s) with each snapshot, so nothing depends on the wall clock."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.clock = NOW_NS
+        self.timeline = []
+        self.set_label("US")  # keyed before the screen opened
+
+    def set_label(self, mode, source="operator", time_ns=None):
+        return super().set_label(mode, source, self.clock if time_ns is None else time_ns)
+
+    def undo_label(self):
+        change = super().undo_label()
+        return None if change is None else LabelChange(self.clock, change.mode, change.source)
+
+    def snapshot(self):
+        self.clock += int(1e9 / 15)
+        self.timeline.append(
+            TimelineEntry(len(self.timeline), self.clock, self._label, 1, 1, None, None)
+        )
+        del self.timeline[:-300]
+        snap = super().snapshot()
+        snap.time_ns = self.clock
+        return snap
+
+
+def _row(app, name: str) -> str:
+    return next(line for line in screen_text(app).splitlines() if f"│ {name} " in line)
+
+
+async def test_the_true_strip_shows_the_labels_as_they_stand_after_an_undo():
+    fake = LabelledFrames()
+    app = WalkcapApp(Config(), session=fake, ask_subject=False)
+    async with app.run_test(size=(120, 40)) as pilot:
+        await _live(pilot)
+        frames = len(fake.timeline)
+        await wait_for(pilot, lambda: len(fake.timeline) > frames + 20, timeout=30)
+        await pilot.press("3")
+        frames = len(fake.timeline)
+        await wait_for(pilot, lambda: len(fake.timeline) > frames + 40, timeout=30)
+        await wait_for(pilot, lambda: "DS" in _row(app, "true"), timeout=30)
+        await pilot.press("u")
+        assert fake.label == "US"
+        frames = len(fake.timeline)
+        await wait_for(pilot, lambda: len(fake.timeline) > frames + 20, timeout=30)
+        await pilot.pause(0.1)
+        true = _row(app, "true")
+        assert "US" in true and "DS" not in true  # as in the file, export and replay
+        await pilot.press("3")  # a new change shows again from its own time
+        frames = len(fake.timeline)
+        await wait_for(pilot, lambda: len(fake.timeline) > frames + 20, timeout=30)
+        await wait_for(pilot, lambda: "DS" in _row(app, "true"), timeout=30)
+
+
+async def test_mode_keys_label_while_a_dialog_is_open_during_a_trial():
+    fake = FakeSession()
+    app = WalkcapApp(Config(), session=fake, ask_subject=False)
+    async with app.run_test(size=(120, 40)) as pilot:
+        await _live(pilot)
+        await pilot.press("r")
+        await wait_for(pilot, lambda: fake.recording, timeout=30)
+        await pilot.press("question_mark")
+        assert isinstance(app.screen, HelpScreen)
+        await pilot.press("3")
+        assert [c.mode for c in fake.labels] == ["DS"] and isinstance(app.screen, HelpScreen)
+        await pilot.press("escape", "m")
+        assert isinstance(app.screen, MarkerDialog)
+        assert "still label the trial" in screen_text(app)  # it says so plainly
+        await pilot.press(*"step", "4", *"ok", "enter")
+        assert [c.mode for c in fake.labels] == ["DS", "UR"]
+        assert [note for _, note in fake.markers] == ["stepok"]  # the key labelled, not typed
+        await pilot.press("q")
+        assert isinstance(app.screen, QuitDialog)
+        await pilot.press("5", "n")
+        assert [c.mode for c in fake.labels] == ["DS", "UR", "DR"] and fake.recording
+        await pilot.press("r")
+        await wait_for(pilot, lambda: not fake.recording, timeout=30)
+        await pilot.press("s")  # the form's fields still take digits
+        assert isinstance(app.screen, SessionScreen)
+        app.screen.query_one("#f-trial").value = ""
+        app.screen.query_one("#f-trial").focus()
+        await pilot.press("1", "2")
+        assert app.screen.query_one("#f-trial").value == "12" and len(fake.labels) == 3
+
+
+def test_a_fault_is_one_plain_sentence_and_the_counts_agree():
+    status = DeviceStatus(
+        backend="serial",
+        state=DeviceState.OK,
+        configured_rate_hz=100.0,
+        measured_rate_hz=99.9,
+        errors=0,
+        details={"reconnects": 3, "checksum_errors": 0},
+    )
+    lost = DeviceEvent(1, "imu", "lost", "IMU lost (unplugged, or its port closed); retrying X")
+    assert event_sentence(lost) == "IMU lost (unplugged, or its port closed); retrying X"
+    stall = DeviceEvent(1, "camera", "stall", "no frame for 1.4 s")
+    assert event_sentence(stall) == "camera stall: no frame for 1.4 s"
+    rows = device_rows("imu", status)
+    assert ("reconnects", "3", rows[-1][2]) in rows  # its own count, not an error kind
+    errors = next(value for label, value, _ in rows if label == "drops")
+    assert errors.endswith("errors 0") and not any(v.startswith("reconnects") for _, v, _ in rows)
+
+
+def test_a_catch_up_burst_after_a_gap_is_no_faster_rate(monkeypatch):
+    """100 Hz for 1 s, then 3 s without samples arriving; the samples taken in the last
+    1.5 s of it arrive in one burst (the device sent them, the host read them late)."""
+    from devices import base
+    from devices.frames import ImuSample
+    from devices.imu import Imu
+
+    t0 = 10_000_000_000
+    imu = Imu()
+
+    def sample(taken_ns, arrived_ns):
+        return ImuSample(host_time_ns=arrived_ns, time_ns=taken_ns, quaternion=np.ones(4))
+
+    for k in range(100):  # 1 s streaming
+        imu._deliver(sample(t0 + k * 10_000_000, t0 + k * 10_000_000))
+    burst_at = t0 + 4_000_000_000
+    for k in range(250, 400):  # all arriving within 2 ms
+        imu._deliver(sample(t0 + k * 10_000_000, burst_at + (k - 250) * 10_000))
+    monkeypatch.setattr(base, "now_ns", lambda: burst_at + 2_000_000)
+    assert 95.0 <= imu._measured_rate() <= 101.0
