@@ -21,7 +21,9 @@ event (capture.safetext.escape). With a `token`, a connection's first line must 
 `token <it>`; any other first line closes the connection with one event.
 
 One thread serves every client (a selector loop), at most `MAX_CLIENTS` at a time: one
-more is told so in one line and closed, and reaching the limit is one event. A command line
+more is told so in one line and closed, and reaching the limit is one event. A connection
+that sends more than COMMAND_BURST commands at once (COMMANDS_PER_S a second on) is
+closed with one event. A command line
 is at most `MAX_LINE` bytes (LabRecorder's commands are short): a client that sends more
 without a newline loses its connection, with one event, before its bytes cost the session
 anything.
@@ -36,6 +38,7 @@ import re
 import selectors
 import socket
 import threading
+import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -52,6 +55,10 @@ DEFAULT_PORT = 22345
 MAX_LINE = 4096  # bytes of one command line, newline included
 MAX_CLIENTS = 8  # an experiment script holds one; a few more for tools beside it
 BUSY = b"busy: walkcap takes %d remote-control connections at a time\n" % MAX_CLIENTS
+# Commands of one connection: a script sends a few a trial; a flood of short lines would
+# hold the interpreter the pipeline shares, so beyond these the connection is closed.
+COMMAND_BURST = 100
+COMMANDS_PER_S = 20.0
 EVENT_BURST = 10  # events of one kind shown before only every power of ten is
 LOG_ENTRIES = 1000  # the newest commands kept in `log`
 MAX_RUN = 9999
@@ -294,6 +301,15 @@ class RemoteControl:
             line = bytes(buffer[:end])
             del buffer[: end + 1]
             searched = 0
+            if not client.allow(time.monotonic()):
+                self._event(
+                    "flood",
+                    f"more than {COMMAND_BURST} commands at once "
+                    f"({COMMANDS_PER_S:g} a second on): connection closed",
+                    {"burst": COMMAND_BURST, "per_s": COMMANDS_PER_S},
+                )
+                self._drop(selector, client)
+                return
             if not client.trusted:
                 if not self._trust(line):
                     self._event("unauthorized", "a connection without the token: closed")
@@ -321,9 +337,20 @@ class RemoteControl:
 class _Client:
     """One connection and the part of a line it has sent so far."""
 
-    __slots__ = ("buffer", "conn", "trusted")
+    __slots__ = ("buffer", "conn", "credit", "credit_at", "trusted")
 
     def __init__(self, conn: socket.socket, trusted: bool) -> None:
         self.conn = conn
         self.buffer = bytearray()
         self.trusted = trusted  # no token asked for, or it was given
+        self.credit = float(COMMAND_BURST)  # commands it may send now (a token bucket)
+        self.credit_at = time.monotonic()
+
+    def allow(self, now: float) -> bool:
+        """Whether one more command is within COMMAND_BURST and COMMANDS_PER_S."""
+        self.credit = min(COMMAND_BURST, self.credit + (now - self.credit_at) * COMMANDS_PER_S)
+        self.credit_at = now
+        if self.credit < 1.0:
+            return False
+        self.credit -= 1.0
+        return True

@@ -345,8 +345,8 @@ def test_repeated_bad_commands_are_escaped_and_counted_not_flooded():
     try:
         with socket.create_connection(("127.0.0.1", remote.port), timeout=20) as sock:
             stream = sock.makefile("rb")
-            sock.sendall((CONTROL + "\n").encode() * 500)
-            assert stream.read(2 * 500) == b"OK" * 500  # every line answered
+            sock.sendall((CONTROL + "\n").encode() * 100)
+            assert stream.read(2 * 100) == b"OK" * 100  # every line answered
     finally:
         remote.close()
     counts = [e.details.get("count") for e in events]
@@ -380,3 +380,25 @@ def test_foxglove_client_text_is_escaped_and_its_repeats_counted(caplog):
     assert any("\\x1b]0;owned\\x07" in line for line in lines)
     assert len(lines) <= 20  # the first few, the powers of ten, the tally at close
     assert "not shown" in lines[-1]
+
+
+def test_a_flood_of_commands_closes_its_connection_with_one_event():
+    from capture.remote import COMMAND_BURST
+
+    events: list[DeviceEvent] = []
+    remote = RemoteControl(_Controller(), port=0, on_event=events.append).start()
+    try:
+        with socket.create_connection(("127.0.0.1", remote.port), timeout=20) as sock:
+            try:
+                sock.sendall(b"update\n" * 100_000)
+                answers = sock.makefile("rb").read()
+            except (ConnectionResetError, BrokenPipeError):
+                answers = b""
+        assert len(answers) < 2 * 100_000  # closed long before the last
+        _wait_for(lambda: events)
+        assert COMMAND_BURST <= len(remote.log) < 100_000
+        with socket.create_connection(("127.0.0.1", remote.port), timeout=20) as sock:
+            assert _send(sock, "update") == b"OK"  # the next client is served as ever
+    finally:
+        remote.close()
+    assert [e.kind for e in events] == ["flood"]
