@@ -610,7 +610,8 @@ def rides_along(xdi: int, requested: int) -> bool:
 @dataclass(frozen=True)
 class OutputSetting:
     xdi: int  # with precision and coordinate-system bits
-    rate_hz: int  # EVERY_PACKET: in every message (timestamp group only)
+    rate_hz: int  # EVERY_PACKET: asked, the maximum (timestamps: every message); reported,
+    # "no maximum frequency, sent along with appropriate packets" (xsoutputconfiguration.h)
 
     @property
     def name(self) -> str:
@@ -618,8 +619,9 @@ class OutputSetting:
         return known[0] if known else f"0x{self.xdi:04X}"
 
     def describe(self) -> dict[str, Any]:
+        """As a device reports it (OutputConfiguration)."""
         if self.rate_hz == EVERY_PACKET:
-            rate: Any = "every packet" if rides_every_packet(self.xdi) else "maximum"
+            rate: Any = "every packet"
         else:
             rate = self.rate_hz
         d: dict[str, Any] = {"output": self.name, "xdi": f"0x{self.xdi:04X}", "rate_hz": rate}

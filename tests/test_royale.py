@@ -265,8 +265,11 @@ class FakeDevice:
             stamp = time.monotonic_ns() // 1000 - 5_000_000  # the camera's clock: 5 s behind
             self.stamps_us.append(stamp)
             data = sdk.DepthData(buffer, stamp)
+            listener = self.listener  # unregistered meanwhile: the SDK calls no more
+            if listener is None:
+                return
             t0 = time.perf_counter()
-            self.listener.onNewData(data)
+            listener.onNewData(data)
             self.callback_s.append(time.perf_counter() - t0)
             time.sleep(sdk.frame_s)
 

@@ -321,3 +321,10 @@ def test_an_8_byte_device_id_is_shown_as_xsens_library_shows_it():
     assert imu.info["device_id"] == "0080001236"
     assert device_id_text(bytes.fromhex("03881234")) == "03881234"
     assert device_id_text(bytes.fromhex("0388123400000000")) == "03881234"
+
+
+def test_a_reported_0xffff_is_every_packet_for_the_status_word_too():
+    """What a device reports at 0xFFFF has "no maximum frequency, but is sent along with
+    appropriate packets" (xsoutputconfiguration.h): `walkcap imu info` says so."""
+    setting = xbus.OutputSetting(xbus.XDI["status_word"], 0xFFFF)
+    assert setting.describe()["rate_hz"] == "every packet"

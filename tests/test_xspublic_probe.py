@@ -15,6 +15,7 @@ import re
 import select
 import shutil
 import signal
+import stat
 import subprocess
 import sys
 import time
@@ -52,6 +53,8 @@ def build_xspublic(source: Path) -> Path:
         work = CACHE_ROOT / f"{built.name}.build-{os.getpid()}"
         shutil.rmtree(work, ignore_errors=True)
         shutil.copytree(source, work)  # it writes its objects next to its sources
+        for path in [work, *work.rglob("*")]:  # the source may be read-only; the copy is not
+            path.chmod(path.stat().st_mode | stat.S_IWUSR)
         jobs = str(max(1, min(2, os.cpu_count() or 1)))
         out = subprocess.run(["make", "-C", str(work), f"-j{jobs}"], capture_output=True, text=True)
         if out.returncode != 0:
