@@ -38,6 +38,7 @@ from capture import corpus as corpus_mod
 from capture import topics as T
 from capture.errors import CaptureError
 from capture.reader import effective_changes, is_undo, open_recording
+from devices.files import check_replaceable
 from devices.frames import MODES
 
 TABLES = ("frames", "imu", "labels", "events", "trials")
@@ -323,24 +324,45 @@ def write(tables_: dict, out: str | os.PathLike, fmt: str = "parquet") -> list[P
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise CaptureError(f"cannot create {folder}: {e.strerror}") from None
-    written = []
     if fmt == "mat":
         from scipy.io import savemat
 
-        path = folder / "walkcap.mat"
-        savemat(path, {name: _mat_struct(df) for name, df in tables_.items()}, oned_as="column")
-        return [path]
+        structs = {name: _mat_struct(df) for name, df in tables_.items()}
+        return [_whole(folder / "walkcap.mat", lambda p: savemat(p, structs, oned_as="column"))]
+    written: list[Path] = []
     for name, df in tables_.items():
         path = folder / f"{name}.{fmt}"
         if fmt == "parquet":
-            try:
-                df.to_parquet(path, index=False)
-            except ImportError:
-                raise CaptureError("Parquet needs pyarrow: pip install pyarrow") from None
+            write_table = lambda p, df=df: df.to_parquet(p, index=False)  # noqa: E731
         else:
-            df.to_csv(path, index=False)
-        written.append(path)
+            write_table = lambda p, df=df: df.to_csv(p, index=False)  # noqa: E731
+        try:
+            written.append(_whole(path, write_table))
+        except ImportError:
+            raise CaptureError("Parquet needs pyarrow: pip install pyarrow") from None
+        except CaptureError as e:
+            done = f"; written before it: {', '.join(p.name for p in written)}" if written else ""
+            raise CaptureError(f"{e}{done}") from None
     return written
+
+
+def _whole(path: Path, write) -> Path:
+    """`write(tmp)` beside `path`, renamed into place once whole: a full disk leaves no
+    truncated table under the table's name, and the error names the file."""
+    check_replaceable(path)
+    tmp = path.with_name(f".{path.stem}.partial{path.suffix}")  # savemat wants .mat
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except OSError as e:
+        tmp.unlink(missing_ok=True)
+        raise CaptureError(
+            f"{path}: not written ({e.strerror or e}); nothing of it is left"
+        ) from None
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return path
 
 
 # ---- helpers -----------------------------------------------------------------------------

@@ -733,96 +733,109 @@ def recover(
     first = last = None
     unknown_channel = 0
     tmp = out.with_name(out.name + ".partial")
-    with open(source, "rb") as f, open(tmp, "wb") as g:
-        # A damaged chunk can hold the schema and channel records of later chunks: a
-        # finished file's summary repeats them.
-        summary = summary_of(f)
-        writer = Writer(g, chunk_size=4 * 1024 * 1024, compression=CompressionType.ZSTD)
-        started = False
-        for record in scan(f, result):
-            if isinstance(record, Header):
-                writer.start(profile=record.profile, library=record.library)
-                started = True
-                continue
+    try:
+        with open(source, "rb") as f, open(tmp, "wb") as g:
+            # A damaged chunk can hold the schema and channel records of later chunks: a
+            # finished file's summary repeats them.
+            summary = summary_of(f)
+            writer = Writer(g, chunk_size=4 * 1024 * 1024, compression=CompressionType.ZSTD)
+            started = False
+            for record in scan(f, result):
+                if isinstance(record, Header):
+                    writer.start(profile=record.profile, library=record.library)
+                    started = True
+                    continue
+                if not started:
+                    writer.start()
+                    started = True
+                if isinstance(record, Schema):
+                    if record.id not in schema_ids:
+                        schema_ids[record.id] = writer.register_schema(
+                            record.name, record.encoding, record.data
+                        )
+                elif isinstance(record, Channel):
+                    if record.id not in channel_ids:
+                        channel_ids[record.id] = writer.register_channel(
+                            record.topic,
+                            record.message_encoding,
+                            schema_ids.get(record.schema_id, 0),
+                            record.metadata,
+                        )
+                        topics_by_channel[record.id] = record.topic
+                elif isinstance(record, Message):
+                    channel = channel_ids.get(record.channel_id)
+                    if channel is None and summary is not None:
+                        channel = _register_from_summary(
+                            writer, summary, record.channel_id, schema_ids, channel_ids
+                        )
+                        if channel is not None:
+                            topics_by_channel[record.channel_id] = summary.channels[
+                                record.channel_id
+                            ].topic
+                    if channel is None:
+                        unknown_channel += 1  # its channel record was lost: undecodable
+                        continue
+                    topic = topics_by_channel[record.channel_id]
+                    writer.add_message(
+                        channel, record.log_time, record.data, record.publish_time, record.sequence
+                    )
+                    counts[topic] = counts.get(topic, 0) + 1
+                    if topic in seen:
+                        seen[topic].add(_key(topic, record.data))
+                    if topic not in (T.LABELS, T.EVENTS):
+                        first = record.log_time if first is None else min(first, record.log_time)
+                        last = record.log_time if last is None else max(last, record.log_time)
+                elif isinstance(record, Metadata):
+                    writer.add_metadata(record.name, record.metadata)
+                elif isinstance(record, Attachment):
+                    writer.add_attachment(
+                        record.create_time,
+                        record.log_time,
+                        record.name,
+                        record.media_type,
+                        record.data,
+                    )
             if not started:
                 writer.start()
-                started = True
-            if isinstance(record, Schema):
-                if record.id not in schema_ids:
-                    schema_ids[record.id] = writer.register_schema(
-                        record.name, record.encoding, record.data
-                    )
-            elif isinstance(record, Channel):
-                if record.id not in channel_ids:
-                    channel_ids[record.id] = writer.register_channel(
-                        record.topic,
-                        record.message_encoding,
-                        schema_ids.get(record.schema_id, 0),
-                        record.metadata,
-                    )
-                    topics_by_channel[record.id] = record.topic
-            elif isinstance(record, Message):
-                channel = channel_ids.get(record.channel_id)
-                if channel is None and summary is not None:
-                    channel = _register_from_summary(
-                        writer, summary, record.channel_id, schema_ids, channel_ids
-                    )
-                    if channel is not None:
-                        topics_by_channel[record.channel_id] = summary.channels[
-                            record.channel_id
-                        ].topic
-                if channel is None:
-                    unknown_channel += 1  # its channel record was lost: undecodable
-                    continue
-                topic = topics_by_channel[record.channel_id]
-                writer.add_message(
-                    channel, record.log_time, record.data, record.publish_time, record.sequence
+            if result.records == 0 and not entries:
+                g.close()
+                tmp.unlink()
+                raise CaptureError(
+                    f"{source}: nothing to recover ({result.reason or 'no readable record'})"
                 )
-                counts[topic] = counts.get(topic, 0) + 1
-                if topic in seen:
-                    seen[topic].add(_key(topic, record.data))
-                if topic not in (T.LABELS, T.EVENTS):
-                    first = record.log_time if first is None else min(first, record.log_time)
-                    last = record.log_time if last is None else max(last, record.log_time)
-            elif isinstance(record, Metadata):
-                writer.add_metadata(record.name, record.metadata)
-            elif isinstance(record, Attachment):
-                writer.add_attachment(
-                    record.create_time, record.log_time, record.name, record.media_type, record.data
-                )
-        if not started:
-            writer.start()
-        if result.records == 0 and not entries:
-            g.close()
-            tmp.unlink()
-            raise CaptureError(
-                f"{source}: nothing to recover ({result.reason or 'no readable record'})"
+            describe_damage(result.damaged, summary)
+            labels_added, events_added = _merge_journal(
+                writer, entries, seen, topics_by_channel, channel_ids, counts
             )
-        describe_damage(result.damaged, summary)
-        labels_added, events_added = _merge_journal(
-            writer, entries, seen, topics_by_channel, channel_ids, counts
-        )
-        writer.add_metadata(
-            "recovery",
-            {
-                "source": source.name,
-                "source_bytes": str(result.size),
-                "valid_bytes": str(result.valid_end),
-                "source_complete": str(result.complete),
-                "reason": result.reason,
-                "damaged_bytes": str(result.damaged_bytes),
-                "damaged": "; ".join(d.describe() for d in result.damaged),
-                "journal": jpath.name if entries else "",
-                "journal_skipped": "; ".join(journal_read.skipped),
-                "labels_added_from_journal": str(labels_added),
-                "events_added_from_journal": str(events_added),
-            },
-        )
-        _add_derivation(writer, source, result)
-        writer.finish()
-        g.flush()
-        os.fsync(g.fileno())
-    os.replace(tmp, out)
+            writer.add_metadata(
+                "recovery",
+                {
+                    "source": source.name,
+                    "source_bytes": str(result.size),
+                    "valid_bytes": str(result.valid_end),
+                    "source_complete": str(result.complete),
+                    "reason": result.reason,
+                    "damaged_bytes": str(result.damaged_bytes),
+                    "damaged": "; ".join(d.describe() for d in result.damaged),
+                    "journal": jpath.name if entries else "",
+                    "journal_skipped": "; ".join(journal_read.skipped),
+                    "labels_added_from_journal": str(labels_added),
+                    "events_added_from_journal": str(events_added),
+                },
+            )
+            _add_derivation(writer, source, result)
+            writer.finish()
+            g.flush()
+            os.fsync(g.fileno())
+        os.replace(tmp, out)
+    except BaseException as e:
+        tmp.unlink(missing_ok=True)  # half a copy is no copy: nothing is left behind
+        if isinstance(e, OSError) and not isinstance(e, FileNotFoundError):
+            why = e.strerror or str(e)
+            raise CaptureError(
+                f"{out}: not written ({why}); nothing of it is left, {source} is unchanged"
+            ) from None
+        raise
     return RecoveryReport(
         source=str(source),
         output=str(out),

@@ -63,8 +63,11 @@ def records(data: bytes):
     return out
 
 
-def plan(path: Path, classes: set[str], sample: int | None = None) -> list[Case]:
-    """Every case of each class; `sample`: about that many per class, spread evenly."""
+def plan(
+    path: Path, classes: set[str], sample: int | None = None, every_bit: bool = False
+) -> list[Case]:
+    """Every case of each class; `sample`: about that many per class, spread evenly. The
+    summary gets one bit a byte (the byte's offset mod 8), or all eight with `every_bit`."""
     data = path.read_bytes()
     table = records(data)
     data_end = next(at for at, op, _ in table if op == 0x0F)
@@ -92,7 +95,7 @@ def plan(path: Path, classes: set[str], sample: int | None = None) -> list[Case]
                     )
     summary_start = data_end + RECORD_HEAD.size + 4
     for at in range(summary_start, len(data)):
-        for bit in range(8):
+        for bit in range(8) if every_bit else (at % 8,):
             cases["summary"].append(Case("summary", at, bit, None, "summary"))
     journal = Path(str(path) + ".journal.jsonl")
     if journal.exists():
@@ -277,13 +280,19 @@ def _worker(args):
         shutil.rmtree(work, ignore_errors=True)
 
 
-def sweep(path: Path, classes: set[str], sample: int | None = None, jobs: int = 1):
+def sweep(
+    path: Path,
+    classes: set[str],
+    sample: int | None = None,
+    jobs: int = 1,
+    every_bit: bool = False,
+):
     """{class: (cases, silent losses, phantoms, internal errors, reported losses)} and the
     failing cases."""
     import logging
 
     logging.disable(logging.WARNING)
-    cases = plan(path, classes, sample)
+    cases = plan(path, classes, sample, every_bit)
     base = baseline(path, {c.cut for c in cases})
     batches = [(base, cases[k::jobs]) for k in range(jobs)]
     if jobs > 1:
@@ -318,14 +327,16 @@ def main(argv=None) -> int:
     parser.add_argument("--classes", default="opcode,length,summary,journal")
     parser.add_argument("--sample", type=int, help="about N cases per class (default: all)")
     parser.add_argument("--jobs", type=int, default=1)
+    parser.add_argument("--every-bit", action="store_true", help="all 8 bits of each summary byte")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
     if args.make:
         sys.path.insert(0, str(Path(__file__).parent))
         from recording_fixtures import write_recording
 
-        write_recording(args.file, seconds=1.0, chunk_interval_s=0.25)
-    totals, failing = sweep(args.file, set(args.classes.split(",")), args.sample, args.jobs)
+        write_recording(args.file, seconds=0.5, chunk_interval_s=0.125)
+    classes = set(args.classes.split(","))
+    totals, failing = sweep(args.file, classes, args.sample, args.jobs, args.every_bit)
     for case, outcome in failing[:20]:
         print(
             f"FAIL {case.kind} byte {case.offset} bit {case.bit} cut {case.cut} ({case.what}): "
