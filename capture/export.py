@@ -18,7 +18,8 @@ Tables (every row names its file, recording id, subject, condition and trial):
 - labels: every recorded change, undos included, with in_reference (whether it defines
   `label`) and undone (taken back by a later undo).
 - events: device events and operator markers.
-- trials: one row per file: identity, lineage, session form, times, model.
+- trials: one row per file: identity, lineage, session form, times, model, and per sensor
+  stream its gaps, items missing and late deliveries (capture.gaps).
 Modes are names (LG, US, DS, UR, DR); "" where there is none.
 """
 
@@ -34,6 +35,8 @@ import numpy as np
 from capture import corpus as corpus_mod
 from capture import topics as T
 from capture.errors import CaptureError
+from capture.gaps import TOPICS as GAP_TOPICS
+from capture.gaps import recording_loss
 from capture.reader import effective_changes, is_undo, open_recording
 from devices.frames import MODES
 
@@ -235,6 +238,14 @@ def tables(path: str | os.PathLike) -> dict:
     ):
         if key in software:
             trials[key] = software[key]
+
+    # loss by the one definition of the live alarms and `walkcap info` (capture.gaps)
+    for topic, loss in recording_loss(rec).items():
+        stream = GAP_TOPICS[topic]
+        trials[f"{stream}_gaps"] = len(loss.gaps)
+        trials[f"{stream}_missing"] = loss.missing
+        trials[f"{stream}_longest_gap_s"] = loss.longest_s
+        trials[f"{stream}_late"] = len(loss.late)
 
     def frame(columns: dict, n: int):
         df = pd.DataFrame(columns)

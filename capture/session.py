@@ -422,7 +422,8 @@ class Session:
             if sample is None:
                 continue
             t = sample.time_ns if sample.time_ns is not None else sample.host_time_ns
-            self.alarms.sample("imu", sample.host_time_ns)  # the recorder's log time
+            # the device's count and time, and the recorder's log time
+            self.alarms.sample("imu", sample.packet_counter, t, sample.host_time_ns)
             if sample.quaternion is not None:
                 self.track.add(t, sample.quaternion, sample.rate_of_turn)
             truth = getattr(self._imu, "true_time_ns", None)
@@ -511,7 +512,7 @@ class Session:
         if self.auto_label and truth_mode and truth_mode != self._last_truth_mode:
             self.set_label(truth_mode, source="simulator", time_ns=t)
         self._last_truth_mode = truth_mode
-        self.alarms.sample("camera", frame.host_time_ns)  # the recorder's log time
+        self.alarms.sample("camera", frame.index, t, frame.host_time_ns)  # as the file has it
         rec = self._recorder
         for out in self._outputs():
             out.write_frame(frame, t)
