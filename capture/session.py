@@ -130,6 +130,11 @@ class Snapshot:
     alarms: AlarmState | None = None  # gaps this trial, and what the operator must see now
 
 
+# Threads carrying raw data in: the rig's reader, the IMU driver's and this session's
+# camera and IMU threads (the IMU's share one name).
+INTAKE_THREADS = ("walkcap-rig-reader", "walkcap-imu", "walkcap-camera")
+
+
 def stream_periods(config: config_mod.Config) -> dict[str, float]:
     """The configured period of each sensor stream (what a gap is measured against)."""
     return {"camera": 1.0 / config.camera.fps, "imu": 1.0 / config.imu.rate_hz}
@@ -319,6 +324,7 @@ class Session:
         self._behind = _Streak("pipeline", "behind", "the pipeline fell behind")
         self.pipeline: Pipeline | None = None
         self.pipeline_priority = NORMAL_PRIORITY  # how the pipeline thread is scheduled
+        self.intake_scheduling = NORMAL_PRIORITY  # how the intake threads and writer are
         self.model_metadata: dict = {}
         self.finished = threading.Event()  # the camera ran out of frames (end of a mock course)
         self.trial_notice = ""  # why the last recording has another trial number than asked
@@ -387,7 +393,19 @@ class Session:
         self.pipeline_priority = realtime_priority(
             pipeline.native_id, cfg.session.realtime_priority
         )
+        # The threads that carry raw data in (the devices' readers, this session's intake)
+        # and the recorder's writer run one step above the pipeline: what is derived from
+        # the data never starves the data itself. They sleep between items.
+        for thread in threading.enumerate():
+            if thread.name in INTAKE_THREADS:
+                self.intake_scheduling = realtime_priority(thread.native_id, self.intake_priority)
         self._spawn(self._monitor_loop, "monitor")
+
+    @property
+    def intake_priority(self) -> int:
+        """SCHED_FIFO priority of the threads carrying raw data (0: normal scheduling)."""
+        pipeline = self.config.session.realtime_priority
+        return min(99, pipeline + 1) if pipeline > 0 else 0
 
     def _spawn(self, target, name: str) -> threading.Thread:
         t = threading.Thread(target=target, name=f"walkcap-{name}", daemon=True)
@@ -696,7 +714,12 @@ class Session:
         metadata = self._metadata(info)
         if supersedes:
             metadata["session"]["supersedes"] = supersedes
-        recorder = Recorder(path, metadata=metadata, attachments=self._attachments())
+        recorder = Recorder(
+            path,
+            metadata=metadata,
+            attachments=self._attachments(),
+            priority=self.intake_priority,
+        )
         recorder.start()
         self.alarms.recordings = folder
         self.alarms.new_trial()
@@ -753,6 +776,7 @@ class Session:
             "fusion_transition": T.jsonable(cfg.fusion.transition),
             "preprocess": T.jsonable(self.pipeline.params.to_dict() if self.pipeline else {}),
             "pipeline_priority": self.pipeline_priority,
+            "intake_priority": self.intake_scheduling,
         }
         session = info.to_metadata()
         session["operator"] = cfg.session.operator

@@ -145,6 +145,7 @@ def run(args, config) -> int:
     print(
         f"{stats.duration_s:.1f} s, {stats.messages} messages, "
         f"{stats.bytes_written / 1e6:.1f} MB, dropped {stats.dropped}, "
+        f"derived shed {getattr(stats, 'shed', 0)}, "
         f"gaps camera {gaps.get('camera', 0)} IMU {gaps.get('imu', 0)}, "
         f"late deliveries camera {late.get('camera', 0)} IMU {late.get('imu', 0)}"
         + (
