@@ -14,7 +14,7 @@ import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from capture.gaps import GAP_PERIODS, MODULUS, Gap, Late, LossCounter
+from capture.gaps import GAP_PERIODS, MODULUS, OWN_CLOCK, Gap, Late, LossCounter
 
 DISK_MINUTES_LOW = 10.0  # free disk below this many minutes of recording: alarm
 QUEUE_FULL = 0.5  # the recorder's queue above this fraction: alarm
@@ -32,7 +32,7 @@ class StreamCounter:
 
     def __init__(self, stream: str, period_s: float | None = None) -> None:
         self.period_s = period_s or _DEFAULT_PERIODS[stream]
-        self.loss = LossCounter(self.period_s, MODULUS[stream])
+        self.loss = LossCounter(self.period_s, MODULUS[stream], OWN_CLOCK[stream])
         self._lock = threading.Lock()
         self._last_host_ns: int | None = None
         self.last_gap: tuple[int, float, bool] | None = None  # shown: (end ns, s, data lost)

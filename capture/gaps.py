@@ -18,6 +18,10 @@ from dataclasses import dataclass, field
 
 GAP_PERIODS = 3.0  # late delivery: a receive interval longer than this many periods
 MODULUS = {"camera": None, "imu": 1 << 16}  # the sequence's wrap (None: it never wraps)
+# Whether the stream's time is the device's own clock (a frame's exposure) or the host's
+# estimate of it (the IMU's SampleTimeFine mapped by a fit that a host stall can move):
+# only the device's own clock may say more went by than the sequence does.
+OWN_CLOCK = {"camera": True, "imu": False}
 
 
 @dataclass
@@ -59,11 +63,13 @@ def missing_between(
     device_dt_ns: int | None,
     period_s: float,
     modulus: int | None,
+    own_clock: bool = True,
 ) -> int:
     """Items the device produced between two consecutive received ones.
 
     The sequence says it exactly; the device time decides how often a counter wrapped,
-    and stands in when the sequence restarted (a power-cycled or reopened device)."""
+    and stands in when the sequence restarted (a power-cycled or reopened device): a
+    step the time cannot hold, or, on the device's own clock, one shorter than it."""
     by_time = None
     if device_dt_ns is not None and period_s > 0:
         by_time = max(0, round(device_dt_ns * 1e-9 / period_s) - 1)
@@ -72,17 +78,20 @@ def missing_between(
         step %= modulus
         if by_time is not None and by_time >= modulus // 2:  # wrapped once or more
             step += modulus * round((by_time - step) / modulus)
-    if by_time is not None and (step < 0 or abs(step - by_time) > max(2, 0.1 * by_time)):
-        return by_time  # a restarted sequence: the device's time says what went by
+    if by_time is not None:
+        tolerance = max(2, 0.1 * by_time)
+        if step < 0 or step > by_time + tolerance or (own_clock and step < by_time - tolerance):
+            return by_time  # a restarted sequence: the device's time says what went by
     return max(0, step)
 
 
 class LossCounter:
     """Gaps and late deliveries in one stream, counted as items arrive (thread-safe)."""
 
-    def __init__(self, period_s: float, modulus: int | None = None) -> None:
+    def __init__(self, period_s: float, modulus: int | None = None, own_clock: bool = True) -> None:
         self.period_s = period_s
         self.modulus = modulus
+        self.own_clock = own_clock
         self._lock = threading.Lock()
         self._last: tuple[int, int | None, int] | None = None  # seq, device ns, host ns
         self.loss = StreamLoss()
@@ -101,7 +110,9 @@ class LossCounter:
                 missing = max(0, round(dev_dt * 1e-9 / self.period_s) - 1)
                 missing = missing if dev_dt > GAP_PERIODS * self.period_s * 1e9 else 0
             else:
-                missing = missing_between(last_seq, seq, dev_dt, self.period_s, self.modulus)
+                missing = missing_between(
+                    last_seq, seq, dev_dt, self.period_s, self.modulus, self.own_clock
+                )
             if missing > 0:
                 length = dev_dt * 1e-9 if dev_dt else (missing + 1) * self.period_s
                 gap = Gap(last_dev if last_dev is not None else last_host, length, missing)
@@ -116,10 +127,13 @@ class LossCounter:
 
 
 def stream_loss(
-    items: list[tuple[int | None, int | None, int]], period_s: float, modulus: int | None
+    items: list[tuple[int | None, int | None, int]],
+    period_s: float,
+    modulus: int | None,
+    own_clock: bool = True,
 ) -> StreamLoss:
     """A recorded stream's loss from its (sequence, device time, host time) in file order."""
-    counter = LossCounter(period_s, modulus)
+    counter = LossCounter(period_s, modulus, own_clock)
     for seq, device_ns, host_ns in items:
         counter.add(seq, device_ns, host_ns)
     return counter.loss
@@ -162,5 +176,5 @@ def recording_loss(rec) -> dict[str, StreamLoss]:
         if period <= 0:
             out[topic] = StreamLoss()
             continue
-        out[topic] = stream_loss(items, period, MODULUS[stream])
+        out[topic] = stream_loss(items, period, MODULUS[stream], OWN_CLOCK[stream])
     return out

@@ -130,6 +130,8 @@ class Snapshot:
     alarms: AlarmState | None = None  # gaps this trial, and what the operator must see now
 
 
+HOST_STALL_NS = 1_000_000_000  # the monitor (every 0.2 s) not run for this long: a host stall
+
 # Threads carrying raw data in: the rig's reader, the IMU driver's and this session's
 # camera and IMU threads (the IMU's share one name).
 INTAKE_THREADS = ("walkcap-rig-reader", "walkcap-imu", "walkcap-camera")
@@ -483,7 +485,22 @@ class Session:
         return status.state == DeviceState.STOPPED and not self._stop.is_set()
 
     def _monitor_loop(self) -> None:
+        last = now_ns()
         while not self._stop.wait(0.2):
+            t = now_ns()
+            if t - last > HOST_STALL_NS:  # this loop wakes every 0.2 s: the host stalled
+                stall_s = (t - last) * 1e-9
+                self._event(
+                    DeviceEvent(
+                        t,
+                        "host",
+                        "stall",
+                        f"the computer stalled for {stall_s:.2f} s (no walkcap thread ran): "
+                        "what the devices kept meanwhile is recorded, the rest is a gap",
+                        {"gap_s": stall_s, "gap_start_ns": last, "gap_end_ns": t},
+                    )
+                )
+            last = t
             for device in (self._camera, self._imu):
                 for event in device.poll_events():
                     self._event(event)
