@@ -21,7 +21,8 @@ is described in docs/export.md):
   `label`) and undone (taken back by a later undo).
 - events: device events and operator markers, in time order.
 - trials: one row per file: identity, lineage, session form, model; start_time_ns and
-  end_time_ns (session clock), start_unix_time_ns and end_unix_time_ns, duration_s.
+  end_time_ns (session clock), start_unix_time_ns and end_unix_time_ns, duration_s; per
+  sensor stream its gaps, items missing and late deliveries (capture.gaps).
 Modes are names (LG, US, DS, UR, DR); "" where there is none.
 """
 
@@ -37,6 +38,8 @@ import numpy as np
 from capture import corpus as corpus_mod
 from capture import topics as T
 from capture.errors import CaptureError
+from capture.gaps import TOPICS as GAP_TOPICS
+from capture.gaps import recording_loss
 from capture.reader import effective_changes, is_undo, open_recording
 from devices.files import check_replaceable
 from devices.frames import MODES
@@ -252,6 +255,14 @@ def tables(path: str | os.PathLike) -> dict:
     ):
         if key in software:
             trials[key] = software[key]
+
+    # loss by the one definition of the live alarms and `walkcap info` (capture.gaps)
+    for topic, loss in recording_loss(rec).items():
+        stream = GAP_TOPICS[topic]
+        trials[f"{stream}_gaps"] = len(loss.gaps)
+        trials[f"{stream}_missing"] = loss.missing
+        trials[f"{stream}_longest_gap_s"] = loss.longest_s
+        trials[f"{stream}_late"] = len(loss.late)
 
     def frame(columns: dict, n: int):
         df = pd.DataFrame(columns)

@@ -158,6 +158,16 @@ class Recording:
     def read(self, topic: str, *, raw: bool = False) -> list[RecordedMessage]:
         return list(self.messages([topic], raw=raw))
 
+    def sequences(self, topic: str) -> list[tuple[int, int, int]]:
+        """(sequence, publish time, log time) of every message on `topic`, in log-time
+        order, without decoding them: a sensor's own count and clock beside the host's."""
+        with _damage_is_an_error(self.path):
+            items = [
+                (m.sequence, m.publish_time, m.log_time)
+                for _, _, m in _iter_raw(self.path, self.complete, {topic})
+            ]
+        return sorted(items, key=lambda x: x[2])
+
     def log_times(self) -> dict[str, np.ndarray]:
         """Sorted log times of every topic, from the index when there is one (no decoding)."""
         if self._log_times is None:

@@ -132,6 +132,13 @@ class Snapshot:
     stale_frames: int = 0  # frames left undecided: their IMU orientation was stale
 
 
+HOST_STALL_NS = 1_000_000_000  # the monitor (every 0.2 s) not run for this long: a host stall
+
+# Threads carrying raw data in: the rig's reader, the IMU driver's and this session's
+# camera and IMU threads (the IMU's share one name).
+INTAKE_THREADS = ("walkcap-rig-reader", "walkcap-imu", "walkcap-camera")
+
+
 def stream_periods(config: config_mod.Config) -> dict[str, float]:
     """The configured period of each sensor stream (what a gap is measured against)."""
     return {"camera": 1.0 / config.camera.fps, "imu": 1.0 / config.imu.rate_hz}
@@ -322,6 +329,7 @@ class Session:
         self._behind = _Streak("pipeline", "behind", "the pipeline fell behind")
         self.pipeline: Pipeline | None = None
         self.pipeline_priority = NORMAL_PRIORITY  # how the pipeline thread is scheduled
+        self.intake_scheduling = NORMAL_PRIORITY  # how the intake threads and writer are
         self.model_metadata: dict = {}
         self.finished = threading.Event()  # the camera ran out of frames (end of a mock course)
         self.trial_notice = ""  # why the last recording has another trial number than asked
@@ -392,7 +400,19 @@ class Session:
         self.pipeline_priority = realtime_priority(
             pipeline.native_id, cfg.session.realtime_priority
         )
+        # The threads that carry raw data in (the devices' readers, this session's intake)
+        # and the recorder's writer run one step above the pipeline: what is derived from
+        # the data never starves the data itself. They sleep between items.
+        for thread in threading.enumerate():
+            if thread.name in INTAKE_THREADS:
+                self.intake_scheduling = realtime_priority(thread.native_id, self.intake_priority)
         self._spawn(self._monitor_loop, "monitor")
+
+    @property
+    def intake_priority(self) -> int:
+        """SCHED_FIFO priority of the threads carrying raw data (0: normal scheduling)."""
+        pipeline = self.config.session.realtime_priority
+        return min(99, pipeline + 1) if pipeline > 0 else 0
 
     def _spawn(self, target, name: str) -> threading.Thread:
         t = threading.Thread(target=target, name=f"walkcap-{name}", daemon=True)
@@ -427,7 +447,8 @@ class Session:
             if sample is None:
                 continue
             t = sample.time_ns if sample.time_ns is not None else sample.host_time_ns
-            self.alarms.sample("imu", sample.host_time_ns)  # the recorder's log time
+            # the device's count and time, and the recorder's log time
+            self.alarms.sample("imu", sample.packet_counter, t, sample.host_time_ns)
             if sample.quaternion is not None:
                 self.track.add(t, sample.quaternion, sample.rate_of_turn)
             truth = getattr(self._imu, "true_time_ns", None)
@@ -469,7 +490,22 @@ class Session:
         return status.state == DeviceState.STOPPED and not self._stop.is_set()
 
     def _monitor_loop(self) -> None:
+        last = now_ns()
         while not self._stop.wait(0.2):
+            t = now_ns()
+            if t - last > HOST_STALL_NS:  # this loop wakes every 0.2 s: the host stalled
+                stall_s = (t - last) * 1e-9
+                self._event(
+                    DeviceEvent(
+                        t,
+                        "host",
+                        "stall",
+                        f"the computer stalled for {stall_s:.2f} s (no walkcap thread ran): "
+                        "what the devices kept meanwhile is recorded, the rest is a gap",
+                        {"gap_s": stall_s, "gap_start_ns": last, "gap_end_ns": t},
+                    )
+                )
+            last = t
             for device in (self._camera, self._imu):
                 for event in device.poll_events():
                     self._event(event)
@@ -516,7 +552,7 @@ class Session:
         if self.auto_label and truth_mode and truth_mode != self._last_truth_mode:
             self.set_label(truth_mode, source="simulator", time_ns=t)
         self._last_truth_mode = truth_mode
-        self.alarms.sample("camera", frame.host_time_ns)  # the recorder's log time
+        self.alarms.sample("camera", frame.index, t, frame.host_time_ns)  # as the file has it
         rec = self._recorder
         for out in self._outputs():
             out.write_frame(frame, t)
@@ -705,7 +741,12 @@ class Session:
         metadata = self._metadata(info)
         if supersedes:
             metadata["session"]["supersedes"] = supersedes
-        recorder = Recorder(path, metadata=metadata, attachments=self._attachments())
+        recorder = Recorder(
+            path,
+            metadata=metadata,
+            attachments=self._attachments(),
+            priority=self.intake_priority,
+        )
         recorder.start()
         self.alarms.recordings = folder
         self.alarms.new_trial()
@@ -763,6 +804,7 @@ class Session:
             "fusion_transition": T.jsonable(cfg.fusion.transition),
             "preprocess": T.jsonable(self.pipeline.params.to_dict() if self.pipeline else {}),
             "pipeline_priority": self.pipeline_priority,
+            "intake_priority": self.intake_scheduling,
         }
         session = info.to_metadata()
         session["operator"] = cfg.session.operator

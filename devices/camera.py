@@ -83,6 +83,9 @@ def open_camera(camera_config=None, simulator_config=None, **kw) -> Camera:
     return camera
 
 
+HOST_STALL_NS = 1_000_000_000  # the watchdog not run for this long: the host stalled
+
+
 class Camera:
     """Base of every depth camera backend. Thread-safe between one producer and consumers."""
 
@@ -127,6 +130,8 @@ class Camera:
         self._watch_stop = threading.Event()
         self._next_reopen_ns = 0
         self._lost_at_ns = 0
+        self._last_check_ns = 0
+        self._host_resumed_ns = 0  # the end of the last host stall (see _check)
         self.reopens = 0
         # After a reopen a device may number its frames from 0 again: they go on from here.
         self._last_index = -1
@@ -291,8 +296,14 @@ class Camera:
     def _check(self, t: int) -> None:
         """Stall, lost and reopen: from the watchdog thread (and status())."""
         with self._watch_lock:
+            # Checks run every 0.1 s: a longer pause is the host's own stall (stopped,
+            # swapped, starved), not the camera's silence. The frames the camera kept
+            # sending meanwhile are still on their way: silence counts from here.
+            if self._last_check_ns and t - self._last_check_ns > HOST_STALL_NS:
+                self._host_resumed_ns = t
+            self._last_check_ns = max(self._last_check_ns, t)
             if self._state == OK and self._running:
-                since = self._last_frame_ns or self._started_ns
+                since = max(self._last_frame_ns or self._started_ns, self._host_resumed_ns)
                 silent_s = (t - since) * 1e-9
                 if silent_s > self._stall_after_s() and not self._stalled:
                     self._stalled = True

@@ -68,6 +68,7 @@ _FRAME_TO_ENU = {
 }
 _VECTOR_OUTPUTS = ("acceleration", "rate_of_turn")
 _EVENT_INTERVAL_NS = 1_000_000_000  # repeated faults of one kind: one event a second
+HOST_STALL_NS = 250_000_000  # no reader step for this long: the host stalled (reads take 20 ms)
 _NOT_MEASUREMENTS = frozenset(
     {"packet_counter", "sample_time_fine", "sample_time_coarse", "utc_time", "status_word"}
 )
@@ -240,6 +241,8 @@ class XbusImu(Imu):
         self._seen = {"checksum_errors": 0, "resyncs": 0, "dropped": 0}
         self._last_problem_ns = 0
         self._started_ns = now_ns()
+        self._last_step_ns = 0
+        self._host_resumed_ns = 0  # the end of the last host stall (see _step)
 
     @classmethod
     def from_config(cls, config: Any, orientation_at=None) -> XbusImu:
@@ -607,12 +610,20 @@ class XbusImu(Imu):
             self._lose("unplugged, or its port closed")
             return
         t = now_ns()
+        # A read returns within 20 ms: a longer pause between steps is the host's own stall
+        # (stopped, swapped, starved). The samples the IMU sent meanwhile wait in the port's
+        # buffer: silence counts from here, or closing the port would lose them.
+        if self._last_step_ns and t - self._last_step_ns > HOST_STALL_NS:
+            self._host_resumed_ns = t
+            self.clock.excuse(t - self._last_step_ns)  # the backlog arrives that late
+        self._last_step_ns = t
         if chunk:
             if self.raw_sink is not None:
                 self.raw_sink(chunk)
             for msg in self._parser.feed(chunk):
                 self._on_message(msg, t)
-        last = max(self._last_sample_ns or 0, self._started_ns)  # started: (re)connected
+        # started: (re)connected
+        last = max(self._last_sample_ns or 0, self._started_ns, self._host_resumed_ns)
         if t - last > self.silence_ns:
             self._lose(f"no data for {(t - last) * 1e-9:.1f} s")
         self._count_problems(t)

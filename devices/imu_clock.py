@@ -61,6 +61,7 @@ class DeviceClock:
         # Over a shorter span jitter dominates the slope: assume no drift until then.
         self.min_span_ns = int(min_span_s * 1e9)
         self.resets = 0  # fits forgotten because the device clock jumped or restarted
+        self._excused_ns = 0.0  # lateness a host stall explains (see excuse)
         self._clear()
 
     def reset(self) -> None:
@@ -116,8 +117,16 @@ class DeviceClock:
         self._residual += 0.05 * (max(0.0, y - (self._a + self._b * x)) - self._residual)
         return self.to_host_ns(raw_ticks)
 
+    def excuse(self, delay_ns: float) -> None:
+        """The host stalled for `delay_ns`: samples that late are the host's, not a
+        restarted device clock (until samples arrive on time again)."""
+        self._excused_ns = max(self._excused_ns, delay_ns)
+
     def _too_late(self, residual: float) -> bool:
-        self._late = self._late + 1 if residual > self.max_delay_ns else 0
+        if residual <= self.max_delay_ns:
+            self._excused_ns = 0.0  # on time again: the host caught up
+        late = residual > self.max_delay_ns + self._excused_ns
+        self._late = self._late + 1 if late else 0
         return self._late >= 10
 
     def _add_point(self, x: int, y: float) -> None:

@@ -196,6 +196,9 @@ def _profiles_of(facts: DeviceFacts, function: str) -> tuple[FilterProfile, ...]
     return facts.vru_profiles if function == "VRU" else facts.profiles
 
 
+HOST_BUFFER_BYTES = 65536  # what the host's serial buffer holds while nobody reads it
+
+
 class ImuEmulator:
     """An MTi on a pty. `start()` returns the port path; see the module docstring."""
 
@@ -656,9 +659,11 @@ class ImuEmulator:
         except OSError as e:
             if e.errno not in (errno.EAGAIN, errno.EIO):
                 raise
-        if len(self._out) > 65536:  # nobody reads: the bytes are lost, as on a UART
-            self.dropped_on_wire += len(self._out)
-            self._out.clear()
+        if len(self._out) > HOST_BUFFER_BYTES:
+            # Nobody reads: as on a UART, the host's full buffer keeps the oldest bytes and
+            # the ones arriving now are lost; the host reads what it kept once it runs.
+            self.dropped_on_wire += len(self._out) - HOST_BUFFER_BYTES
+            del self._out[HOST_BUFFER_BYTES:]
 
     # ---- requests ---------------------------------------------------------------------
 

@@ -72,9 +72,14 @@ class TrialRecord:
     labels: int = 0
     gaps: dict = field(default_factory=dict)
     failed: str = ""  # why the recording failed (what reached the disk is readable)
+    late: dict = field(default_factory=dict)  # late deliveries: the host stalled, nothing lost
 
     def line(self) -> str:
         gaps = f"gaps camera {self.gaps.get('camera', 0)}, IMU {self.gaps.get('imu', 0)}"
+        if any(self.late.values()):
+            gaps += ", late " + ", ".join(
+                f"{'IMU' if s == 'imu' else s} {n}" for s, n in self.late.items() if n
+            )
         state = f"  FAILED: {self.failed}" if self.failed else ""
         size = human_bytes(self.size_bytes)
         return (
@@ -569,6 +574,7 @@ class WalkcapApp(App):
                 size_bytes=int(getattr(stats, "bytes_written", 0) or 0),
                 labels=int(getattr(stats, "labels", 0) or 0),
                 gaps=dict(getattr(alarms, "trial_gaps", {}) or {}),
+                late=dict(getattr(alarms, "trial_late", {}) or {}),
                 failed=str(getattr(stats, "message", "")) if failed else "",
             )
         )
