@@ -150,7 +150,12 @@ def folder_item(folder: Path) -> CheckItem:
             f.write(b"walkcap")
             f.flush()
     except OSError as e:
-        reason = f"not writable: {e.strerror or e}"
+        file = next((p for p in (folder, *folder.parents) if p.is_file()), None)
+        reason = (
+            f"{file} is a file, not a folder: set [session] recordings or --out to a folder"
+            if file is not None
+            else f"not writable: {e.strerror or e}"
+        )
         return CheckItem("output folder", False, str(folder.resolve()), reason)
     return CheckItem("output folder", True, f"{folder.resolve()} writable")
 

@@ -4,6 +4,7 @@ fault text; clear form states; a log of what happened; every size class keeps th
 essentials in view."""
 
 import numpy as np
+import pytest
 from test_tui_app import screen_text, wait_for
 from tui_fake_session import NOW_NS, FakeSession
 
@@ -177,3 +178,34 @@ def test_a_catch_up_burst_after_a_gap_is_no_faster_rate(monkeypatch):
         imu._deliver(sample(t0 + k * 10_000_000, burst_at + (k - 250) * 10_000))
     monkeypatch.setattr(base, "now_ns", lambda: burst_at + 2_000_000)
     assert 95.0 <= imu._measured_rate() <= 101.0
+
+
+async def test_the_amputee_box_reads_yes_or_no_without_colour():
+    app = WalkcapApp(Config(), session=FakeSession())
+    async with app.run_test(size=(120, 40)) as pilot:
+        await wait_for(pilot, lambda: isinstance(app.screen, SessionScreen), timeout=30)
+        box = app.screen.query_one("#f-amputee")
+        await pilot.pause(0.1)
+        row = next(line for line in screen_text(app).splitlines() if "Amputee" in line)
+        assert "X" not in row and row.split("Amputee")[1].split()[-1] == "no"
+        box.focus()
+        await pilot.press("space")
+        await pilot.pause(0.1)
+        row = next(line for line in screen_text(app).splitlines() if "Amputee" in line)
+        assert "✔" in row and row.rstrip().endswith("yes") and box.value
+
+
+def test_an_out_that_is_a_file_is_a_usage_error_that_says_so(tmp_path, capsys):
+    from capture import preflight
+    from tui import cli
+
+    file = tmp_path / "recordings"
+    file.write_text("not a folder")
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(["record", "--out", str(file), "--duration", "1"])
+    assert exit_.value.code == 2  # a usage error
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and f"{file} is a file, not a folder" in err
+    assert "File exists" not in err
+    item = preflight.folder_item(file / "sub")  # a configured folder inside a file
+    assert not item.ok and f"{file} is a file, not a folder" in item.reason
