@@ -209,3 +209,41 @@ def test_an_out_that_is_a_file_is_a_usage_error_that_says_so(tmp_path, capsys):
     assert "File exists" not in err
     item = preflight.folder_item(file / "sub")  # a configured folder inside a file
     assert not item.ok and f"{file} is a file, not a folder" in item.reason
+
+
+async def test_the_log_holds_what_happened_with_times(tmp_path):
+    import re
+
+    from devices.clock import now_ns
+    from tui.commands.tui import logging_to_file
+
+    path = tmp_path / "tui.log"
+    fake = FakeSession()
+    app = WalkcapApp(Config(), session=fake, ask_subject=False, drills=True)
+    with logging_to_file(str(path)):
+        async with app.run_test(size=(120, 40)) as pilot:
+            await _live(pilot)
+            await pilot.press("r")
+            await wait_for(pilot, lambda: app.recording_path is not None, timeout=30)
+            t = now_ns()
+            fake.events += [
+                DeviceEvent(t, "imu", "lost", "IMU lost (no data for 0.6 s); retrying /dev/x"),
+                DeviceEvent(t + 1, "camera", "stall", "no frame for 1.4 s"),
+                DeviceEvent(t + 2, "imu", "gap", "IMU: 2 packets missing"),
+                DeviceEvent(t + 3, "imu", "reconnected", "IMU back after a gap of 2.01 s"),
+            ]
+            await wait_for(pilot, lambda: "IMU back" in screen_text(app), timeout=30)
+            await pilot.press("r")
+            await wait_for(pilot, lambda: len(app.trials) == 1, timeout=30)
+            await wait_for(pilot, lambda: "saved" in screen_text(app), timeout=30)
+    lines = path.read_text().splitlines()
+    for said in (
+        "recording S01_indoor_t01.mcap",
+        "IMU lost (no data for 0.6 s); retrying /dev/x",
+        "camera stall: no frame for 1.4 s",
+        "IMU: 2 packets missing",
+        "IMU back after a gap of 2.01 s",
+        "saved S01_indoor_t01.mcap",
+    ):
+        (line,) = [line for line in lines if said in line]
+        assert re.match(r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d", line), line  # with its time

@@ -183,6 +183,8 @@ class WalkcapApp(App):
         notice line, shows it as a toast as well. Thread-safe, as App.notify is."""
         text = f"{title}: {message}" if title else str(message)
         notice = Notice(" ".join(text.split()), str(severity))
+        level = {"error": logging.ERROR, "warning": logging.WARNING}.get(severity, logging.INFO)
+        log.log(level, "notice: %s", notice.text)  # tui.log: what the operator was told
         self.post_message(messages.NoticePosted(notice, title, message, severity, timeout, markup))
 
     def on_notice_posted(self, event: messages.NoticePosted) -> None:

@@ -367,6 +367,8 @@ class LiveScreen(Screen):
             if self._last_event_ns is not None and e.time_ns <= self._last_event_ns:
                 continue
             severity = FAULT_KINDS.get(e.kind)
+            if e.device != "operator" and not severity:  # gaps, drops; notices log themselves
+                log.info("%s %s: %s", e.device, e.kind, " ".join(e.message.split()))
             if e.device != "operator" and severity:
                 self.notify(
                     event_sentence(e),
