@@ -725,7 +725,8 @@ class XbusImu(Imu):
             measured_rate_hz=measured,
             delivered=self.delivered,
             dropped=self._buffer.dropped,
-            errors=self._parser.checksum_errors + self.missing_packets,
+            # faults of the device or its link, each kind in details: they add up
+            errors=self._parser.checksum_errors + self.missing_packets + self.reconnects,
             details={
                 "device_id": self.info.get("device_id", ""),
                 "product_code": self.info.get("product_code", ""),

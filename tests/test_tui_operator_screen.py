@@ -9,7 +9,7 @@ from test_tui_app import screen_text, wait_for
 from tui_fake_session import NOW_NS, FakeSession
 
 from capture.config import Config
-from capture.session import LabelChange, TimelineEntry
+from capture.session import LabelChange, SubjectInfo, TimelineEntry
 from devices.base import DeviceEvent, DeviceState, DeviceStatus
 from tui.app import WalkcapApp
 from tui.live_screen import LiveScreen
@@ -153,9 +153,42 @@ def test_a_fault_is_one_plain_sentence_and_the_counts_agree():
     stall = DeviceEvent(1, "camera", "stall", "no frame for 1.4 s")
     assert event_sentence(stall) == "camera stall: no frame for 1.4 s"
     rows = device_rows("imu", status)
-    assert ("reconnects", "3", rows[-1][2]) in rows  # its own count, not an error kind
-    errors = next(value for label, value, _ in rows if label == "drops")
-    assert errors.endswith("errors 0") and not any(v.startswith("reconnects") for _, v, _ in rows)
+    assert rows == device_rows("imu", status)
+
+
+def test_an_unplugged_imu_says_so_plainly_and_its_counts_add_up():
+    import time
+
+    from devices.imu import EmulatedImu
+
+    def wait(predicate, timeout=20.0):
+        deadline = time.monotonic() + timeout
+        while not predicate():
+            assert time.monotonic() < deadline, "timed out"
+            time.sleep(0.02)
+
+    imu = EmulatedImu(rate_hz=100)
+    try:
+        imu.open()
+        imu.start()
+        wait(lambda: imu.delivered > 20)
+        imu.emulator.inject("disconnect")
+        wait(lambda: imu.status().state == "lost")
+        status = imu.status()
+        assert status.message == f"unplugged, or its port closed; retrying {imu.port}"
+        imu.emulator.inject("reconnect")
+        wait(lambda: imu.status().state in ("ok", "degraded"))
+        events = [e for e in imu.poll_events() if e.kind == "lost"]
+        assert events[0].message == f"IMU lost (unplugged, or its port closed); retrying {imu.port}"
+        assert event_sentence(events[0]) == events[0].message  # the device named once
+        status = imu.status()
+        d = status.details
+        assert d["reconnects"] == 1
+        assert status.errors == d["checksum_errors"] + d["missing_packets"] + d["reconnects"]
+        rows = device_rows("imu", status)
+        assert "reconnects: 1" in [value for _, value, _ in rows]
+    finally:
+        imu.close()
 
 
 def test_a_catch_up_burst_after_a_gap_is_no_faster_rate(monkeypatch):
@@ -247,3 +280,50 @@ async def test_the_log_holds_what_happened_with_times(tmp_path):
     ):
         (line,) = [line for line in lines if said in line]
         assert re.match(r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d", line), line  # with its time
+
+
+LONG_FOLDER = "/home/lab/walking-study-2026/subject-sessions/recordings"
+LONG_NAME = "S03_indoor_t05_20261202-071746.mcap"
+
+
+@pytest.mark.parametrize("size", [(80, 24), (100, 30), (160, 48)])
+async def test_every_size_class_keeps_what_the_operator_needs(size):
+    """Device state, the banner with the file name, the five probabilities, the fused
+    decision and the true / fused strips, at a laptop's 80 x 24 as on a large screen."""
+    import re
+    from pathlib import Path
+
+    fake = FakeSession()
+    for entry in fake.timeline:  # mock devices: the simulator's truth is a fourth strip
+        entry.truth = entry.label
+    fake.imu.state, fake.imu.message = "lost", "unplugged, or its port closed; retrying /dev/x"
+    fake.imu.details["reconnects"] = 2
+    fake.events.append(DeviceEvent(1, "imu", "lost", "IMU lost (unplugged); retrying /dev/x"))
+    fake.start_recording(SubjectInfo(subject="S03", trial=5))
+    fake._recording_path = Path(LONG_FOLDER) / LONG_NAME
+    app = WalkcapApp(
+        Config(), session=fake, subject=SubjectInfo(subject="S03", trial=5), ask_subject=False
+    )
+    async with app.run_test(size=size) as pilot:
+        app.recording_path = fake._recording_path
+        await _live(pilot)
+        await pilot.pause(0.2)
+        lines = screen_text(app).splitlines()
+        text = "\n".join(lines)
+    assert len(lines) == size[1]
+    banner = lines[1]
+    assert "● REC" in banner and "trial 5" in banner and LONG_NAME in banner
+    for device, state in (("camera", "ok"), ("IMU", "lost")):
+        assert re.search(rf"│ {device} +{state}  mock", text), device
+    assert "unplugged" in text
+    assert len(re.findall(r"│ rate +\d", text)) == 2 and len(re.findall(r"│ drops +\d", text)) == 2
+    for mode, p in zip(("LG", "US", "DS", "UR", "DR"), ("0.05", "0.82", "0.03", "0.07", "0.03")):
+        assert re.search(rf"{mode} [ ▏▎▍▌▋▊▉█]+ {p}", text), mode
+    assert "up stairs" in text and re.search(r"CNN US +true US", text)
+    for strip in ("true", "CNN", "fused", "sim"):
+        assert re.search(rf"^│? ?{strip} +[LGUSDR ]", text, re.M), strip
+    assert re.search(r"-20 s .* now", text)
+    if size[1] >= 40:  # a large screen shows the details as well
+        for title in ("recording", "profile", "terrain geometry", "trials this session"):
+            assert f"─ {title} " in text, title
+        assert "pipeline" in text and "reconnects: 2" in text

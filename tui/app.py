@@ -93,8 +93,9 @@ def keymap(config: Config) -> dict[str, str]:
 class WalkcapApp(App):
     TITLE = "walkcap"
     CSS_PATH = "walkcap.tcss"
-    HORIZONTAL_BREAKPOINTS = [(0, "-narrow"), (120, "-normal"), (150, "-wide")]
-    VERTICAL_BREAKPOINTS = [(0, "-short"), (40, "-tall")]
+    # size classes; walkcap.tcss says what each keeps and what gives way
+    HORIZONTAL_BREAKPOINTS = [(0, "-slim"), (100, "-narrow"), (120, "-normal"), (150, "-wide")]
+    VERTICAL_BREAKPOINTS = [(0, "-short"), (28, "-medium"), (40, "-tall")]
     ENABLE_COMMAND_PALETTE = False
     # a key no form field takes, shown in every footer; the mode keys label with a dialog
     # open over the live screen (help, marker note, quit question) as they do without one
