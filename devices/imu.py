@@ -739,6 +739,7 @@ class XbusImu(Imu):
                 "port": self.port,
                 "offset_ms": clock.offset_ms,
                 "drift_ppm": clock.drift_ppm,
+                "drift_uncertainty_ppm": clock.drift_uncertainty_ppm,
                 "residual_ms": clock.residual_ms,
                 "clock_resets": clock.resets,
                 "missing_packets": self.missing_packets,

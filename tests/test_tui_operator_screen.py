@@ -327,3 +327,55 @@ async def test_every_size_class_keeps_what_the_operator_needs(size):
         for title in ("recording", "profile", "terrain geometry", "trials this session"):
             assert f"─ {title} " in text, title
         assert "pipeline" in text and "reconnects: 2" in text
+
+
+def _fit(drift_ppm: float, jitter_ms: float, seconds: float, seed: int):
+    """A DeviceClock fed `seconds` of 100 Hz samples whose receive delay is 0.3 ms plus
+    exponential jitter, now and then a sample 20 ms late."""
+    from devices.imu_clock import TICK_NS, DeviceClock
+
+    rng = np.random.default_rng(seed)
+    clock = DeviceClock()
+    n = int(seconds * 100)
+    delays = 0.3e6 + rng.exponential(jitter_ms * 1e6, n)
+    delays += (rng.random(n) < 0.02) * rng.exponential(20e6, n)
+    for k in range(n):
+        device_ns = k * 10_000_000
+        host = 5e9 + device_ns / (1 + drift_ppm * 1e-6) + delays[k]
+        clock.update(device_ns // TICK_NS, int(host))
+    return clock.state()
+
+
+def test_the_drift_comes_with_its_uncertainty_and_holds_within_it():
+    assert _fit(50.0, 1.0, 1.5, 0).drift_uncertainty_ppm is None  # under 2 s: not fitted
+    short = [_fit(50.0, 2.0, 3.0, seed) for seed in range(40)]
+    inside = [abs(s.drift_ppm - 50.0) <= s.drift_uncertainty_ppm for s in short]
+    assert sum(inside) >= 36  # about 95 in 100
+    long = [_fit(50.0, 2.0, 20.0, seed) for seed in range(5)]
+    assert max(s.drift_uncertainty_ppm for s in long) < min(s.drift_uncertainty_ppm for s in short)
+
+
+def test_check_stream_and_panel_say_the_drift_with_its_uncertainty():
+    from capture import preflight
+    from tui.commands.imu import _stream_line
+
+    details = {
+        "drift_ppm": 48.2,
+        "drift_uncertainty_ppm": 12.4,
+        "residual_ms": 0.5,
+        "checksum_errors": 0,
+        "missing_packets": 0,
+    }
+    status = DeviceStatus(
+        backend="mock",
+        state="ok",
+        configured_rate_hz=100.0,
+        measured_rate_hz=100.0,
+        details=details,
+    )
+    assert "clock drift +48 ± 12 ppm" in preflight.device_item("imu", status).summary
+    assert "drift +48 ± 12 ppm" in _stream_line(None, status)
+    assert ("drift", "+48 ± 12 ppm", "") in device_rows("imu", status)
+    details["drift_uncertainty_ppm"] = None  # the first 2 s: held at zero, and said so
+    assert "drift not fitted yet" in _stream_line(None, status)
+    assert "clock drift not fitted yet" in preflight.device_item("imu", status).summary

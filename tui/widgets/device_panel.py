@@ -9,6 +9,7 @@ from rich.text import Text
 from textual.widget import Widget
 
 from devices.base import DeviceEvent, DeviceState, DeviceStatus
+from devices.imu_clock import drift_text
 from tui.widgets.modes import STATE_COLORS
 from tui.widgets.pacing import Pacer
 
@@ -62,8 +63,12 @@ def device_rows(name: str, status: DeviceStatus | None, sync: dict | None = None
     parts = [f"{what}: {status.details[k]}" for k, what in _ERROR_PARTS if status.details.get(k)]
     rows += [("", part, _AMBER) for part in parts]
     drift = _first(status.details, _DRIFT_KEYS)
-    if drift is not None:  # how fast the device clock runs against the host's
-        rows.append(("drift", f"{float(drift):+.0f} ppm (clock)", ""))
+    if drift is not None:  # how fast the device clock runs against the host's, how surely
+        if "drift_uncertainty_ppm" in status.details:
+            text = drift_text(float(drift), status.details["drift_uncertainty_ppm"])
+            rows.append(("drift", text.replace(" (under 2 s of samples)", ""), ""))
+        else:
+            rows.append(("drift", f"{float(drift):+.0f} ppm (clock)", ""))
     if sync:  # how far a sample's host time is from when it was taken
         rows.append(("sync", f"error p99 {sync.get('p99_ms', 0):.1f} ms", ""))
     return rows
