@@ -145,7 +145,8 @@ class Imu:
         self.delivered += 1
 
     def _event(self, kind: str, message: str, t_ns: int | None = None, **details: Any) -> None:
-        log.info("IMU %s: %s", kind, message)
+        # a message that names the device is a sentence already ("IMU lost (...)")
+        log.info("%s", message if message.startswith("IMU") else f"IMU {kind}: {message}")
         event = DeviceEvent(now_ns() if t_ns is None else t_ns, "imu", kind, message, details)
         with self._lock:
             self._events.append(event)

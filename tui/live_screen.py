@@ -51,6 +51,7 @@ FAULT_KINDS = {
     "device_restarted": "warning",
     "end_of_course": "warning",
     "reconnected": "information",
+    "resumed": "information",
 }
 SEEK_S = 5.0
 
