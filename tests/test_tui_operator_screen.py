@@ -310,6 +310,19 @@ async def test_every_size_class_keeps_what_the_operator_needs(size):
         await pilot.pause(0.2)
         lines = screen_text(app).splitlines()
         text = "\n".join(lines)
+        box = app.screen.query_one("#decision").region
+        strips = app.screen._compositor.render_strips()[box.y : box.bottom]
+        segments = []
+        for strip in strips:
+            segments += list(strip.crop(box.x, box.right))
+    # the decision in its mode's colour: block letters, or its letters on a band of it
+    blue = "#2f7ff0"
+    colours = [(s.text, s.style.color, s.style.bgcolor) for s in segments if s.style]
+    assert any(
+        ("US" in t and bg is not None and bg.triplet.hex == blue)
+        or ("██" in t and fg is not None and fg.triplet.hex == blue)
+        for t, fg, bg in colours
+    )
     assert len(lines) == size[1]
     banner = lines[1]
     assert "● REC" in banner and "trial 5" in banner and LONG_NAME in banner

@@ -75,10 +75,12 @@ class DecisionDisplay(Widget):
         rows = max(1, height - 2)  # a band as tall as the rows left for it
         letters = fused or "--"
         band_style = f"bold #000000 on {color}"
-        band = Text(justify="center")
+        band = Text(justify="left", no_wrap=True)  # centred by hand: "center" strips the band
         pad = min(width, max(8, width // 2))
+        margin = " " * ((width - pad) // 2)
         for r in range(rows):
             cell = letters if r == (rows - 1) // 2 else ""
+            band.append(margin)
             band.append(cell.center(pad), style=band_style)
             if r < rows - 1:
                 band.append("\n")
