@@ -148,7 +148,8 @@ class Imu:
         self.delivered += 1
 
     def _event(self, kind: str, message: str, t_ns: int | None = None, **details: Any) -> None:
-        log.info("IMU %s: %s", kind, message)
+        # a message that names the device is a sentence already ("IMU lost (...)")
+        log.info("%s", message if message.startswith("IMU") else f"IMU {kind}: {message}")
         event = DeviceEvent(now_ns() if t_ns is None else t_ns, "imu", kind, message, details)
         with self._lock:
             self._events.append(event)
@@ -777,7 +778,8 @@ class XbusImu(Imu):
             measured_rate_hz=measured,
             delivered=self.delivered,
             dropped=self._buffer.dropped,
-            errors=self._parser.checksum_errors + self.missing_packets,
+            # faults of the device or its link, each kind in details: they add up
+            errors=self._parser.checksum_errors + self.missing_packets + self.reconnects,
             details={
                 "device_id": self.info.get("device_id", ""),
                 "product_code": self.info.get("product_code", ""),
@@ -790,6 +792,7 @@ class XbusImu(Imu):
                 "port": self.port,
                 "offset_ms": clock.offset_ms,
                 "drift_ppm": clock.drift_ppm,
+                "drift_uncertainty_ppm": clock.drift_uncertainty_ppm,
                 "residual_ms": clock.residual_ms,
                 "clock_resets": clock.resets,
                 "missing_packets": self.missing_packets,

@@ -98,8 +98,9 @@ def keymap(config: Config) -> dict[str, str]:
 class WalkcapApp(App):
     TITLE = "walkcap"
     CSS_PATH = "walkcap.tcss"
-    HORIZONTAL_BREAKPOINTS = [(0, "-narrow"), (120, "-normal"), (150, "-wide")]
-    VERTICAL_BREAKPOINTS = [(0, "-short"), (40, "-tall")]
+    # size classes; walkcap.tcss says what each keeps and what gives way
+    HORIZONTAL_BREAKPOINTS = [(0, "-slim"), (100, "-narrow"), (120, "-normal"), (150, "-wide")]
+    VERTICAL_BREAKPOINTS = [(0, "-short"), (28, "-medium"), (40, "-tall")]
     ENABLE_COMMAND_PALETTE = False
     # a key no form field takes, shown in every footer; the mode keys label with a dialog
     # open over the live screen (help, marker note, quit question) as they do without one
@@ -199,6 +200,8 @@ class WalkcapApp(App):
         notice line, shows it as a toast as well. Thread-safe, as App.notify is."""
         text = f"{title}: {message}" if title else str(message)
         notice = Notice(" ".join(text.split()), str(severity))
+        level = {"error": logging.ERROR, "warning": logging.WARNING}.get(severity, logging.INFO)
+        log.log(level, "notice: %s", notice.text)  # tui.log: what the operator was told
         self.post_message(messages.NoticePosted(notice, title, message, severity, timeout, markup))
 
     def on_notice_posted(self, event: messages.NoticePosted) -> None:

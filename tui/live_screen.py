@@ -51,6 +51,7 @@ FAULT_KINDS = {
     "device_restarted": "warning",
     "end_of_course": "warning",
     "reconnected": "information",
+    "resumed": "information",
 }
 SEEK_S = 5.0
 
@@ -70,6 +71,20 @@ def pipeline_rows(snap: Snapshot) -> list[tuple[str, str, str]]:
     if stale:  # frames left undecided: no IMU orientation fresh enough to level them
         rows.append(("stale", f"{stale} frames, IMU orientation old", "#f0a020"))
     return rows
+
+
+def banner_path(path: Path | None, room: int) -> str:
+    """The recording's full path, or as much of its folder as fits before the file name,
+    which is always whole: "…/recordings/S03_indoor_t05_20261202-071746.mcap"."""
+    if path is None:
+        return ""
+    full = str(path)
+    if len(full) <= room:
+        return full
+    name = path.name
+    keep = room - len(name) - 1  # "…" + the end of the folder
+    folder = str(path.parent) + "/"
+    return "…" + (folder[-keep:] if keep > 0 else "") + name
 
 
 class LiveScreen(Screen):
@@ -275,11 +290,13 @@ class LiveScreen(Screen):
             text, cls = Text(" ▶ REPLAY — nothing records; 1-5 correct labels, w saves"), "-idle"
         elif elapsed is not None:
             path = app.recording_path
-            text = Text(
-                f" ● REC  trial {app.subject.trial}  {clock_text(elapsed)}  "
-                f"{path.resolve() if path else ''}"
-            )
+            head = f" ● REC  trial {app.subject.trial}  {clock_text(elapsed)}  "
             cls = "-rec"
+            if getattr(snap.recording, "state", "") == RecorderState.FAILED:
+                head = f" ✖ REC FAILED  trial {app.subject.trial}  ({key} closes the file)  "
+                cls = "-failed"
+            width = banner.size.width or app.size.width
+            text = Text(head + banner_path(path.resolve() if path else None, width - len(head)))
         else:
             state = getattr(app, "preflight_state", "none")
             if app.source is None:
@@ -373,6 +390,8 @@ class LiveScreen(Screen):
             if self._last_event_ns is not None and e.time_ns <= self._last_event_ns:
                 continue
             severity = FAULT_KINDS.get(e.kind)
+            if e.device != "operator" and not severity:  # gaps, drops; notices log themselves
+                log.info("%s %s: %s", e.device, e.kind, " ".join(e.message.split()))
             if e.device != "operator" and severity:
                 self.notify(
                     event_sentence(e),

@@ -191,6 +191,18 @@ def form_values(info: SubjectInfo) -> dict[str, object]:
     return values
 
 
+class YesNoBox(Checkbox):
+    """A checkbox whose state reads without colour: a tick and "yes", or blank and "no"."""
+
+    @property
+    def BUTTON_INNER(self) -> str:  # noqa: N802  (Textual's name for the glyph)
+        return "✔" if self.value else " "
+
+    def watch_value(self) -> None:
+        super().watch_value()
+        self.label = "yes" if self.value else "no"
+
+
 class SessionScreen(Screen[SubjectInfo | None]):
     """Dismisses with the confirmed SubjectInfo, or None when cancelled (escape)."""
 
@@ -241,7 +253,9 @@ class SessionScreen(Screen[SubjectInfo | None]):
             options = [(v or "—", v) for v in kind]
             return Select(options, value=value, allow_blank=False, id=f"f-{name}", compact=True)
         if kind == "bool":
-            return Checkbox("", value=bool(value), id=f"f-{name}", compact=True)
+            return YesNoBox(
+                "yes" if value else "no", value=bool(value), id=f"f-{name}", compact=True
+            )
         # a remembered value is kept: typing goes on from its end, it does not replace it
         common = dict(value=str(value), id=f"f-{name}", compact=True, select_on_focus=False)
         if kind == "id":

@@ -37,6 +37,9 @@ class DecisionDisplay(Widget):
     DecisionDisplay { height: 8; }
     """
 
+    def on_resize(self) -> None:
+        self.refresh()  # block letters or a band: it depends on the rows it has
+
     def __init__(self, **kwargs) -> None:
         super().__init__(**kwargs)
         self._content: tuple = (None, None, None, False)
@@ -56,9 +59,10 @@ class DecisionDisplay(Widget):
             self.refresh()
 
     def render(self) -> Group:
+        """Block letters when the widget has the rows for them, else a band of the mode's
+        colour with its letters: the decision reads at a glance at any height."""
         fused, cnn, label, unknown = self._content
         color = MODE_COLORS[fused] if fused else "#555555"
-        big = Text("\n".join(big_letters(fused or "--")), style=f"bold {color}", justify="center")
         name = Text(
             MODE_NAMES[fused] if fused else "no decision yet",
             style="bold" if fused else "dim",
@@ -69,4 +73,25 @@ class DecisionDisplay(Widget):
         below = Text.assemble(
             "CNN ", mode_text(cnn), "   true ", mode_text(label), justify="center"
         )
-        return Group(big, name, below)
+        height, width = self.size.height, max(1, self.size.width)
+        if height >= 7:
+            big = Text(
+                "\n".join(big_letters(fused or "--")), style=f"bold {color}", justify="center"
+            )
+            top = Text("\n" * max(0, (height - 8) // 2 - 1))  # centred when taller
+            return Group(top, big, name, below) if height >= 10 else Group(big, name, below)
+        if height <= 1:
+            return Group(Text.assemble(mode_text(fused), " ", name, "  ", below))
+        rows = max(1, height - 2)  # a band as tall as the rows left for it
+        letters = fused or "--"
+        band_style = f"bold #000000 on {color}"
+        band = Text(justify="left", no_wrap=True)  # centred by hand: "center" strips the band
+        pad = min(width, max(8, width // 2))
+        margin = " " * ((width - pad) // 2)
+        for r in range(rows):
+            cell = letters if r == (rows - 1) // 2 else ""
+            band.append(margin)
+            band.append(cell.center(pad), style=band_style)
+            if r < rows - 1:
+                band.append("\n")
+        return Group(band, name, below)
