@@ -59,6 +59,7 @@ TITLES = {
     "forward": "forward filter",
     "fixed-lag": "fixed-lag smoother",
     "steady": "steady",
+    "steady+gait": "steady + gait",
 }
 SCORE_HEADER = (*MODES, "label")  # label: the terrain each image shows
 SCORE_HEADER_LOCOMOTION = (*SCORE_HEADER, "locomotion")  # + the mode keyed live
@@ -104,6 +105,7 @@ class Trial:
     times_s: np.ndarray | None = None  # (N,) seconds since the first frame; None: unknown
     reference_name: str = "terrain"  # what `reference` is: "terrain" or "locomotion"
     locomotion: Any = None  # (N,) the subject's mode keyed live, when `reference` is terrain
+    elevation_deg: np.ndarray | None = None  # (N,) camera above the horizon: gait cues
 
     def __post_init__(self) -> None:
         self.probabilities = np.asarray(self.probabilities, dtype=float)
@@ -132,6 +134,13 @@ class Trial:
                 )
             if not (self.locomotion >= 0).any():
                 self.locomotion = None
+        if self.elevation_deg is not None:
+            self.elevation_deg = np.asarray(self.elevation_deg, dtype=float)
+            if len(self.elevation_deg) != len(self.probabilities):
+                raise InferenceError(
+                    f"{self.path}: {len(self.probabilities)} frames but "
+                    f"{len(self.elevation_deg)} camera elevations"
+                )
 
     def references(self) -> dict[str, np.ndarray]:
         """Every reference the trial has, by name (the scored one first)."""
@@ -225,11 +234,14 @@ def decisions_of(probabilities: np.ndarray) -> np.ndarray:
     return out
 
 
-def run_offline(fusion: Fusion, probabilities: np.ndarray) -> FusionRun:
+def run_offline(
+    fusion: Fusion, probabilities: np.ndarray, elevation_deg: np.ndarray | None = None
+) -> FusionRun:
     """Push every frame through a fresh streaming object, then flush: the live decisions.
 
     A frame whose probabilities are not finite (a broken classifier) is pushed as uniform,
-    carrying no evidence, and left undecided (-1): it is never scored as right."""
+    carrying no evidence, and left undecided (-1): it is never scored as right. A method
+    with gait cues (`uses_gait`) gets each frame's camera elevation, `elevation_deg`."""
     e = np.array(probabilities, dtype=float)
     unusable = ~np.all(np.isfinite(e), axis=1) if e.ndim == 2 else np.zeros(len(e), bool)
     e[unusable] = 1.0 / N_MODES
@@ -249,8 +261,16 @@ def run_offline(fusion: Fusion, probabilities: np.ndarray) -> FusionRun:
         if out.voted_frame is not None:
             voted[out.voted_frame] = out.voted
 
-    for row in e:
-        collect(fusion.push(row))
+    if getattr(fusion, "uses_gait", False):
+        if elevation_deg is None:
+            raise InferenceError(
+                f"{fusion.method} needs the camera's orientation at each frame (recordings)"
+            )
+        for row, elevation in zip(e, np.asarray(elevation_deg, dtype=float).tolist()):
+            collect(fusion.push(row, elevation))
+    else:
+        for row in e:
+            collect(fusion.push(row))
     for out in fusion.flush():
         collect(out)
     final = voted if fusion.votes else decisions
@@ -299,7 +319,13 @@ def evaluate_trial(
 ) -> TrialResult:
     if not (trial.reference >= 0).any():
         raise InferenceError(f"{trial.path}: no frame has a reference mode")
-    runs = {m: run_offline(params.make(m), trial.probabilities) for m in methods}
+    try:
+        runs = {
+            m: run_offline(params.make(m), trial.probabilities, trial.elevation_deg)
+            for m in methods
+        }
+    except InferenceError as e:
+        raise InferenceError(f"{trial.path}: {e}") from None
     return TrialResult(
         trial,
         {m: accuracy(r.final, trial.reference) for m, r in runs.items()},
@@ -451,7 +477,9 @@ def delay_sweep(
 
         def stage(method: str, stages=stages, p=p, trial=trial) -> FusionRun:
             if method not in stages:
-                stages[method] = run_offline(p.make(method), trial.probabilities)
+                stages[method] = run_offline(
+                    p.make(method), trial.probabilities, trial.elevation_deg
+                )
             return stages[method]
 
         for m in methods:
@@ -731,13 +759,17 @@ def trial_from_recording(path: str, data: Any, reference: str = "terrain") -> Tr
     if times is not None and len(times) == len(chosen) and len(times):
         t = np.asarray(times, dtype=np.int64)
         times_s = (t - t[0]) * 1e-9
+    elevation = get("camera_elevation_deg")
+    if elevation is not None:
+        elevation = np.asarray(elevation, dtype=float)
     finite = np.isfinite(probabilities).all(axis=1) if probabilities.ndim == 2 else None
     if finite is not None and not finite.all():
         log.warning("%s: %d frame(s) without a CNN output left out", path, (~finite).sum())
         probabilities, chosen = probabilities[finite], chosen[finite]
         second = second[finite] if second is not None else None
         times_s = times_s[finite] if times_s is not None else None
-    return Trial(str(path), probabilities, chosen, metadata, times_s, reference, second)
+        elevation = elevation[finite] if elevation is not None else None
+    return Trial(str(path), probabilities, chosen, metadata, times_s, reference, second, elevation)
 
 
 def synthetic_trial(
