@@ -294,6 +294,7 @@ def test_write_plots_writes_the_papers_figures(tmp_path, trials):
         *(f"{kind}_t{i}" for kind in ("decisions", "probabilities") for i in range(len(trials))),
         "confusion_indoor",
         "confusion_outdoor",
+        "switches",
     ]
     assert names == sorted(f"{stem}.{ext}" for stem in stems for ext in ("pdf", "png"))
     for p in written:
