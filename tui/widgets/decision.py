@@ -1,4 +1,6 @@
-"""The fused decision, large, with the CNN's own decision and the operator's label under it."""
+"""The fused decision, large, with the CNN's own decision and the operator's label under it,
+then how often the decision switched in the last minute (and, on mock devices, the walker's
+locomotion mode: what to key)."""
 
 from __future__ import annotations
 
@@ -39,16 +41,23 @@ class DecisionDisplay(Widget):
 
     def __init__(self, **kwargs) -> None:
         super().__init__(**kwargs)
-        self._content: tuple = (None, None, None)
+        self._content: tuple = (None, None, None, None, None)
 
-    def present(self, fused: int | str | None, cnn: int | str | None, label: str | None) -> None:
-        content = (mode_name(fused), mode_name(cnn), mode_name(label))
+    def present(
+        self,
+        fused: int | str | None,
+        cnn: int | str | None,
+        label: str | None,
+        switches: int | None = None,
+        walker: str | None = None,
+    ) -> None:
+        content = (mode_name(fused), mode_name(cnn), mode_name(label), switches, mode_name(walker))
         if content != self._content:
             self._content = content
             self.refresh()
 
     def render(self) -> Group:
-        fused, cnn, label = self._content
+        fused, cnn, label, switches, walker = self._content
         color = MODE_COLORS[fused] if fused else "#555555"
         big = Text("\n".join(big_letters(fused or "--")), style=f"bold {color}", justify="center")
         name = Text(
@@ -59,4 +68,12 @@ class DecisionDisplay(Widget):
         below = Text.assemble(
             "CNN ", mode_text(cnn), "   true ", mode_text(label), justify="center"
         )
-        return Group(big, name, below)
+        lines = [big, name, below]
+        if switches is not None or walker:
+            parts: list = []
+            if switches is not None:
+                parts.append(f"switches {switches} in the last minute")
+            if walker:  # mock devices: the mode an operator keys, for practice
+                parts += ["   " if parts else "", "walker ", mode_text(walker)]
+            lines.append(Text.assemble(*parts, style="dim", justify="center"))
+        return Group(*lines)
