@@ -9,10 +9,7 @@
 Tables (every row names its file, recording id, subject, condition and trial):
 - frames: one row per camera frame: frame_index; time_ns (sample time, session clock),
   unix_time_ns, time_s (seconds since the recording's first message); label (the
-  operator's mode in force, undos applied), truth (simulator, when recorded); the two
-  references eval uses: terrain (what the image shows: the simulator's truth, else the
-  labels made offline in `replay --tui` over the keys, else "") and locomotion (the mode
-  keyed live, undos applied, offline labels not); p_<MODE>
+  operator's mode in force, undos applied), truth (simulator, when recorded); p_<MODE>
   (CNN softmax) and cnn_decision; posterior_<MODE> (fused HMM posterior for this frame),
   decision (the fused decision for this frame) and decision_at_frame (the frame at which
   it was made), voted and voted_at_frame; terrain_* (terrain features); preprocess_flag,
@@ -23,6 +20,10 @@ Tables (every row names its file, recording id, subject, condition and trial):
 - events: device events and operator markers.
 - trials: one row per file: identity, lineage, session form, times, model.
 Modes are names (LG, US, DS, UR, DR); "" where there is none.
+The frames' terrain and locomotion columns are the two references eval uses: terrain,
+what the image shows (the simulator's truth, else the labels made offline in `replay
+--tui` over the keys, else ""); locomotion, the mode keyed live (undos applied, offline
+labels not).
 """
 
 from __future__ import annotations
@@ -35,9 +36,10 @@ from pathlib import Path
 import numpy as np
 
 from capture import corpus as corpus_mod
+from capture import reader
 from capture import topics as T
 from capture.errors import CaptureError
-from capture.reader import CORRECTION, effective_changes, is_undo, open_recording
+from capture.reader import effective_changes, is_undo, open_recording
 from devices.frames import MODES
 
 TABLES = ("frames", "imu", "labels", "events", "trials")
@@ -138,11 +140,11 @@ def tables(path: str | os.PathLike) -> dict:
     if T.TRUTH in rec.topics:
         frames["truth"] = [truth.get(int(i), "") for i in index]
         frames["terrain"] = frames["truth"]
-    elif any(c[2] == CORRECTION for c in changes):
+    elif any(c[2] == reader.CORRECTION for c in changes):
         frames["terrain"] = frames["label"]
     else:
         frames["terrain"] = [""] * len(index)
-    frames["locomotion"] = _modes_at(times, [c for c in reference if c[2] != CORRECTION])
+    frames["locomotion"] = _modes_at(times, [c for c in reference if c[2] != reader.CORRECTION])
     probs = np.full((len(index), len(MODES)), np.nan)
     post = np.full((len(index), len(MODES)), np.nan)
     for k, i in enumerate(index):

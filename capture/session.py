@@ -46,7 +46,6 @@ from inference.errors import InferenceError
 log = logging.getLogger(__name__)
 
 TIMELINE_S = 20.0
-SWITCHES_S = 60.0  # the live screen counts the fused decision's switches over this long
 SWITCH_INTERVAL_S = 0.0005
 
 
@@ -111,26 +110,7 @@ class TimelineEntry:
     truth: str | None = None
 
 
-@dataclass
-class Snapshot:
-    """Everything the UI shows, copied out under the lock: the UI never touches threads."""
-
-    time_ns: int
-    running: bool
-    camera: DeviceStatus | None
-    imu: DeviceStatus | None
-    sync: dict
-    label: str | None
-    latest: FrameResult | None
-    timeline: list[TimelineEntry]
-    events: list[DeviceEvent]
-    recording: object | None  # capture.recorder.RecorderStats
-    recording_started_ns: int | None
-    frames: int
-    latency_ms: dict
-    alarms: AlarmState | None = None  # gaps this trial, and what the operator must see now
-    switches_last_minute: int | None = None  # final fused decision changes in SWITCHES_S
-    walker_mode: str | None = None  # mock devices: the walker's locomotion mode, to key
+SWITCHES_S = 60.0  # the live screen counts the fused decision's switches over this long
 
 
 class SwitchCounter:
@@ -152,6 +132,28 @@ class SwitchCounter:
 
     def count(self) -> int:
         return len(self._times)
+
+
+@dataclass
+class Snapshot:
+    """Everything the UI shows, copied out under the lock: the UI never touches threads."""
+
+    time_ns: int
+    running: bool
+    camera: DeviceStatus | None
+    imu: DeviceStatus | None
+    sync: dict
+    label: str | None
+    latest: FrameResult | None
+    timeline: list[TimelineEntry]
+    events: list[DeviceEvent]
+    recording: object | None  # capture.recorder.RecorderStats
+    recording_started_ns: int | None
+    frames: int
+    latency_ms: dict
+    switches_last_minute: int | None = None  # final fused decision changes in SWITCHES_S
+    walker_mode: str | None = None  # mock devices: the walker's locomotion mode, to key
+    alarms: AlarmState | None = None  # gaps this trial, and what the operator must see now
 
 
 def stream_periods(config: config_mod.Config) -> dict[str, float]:

@@ -249,6 +249,6 @@ def test_decision_panel_adds_switches_and_the_walkers_mode():
     panel = DecisionDisplay()
     panel.present("US", "US", "LG")
     assert "switches" not in text(panel) and "walker" not in text(panel)
-    panel.present("US", "US", "LG", switches=3, walker="US")
+    panel.present_switching(3, "US")
     out = text(panel)
     assert "switches 3 in the last minute" in out and "walker US" in out

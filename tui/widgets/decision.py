@@ -41,23 +41,16 @@ class DecisionDisplay(Widget):
 
     def __init__(self, **kwargs) -> None:
         super().__init__(**kwargs)
-        self._content: tuple = (None, None, None, None, None)
+        self._content: tuple = (None, None, None)
 
-    def present(
-        self,
-        fused: int | str | None,
-        cnn: int | str | None,
-        label: str | None,
-        switches: int | None = None,
-        walker: str | None = None,
-    ) -> None:
-        content = (mode_name(fused), mode_name(cnn), mode_name(label), switches, mode_name(walker))
+    def present(self, fused: int | str | None, cnn: int | str | None, label: str | None) -> None:
+        content = (mode_name(fused), mode_name(cnn), mode_name(label))
         if content != self._content:
             self._content = content
             self.refresh()
 
     def render(self) -> Group:
-        fused, cnn, label, switches, walker = self._content
+        fused, cnn, label = self._content
         color = MODE_COLORS[fused] if fused else "#555555"
         big = Text("\n".join(big_letters(fused or "--")), style=f"bold {color}", justify="center")
         name = Text(
@@ -68,12 +61,25 @@ class DecisionDisplay(Widget):
         below = Text.assemble(
             "CNN ", mode_text(cnn), "   true ", mode_text(label), justify="center"
         )
-        lines = [big, name, below]
+        return Group(big, name, below, *self._switching_line())
+
+    _switching: tuple = (None, None)  # (switches in the last minute, walker's mode)
+
+    def present_switching(self, switches: int | None, walker: str | None = None) -> None:
+        """How often the fused decision switched in the last minute (None: not counted)
+        and, on mock devices, the walker's locomotion mode: the line under the labels."""
+        content = (switches, mode_name(walker))
+        if content != self._switching:
+            self._switching = content
+            self.refresh()
+
+    def _switching_line(self) -> list:
+        switches, walker = self._switching
         if switches is not None or walker:
             parts: list = []
             if switches is not None:
                 parts.append(f"switches {switches} in the last minute")
             if walker:  # mock devices: the mode an operator keys, for practice
                 parts += ["   " if parts else "", "walker ", mode_text(walker)]
-            lines.append(Text.assemble(*parts, style="dim", justify="center"))
-        return Group(*lines)
+            return [Text.assemble(*parts, style="dim", justify="center")]
+        return []
