@@ -24,6 +24,10 @@ is described in docs/export.md):
   end_time_ns (session clock), start_unix_time_ns and end_unix_time_ns, duration_s; per
   sensor stream its gaps, items missing and late deliveries (capture.gaps).
 Modes are names (LG, US, DS, UR, DR); "" where there is none.
+The frames' terrain and locomotion columns are the two references eval uses: terrain,
+what the image shows (the simulator's truth, else the labels made offline in `replay
+--tui` over the keys, else ""); locomotion, the mode keyed live (undos applied, offline
+labels not).
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from capture import corpus as corpus_mod
+from capture import reader
 from capture import topics as T
 from capture.errors import CaptureError
 from capture.gaps import TOPICS as GAP_TOPICS
@@ -154,6 +159,12 @@ def tables(path: str | os.PathLike) -> dict:
     frames["label"] = _modes_at(times, reference)
     if T.TRUTH in rec.topics:
         frames["truth"] = [truth.get(int(i), "") for i in index]
+        frames["terrain"] = frames["truth"]
+    elif any(c[2] == reader.CORRECTION for c in changes):
+        frames["terrain"] = frames["label"]
+    else:
+        frames["terrain"] = [""] * len(index)
+    frames["locomotion"] = _modes_at(times, [c for c in reference if c[2] != reader.CORRECTION])
     probs = np.full((len(index), len(MODES)), np.nan)
     post = np.full((len(index), len(MODES)), np.nan)
     for k, i in enumerate(index):

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import math
 import os
 import struct
 import zlib
@@ -637,6 +638,8 @@ def read_trial(path: str | os.PathLike) -> dict:
       live (undos applied, offline corrections not); terrain (N,), what each image shows:
       the simulator's truth, else the labels made offline in `replay --tui` laid over the
       live keys (`labels`), else None; terrain_source: "simulator", "offline labels" or None
+    - camera_elevation_deg (N,): the camera's optical axis above the horizon (/tf), NaN
+      where the frame had no orientation: the gait cue of fusion "steady+gait"
     - label_changes: every recorded change [(time_ns, mode, source)] in time order, undos
       and what they undid included (the audit trail); reference_changes: the ones that
       define `labels`; metadata (typed); id; modes: MODES
@@ -647,7 +650,8 @@ def read_trial(path: str | os.PathLike) -> dict:
     voted: dict[int, int] = {}
     truth: dict[int, int] = {}
     changes: list[tuple[int, str, str]] = []
-    wanted = [T.CNN, T.FUSED, T.LABELS, T.TRUTH]
+    elevation: dict[int, float] = {}
+    wanted = [T.CNN, T.FUSED, T.LABELS, T.TRUTH, T.TF]
     for m in rec.messages(wanted):
         d = m.data
         if m.topic == T.CNN:
@@ -660,6 +664,11 @@ def read_trial(path: str | os.PathLike) -> dict:
             changes.append((int(d["time_ns"]), d.get("mode", ""), d.get("source", "")))
         elif m.topic == T.TRUTH:
             truth[int(d["frame_index"])] = mode_index(d.get("mode"))
+        elif m.topic == T.TF:  # camera -> world [w, x, y, z]: the optical axis's height
+            _, x, y, _ = (float(v) for v in d)
+            elevation[m.sequence] = math.degrees(
+                math.asin(max(-1.0, min(1.0, 1 - 2 * (x * x + y * y))))
+            )
     index = np.array(sorted(cnn), dtype=np.int64)
     times = np.array([int(cnn[i]["time_ns"]) for i in index], dtype=np.int64)
     probs = np.array(
@@ -691,6 +700,7 @@ def read_trial(path: str | os.PathLike) -> dict:
         "locomotion": labels_at(times, [c for c in reference if c[2] != CORRECTION]),
         "terrain": truth_array if truth_array is not None else labels if offline else None,
         "terrain_source": terrain_source,
+        "camera_elevation_deg": np.array([elevation.get(int(i), np.nan) for i in index]),
         "label_changes": changes,
         "reference_changes": reference,
         "metadata": rec.metadata,

@@ -111,6 +111,30 @@ class TimelineEntry:
     truth: str | None = None
 
 
+SWITCHES_S = 60.0  # the live screen counts the fused decision's switches over this long
+
+
+class SwitchCounter:
+    """Changes of the final fused decision over the last `span_s` of frame time."""
+
+    def __init__(self, span_s: float) -> None:
+        self.span_ns = int(span_s * 1e9)
+        self._last: int | None = None
+        self._times: collections.deque[int] = collections.deque()
+
+    def add(self, time_ns: int, final: int | None) -> None:
+        """The final decision made at `time_ns` (None: none made then)."""
+        if final is not None:
+            if self._last is not None and final != self._last:
+                self._times.append(time_ns)
+            self._last = final
+        while self._times and self._times[0] < time_ns - self.span_ns:
+            self._times.popleft()
+
+    def count(self) -> int:
+        return len(self._times)
+
+
 @dataclass
 class Snapshot:
     """Everything the UI shows, copied out under the lock: the UI never touches threads."""
@@ -128,6 +152,8 @@ class Snapshot:
     recording_started_ns: int | None
     frames: int
     latency_ms: dict
+    switches_last_minute: int | None = None  # final fused decision changes in SWITCHES_S
+    walker_mode: str | None = None  # mock devices: the walker's locomotion mode, to key
     alarms: AlarmState | None = None  # gaps this trial, and what the operator must see now
     stale_frames: int = 0  # frames left undecided: their IMU orientation was stale
 
@@ -324,6 +350,8 @@ class Session:
         self._frames = 0
         self._stale_frames = 0
         self._last_truth_mode: str | None = None
+        self._walker_mode: str | None = None
+        self._switches = SwitchCounter(SWITCHES_S)
         self._inbox = _FrameInbox()
         self._failures = _Streak("pipeline", "error", "the pipeline failed on it")
         self._behind = _Streak("pipeline", "behind", "the pipeline fell behind")
@@ -548,7 +576,9 @@ class Session:
         """The raw frame, its truth and an automatic label: written before any processing.
         Returns the recorder it went to (None between trials)."""
         t = frame.device_time_ns
-        truth_mode = frame.truth.get("mode") if frame.truth else None
+        # the walker's locomotion mode, what an operator keys (the image's mode leads it)
+        truth_mode = frame.truth.get("locomotion_mode") if frame.truth else None
+        self._walker_mode = truth_mode
         if self.auto_label and truth_mode and truth_mode != self._last_truth_mode:
             self.set_label(truth_mode, source="simulator", time_ns=t)
         self._last_truth_mode = truth_mode
@@ -632,6 +662,8 @@ class Session:
                     e = self._by_index.get(fused.voted_frame_index)
                     if e is not None:
                         e.voted = fused.voted
+                votes = getattr(getattr(self.pipeline, "fusion", None), "votes", False)
+                self._switches.add(r.time_ns, fused.voted if votes else fused.decision)
             self._latencies.append(r.latency_ms)
             for sink in self._latency_sinks:
                 sink(r.latency_ms)
@@ -831,6 +863,8 @@ class Session:
                 label=self._label,
                 latest=self._latest,
                 timeline=list(self._timeline),  # entries only gain a late fused decision
+                switches_last_minute=self._switches.count(),
+                walker_mode=self._walker_mode,
                 events=list(self._events),
                 recording=None,
                 recording_started_ns=self._recording_started_ns,

@@ -59,6 +59,7 @@ TITLES = {
     "forward": "forward filter",
     "fixed-lag": "fixed-lag smoother",
     "steady": "steady",
+    "steady+gait": "steady + gait",
 }
 SCORE_HEADER = (*MODES, "label")  # label: the terrain each image shows
 SCORE_HEADER_LOCOMOTION = (*SCORE_HEADER, "locomotion")  # + the mode keyed live
@@ -104,6 +105,7 @@ class Trial:
     times_s: np.ndarray | None = None  # (N,) seconds since the first frame; None: unknown
     reference_name: str = "terrain"  # what `reference` is: "terrain" or "locomotion"
     locomotion: Any = None  # (N,) the subject's mode keyed live, when `reference` is terrain
+    elevation_deg: np.ndarray | None = None  # (N,) camera above the horizon: gait cues
 
     def __post_init__(self) -> None:
         self.probabilities = np.asarray(self.probabilities, dtype=float)
@@ -132,6 +134,13 @@ class Trial:
                 )
             if not (self.locomotion >= 0).any():
                 self.locomotion = None
+        if self.elevation_deg is not None:
+            self.elevation_deg = np.asarray(self.elevation_deg, dtype=float)
+            if len(self.elevation_deg) != len(self.probabilities):
+                raise InferenceError(
+                    f"{self.path}: {len(self.probabilities)} frames but "
+                    f"{len(self.elevation_deg)} camera elevations"
+                )
 
     def references(self) -> dict[str, np.ndarray]:
         """Every reference the trial has, by name (the scored one first)."""
@@ -225,11 +234,14 @@ def decisions_of(probabilities: np.ndarray) -> np.ndarray:
     return out
 
 
-def run_offline(fusion: Fusion, probabilities: np.ndarray) -> FusionRun:
+def run_offline(
+    fusion: Fusion, probabilities: np.ndarray, elevation_deg: np.ndarray | None = None
+) -> FusionRun:
     """Push every frame through a fresh streaming object, then flush: the live decisions.
 
     A frame whose probabilities are not finite (a broken classifier) is pushed as uniform,
-    carrying no evidence, and left undecided (-1): it is never scored as right."""
+    carrying no evidence, and left undecided (-1): it is never scored as right. A method
+    with gait cues (`uses_gait`) gets each frame's camera elevation, `elevation_deg`."""
     e = np.array(probabilities, dtype=float)
     unusable = ~np.all(np.isfinite(e), axis=1) if e.ndim == 2 else np.zeros(len(e), bool)
     e[unusable] = 1.0 / N_MODES
@@ -249,8 +261,16 @@ def run_offline(fusion: Fusion, probabilities: np.ndarray) -> FusionRun:
         if out.voted_frame is not None:
             voted[out.voted_frame] = out.voted
 
-    for row in e:
-        collect(fusion.push(row))
+    if getattr(fusion, "uses_gait", False):
+        if elevation_deg is None:
+            raise InferenceError(
+                f"{fusion.method} needs the camera's orientation at each frame (recordings)"
+            )
+        for row, elevation in zip(e, np.asarray(elevation_deg, dtype=float).tolist()):
+            collect(fusion.push(row, elevation))
+    else:
+        for row in e:
+            collect(fusion.push(row))
     for out in fusion.flush():
         collect(out)
     final = voted if fusion.votes else decisions
@@ -299,7 +319,13 @@ def evaluate_trial(
 ) -> TrialResult:
     if not (trial.reference >= 0).any():
         raise InferenceError(f"{trial.path}: no frame has a reference mode")
-    runs = {m: run_offline(params.make(m), trial.probabilities) for m in methods}
+    try:
+        runs = {
+            m: run_offline(params.make(m), trial.probabilities, trial.elevation_deg)
+            for m in methods
+        }
+    except InferenceError as e:
+        raise InferenceError(f"{trial.path}: {e}") from None
     return TrialResult(
         trial,
         {m: accuracy(r.final, trial.reference) for m, r in runs.items()},
@@ -451,7 +477,9 @@ def delay_sweep(
 
         def stage(method: str, stages=stages, p=p, trial=trial) -> FusionRun:
             if method not in stages:
-                stages[method] = run_offline(p.make(method), trial.probabilities)
+                stages[method] = run_offline(
+                    p.make(method), trial.probabilities, trial.elevation_deg
+                )
             return stages[method]
 
         for m in methods:
@@ -731,13 +759,17 @@ def trial_from_recording(path: str, data: Any, reference: str = "terrain") -> Tr
     if times is not None and len(times) == len(chosen) and len(times):
         t = np.asarray(times, dtype=np.int64)
         times_s = (t - t[0]) * 1e-9
+    elevation = get("camera_elevation_deg")
+    if elevation is not None:
+        elevation = np.asarray(elevation, dtype=float)
     finite = np.isfinite(probabilities).all(axis=1) if probabilities.ndim == 2 else None
     if finite is not None and not finite.all():
         log.warning("%s: %d frame(s) without a CNN output left out", path, (~finite).sum())
         probabilities, chosen = probabilities[finite], chosen[finite]
         second = second[finite] if second is not None else None
         times_s = times_s[finite] if times_s is not None else None
-    return Trial(str(path), probabilities, chosen, metadata, times_s, reference, second)
+        elevation = elevation[finite] if elevation is not None else None
+    return Trial(str(path), probabilities, chosen, metadata, times_s, reference, second, elevation)
 
 
 def synthetic_trial(
@@ -788,7 +820,9 @@ def write_plots(
     files written.
 
     accuracy_per_subject[_<condition>] (mean and SD over each subject's trials, per
-    method), accuracy_vs_delay (with a sweep; mean and SD over trials), decisions_<trial>
+    method), accuracy_vs_delay (with a sweep; mean and SD over trials, and spurious
+    switches a minute below), switches (per condition, each method's accuracy against its
+    spurious switches a minute, the trade-off, with its delay), decisions_<trial>
     and probabilities_<trial> (every trial, or those whose file name or title contains
     one of `trials`), confusion[_<condition>] (row-normalised, with counts).
     Time is in seconds from the trial's first frame when the trial has frame times.
@@ -815,6 +849,7 @@ def write_plots(
         save(_plot_per_subject(plt, rs, methods, condition), f"accuracy_per_subject{suffix}")
     if sweep is not None:
         save(_plot_sweep(plt, results, sweep), "accuracy_vs_delay")
+    save(_plot_switches(plt, results, methods, params), "switches")
     for r in results:
         name = Path(r.trial.path).stem
         if trials and not any(t in name or t in r.trial.title for t in trials):
@@ -863,7 +898,11 @@ def _plot_per_subject(plt, results, methods, condition):
     ax.set_ylabel("accuracy (%)")
     ax.set_ylim(0, 100)
     where = f", {condition}" if condition else ""
-    ax.set_title(f"Accuracy per subject{where}: mean ± SD over trials", fontsize=10)
+    ax.set_title(
+        f"Accuracy per subject{where}, against the {_reference_of(results)} reference: "
+        "mean ± SD over trials",
+        fontsize=10,
+    )
     _legend_right(ax, title="method", title_fontsize=8)
     _footnote(fig, "Error bars: standard deviation across the subject's trials, cut at 0 and "
               "100 %; none for a single trial.")  # fmt: skip
@@ -878,10 +917,16 @@ def _plot_sweep(plt, results, sweep):
     conditions = by_condition(results)
     index = {id(r): i for i, r in enumerate(results)}
     fig, axes = plt.subplots(
-        1, len(conditions), figsize=(4.5 * len(conditions), 3.6), squeeze=False, sharey=True
+        2,
+        len(conditions),
+        figsize=(4.5 * len(conditions), 6.4),
+        squeeze=False,
+        sharex=True,
+        gridspec_kw={"height_ratios": (3, 2)},
     )
     lowest = 100.0
-    for ax, (condition, rs) in zip(axes[0], conditions.items()):
+    for col, (condition, rs) in enumerate(conditions.items()):
+        ax, low = axes[0][col], axes[1][col]
         rows = [index[id(r)] for r in rs]
         for k, (m, a) in enumerate(sweep.accuracy.items()):
             sub = a[rows]
@@ -890,32 +935,85 @@ def _plot_sweep(plt, results, sweep):
             bars = _sd_clipped(np.nan_to_num(mean), sd)
             if np.isfinite(mean).any():
                 lowest = min(lowest, float(np.nanmin(mean - np.nan_to_num(bars[0]))))
-            ax.errorbar(
-                sweep.delays,
-                mean,
-                yerr=bars,
-                capsize=2,
-                # methods that agree still show: each its own marker and dash
+            # methods that agree still show: each its own marker and dash
+            style = dict(
                 marker="osD^v*"[k % 6],
                 markersize=6 - k % 4,
                 linestyle=("-", "--", ":", "-.")[k % 4],
                 linewidth=1,
                 label=TITLES.get(m, m),
             )
-        ax.set_xticks(sweep.delays)
-        ax.set_xlabel("decision delay (frames)")
+            ax.errorbar(sweep.delays, mean, yerr=bars, capsize=2, **style)
+            if m in sweep.spurious:
+                low.plot(sweep.delays, sweep.spurious_per_min(m, rows), **style)
+        low.set_xticks(sweep.delays)
+        low.set_xlabel("decision delay (frames)")
+        low.set_ylim(bottom=0)
+        low.set_ylabel("spurious switches a minute")
         n = len(rs)
         ax.set_title(
             f"{condition or 'all trials'} (n = {n} trial{'s' if n != 1 else ''})", fontsize=10
         )
     # a line plot may start above 0 (the bars of the per-subject figure do not), never
     # past 100 %
-    axes[0][0].set_ylim(max(0.0, 5 * math.floor(lowest / 5)), 100)
+    for ax in axes[0]:  # one accuracy scale for every condition
+        ax.set_ylim(max(0.0, 5 * math.floor(lowest / 5)), 100)
     axes[0][0].set_ylabel("accuracy (%), mean ± SD over trials")
     _legend_right(axes[0][-1], title="method", title_fontsize=8)
-    fig.suptitle("Accuracy against decision delay", fontsize=11)
-    _footnote(fig, "Error bars: standard deviation across trials, cut at 100 %. A delay of d "
-              "frames: the decision for a frame is made d frames later.")  # fmt: skip
+    reference = _reference_of(results)
+    fig.suptitle(
+        f"Accuracy and spurious switches against decision delay ({reference} reference)",
+        fontsize=11,
+    )
+    _footnote(
+        fig,
+        "Error bars: standard deviation across trials, cut at 100 %. A delay of d frames: the "
+        "decision for a frame is made d frames later.\nSpurious switches: decision changes "
+        f"where the {reference} did not change, pooled over trials.",
+    )
+    return fig
+
+
+def _reference_of(results) -> str:
+    names = sorted({r.trial.reference_name for r in results})
+    return " / ".join(names) or "terrain"
+
+
+def _plot_switches(plt, results, methods, params):
+    """Per condition: each method's accuracy (mean over trials) against its spurious
+    switches a minute (pooled), marked with its delay: the trade-off a controller feels."""
+    conditions = by_condition(results)
+    fig, axes = plt.subplots(
+        1, len(conditions), figsize=(4.6 * len(conditions), 3.8), squeeze=False
+    )
+    reference = _reference_of(results)
+    for ax, (condition, rs) in zip(axes[0], conditions.items()):
+        for k, m in enumerate(methods):
+            stats = pooled_transitions(rs, m).get(reference)
+            if stats is None:
+                continue
+            acc = 100 * mean_sd([r.accuracy[m] for r in rs])[0]
+            ax.plot(
+                stats.spurious_per_min,
+                acc,
+                marker="osD^v*P"[k % 7],
+                linestyle="none",
+                markersize=7,
+                label=f"{TITLES.get(m, m)} ({params.delay_frames(m)} fr)",
+            )
+        right = max(1.0, ax.get_xlim()[1])
+        ax.set_xlim(-0.04 * right, right)  # a point at 0 shows whole
+        ax.set_xlabel(f"spurious switches a minute (against {reference})")
+        ax.set_ylabel(f"accuracy (%, against {reference})")
+        ax.grid(True, linewidth=0.3)
+        n = len(rs)
+        ax.set_title(
+            f"{condition or 'all trials'} (n = {n} trial{'s' if n != 1 else ''})", fontsize=10
+        )
+    _legend_right(axes[0][-1], title="method (delay)", title_fontsize=8)
+    fig.suptitle("Accuracy against spurious switches: up and left is better", fontsize=11)
+    _footnote(fig, "Accuracy: mean over trials. Spurious switches: decision changes with no "
+              "change of the reference to that mode within 2 s, pooled over trials.")  # fmt: skip
     return fig
 
 
@@ -930,7 +1028,14 @@ def _plot_decisions(plt, result, methods):
     t, xlabel = _time_axis(trial)
     fig, ax = plt.subplots(figsize=(8, 3.4))
     ref = np.where(trial.reference >= 0, trial.reference, np.nan)
-    ax.step(t, ref, where="post", color="black", linewidth=2.5, label="reference")
+    ax.step(
+        t, ref, where="post", color="black", linewidth=2.5, label=f"{trial.reference_name} (ref.)"
+    )
+    if trial.locomotion is not None and trial.reference_name != "locomotion":
+        loco = np.where(trial.locomotion >= 0, trial.locomotion, np.nan)
+        ax.step(
+            t, loco, where="post", color="grey", linewidth=1, linestyle="-.", label="locomotion"
+        )
     styles = {
         "cnn": dict(linestyle="none", marker="o", markersize=2, fillstyle="none"),
         "cnn+voting": dict(linewidth=1),
@@ -942,11 +1047,14 @@ def _plot_decisions(plt, result, methods):
         ax.step(t, final, where="post", label=TITLES.get(m, m), **styles.get(m, dict(linewidth=1)))
     ax.set_yticks(range(N_MODES), MODES)
     ax.set_ylim(-0.5, N_MODES - 0.5)
-    ax.set_ylabel("locomotion mode")
+    ax.set_ylabel("mode")
     ax.set_xlabel(xlabel)
     ax.set_xlim(t[0] if len(t) else 0, t[-1] if len(t) else 1)
     accuracy = ", ".join(f"{TITLES.get(m, m)} {100 * result.accuracy[m]:.1f} %" for m in methods)
-    ax.set_title(f"Sequential decisions: {trial.title}\naccuracy: {accuracy}", fontsize=9)
+    ax.set_title(
+        f"Sequential decisions: {trial.title}\naccuracy against {trial.reference_name}: {accuracy}",
+        fontsize=9,
+    )
     _legend_right(ax)
     return fig
 
@@ -1010,7 +1118,8 @@ def _plot_confusion(plt, results, methods, condition=""):
     n = len(results)
     where = condition or "all trials"
     fig.suptitle(
-        f"Confusion matrices, {where} (n = {n} trial{'s' if n != 1 else ''}): row % (frame count)",
+        f"Confusion matrices, {where} (n = {n} trial{'s' if n != 1 else ''}), against the "
+        f"{_reference_of(results)} reference: row % (frame count)",
         fontsize=10,
     )
     return fig

@@ -18,10 +18,9 @@ reference sequence (mode indices per frame, -1 where there is none):
   `after_s` after the change; then each glance takes one the same way. A settled change
   with no switch is missed; a switch matched to no change, settled or glance, is spurious
   (the reference did not change to that mode nearby). Following a glance is neither
-  spurious nor needed. This is the count of Zhang et al.'s per-image labels the issue
-  behind these metrics made (each label change matched to the nearest decision change to
-  the new mode within 30 frames at 15 fps, every other decision change spurious), with
-  glances not counted as missed.
+  spurious nor needed. At 15 fps this is the count of per-image labels that matches each
+  label change to the nearest decision change to the new mode within 30 frames and calls
+  every other decision change spurious, with glances not counted as missed.
 - timing: a frame's decision is known `delay_frames` frames later (the method's delay), so
   the switch time is the time of frame k + delay. `delay` is that time minus the reference
   change's time (positive: after it). Against the `terrain` reference it is the switch

@@ -204,13 +204,14 @@ def test_recordings_grouped_with_sweep_and_plots(capsys, fake_reader, tmp_path):
     assert code == 0, err
     assert "accuracy in % against the locomotion reference" in out
     assert "condition" in out and "S1" in out and "A1" in out and "±" in out
-    assert "against delayed frames" in out and "wrote 26 figure file(s)" in out
+    assert "against delayed frames" in out and "wrote 28 figure file(s)" in out
     fig = tmp_path / "fig"
     assert (fig / "accuracy_vs_delay.pdf").read_bytes().startswith(b"%PDF")
     from PIL import Image
 
     with Image.open(fig / "accuracy_vs_delay.png") as png:
         assert round(png.info["dpi"][0]) == 300
+    assert (fig / "switches.png").exists()  # accuracy against spurious switches
     # every trial's sequential figures, confusion matrices per condition
     assert len(list(fig.glob("decisions_*.png"))) == 4
     assert {p.name for p in fig.glob("confusion*.png")} == {

@@ -45,7 +45,10 @@ def trials():
 # --- running methods ---------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("method", METHODS)
+SCORE_METHODS = [m for m in METHODS if m != "steady+gait"]  # gait needs a recording's cue
+
+
+@pytest.mark.parametrize("method", SCORE_METHODS)
 def test_offline_decisions_are_the_live_ones(method, trials):
     params = ev.FusionParameters(window=4, vote_delay=2, lag=2)
     e = trials[0].probabilities
@@ -125,7 +128,7 @@ def test_confusion_matrix_counts_reference_rows_and_decided_columns(trials):
 
 
 def test_delay_sweep_aligns_methods_on_delayed_frames(trials):
-    methods = list(METHODS)
+    methods = SCORE_METHODS
     sweep = ev.delay_sweep(trials[:2], methods, 3, ev.FusionParameters(lag=1))
     assert sweep.delays == [0, 1, 2, 3]
     a = sweep.accuracy
@@ -291,6 +294,7 @@ def test_write_plots_writes_the_papers_figures(tmp_path, trials):
         *(f"{kind}_t{i}" for kind in ("decisions", "probabilities") for i in range(len(trials))),
         "confusion_indoor",
         "confusion_outdoor",
+        "switches",
     ]
     assert names == sorted(f"{stem}.{ext}" for stem in stems for ext in ("pdf", "png"))
     for p in written:
@@ -302,3 +306,11 @@ def test_write_plots_writes_the_papers_figures(tmp_path, trials):
 
 def test_paper_transition_is_the_default():
     np.testing.assert_array_equal(ev.FusionParameters().transition, PAPER_TRANSITION)
+
+
+def test_a_gait_method_needs_the_cameras_elevation(trials):
+    with pytest.raises(InferenceError, match="t0.mcap: steady.gait needs the camera"):
+        ev.evaluate_trial(trials[0], ["steady+gait"])
+    n = len(trials[0].reference)
+    trial = ev.Trial("t", trials[0].probabilities, trials[0].reference, elevation_deg=[-30.0] * n)
+    assert ev.evaluate_trial(trial, ["steady+gait"]).accuracy["steady+gait"] > 0.5

@@ -224,3 +224,19 @@ def test_two_references_live_keys_and_offline_terrain_labels(tmp_path):
     assert trial["terrain_source"] == "offline labels"
     assert list(trial["terrain"][[0, 24, 25, 79]]) == [0, 0, 1, 1]  # the image shows US early
     assert list(trial["locomotion"][[0, 39, 40, 79]]) == [0, 0, 1, 1]  # the keys unchanged
+
+
+def test_export_names_both_references(tmp_path):
+    from recording_fixtures import T0, frame_time, write_trial
+
+    from capture import export
+
+    keys = [(T0, "LG", "operator"), (frame_time(40), "US", "operator")]
+    path = tmp_path / "labelled.mcap"
+    write_trial(path, [*keys, (frame_time(25), "US", "correction")], frames=80)
+    frames = export.tables(path)["frames"]
+    assert list(frames["terrain"][[0, 24, 25, 79]]) == ["LG", "LG", "US", "US"]
+    assert list(frames["locomotion"][[0, 39, 40, 79]]) == ["LG", "LG", "US", "US"]
+    live = tmp_path / "live.mcap"
+    write_trial(live, keys, frames=80)
+    assert set(export.tables(live)["frames"]["terrain"]) == {""}  # labelled offline: none

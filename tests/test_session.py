@@ -331,3 +331,27 @@ def test_fast_replay_prepares_frames_itself_until_its_reader_process_is_ready(re
     first, q, _ = next(skipped)
     _, q5, _ = list(R.prepared_frames(path, params, imu))[5]
     assert first.index == every[5] and np.array_equal(q, q5)
+
+
+def test_switches_are_counted_over_the_last_minute():
+    from capture.session import SwitchCounter
+
+    counter = SwitchCounter(60.0)
+    s = 1_000_000_000
+    for t, final in [(0, 0), (1, 0), (2, 1), (3, None), (4, 1), (5, 0), (50, 2)]:
+        counter.add(t * s, final)
+    assert counter.count() == 3  # 0 -> 1 at 2 s, 1 -> 0 at 5 s, 0 -> 2 at 50 s
+    counter.add(66 * s, 2)
+    assert counter.count() == 1  # those at 2 s and 5 s are more than a minute old
+
+
+def test_the_snapshot_carries_switches_and_the_walkers_mode_to_key(recorded):
+    path, _, snap, _ = recorded
+    assert snap.walker_mode in MODES and isinstance(snap.switches_last_minute, int)
+    # auto-labels key the walker's locomotion mode, as an operator keys it
+    walker = {
+        m.data["time_ns"]: m.data["locomotion_mode"]
+        for m in open_recording(path).messages(["/sim/truth"])
+    }
+    keyed = [c for c in read_trial(path)["label_changes"] if c[2] == "simulator"]
+    assert keyed and all(walker[t] == mode for t, mode, _ in keyed if t in walker)

@@ -619,7 +619,11 @@ class WalkcapApp(App):
     def on_corrections_saved(self, message: messages.CorrectionsSaved) -> None:
         self._busy_recording = False
         self._set_status("")
-        self.notify(f"saved {message.path.name} (the original is unchanged)", timeout=8)
+        self.notify(
+            f"saved {message.path.name}: its labels are the terrain reference, the live keys "
+            "its locomotion reference (the original is unchanged)",
+            timeout=8,
+        )
 
     def _refresh_live(self) -> None:
         for screen in self.screen_stack:

@@ -219,6 +219,9 @@ class LiveScreen(Screen):
             latest.image if latest else None, latest.flag if latest else "", key
         )
         self._w[ProfilePlot].present(latest.profile if latest else None, key)
+        self._w[DecisionDisplay].present_switching(
+            getattr(snap, "switches_last_minute", None), getattr(snap, "walker_mode", None)
+        )
         self._w[DecisionDisplay].present(
             self._fused,
             latest.cnn_decision if latest else None,

@@ -22,6 +22,7 @@ from tui.commands import add_cluster_argument, count, eval_model
 HELP = "evaluate classifiers and fusion on score files or recordings"
 
 DEFAULT_METHODS = "cnn,cnn+voting,hmm,hmm+voting,steady"
+RECORDING_METHODS = DEFAULT_METHODS + ",steady+gait"  # recordings carry the gait cue
 SWEEP_DEFAULT = 6  # frames; the paper's trade-off figure reaches 6
 SWEEP_MAX = 100  # frames: several seconds of delay, beyond any use for a prosthesis
 
@@ -54,11 +55,12 @@ def _common_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--methods",
         type=_methods,
-        default=DEFAULT_METHODS,
+        default=None,
         metavar="LIST",
-        help=f"comma-separated methods (default: {DEFAULT_METHODS}; steady switches once "
-        "per terrain change, with [fusion] stay and evidence; also forward, fixed-lag: "
-        "standard HMM filter and smoother)",
+        help=f"comma-separated methods (default: {DEFAULT_METHODS}, and steady+gait for "
+        "recordings; steady switches once per terrain change, with [fusion] stay and "
+        "evidence; steady+gait adds the gait phase from the camera's pitch; also forward, "
+        "fixed-lag: standard HMM filter and smoother)",
     )
     p.add_argument(
         "--lag",
@@ -191,6 +193,9 @@ def run(args, config) -> int:
             for t in ev.leave_one_out_transitions(trials)
         ]
 
+    if args.methods is None:
+        default = RECORDING_METHODS if args.eval_command == "recordings" else DEFAULT_METHODS
+        args.methods = _methods(default)
     results = ev.evaluate(trials, args.methods, per_trial)
     sweep = (
         ev.delay_sweep(trials, args.methods, args.sweep_delay, per_trial)
