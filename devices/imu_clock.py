@@ -113,8 +113,9 @@ class DeviceClock:
             self.reset()
             return self.update(raw_ticks, host_ns)
         self._x = x
-        self._add_point(x, y)
-        self._residual += 0.05 * (max(0.0, y - (self._a + self._b * x)) - self._residual)
+        if not self._excused_ns:  # a backlog says nothing of the transport delay
+            self._add_point(x, y)
+            self._residual += 0.05 * (max(0.0, y - (self._a + self._b * x)) - self._residual)
         return self.to_host_ns(raw_ticks)
 
     def excuse(self, delay_ns: float) -> None:
@@ -123,8 +124,8 @@ class DeviceClock:
         self._excused_ns = max(self._excused_ns, delay_ns)
 
     def _too_late(self, residual: float) -> bool:
-        if residual <= self.max_delay_ns:
-            self._excused_ns = 0.0  # on time again: the host caught up
+        if residual <= 5_000_000 + 2 * self._residual:
+            self._excused_ns = 0.0  # on time again: the host caught up with its backlog
         late = residual > self.max_delay_ns + self._excused_ns
         self._late = self._late + 1 if late else 0
         return self._late >= 10
