@@ -140,11 +140,16 @@ class QueuedItem:
     # Computed from the raw data (clouds, images, inference, features): shed first when the
     # writer falls behind, so raw depth, IMU samples and events keep their place.
     derived: ClassVar[bool] = False
+    # A depth frame weighs megabytes; IMU samples, events and messages bytes: the queue
+    # bounds the heavy ones by its size and holds LIGHT_FACTOR times as many light ones,
+    # so the backlog of a host stall (5 s of IMU samples at once) finds room.
+    heavy: ClassVar[bool] = False
 
 
 @dataclass(slots=True)
 class QueuedFrame(QueuedItem):
     kind: ClassVar[str] = "frame"
+    heavy: ClassVar[bool] = True
     frame: Any  # a DepthFrame
     time_ns: int | None  # publish time; None: the frame's device time
 
@@ -201,6 +206,7 @@ class QueuedEncodedFrame(QueuedItem):
     """A frame's messages encoded in another process (replay's reader)."""
 
     kind: ClassVar[str] = "encoded"
+    heavy: ClassVar[bool] = True
     index: int
     time_ns: int
     log_time: int
@@ -225,6 +231,7 @@ class QueuedDeviceEvent(QueuedItem):
 
 
 SHED_BACKLOG = 0.1  # raw items queued beyond this share of the queue: derived ones are shed
+LIGHT_FACTOR = 8  # light raw items (IMU, events, messages, truth) held: this x the size
 
 
 class WriteQueue:
@@ -236,6 +243,7 @@ class WriteQueue:
     def __init__(self, maxsize: int) -> None:
         self.maxsize = maxsize
         self._raw: collections.deque = collections.deque()
+        self._heavy = 0  # heavy items among the raw ones
         self._derived: collections.deque = collections.deque()
         self._derived_max = max(1, maxsize // 2)
         self._shed_backlog = max(1, int(SHED_BACKLOG * maxsize))
@@ -262,14 +270,20 @@ class WriteQueue:
                     if not block:
                         self.shed[item.kind] += 1
                         return
-                elif item is _STOP or len(self._raw) < self.maxsize:
+                elif item is _STOP or self._room(item):
                     self._raw.append(item)
+                    self._heavy += getattr(item, "heavy", False)
                     if len(self._raw) > self._shed_backlog and not block:
                         self._shed_queued()
                     break
                 if not block or not self._cond.wait(timeout):
                     raise queue.Full
             self._cond.notify_all()
+
+    def _room(self, item) -> bool:
+        if item.heavy:
+            return self._heavy < self.maxsize
+        return len(self._raw) - self._heavy < LIGHT_FACTOR * self.maxsize
 
     def _shed_queued(self) -> None:
         while self._derived:
@@ -281,6 +295,7 @@ class WriteQueue:
             while True:
                 if self._raw and (self._raw[0] is not _STOP or not self._derived):
                     item = self._raw.popleft()
+                    self._heavy -= getattr(item, "heavy", False)
                     break
                 if self._derived:
                     item = self._derived.popleft()
