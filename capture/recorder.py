@@ -236,9 +236,10 @@ LIGHT_FACTOR = 8  # light raw items (IMU, events, messages, truth) held: this x 
 
 class WriteQueue:
     """The writer's queue in two parts: raw items (depth, IMU, events, truth, messages)
-    first, derived ones (clouds, images, inference, features) after them. When the writer
-    falls behind, derived items are shed, the queued ones first, so raw data is dropped
-    only when its own part is full (the disk itself cannot keep up)."""
+    and derived ones (clouds, images, inference, features), taken in the order they came.
+    When the writer falls behind (raw items pile up), raw ones go first and derived ones
+    are shed, the queued ones too, so raw data is dropped only when its own part is full
+    (the disk itself cannot keep up)."""
 
     def __init__(self, maxsize: int) -> None:
         self.maxsize = maxsize
@@ -248,6 +249,7 @@ class WriteQueue:
         self._derived_max = max(1, maxsize // 2)
         self._shed_backlog = max(1, int(SHED_BACKLOG * maxsize))
         self._cond = threading.Condition()
+        self._count = 0  # items put: each queued one carries its number, the order they came
         self.shed: collections.Counter = collections.Counter()  # derived items shed, by kind
 
     def qsize(self) -> int:
@@ -265,19 +267,20 @@ class WriteQueue:
                 if derived:
                     behind = len(self._raw) > self._shed_backlog and not block
                     if not behind and len(self._derived) < self._derived_max:
-                        self._derived.append(item)
+                        self._derived.append((self._count, item))
                         break
                     if not block:
                         self.shed[item.kind] += 1
                         return
                 elif item is _STOP or self._room(item):
-                    self._raw.append(item)
+                    self._raw.append((self._count, item))
                     self._heavy += getattr(item, "heavy", False)
                     if len(self._raw) > self._shed_backlog and not block:
                         self._shed_queued()
                     break
                 if not block or not self._cond.wait(timeout):
                     raise queue.Full
+            self._count += 1
             self._cond.notify_all()
 
     def _room(self, item) -> bool:
@@ -287,18 +290,23 @@ class WriteQueue:
 
     def _shed_queued(self) -> None:
         while self._derived:
-            self.shed[self._derived.popleft().kind] += 1
+            self.shed[self._derived.popleft()[1].kind] += 1
 
     def get(self, timeout: float | None = None):
-        """The oldest raw item, else the oldest derived one (the stop mark comes last)."""
+        """The oldest item; raw ones first while they pile up; the stop mark comes last."""
         with self._cond:
             while True:
-                if self._raw and (self._raw[0] is not _STOP or not self._derived):
-                    item = self._raw.popleft()
+                raw, derived = self._raw, self._derived
+                if raw and (
+                    not derived
+                    or (raw[0][1] is not _STOP and len(raw) > self._shed_backlog)
+                    or (raw[0][1] is not _STOP and raw[0][0] < derived[0][0])
+                ):
+                    item = raw.popleft()[1]
                     self._heavy -= getattr(item, "heavy", False)
                     break
-                if self._derived:
-                    item = self._derived.popleft()
+                if derived:
+                    item = derived.popleft()[1]
                     break
                 if not self._cond.wait(timeout):
                     raise queue.Empty
