@@ -230,7 +230,9 @@ class QueuedDeviceEvent(QueuedItem):
     event: Any  # a DeviceEvent or a dict
 
 
-SHED_BACKLOG = 0.1  # raw items queued beyond this share of the queue: derived ones are shed
+# Raw items queued beyond this share of their room (frames: seconds of them at 45 fps): the
+# writer is behind, derived ones are shed and raw ones go first.
+SHED_BACKLOG = 0.25
 LIGHT_FACTOR = 8  # light raw items (IMU, events, messages, truth) held: this x the size
 
 
@@ -247,7 +249,6 @@ class WriteQueue:
         self._heavy = 0  # heavy items among the raw ones
         self._derived: collections.deque = collections.deque()
         self._derived_max = max(1, maxsize // 2)
-        self._shed_backlog = max(1, int(SHED_BACKLOG * maxsize))
         self._cond = threading.Condition()
         self._count = 0  # items put: each queued one carries its number, the order they came
         self.shed: collections.Counter = collections.Counter()  # derived items shed, by kind
@@ -265,7 +266,7 @@ class WriteQueue:
         with self._cond:
             while True:
                 if derived:
-                    behind = len(self._raw) > self._shed_backlog and not block
+                    behind = self._behind() and not block
                     if not behind and len(self._derived) < self._derived_max:
                         self._derived.append((self._count, item))
                         break
@@ -275,13 +276,20 @@ class WriteQueue:
                 elif item is _STOP or self._room(item):
                     self._raw.append((self._count, item))
                     self._heavy += getattr(item, "heavy", False)
-                    if len(self._raw) > self._shed_backlog and not block:
+                    if self._behind() and not block:
                         self._shed_queued()
                     break
                 if not block or not self._cond.wait(timeout):
                     raise queue.Full
             self._count += 1
             self._cond.notify_all()
+
+    def _behind(self) -> bool:
+        light = len(self._raw) - self._heavy
+        return (
+            self._heavy > SHED_BACKLOG * self.maxsize
+            or light > SHED_BACKLOG * LIGHT_FACTOR * self.maxsize
+        )
 
     def _room(self, item) -> bool:
         if item.heavy:
@@ -299,7 +307,7 @@ class WriteQueue:
                 raw, derived = self._raw, self._derived
                 if raw and (
                     not derived
-                    or (raw[0][1] is not _STOP and len(raw) > self._shed_backlog)
+                    or (raw[0][1] is not _STOP and self._behind())
                     or (raw[0][1] is not _STOP and raw[0][0] < derived[0][0])
                 ):
                     item = raw.popleft()[1]
