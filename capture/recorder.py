@@ -140,11 +140,16 @@ class QueuedItem:
     # Computed from the raw data (clouds, images, inference, features): shed first when the
     # writer falls behind, so raw depth, IMU samples and events keep their place.
     derived: ClassVar[bool] = False
+    # A depth frame weighs megabytes; IMU samples, events and messages bytes: the queue
+    # bounds the heavy ones by its size and holds LIGHT_FACTOR times as many light ones,
+    # so the backlog of a host stall (5 s of IMU samples at once) finds room.
+    heavy: ClassVar[bool] = False
 
 
 @dataclass(slots=True)
 class QueuedFrame(QueuedItem):
     kind: ClassVar[str] = "frame"
+    heavy: ClassVar[bool] = True
     frame: Any  # a DepthFrame
     time_ns: int | None  # publish time; None: the frame's device time
 
@@ -201,6 +206,7 @@ class QueuedEncodedFrame(QueuedItem):
     """A frame's messages encoded in another process (replay's reader)."""
 
     kind: ClassVar[str] = "encoded"
+    heavy: ClassVar[bool] = True
     index: int
     time_ns: int
     log_time: int
@@ -224,22 +230,27 @@ class QueuedDeviceEvent(QueuedItem):
     event: Any  # a DeviceEvent or a dict
 
 
-SHED_BACKLOG = 0.1  # raw items queued beyond this share of the queue: derived ones are shed
+# Raw items queued beyond this share of their room (frames: seconds of them at 45 fps): the
+# writer is behind, derived ones are shed and raw ones go first.
+SHED_BACKLOG = 0.25
+LIGHT_FACTOR = 8  # light raw items (IMU, events, messages, truth) held: this x the size
 
 
 class WriteQueue:
     """The writer's queue in two parts: raw items (depth, IMU, events, truth, messages)
-    first, derived ones (clouds, images, inference, features) after them. When the writer
-    falls behind, derived items are shed, the queued ones first, so raw data is dropped
-    only when its own part is full (the disk itself cannot keep up)."""
+    and derived ones (clouds, images, inference, features), taken in the order they came.
+    When the writer falls behind (raw items pile up), raw ones go first and derived ones
+    are shed, the queued ones too, so raw data is dropped only when its own part is full
+    (the disk itself cannot keep up)."""
 
     def __init__(self, maxsize: int) -> None:
         self.maxsize = maxsize
         self._raw: collections.deque = collections.deque()
+        self._heavy = 0  # heavy items among the raw ones
         self._derived: collections.deque = collections.deque()
         self._derived_max = max(1, maxsize // 2)
-        self._shed_backlog = max(1, int(SHED_BACKLOG * maxsize))
         self._cond = threading.Condition()
+        self._count = 0  # items put: each queued one carries its number, the order they came
         self.shed: collections.Counter = collections.Counter()  # derived items shed, by kind
 
     def qsize(self) -> int:
@@ -255,35 +266,55 @@ class WriteQueue:
         with self._cond:
             while True:
                 if derived:
-                    behind = len(self._raw) > self._shed_backlog and not block
+                    behind = self._behind() and not block
                     if not behind and len(self._derived) < self._derived_max:
-                        self._derived.append(item)
+                        self._derived.append((self._count, item))
                         break
                     if not block:
                         self.shed[item.kind] += 1
                         return
-                elif item is _STOP or len(self._raw) < self.maxsize:
-                    self._raw.append(item)
-                    if len(self._raw) > self._shed_backlog and not block:
+                elif item is _STOP or self._room(item):
+                    self._raw.append((self._count, item))
+                    self._heavy += getattr(item, "heavy", False)
+                    if self._behind() and not block:
                         self._shed_queued()
                     break
                 if not block or not self._cond.wait(timeout):
                     raise queue.Full
+            self._count += 1
             self._cond.notify_all()
+
+    def _behind(self) -> bool:
+        light = len(self._raw) - self._heavy
+        return (
+            self._heavy > SHED_BACKLOG * self.maxsize
+            or light > SHED_BACKLOG * LIGHT_FACTOR * self.maxsize
+        )
+
+    def _room(self, item) -> bool:
+        if item.heavy:
+            return self._heavy < self.maxsize
+        return len(self._raw) - self._heavy < LIGHT_FACTOR * self.maxsize
 
     def _shed_queued(self) -> None:
         while self._derived:
-            self.shed[self._derived.popleft().kind] += 1
+            self.shed[self._derived.popleft()[1].kind] += 1
 
     def get(self, timeout: float | None = None):
-        """The oldest raw item, else the oldest derived one (the stop mark comes last)."""
+        """The oldest item; raw ones first while they pile up; the stop mark comes last."""
         with self._cond:
             while True:
-                if self._raw and (self._raw[0] is not _STOP or not self._derived):
-                    item = self._raw.popleft()
+                raw, derived = self._raw, self._derived
+                if raw and (
+                    not derived
+                    or (raw[0][1] is not _STOP and self._behind())
+                    or (raw[0][1] is not _STOP and raw[0][0] < derived[0][0])
+                ):
+                    item = raw.popleft()[1]
+                    self._heavy -= getattr(item, "heavy", False)
                     break
-                if self._derived:
-                    item = self._derived.popleft()
+                if derived:
+                    item = derived.popleft()[1]
                     break
                 if not self._cond.wait(timeout):
                     raise queue.Empty

@@ -253,7 +253,7 @@ class Camera:
         self._check(t)
         state, message = self._state, self._message
         if state == OK:
-            since = self._last_frame_ns or self._started_ns
+            since = max(self._last_frame_ns or self._started_ns, self._host_resumed_ns)
             silent_s = (t - since) * 1e-9
             if silent_s > self._stall_after_s():
                 state, message = DEGRADED, f"no frame for {silent_s:.1f} s"

@@ -616,7 +616,7 @@ class XbusImu(Imu):
         # buffer: silence counts from here, or closing the port would lose them.
         if self._last_step_ns and t - self._last_step_ns > HOST_STALL_NS:
             self._host_resumed_ns = t
-            self.clock.excuse(t - self._last_step_ns)  # the backlog arrives that late
+            self.clock.excuse(t)  # the samples taken until now arrive late: a backlog
         self._last_step_ns = t
         if chunk:
             if self.raw_sink is not None:

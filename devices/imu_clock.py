@@ -67,7 +67,7 @@ class DeviceClock:
         # Over a shorter span jitter dominates the slope: assume no drift until then.
         self.min_span_ns = int(min_span_s * 1e9)
         self.resets = 0  # fits forgotten because the device clock jumped or restarted
-        self._excused_ns = 0.0  # lateness a host stall explains (see excuse)
+        self._excused_until = 0  # samples taken before this host time: a stall's backlog
         self._clear()
 
     def reset(self) -> None:
@@ -114,6 +114,10 @@ class DeviceClock:
         x = (ticks - self._ref_ticks) * self.tick_ns
         y = float(host_ns - self._ref_host - x)
         residual = y - (self._a + self._b * x)
+        backlog = self._ref_host + x + self._a + self._b * x < self._excused_until
+        if backlog and self._buckets and residual >= -self.jump_ns:
+            self._x = x
+            return self.to_host_ns(raw_ticks)  # mapped on the fit, which it leaves alone
         if self._buckets and (residual < -self.jump_ns or self._too_late(residual)):
             log.info("device clock jumped (residual %.1f ms): refitting", residual * 1e-6)
             self.reset()
@@ -123,16 +127,14 @@ class DeviceClock:
         self._residual += 0.05 * (max(0.0, y - (self._a + self._b * x)) - self._residual)
         return self.to_host_ns(raw_ticks)
 
-    def excuse(self, delay_ns: float) -> None:
-        """The host stalled for `delay_ns`: samples that late are the host's, not a
-        restarted device clock (until samples arrive on time again)."""
-        self._excused_ns = max(self._excused_ns, delay_ns)
+    def excuse(self, until_host_ns: int) -> None:
+        """The host stalled until `until_host_ns`: samples the fit places before then arrive
+        late by the host's doing, not a restarted device clock, and say nothing of the
+        transport delay."""
+        self._excused_until = max(self._excused_until, until_host_ns)
 
     def _too_late(self, residual: float) -> bool:
-        if residual <= self.max_delay_ns:
-            self._excused_ns = 0.0  # on time again: the host caught up
-        late = residual > self.max_delay_ns + self._excused_ns
-        self._late = self._late + 1 if late else 0
+        self._late = self._late + 1 if residual > self.max_delay_ns else 0
         return self._late >= 10
 
     def _add_point(self, x: int, y: float) -> None:

@@ -96,3 +96,36 @@ def test_a_stall_in_a_session_is_lost_reopened_and_back(tmp_path):
 
     index = [m.sequence for m in open_recording(path).messages(["/camera/depth"])]
     assert np.all(np.diff(index) > 0)  # numbered on after the reopen: no frame twice
+
+
+def test_a_host_stall_is_not_the_cameras_silence_and_its_frames_are_taken():
+    """The host stopped 6 s (SIGSTOP, swap): nothing of walkcap ran, the watchdog neither.
+    The frames the camera kept meanwhile arrive after it: no 'lost', no reopen."""
+    clock = [10**12]
+    cam = ScriptedCamera(CameraConfig(fps=15, lost_after_s=5.0), clock=lambda: clock[0])
+    cam.start()
+
+    def frame(i):
+        f = blank_frame(i)
+        f.device_time_ns = f.host_time_ns = clock[0]
+        return f
+
+    try:
+        for i in range(5):
+            cam._deliver(frame(i))
+            clock[0] += 66_666_667
+            cam._check(clock[0])  # the watchdog, every period
+        cam.calls.clear()
+        clock[0] += 6_000_000_000  # the host stalls: no check, no frame for 6 s
+        cam._check(clock[0])  # the watchdog runs again first
+        assert cam.status().state == "ok" and cam.calls == []
+        for i in range(5, 13):  # what the camera kept while the host stood still
+            cam._deliver(frame(i))
+        assert [cam.recv(0).index for _ in range(8)] == list(range(5, 13))
+        assert not {"stall", "lost"} & {e.kind for e in cam.poll_events()}
+        for _ in range(60):  # then the camera itself goes silent: lost after 5 s, as always
+            clock[0] += 100_000_000
+            cam._check(clock[0])
+        assert cam.status().state == "lost"
+    finally:
+        cam.close()

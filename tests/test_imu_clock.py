@@ -99,3 +99,21 @@ def test_lower_envelope_ignores_points_above_the_line():
     assert a == pytest.approx(2.0) and b == pytest.approx(0.5)
     a, b = lower_envelope([5], [3.0], slope_guess=0.25, max_slope=1.0)
     assert (a, b) == (pytest.approx(3.0 - 1.25), 0.25)
+
+
+def test_a_host_stall_backlog_keeps_the_fit_when_excused():
+    """Samples the host reads late after it stalled are late by the host, not a device
+    clock that restarted: the fit holds and maps them where the device took them."""
+    clock = DeviceClock()
+    t0, period = 10**12, 10_000_000  # 100 Hz, 100 ticks a sample
+    for k in range(300):  # on time
+        clock.update(k * 100, t0 + k * period + 1_000_000)
+    stall_end = t0 + 800 * period  # the host stood still from sample 300 to 800
+    clock.excuse(stall_end)
+    mapped = [clock.update(k * 100, stall_end + (k - 300) * 20_000) for k in range(300, 800)]
+    assert clock.resets == 0
+    errors_ms = [abs(m - (t0 + k * period)) * 1e-6 for k, m in zip(range(300, 800), mapped)]
+    assert max(errors_ms) < 2.0
+    for k in range(800, 1100):  # on time again
+        m = clock.update(k * 100, t0 + k * period + 1_000_000)
+    assert clock.resets == 0 and abs(m - (t0 + 1099 * period)) < 2_000_000

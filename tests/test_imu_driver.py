@@ -1,6 +1,7 @@
 """The Xbus driver against the device emulator over a real pty (pyserial and termios too)."""
 
 import os
+import threading
 import time
 from types import SimpleNamespace
 
@@ -371,3 +372,29 @@ def test_open_imu_mock_from_a_config():
         assert abs(sample.time_ns - imu.true_time_ns(sample.sample_time_fine)) < 50e6
     finally:
         imu.close()
+
+
+@pytest.mark.timeout(300)
+def test_a_host_stall_loses_no_sample_the_port_kept(mock_imu):
+    """The reader stands still 3 s (the host stalled) while the IMU streams into the port's
+    buffer: afterwards every sample is read, in order, and nothing is 'lost' or reopened."""
+    imu = mock_imu(rate_hz=100)
+    imu.start()
+    first = collect_n(imu, 50)
+    port, stalled = imu._serial, threading.Event()
+    real_read = port.read
+
+    def read(n=1):
+        if not stalled.is_set():
+            stalled.set()
+            time.sleep(3.0)  # the injected stall; any longer (a loaded machine) is the same
+        return real_read(n)
+
+    port.read = read
+    after = collect_n(imu, 500)  # the 3 s the port kept, then more
+    assert stalled.is_set() and len(after) == 500
+    counters = [s.packet_counter for s in first + after]
+    assert all((b - a) % 65536 == 1 for a, b in zip(counters, counters[1:], strict=False))
+    assert imu.missing_packets == 0
+    assert not {"lost", "reconnected"} & set(kinds(imu.poll_events()))
+    assert imu.status().details["clock_resets"] == 0

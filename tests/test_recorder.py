@@ -206,11 +206,12 @@ def test_a_full_queue_drops_counts_and_records_but_never_blocks_or_loses_labels(
     caller.start()
     caller.join(5.0)
     assert not caller.is_alive()  # every write returned while the writer was stuck
-    # The queue holds imu 0, frame 1, imu 1 and frame 2; the other 115 writes are dropped.
-    assert rec.stats().dropped_by_kind == {"frame": 57, "imu": 58}
+    # The queue holds frames 1-4 (its size) and IMU samples 0-31 (8 light items a heavy
+    # one); the other 83 writes are dropped.
+    assert rec.stats().dropped_by_kind == {"frame": 55, "imu": 28}
     disk_free.set()
     stats = rec.close()
-    assert stats.dropped == 115 and stats.state == "stopped"
+    assert stats.dropped == 83 and stats.state == "stopped"
     msgs = decode_all(path)
     drops = [d for _, d in msgs[T.EVENTS] if d["kind"] == "drop"]
     assert sum(sum(d["details"].values()) for d in drops) == stats.dropped
@@ -267,6 +268,30 @@ def test_the_writer_thread_runs_at_the_priority_it_is_given(tmp_path):
         assert os.sched_getparam(tid).sched_priority == 11
     finally:
         rec.close()
+
+
+def test_a_backlog_of_imu_samples_finds_room_beside_the_frames(tmp_path, monkeypatch):
+    """After a host stall the IMU's backlog comes at once: light items have their own room."""
+    path = tmp_path / "burst.mcap"
+    real = recorder_module.encode_depth
+    encoding, disk_free = threading.Event(), threading.Event()
+
+    def stuck(*args):
+        encoding.set()
+        disk_free.wait(10.0)
+        return real(*args)
+
+    monkeypatch.setattr(recorder_module, "encode_depth", stuck)
+    rec = Recorder(path, metadata={}, queue_size=16)
+    rec.start()
+    rec.write_frame(frame_at(0))
+    assert encoding.wait(5.0)
+    for k in range(100):  # a second of IMU samples in one burst, six times the queue's size
+        rec.write_imu(imu_sample(k))
+    assert rec.stats().dropped == 0
+    disk_free.set()
+    assert rec.close().dropped == 0
+    assert len(decode_all(path)[T.IMU]) == 100
 
 
 def test_labels_are_on_disk_in_the_journal_when_write_label_returns(tmp_path):

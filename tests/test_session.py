@@ -355,3 +355,31 @@ def test_the_snapshot_carries_switches_and_the_walkers_mode_to_key(recorded):
     }
     keyed = [c for c in read_trial(path)["label_changes"] if c[2] == "simulator"]
     assert keyed and all(walker[t] == mode for t, mode, _ in keyed if t in walker)
+
+
+def test_a_host_stall_is_one_event_that_names_the_host(tmp_path, monkeypatch):
+    import types
+
+    import capture.session as session_module
+
+    session = Session(config(tmp_path), classifier=StandInClassifier())
+    quiet = types.SimpleNamespace(poll_events=lambda: [])
+    session._camera = session._imu = quiet
+    clock = {"t": 10**12, "ticks": 0}
+
+    def now():  # 0.2 s a tick, and once 5 s: the host stood still
+        clock["ticks"] += 1
+        clock["t"] += 5_000_000_000 if clock["ticks"] == 3 else 200_000_000
+        if clock["ticks"] >= 6:
+            session._stop.set()
+        return clock["t"]
+
+    monkeypatch.setattr(session_module, "now_ns", now)
+    worker = threading.Thread(target=session._monitor_loop, daemon=True)
+    worker.start()
+    worker.join(60.0)  # a bound: it ends once the clock above stopped it
+    session._stop.set()
+    worker.join(5.0)
+    stalls = [e for e in session._events if e.kind == "stall"]
+    assert [(e.device, round(e.details["gap_s"], 1)) for e in stalls] == [("host", 5.0)]
+    assert "the computer stalled for 5.00 s" in stalls[0].message
