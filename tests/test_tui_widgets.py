@@ -251,4 +251,4 @@ def test_decision_panel_adds_switches_and_the_walkers_mode():
     assert "switches" not in text(panel) and "walker" not in text(panel)
     panel.present_switching(3, "US")
     out = text(panel)
-    assert "switches 3 in the last minute" in out and "walker US" in out
+    assert "switches/min 3" in out and "walker US" in out

@@ -122,8 +122,8 @@ class DecisionDisplay(Widget):
         if switches is not None or walker:
             parts: list = []
             if switches is not None:
-                parts.append(f"switches {switches} in the last minute")
+                parts.append(f"switches/min {switches}")  # in the last minute
             if walker:  # mock devices: the mode an operator keys, for practice
-                parts += ["   " if parts else "", "walker ", mode_text(walker)]
+                parts += ["  " if parts else "", "walker ", mode_text(walker)]
             return [Text.assemble(*parts, style="dim", justify="center")]
         return []
