@@ -811,7 +811,7 @@ def _plot_per_subject(plt, results, methods, condition):
                 va="bottom",
                 fontsize=6,
             )
-    ax.set_ylim(floor, 100.0 + 0.16 * span)  # room for the values over a 100 % bar
+    ax.set_ylim(floor, 100.0 + 0.3 * span)  # room for the values over a 100 % bar
     ax.set_yticks([v for v in ax.get_yticks() if floor <= v <= 100])
     ax.set_xticks(x, subjects)
     ax.set_xlabel("subject (number of trials)")
