@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from test_tui_app import rendered
 from test_tui_live_session import StubClassifier, _short_idle_wait, wait_for
+from test_tui_replay import FakeClock
 
 from capture import export
 from capture import topics as T
@@ -24,6 +25,7 @@ from inference.preprocess import STALE_ORIENTATION, PreprocessParams, preprocess
 from tui.app import WalkcapApp
 from tui.cli import main
 from tui.live_screen import LiveScreen
+from tui.replay import ReplaySource
 from tui.widgets.decision import DecisionDisplay
 
 LEVEL = np.array([1.0, 0.0, 0.0, 0.0])
@@ -152,6 +154,14 @@ async def test_the_tui_unplug_drill_flags_the_frames_everywhere(tmp_path, monkey
     frames = tables["frames"].set_index("frame_index")
     assert (frames.loc[stale, "preprocess_flag"] == STALE_ORIENTATION).all()
     assert (frames.loc[stale, "cnn_decision"] == "").all()
+    # the review screen (replay --tui) shows them as the live one did: undecided, counted
+    source = ReplaySource(path, clock=(clock := FakeClock()))
+    source.start()
+    times = {m.data["frame_index"]: m.data["time_ns"] for m in rec.messages([T.PREPROCESS])}
+    clock.t += times[stale[len(stale) // 2]] - int(source.frames.time_ns[0])
+    snap = source.snapshot()
+    assert snap.latest.index == stale[len(stale) // 2] and snap.latest.flag == STALE_ORIENTATION
+    assert not snap.latest.decided and 0 < snap.stale_frames < len(stale)
     # replay flags the frames of the gap too (it interpolates across it: older than the bound)
     report = replay(str(path), Config(), classifier=StubClassifier(), output=tmp_path / "r.mcap")
     again = open_recording(report.output)
