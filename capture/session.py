@@ -31,6 +31,7 @@ from capture.alarms import AlarmState, TrialAlarms
 from capture.errors import CaptureError, ConfigError
 from capture.pipeline import (
     CNN_THREADS,
+    IMU_LATE_S,
     FrameResult,
     OrientationTrack,
     Pipeline,
@@ -532,7 +533,8 @@ class Session:
             else self._taps
         )
         # interpolated, or carried on by the rate of turn; too far from a sample: stale
-        quaternion, age_ns = self.track.at(t)
+        bound_ns = int(self.pipeline.params.max_orientation_age_ms * 1e6)
+        quaternion, age_ns = self.track.fresh_at(t, bound_ns, IMU_LATE_S)
         pre = None
         try:
             pre = self.pipeline.prepare(frame, quaternion, age_ns)
