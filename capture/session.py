@@ -129,7 +129,7 @@ class Snapshot:
     frames: int
     latency_ms: dict
     alarms: AlarmState | None = None  # gaps this trial, and what the operator must see now
-    stale_frames: int = 0  # frames left undecided: their IMU orientation was stale
+    stale_frames: int = 0  # frames of this (or the last) trial left undecided: stale IMU
 
 
 def stream_periods(config: config_mod.Config) -> dict[str, float]:
@@ -705,6 +705,8 @@ class Session:
         recorder.start()
         self.alarms.recordings = folder
         self.alarms.new_trial()
+        with self._lock:
+            self._stale_frames = 0  # counted per trial, as the file counts them
         self._recorder = recorder
         self.trial = info
         self._recording_started_ns = now_ns()

@@ -132,7 +132,7 @@ async def test_the_tui_unplug_drill_flags_the_frames_everywhere(tmp_path, monkey
         await wait_for(pilot, unknown_shown, 10)
         await wait_for(pilot, lambda: session.snapshot().stale_frames >= 15, 10)
         panel = live.query_one("#devices")
-        await wait_for(pilot, lambda: "IMU orientation old" in rendered(panel), 5)
+        await wait_for(pilot, lambda: "frames (old IMU)" in rendered(panel), 5)
         await wait_for(pilot, lambda: session.alarms.counters["imu"].longest_s > 1.5, 10)
         await wait_for(pilot, lambda: session.snapshot().latest.decided, 10)  # IMU back
         await pilot.press("r")
@@ -150,7 +150,7 @@ async def test_the_tui_unplug_drill_flags_the_frames_everywhere(tmp_path, monkey
     imu = np.sort([m.data["time_ns"] for m in rec.messages([T.IMU]) if m.data.get("quaternion")])
     in_gap = sorted(i for i, d in pre.items() if nearest(imu, d["time_ns"]) > 50_000_000)
     assert len(in_gap) >= 15  # ~2 s at 15 fps
-    assert set(in_gap) <= set(stale) and len(stale) <= on_screen  # flagged, and on screen
+    assert set(in_gap) <= set(stale) and len(stale) <= on_screen  # flagged, counted on screen
     decided = set(read_trial(path)["frame_index"].tolist())
     assert not decided & set(stale)  # no CNN output for a stale frame
     fused = [m.data for m in rec.messages([T.FUSED])]
