@@ -1,80 +1,66 @@
 """Live alarms of a trial: stream gaps, a camera stall, low disk, a filling writer queue,
 a pipeline failure. What the operator must see at once, in words, without reading numbers.
 
-Gaps are counted per trial on the timestamps the recorder writes (host receive times), by
-the rule `walkcap info` applies to the file afterwards (capture.reader.find_gaps): an
-interval longer than GAP_PERIODS x the stream's configured period (the camera's fps, the
-IMU's rate, which the file's metadata records). So the live count and the file's agree.
+Gaps are counted per trial by the definition `walkcap info` applies to the file afterwards
+(capture.gaps): data the device produced and the file lacks, on the device's own sequence
+(frame index, IMU packet counter). Late delivery (a host stall with nothing lost) is its
+own figure. So the live count and the file's agree.
 """
 
 from __future__ import annotations
 
-import collections
 import shutil
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
+from capture.gaps import GAP_PERIODS, MODULUS, OWN_CLOCK, Gap, Late, LossCounter
 
-GAP_PERIODS = 3.0  # an interval longer than this many periods is a gap
 DISK_MINUTES_LOW = 10.0  # free disk below this many minutes of recording: alarm
 QUEUE_FULL = 0.5  # the recorder's queue above this fraction: alarm
 RECENT_S = 5.0  # an ended gap, a pipeline failure: shown this long
 SILENT_SHOWN_S = 0.3  # a stream silent this long shows while it lasts (shorter ones count)
-_MEDIAN_WINDOW = 512  # intervals the running median is taken over
 _DISK_EVERY_NS = 2_000_000_000
+_DEFAULT_PERIODS = {"camera": 1 / 15, "imu": 1 / 100}
 
 STREAMS = ("camera", "imu")
+__all__ = ["GAP_PERIODS", "StreamCounter", "TrialAlarms"]
 
 
-class GapCounter:
-    """Gaps in one regular stream, counted as samples arrive (thread-safe).
+class StreamCounter:
+    """One stream's gaps and late deliveries this trial, and how long it has been silent."""
 
-    The period is the configured one; without it, the running median interval."""
-
-    def __init__(self, period_s: float | None = None) -> None:
-        self._period_ns = period_s * 1e9 if period_s else None
+    def __init__(self, stream: str, period_s: float | None = None) -> None:
+        self.period_s = period_s or _DEFAULT_PERIODS[stream]
+        self.loss = LossCounter(self.period_s, MODULUS[stream], OWN_CLOCK[stream])
         self._lock = threading.Lock()
-        self._last_ns: int | None = None
-        self._intervals: collections.deque[int] = collections.deque(maxlen=_MEDIAN_WINDOW)
-        self._median_ns = 0.0
-        self._since_median = 0
-        self.count = 0
-        self.longest_s = 0.0
-        self.last_gap: tuple[int, float] | None = None  # the last shown: (end ns, length s)
+        self._last_host_ns: int | None = None
+        self.last_gap: tuple[int, float, bool] | None = None  # shown: (end ns, s, data lost)
 
-    def add(self, t_ns: int) -> float | None:
-        """One sample's time; the gap's length in seconds when this sample ends one."""
+    @property
+    def count(self) -> int:
+        return len(self.loss.loss.gaps)
+
+    @property
+    def longest_s(self) -> float:
+        return self.loss.loss.longest_s
+
+    def add(self, seq: int | None, device_ns: int | None, host_ns: int) -> Gap | Late | None:
+        """One item as the file gets it: its device sequence number and time, its log time."""
+        found = self.loss.add(seq, device_ns, host_ns)
         with self._lock:
-            last, self._last_ns = self._last_ns, t_ns
-            if last is None or t_ns <= last:
-                return None
-            dt = t_ns - last
-            gap = None
-            if len(self._intervals) >= 2 and dt > GAP_PERIODS * self._median_ns:
-                gap = dt * 1e-9
-                self.count += 1
-                self.longest_s = max(self.longest_s, gap)
-                if gap >= SILENT_SHOWN_S:  # short ones count, and show in the trial's total
-                    self.last_gap = (t_ns, gap)
-            self._intervals.append(dt)
-            if self._period_ns is not None:
-                self._median_ns = self._period_ns
-                return gap
-            self._since_median += 1
-            if self._since_median >= 32 or len(self._intervals) < 64:
-                self._median_ns = float(np.median(self._intervals))
-                self._since_median = 0
-            return gap
+            self._last_host_ns = host_ns
+            if found is not None and found.length_s >= SILENT_SHOWN_S:
+                self.last_gap = (host_ns, found.length_s, isinstance(found, Gap))
+        return found
 
     def silent_s(self, now_ns: int) -> float | None:
-        """Seconds since the last sample when that is longer than a gap; else None."""
+        """Seconds since the last item when that is longer than a gap; else None."""
         with self._lock:
-            if self._last_ns is None or len(self._intervals) < 2:
+            if self._last_host_ns is None:
                 return None
-            silent = now_ns - self._last_ns
-            return silent * 1e-9 if silent > GAP_PERIODS * self._median_ns else None
+            silent = now_ns - self._last_host_ns
+            return silent * 1e-9 if silent > GAP_PERIODS * self.period_s * 1e9 else None
 
 
 @dataclass
@@ -89,6 +75,8 @@ class AlarmState:
 
     gaps: dict[str, int] = field(default_factory=dict)  # stream -> gaps this trial
     longest_s: dict[str, float] = field(default_factory=dict)
+    missing: dict[str, int] = field(default_factory=dict)  # items lost by the device's count
+    late: dict[str, int] = field(default_factory=dict)  # late deliveries, nothing lost
     alarms: list[Alarm] = field(default_factory=list)
     disk_free_bytes: int | None = None
     disk_minutes: float | None = None  # at the measured write rate
@@ -127,6 +115,7 @@ class TrialAlarms:
         self.counters = self._counters()
         self.recording = False
         self.trial_gaps: dict[str, int] = {}  # the last trial's, once it ended
+        self.trial_late: dict[str, int] = {}
         self.write_rate: float | None = None  # bytes/s, the last measured
         self._disk_checked_ns = 0
         self._disk_free: int | None = None
@@ -137,18 +126,21 @@ class TrialAlarms:
         self.counters = self._counters()
         self.recording = True
 
-    def _counters(self) -> dict[str, GapCounter]:
-        return {s: GapCounter(self.periods_s.get(s)) for s in STREAMS}
+    def _counters(self) -> dict[str, StreamCounter]:
+        return {s: StreamCounter(s, self.periods_s.get(s)) for s in STREAMS}
 
     def end_trial(self) -> dict[str, int]:
-        """The trial's gap counts per stream (kept in `trial_gaps` too)."""
+        """The trial's gap counts per stream (kept in `trial_gaps`, late deliveries in
+        `trial_late`)."""
         self.recording = False
         self.trial_gaps = {s: c.count for s, c in self.counters.items()}
+        self.trial_late = {s: len(c.loss.loss.late) for s, c in self.counters.items()}
         return self.trial_gaps
 
-    def sample(self, stream: str, t_ns: int) -> None:
-        """A sample or frame as the trial's file gets it, at its log time."""
-        self.counters[stream].add(t_ns)
+    def sample(self, stream: str, seq: int | None, device_ns: int | None, host_ns: int) -> None:
+        """A sample or frame as the trial's file gets it: the device's sequence number and
+        time, and the host's receive (log) time."""
+        self.counters[stream].add(seq, device_ns, host_ns)
 
     def _disk(self, now_ns: int) -> int | None:
         if now_ns - self._disk_checked_ns >= _DISK_EVERY_NS:
@@ -176,22 +168,30 @@ class TrialAlarms:
             if self.recording:
                 out.gaps[stream] = counter.count
                 out.longest_s[stream] = counter.longest_s
+                out.missing[stream] = counter.loss.loss.missing
+                out.late[stream] = len(counter.loss.loss.late)
             name = "IMU" if stream == "imu" else stream
             silent = counter.silent_s(now_ns)
             if silent is not None and silent >= SILENT_SHOWN_S:
                 out.alarms.append(Alarm("error", f"{name}: no data for {silent:.1f} s"))
             elif counter.last_gap is not None:
-                end, length = counter.last_gap
+                end, length, lost = counter.last_gap
                 if now_ns - end < RECENT_S * 1e9:
-                    out.alarms.append(
-                        Alarm("warning", f"{name}: gap of {length:.2f} s ended, data again")
+                    text = (
+                        f"{name}: gap of {length:.2f} s ended, data again"
+                        if lost
+                        else f"{name}: {length:.2f} s late (the computer stalled), nothing lost"
                     )
+                    out.alarms.append(Alarm("warning", text))
         if self.recording and any(out.gaps.values()):  # the trial's file has holes
             longest = max(out.longest_s.values())
             counts = ", ".join(f"{'IMU' if s == 'imu' else s} {n}" for s, n in out.gaps.items())
             out.alarms.append(
                 Alarm("warning", f"gaps this trial: {counts} (longest {longest:.2f} s)")
             )
+        if self.recording and any(out.late.values()):  # all there, but delivered late
+            counts = ", ".join(f"{'IMU' if s == 'imu' else s} {n}" for s, n in out.late.items())
+            out.alarms.append(Alarm("warning", f"late deliveries this trial: {counts}"))
         out.alarms += recorder_alarms(recorder_stats)
         out.alarms += event_alarms(events, now_ns)
         return out

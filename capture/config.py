@@ -24,6 +24,7 @@ from typing import Any
 from capture.errors import ConfigError
 from devices.config import DOCS as DEVICE_DOCS
 from devices.config import CameraConfig, ImuConfig, MountingConfig, SimulatorConfig
+from devices.files import check_replaceable
 from inference.config import DOCS as INFERENCE_DOCS
 from inference.config import FusionConfig, ModelConfig, PreprocessConfig
 
@@ -69,6 +70,10 @@ class LslConfig:
     # LabRecorder-compatible remote control (start, stop, filename) on localhost
     remote_control: bool = False
     remote_port: int = 22345  # LabRecorder's default
+    # a remote `filename {root:DIR}` outside the recordings folder: refused unless allowed
+    remote_any_root: bool = False
+    # when set, each remote-control connection's first line is `token <this>`
+    remote_token: str = ""
 
 
 @dataclass
@@ -125,6 +130,8 @@ DOCS: dict[type, dict[str, str]] = {
         "record": "names of other devices' LSL streams recorded into each trial",
         "remote_control": "LabRecorder's start / stop / filename commands on 127.0.0.1",
         "remote_port": "the remote control's TCP port (LabRecorder's)",
+        "remote_any_root": "let a remote {root:DIR} name any folder, not only one in recordings",
+        "remote_token": "if set, a remote-control connection starts with the line `token <it>`",
     },
     FoxgloveConfig: {
         "enabled": "serve the live session's topics to Foxglove over a WebSocket",
@@ -167,6 +174,8 @@ def _convert(value: Any, tp: Any, key: str) -> Any:
         if isinstance(value, int) and not isinstance(value, bool):
             return value
     elif tp is str:
+        if isinstance(value, str) and "\x00" in value:  # no path or name can hold one
+            raise ConfigError(f"{key}: a NUL character is not allowed")
         if isinstance(value, str):
             return value
     raise ConfigError(f"{key}: expected {_type_name(tp)}, got {value!r}")
@@ -232,6 +241,8 @@ def load(path: str | os.PathLike | None = None) -> Config:
         raise ConfigError(f"configuration file not found: {found}") from None
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{found}: not valid TOML: {e}") from None
+    except RecursionError:  # tomllib recurses once per nested table or array
+        raise ConfigError(f"{found}: tables or arrays nested too deeply") from None
     except UnicodeDecodeError as e:  # TOML is UTF-8: a UTF-16 or Latin-1 file stops here
         raise ConfigError(
             f"{found}: not UTF-8 text (byte {e.start}); save it as UTF-8 without a BOM"
@@ -319,7 +330,7 @@ def documented(config: Config) -> str:
 
 def save(config: Config, path: str | os.PathLike) -> Path:
     """Write the whole configuration atomically (a crash never leaves half a file)."""
-    path = Path(path)
+    path = check_replaceable(path)
     tmp = path.with_suffix(path.suffix + ".tmp")
     tmp.write_text(dumps(config))
     os.replace(tmp, path)

@@ -21,8 +21,13 @@ is described in docs/export.md):
   `label`) and undone (taken back by a later undo).
 - events: device events and operator markers, in time order.
 - trials: one row per file: identity, lineage, session form, model; start_time_ns and
-  end_time_ns (session clock), start_unix_time_ns and end_unix_time_ns, duration_s.
+  end_time_ns (session clock), start_unix_time_ns and end_unix_time_ns, duration_s; per
+  sensor stream its gaps, items missing and late deliveries (capture.gaps).
 Modes are names (LG, US, DS, UR, DR); "" where there is none.
+The frames' terrain and locomotion columns are the two references eval uses: terrain,
+what the image shows (the simulator's truth, else the labels made offline in `replay
+--tui` over the keys, else ""); locomotion, the mode keyed live (undos applied, offline
+labels not).
 """
 
 from __future__ import annotations
@@ -35,9 +40,13 @@ from pathlib import Path
 import numpy as np
 
 from capture import corpus as corpus_mod
+from capture import reader
 from capture import topics as T
 from capture.errors import CaptureError
+from capture.gaps import TOPICS as GAP_TOPICS
+from capture.gaps import recording_loss
 from capture.reader import effective_changes, is_undo, open_recording
+from devices.files import check_replaceable
 from devices.frames import MODES
 
 TABLES = ("frames", "imu", "labels", "events", "trials")
@@ -150,6 +159,12 @@ def tables(path: str | os.PathLike) -> dict:
     frames["label"] = _modes_at(times, reference)
     if T.TRUTH in rec.topics:
         frames["truth"] = [truth.get(int(i), "") for i in index]
+        frames["terrain"] = frames["truth"]
+    elif any(c[2] == reader.CORRECTION for c in changes):
+        frames["terrain"] = frames["label"]
+    else:
+        frames["terrain"] = [""] * len(index)
+    frames["locomotion"] = _modes_at(times, [c for c in reference if c[2] != reader.CORRECTION])
     probs = np.full((len(index), len(MODES)), np.nan)
     post = np.full((len(index), len(MODES)), np.nan)
     for k, i in enumerate(index):
@@ -252,6 +267,14 @@ def tables(path: str | os.PathLike) -> dict:
         if key in software:
             trials[key] = software[key]
 
+    # loss by the one definition of the live alarms and `walkcap info` (capture.gaps)
+    for topic, loss in recording_loss(rec).items():
+        stream = GAP_TOPICS[topic]
+        trials[f"{stream}_gaps"] = len(loss.gaps)
+        trials[f"{stream}_missing"] = loss.missing
+        trials[f"{stream}_longest_gap_s"] = loss.longest_s
+        trials[f"{stream}_late"] = len(loss.late)
+
     def frame(columns: dict, n: int):
         df = pd.DataFrame(columns)
         for k, v in reversed(list(identity.items())):
@@ -323,24 +346,45 @@ def write(tables_: dict, out: str | os.PathLike, fmt: str = "parquet") -> list[P
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise CaptureError(f"cannot create {folder}: {e.strerror}") from None
-    written = []
     if fmt == "mat":
         from scipy.io import savemat
 
-        path = folder / "walkcap.mat"
-        savemat(path, {name: _mat_struct(df) for name, df in tables_.items()}, oned_as="column")
-        return [path]
+        structs = {name: _mat_struct(df) for name, df in tables_.items()}
+        return [_whole(folder / "walkcap.mat", lambda p: savemat(p, structs, oned_as="column"))]
+    written: list[Path] = []
     for name, df in tables_.items():
         path = folder / f"{name}.{fmt}"
         if fmt == "parquet":
-            try:
-                df.to_parquet(path, index=False)
-            except ImportError:
-                raise CaptureError("Parquet needs pyarrow: pip install pyarrow") from None
+            write_table = lambda p, df=df: df.to_parquet(p, index=False)  # noqa: E731
         else:
-            df.to_csv(path, index=False)
-        written.append(path)
+            write_table = lambda p, df=df: df.to_csv(p, index=False)  # noqa: E731
+        try:
+            written.append(_whole(path, write_table))
+        except ImportError:
+            raise CaptureError("Parquet needs pyarrow: pip install pyarrow") from None
+        except CaptureError as e:
+            done = f"; written before it: {', '.join(p.name for p in written)}" if written else ""
+            raise CaptureError(f"{e}{done}") from None
     return written
+
+
+def _whole(path: Path, write) -> Path:
+    """`write(tmp)` beside `path`, renamed into place once whole: a full disk leaves no
+    truncated table under the table's name, and the error names the file."""
+    check_replaceable(path)
+    tmp = path.with_name(f".{path.stem}.partial{path.suffix}")  # savemat wants .mat
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except OSError as e:
+        tmp.unlink(missing_ok=True)
+        raise CaptureError(
+            f"{path}: not written ({e.strerror or e}); nothing of it is left"
+        ) from None
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return path
 
 
 # ---- helpers -----------------------------------------------------------------------------

@@ -7,6 +7,10 @@ a recording of the same moment are the same messages. Only topics a client subsc
 are encoded; depth, images and clouds go out at most `image_hz` times a second. The queue
 between the session and the worker is bounded: a slow client costs dropped live
 messages (counted), never a frame of the session.
+
+The SDK's log lines (Python's `foxglove` loggers) quote what clients send: they pass
+through `ClientLog`, which escapes them and counts repeats (capture.safetext) before they
+reach walkcap's log, the terminal or the UI's log file.
 """
 
 from __future__ import annotations
@@ -19,12 +23,47 @@ from pathlib import Path
 
 from capture import topics as T
 from capture.errors import CaptureError
+from capture.safetext import Repeats, escape, kind_of
 
 log = logging.getLogger(__name__)
 
 LAYOUT = Path(__file__).resolve().parent / "layouts" / "walkcap.json"
 QUEUE_ITEMS = 256
 IMAGE_TOPICS = frozenset({T.DEPTH, T.CONFIDENCE, T.GRAY, T.CLOUD, T.BINARY_IMAGE, T.TF})
+
+
+class ClientLog(logging.Handler):
+    """The SDK's log records, escaped and with repeats counted, as walkcap's own."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.repeats = Repeats()
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            text = record.getMessage()
+            show, n = self.repeats.check(f"{record.levelno} {kind_of(text)}")
+            if show:
+                count = f" ({n} like it so far)" if n > self.repeats.burst else ""
+                log.log(record.levelno, "Foxglove live view: %s%s", escape(text), count)
+        except Exception:
+            self.handleError(record)
+
+
+_client_log_lock = threading.Lock()
+
+
+def client_log() -> ClientLog:
+    """The one ClientLog, in place of the `foxglove` loggers' propagation (set up once)."""
+    with _client_log_lock:
+        sdk = logging.getLogger("foxglove")
+        for handler in sdk.handlers:
+            if isinstance(handler, ClientLog):
+                return handler
+        handler = ClientLog()
+        sdk.addHandler(handler)
+        sdk.propagate = False  # nothing of it reaches a handler unescaped
+        return handler
 
 
 class _Subscriptions:
@@ -57,6 +96,9 @@ class FoxgloveLive:
         self._encode_depth = encode_depth
         self._encode_processed = encode_processed
         self._encode_truth = encode_truth
+        self.client_log = client_log()
+        self._client_seen = self.client_log.repeats.total
+        self._client_held = self.client_log.repeats.held_back
         self._context = foxglove.Context()
         self._subscriptions = _Subscriptions()
         try:
@@ -94,6 +136,11 @@ class FoxgloveLive:
         self.errors = 0
         self._thread = threading.Thread(target=self._run, name="walkcap-foxglove", daemon=True)
         self._thread.start()
+
+    @property
+    def client_messages(self) -> int:
+        """The SDK's log lines about clients since this server started (shown or counted)."""
+        return self.client_log.repeats.total - self._client_seen
 
     @property
     def url(self) -> str:
@@ -197,7 +244,7 @@ class FoxgloveLive:
             except Exception as e:  # a bad item costs a live message, never the session
                 self.errors += 1
                 if self.errors == 1:
-                    log.warning("Foxglove live view: %s", e)
+                    log.warning("Foxglove live view: %s", escape(str(e)))
 
     def close(self) -> None:
         self._halt.set()
@@ -206,4 +253,11 @@ class FoxgloveLive:
         try:
             self.server.stop()
         except Exception as e:
-            log.warning("Foxglove live view: stop: %s", e)
+            log.warning("Foxglove live view: stop: %s", escape(str(e)))
+        held = self.client_log.repeats.held_back - self._client_held
+        if held:
+            log.warning(
+                "Foxglove live view: %d of %d log lines about clients not shown (repeats)",
+                held,
+                self.client_messages,
+            )

@@ -3,8 +3,13 @@
 The MCAP file reaches the disk a chunk at a time (about once a second); the operator's
 labels must survive anything, so each one is also appended as a line of JSON to
 `<recording>.journal.jsonl` and fsync'ed before the call returns. `walkcap recover` merges
-the journal back into the recording. A crash can cut only the last line, which the reader
-skips.
+the journal back into the recording.
+
+Each line carries its own check: the JSON, a tab and the CRC-32 of the JSON as eight hex
+digits. A line whose CRC fails (a bad disk, a bad copy), that a crash cut, or whose values
+cannot be (a time that is no integer, a label without a mode) is skipped and reported by
+its line number, never guessed. Journals written before lines had a CRC are read as they
+are, with the same value checks; in a journal that has CRCs, a line without one is damage.
 """
 
 from __future__ import annotations
@@ -12,12 +17,23 @@ from __future__ import annotations
 import json
 import logging
 import os
+import re
 import threading
+import zlib
+from dataclasses import dataclass, field
 from pathlib import Path
 
 log = logging.getLogger(__name__)
 
 SUFFIX = ".journal.jsonl"
+_CHECKED = re.compile(rb"(.*)\t([0-9a-f]{8})", re.DOTALL)
+_TIME_MAX = 2**63 - 1
+
+
+def encode_line(entry: dict) -> bytes:
+    """One journal line: the JSON, a tab, the CRC-32 of the JSON, a newline."""
+    text = json.dumps(entry, separators=(",", ":"), default=str).encode()
+    return text + b"\t%08x\n" % zlib.crc32(text)
 
 
 def journal_path(recording: str | os.PathLike) -> Path:
@@ -50,7 +66,7 @@ class Journal:
 
     def append(self, entry: dict) -> None:
         """Write one entry and return once it is on disk. Raises OSError if it could not be."""
-        line = (json.dumps(entry, separators=(",", ":"), default=str) + "\n").encode()
+        line = encode_line(entry)
         with self._lock:
             if self._fd < 0:
                 raise OSError(f"journal {self.path} is closed")
@@ -67,21 +83,80 @@ class Journal:
                 self._fd = -1
 
 
-def read_journal(path: str | os.PathLike) -> list[dict]:
-    """Every complete entry; a line cut by a crash (or otherwise unreadable) is skipped."""
-    entries = []
+@dataclass
+class JournalRead:
+    """The entries of a journal that can be believed, and the lines that cannot."""
+
+    entries: list[dict] = field(default_factory=list)
+    skipped: list[str] = field(default_factory=list)  # "line N: why", in line order
+
+
+def _problem(entry) -> str:
+    """Why an entry cannot be what it says ("" when it can)."""
+    if not isinstance(entry, dict):
+        return "not an object"
+    kind = entry.get("type")
+    if kind not in ("label", "event", "start", "end", "failed"):
+        return f"unknown type {kind!r}"
+    t = entry.get("time_ns")
+    if kind in ("label", "event") or "time_ns" in entry:
+        if isinstance(t, bool) or not isinstance(t, int) or not 0 <= t <= _TIME_MAX:
+            return f"time_ns {t!r} is no time"
+    if kind == "label":
+        for key in ("mode", "source"):
+            if not isinstance(entry.get(key), str):
+                return f"{key} {entry.get(key)!r} is not text"
+    if kind == "event":
+        for key in ("device", "kind", "message"):
+            if key in entry and not isinstance(entry[key], str):
+                return f"{key} {entry[key]!r} is not text"
+        if not isinstance(entry.get("details", {}), dict):
+            return "details is not an object"
+    return ""
+
+
+def check_journal(path: str | os.PathLike) -> JournalRead:
+    """Every entry whose line proves itself; the others listed by line number."""
+    out = JournalRead()
     try:
         data = Path(path).read_bytes()
     except FileNotFoundError:
-        return []
-    for number, line in enumerate(data.splitlines(), 1):
+        return out
+    lines = data.split(b"\n")
+    cut = lines.pop() if lines else b""  # after the last newline: empty, or cut by a crash
+    checked = any(_CHECKED.fullmatch(line) for line in lines)
+    for number, line in enumerate(lines, 1):
         if not line.strip():
             continue
-        try:
-            entry = json.loads(line)
-        except ValueError:
-            log.warning("%s: line %d unreadable (cut by a crash?), skipped", path, number)
+        match = _CHECKED.fullmatch(line)
+        if match:
+            text, crc = match.groups()
+            if zlib.crc32(text) != int(crc, 16):
+                out.skipped.append(f"line {number}: CRC mismatch")
+                continue
+        elif checked:
+            out.skipped.append(f"line {number}: no CRC (damaged)")
             continue
-        if isinstance(entry, dict):
-            entries.append(entry)
-    return entries
+        else:
+            text = line
+        try:
+            entry = json.loads(text)
+        except ValueError:
+            out.skipped.append(f"line {number}: unreadable")
+            continue
+        why = _problem(entry)
+        if why:
+            out.skipped.append(f"line {number}: {why}")
+            continue
+        out.entries.append(entry)
+    if cut.strip():
+        out.skipped.append(f"line {len(lines) + 1}: cut off (a crash while it was written)")
+    return out
+
+
+def read_journal(path: str | os.PathLike) -> list[dict]:
+    """Every entry that can be believed (check_journal); the others are logged."""
+    result = check_journal(path)
+    for why in result.skipped:
+        log.warning("%s: %s, skipped", path, why)
+    return result.entries

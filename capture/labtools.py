@@ -9,6 +9,7 @@ an event, and the session runs on without it.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 from pathlib import Path
 
@@ -29,10 +30,10 @@ class SessionController:
     def remote_start(self, request) -> str:
         if self.session.recording:
             return "already recording"
-        self.info = trial_info(self.info, request)
-        if request.root:
-            self.session.config.session.recordings = request.root
-        path = self.session.start_recording(dataclasses.replace(self.info))
+        info = trial_info(self.info, request)
+        # the remote trial's folder is its own: the configured one stays the operator's
+        path = self.session.start_recording(dataclasses.replace(info), folder=request.root or None)
+        self.info = info
         return f"recording {path}"
 
     def remote_stop(self) -> str:
@@ -41,6 +42,34 @@ class SessionController:
         stats = self.session.stop_recording()
         self.info = dataclasses.replace(self.info, trial=self.info.trial + 1)
         return f"saved {stats.path}" if stats is not None else "stopped"
+
+
+def remote_folder(recordings: str | Path, root: str, any_root: bool = False) -> Path:
+    """The folder a remote `{root:DIR}` names: relative roots are taken in the recordings
+    folder, and one outside it is refused unless `any_root` ([lsl] remote_any_root)."""
+    if not root.isprintable():
+        raise CaptureError("root: a folder name without control characters")
+    base = Path(recordings).resolve()
+    folder = (base / root).resolve()  # an absolute root stands alone; `..` and links resolved
+    if not any_root and not folder.is_relative_to(base):
+        raise CaptureError(
+            f"root {root!r} is outside the recordings folder {base} "
+            f"(a folder in it, or [lsl] remote_any_root = true)"
+        )
+    return folder
+
+
+def checked_request(config, request):
+    """A remote `filename`'s TrialRequest as a trial takes it (root resolved and confined,
+    subject, condition and trial as the form checks them), or CaptureError."""
+    from capture.session import SubjectInfo
+
+    if request.root:
+        request.root = str(
+            remote_folder(config.session.recordings, request.root, config.lsl.remote_any_root)
+        )
+    trial_info(SubjectInfo(), request)
+    return request
 
 
 def trial_info(info, request):
@@ -124,7 +153,14 @@ class LabTools:
     def _start_remote(self) -> None:
         from capture.remote import RemoteControl
 
-        self.remote = RemoteControl(self.controller, self.config.lsl.remote_port).start()
+        lsl = self.config.lsl
+        self.remote = RemoteControl(
+            self.controller,
+            lsl.remote_port,
+            on_event=self.session.add_event,
+            check=functools.partial(checked_request, self.config),
+            token=lsl.remote_token,
+        ).start()
 
     def _start_foxglove(self) -> None:
         from capture.foxglove_live import FoxgloveLive

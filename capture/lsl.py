@@ -9,10 +9,11 @@ lines walkcap up with EMG, motion capture and force plates. Source ids are stabl
 device, so a restarted session resumes the same stream in LabRecorder.
 
 Inlets (`LslInlets`): named streams of other devices recorded into the MCAP file while a
-trial records: marker streams into /events, numeric streams into `/lsl/<name>`, one
-message per pulled chunk, times mapped onto the session clock with LSL's time correction
-(the offset and its uncertainty go into every message). A stream that disappears is an
-event and a gap; walkcap looks for it again and carries on.
+trial records, as sent: marker streams into /events (every channel), numeric streams into
+`/lsl/<name>` (whole numbers exact, infinities apart from NaN), one message per pulled
+chunk, times mapped onto the session clock with LSL's time correction (the offset and its
+uncertainty go into every message). A stream that disappears is an event and a gap;
+walkcap looks for it again at once and carries on.
 
 liblsl logs to stderr, where the terminal UI draws: it is told to log errors only.
 """
@@ -20,6 +21,7 @@ liblsl logs to stderr, where the terminal UI draws: it is told to log errors onl
 from __future__ import annotations
 
 import ctypes
+import hashlib
 import logging
 import re
 import socket
@@ -30,6 +32,7 @@ from collections.abc import Callable
 import numpy as np
 
 from capture.errors import CaptureError
+from capture.safetext import escape
 from devices.base import DeviceEvent
 from devices.clock import now_ns
 from devices.frames import MODES
@@ -59,7 +62,10 @@ TERRAIN_CHANNELS = (
 )
 NO_DECISION = -1.0  # a decision channel before the first decision (and NaN frame indices)
 TIME_CORRECTION_EVERY_S = 5.0
-RESOLVE_TIMEOUT_S = 0.5
+RESOLVE_TIMEOUT_S = 0.2  # one resolve while a stream is missing; the next follows at once
+OPEN_TIMEOUT_S = 1.0
+SILENT_CHECK_S = 0.5  # a stream this long without a sample: does its outlet still answer?
+SILENT_RESOLVE_S = 0.3
 
 _lsl_lock = threading.Lock()
 _lsl = None
@@ -268,23 +274,26 @@ class _TimeCorrection:
         return float(offset), float(uncertainty.value)
 
 
-def chunk_schema(name: str, channels: list[str]) -> dict:
+def chunk_schema(name: str, channels: list[str], integer: bool = False) -> dict:
     """JSON Schema of a recorded numeric LSL stream's messages (one per pulled chunk)."""
+    if integer:
+        value = {"type": "integer"}
+        kinds = "whole numbers, exact (int8 to int64 streams)"
+    else:
+        value = {"anyOf": [{"type": "number"}, {"type": "null"}, {"enum": ["inf", "-inf"]}]}
+        kinds = 'numbers; NaN as null, infinities as "inf" and "-inf"'
     return {
         "$schema": "https://json-schema.org/draft/2020-12/schema",
         "title": "walkcap.LslChunk",
         "description": f"LSL stream {name!r}: samples of one pulled chunk. time_ns on the "
-        f"session clock (LSL time + time correction); values in the channel order "
-        f"{', '.join(channels) or '(unnamed)'}.",
+        f"session clock (LSL time + time correction; null for a sample time outside it); "
+        f"values ({kinds}) in the channel order {', '.join(channels) or '(unnamed)'}.",
         "type": "object",
         "properties": {
             "stream": {"type": "string"},
-            "time_ns": {"type": "array", "items": {"type": "integer"}},
+            "time_ns": {"type": "array", "items": {"type": ["integer", "null"]}},
             "lsl_time": {"type": "array", "items": {"type": "number"}},
-            "values": {
-                "type": "array",
-                "items": {"type": "array", "items": {"type": ["number", "null"]}},
-            },
+            "values": {"type": "array", "items": {"type": "array", "items": value}},
             "channels": {"type": "array", "items": {"type": "string"}},
             "time_correction_s": {"type": "number"},
             "time_correction_uncertainty_s": {"type": ["number", "null"]},
@@ -294,7 +303,44 @@ def chunk_schema(name: str, channels: list[str]) -> dict:
 
 
 def topic_for(name: str) -> str:
-    return "/lsl/" + re.sub(r"[^A-Za-z0-9_]+", "_", name).strip("_")
+    """The recording's topic of LSL stream `name`: its name where that is letters, digits
+    and '_'; otherwise those, and a short hash of the exact name, so that names differing
+    only in punctuation (EMG-1, EMG_1, EMG 1) have topics of their own."""
+    plain = re.sub(r"[^A-Za-z0-9_]+", "_", name).strip("_")
+    if plain == name:
+        return f"/lsl/{name}"
+    digest = hashlib.blake2s(name.encode("utf-8"), digest_size=4).hexdigest()
+    return f"/lsl/{plain}_{digest}" if plain else f"/lsl/_{digest}"
+
+
+INTEGER_FORMATS = ("cf_int8", "cf_int16", "cf_int32", "cf_int64")
+_INT64_NS = 2**63  # sample times on the session clock fit int64 nanoseconds, from 0
+
+
+def chunk_values(samples, integer: bool) -> list:
+    """A pulled chunk's values as JSON keeps them, type for type: whole numbers exact;
+    NaN as null and the infinities as "inf" / "-inf" (np.asarray(values, float) reads
+    each back)."""
+    if integer:
+        return np.asarray(samples, dtype=np.int64).tolist()
+    values = np.asarray(samples, dtype=np.float64)
+    finite = np.isfinite(values)
+    if finite.all():
+        return values.tolist()
+    out = values.astype(object)
+    out[np.isnan(values)] = None
+    out[np.isposinf(values)] = "inf"
+    out[np.isneginf(values)] = "-inf"
+    return out.tolist()
+
+
+def session_times(lsl_times: np.ndarray, offset_s: float) -> list[int | None]:
+    """LSL times (already time-corrected) on the session clock, ns; None for one that
+    falls outside it (before 0, beyond int64, not finite)."""
+    ns = (lsl_times - offset_s) * 1e9
+    ok = np.isfinite(ns) & (ns >= 0) & (ns < _INT64_NS)
+    rounded = np.round(np.where(ok, ns, 0)).astype(np.int64).tolist()
+    return [t if good else None for t, good in zip(rounded, ok.tolist())]
 
 
 class LslInlets:
@@ -302,6 +348,12 @@ class LslInlets:
 
     `recorder()` returns the session's recorder (None between trials); `on_event(event)`
     takes DeviceEvents (found, lost) for the screen and the file.
+
+    A stream that is lost is looked for again at once (a resolve every RESOLVE_TIMEOUT_S),
+    so one that comes back, under a new source id too, is recorded again within about a
+    third of a second of its return. One that falls silent for SILENT_CHECK_S is asked for:
+    when its outlet no longer answers and another of that name does, walkcap records that
+    one (an outlet that hangs sends no "lost").
     """
 
     def __init__(
@@ -311,12 +363,16 @@ class LslInlets:
         on_event: Callable[[DeviceEvent], None],
     ) -> None:
         self.names = list(dict.fromkeys(names))
+        self.topics = {name: topic_for(name) for name in self.names}
+        if len(set(self.topics.values())) < len(self.topics):
+            raise CaptureError(f"LSL streams {self.names} share a topic name: rename one")
         self._recorder = recorder
         self._on_event = on_event
         self._halt = threading.Event()
         self._threads: list[threading.Thread] = []
         self.received: dict[str, int] = dict.fromkeys(self.names, 0)
         self.state: dict[str, str] = dict.fromkeys(self.names, "looking")
+        self.bad_times: dict[str, int] = dict.fromkeys(self.names, 0)  # outside the clock
 
     def start(self) -> None:
         lsl = pylsl()
@@ -338,28 +394,45 @@ class LslInlets:
         self._on_event(DeviceEvent(now_ns(), f"lsl:{stream}", kind, message, details or {}))
 
     def _run(self, lsl, name: str) -> None:
+        gone = ""  # the uid of the outlet last recorded, once it is lost
         while not self._halt.is_set():
-            try:
+            try:  # the resolve is the wait: no pause between two
                 found = lsl.resolve_byprop("name", name, 1, RESOLVE_TIMEOUT_S)
             except Exception as e:
-                log.warning("LSL resolve %s: %s", name, e)
+                log.warning("LSL resolve %s: %s", name, escape(str(e)))
                 found = []
+                self._halt.wait(RESOLVE_TIMEOUT_S)
+            found = [f for f in found if f.uid() != gone] or found
             if not found:
-                self._halt.wait(0.5)
                 continue
             try:
-                self._record(lsl, name, found[0])
+                gone = self._record(lsl, name, found[0])
             except Exception as e:  # a peer's trouble is an event, never the session's end
-                log.warning("LSL stream %s: %s", name, e)
-                self._event(name, "error", f"LSL stream {name}: {e}")
+                log.warning("LSL stream %s: %s", name, escape(str(e)))
+                self._event(name, "error", f"LSL stream {name}: {escape(str(e))}")
+                gone = found[0].uid()
+                self._halt.wait(RESOLVE_TIMEOUT_S)
             self.state[name] = "looking"
 
-    def _record(self, lsl, name: str, info) -> None:
+    def _replaced(self, lsl, name: str, uid: str) -> bool:
+        """Whether stream `uid` no longer answers while another of its name does."""
+        try:
+            found = lsl.resolve_byprop("name", name, 0, SILENT_RESOLVE_S)
+        except Exception:
+            return False
+        uids = {f.uid() for f in found}
+        return bool(uids) and uid not in uids
+
+    def _record(self, lsl, name: str, info) -> str:
+        """Record stream `info` until it is lost or replaced; returns its uid."""
         inlet = lsl.StreamInlet(info, max_buflen=60, recover=False)
-        inlet.open_stream(timeout=2.0)
-        full = inlet.info(timeout=2.0)
+        inlet.open_stream(timeout=OPEN_TIMEOUT_S)
+        full = inlet.info(timeout=OPEN_TIMEOUT_S)
+        uid = full.uid()
         channels = _channel_labels(full)
-        is_marker = full.channel_format() == lsl.cf_string
+        fmt = full.channel_format()
+        is_marker = fmt == lsl.cf_string
+        integer = fmt in {getattr(lsl, f) for f in INTEGER_FORMATS if hasattr(lsl, f)}
         stream = {
             "name": full.name(),
             "type": full.type(),
@@ -375,7 +448,7 @@ class LslInlets:
         self._event(
             name,
             "lsl_found",
-            f"LSL stream {name} ({stream['type']}, {stream['channel_count']} ch, "
+            f"LSL stream {name} ({escape(stream['type'])}, {stream['channel_count']} ch, "
             f"{stream['nominal_srate']:g} Hz)",
             {
                 **stream,
@@ -384,8 +457,9 @@ class LslInlets:
             },
         )
         declared_on = None
-        topic = topic_for(name)
+        topic = self.topics[name]
         last_ns = None
+        heard = time.monotonic()
         while not self._halt.is_set():
             try:
                 samples, stamps = inlet.pull_chunk(timeout=0.2, max_samples=4096)
@@ -396,46 +470,89 @@ class LslInlets:
                 since = f" after {(now_ns() - last_ns) * 1e-9:.2f} s" if last_ns else ""
                 self._event(name, "lsl_lost", f"LSL stream {name} lost{since}: {e}")
                 inlet.close_stream()
-                return
+                return uid
             if not stamps:
+                if time.monotonic() - heard >= SILENT_CHECK_S:
+                    heard = time.monotonic()
+                    if self._replaced(lsl, name, uid):
+                        self._event(
+                            name,
+                            "lsl_lost",
+                            f"LSL stream {name} lost: its outlet no longer answers, "
+                            f"another of that name does",
+                        )
+                        inlet.close_stream()
+                        return uid
                 continue
+            heard = time.monotonic()
             lsl_times = np.asarray(stamps, dtype=np.float64) + offset
-            times = np.round((lsl_times - self._offset_s) * 1e9).astype(np.int64)
-            last_ns = int(times[-1])
+            times = session_times(lsl_times, self._offset_s)
             self.received[name] += len(stamps)
+            valid = [t for t in times if t is not None]
+            if valid:
+                last_ns = valid[-1]
+            if len(valid) < len(times):
+                bad = [lt for lt, t in zip(lsl_times.tolist(), times) if t is None]
+                self._bad_times(name, bad)
             rec = self._recorder()
             if rec is None:
                 continue
             received_ns = now_ns()
             if is_marker:
-                for value, t in zip(samples, times.tolist()):
-                    text = value[0] if isinstance(value, (list, tuple)) else str(value)
-                    rec.write_event(
-                        {
-                            "time_ns": t,
-                            "device": f"lsl:{name}",
-                            "kind": "marker",
-                            "message": str(text),
-                            "details": {"stream": name},
-                        }
-                    )
+                for value, t, lsl_t in zip(samples, times, lsl_times.tolist()):
+                    self._marker(rec, name, channels, value, t, lsl_t, received_ns)
                 continue
             if declared_on is not rec:
-                rec.declare_topic(topic, chunk_schema(name, channels), f"LSL stream {name}")
+                description = f"LSL stream {escape(name)}"
+                rec.declare_topic(topic, chunk_schema(name, channels, integer), description)
                 declared_on = rec
             rec.write_message(
                 topic,
-                int(times[0]),
+                valid[0] if valid else received_ns,
                 received_ns,
                 {
                     "stream": name,
-                    "time_ns": times.tolist(),
+                    "time_ns": times,
                     "lsl_time": np.asarray(stamps, dtype=np.float64).tolist(),
-                    "values": np.asarray(samples, dtype=np.float64).tolist(),
+                    "values": chunk_values(samples, integer),
                     "channels": channels,
                     "time_correction_s": offset,
                     "time_correction_uncertainty_s": uncertainty,
                 },
+            )
+        return uid
+
+    def _marker(self, rec, name, channels, value, t, lsl_t, received_ns) -> None:
+        """One marker sample as an event: every channel (the first is the message)."""
+        values = [str(v) for v in value] if isinstance(value, (list, tuple)) else [str(value)]
+        details: dict = {"stream": name}
+        if len(values) > 1:
+            details["values"] = values
+            if channels:
+                details["channels"] = channels
+        if t is None:  # a sample time outside the session clock: its receipt, and its LSL time
+            details["lsl_time"] = lsl_t
+            t = received_ns
+        rec.write_event(
+            {
+                "time_ns": t,
+                "device": f"lsl:{name}",
+                "kind": "marker",
+                "message": values[0] if len(values) == 1 else " | ".join(values),
+                "details": details,
+            }
+        )
+
+    def _bad_times(self, name: str, lsl_times: list[float]) -> None:
+        first = self.bad_times[name] == 0
+        self.bad_times[name] += len(lsl_times)
+        if first:  # once a stream: its samples carry time_ns null, their lsl_time as sent
+            self._event(
+                name,
+                "lsl_bad_time",
+                f"LSL stream {name}: a sample time outside the session clock "
+                f"({lsl_times[0]:.6g} s); such samples are recorded without time_ns",
+                {"count": len(lsl_times), "lsl_time": lsl_times[0]},
             )
 
 

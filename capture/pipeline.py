@@ -248,7 +248,7 @@ class Pipeline:
         if probs.shape != (len(MODES),) or not np.all(np.isfinite(probs)):
             # before the fusion: one NaN would stay in the HMM's state for good
             raise InferenceError(f"the classifier's output is not finite: {probs.tolist()}")
-        fused = self._push(frame.index, probs)
+        fused = self._push(frame.index, probs, pre.elevation_deg)
         done_ns = now_ns()  # the decision is out; features are for display and recording
         hint = (
             MODES[fused.decision]
@@ -272,12 +272,16 @@ class Pipeline:
             done_ns=done_ns,
         )
 
-    def _push(self, frame_index: int, probs: np.ndarray):
-        """Push to the fusion; its output with push numbers turned into frame indices."""
+    def _push(self, frame_index: int, probs: np.ndarray, elevation_deg: float = float("nan")):
+        """Push to the fusion (with the camera's elevation for gait cues); its output with
+        push numbers turned into frame indices."""
         self._frame_of_push[self._pushed] = frame_index
         self._frame_of_push.pop(self._pushed - 256, None)
         self._pushed += 1
-        out = self.fusion.push(probs)
+        if getattr(self.fusion, "uses_gait", False):
+            out = self.fusion.push(probs, elevation_deg)
+        else:
+            out = self.fusion.push(probs)
         if out is None:
             return None
         frame_of = self._frame_of_push.get

@@ -20,6 +20,7 @@ import numpy as np
 
 from capture.alarms import DISK_MINUTES_LOW, disk_minutes
 from devices.base import DeviceState
+from devices.imu_clock import drift_text
 
 MIN_RATE = 0.8  # a device below this fraction of its configured rate fails
 SYNC_P99_MS = 5.0  # IMU-to-frame sync error above this (p99): a warning
@@ -98,11 +99,21 @@ def device_item(name: str, status, sync: dict | None = None) -> CheckItem:
     unit = "fps" if name == "camera" else "Hz"
     parts.append(f"rate {status.measured_rate_hz:.1f} of {status.configured_rate_hz:g} {unit}")
     parts.append(f"drops {status.dropped}")
+    if d.get("frame_path"):  # how the camera's binding hands over frames
+        details["frame_path"] = str(d["frame_path"])
+        parts.append(f"frames via {d['frame_path']}")
     drift = d.get("drift_ppm", d.get("clock_drift_ppm"))
     warning = ""
     if drift is not None:
         details["clock_drift_ppm"] = round(float(drift), 1)
-        parts.append(f"clock drift {float(drift):+.0f} ppm")
+        uncertainty = d.get("drift_uncertainty_ppm")
+        if "drift_uncertainty_ppm" in d:  # how surely: a short probe fits it loosely
+            details["clock_drift_uncertainty_ppm"] = (
+                None if uncertainty is None else round(float(uncertainty), 1)
+            )
+            parts.append(f"clock drift {drift_text(float(drift), uncertainty)}")
+        else:
+            parts.append(f"clock drift {float(drift):+.0f} ppm")
         if abs(float(drift)) > DRIFT_PPM:
             warning = f"clock drift {float(drift):+.0f} ppm is unusually large"
     if sync:
@@ -150,7 +161,12 @@ def folder_item(folder: Path) -> CheckItem:
             f.write(b"walkcap")
             f.flush()
     except OSError as e:
-        reason = f"not writable: {e.strerror or e}"
+        file = next((p for p in (folder, *folder.parents) if p.is_file()), None)
+        reason = (
+            f"{file} is a file, not a folder: set [session] recordings or --out to a folder"
+            if file is not None
+            else f"not writable: {e.strerror or e}"
+        )
         return CheckItem("output folder", False, str(folder.resolve()), reason)
     return CheckItem("output folder", True, f"{folder.resolve()} writable")
 

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import math
 import os
 import struct
 import zlib
@@ -35,7 +36,15 @@ import orjson
 
 from capture import topics as T
 from capture.errors import CaptureError
-from capture.recovery import RECORD_HEAD, Damage, ScanResult, check_magic, scan
+from capture.recovery import (
+    RECORD_HEAD,
+    Damage,
+    ScanResult,
+    check_magic,
+    file_bytes,
+    scan,
+    summary_damage,
+)
 from devices.frames import MODES, CameraGeometry, DepthFrame, ImuSample
 
 
@@ -150,6 +159,16 @@ class Recording:
     def read(self, topic: str, *, raw: bool = False) -> list[RecordedMessage]:
         return list(self.messages([topic], raw=raw))
 
+    def sequences(self, topic: str) -> list[tuple[int, int, int]]:
+        """(sequence, publish time, log time) of every message on `topic`, in log-time
+        order, without decoding them: a sensor's own count and clock beside the host's."""
+        with _damage_is_an_error(self.path):
+            items = [
+                (m.sequence, m.publish_time, m.log_time)
+                for _, _, m in _iter_raw(self.path, self.complete, {topic})
+            ]
+        return sorted(items, key=lambda x: x[2])
+
     def log_times(self) -> dict[str, np.ndarray]:
         """Sorted log times of every topic, from the index when there is one (no decoding)."""
         if self._log_times is None:
@@ -243,8 +262,8 @@ def _iter_raw(path: Path, complete: bool, topics: set[str] | None):
         result = ScanResult()
         origin = None
         for record in scan(f, result):
-            if result.damaged:  # every reader stops at damage, with the same line
-                raise CaptureError(_damage_line(path, result.damaged[0].describe(origin)))
+            if result.lost:  # every reader stops at damage, with the same line
+                raise CaptureError(_damage_line(path, result.lost[0].describe(origin)))
             if isinstance(record, Message) and origin is None:
                 origin = record.log_time
             if isinstance(record, Schema):
@@ -324,7 +343,7 @@ def _chunk_messages(f, offset: int, length: int, wanted: set[int]):
 
     f.seek(offset)
     record = f.read(length)
-    if len(record) != length or record[0] != Opcode.CHUNK:
+    if len(record) != length:  # the record's head is not read: the index (CRC) says where
         raise ValueError(f"no chunk at byte {offset}")
     chunk = Chunk.read(ReadDataStream(io.BytesIO(memoryview(record)[RECORD_HEAD.size :])))
     if chunk.compression == "zstd":
@@ -381,7 +400,7 @@ def _open(p: Path) -> Recording:
     with open(p, "rb") as f:
         try:
             reader = make_reader(f)
-            summary = reader.get_summary()
+            summary = None if summary_damage(file_bytes(f)) else reader.get_summary()
         except Exception:  # no footer, cut-off summary: read it record by record
             summary = None
         if summary is not None and summary.statistics is not None:
@@ -615,6 +634,12 @@ def read_trial(path: str | os.PathLike) -> dict:
     - labels (N,): the operator's mode in force at the frame's time (-1: none yet), undos
       applied (effective_changes: an undone change never happened)
     - truth (N,) simulator's true mode, or None when the recording has no /sim/truth
+    - the two references (inference.evaluation): locomotion (N,), the subject's mode keyed
+      live (undos applied, offline corrections not); terrain (N,), what each image shows:
+      the simulator's truth, else the labels made offline in `replay --tui` laid over the
+      live keys (`labels`), else None; terrain_source: "simulator", "offline labels" or None
+    - camera_elevation_deg (N,): the camera's optical axis above the horizon (/tf), NaN
+      where the frame had no orientation: the gait cue of fusion "steady+gait"
     - label_changes: every recorded change [(time_ns, mode, source)] in time order, undos
       and what they undid included (the audit trail); reference_changes: the ones that
       define `labels`; metadata (typed); id; modes: MODES
@@ -625,7 +650,8 @@ def read_trial(path: str | os.PathLike) -> dict:
     voted: dict[int, int] = {}
     truth: dict[int, int] = {}
     changes: list[tuple[int, str, str]] = []
-    wanted = [T.CNN, T.FUSED, T.LABELS, T.TRUTH]
+    elevation: dict[int, float] = {}
+    wanted = [T.CNN, T.FUSED, T.LABELS, T.TRUTH, T.TF]
     for m in rec.messages(wanted):
         d = m.data
         if m.topic == T.CNN:
@@ -638,6 +664,11 @@ def read_trial(path: str | os.PathLike) -> dict:
             changes.append((int(d["time_ns"]), d.get("mode", ""), d.get("source", "")))
         elif m.topic == T.TRUTH:
             truth[int(d["frame_index"])] = mode_index(d.get("mode"))
+        elif m.topic == T.TF:  # camera -> world [w, x, y, z]: the optical axis's height
+            _, x, y, _ = (float(v) for v in d)
+            elevation[m.sequence] = math.degrees(
+                math.asin(max(-1.0, min(1.0, 1 - 2 * (x * x + y * y))))
+            )
     index = np.array(sorted(cnn), dtype=np.int64)
     times = np.array([int(cnn[i]["time_ns"]) for i in index], dtype=np.int64)
     probs = np.array(
@@ -646,6 +677,16 @@ def read_trial(path: str | os.PathLike) -> dict:
     ).reshape(-1, len(MODES))
     changes.sort(key=lambda c: c[0])  # stable: same-time changes keep their file order
     reference = effective_changes(changes)
+    labels = labels_at(times, reference)
+    truth_array = (
+        np.array([truth.get(int(i), -1) for i in index], dtype=int)
+        if T.TRUTH in rec.topics
+        else None
+    )
+    offline = any(c[2] == CORRECTION for c in changes)
+    terrain_source = (
+        "simulator" if truth_array is not None else "offline labels" if offline else None
+    )
     return {
         "frame_index": index,
         "time_ns": times,
@@ -654,12 +695,12 @@ def read_trial(path: str | os.PathLike) -> dict:
         "cnn_decisions": np.array([mode_index(cnn[i]["decision"]) for i in index], dtype=int),
         "decisions": np.array([fused.get(int(i), -1) for i in index], dtype=int),
         "voted": np.array([voted.get(int(i), -1) for i in index], dtype=int),
-        "labels": labels_at(times, reference),
-        "truth": (
-            np.array([truth.get(int(i), -1) for i in index], dtype=int)
-            if T.TRUTH in rec.topics
-            else None
-        ),
+        "labels": labels,
+        "truth": truth_array,
+        "locomotion": labels_at(times, [c for c in reference if c[2] != CORRECTION]),
+        "terrain": truth_array if truth_array is not None else labels if offline else None,
+        "terrain_source": terrain_source,
+        "camera_elevation_deg": np.array([elevation.get(int(i), np.nan) for i in index]),
         "label_changes": changes,
         "reference_changes": reference,
         "metadata": rec.metadata,
@@ -668,16 +709,16 @@ def read_trial(path: str | os.PathLike) -> dict:
     }
 
 
-def read_trials(paths, reference: str = "auto") -> list:
+def read_trials(paths, reference: str = "terrain") -> list:
     """Evaluation trials (inference.evaluation.Trial) from recordings, one a file.
 
-    reference: "labels" (the operator's), "truth" (the simulator's) or "auto" (labels
-    where there are any).
+    reference: what accuracy is scored against, "terrain" (what the images show) or
+    "locomotion" (the subject's mode keyed live); see read_trial.
     """
     return [read_evaluation_trial(p, reference) for p in paths]
 
 
-def read_evaluation_trial(path, reference: str = "auto", name: str | None = None):
+def read_evaluation_trial(path, reference: str = "terrain", name: str | None = None):
     """One recording's evaluation trial (see read_trials), named `name` (default: the
     path); one task of a corpus job (capture.cluster)."""
     from inference.evaluation import trial_from_recording
@@ -685,10 +726,11 @@ def read_evaluation_trial(path, reference: str = "auto", name: str | None = None
     return trial_from_recording(str(name or path), read_trial(path), reference)
 
 
-def labeled_session(path: str | os.PathLike, reference: str = "labels"):
+def labeled_session(path: str | os.PathLike, reference: str = "terrain"):
     """The recording as a training session (inference.dataset.LabeledSession): every
-    classifier input image, labelled with the operator's mode at its time (`reference`
-    "labels"), or with the simulator's truth ("truth"); -1 where there is none."""
+    classifier input image, labelled with what it shows (`reference` "terrain": the
+    simulator's truth where the recording has it, else the labels), the operator's mode at
+    its time ("labels"), or the simulator's truth ("truth"); -1 where there is none."""
     from inference.dataset import LabeledSession
 
     rec = open_recording(path)
@@ -701,6 +743,8 @@ def labeled_session(path: str | os.PathLike, reference: str = "labels"):
         raise CaptureError(f"{rec.path}: no classifier images (/camera/binary_image) to train on")
     index = sorted(images)
     t = np.array([times[i] for i in index], dtype=np.int64)
+    if reference == "terrain":
+        reference = "truth" if T.TRUTH in rec.topics else "labels"
     if reference == "truth":
         truth = {
             int(m.data["frame_index"]): mode_index(m.data.get("mode"))

@@ -44,6 +44,7 @@ from capture import topics as T
 from capture.errors import CaptureError
 from capture.journal import Journal, fsync_directory, journal_path
 from devices.clock import now_ns
+from devices.scheduling import NORMAL_PRIORITY, realtime_priority
 
 CLOUD_VOXEL_M = 0.02  # /camera/cloud: one point per voxel of this size (see encode_processed)
 CLOUD_MAX_POINTS = 4096
@@ -115,6 +116,8 @@ class RecorderStats:
     messages: int = 0
     dropped: int = 0
     dropped_by_kind: dict = field(default_factory=dict)
+    shed: int = 0  # derived items (clouds, images, inference, features) shed to keep raw data
+    shed_by_kind: dict = field(default_factory=dict)
     queue_depth: int = 0
     queue_size: int = 0
     labels: int = 0
@@ -134,6 +137,9 @@ class QueuedItem:
 
     __slots__ = ()
     kind: ClassVar[str]  # what its drops are counted as (RecorderStats.dropped_by_kind, /events)
+    # Computed from the raw data (clouds, images, inference, features): shed first when the
+    # writer falls behind, so raw depth, IMU samples and events keep their place.
+    derived: ClassVar[bool] = False
 
 
 @dataclass(slots=True)
@@ -152,6 +158,7 @@ class QueuedImuSample(QueuedItem):
 @dataclass(slots=True)
 class QueuedProcessing(QueuedItem):
     kind: ClassVar[str] = "processed"
+    derived: ClassVar[bool] = True
     index: int
     time_ns: int
     log_time: int
@@ -164,6 +171,7 @@ class QueuedProcessing(QueuedItem):
 @dataclass(slots=True)
 class QueuedInference(QueuedItem):
     kind: ClassVar[str] = "inference"
+    derived: ClassVar[bool] = True
     index: int
     time_ns: int
     log_time: int
@@ -174,6 +182,7 @@ class QueuedInference(QueuedItem):
 @dataclass(slots=True)
 class QueuedFeatures(QueuedItem):
     kind: ClassVar[str] = "features"
+    derived: ClassVar[bool] = True
     index: int
     time_ns: int
     features: dict
@@ -213,6 +222,79 @@ class QueuedMessage(QueuedItem):
 class QueuedDeviceEvent(QueuedItem):
     kind: ClassVar[str] = "event"
     event: Any  # a DeviceEvent or a dict
+
+
+SHED_BACKLOG = 0.1  # raw items queued beyond this share of the queue: derived ones are shed
+
+
+class WriteQueue:
+    """The writer's queue in two parts: raw items (depth, IMU, events, truth, messages)
+    first, derived ones (clouds, images, inference, features) after them. When the writer
+    falls behind, derived items are shed, the queued ones first, so raw data is dropped
+    only when its own part is full (the disk itself cannot keep up)."""
+
+    def __init__(self, maxsize: int) -> None:
+        self.maxsize = maxsize
+        self._raw: collections.deque = collections.deque()
+        self._derived: collections.deque = collections.deque()
+        self._derived_max = max(1, maxsize // 2)
+        self._shed_backlog = max(1, int(SHED_BACKLOG * maxsize))
+        self._cond = threading.Condition()
+        self.shed: collections.Counter = collections.Counter()  # derived items shed, by kind
+
+    def qsize(self) -> int:
+        return len(self._raw) + len(self._derived)
+
+    def put_nowait(self, item) -> None:
+        self.put(item, block=False)
+
+    def put(self, item, block: bool = True, timeout: float | None = None) -> None:
+        """Queue an item; queue.Full when a raw one finds no room. Without `block` a
+        derived item that finds no room, or the writer behind on raw data, is shed."""
+        derived = getattr(item, "derived", False)
+        with self._cond:
+            while True:
+                if derived:
+                    behind = len(self._raw) > self._shed_backlog and not block
+                    if not behind and len(self._derived) < self._derived_max:
+                        self._derived.append(item)
+                        break
+                    if not block:
+                        self.shed[item.kind] += 1
+                        return
+                elif item is _STOP or len(self._raw) < self.maxsize:
+                    self._raw.append(item)
+                    if len(self._raw) > self._shed_backlog and not block:
+                        self._shed_queued()
+                    break
+                if not block or not self._cond.wait(timeout):
+                    raise queue.Full
+            self._cond.notify_all()
+
+    def _shed_queued(self) -> None:
+        while self._derived:
+            self.shed[self._derived.popleft().kind] += 1
+
+    def get(self, timeout: float | None = None):
+        """The oldest raw item, else the oldest derived one (the stop mark comes last)."""
+        with self._cond:
+            while True:
+                if self._raw and (self._raw[0] is not _STOP or not self._derived):
+                    item = self._raw.popleft()
+                    break
+                if self._derived:
+                    item = self._derived.popleft()
+                    break
+                if not self._cond.wait(timeout):
+                    raise queue.Empty
+            self._cond.notify_all()
+            return item
+
+    def get_nowait(self):
+        with self._cond:
+            if not self._raw and not self._derived:
+                raise queue.Empty
+        return self.get(0)
 
 
 class _TrackedFile:
@@ -288,15 +370,20 @@ class Recorder:
         blocking: bool = False,
         zstd_level: int = ZSTD_LEVEL,
         recording_id: str | None = None,
+        priority: int = 0,
     ) -> None:
         self.path = Path(path)
+        # SCHED_FIFO priority of the writer thread (0: normal): above the pipeline's, so the
+        # raw data's writer is never starved by the work derived from it.
+        self._priority_rt = priority
+        self.scheduling = NORMAL_PRIORITY
         self.journal_path = journal_path(self.path)
         # Values of any JSON type: written as JSON (capture.topics.encode_metadata).
         self._metadata = {name: dict(values) for name, values in (metadata or {}).items()}
         # The recording's identity, in its "recording" record.
         self.id = recording_id or str(uuid.uuid4())
         self._attachments = dict(attachments or {})
-        self._queue: queue.Queue = queue.Queue(maxsize=queue_size)
+        self._queue = WriteQueue(queue_size)
         self._queue_size = queue_size
         self._priority: collections.deque = collections.deque()  # labels, markers: unbounded
         self._chunk_interval_s = chunk_interval_s
@@ -313,6 +400,7 @@ class Recorder:
         self._lock = threading.Lock()
         self._dropped: collections.Counter = collections.Counter()
         self._reported_drops: collections.Counter = collections.Counter()
+        self._reported_shed: collections.Counter = collections.Counter()
         self._labels = 0
         self._file: _TrackedFile | None = None
         self._writer = None
@@ -388,6 +476,7 @@ class Recorder:
         self._next_flush = time.monotonic() + self._chunk_interval_s
         self._thread = threading.Thread(target=self._run, name="walkcap-recorder", daemon=True)
         self._thread.start()
+        self.scheduling = realtime_priority(self._thread.native_id, self._priority_rt)
 
     def _abandon_start(self) -> None:
         """Start failed half-way: leave no empty or broken files behind."""
@@ -462,6 +551,7 @@ class Recorder:
     def stats(self) -> RecorderStats:
         with self._lock:
             dropped = dict(self._dropped)
+        shed = dict(self._queue.shed)
         span = 0.0
         if self._first_ns is not None and self._last_ns is not None:
             span = (self._last_ns - self._first_ns) * 1e-9
@@ -477,6 +567,8 @@ class Recorder:
             messages=self._messages,
             dropped=sum(dropped.values()),
             dropped_by_kind=dropped,
+            shed=sum(shed.values()),
+            shed_by_kind=shed,
             queue_depth=self._queue.qsize(),
             queue_size=self._queue_size,
             labels=self._labels,
@@ -655,6 +747,7 @@ class Recorder:
             "messages": self._messages,
             "chunks": self._chunks,
             "dropped": sum(self._dropped.values()),
+            "shed": sum(self._queue.shed.values()),
             "errors": self._errors,
             "labels": self._labels,
             "closed_unix_time_ns": time.time_ns(),
@@ -692,6 +785,20 @@ class Recorder:
         self._message = message
 
     def _report_drops(self) -> None:
+        shed = collections.Counter(self._queue.shed)
+        new_shed, self._reported_shed = shed - self._reported_shed, shed
+        if new_shed:
+            n = sum(new_shed.values())
+            what = ", ".join(f"{k} {v}" for k, v in sorted(new_shed.items()))
+            t = now_ns()
+            event = {
+                "time_ns": t,
+                "device": "recorder",
+                "kind": "shed",
+                "message": f"recorder behind: {n} derived items shed ({what}); raw data kept",
+                "details": dict(new_shed),
+            }
+            self._add(T.EVENTS, t, t, T.encode_json(event))
         with self._lock:
             new = self._dropped - self._reported_drops
             self._reported_drops = collections.Counter(self._dropped)

@@ -359,10 +359,12 @@ def _replay(
     classifier = classifier or load_classifier(config.model.path or None, threads=CNN_THREADS)
     cfg = config.fusion
     fusion = make_fusion(
-        "hmm+voting",
+        cfg.method,
         window=cfg.window,
         vote_delay=cfg.vote_delay,
         transition=np.asarray(cfg.transition),
+        stay=cfg.stay,
+        evidence=cfg.evidence,
     )
     pipeline = Pipeline(params, classifier, fusion)
 

@@ -47,6 +47,7 @@ from inference.errors import InferenceError
 log = logging.getLogger(__name__)
 
 TIMELINE_S = 20.0
+TRIAL_MAX = 99_999  # trial numbers name files (t01 ... t99999) and fit every integer field
 SWITCH_INTERVAL_S = 0.0005
 
 
@@ -85,8 +86,8 @@ class SubjectInfo:
             raise CaptureError("side: required for an amputee (left or right)")
         if not re.fullmatch(r"[A-Za-z0-9_-]{1,32}", self.condition):
             raise CaptureError("condition: 1-32 letters, digits, '-' or '_' (e.g. indoor)")
-        if self.trial < 1:
-            raise CaptureError("trial: a number from 1")
+        if not 1 <= self.trial <= TRIAL_MAX:
+            raise CaptureError(f"trial: a number from 1 to {TRIAL_MAX}")
 
     def to_metadata(self) -> dict:
         """The form as the "session" metadata record: typed values (None: not given)."""
@@ -111,6 +112,30 @@ class TimelineEntry:
     truth: str | None = None
 
 
+SWITCHES_S = 60.0  # the live screen counts the fused decision's switches over this long
+
+
+class SwitchCounter:
+    """Changes of the final fused decision over the last `span_s` of frame time."""
+
+    def __init__(self, span_s: float) -> None:
+        self.span_ns = int(span_s * 1e9)
+        self._last: int | None = None
+        self._times: collections.deque[int] = collections.deque()
+
+    def add(self, time_ns: int, final: int | None) -> None:
+        """The final decision made at `time_ns` (None: none made then)."""
+        if final is not None:
+            if self._last is not None and final != self._last:
+                self._times.append(time_ns)
+            self._last = final
+        while self._times and self._times[0] < time_ns - self.span_ns:
+            self._times.popleft()
+
+    def count(self) -> int:
+        return len(self._times)
+
+
 @dataclass
 class Snapshot:
     """Everything the UI shows, copied out under the lock: the UI never touches threads."""
@@ -128,8 +153,17 @@ class Snapshot:
     recording_started_ns: int | None
     frames: int
     latency_ms: dict
+    switches_last_minute: int | None = None  # final fused decision changes in SWITCHES_S
+    walker_mode: str | None = None  # mock devices: the walker's locomotion mode, to key
     alarms: AlarmState | None = None  # gaps this trial, and what the operator must see now
     stale_frames: int = 0  # frames of this (or the last) trial left undecided: stale IMU
+
+
+HOST_STALL_NS = 1_000_000_000  # the monitor (every 0.2 s) not run for this long: a host stall
+
+# Threads carrying raw data in: the rig's reader, the IMU driver's and this session's
+# camera and IMU threads (the IMU's share one name).
+INTAKE_THREADS = ("walkcap-rig-reader", "walkcap-imu", "walkcap-camera")
 
 
 def stream_periods(config: config_mod.Config) -> dict[str, float]:
@@ -317,11 +351,14 @@ class Session:
         self._frames = 0
         self._stale_frames = 0
         self._last_truth_mode: str | None = None
+        self._walker_mode: str | None = None
+        self._switches = SwitchCounter(SWITCHES_S)
         self._inbox = _FrameInbox()
         self._failures = _Streak("pipeline", "error", "the pipeline failed on it")
         self._behind = _Streak("pipeline", "behind", "the pipeline fell behind")
         self.pipeline: Pipeline | None = None
         self.pipeline_priority = NORMAL_PRIORITY  # how the pipeline thread is scheduled
+        self.intake_scheduling = NORMAL_PRIORITY  # how the intake threads and writer are
         self.model_metadata: dict = {}
         self.finished = threading.Event()  # the camera ran out of frames (end of a mock course)
         self.trial_notice = ""  # why the last recording has another trial number than asked
@@ -346,10 +383,12 @@ class Session:
             self._classifier = load_classifier(cfg.model.path or None, threads=CNN_THREADS)
         self.model_metadata = dict(getattr(self._classifier, "metadata", {}) or {})
         fusion = make_fusion(
-            "hmm+voting",
+            cfg.fusion.method,
             window=cfg.fusion.window,
             vote_delay=cfg.fusion.vote_delay,
             transition=np.asarray(cfg.fusion.transition),
+            stay=cfg.fusion.stay,
+            evidence=cfg.fusion.evidence,
         )
         self.pipeline = Pipeline(PreprocessParams.from_config(cfg), self._classifier, fusion)
         # First calls are slow (torch's lazy set-up, numpy caches, the recorder's schema
@@ -390,7 +429,19 @@ class Session:
         self.pipeline_priority = realtime_priority(
             pipeline.native_id, cfg.session.realtime_priority
         )
+        # The threads that carry raw data in (the devices' readers, this session's intake)
+        # and the recorder's writer run one step above the pipeline: what is derived from
+        # the data never starves the data itself. They sleep between items.
+        for thread in threading.enumerate():
+            if thread.name in INTAKE_THREADS:
+                self.intake_scheduling = realtime_priority(thread.native_id, self.intake_priority)
         self._spawn(self._monitor_loop, "monitor")
+
+    @property
+    def intake_priority(self) -> int:
+        """SCHED_FIFO priority of the threads carrying raw data (0: normal scheduling)."""
+        pipeline = self.config.session.realtime_priority
+        return min(99, pipeline + 1) if pipeline > 0 else 0
 
     def _spawn(self, target, name: str) -> threading.Thread:
         t = threading.Thread(target=target, name=f"walkcap-{name}", daemon=True)
@@ -425,7 +476,8 @@ class Session:
             if sample is None:
                 continue
             t = sample.time_ns if sample.time_ns is not None else sample.host_time_ns
-            self.alarms.sample("imu", sample.host_time_ns)  # the recorder's log time
+            # the device's count and time, and the recorder's log time
+            self.alarms.sample("imu", sample.packet_counter, t, sample.host_time_ns)
             if sample.quaternion is not None:
                 self.track.add(t, sample.quaternion, sample.rate_of_turn)
             truth = getattr(self._imu, "true_time_ns", None)
@@ -467,7 +519,22 @@ class Session:
         return status.state == DeviceState.STOPPED and not self._stop.is_set()
 
     def _monitor_loop(self) -> None:
+        last = now_ns()
         while not self._stop.wait(0.2):
+            t = now_ns()
+            if t - last > HOST_STALL_NS:  # this loop wakes every 0.2 s: the host stalled
+                stall_s = (t - last) * 1e-9
+                self._event(
+                    DeviceEvent(
+                        t,
+                        "host",
+                        "stall",
+                        f"the computer stalled for {stall_s:.2f} s (no walkcap thread ran): "
+                        "what the devices kept meanwhile is recorded, the rest is a gap",
+                        {"gap_s": stall_s, "gap_start_ns": last, "gap_end_ns": t},
+                    )
+                )
+            last = t
             for device in (self._camera, self._imu):
                 for event in device.poll_events():
                     self._event(event)
@@ -510,11 +577,13 @@ class Session:
         """The raw frame, its truth and an automatic label: written before any processing.
         Returns the recorder it went to (None between trials)."""
         t = frame.device_time_ns
-        truth_mode = frame.truth.get("mode") if frame.truth else None
+        # the walker's locomotion mode, what an operator keys (the image's mode leads it)
+        truth_mode = frame.truth.get("locomotion_mode") if frame.truth else None
+        self._walker_mode = truth_mode
         if self.auto_label and truth_mode and truth_mode != self._last_truth_mode:
             self.set_label(truth_mode, source="simulator", time_ns=t)
         self._last_truth_mode = truth_mode
-        self.alarms.sample("camera", frame.host_time_ns)  # the recorder's log time
+        self.alarms.sample("camera", frame.index, t, frame.host_time_ns)  # as the file has it
         rec = self._recorder
         for out in self._outputs():
             out.write_frame(frame, t)
@@ -595,6 +664,8 @@ class Session:
                     e = self._by_index.get(fused.voted_frame_index)
                     if e is not None:
                         e.voted = fused.voted
+                votes = getattr(getattr(self.pipeline, "fusion", None), "votes", False)
+                self._switches.add(r.time_ns, fused.voted if votes else fused.decision)
             self._latencies.append(r.latency_ms)
             for sink in self._latency_sinks:
                 sink(r.latency_ms)
@@ -675,20 +746,23 @@ class Session:
     def recording(self) -> bool:
         return self._recorder is not None
 
-    def start_recording(self, info: SubjectInfo, existing: str = "next") -> Path:
+    def start_recording(
+        self, info: SubjectInfo, existing: str = "next", folder: str | Path | None = None
+    ) -> Path:
         """One MCAP file per trial, named from subject, condition, trial and time.
 
         A trial that has files in the folder already is never recorded twice by accident
         (capture.corpus.trial_conflict): `existing` "next" records the next free trial
         number instead (and says so in `trial_notice`), "error" refuses, "overwrite"
         records it again, the new file superseding the earlier ones (kept on disk;
-        corpora leave them out)."""
+        corpora leave them out). `folder` is this trial's only (a remote `filename`'s root);
+        by default the configured recordings folder."""
         from capture.recorder import Recorder
 
         info.validate()
         if self._recorder is not None:
             raise CaptureError("already recording")
-        folder = Path(self.config.session.recordings)
+        folder = Path(self.config.session.recordings if folder is None else folder)
         try:
             folder.mkdir(parents=True, exist_ok=True)
         except OSError as e:
@@ -701,7 +775,12 @@ class Session:
         metadata = self._metadata(info)
         if supersedes:
             metadata["session"]["supersedes"] = supersedes
-        recorder = Recorder(path, metadata=metadata, attachments=self._attachments())
+        recorder = Recorder(
+            path,
+            metadata=metadata,
+            attachments=self._attachments(),
+            priority=self.intake_priority,
+        )
         recorder.start()
         self.alarms.recordings = folder
         self.alarms.new_trial()
@@ -755,11 +834,13 @@ class Session:
             "walkcap_version": __version__,
             "model_path": cfg.model.path or "bundled",
             "model_hash": model_hash(self._classifier),
+            "fusion_method": cfg.fusion.method,
             "fusion_window": cfg.fusion.window,
             "fusion_vote_delay": cfg.fusion.vote_delay,
             "fusion_transition": T.jsonable(cfg.fusion.transition),
             "preprocess": T.jsonable(self.pipeline.params.to_dict() if self.pipeline else {}),
             "pipeline_priority": self.pipeline_priority,
+            "intake_priority": self.intake_scheduling,
         }
         session = info.to_metadata()
         session["operator"] = cfg.session.operator
@@ -786,6 +867,8 @@ class Session:
                 label=self._label,
                 latest=self._latest,
                 timeline=list(self._timeline),  # entries only gain a late fused decision
+                switches_last_minute=self._switches.count(),
+                walker_mode=self._walker_mode,
                 events=list(self._events),
                 recording=None,
                 recording_started_ns=self._recording_started_ns,

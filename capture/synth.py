@@ -2,9 +2,10 @@
 
 Offline and deterministic for a seed: the terrain-walk simulator renders every frame, the
 IMU samples are the walker's thigh orientation at the IMU rate with sensor noise (no pty:
-there is no real time to keep), the pipeline runs as live, labels come from the simulator's
-truth, and a blocking recorder loses nothing. The file has the same topics as a live
-recording, so eval, train and replay read both alike.
+there is no real time to keep), the pipeline runs as live, the labels key the walker's
+locomotion mode as an operator keys it (the `locomotion` reference; `/sim/truth` carries
+what each image shows, the `terrain` reference), and a blocking recorder loses nothing.
+The file has the same topics as a live recording, so eval, train and replay read both alike.
 """
 
 from __future__ import annotations
@@ -85,10 +86,12 @@ def synth_recording(
     simulator = Simulator.from_config(cfg.simulator, fps=cfg.camera.fps)
     rng = np.random.default_rng([seed, 4242])
     fusion = make_fusion(
-        "hmm+voting",
+        cfg.fusion.method,
         window=cfg.fusion.window,
         vote_delay=cfg.fusion.vote_delay,
         transition=np.asarray(cfg.fusion.transition),
+        stay=cfg.fusion.stay,
+        evidence=cfg.fusion.evidence,
     )
     pipeline = Pipeline(PreprocessParams.from_config(cfg), classifier, fusion)
     metadata = {
@@ -109,6 +112,7 @@ def synth_recording(
             "walkcap_version": __version__,
             "model_path": cfg.model.path or "bundled",
             "model_hash": model_hash(classifier),
+            "fusion_method": cfg.fusion.method,
             "fusion_window": cfg.fusion.window,
             "fusion_vote_delay": cfg.fusion.vote_delay,
             "fusion_transition": T.jsonable(cfg.fusion.transition),
@@ -139,8 +143,8 @@ def synth_recording(
                 pending = next(imu, None)
             frame = simulator.render(k / cfg.camera.fps, index=k)
             frame.device_time_ns, frame.host_time_ns = t, t + FRAME_TRANSFER_NS
-            if frame.truth and frame.truth.get("mode") != mode:
-                mode = frame.truth["mode"]
+            if frame.truth and frame.truth.get("locomotion_mode") != mode:
+                mode = frame.truth["locomotion_mode"]
                 recorder.write_label(t, mode, "simulator")
             q, age_ns = track.at(t)
             result = pipeline.process(frame, q, t, orientation_age_ns=age_ns)

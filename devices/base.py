@@ -88,7 +88,11 @@ class BoundedBuffer(Generic[T]):
 
 
 class RateMeter:
-    """Measured rate over the last `window_s` seconds of arrivals."""
+    """Items per second over the last `window_s` seconds, by the times the items carry.
+
+    Fed with sample times (when each sample was taken, on the session clock), a burst of
+    samples that arrive together after a gap counts at the times they were taken: it
+    cannot read as a rate above the device's."""
 
     def __init__(self, window_s: float = 2.0) -> None:
         self._times: collections.deque[int] = collections.deque()
@@ -96,8 +100,10 @@ class RateMeter:
 
     def tick(self, t_ns: int | None = None) -> None:
         t = now_ns() if t_ns is None else t_ns
+        if self._times and t < self._times[-1] - self._window_ns:
+            self._times.clear()  # the clock went back (a device clock refitted): start over
         self._times.append(t)
-        while self._times and t - self._times[0] > self._window_ns:
+        while t - self._times[0] > self._window_ns:
             self._times.popleft()
 
     def rate(self, t_ns: int | None = None) -> float:
@@ -106,5 +112,6 @@ class RateMeter:
             self._times.popleft()
         if len(self._times) < 2:
             return 0.0
-        span = (self._times[-1] - self._times[0]) * 1e-9
+        first, last = min(self._times), max(self._times)
+        span = (last - first) * 1e-9
         return (len(self._times) - 1) / span if span > 0 else 0.0

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import importlib
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 from devices.base import (
     DEGRADED,
@@ -83,6 +83,9 @@ def open_camera(camera_config=None, simulator_config=None, **kw) -> Camera:
     return camera
 
 
+HOST_STALL_NS = 1_000_000_000  # the watchdog not run for this long: the host stalled
+
+
 class Camera:
     """Base of every depth camera backend. Thread-safe between one producer and consumers."""
 
@@ -91,13 +94,22 @@ class Camera:
     # backend with its own watcher): stalls and resumed frames are still reported.
     watchdog = True
 
-    def __init__(self, config=None, *, geometry: CameraGeometry | None = None) -> None:
+    def __init__(
+        self,
+        config=None,
+        *,
+        geometry: CameraGeometry | None = None,
+        clock: Callable[[], int] = now_ns,
+    ) -> None:
         if config is None:
             from devices.config import CameraConfig
 
             config = CameraConfig()
         self.config = config
         self.geometry = geometry or CameraGeometry()
+        # The session clock; a backend on an injected clock (tests) passes its own, so the
+        # watchdog measures silence on the clock the frames are stamped with.
+        self._now = clock
         self._buffer: BoundedBuffer[DepthFrame] = BoundedBuffer(max(1, config.buffer_frames))
         self._events: BoundedBuffer[DeviceEvent] = BoundedBuffer(256)
         self._rate = RateMeter()
@@ -118,6 +130,8 @@ class Camera:
         self._watch_stop = threading.Event()
         self._next_reopen_ns = 0
         self._lost_at_ns = 0
+        self._last_check_ns = 0
+        self._host_resumed_ns = 0  # the end of the last host stall (see _check)
         self.reopens = 0
         # After a reopen a device may number its frames from 0 again: they go on from here.
         self._last_index = -1
@@ -166,7 +180,7 @@ class Camera:
         self.open()
         if self._running:
             return
-        self._started_ns = now_ns()
+        self._started_ns = self._now()
         self._last_frame_ns = 0
         self._stalled = False
         self._set_state(OK, "streaming")
@@ -235,7 +249,7 @@ class Camera:
                 return
 
     def status(self) -> DeviceStatus:
-        t = now_ns()
+        t = self._now()
         self._check(t)
         state, message = self._state, self._message
         if state == OK:
@@ -275,15 +289,21 @@ class Camera:
     def _watchdog_run(self) -> None:
         while not self._watch_stop.wait(0.1):
             try:
-                self._check(now_ns())
+                self._check(self._now())
             except Exception as e:  # the watchdog must outlive an odd device
                 self._message = f"watchdog: {e}"
 
     def _check(self, t: int) -> None:
         """Stall, lost and reopen: from the watchdog thread (and status())."""
         with self._watch_lock:
+            # Checks run every 0.1 s: a longer pause is the host's own stall (stopped,
+            # swapped, starved), not the camera's silence. The frames the camera kept
+            # sending meanwhile are still on their way: silence counts from here.
+            if self._last_check_ns and t - self._last_check_ns > HOST_STALL_NS:
+                self._host_resumed_ns = t
+            self._last_check_ns = max(self._last_check_ns, t)
             if self._state == OK and self._running:
-                since = self._last_frame_ns or self._started_ns
+                since = max(self._last_frame_ns or self._started_ns, self._host_resumed_ns)
                 silent_s = (t - since) * 1e-9
                 if silent_s > self._stall_after_s() and not self._stalled:
                     self._stalled = True
@@ -358,7 +378,7 @@ class Camera:
             self._stalled = False
 
     def _event(self, kind: str, message: str, **details) -> None:
-        self._events.put(DeviceEvent(now_ns(), "camera", kind, message, details))
+        self._events.put(DeviceEvent(self._now(), "camera", kind, message, details))
 
     def _set_state(self, state: DeviceState, message: str) -> None:
         self._state, self._message = state, message

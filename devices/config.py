@@ -70,7 +70,7 @@ class SimulatorConfig:
     def problems(self) -> Problems:
         out = one_of("course", self.course, ("indoor", "outdoor"))
         for key, low, high in (
-            ("speed_mps", 0.0, 5.0),
+            ("speed_mps", 0.1, 5.0),  # slower than a slow walk never reaches the course's end
             ("cadence_spm", 0.0, 300.0),
             ("camera_height_m", 0.0, 3.0),
         ):
@@ -78,7 +78,12 @@ class SimulatorConfig:
                 out.append((key, f"{low:g} < {key} <= {high:g}"))
         if not number_in(self.camera_tilt_deg, -90.0, 90.0):
             out.append(("camera_tilt_deg", "-90 to 90 degrees"))
+        if not isinstance(self.seed, int) or not 0 <= self.seed <= SEED_MAX:
+            out.append(("seed", f"an integer from 0 to {SEED_MAX}"))
         return out
+
+
+SEED_MAX = 2**32 - 1  # numpy's seed sequence takes no negative number
 
 
 @dataclass

@@ -19,7 +19,9 @@ model lacks are left out with a warning (an IMU-only model sends no orientation,
 samples carry no quaternion and leveling needs a VRU or AHRS model); the device's reply
 is compared with the request and every rate it granted instead is said; and the stream
 must fit the baud rate before GoToMeasurement, else one line names a rate or baud rate
-that fits.
+that fits. As in Xsens' library (MidReplyObject::isReplyFor), an Error 0x29 (data
+overflow) the device sends on its own while the driver waits for a reply is an event,
+not the reply; any other Error is the reply.
 """
 
 from __future__ import annotations
@@ -66,8 +68,9 @@ _FRAME_TO_ENU = {
 }
 _VECTOR_OUTPUTS = ("acceleration", "rate_of_turn")
 _EVENT_INTERVAL_NS = 1_000_000_000  # repeated faults of one kind: one event a second
+HOST_STALL_NS = 250_000_000  # no reader step for this long: the host stalled (reads take 20 ms)
 _NOT_MEASUREMENTS = frozenset(
-    {"packet_counter", "sample_time_fine", "sample_time_coarse", "status_word"}
+    {"packet_counter", "sample_time_fine", "sample_time_coarse", "utc_time", "status_word"}
 )
 
 
@@ -140,12 +143,13 @@ class Imu:
 
     def _deliver(self, sample: ImuSample) -> None:
         self._buffer.put(sample)
-        with self._lock:
-            self._rate.tick(sample.host_time_ns)
+        with self._lock:  # by sample time: a catch-up burst after a gap is no faster rate
+            self._rate.tick(sample.host_time_ns if sample.time_ns is None else sample.time_ns)
         self.delivered += 1
 
     def _event(self, kind: str, message: str, t_ns: int | None = None, **details: Any) -> None:
-        log.info("IMU %s: %s", kind, message)
+        # a message that names the device is a sentence already ("IMU lost (...)")
+        log.info("%s", message if message.startswith("IMU") else f"IMU {kind}: {message}")
         event = DeviceEvent(now_ns() if t_ns is None else t_ns, "imu", kind, message, details)
         with self._lock:
             self._events.append(event)
@@ -176,6 +180,7 @@ class XbusImu(Imu):
         coordinate_system: str = "ENU",
         request_timeout_s: float = 1.0,
         config_timeout_s: float = 2.0,
+        reset_timeout_s: float = 10.0,
         silence_s: float | None = None,
         retry_s: float = 0.5,
         buffer_size: int = 1024,
@@ -204,6 +209,8 @@ class XbusImu(Imu):
             raise DeviceInitError(f"IMU outputs: {e}") from None
         self.request_timeout_s = request_timeout_s
         self.config_timeout_s = config_timeout_s
+        # After a Reset (SetBaudrate): how long the device may take to answer again.
+        self.reset_timeout_s = reset_timeout_s
         self.family: Family | None = None
         self.budget: xbus.LinkBudget | None = None
         self.adjusted: list[str] = []  # what walkcap changed to fit the family
@@ -235,6 +242,8 @@ class XbusImu(Imu):
         self._seen = {"checksum_errors": 0, "resyncs": 0, "dropped": 0}
         self._last_problem_ns = 0
         self._started_ns = now_ns()
+        self._last_step_ns = 0
+        self._host_resumed_ns = 0  # the end of the last host stall (see _step)
 
     @classmethod
     def from_config(cls, config: Any, orientation_at=None) -> XbusImu:
@@ -309,9 +318,7 @@ class XbusImu(Imu):
         self._request(ser, MID.GOTO_MEASUREMENT, reply=MID.GOTO_MEASUREMENT_ACK)
         self.configured_rate_hz = _sampling_rate(settings) or float(self.rate_hz)
         self.info = {
-            "device_id": f"{int.from_bytes(device_id[:4], 'big'):08X}"
-            if len(device_id) >= 4
-            else device_id.hex(),
+            "device_id": device_id_text(device_id),
             "product_code": product_code,
             "family": self.family.name if self.family else "unknown",
             "function": self.family.function if self.family else "unknown",
@@ -407,12 +414,12 @@ class XbusImu(Imu):
 
     def change_baudrate(self, baudrate: int) -> None:
         """Set the device's baud rate as Xsens' tools do: SetBaudrate (acknowledged at the
-        old rate), Reset, then the new rate on both ends. The device keeps it across power
-        cycles. The port must not be open in this driver."""
+        old rate; 921600 as code 0x80, as xsbaud.c sends it), Reset, then the new rate on
+        both ends, the device found again within reset_timeout_s. The device keeps it
+        across power cycles. The port must not be open in this driver."""
         if baudrate not in xbus.BAUD_CODE:
             known = ", ".join(str(b) for b in xbus.BAUDRATES)
             raise DeviceInitError(f"{baudrate} is not a baud rate an MTi has (known: {known})")
-        import serial
 
         ser = self._open_port()
         try:
@@ -430,15 +437,9 @@ class XbusImu(Imu):
                 timeout=self._settings_timeout_s(),
             )
             self._request(ser, MID.RESET, reply=MID.RESET_ACK)  # the new rate applies now
-            try:
-                ser.baudrate = baudrate
-            except (serial.SerialException, OSError, ValueError) as e:
-                raise DeviceNotAvailable(
-                    f"IMU port {self.port} cannot run at {baudrate} baud: {_reason(e)}"
-                ) from None
-            self._parser.clear()
-            self.baudrate = baudrate
-            self._goto_config(ser)  # acknowledges the WakeUp after the reset: stays in config
+            before = self.baudrate
+            self._line_speed(ser, baudrate)
+            self._redetect(ser, before)
             reply = self._request(ser, MID.REQ_BAUDRATE, reply=MID.REQ_BAUDRATE_ACK)
             if not reply or xbus.BAUD_CODES.get(reply[0]) != baudrate:
                 raise DeviceInitError(
@@ -448,16 +449,49 @@ class XbusImu(Imu):
         finally:
             _close_quietly(ser)
 
-    def _goto_config(self, ser) -> None:
+    def _line_speed(self, ser, baudrate: int) -> None:
+        import serial
+
+        try:
+            ser.baudrate = baudrate
+        except (serial.SerialException, OSError, ValueError) as e:
+            raise DeviceNotAvailable(
+                f"IMU port {self.port} cannot run at {baudrate} baud: {_reason(e)}"
+            ) from None
+        self._parser.clear()
+        self.baudrate = baudrate
+
+    def _redetect(self, ser, before: int) -> None:
+        """Find the device again after the Reset of a baud-rate change. It boots for a while
+        (Xsens' scanner waits 2 s, then scans the baud rates): GoToConfig at the new rate
+        until reset_timeout_s; then one look at the old rate, to say which it is."""
+        after = self.baudrate
+        if self._goto_config(ser, self.reset_timeout_s, raise_=False):
+            return  # acknowledges the WakeUp after the reset: stays in configuration
+        self._line_speed(ser, before)
+        if self._goto_config(ser, self.config_timeout_s, raise_=False):
+            raise DeviceInitError(
+                f"IMU on {self.port} still answers at {before} baud, not {after}, after "
+                f"SetBaudrate and Reset: the change did not take"
+            )
+        raise DeviceInitError(
+            f"IMU on {self.port}: no answer at {after} baud within {self.reset_timeout_s:g} s "
+            f"of the Reset, nor at {before} baud"
+        )
+
+    def _goto_config(self, ser, timeout: float | None = None, *, raise_: bool = True) -> bool:
         """Into configuration: acknowledge a WakeUp, else GoToConfig until it is acked."""
-        deadline = time.monotonic() + self.config_timeout_s
+        timeout = self.config_timeout_s if timeout is None else timeout
+        deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             self._write(ser, xbus.build(MID.GOTO_CONFIG), "GoToConfig")
             if self._await(ser, MID.GOTO_CONFIG_ACK, "GoToConfig", 0.25) is not None:
-                return
+                return True
+        if not raise_:
+            return False
         raise DeviceInitError(
             f"IMU on {self.port}: no answer to GoToConfig within "
-            f"{self.config_timeout_s:g} s (is an Xsens device on it, at "
+            f"{timeout:g} s (is an Xsens device on it, at "
             f"{self.baudrate} baud?)"
         )
 
@@ -500,6 +534,17 @@ class XbusImu(Imu):
             for msg in self._parser.feed(chunk):
                 if msg.mid == reply:
                     return msg.data
+                if msg.mid == MID.ERROR and msg.data[:1] == bytes([xbus.DATA_OVERFLOW]):
+                    # Output the line could not carry, sent on its own: an event, not the
+                    # answer (Xsens' MidReplyObject::isReplyFor skips it the same way).
+                    self.device_errors += 1
+                    self._event(
+                        "device_error",
+                        f"IMU sent {xbus.error_text(xbus.DATA_OVERFLOW)} while waiting for "
+                        f"the answer to {name}",
+                        code=xbus.DATA_OVERFLOW,
+                    )
+                    continue
                 if msg.mid == MID.ERROR:
                     code = msg.data[0] if msg.data else 0
                     raise DeviceInitError(
@@ -562,17 +607,26 @@ class XbusImu(Imu):
             chunk = self._serial.read(waiting if waiting > 0 else 1)
         except (serial.SerialException, OSError, TypeError) as e:
             # TypeError: pyserial reading a port closed under it
-            self._lose(f"port vanished ({_reason(e)})")
+            log.info("IMU port %s: %s", self.port, _reason(e))  # pyserial's words: the log's
+            self._lose("unplugged, or its port closed")
             return
         t = now_ns()
+        # A read returns within 20 ms: a longer pause between steps is the host's own stall
+        # (stopped, swapped, starved). The samples the IMU sent meanwhile wait in the port's
+        # buffer: silence counts from here, or closing the port would lose them.
+        if self._last_step_ns and t - self._last_step_ns > HOST_STALL_NS:
+            self._host_resumed_ns = t
+            self.clock.excuse(t - self._last_step_ns)  # the backlog arrives that late
+        self._last_step_ns = t
         if chunk:
             if self.raw_sink is not None:
                 self.raw_sink(chunk)
             for msg in self._parser.feed(chunk):
                 self._on_message(msg, t)
-        last = max(self._last_sample_ns or 0, self._started_ns)  # started: (re)connected
+        # started: (re)connected
+        last = max(self._last_sample_ns or 0, self._started_ns, self._host_resumed_ns)
         if t - last > self.silence_ns:
-            self._lose(f"silent for {(t - last) * 1e-9:.1f} s")
+            self._lose(f"no data for {(t - last) * 1e-9:.1f} s")
         self._count_problems(t)
 
     def _lose(self, reason: str) -> None:
@@ -582,13 +636,13 @@ class XbusImu(Imu):
             self._lost_at_ns = t
             self._event(
                 "lost",
-                f"IMU lost: {reason}",
+                f"IMU lost ({reason}); retrying {self.port}",
                 t,
                 reason=reason,
                 port=self.port,
                 last_sample_ns=self._last_sample_ns,
             )
-        self._message = f"lost: {reason}; retrying {self.port}"
+        self._message = f"{reason}; retrying {self.port}"  # the state says lost
         if self._serial is not None:
             _close_quietly(self._serial)
             self._serial = None
@@ -605,7 +659,7 @@ class XbusImu(Imu):
             self._connect()
         except DeviceError as e:
             log.debug("IMU reconnect: %s", e)
-            self._message = f"lost: {e}; retrying"
+            self._message = f"{e}; retrying"
             return
         # Connected and measuring: "reconnected" when the first sample arrives.
         self._started_ns = now_ns()
@@ -724,7 +778,8 @@ class XbusImu(Imu):
             measured_rate_hz=measured,
             delivered=self.delivered,
             dropped=self._buffer.dropped,
-            errors=self._parser.checksum_errors + self.missing_packets,
+            # faults of the device or its link, each kind in details: they add up
+            errors=self._parser.checksum_errors + self.missing_packets + self.reconnects,
             details={
                 "device_id": self.info.get("device_id", ""),
                 "product_code": self.info.get("product_code", ""),
@@ -737,6 +792,7 @@ class XbusImu(Imu):
                 "port": self.port,
                 "offset_ms": clock.offset_ms,
                 "drift_ppm": clock.drift_ppm,
+                "drift_uncertainty_ppm": clock.drift_uncertainty_ppm,
                 "residual_ms": clock.residual_ms,
                 "clock_resets": clock.resets,
                 "missing_packets": self.missing_packets,
@@ -898,6 +954,24 @@ def _plain(value: Any) -> Any:
     if isinstance(value, tuple):
         return [_plain(v) for v in value]
     return value
+
+
+def device_id_text(data: bytes) -> str:
+    """A DeviceID as Xsens' library shows it (xsdeviceid.c, XsDeviceId_toString): a legacy
+    id in 8 hex digits, a 64-bit one (XS_DID64_BIT, 0x8000_0000, set) in 10 or more. An
+    8-byte DeviceID is one 64-bit value when either half is a 64-bit id
+    (devicecommunicator.cpp), else its first half."""
+    if len(data) == 8:
+        high, low = int.from_bytes(data[:4], "big"), int.from_bytes(data[4:], "big")
+        value = int.from_bytes(data, "big") if (high | low) & _DID64_BIT else high
+    elif len(data) >= 4:
+        value = int.from_bytes(data[:4], "big")
+    else:
+        return data.hex()
+    return f"{value:08X}" if not value & _DID64_BIT else f"{value:010X}"
+
+
+_DID64_BIT = 0x8000_0000
 
 
 def _firmware_text(data: bytes) -> str:

@@ -1,8 +1,12 @@
 """An Xsens-style IMU on a pseudo-terminal: the mock backend is the real driver against this.
 
 The emulator is the device side of a serial line. It opens a pty, points a stable path
-(a symlink in a temporary folder) at the slave end, and speaks Xbus on the master end:
-it answers configuration messages as an MTi does, streams MTData2 at the configured rate
+(/tmp/walkcap-XXXXXXXX/ttyIMU, a symlink; short, as Xsens' tools keep a port name in 32
+bytes) at the slave end, and speaks Xbus on the master end: it answers what a device of
+its family answers on open and configuration, so that Xsens' own host library (xspublic)
+opens it (DeviceID, a 20-character ProductCode, HardwareVersion, FirmwareRev, InitBus,
+ReqConfiguration in the vendor's layout, option flags, location id, filter profiles,
+alignment rotation, string output type), streams MTData2 at the configured rate
 from its own clock (which drifts against the host's by `drift_ppm`), paces each message
 by its wire time at `baudrate` plus random transmit jitter, and injects faults on command.
 Unplugging removes the symlink and closes the pty; replugging opens a new pty and
@@ -15,10 +19,13 @@ orientation's derivative, both with noise and bias.
 
 It plays one model (`model`, `[imu] emulate`: "MTi-3", "MTi-630", "MTi-1", ...) by that
 family's rules (devices/imu_family.py): it grants each output the rate the family has
-(the ack carries the rates it uses, as a device's does), answers Error 0x21 (invalid
+(the ack carries the rates it uses, as a device's does; timestamps, UtcTime among them,
+and the status word asked at 0 or 0xFFFF go with every message, reported as 0xFFFF),
+answers Error 0x21 (invalid
 parameter) for an output the model lacks (an IMU-only model has no orientation), takes
 its time over settings writes, keeps its baud rate until SetBaudrate and a Reset change
-it, and hears only a host whose line runs at that rate. Output beyond what the baud rate
+it (it then boots for `reset_s`, deaf and silent, before its WakeUp), and hears only a
+host whose line runs at that rate. Output beyond what the baud rate
 carries fills its buffer: messages are lost and it reports Error 0x29 (data overflow).
 How a firmware rounds an unsupported rate is not documented publicly: the emulator grants
 the highest supported rate not above the request.
@@ -31,6 +38,7 @@ from __future__ import annotations
 
 import collections
 import dataclasses
+import datetime
 import errno
 import fcntl
 import logging
@@ -66,7 +74,7 @@ log = logging.getLogger(__name__)
 
 GRAVITY = 9.81  # m/s^2
 MAGNETIC_FIELD_ENU = np.array([0.0, 0.42, -0.91])  # arbitrary units: north and down
-FAULTS = ("corrupt", "drop", "hang", "disconnect", "reconnect")
+FAULTS = ("corrupt", "drop", "hang", "disconnect", "reconnect", "error")
 # Requests a device in measurement mode accepts; the rest need GoToConfig first.
 _MEASUREMENT_OK = frozenset(
     {MID.GOTO_CONFIG, MID.GOTO_MEASUREMENT, MID.RESET, MID.REQ_DID, MID.WAKEUP_ACK}
@@ -74,6 +82,20 @@ _MEASUREMENT_OK = frozenset(
 _SPIN_NS = 200_000
 _SPEEDS = {getattr(termios, f"B{b}"): b for b in xbus.BAUDRATES if hasattr(termios, f"B{b}")}
 _OVERFLOW_REPORT_NS = 1_000_000_000  # Error 0x29 at most once a second
+INVALID_FILTER_PROFILE = 0x31
+
+
+# Xsens' host library copies the port name into a 32-byte buffer (serialinterface.h,
+# m_portname[32]): a path must stay below this length, the terminating zero included.
+PORT_NAME_MAX = 32
+
+
+def _short_tmp() -> str:
+    """/tmp where it is writable: a port path under a long $TMPDIR would not fit the 32
+    bytes Xsens' tools keep for it."""
+    if os.path.isdir("/tmp") and os.access("/tmp", os.W_OK | os.X_OK):
+        return "/tmp"
+    return tempfile.gettempdir()
 
 
 def _precise_timers() -> None:
@@ -120,6 +142,63 @@ class EmulatorClock:
         return self.time_of_ticks(sample_time_fine + wraps * 2**32)
 
 
+@dataclasses.dataclass(frozen=True)
+class FilterProfile:
+    kind: int  # a number on older families; XFPK_Base 195 / XFPK_Heading 197 on the 600
+    version: int
+    label: str  # at most 20 characters (XS_LEN_FILTERPROFILELABEL)
+
+
+@dataclasses.dataclass(frozen=True)
+class DeviceFacts:
+    """What a device of a family answers about itself beyond its outputs. The vendor's
+    library reads these on open; the values are typical ones, not any unit's."""
+
+    hardware_version: int  # major << 8 | minor (ReqHardwareVersion)
+    profiles: tuple[FilterProfile, ...]  # AHRS and VRU profiles, the first current
+    vru_profiles: tuple[FilterProfile, ...]  # a VRU model lists these only
+    named_profiles: bool = False  # ReqFilterProfile answers a label ("Robust/VRU")
+
+
+_ONE_SERIES_PROFILES = (
+    FilterProfile(50, 1, "general"),
+    FilterProfile(51, 1, "high_mag_dep"),
+    FilterProfile(52, 1, "dynamic"),
+    FilterProfile(53, 1, "north_reference"),
+    FilterProfile(54, 1, "vru_general"),
+)
+_MK4_PROFILES = (
+    FilterProfile(39, 1, "general"),
+    FilterProfile(40, 1, "high_mag_dep"),
+    FilterProfile(41, 1, "dynamic"),
+    FilterProfile(42, 1, "low_mag_dep"),
+    FilterProfile(43, 1, "vru_general"),
+)
+_600_BASE = (FilterProfile(195, 1, "Robust"), FilterProfile(195, 1, "Responsive"))
+_DEVICE_FACTS = {
+    "MTi-1 series": DeviceFacts(0x0300, _ONE_SERIES_PROFILES, _ONE_SERIES_PROFILES[4:]),
+    "MTi-3X0 series": DeviceFacts(0x0200, _ONE_SERIES_PROFILES, _ONE_SERIES_PROFILES[4:]),
+    "MTi-10 series": DeviceFacts(0x0200, _MK4_PROFILES, _MK4_PROFILES[4:]),
+    "MTi-100 series": DeviceFacts(0x0200, _MK4_PROFILES, _MK4_PROFILES[4:]),
+    "MTi-G-700 series": DeviceFacts(0x0200, _MK4_PROFILES, _MK4_PROFILES[4:]),
+    "MTi-600 series": DeviceFacts(
+        0x0100,
+        (*_600_BASE, FilterProfile(197, 1, "NorthReference"), FilterProfile(197, 1, "VRU")),
+        (*_600_BASE, FilterProfile(197, 1, "VRU")),
+        named_profiles=True,
+    ),
+}
+
+
+def _profiles_of(facts: DeviceFacts, function: str) -> tuple[FilterProfile, ...]:
+    if function == "IMU":
+        return ()  # no attitude filter, no profiles
+    return facts.vru_profiles if function == "VRU" else facts.profiles
+
+
+HOST_BUFFER_BYTES = 65536  # what the host's serial buffer holds while nobody reads it
+
+
 class ImuEmulator:
     """An MTi on a pty. `start()` returns the port path; see the module docstring."""
 
@@ -141,6 +220,8 @@ class ImuEmulator:
         wakeup_s: float = 0.5,
         orientation_error: OrientationErrorModel | None = None,
         settings_write_s: float | None = None,
+        device_id_size: int = 4,
+        reset_s: float = 0.3,
     ) -> None:
         code, model_id, self.family = imu_family.emulated_model(model)
         self.model = model
@@ -161,7 +242,28 @@ class ImuEmulator:
         self.noise = noise
         self.orientation_error = orientation_error
         self.device_id = model_id if device_id is None else device_id
+        if device_id_size not in (4, 8):
+            raise ValueError(f"IMU emulator: a DeviceID has 4 or 8 bytes, not {device_id_size}")
+        self.device_id_size = device_id_size  # 8: the id as a 64-bit value (xspublic reads both)
+        self.reset_s = reset_s  # silent this long after a Reset, then WakeUp
         self.product_code = code if product_code is None else product_code
+        facts = _DEVICE_FACTS.get(self.family.name, _DEVICE_FACTS["MTi-1 series"])
+        self.hardware_version = facts.hardware_version
+        self.filter_profiles = _profiles_of(facts, self.family.function)
+        self._named_profiles = facts.named_profiles
+        # The current filter profile: a number, or on the 600 series "base/heading" labels.
+        self.filter_profile: int | str = 0
+        if self.filter_profiles:
+            heading = [p.label for p in self.filter_profiles if p.kind == 197]
+            self.filter_profile = (
+                f"{self.filter_profiles[0].label}/{heading[0]}"
+                if facts.named_profiles
+                else self.filter_profiles[0].kind
+            )
+        self.option_flags = 0
+        self.location_id = 0
+        self.string_output_type = 0
+        self.alignment = {0: (1.0, 0.0, 0.0, 0.0), 1: (1.0, 0.0, 0.0, 0.0)}  # frame -> q
         self.firmware = firmware
         self.wakeup_s = wakeup_s
         self.orientation_at = orientation_at or gait_orientation
@@ -200,6 +302,8 @@ class ImuEmulator:
         self.dropped_on_wire = 0  # bytes lost because nobody read the pty
         self.overflowed = 0  # messages lost because the baud rate cannot carry them
         self.requests: list[int] = []  # MIDs received, for tests and `--verbose`
+        self.last_request_data: dict[int, bytes] = {}  # MID -> data of its latest request
+        self._error_ahead: int | None = None  # an Error to send ahead of the next reply
 
     # ---- life cycle -------------------------------------------------------------------
 
@@ -207,9 +311,12 @@ class ImuEmulator:
         """Power up, plug in, start streaming; returns the stable port path."""
         if self._thread is not None:
             return self.port  # type: ignore[return-value]
-        self._dir = tempfile.mkdtemp(prefix="walkcap-imu-")
-        self.port = os.path.join(self._dir, "ttyIMU")
+        self._dir = tempfile.mkdtemp(prefix="walkcap-", dir=_short_tmp())
+        self.port = os.path.join(self._dir, "ttyIMU")  # /tmp/walkcap-XXXXXXXX/ttyIMU
+        if len(self.port) >= PORT_NAME_MAX:
+            log.warning("IMU emulator port %s is too long for Xsens' tools", self.port)
         self.start_time_ns = now_ns()  # orientation_at(0) is this instant
+        self._utc_at_start_ns = time.time_ns()
         self.clock = EmulatorClock(self.start_time_ns, self._start_ticks, self.drift_ppm)
         self._power_up(self.start_time_ns)
         self._plug()
@@ -238,7 +345,9 @@ class ImuEmulator:
         to send bytes first), "drop" (count=1 samples not sent), "hang" (seconds=2.0 of
         silence, requests ignored), "disconnect" (seconds=None: unplug, replug after that
         long if given), "reconnect" (power_cycle=False: plug in again; with a power cycle
-        the device restarts its clock and counter and wakes up)."""
+        the device restarts its clock and counter and wakes up), "error" (code=0x29: an
+        asynchronous Error just ahead of the next reply, as a data overflow reported while
+        the host waits for an acknowledgement)."""
         if fault not in FAULTS:
             raise ValueError(f"unknown fault {fault!r} (known: {', '.join(FAULTS)})")
         done = threading.Event()
@@ -392,6 +501,7 @@ class ImuEmulator:
         for msg in self._parser.feed(data):
             self.requests.append(msg.mid)
             del self.requests[:-200]
+            self.last_request_data[msg.mid] = msg.data
             self._handle(msg, now_ns())
 
     # ---- samples ----------------------------------------------------------------------
@@ -454,7 +564,7 @@ class ImuEmulator:
             name = setting.name
             if setting.rate_hz == 0:
                 continue
-            if not xbus.rides_every_packet(setting.xdi) and index % max(
+            if setting.rate_hz != xbus.EVERY_PACKET and index % max(
                 1, self._rate // setting.rate_hz
             ):
                 continue
@@ -467,6 +577,8 @@ class ImuEmulator:
                 values[name] = ticks % 2**32
             elif name == "sample_time_coarse":
                 values[name] = (ticks // 10_000) % 2**32
+            elif name == "utc_time":
+                values[name] = self._utc_time(taken_at)
             elif name == "status_word":
                 values[name] = 0b11  # self-test ok, filter valid
             elif name == "quaternion":
@@ -499,11 +611,24 @@ class ImuEmulator:
             xbus.encode_packet(name, value, *encodings[name]) for name, value in values.items()
         )
 
+    def _utc_time(self, taken_at: int) -> tuple[int, ...]:
+        """UtcTime of a sample: the host's UTC at start plus the device's time since. Without
+        a GNSS receiver a device has no valid UTC: flags 0 (0x07 on a GNSS model)."""
+        ns = self._utc_at_start_ns + (taken_at - (self.start_time_ns or 0))
+        when = datetime.datetime.fromtimestamp(ns // 1_000_000_000, datetime.UTC)
+        flags = 0x07 if self.family.function == "GNSS/INS" else 0x00
+        fields = (when.year, when.month, when.day, when.hour, when.minute, when.second)
+        return (ns % 1_000_000_000, *fields, flags)
+
     # ---- the wire ---------------------------------------------------------------------
 
     def _transmit(self, frame: bytes, ready_at: int) -> None:
         """Send a frame from ready_at, after the one before it: the host has it all one wire
         time later. More than the line carries piles up, then overflows the device."""
+        # The device's buffer at ready_at: frames on the wire by then have left it (this
+        # thread catching up after the host starved it is no overflow of the device).
+        while self._queue and self._queue[0][0] <= ready_at:
+            self._out += self._queue.popleft()[1]
         if len(self._queue) >= 64:  # the device's output buffer is full: the frame is lost
             self.overflowed += 1
             if ready_at - self._last_overflow_report >= _OVERFLOW_REPORT_NS:
@@ -534,13 +659,18 @@ class ImuEmulator:
         except OSError as e:
             if e.errno not in (errno.EAGAIN, errno.EIO):
                 raise
-        if len(self._out) > 65536:  # nobody reads: the bytes are lost, as on a UART
-            self.dropped_on_wire += len(self._out)
-            self._out.clear()
+        if len(self._out) > HOST_BUFFER_BYTES:
+            # Nobody reads: as on a UART, the host's full buffer keeps the oldest bytes and
+            # the ones arriving now are lost; the host reads what it kept once it runs.
+            self.dropped_on_wire += len(self._out) - HOST_BUFFER_BYTES
+            del self._out[HOST_BUFFER_BYTES:]
 
     # ---- requests ---------------------------------------------------------------------
 
     def _reply(self, mid: int, data: bytes, t: int) -> None:
+        if self._error_ahead is not None and mid != MID.ERROR:
+            code, self._error_ahead = self._error_ahead, None
+            self._send_now(xbus.build(MID.ERROR, bytes([code])), t)  # an asynchronous report
         self._send_now(xbus.build(mid, data), t)
 
     def _reply_after_write(self, mid: int, data: bytes, t: int) -> None:
@@ -601,12 +731,15 @@ class ImuEmulator:
             self._reply(MID.GOTO_MEASUREMENT_ACK, b"", t)
             self._start_measurement(t)
         elif mid in (MID.REQ_DID, MID.INIT_MT):
-            self._reply(no_data[mid], struct.pack(">I", self.device_id), t)
+            self._reply(no_data[mid], self._device_id_bytes(), t)
         elif mid == MID.REQ_FW_REV:
             major, minor, rev = self.firmware
             self._reply(MID.FIRMWARE_REV, struct.pack(">BBBII", major, minor, rev, 42, 7031), t)
         elif mid == MID.REQ_PRODUCT_CODE:
-            self._reply(MID.PRODUCT_CODE, self.product_code.encode("ascii"), t)
+            # 20 characters padded with spaces, as a device sends it (the library copies 20).
+            self._reply(MID.PRODUCT_CODE, self._product_code_bytes(), t)
+        elif mid in self._SETTINGS:
+            self._setting(mid, data, t)
         elif mid == MID.REQ_BAUDRATE:
             self._baudrate_request(data, t)
         elif mid == MID.SET_OUTPUT_CONFIGURATION:
@@ -620,8 +753,121 @@ class ImuEmulator:
                 # The ack leaves at the old rate; then the UART switches.
                 self._flush_at_old_rate()
                 self.baudrate, self._pending_baudrate = self._pending_baudrate, None
-        else:  # ReqConfiguration (legacy MTi) and anything unknown
+            # Booting: deaf and silent for reset_s, then it announces itself (WakeUp).
+            boot = int(self.reset_s * 1e9)
+            self._hang_until = t + boot
+            self._next_wakeup = t + boot
+            self._wakeup_until = t + boot + int(self.wakeup_s * 1e9)
+        else:  # anything this device does not know
             self._error(xbus.INVALID_MESSAGE, t)
+
+    # ---- what a device tells about itself and its settings ----------------------------
+
+    _SETTINGS = frozenset(
+        {
+            MID.REQ_CONFIGURATION,
+            MID.REQ_HARDWARE_VERSION,
+            MID.REQ_OPTION_FLAGS,
+            MID.REQ_LOCATION_ID,
+            MID.REQ_AVAILABLE_FILTER_PROFILES,
+            MID.REQ_FILTER_PROFILE,
+            MID.REQ_ALIGNMENT_ROTATION,
+            MID.REQ_STRING_OUTPUT_TYPE,
+        }
+    )
+
+    def _device_id_bytes(self) -> bytes:
+        return self.device_id.to_bytes(self.device_id_size, "big")
+
+    def _product_code_bytes(self) -> bytes:
+        return self.product_code.encode("ascii")[:20].ljust(20, b" ")
+
+    def _configuration(self) -> bytes:
+        """The Configuration message (0x0D) of a one-device port, in the layout Xsens'
+        library reads (xsdeviceconfiguration.c): master info in 96 bytes, the device count,
+        then 20 bytes per device."""
+        legacy = not self.device_id & 0x8000_0000  # XS_DID64_BIT clear
+        major, minor, rev = self.firmware
+        master = bytearray(96)
+        if legacy:  # id, sampling period (1/115200 s ticks), output skip factor
+            struct.pack_into(">IHH", master, 0, self.device_id, 115200 // self.rate_hz, 0)
+        else:  # the 64-bit id as two halves, the product code at 32
+            struct.pack_into(">II", master, 0, self.device_id & 0xFFFFFFFF, self.device_id >> 32)
+            master[32:52] = self._product_code_bytes()
+        device = bytearray(20)
+        if legacy:
+            struct.pack_into(">I", device, 0, self.device_id)
+        else:
+            struct.pack_into(">II", device, 0, self.device_id & 0xFFFFFFFF, self.device_id >> 32)
+        profile = self.filter_profile if isinstance(self.filter_profile, int) else 0
+        struct.pack_into(">HBBBcBB", device, 12, profile, major, minor, rev, b"\x00", 0, 0)
+        return bytes(master) + struct.pack(">H", 1) + bytes(device)
+
+    def _setting(self, mid: int, data: bytes, t: int) -> None:
+        """Read-outs and settings a device of the family answers on open and configuration."""
+        if mid == MID.REQ_CONFIGURATION and not data:
+            self._reply(MID.CONFIGURATION, self._configuration(), t)
+        elif mid == MID.REQ_HARDWARE_VERSION and not data:
+            self._reply(MID.HARDWARE_VERSION, struct.pack(">H", self.hardware_version), t)
+        elif mid == MID.REQ_OPTION_FLAGS and not data:
+            self._reply(MID.REQ_OPTION_FLAGS_ACK, struct.pack(">I", self.option_flags), t)
+        elif mid == MID.REQ_OPTION_FLAGS and len(data) == 8:  # flags to set, flags to clear
+            set_, clear = struct.unpack(">II", data)
+            self.option_flags = (self.option_flags | set_) & ~clear & 0xFFFFFFFF
+            self._reply_after_write(MID.REQ_OPTION_FLAGS_ACK, b"", t)
+        elif mid == MID.REQ_LOCATION_ID and not data:
+            self._reply(MID.REQ_LOCATION_ID_ACK, struct.pack(">H", self.location_id), t)
+        elif mid == MID.REQ_LOCATION_ID and len(data) == 2:
+            self.location_id = struct.unpack(">H", data)[0]
+            self._reply_after_write(MID.REQ_LOCATION_ID_ACK, b"", t)
+        elif mid == MID.REQ_AVAILABLE_FILTER_PROFILES and not data:
+            listing = b"".join(
+                bytes((p.kind, p.version)) + p.label.encode("ascii").ljust(20, b" ")
+                for p in self.filter_profiles
+            )
+            self._reply(MID.AVAILABLE_FILTER_PROFILES, listing, t)
+        elif mid == MID.REQ_FILTER_PROFILE and not data:
+            current = self.filter_profile
+            answer = (
+                current.encode("ascii") if isinstance(current, str) else struct.pack(">H", current)
+            )
+            self._reply(MID.REQ_FILTER_PROFILE_ACK, answer, t)
+        elif mid == MID.REQ_FILTER_PROFILE:
+            self._set_filter_profile(data, t)
+        elif mid == MID.REQ_ALIGNMENT_ROTATION and len(data) == 1 and data[0] in self.alignment:
+            q = self.alignment[data[0]]
+            self._reply(MID.REQ_ALIGNMENT_ROTATION_ACK, data + struct.pack(">4f", *q), t)
+        elif mid == MID.REQ_ALIGNMENT_ROTATION and len(data) == 17 and data[0] in self.alignment:
+            self.alignment[data[0]] = struct.unpack(">4f", data[1:])
+            self._reply_after_write(MID.REQ_ALIGNMENT_ROTATION_ACK, b"", t)
+        elif mid == MID.REQ_ALIGNMENT_ROTATION and len(data) in (1, 17):
+            self._error(xbus.INVALID_PARAMETER, t)  # no such frame
+        elif mid == MID.REQ_STRING_OUTPUT_TYPE and not data:
+            self._reply(
+                MID.REQ_STRING_OUTPUT_TYPE_ACK, struct.pack(">H", self.string_output_type), t
+            )
+        elif mid == MID.REQ_STRING_OUTPUT_TYPE and len(data) == 2:
+            self.string_output_type = struct.unpack(">H", data)[0]
+            self._reply_after_write(MID.REQ_STRING_OUTPUT_TYPE_ACK, b"", t)
+        else:
+            self._error(xbus.INVALID_MESSAGE, t)
+
+    def _set_filter_profile(self, data: bytes, t: int) -> None:
+        if self._named_profiles:  # "Robust/VRU": labels this device lists
+            labels = {p.label for p in self.filter_profiles}
+            text = data.decode("ascii", "replace").strip("\x00 ")
+            ok = bool(text) and all(part in labels for part in text.split("/"))
+            value: int | str = text
+        else:
+            ok = len(data) == 2 and struct.unpack(">H", data)[0] in {
+                p.kind for p in self.filter_profiles
+            }
+            value = struct.unpack(">H", data)[0] if len(data) == 2 else 0
+        if not ok:
+            self._error(INVALID_FILTER_PROFILE, t)
+            return
+        self.filter_profile = value
+        self._reply_after_write(MID.REQ_FILTER_PROFILE_ACK, b"", t)
 
     def _flush_at_old_rate(self) -> None:
         """Send what is queued now, before the line changes speed."""
@@ -667,8 +913,9 @@ class ImuEmulator:
             if not self.family.has(known[0]):  # e.g. a quaternion from an IMU-only model
                 self._error(xbus.INVALID_PARAMETER, t)
                 return
-            # 0xFFFF: every message for the timestamp group, the group's maximum otherwise
-            rate = 0 if s.rate_hz == 0 else self.family.fit(s.xdi, s.rate_hz)
+            # The timestamp group (any rate) and the status word at 0 or 0xFFFF: with every
+            # message (0xFFFF); another output at 0xFFFF: its maximum; at 0: not output.
+            rate = self.family.fit(s.xdi, s.rate_hz)
             granted.append(xbus.OutputSetting(s.xdi, rate))
         self._outputs = granted
         self._reply_after_write(
@@ -684,6 +931,8 @@ class ImuEmulator:
             self._garbage += bytes(kw.get("garbage", b""))
         elif fault == "drop":
             self._drop += int(kw.get("count", 1))
+        elif fault == "error":
+            self._error_ahead = int(kw.get("code", xbus.DATA_OVERFLOW))
         elif fault == "hang":
             self._hang_until = t + int(float(kw.get("seconds", 2.0)) * 1e9)
             self._queue.clear()

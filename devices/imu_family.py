@@ -6,7 +6,10 @@ a family is known from the product code ("MTi-3-8A7G6", "MTi-630-...", "MTi-G-71
 xsdeviceid.c); each data group has a base rate, and a device outputs a group at the base
 rate divided by a whole number (mtibasedevice.cpp, supportedUpdateRates; the base rates
 per family are each device class's getBaseFrequencyInternal). The timestamp group
-(packet counter, SampleTimeFine) rides along with every message instead.
+(UtcTime, packet counter, SampleTimeFine) rides along with every message instead, and so
+does the status word asked at 0 or 0xFFFF (as Xsens' example and ROS driver ask for it).
+Families as xspublic's device classes: MtiXDevice (1-series), Mti3X0Device (MTi-310/320/
+330), MtiX0Device, MtiX00Device, MtigDevice, Mti6X0Device.
 
 The function digit of the product code: 1 = IMU (inertial data only, no orientation),
 2 = VRU, 3 = AHRS; 7 (and MTi-G, 670, 680, 8) = GNSS/INS. walkcap levels point clouds with
@@ -79,12 +82,13 @@ class Family:
 
     def fit(self, xdi: int, requested: int) -> int:
         """The rate this family outputs when asked for `requested`: the highest supported
-        rate not above it (the slowest one below that); 0xFFFF: the group's maximum. The
-        timestamp group stays at 0xFFFF (in every message)."""
-        if xbus.rides_every_packet(xdi):
-            return xbus.EVERY_PACKET
+        rate not above it (the slowest one below that); 0xFFFF: the group's maximum; 0:
+        not output. The timestamp group at any rate, and the status word at 0 or 0xFFFF,
+        go with every message (0xFFFF)."""
+        if xbus.rides_along(xdi, requested):
+            return xbus.EVERY_PACKET if self.base(xdi) else 0
         rates = self.rates(xdi)
-        if not rates:
+        if not rates or requested == 0:
             return 0
         if requested == xbus.EVERY_PACKET:
             return rates[0]
@@ -103,6 +107,9 @@ _MTI_600 = {g: 400 for g in (TEMPERATURE, ORIENTATION, ACCELERATION, ANGULAR_VEL
 _MTI_600.update({MAGNETIC: 100, PRESSURE: 100, STATUS: 400, TIMESTAMP: xbus.EVERY_PACKET})
 
 ONE_SERIES = Family("MTi-1 series", _ONE_SERIES, 0.9, typical_write_s=0.15)
+# MTi-310/320/330 (xspublic's Mti3X0Device, mti3x0device.cpp): the 1-series' 100 Hz bases
+# (pressure only on GNSS models) and its slow settings writes (a 2 s default timeout).
+MTI_3X0 = Family("MTi-3X0 series", dict(_ONE_SERIES), 0.9, typical_write_s=0.15)
 ONE_SERIES_GNSS = Family(
     "MTi-1 series", {**_ONE_SERIES, PRESSURE: 50}, 0.9, "GNSS/INS", typical_write_s=0.15
 )
@@ -130,8 +137,10 @@ def family_of(product_code: str) -> Family | None:
         function = _FUNCTIONS.get(digits[0], "AHRS")
     elif 10 <= n <= 99:
         family, function = MTI_10, _FUNCTIONS.get(digits[0], "AHRS")
-    elif 100 <= n <= 399:
+    elif 100 <= n <= 300:  # xsdeviceid.c, XsDeviceId_isMtiX00: 100..300
         family, function = MTI_100, _FUNCTIONS.get(digits[0], "AHRS")
+    elif 300 < n < 400:  # the function is the second digit: 310 IMU, 320 VRU, 330 AHRS
+        family, function = MTI_3X0, _FUNCTIONS.get(digits[1], "AHRS")
     elif 600 <= n < 700:  # the function is the second digit: 610 IMU, 620 VRU, 630 AHRS
         family, function = MTI_600, _FUNCTIONS.get(digits[1], "AHRS")
         if n >= 670:
@@ -146,7 +155,10 @@ def family_of(product_code: str) -> Family | None:
 
 
 # The models `[imu] emulate` plays: name -> (product code, legacy device id or a new-style
-# id). New-style ids (the 600 series) set bit 31 of the id.
+# id). A legacy id carries the type (xsdid.h: 0x0080_0000 1-series, 0x0060_0000 10-series,
+# 0x0070_0000 100-series, 0x00D0_0000 3X0) and the function (0x0100_0000 IMU, 0x0200_0000
+# VRU, 0x0300_0000 AHRS); new-style ids (the 600 series) set bit 31 (XS_DID64_BIT) and the
+# library reads the type from the product code.
 EMULATED_MODELS = {
     "MTi-1": ("MTi-1-8A7G6", 0x01881234),
     "MTi-2": ("MTi-2-8A7G6", 0x02881234),
@@ -158,6 +170,9 @@ EMULATED_MODELS = {
     "MTi-100": ("MTi-100-2A8G4", 0x01701234),
     "MTi-200": ("MTi-200-2A8G4", 0x02701234),
     "MTi-300": ("MTi-300-2A8G4", 0x03701234),
+    "MTi-310": ("MTi-310", 0x01D01234),
+    "MTi-320": ("MTi-320", 0x02D01234),
+    "MTi-330": ("MTi-330", 0x03D01234),
     "MTi-610": ("MTi-610", 0x80001234),
     "MTi-620": ("MTi-620", 0x80001235),
     "MTi-630": ("MTi-630", 0x80001236),

@@ -1,7 +1,9 @@
 """pmd depth cameras (pico flexx) through the royale SDK's Python binding, `roypy`.
 
 roypy is not on the package registry: install pmd's royale SDK and put its `python` folder
-on PYTHONPATH. Without it, choosing this backend fails with one line saying so.
+on PYTHONPATH. It is imported as pmd's samples do: `from roypypack import roypy` (the
+packaged binding), else `import roypy`. Without either, choosing this backend fails with
+one line saying so.
 
     [camera]
     backend = "royale"
@@ -15,19 +17,28 @@ pixels (depthConfidence 0) get xyz 0. Device timestamps (microseconds) are mappe
 the session clock with the smallest host-minus-device offset seen so far: the frame that
 arrived with the least delay fixes the mapping.
 
-The binding differs between SDK generations, and the backend takes what each offers:
+The binding differs between SDK generations and builds, and the backend takes what each
+offers (pmd's public interface file, roypy.i, and its samples):
 
-- frames: `npoints()` (4.x, one numpy array a frame) when present; else (3.x) `points()`
-  read with one C-level attribute getter a point, else the per-index getters.
-- lens: `getLensParameters()` (4.x/5.x) or `getLensParameters(LensParameters())` (3.x,
-  where the binding has the class). Any failure costs only the intrinsics: nominal pico
-  flexx values, a warning, and `details["intrinsics"]` (in the recording's metadata) says
-  which were used.
-- unplug: a roypy `IEventListener` (DEVICE_DISCONNECTED) where the binding has one, else
-  `isConnected()` and frame silence, checked every 0.2 s: the camera is reported lost
-  within a second and reopened when it is connected again.
-- .rrf playback: `asReplay()` with `loop(False)` and `frameCount()` (4.x); without them
-  (3.x) playback has ended when frames stop coming for a second.
+- frames: `npoints()` (one numpy array a frame) when it works; a binding built without
+  numpy support has `npoints()` but it raises ("Roypy was compiled without numpy
+  support!"): the first frame finds that out once, and frames are read a point at a time
+  from then on, with `points()` (one C-level getter a point) or the per-index getters
+  (`getX(i)` ...). `details["frame_path"]` (shown by `walkcap check`, kept in the
+  recording's metadata) says which path is in use.
+- lens: `getLensParameters()`, a map of cx, cy, fx, fy, p1, p2, k1, k2, k3 in every public
+  binding. Any failure costs only the intrinsics: nominal pico flexx values, a warning, and
+  `details["intrinsics"]` (in the recording's metadata) says which were used.
+- unplug: the event listener as pmd's samples make it: a subclass of
+  `roypy.PythonEventListener` whose `onEventPython(severity, description, type)` sees
+  `EventType_ROYALE_DEVICE_DISCONNECTED`. `roypy.IEventListener` itself has no director
+  (SWIG: "No constructor defined - class is abstract"), so it is tried only where
+  PythonEventListener is missing. A binding without a listener that can be made (a warning,
+  never a failed start) is watched through `isConnected()` and frame silence, checked every
+  0.2 s: the camera is reported lost within a second and reopened when it is back.
+  `details["unplug_detection"]` says which.
+- .rrf playback: `asReplay()` with `loop(False)` and `frameCount()` where the binding has
+  them; without them playback has ended when frames stop coming for a second.
 """
 
 from __future__ import annotations
@@ -52,15 +63,22 @@ from devices.frames import CameraGeometry, DepthFrame
 log = logging.getLogger(__name__)
 
 INSTALL_HINT = (
-    "the royale backend needs the royale SDK's Python binding (roypy): install "
-    "pmd's royale SDK and add its python folder to PYTHONPATH "
+    "the royale backend needs the royale SDK's Python binding (roypy, or roypypack.roypy): "
+    "install pmd's royale SDK and add its python folder to PYTHONPATH "
     "(e.g. export PYTHONPATH=/opt/royale/python:$PYTHONPATH)"
 )
 
 
 def import_roypy():
+    """The binding as pmd's samples import it: the package first, then the module."""
     try:
-        import roypy
+        from roypypack import roypy  # a packaged installation
+
+        return roypy
+    except ImportError:
+        pass
+    try:
+        import roypy  # the SDK's python folder on PYTHONPATH
     except ImportError:
         raise DeviceNotAvailable(INSTALL_HINT) from None
     return roypy
@@ -103,14 +121,7 @@ def lens_geometry(
     try:
         if hasattr(lens, "asdict"):  # a SWIG map (LensParamMap)
             lens = lens.asdict()
-        if isinstance(lens, dict) and "fx" in lens:
-            fx, fy, cx, cy = (float(lens[k]) for k in ("fx", "fy", "cx", "cy"))
-        elif isinstance(lens, dict):
-            fx, fy = (float(v) for v in lens["focalLength"])
-            cx, cy = (float(v) for v in lens["principalPoint"])
-        else:  # a LensParameters struct
-            fx, fy = (float(v) for v in lens.focalLength)
-            cx, cy = (float(v) for v in lens.principalPoint)
+        fx, fy, cx, cy = (float(lens[k]) for k in ("fx", "fy", "cx", "cy"))
     except (KeyError, TypeError, ValueError, AttributeError) as e:
         log.warning("lens parameters not understood (%s): nominal pico flexx intrinsics", e)
         source = f"nominal: lens parameters not understood ({e})"
@@ -130,19 +141,9 @@ def lens_geometry(
 
 
 def read_lens(roypy, device) -> tuple[Any, str]:
-    """getLensParameters as this binding takes it: (lens, "") or (None, why it failed)."""
+    """getLensParameters() (the binding's no-argument map): (lens, "") or (None, why)."""
     try:
         return device.getLensParameters(), ""
-    except TypeError as e:  # royale 3.x: the call fills a LensParameters it is given
-        cls = getattr(roypy, "LensParameters", None)
-        if cls is None:
-            return None, f"this roypy has getLensParameters(param) and no LensParameters ({e})"
-        try:
-            lens = cls()
-            device.getLensParameters(lens)
-            return lens, ""
-        except Exception as e2:
-            return None, f"getLensParameters failed: {e2}"
     except Exception as e:  # roypy raises RuntimeError with the SDK's status text
         return None, f"getLensParameters failed: {e}"
 
@@ -151,15 +152,41 @@ _POINT_FIELDS = operator.attrgetter("x", "y", "z", "grayValue", "depthConfidence
 
 
 def frame_path(data: Any) -> str:
-    """How depth_data_arrays reads this binding's DepthData."""
+    """How depth_data_arrays reads this binding's DepthData (npoints() when it has it; see
+    choose_frame_path for a binding whose npoints() does not work)."""
     if hasattr(data, "npoints"):
         return "npoints"
-    if hasattr(data, "points"):
-        return "points"
-    return "getters"
+    return point_path(data)
 
 
-def depth_data_arrays(data: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def point_path(data: Any) -> str:
+    """The per-point path: points() where the binding has it, else the getters."""
+    return "points" if hasattr(data, "points") else "getters"
+
+
+FRAME_PATHS = {
+    "npoints": "npoints (numpy)",
+    "points": "points() a point at a time",
+    "getters": "getX(i)... a point at a time",
+}
+
+
+def choose_frame_path(data: Any) -> tuple[str, str]:
+    """(path, why) for this binding, decided on its first frame: npoints() if it works, else
+    (a roypy built without numpy support) the per-point path."""
+    path = frame_path(data)
+    if path != "npoints":
+        return path, ""
+    try:
+        data.npoints()
+    except Exception as e:  # "Roypy was compiled without numpy support!"
+        return point_path(data), f"npoints() failed ({e})"
+    return path, ""
+
+
+def depth_data_arrays(
+    data: Any, path: str | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(xyz float32 (h, w, 3), confidence uint8, gray uint16) copied out of royale DepthData.
 
     `npoints()` gives x, y, z, noise, grayValue, depthConfidence per pixel (royale 4) or
@@ -168,7 +195,7 @@ def depth_data_arrays(data: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     per-index getters, five Python calls a pixel, as the last resort.
     """
     h, w = int(data.height), int(data.width)
-    path = frame_path(data)
+    path = path or frame_path(data)
     if path == "npoints":
         points = np.asarray(data.npoints(), dtype=np.float32).reshape(h, w, -1)
         if points.shape[-1] < 5:
@@ -211,27 +238,60 @@ def _make_listener(roypy, on_data: Callable[[Any], None]):
     return _Listener()
 
 
-DEVICE_DISCONNECTED = "DEVICE_DISCONNECTED"
+# royale::EventType::ROYALE_DEVICE_DISCONNECTED, the second of the enum (IEvent.hpp); SWIG
+# exports it as EventType_ROYALE_DEVICE_DISCONNECTED.
+DEVICE_DISCONNECTED = 1
 
 
-def _make_event_listener(roypy, on_lost: Callable[[str], None]):
-    """A roypy IEventListener reporting DEVICE_DISCONNECTED, or None: not in this binding."""
+def make_event_listener(roypy, on_lost: Callable[[str], None]) -> tuple[Any, str]:
+    """(listener, "") reporting ROYALE_DEVICE_DISCONNECTED, or (None, why none was made).
+
+    As pmd's samples: a subclass of PythonEventListener (a SWIG director whose C++ onEvent
+    calls onEventPython(severity, description, type)). IEventListener has no director in
+    pmd's interface file: making one raises ("class is abstract"); it is tried only where
+    PythonEventListener is missing."""
+    disconnected = int(getattr(roypy, "EventType_ROYALE_DEVICE_DISCONNECTED", DEVICE_DISCONNECTED))
+
+    def seen(kind: Any, text: Any) -> None:  # the SDK's thread: never raise into C++
+        try:
+            if int(kind) == disconnected:
+                on_lost(str(text) or "USB device disconnected")
+        except Exception:
+            log.exception("royale event")
+
+    tried = []
+    python_base = getattr(roypy, "PythonEventListener", None)
+    if python_base is not None:
+
+        class _PythonEvents(python_base):
+            def __init__(self):
+                python_base.__init__(self)
+
+            def onEventPython(self, severity, description, type):  # noqa: A002 (pmd's name)
+                seen(type, description)
+
+        try:
+            return _PythonEvents(), ""
+        except Exception as e:
+            tried.append(f"PythonEventListener: {e}")
     base = getattr(roypy, "IEventListener", None)
-    if base is None:
-        return None
-    disconnected = getattr(roypy, "EventType_DEVICE_DISCONNECTED", DEVICE_DISCONNECTED)
+    if base is not None:
 
-    class _Events(base):
-        def onEvent(self, event):  # the SDK's thread: never raise into C++
-            try:
-                kind = event.type() if callable(getattr(event, "type", None)) else None
-                text = str(event.describe()) if hasattr(event, "describe") else str(event)
-                if kind == disconnected or str(kind) == DEVICE_DISCONNECTED:
-                    on_lost(text or "USB device disconnected")
-            except Exception:
-                log.exception("royale event")
+        class _Events(base):
+            def __init__(self):
+                base.__init__(self)
 
-    return _Events()
+            def onEvent(self, event):
+                try:
+                    seen(event.type(), event.describe())
+                except Exception:
+                    log.exception("royale event")
+
+        try:
+            return _Events(), ""
+        except Exception as e:  # "No constructor defined - class is abstract"
+            tried.append(f"IEventListener: {e}")
+    return None, "; ".join(tried) or "this roypy has no event listener"
 
 
 def device_time_us(data: Any) -> int | None:
@@ -274,6 +334,9 @@ class RoyaleCamera(Camera):
         self._copying = False  # onNewData is copying a frame out
         self._warned_stamp = False
         self._activity_ns = 0  # the last onNewData's end
+        self._frame_path: str | None = None  # decided on the first frame
+        self._events_registered = False
+        self._warned_events = False
 
     @property
     def is_recording(self) -> bool:
@@ -362,13 +425,41 @@ class RoyaleCamera(Camera):
         device = self._device
         self._listener = _make_listener(self._roypy, self._on_data)
         self._sdk("registerDataListener", device.registerDataListener, self._listener)
-        self._events_listener = _make_event_listener(self._roypy, self._on_lost_event)
-        if self._events_listener is not None and hasattr(device, "registerEventListener"):
-            self._sdk("registerEventListener", device.registerEventListener, self._events_listener)
-        self.details["unplug_detection"] = (
-            "event listener" if self._events_listener is not None else "isConnected and silence"
-        )
+        self._events_listener, why = make_event_listener(self._roypy, self._on_lost_event)
+        self._events_registered = False
+        if self._events_listener is not None:
+            register = getattr(device, "registerEventListener", None)
+            try:
+                if register is None:
+                    raise AttributeError("the camera has no registerEventListener")
+                register(self._events_listener)
+                self._events_registered = True
+            except Exception as e:  # unplug detection falls back to polling, never a failure
+                why = f"registerEventListener failed: {e}"
+                self._events_listener = None
+        if self._events_registered:
+            self.details["unplug_detection"] = "event listener"
+        else:
+            self.details["unplug_detection"] = f"isConnected and silence ({why})"
+            if not self._warned_events and "no event listener" not in why:
+                self._warned_events = True
+                log.warning("royale: no event listener (%s): polling isConnected()", why)
+                self._event("no_events", f"camera events unavailable ({why}): polling isConnected")
         self._sdk("startCapture", device.startCapture)
+
+    def _choose_frame_path(self, data) -> None:
+        """Once, on the first frame: npoints() if it works, else the per-point path."""
+        try:
+            path, why = choose_frame_path(data)
+        except Exception as e:  # a DepthData no path reads: each frame says so as bad
+            log.warning("royale: frame layout not understood: %s", e)
+            path, why = frame_path(data), ""
+        self._frame_path = path
+        self.details["frame_path"] = _frame_path_text(path, why)
+        if why:
+            log.warning("royale: %s: frames read a point at a time (slower)", why)
+            text = f"roypy without numpy support: frames via {FRAME_PATHS[path]}"
+            self._event("frame_path", text)
 
     def _on_lost_event(self, text: str) -> None:
         self._lost_reason = text  # the watcher acts on it (off the SDK's thread)
@@ -464,12 +555,13 @@ class RoyaleCamera(Camera):
             device.stopCapture()
             if hasattr(device, "unregisterDataListener"):
                 device.unregisterDataListener()
-            if self._events_listener is not None and hasattr(device, "unregisterEventListener"):
+            if self._events_registered and hasattr(device, "unregisterEventListener"):
                 device.unregisterEventListener()
         except Exception as e:  # an unplugged camera cannot stop: nothing left to do
             log.warning("royale stopCapture: %s", e)
         self._listener = None
         self._events_listener = None
+        self._events_registered = False
 
     def _close(self) -> None:
         self._device = None
@@ -485,8 +577,10 @@ class RoyaleCamera(Camera):
 
     def _take(self, data) -> None:
         host = now_ns()
+        if self._frame_path is None:
+            self._choose_frame_path(data)
         try:
-            xyz, confidence, gray = depth_data_arrays(data)
+            xyz, confidence, gray = depth_data_arrays(data, self._frame_path)
         except Exception as e:
             self._count_error()
             self._event("bad_frame", f"royale frame not understood: {e}")
@@ -515,6 +609,11 @@ class RoyaleCamera(Camera):
             self._finish(
                 "end_of_recording", f"end of {Path(self.source).name} after {self._index} frames"
             )
+
+
+def _frame_path_text(path: str, why: str) -> str:
+    text = FRAME_PATHS[path]
+    return f"{text} ({why}: roypy without numpy support)" if why else text
 
 
 def _roypy_version(roypy) -> str:

@@ -34,6 +34,8 @@ class MID(enum.IntEnum):
     DEVICE_ID = 0x01
     INIT_MT = 0x02
     INIT_MT_RESULTS = 0x03
+    REQ_PERIOD = 0x04  # also SetPeriod (legacy string output)
+    REQ_PERIOD_ACK = 0x05
     REQ_CONFIGURATION = 0x0C
     CONFIGURATION = 0x0D
     GOTO_MEASUREMENT = 0x10
@@ -44,6 +46,8 @@ class MID(enum.IntEnum):
     REQ_BAUDRATE_ACK = 0x19
     REQ_PRODUCT_CODE = 0x1C
     PRODUCT_CODE = 0x1D
+    REQ_HARDWARE_VERSION = 0x1E
+    HARDWARE_VERSION = 0x1F
     GOTO_CONFIG = 0x30
     GOTO_CONFIG_ACK = 0x31
     MTDATA2 = 0x36
@@ -53,8 +57,22 @@ class MID(enum.IntEnum):
     RESET_ACK = 0x41
     ERROR = 0x42
     WARNING = 0x43
+    REQ_OPTION_FLAGS = 0x48  # also SetOptionFlags, with set and clear masks
+    REQ_OPTION_FLAGS_ACK = 0x49
+    REQ_AVAILABLE_FILTER_PROFILES = 0x62
+    AVAILABLE_FILTER_PROFILES = 0x63
+    REQ_FILTER_PROFILE = 0x64  # also SetFilterProfile
+    REQ_FILTER_PROFILE_ACK = 0x65
+    REQ_LOCATION_ID = 0x84  # also SetLocationId
+    REQ_LOCATION_ID_ACK = 0x85
+    REQ_STRING_OUTPUT_TYPE = 0x8E  # also SetStringOutputType
+    REQ_STRING_OUTPUT_TYPE_ACK = 0x8F
     SET_OUTPUT_CONFIGURATION = 0xC0  # without data: request the current one
     OUTPUT_CONFIGURATION = 0xC1
+    REQ_OUTPUT_SKIP_FACTOR = 0xD4  # also SetOutputSkipFactor (legacy string output)
+    REQ_OUTPUT_SKIP_FACTOR_ACK = 0xD5
+    REQ_ALIGNMENT_ROTATION = 0xEC  # also SetAlignmentRotation
+    REQ_ALIGNMENT_ROTATION_ACK = 0xED
 
 
 def mid_name(mid: int) -> str:
@@ -128,14 +146,15 @@ BAUD_CODES = {  # SetBaudrate code -> baud (xsbaudcode.h)
     0x07: 19200,
     0x09: 9600,
     0x0B: 4800,
-    0x0A: 921600,  # MTi firmware 2.4.6 and later
-    0x80: 921600,  # the legacy code
+    0x0A: 921600,  # "only usable from MTi/x FW 2.4.6" (xsbaudcode.h)
+    0x80: 921600,  # the code Xsens' library sends for 921600 (xsbaud.c, rateToCode)
     0x0C: 2000000,
     0x0E: 3500000,
     0x0D: 4000000,
 }
-# The code a host sends for each baud rate (0x0A, not the legacy 0x80, for 921600).
-BAUD_CODE = {baud: code for code, baud in BAUD_CODES.items() if code != 0x80}
+# The code a host sends for each baud rate: 0x80 for 921600, as Xsens' own library does
+# (0x0A works only from MTi firmware 2.4.6 on).
+BAUD_CODE = {baud: code for code, baud in BAUD_CODES.items() if code != 0x0A}
 BAUDRATES = tuple(sorted(BAUD_CODE))
 
 
@@ -337,6 +356,7 @@ _REAL_FORMATS = {FLOAT32: ("f", 4), FP1220: ("i", 4), FP1632: ("Ih", 6), FLOAT64
 # xdi & 0xFFF0 -> (name, kind, count). kind "real" honours the precision bits.
 OUTPUTS: dict[int, tuple[str, str, int]] = {
     0x0810: ("temperature", "real", 1),
+    0x1010: ("utc_time", "utc", 1),
     0x1020: ("packet_counter", "u16", 1),
     0x1060: ("sample_time_fine", "u32", 1),
     0x1070: ("sample_time_coarse", "u32", 1),
@@ -355,7 +375,9 @@ OUTPUTS: dict[int, tuple[str, str, int]] = {
 XDI = {name: xdi for xdi, (name, _, _) in OUTPUTS.items()}
 # Outputs expressed in a world frame, where the coordinate-system bits mean something.
 WORLD_FRAME_OUTPUTS = frozenset({"quaternion", "rotation_matrix", "euler", "free_acceleration"})
-_INT_FORMATS = {"u16": ("H", 2), "u32": ("I", 4)}
+# Integer kinds. UtcTime (XsUtcTime): nanoseconds u32, year u16, month, day, hour, minute,
+# second, flags u8 (flags 0x04: UTC valid, as a GNSS receiver sets it).
+_INT_FORMATS = {"u16": ("H", 2), "u32": ("I", 4), "utc": ("IHBBBBBB", 12)}
 
 
 def value_size(xdi: int) -> int | None:
@@ -430,9 +452,10 @@ class _Layout:
             name, kind, count = known
             names.append(name)
             if kind != "real":
-                fmt.append(_INT_FORMATS[kind][0])
-                items.append(idx)
-                idx += 1
+                code = _INT_FORMATS[kind][0]
+                fmt.append(code)
+                items.append(idx if len(code) == 1 else slice(idx, idx + len(code)))
+                idx += len(code)
                 continue
             precision = xdi & 0x3
             code = _REAL_FORMATS[precision][0]
@@ -525,7 +548,7 @@ def encode_packet(
     _, kind, count = OUTPUTS[base]
     if kind != "real":
         code, _ = _INT_FORMATS[kind]
-        data = struct.pack(">" + code, int(value))
+        data = struct.pack(">" + code, *(value if len(code) > 1 else (int(value),)))
         xdi = base
     else:
         if name == "rotation_matrix":  # rows in, column-major on the wire
@@ -560,23 +583,35 @@ def encode_mtdata2(
 
 # --------------------------------------------------------------------------- configuration
 
-# Frequency 0xFFFF in SetOutputConfiguration: for the timestamp group (0x10xx: packet
-# counter, SampleTimeFine, ...) "in every message"; for any other output "the highest
-# rate the device has for it" (xsoutputconfiguration.h). walkcap sends 0xFFFF only for
-# the timestamp group and an explicit rate for everything else.
+# Frequency 0xFFFF in SetOutputConfiguration: for the timestamp group (0x10xx: UtcTime,
+# packet counter, SampleTimeFine, ...) "no maximum frequency, sent along with appropriate
+# packets", whatever rate is asked (0 too, as Xsens' example and ROS driver ask); the
+# status word asked at 0 or 0xFFFF rides along the same way; any other output at 0xFFFF
+# runs at "the highest rate the device has for it" (xsoutputconfiguration.h). walkcap
+# sends 0xFFFF only for the timestamp group and an explicit rate for everything else.
 EVERY_PACKET = 0xFFFF
 TIMESTAMP_GROUP = 0x1000
+STATUS_WORD = 0xE020
 
 
 def rides_every_packet(xdi: int) -> bool:
-    """Whether 0xFFFF means "in every message" for this identifier."""
+    """Whether this identifier goes in every message at any rate (the timestamp group)."""
     return xdi & 0xFF00 == TIMESTAMP_GROUP
+
+
+def rides_along(xdi: int, requested: int) -> bool:
+    """Whether a device sends this output with every message when asked at `requested`:
+    the timestamp group always, the status word at 0 or 0xFFFF."""
+    if rides_every_packet(xdi):
+        return True
+    return xdi & 0xFFF0 == STATUS_WORD and requested in (0, EVERY_PACKET)
 
 
 @dataclass(frozen=True)
 class OutputSetting:
     xdi: int  # with precision and coordinate-system bits
-    rate_hz: int  # EVERY_PACKET: in every message (timestamp group only)
+    rate_hz: int  # EVERY_PACKET: asked, the maximum (timestamps: every message); reported,
+    # "no maximum frequency, sent along with appropriate packets" (xsoutputconfiguration.h)
 
     @property
     def name(self) -> str:
@@ -584,8 +619,9 @@ class OutputSetting:
         return known[0] if known else f"0x{self.xdi:04X}"
 
     def describe(self) -> dict[str, Any]:
+        """As a device reports it (OutputConfiguration)."""
         if self.rate_hz == EVERY_PACKET:
-            rate: Any = "every packet" if rides_every_packet(self.xdi) else "maximum"
+            rate: Any = "every packet"
         else:
             rate = self.rate_hz
         d: dict[str, Any] = {"output": self.name, "xdi": f"0x{self.xdi:04X}", "rate_hz": rate}

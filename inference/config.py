@@ -10,7 +10,13 @@ import math
 from dataclasses import dataclass, field
 
 from devices.config import Problems, number_in, one_of
-from inference.fusion import N_MODES, PAPER_TRANSITION  # the authors' matrix, defined once
+from inference.fusion import (  # the authors' matrix and the methods, defined once
+    METHODS,
+    N_MODES,
+    PAPER_TRANSITION,
+    STEADY_EVIDENCE,
+    STEADY_STAY,
+)
 
 
 @dataclass
@@ -62,12 +68,19 @@ class ModelConfig:
 
 @dataclass
 class FusionConfig:
+    method: str = "hmm+voting"  # the live session's fusion (inference.fusion.METHODS)
     window: int = 5  # l_w, smoothing window (frames)
     vote_delay: int = 1  # l_v, voting half-window (frames)
     transition: list[list[float]] = field(default_factory=lambda: PAPER_TRANSITION.tolist())
+    stay: float = STEADY_STAY  # "steady": per-frame stay probability
+    evidence: float = STEADY_EVIDENCE  # "steady": exponent of each frame's probabilities
 
     def problems(self) -> Problems:
-        out = []
+        out = one_of("method", self.method, METHODS)
+        if not number_in(self.stay, 0.2, 1.0, low_open=True) or self.stay >= 1.0:
+            out.append(("stay", "0.2 < stay < 1 (a mode must be left more rarely than kept)"))
+        if not number_in(self.evidence, 0.0, 1.0, low_open=True):
+            out.append(("evidence", "0 < evidence <= 1"))
         if not 1 <= self.window <= 1000:
             out.append(("window", "1 to 1000 frames"))
         if not 0 <= self.vote_delay <= 1000:
@@ -106,8 +119,13 @@ DOCS: dict[type, dict[str, str]] = {
         "device": "where the CNN runs: auto | cpu | cuda",
     },
     FusionConfig: {
+        "method": "the live session's fusion: hmm+voting (the paper's), steady (switches "
+        "once a terrain change) or another of eval's methods",
         "window": "HMM smoothing window l_w, frames",
         "vote_delay": "voting half-window l_v, frames (decisions lag by this many)",
         "transition": "HMM transition matrix (the paper's), rows and columns LG US DS UR DR",
+        "stay": "steady: per-frame stay probability (0.987: a terrain held ~5 s at 15 fps)",
+        "evidence": "steady: each frame's CNN probabilities to this power (its errors come "
+        "in runs of 1.34 frames)",
     },
 }

@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from devices.files import check_replaceable
 from devices.frames import MODES
 from inference.errors import InferenceError
 
@@ -85,7 +86,7 @@ def write_session(
     extra: dict | None = None,
 ) -> Path:
     """Write one session as a compressed .npz (atomically). `extra`: more (N,) arrays."""
-    path = Path(path)
+    path = check_replaceable(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     n = len(session)
     images = np.asarray(session.images, dtype=np.uint8)

@@ -7,6 +7,13 @@ Accuracy is the fraction of frames whose final decision equals the reference, ov
 frames that have a reference (-1 = none); the mean over trials is the mean of the trials'
 accuracies, as in the paper (not pooled over frames); SD uses n-1.
 
+Two references: `terrain`, what each image shows (the paper's: labelled offline from the
+images, or the simulator's per-image truth), and `locomotion`, the subject's mode keyed live,
+which changes about a second after the terrain ahead does. Accuracy is scored against the
+trial's `reference` (named by `reference_name`, `terrain` unless asked otherwise); the
+transition metrics (`inference.transitions`: spurious switches a minute, missed
+transitions, switch delay, lead time) against each reference the trial has.
+
 Inputs: score files (CSV, `read_scores`) or recordings (capture.reader.read_trials turns
 each into a Trial with `trial_from_recording`), both as `Trial`s.
 """
@@ -17,6 +24,7 @@ import csv
 import logging
 import math
 import re
+import textwrap
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,10 +33,13 @@ from typing import Any
 import numpy as np
 
 from devices.frames import MODE_COLORS, MODES
+from inference import transitions as tr
 from inference.errors import InferenceError
 from inference.fusion import (
     N_MODES,
     PAPER_TRANSITION,
+    STEADY_EVIDENCE,
+    STEADY_STAY,
     FixedLagSmoother,
     Fusion,
     HmmFusion,
@@ -48,8 +59,11 @@ TITLES = {
     "hmm+voting": "HMM + voting",
     "forward": "forward filter",
     "fixed-lag": "fixed-lag smoother",
+    "steady": "steady",
+    "steady+gait": "steady + gait",
 }
-SCORE_HEADER = (*MODES, "label")
+SCORE_HEADER = (*MODES, "label")  # label: the terrain each image shows
+SCORE_HEADER_LOCOMOTION = (*SCORE_HEADER, "locomotion")  # + the mode keyed live
 SUM_TOLERANCE = 0.01  # score rows must sum to 1 within this (they are often rounded)
 
 
@@ -63,9 +77,19 @@ class FusionParameters:
     vote_delay: int = 1  # l_v
     transition: np.ndarray = field(default_factory=lambda: PAPER_TRANSITION.copy())
     lag: int = 1  # fixed-lag smoother only
+    stay: float = STEADY_STAY  # "steady" only
+    evidence: float = STEADY_EVIDENCE  # "steady" only
 
     def make(self, method: str) -> Fusion:
-        return make_fusion(method, self.window, self.vote_delay, self.transition, self.lag)
+        return make_fusion(
+            method,
+            self.window,
+            self.vote_delay,
+            self.transition,
+            self.lag,
+            self.stay,
+            self.evidence,
+        )
 
     def delay_frames(self, method: str) -> int:
         return self.make(method).delay_frames
@@ -80,6 +104,9 @@ class Trial:
     reference: Any  # (N,) mode names or indices; None / "" / -1: no reference
     metadata: dict = field(default_factory=dict)  # "subject", "condition", ...
     times_s: np.ndarray | None = None  # (N,) seconds since the first frame; None: unknown
+    reference_name: str = "terrain"  # what `reference` is: "terrain" or "locomotion"
+    locomotion: Any = None  # (N,) the subject's mode keyed live, when `reference` is terrain
+    elevation_deg: np.ndarray | None = None  # (N,) camera above the horizon: gait cues
 
     def __post_init__(self) -> None:
         self.probabilities = np.asarray(self.probabilities, dtype=float)
@@ -99,6 +126,29 @@ class Trial:
                 f"{self.path}: {len(self.probabilities)} frames but "
                 f"{len(self.reference)} reference labels"
             )
+        if self.locomotion is not None:
+            self.locomotion = mode_indices(self.locomotion)
+            if len(self.locomotion) != len(self.probabilities):
+                raise InferenceError(
+                    f"{self.path}: {len(self.probabilities)} frames but "
+                    f"{len(self.locomotion)} locomotion labels"
+                )
+            if not (self.locomotion >= 0).any():
+                self.locomotion = None
+        if self.elevation_deg is not None:
+            self.elevation_deg = np.asarray(self.elevation_deg, dtype=float)
+            if len(self.elevation_deg) != len(self.probabilities):
+                raise InferenceError(
+                    f"{self.path}: {len(self.probabilities)} frames but "
+                    f"{len(self.elevation_deg)} camera elevations"
+                )
+
+    def references(self) -> dict[str, np.ndarray]:
+        """Every reference the trial has, by name (the scored one first)."""
+        out = {self.reference_name: self.reference}
+        if self.locomotion is not None and self.reference_name != "locomotion":
+            out["locomotion"] = self.locomotion
+        return out
 
     @property
     def subject(self) -> str:
@@ -137,6 +187,8 @@ class TrialResult:
     trial: Trial
     accuracy: dict[str, float]
     runs: dict[str, FusionRun]
+    # method -> reference name -> its switches against that reference
+    transitions: dict[str, dict[str, tr.TransitionStats]] = field(default_factory=dict)
 
 
 @dataclass
@@ -150,10 +202,25 @@ class PairedTest:
 
 @dataclass
 class DelaySweep:
-    """Accuracy per trial against the number of delayed frames (NaN: not reachable)."""
+    """Accuracy and spurious switches per trial against the number of delayed frames (NaN:
+    not reachable). Spurious switches are counted against the trials' scored reference."""
 
     delays: list[int]
     accuracy: dict[str, np.ndarray]  # method -> (trials, delays)
+    spurious: dict[str, np.ndarray] = field(default_factory=dict)  # method -> (trials, delays)
+    minutes: np.ndarray | None = None  # (trials,) each trial's duration
+
+    def spurious_per_min(self, method: str, rows=None) -> np.ndarray:
+        """Pooled over the trials (`rows`: some of them): spurious switches / minutes."""
+        counts = self.spurious[method] if rows is None else self.spurious[method][rows]
+        minutes = self.minutes if rows is None else self.minutes[rows]
+        with np.errstate(all="ignore"):
+            return np.array(
+                [
+                    np.nan if np.isnan(c).any() else c.sum() / minutes.sum()
+                    for c in np.atleast_2d(counts).T
+                ]
+            )
 
 
 # ---------------------------------------------------------------------------------------
@@ -168,11 +235,14 @@ def decisions_of(probabilities: np.ndarray) -> np.ndarray:
     return out
 
 
-def run_offline(fusion: Fusion, probabilities: np.ndarray) -> FusionRun:
+def run_offline(
+    fusion: Fusion, probabilities: np.ndarray, elevation_deg: np.ndarray | None = None
+) -> FusionRun:
     """Push every frame through a fresh streaming object, then flush: the live decisions.
 
     A frame whose probabilities are not finite (a broken classifier) is pushed as uniform,
-    carrying no evidence, and left undecided (-1): it is never scored as right."""
+    carrying no evidence, and left undecided (-1): it is never scored as right. A method
+    with gait cues (`uses_gait`) gets each frame's camera elevation, `elevation_deg`."""
     e = np.array(probabilities, dtype=float)
     unusable = ~np.all(np.isfinite(e), axis=1) if e.ndim == 2 else np.zeros(len(e), bool)
     e[unusable] = 1.0 / N_MODES
@@ -192,8 +262,16 @@ def run_offline(fusion: Fusion, probabilities: np.ndarray) -> FusionRun:
         if out.voted_frame is not None:
             voted[out.voted_frame] = out.voted
 
-    for row in e:
-        collect(fusion.push(row))
+    if getattr(fusion, "uses_gait", False):
+        if elevation_deg is None:
+            raise InferenceError(
+                f"{fusion.method} needs the camera's orientation at each frame (recordings)"
+            )
+        for row, elevation in zip(e, np.asarray(elevation_deg, dtype=float).tolist()):
+            collect(fusion.push(row, elevation))
+    else:
+        for row in e:
+            collect(fusion.push(row))
     for out in fusion.flush():
         collect(out)
     final = voted if fusion.votes else decisions
@@ -242,10 +320,41 @@ def evaluate_trial(
 ) -> TrialResult:
     if not (trial.reference >= 0).any():
         raise InferenceError(f"{trial.path}: no frame has a reference mode")
-    runs = {m: run_offline(params.make(m), trial.probabilities) for m in methods}
+    try:
+        runs = {
+            m: run_offline(params.make(m), trial.probabilities, trial.elevation_deg)
+            for m in methods
+        }
+    except InferenceError as e:
+        raise InferenceError(f"{trial.path}: {e}") from None
     return TrialResult(
-        trial, {m: accuracy(r.final, trial.reference) for m, r in runs.items()}, runs
+        trial,
+        {m: accuracy(r.final, trial.reference) for m, r in runs.items()},
+        runs,
+        {m: trial_transitions(trial, r.final, params.delay_frames(m)) for m, r in runs.items()},
     )
+
+
+def trial_transitions(
+    trial: Trial, final: np.ndarray, delay_frames: int
+) -> dict[str, tr.TransitionStats]:
+    """A decision sequence's switches against each of the trial's references."""
+    return {
+        name: tr.transition_stats(final, ref, trial.times_s, name=name, delay_frames=delay_frames)
+        for name, ref in trial.references().items()
+    }
+
+
+def pooled_transitions(
+    results: Sequence[TrialResult], method: str
+) -> dict[str, tr.TransitionStats]:
+    """Per reference, the trials' switches pooled (counts and minutes summed); a reference
+    only some trials have is pooled over those."""
+    names: dict[str, list[tr.TransitionStats]] = {}
+    for r in results:
+        for name, stats in r.transitions.get(method, {}).items():
+            names.setdefault(name, []).append(stats)
+    return {name: tr.pooled(stats) for name, stats in names.items()}
 
 
 def evaluate(
@@ -348,35 +457,54 @@ def delay_sweep(
 
     cnn+voting: l_v = D; hmm+voting: l_v = D-1 (the HMM adds one frame); fixed-lag: lag = D.
     Methods without a delay parameter (cnn, forward: 0; hmm: 1) keep their accuracy for
-    every D at or above their own delay; NaN below it.
+    every D at or above their own delay; NaN below it. Beside accuracy, the spurious
+    switches (inference.transitions) against the same reference.
     """
     delays = list(range(max_delay + 1))
     acc = {m: np.full((len(trials), len(delays)), np.nan) for m in methods}
+    spurious = {m: np.full((len(trials), len(delays)), np.nan) for m in methods}
+    minutes = np.zeros(len(trials))
     for i, (trial, p) in enumerate(zip(trials, _per_trial(params, len(trials)))):
         ref = trial.reference
+        t = tr.frame_times(len(ref), trial.times_s)
+        minutes[i] = tr.duration_minutes(t)
+
+        def score(m, d, final, own_delay, i=i, ref=ref, t=t, name=trial.reference_name) -> None:
+            acc[m][i, d] = accuracy(final, ref)
+            stats = tr.transition_stats(final, ref, t, name=name, delay_frames=own_delay)
+            spurious[m][i, d] = stats.spurious
+
         stages: dict[str, FusionRun] = {}
 
         def stage(method: str, stages=stages, p=p, trial=trial) -> FusionRun:
             if method not in stages:
-                stages[method] = run_offline(p.make(method), trial.probabilities)
+                stages[method] = run_offline(
+                    p.make(method), trial.probabilities, trial.elevation_deg
+                )
             return stages[method]
 
         for m in methods:
-            if m in ("cnn", "forward", "hmm"):
-                acc[m][i, p.delay_frames(m) :] = accuracy(stage(m).final, ref)
-            elif m == "cnn+voting":
+            if m == "cnn+voting":
                 for d in delays:
-                    acc[m][i, d] = accuracy(vote_offline(stage("cnn").decisions, d), ref)
+                    score(m, d, vote_offline(stage("cnn").decisions, d), d)
             elif m == "hmm+voting":
                 for d in delays[1:]:
-                    acc[m][i, d] = accuracy(vote_offline(stage("hmm").decisions, d - 1), ref)
+                    score(m, d, vote_offline(stage("hmm").decisions, d - 1), d)
             elif m == "fixed-lag":
                 for d in delays:
-                    run = run_offline(FixedLagSmoother(p.transition, d), trial.probabilities)
-                    acc[m][i, d] = accuracy(run.final, ref)
-            else:
-                raise InferenceError(f"unknown method {m!r}")
-    return DelaySweep(delays, acc)
+                    score(
+                        m,
+                        d,
+                        run_offline(FixedLagSmoother(p.transition, d), trial.probabilities).final,
+                        d,
+                    )
+            else:  # no delay parameter: the same decisions at every delay from their own
+                own = p.delay_frames(m)
+                if own <= max_delay:
+                    score(m, own, stage(m).final, own)
+                    acc[m][i, own:] = acc[m][i, own]
+                    spurious[m][i, own:] = spurious[m][i, own]
+    return DelaySweep(delays, acc, spurious, minutes)
 
 
 # ---------------------------------------------------------------------------------------
@@ -415,17 +543,26 @@ def report(
             entry["subject"] = r.trial.subject
             entry["condition"] = r.trial.condition
         entry["accuracy"] = _nums(r.accuracy)
+        entry["references"] = list(r.trial.references())
+        entry["transitions"] = {
+            m: {name: tr.summary(st) for name, st in r.transitions.get(m, {}).items()}
+            for m in methods
+        }
         files.append(entry)
     summary = summarize(results, methods)
+    scored = sorted({r.trial.reference_name for r in results})
     out: dict[str, Any] = {
         "files": files,
+        "accuracy_reference": scored[0] if len(scored) == 1 else scored,
         "mean": _nums(summary["mean"]),
         "sd": _nums(summary["sd"]),
+        "transitions": _transitions_json(results, methods),
         "delay_frames": {m: params.delay_frames(m) for m in methods},
         "parameters": {
             "window": params.window,
             "vote_delay": params.vote_delay,
             **({"lag": params.lag} if "fixed-lag" in methods else {}),
+            **({"stay": params.stay, "evidence": params.evidence} if "steady" in methods else {}),
         },
     }
     if len(results) >= 2:
@@ -453,6 +590,7 @@ def report(
                     "mean": _nums(s["mean"]),
                     "sd": _nums(s["sd"]),
                     "paired_t_tests": _tests_json(paired_t_tests(rs, methods)),
+                    "transitions": _transitions_json(rs, methods),
                 }
             )
     if sweep is not None:
@@ -461,8 +599,19 @@ def report(
                 "delays": sweep.delays,
                 "mean": {m: [_num(x) for x in _nanmean(a)] for m, a in sweep.accuracy.items()},
                 "sd": {m: [_num(x) for x in _nansd(a)] for m, a in sweep.accuracy.items()},
+                "spurious_per_min": {
+                    m: [_num(x) for x in sweep.spurious_per_min(m)] for m in sweep.spurious
+                },
             }
     return out
+
+
+def _transitions_json(results: Sequence[TrialResult], methods: Sequence[str]) -> dict:
+    """method -> reference -> the pooled transition figures (inference.transitions)."""
+    return {
+        m: {name: tr.summary(st) for name, st in pooled_transitions(results, m).items()}
+        for m in methods
+    }
 
 
 def _nanmean(a: np.ndarray) -> np.ndarray:
@@ -479,8 +628,10 @@ def _nansd(a: np.ndarray) -> np.ndarray:
 # inputs
 
 
-def read_scores(path: str | Path) -> Trial:
-    """A score CSV: header LG,US,DS,UR,DR,label, one row per frame in capture order.
+def read_scores(path: str | Path, fps: float = tr.PAPER_FPS) -> Trial:
+    """A score CSV: header LG,US,DS,UR,DR,label, one row per frame in capture order, frames
+    `fps` a second. `label` is the terrain reference; an optional last column `locomotion`
+    (header LG,US,DS,UR,DR,label,locomotion) the locomotion reference.
 
     Every problem is a ScoreFileError naming the file and line (1 = the header).
     """
@@ -488,6 +639,8 @@ def read_scores(path: str | Path) -> Trial:
     expected = ",".join(SCORE_HEADER)
     probabilities: list[list[float]] = []
     labels: list[int] = []
+    locomotion: list[int] = []
+    header_fields = SCORE_HEADER
     with open(path, newline="", encoding="utf-8-sig") as f:
         rows = csv.reader(f)
         try:
@@ -496,36 +649,48 @@ def read_scores(path: str | Path) -> Trial:
                 raise ScoreFileError(
                     f"{path}: empty file (expected the header {expected} and one row per frame)"
                 )
-            if tuple(h.strip() for h in header) != SCORE_HEADER:
+            header_fields = tuple(h.strip() for h in header)
+            if header_fields not in (SCORE_HEADER, SCORE_HEADER_LOCOMOTION):
                 raise ScoreFileError(
-                    f"{path}:1: expected the header {expected}, got {','.join(header)}"
+                    f"{path}:1: expected the header {expected} (optionally ,locomotion), "
+                    f"got {','.join(header)}"
                 )
             for row in rows:
                 line = rows.line_num
                 if not row or not any(c.strip() for c in row):
                     continue  # blank lines (often one at the end)
-                probabilities.append(_score_row(path, line, row))
-                label = row[N_MODES].strip()
-                if label not in MODES:
-                    raise ScoreFileError(
-                        f"{path}:{line}: unknown label {label!r} "
-                        f"(expected one of {', '.join(MODES)})"
-                    )
-                labels.append(MODES.index(label))
+                probabilities.append(_score_row(path, line, row, header_fields))
+                for column, into in zip(row[N_MODES:], (labels, locomotion)):
+                    label = column.strip()
+                    if label not in MODES:
+                        name = "label" if into is labels else "locomotion"
+                        raise ScoreFileError(
+                            f"{path}:{line}: unknown {name} {label!r} "
+                            f"(expected one of {', '.join(MODES)})"
+                        )
+                    into.append(MODES.index(label))
         except csv.Error as e:
             raise ScoreFileError(f"{path}:{rows.line_num}: not valid CSV: {e}") from None
         except UnicodeDecodeError:
             raise ScoreFileError(f"{path}: not a text file (expected CSV)") from None
     if not probabilities:
         raise ScoreFileError(f"{path}: no frames after the header")
-    return Trial(path, np.array(probabilities), np.array(labels))
+    n = len(probabilities)
+    return Trial(
+        path,
+        np.array(probabilities),
+        np.array(labels),
+        times_s=np.arange(n) / fps,
+        locomotion=np.array(locomotion) if locomotion else None,
+    )
 
 
-def _score_row(path: str, line: int, row: list[str]) -> list[float]:
-    if len(row) != len(SCORE_HEADER):
+def _score_row(
+    path: str, line: int, row: list[str], header: tuple[str, ...] = SCORE_HEADER
+) -> list[float]:
+    if len(row) != len(header):
         raise ScoreFileError(
-            f"{path}:{line}: expected {len(SCORE_HEADER)} fields "
-            f"({','.join(SCORE_HEADER)}), got {len(row)}"
+            f"{path}:{line}: expected {len(header)} fields ({','.join(header)}), got {len(row)}"
         )
     values = []
     for name, text in zip(MODES, row):
@@ -546,45 +711,66 @@ def _score_row(path: str, line: int, row: list[str]) -> list[float]:
     return values
 
 
-def trial_from_recording(path: str, data: Any, reference: str = "auto") -> Trial:
+REFERENCES = ("terrain", "locomotion")
+# the names `eval --reference` took before the two references had names
+_REFERENCE_ALIASES = {"truth": "terrain", "labels": "locomotion", "auto": "terrain"}
+
+
+def trial_from_recording(path: str, data: Any, reference: str = "terrain") -> Trial:
     """A Trial from what `capture.reader.read_trial` returns for one recording.
 
-    data: a mapping (or object) with "probabilities" (N, 5), "labels" (N operator modes in
-    force at each frame: indices or names, -1/None where unlabeled), "truth" (N simulator
-    modes, or None) and "metadata" (capture's {"session": {"subject", "condition", ...}},
-    or a flat dict). reference: "labels", "truth" or "auto" (operator labels when there
-    are any, else simulator truth). Frames without a finite CNN output are left out.
+    data: a mapping (or object) with "probabilities" (N, 5), "terrain" (N modes each image
+    shows, or None; a flat dict may give "truth" instead), "locomotion" (N modes keyed live,
+    -1/None before the first key; or "labels"), "time_ns" and "metadata" (capture's
+    {"session": {...}}, or a flat dict). reference: what accuracy is scored against,
+    "terrain" or "locomotion"; the other one, when present, serves the transition metrics.
+    Frames without a finite CNN output are left out.
     """
 
     def get(key: str):
         return data.get(key) if isinstance(data, dict) else getattr(data, key, None)
 
-    labels, truth = get("labels"), get("truth")
+    def has(key: str) -> bool:
+        return key in data if isinstance(data, dict) else hasattr(data, key)
+
+    reference = _REFERENCE_ALIASES.get(reference, reference)
+    if reference not in REFERENCES:
+        raise InferenceError(f"unknown reference {reference!r} (known: {', '.join(REFERENCES)})")
+    terrain = get("terrain") if has("terrain") else get("truth")
+    locomotion = get("locomotion") if has("locomotion") else get("labels")
 
     def usable(seq) -> bool:
         return seq is not None and bool((mode_indices(seq) >= 0).any())
 
-    if reference == "auto":
-        reference = "labels" if usable(labels) else "truth"
-    chosen = labels if reference == "labels" else truth
-    if not usable(chosen):
-        what = "operator labels" if reference == "labels" else "simulator truth"
-        raise InferenceError(f"{path}: no {what} to compare with")
+    if reference == "terrain" and not usable(terrain):
+        raise InferenceError(
+            f"{path}: no terrain reference (what the images show) to score accuracy against: "
+            "label the images in `walkcap replay FILE --tui`, or score against the live keys "
+            "with --reference locomotion"
+        )
+    if reference == "locomotion" and not usable(locomotion):
+        raise InferenceError(f"{path}: no locomotion labels (keyed live) to compare with")
+    chosen = mode_indices(terrain if reference == "terrain" else locomotion)
+    second = mode_indices(locomotion) if reference == "terrain" and usable(locomotion) else None
     metadata = dict(get("metadata") or {})
     metadata = {**metadata, **(metadata.get("session") or {})}  # capture nests the form
     probabilities = np.asarray(get("probabilities"), dtype=float)
-    chosen = mode_indices(chosen)
     times = get("time_ns")
     times_s = None
     if times is not None and len(times) == len(chosen) and len(times):
         t = np.asarray(times, dtype=np.int64)
         times_s = (t - t[0]) * 1e-9
+    elevation = get("camera_elevation_deg")
+    if elevation is not None:
+        elevation = np.asarray(elevation, dtype=float)
     finite = np.isfinite(probabilities).all(axis=1) if probabilities.ndim == 2 else None
     if finite is not None and not finite.all():
         log.warning("%s: %d frame(s) without a CNN output left out", path, (~finite).sum())
         probabilities, chosen = probabilities[finite], chosen[finite]
+        second = second[finite] if second is not None else None
         times_s = times_s[finite] if times_s is not None else None
-    return Trial(str(path), probabilities, chosen, metadata, times_s)
+        elevation = elevation[finite] if elevation is not None else None
+    return Trial(str(path), probabilities, chosen, metadata, times_s, reference, second, elevation)
 
 
 def synthetic_trial(
@@ -657,6 +843,38 @@ METHOD_STYLES = {  # shade: the method (light CNN, dark HMM); hatch: with voting
         "linestyle": "-",
     },
 }
+# the streaming smoothers: white or mid grey, with hatches of their own
+METHOD_STYLES |= {
+    "steady": {
+        "color": "#ffffff",
+        "hatch": "xxxx",
+        "line": "#303030",
+        "marker": "v",
+        "linestyle": (0, (5, 1, 1, 1)),
+    },
+    "steady+gait": {
+        "color": "#949494",
+        "hatch": "\\\\\\\\",
+        "hatchcolor": "#000000",
+        "line": "#202020",
+        "marker": "P",
+        "linestyle": (0, (3, 1, 1, 1, 1, 1)),
+    },
+    "forward": {
+        "color": "#ffffff",
+        "hatch": "....",
+        "line": "#606060",
+        "marker": "X",
+        "linestyle": (0, (1, 1)),
+    },
+    "fixed-lag": {
+        "color": "#d8d8d8",
+        "hatch": "----",
+        "line": "#404040",
+        "marker": "p",
+        "linestyle": (0, (6, 2)),
+    },
+}
 _SPARE_STYLES = (
     {
         "color": "#909090",
@@ -673,6 +891,7 @@ _SPARE_STYLES = (
         "linestyle": (0, (1, 1)),
     },
 )
+FOOTNOTE_CHARS = 80  # characters a line of 6-pt text holds across one column
 GAP_PERIODS = 3  # frames farther apart than this many frame periods: a gap, nothing drawn
 
 
@@ -696,7 +915,9 @@ def write_plots(
     (3.5 in) wide; returns the files written.
 
     accuracy_per_subject[_<condition>] (mean and SD over each subject's trials, per
-    method), accuracy_vs_delay (with a sweep; mean and SD over trials), decisions_<trial>
+    method), accuracy_vs_delay (with a sweep; mean and SD over trials, and spurious
+    switches a minute below), switches (per condition, each method's accuracy against its
+    spurious switches a minute, the trade-off, with its delay), decisions_<trial>
     and probabilities_<trial> (every trial, or those whose file name or title contains
     one of `trials`), confusion[_<condition>] (row-normalised, with counts).
     Time is in seconds from the trial's first frame when the trial has frame times; where
@@ -726,6 +947,7 @@ def write_plots(
             save(_plot_per_subject(plt, rs, methods, condition), f"accuracy_per_subject{suffix}")
         if sweep is not None:
             save(_plot_sweep(plt, results, sweep), "accuracy_vs_delay")
+        save(_plot_switches(plt, results, methods, params), "switches")
         for r in results:
             name = Path(r.trial.path).stem
             if trials and not any(t in name or t in r.trial.title for t in trials):
@@ -751,10 +973,10 @@ def _axis_floor(lowest: float) -> float:
     return max(0.0, 5 * math.floor((lowest - 1.0) / 5)) if math.isfinite(lowest) else 0.0
 
 
-def _legend_below(fig, ax, ncol: int, **kwargs) -> None:
-    """The legend under the axes, never over the data; a column is too narrow for one
-    beside them."""
-    fig.legend(
+def _legend_below(fig, ax, ncol: int, note: str = "", **kwargs) -> None:
+    """The legend under the axes, never over the data (a column is too narrow for one
+    beside them); `note`, what the marks mean, under the legend."""
+    legend = fig.legend(
         *ax.get_legend_handles_labels(),
         loc="upper center",
         bbox_to_anchor=(0.5, 0.0),
@@ -763,6 +985,27 @@ def _legend_below(fig, ax, ncol: int, **kwargs) -> None:
         handlelength=2.2,
         columnspacing=1.0,
         **kwargs,
+    )
+    if note:
+        _footnote(fig, note, under=legend)
+
+
+def _footnote(fig, text: str, under=None) -> None:
+    """A note across the column's width under the figure (or under the artist `under`,
+    placed when the figure is drawn), at the smallest size a printed figure allows."""
+    from matplotlib.text import Annotation
+
+    fig.add_artist(
+        Annotation(
+            textwrap.fill(text, FOOTNOTE_CHARS),
+            xy=(0.0, 0.0),
+            xycoords=("figure fraction", under if under is not None else "figure fraction"),
+            xytext=(0, -3),
+            textcoords="offset points",
+            ha="left",
+            va="top",
+            fontsize=6,
+        )
     )
 
 
@@ -818,7 +1061,14 @@ def _plot_per_subject(plt, results, methods, condition):
     ax.set_ylabel("accuracy (%)")
     where = f", {condition}" if condition else ""
     ax.set_title(f"Accuracy per subject{where}: mean ± SD over trials")
-    _legend_below(fig, ax, ncol=min(4, len(methods)))
+    ax.set_ylabel(f"accuracy against {_reference_of(results)} (%)")
+    _legend_below(
+        fig,
+        ax,
+        ncol=min(4, len(methods)),
+        note="Error bars: standard deviation across the subject's trials, cut at 0 and 100 %; "
+        "none for a single trial.",
+    )
     return fig
 
 
@@ -826,15 +1076,18 @@ def _plot_sweep(plt, results, sweep):
     conditions = by_condition(results)
     index = {id(r): i for i, r in enumerate(results)}
     fig, axes = plt.subplots(
-        1,
+        2,
         len(conditions),
-        figsize=(COLUMN_IN, 2.3),
+        figsize=(COLUMN_IN, 3.4),
         squeeze=False,
-        sharey=True,
+        sharex=True,
+        sharey="row",
+        height_ratios=(3, 2),
         layout="constrained",
     )
     lowest = 100.0
-    for ax, (condition, rs) in zip(axes[0], conditions.items()):
+    for col, (condition, rs) in enumerate(conditions.items()):
+        ax, low = axes[0][col], axes[1][col]
         rows = [index[id(r)] for r in rs]
         for k, (m, a) in enumerate(sweep.accuracy.items()):
             sub = a[rows]
@@ -845,29 +1098,93 @@ def _plot_sweep(plt, results, sweep):
                 lowest = min(lowest, float(np.nanmin(mean - np.nan_to_num(bars[0]))))
             style = method_style(m, k)
             dodge = (k - (len(sweep.accuracy) - 1) / 2) * 0.09  # methods that agree stay apart
-            ax.errorbar(
-                np.asarray(sweep.delays, dtype=float) + dodge,
-                mean,
-                yerr=bars,
-                capsize=1.5,
-                elinewidth=0.6,
+            x = np.asarray(sweep.delays, dtype=float) + dodge
+            look = dict(
                 color=style["line"],
                 marker=style["marker"],
                 markersize=3.5,
                 markeredgecolor="black",
                 markeredgewidth=0.4,
                 linestyle=style["linestyle"],
-                linewidth=1,
                 label=TITLES.get(m, m),
             )
-        ax.set_xticks(sweep.delays)
-        ax.set_xlabel("decision delay (frames)")
+            ax.errorbar(x, mean, yerr=bars, capsize=1.5, elinewidth=0.6, **look)
+            if m in sweep.spurious:
+                low.plot(x, sweep.spurious_per_min(m, rows), **look)
+        low.set_xticks(sweep.delays)
+        low.set_xlabel("decision delay (frames)")
         n = len(rs)
         ax.set_title(f"{condition or 'all trials'} (n = {n} trial{'s' if n != 1 else ''})")
+    reference = _reference_of(results)
     axes[0][0].set_ylim(_axis_floor(lowest), 100)
-    axes[0][0].set_ylabel("accuracy (%), mean ± SD")
-    fig.suptitle("Accuracy against decision delay")
-    _legend_below(fig, axes[0][0], ncol=min(4, len(sweep.accuracy)))
+    axes[1][0].set_ylim(bottom=0)  # once every condition is drawn: the row shares it
+    axes[0][0].set_ylabel("accuracy (%)\nmean ± SD")
+    axes[1][0].set_ylabel("spurious\nswitches / min")
+    fig.suptitle(f"Accuracy and spurious switches against delay ({reference} reference)")
+    _legend_below(
+        fig,
+        axes[0][0],
+        ncol=min(4, len(sweep.accuracy)),
+        note="Error bars: SD across trials, cut at 100 %. Delay d: a frame's decision is made "
+        f"d frames later. Spurious switches: decision changes where the {reference} "
+        "reference did not change, pooled over trials.",
+    )
+    return fig
+
+
+def _reference_of(results) -> str:
+    names = sorted({r.trial.reference_name for r in results})
+    return " / ".join(names) or "terrain"
+
+
+def _plot_switches(plt, results, methods, params):
+    """Per condition (one panel each, stacked): each method's accuracy (mean over trials)
+    against its spurious switches a minute (pooled), with its delay: the trade-off a
+    controller feels."""
+    conditions = by_condition(results)
+    fig, axes = plt.subplots(
+        len(conditions),
+        1,
+        figsize=(COLUMN_IN, 0.4 + 1.6 * len(conditions)),
+        squeeze=False,
+        sharex=True,
+        layout="constrained",
+    )
+    reference = _reference_of(results)
+    for (ax,), (condition, rs) in zip(axes, conditions.items()):
+        for k, m in enumerate(methods):
+            stats = pooled_transitions(rs, m).get(reference)
+            if stats is None:
+                continue
+            style = method_style(m, k)
+            ax.plot(
+                stats.spurious_per_min,
+                100 * mean_sd([r.accuracy[m] for r in rs])[0],
+                marker=style["marker"],
+                color=style["line"],
+                markeredgecolor="black",
+                markeredgewidth=0.4,
+                linestyle="none",
+                markersize=4.5,
+                label=f"{TITLES.get(m, m)} ({params.delay_frames(m)} fr)",
+            )
+        ax.set_ylabel("accuracy (%)")
+        ax.grid(True, linewidth=0.3)
+        n = len(rs)
+        ax.set_title(f"{condition or 'all trials'} (n = {n} trial{'s' if n != 1 else ''})")
+    for (ax,) in axes:  # a point at 0 shows whole, on one scale for every condition
+        right = max(1.0, ax.get_xlim()[1])
+        ax.set_xlim(-0.04 * right, right)
+    axes[-1][0].set_xlabel("spurious switches a minute")
+    fig.suptitle(f"Accuracy against spurious switches ({reference} reference)")
+    _legend_below(
+        fig,
+        axes[0][0],
+        ncol=2,
+        title="method (delay in frames); up and left is better",
+        note="Accuracy: mean over trials. Spurious switches: decision changes with no change "
+        "of the reference to that mode within 2 s, pooled over trials.",
+    )
     return fig
 
 
@@ -937,7 +1254,10 @@ def _plot_decisions(plt, result, methods):
     then each method), coloured by mode; white where there is no frame or no decision."""
     trial = result.trial
     t, xlabel = _time_axis(trial)
-    rows = [("reference", trial.reference)] + [
+    rows = [(f"{trial.reference_name}\n(reference)", trial.reference)]
+    if trial.locomotion is not None and trial.reference_name != "locomotion":
+        rows.append(("locomotion\n(keyed live)", trial.locomotion))
+    rows += [
         (f"{TITLES.get(m, m)}\n{100 * result.accuracy[m]:.1f} %", result.runs[m].final)
         for m in methods
     ]
@@ -958,7 +1278,7 @@ def _plot_decisions(plt, result, methods):
     ax.tick_params(axis="y", length=0)
     for side in ("left", "right", "top"):
         ax.spines[side].set_visible(False)
-    ax.set_title(f"Sequential decisions: {trial.title}")
+    ax.set_title(f"Sequential decisions: {trial.title}\n(accuracy against {trial.reference_name})")
     _mode_legend(fig, none="none")
     return fig
 
@@ -1030,5 +1350,8 @@ def _plot_confusion(plt, results, methods, condition=""):
     bar.set_label("% of the reference row")
     n = len(results)
     where = condition or "all trials"
-    fig.suptitle(f"Confusion, {where} (n = {n} trial{'s' if n != 1 else ''}): row %")
+    fig.suptitle(
+        f"Confusion, {where} (n = {n} trial{'s' if n != 1 else ''}),\n"
+        f"against the {_reference_of(results)} reference: row %"
+    )
     return fig

@@ -14,6 +14,13 @@ Methods (`make_fusion`), with the number of frames each decision waits for:
 - "hmm+voting": mode of the HMM's smooth states over t-l_v..t+l_v (delay 1 + l_v).
 - "forward": a standard HMM forward filter, argmax of p(z_t | x_1..x_t) (delay 0).
 - "fixed-lag": a standard fixed-lag smoother, argmax of p(z_t | x_1..x_{t+lag}) (delay lag).
+- "steady": a fixed-lag-1 smoother designed to switch once per terrain change (delay 1):
+  the paper's transition rules with a stay probability from walking, and each frame's
+  evidence discounted because the CNN's errors come in runs (`SteadyFusion`).
+- "steady+gait": steady with the gait phase from the camera's pitch (the thigh IMU's
+  orientation): the terrain in view changes mostly while the thigh pitches the camera
+  down, so a change is likelier then and rarer at other phases (`GaitSteadyFusion`; it
+  takes the frame's camera elevation with its probabilities).
 The standard HMMs use the CNN output as a scaled emission likelihood, as the paper does.
 
 At the ends of a sequence (documented choices, the paper does not say):
@@ -27,6 +34,7 @@ At the ends of a sequence (documented choices, the paper does not say):
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -51,7 +59,52 @@ PAPER_TRANSITION = np.array(
     ]
 )
 
-METHODS = ("cnn", "cnn+voting", "hmm", "hmm+voting", "forward", "fixed-lag")
+METHODS = (
+    "cnn",
+    "cnn+voting",
+    "hmm",
+    "hmm+voting",
+    "forward",
+    "fixed-lag",
+    "steady",
+    "steady+gait",
+)
+
+# "steady"'s design, from walking, not from any data set it is evaluated on:
+# - a terrain lasts about a flight of stairs or a ramp: some 8 steps, 4.6 s at 105 steps a
+#   minute; so about 5 s, and at the paper's 15 fps a frame stays in its mode with
+#   probability 1 - 1/(15 * 5) = 0.987;
+# - the CNN's errors come in runs (swing blur, a foot in view): 1.34 frames on average on
+#   12 simulated recordings (`walkcap synth --format recording --sessions 12 --seed
+#   900000`), so one frame carries about 1/1.34 = 0.75 of an independent frame's
+#   evidence: its probabilities enter raised to the power 0.75.
+TERRAIN_DWELL_S = 5.0
+STEADY_EVIDENCE = 0.75
+
+
+def walking_stay(fps: float = 15.0, dwell_s: float = TERRAIN_DWELL_S) -> float:
+    """The per-frame probability of staying in a mode held `dwell_s` on average."""
+    return 1.0 - 1.0 / (fps * dwell_s)
+
+
+STEADY_STAY = round(walking_stay(), 3)  # 0.987 at 15 fps
+
+# "steady+gait": on the same 12 simulated recordings, 63 % of the terrain changes (settled,
+# inference.transitions) came while the camera pitched down faster than 0.75 standard
+# deviations of its frame-to-frame pitch change, in 30 % of the frames; so a change is
+# 0.63 / 0.30 = 2.1 times likelier than average in that phase and 0.37 / 0.70 = 0.53 times
+# outside it. The CNN's errors start at any phase (35 % in it).
+GAIT_PHASE_SD = -0.75  # the phase: pitch change below this many standard deviations
+GAIT_LEAVE = (2.1, 0.53)  # leaving a mode, times the average: in the phase, outside it
+GAIT_RATE_FRAMES = 15  # the pitch change's variance: running over about a second
+
+
+def steady_transition(stay: float = STEADY_STAY) -> np.ndarray:
+    """The paper's transition rules and proportions (of what leaves a non-level mode, 75 %
+    goes to level ground, 15 % to the same direction, 5 % to each opposite one; level
+    ground leaves equally) with the stay probability `stay`."""
+    return design_transition(stay, 0.75 * (1.0 - stay), 0.15 * (1.0 - stay))
+
 
 _INF = float("inf")
 
@@ -520,10 +573,139 @@ class FixedLagSmoother(_Stream):
         return outputs
 
 
+class SteadyFusion(_Stream):
+    """ "steady": the fixed-lag-1 smoother p(z_{t-1} | x_1..x_t) of an HMM built to switch
+    once per terrain change (delay 1 frame).
+
+    The HMM: `steady_transition(stay)` (the paper's rules, a stay from walking) and the
+    CNN's probabilities raised to `evidence` as the emission likelihood (see the design
+    notes at METHODS). Frame t-1 is decided when frame t arrives: alpha_{t-1} (the
+    filter) times T e_t (one frame of look-ahead), normalised; `flush` decides the last
+    frame by its filter. Pure-Python floats, unrolled: one update in a few microseconds.
+    """
+
+    uses_gait = False  # push takes the frame's camera elevation too (GaitSteadyFusion)
+
+    def __init__(self, stay: float = STEADY_STAY, evidence: float = STEADY_EVIDENCE):
+        if not 0.0 < evidence <= 1.0:
+            raise InferenceError(f"steady: evidence must be in (0, 1], got {evidence}")
+        super().__init__(None)
+        self.method = "steady"
+        self.delay_frames = 1
+        self.stay, self.evidence = float(stay), float(evidence)
+        self.transition = validate_transition(steady_transition(self.stay), "steady transition")
+        self._rows = tuple(tuple(r) for r in self.transition.tolist())
+        self._alpha: tuple[float, ...] | None = None  # the filter at the newest frame
+
+    def _reset_state(self) -> None:
+        self._alpha = None
+
+    def push(self, probabilities) -> FusionOutput | None:
+        return self._update(probabilities, self._rows)
+
+    def _update(self, probabilities, rows) -> FusionOutput | None:
+        """One frame with `rows`, the transition from the last frame to this one."""
+        self._check_open()
+        b = self.evidence
+        e0, e1, e2, e3, e4 = (x**b for x in _row(probabilities))
+        t = self._frame
+        self._frame = t + 1
+        r0, r1, r2, r3, r4 = rows
+        last = self._alpha
+        if last is None:
+            q = (e0, e1, e2, e3, e4)
+        else:
+            a0, a1, a2, a3, a4 = last
+            q = (
+                (a0 * r0[0] + a1 * r1[0] + a2 * r2[0] + a3 * r3[0] + a4 * r4[0]) * e0,
+                (a0 * r0[1] + a1 * r1[1] + a2 * r2[1] + a3 * r3[1] + a4 * r4[1]) * e1,
+                (a0 * r0[2] + a1 * r1[2] + a2 * r2[2] + a3 * r3[2] + a4 * r4[2]) * e2,
+                (a0 * r0[3] + a1 * r1[3] + a2 * r2[3] + a3 * r3[3] + a4 * r4[3]) * e3,
+                (a0 * r0[4] + a1 * r1[4] + a2 * r2[4] + a3 * r3[4] + a4 * r4[4]) * e4,
+            )
+        z = q[0] + q[1] + q[2] + q[3] + q[4]
+        if not z > 0.0:  # every mode ruled out (underflow): start again from this frame
+            z = e0 + e1 + e2 + e3 + e4
+            q = (e0, e1, e2, e3, e4)
+        self._alpha = (q[0] / z, q[1] / z, q[2] / z, q[3] / z, q[4] / z)
+        if last is None:
+            return None
+        # frame t-1 with one frame of look-ahead: alpha_{t-1} * (T e_t)
+        g = (
+            a0 * (r0[0] * e0 + r0[1] * e1 + r0[2] * e2 + r0[3] * e3 + r0[4] * e4),
+            a1 * (r1[0] * e0 + r1[1] * e1 + r1[2] * e2 + r1[3] * e3 + r1[4] * e4),
+            a2 * (r2[0] * e0 + r2[1] * e1 + r2[2] * e2 + r2[3] * e3 + r2[4] * e4),
+            a3 * (r3[0] * e0 + r3[1] * e1 + r3[2] * e2 + r3[3] * e3 + r3[4] * e4),
+            a4 * (r4[0] * e0 + r4[1] * e1 + r4[2] * e2 + r4[3] * e3 + r4[4] * e4),
+        )
+        zg = g[0] + g[1] + g[2] + g[3] + g[4]
+        g = (g[0] / zg, g[1] / zg, g[2] / zg, g[3] / zg, g[4] / zg) if zg > 0.0 else last
+        return FusionOutput(t - 1, g.index(max(g)), t - 1, g)
+
+    def flush(self) -> list[FusionOutput]:
+        if self._flushed:
+            return []
+        self._flushed = True
+        if self._alpha is None:
+            return []
+        a = self._alpha
+        return [FusionOutput(self._frame - 1, a.index(max(a)), self._frame - 1, a)]
+
+
+class GaitSteadyFusion(SteadyFusion):
+    """ "steady+gait": steady whose chance of leaving a mode follows the gait phase.
+
+    `push(probabilities, elevation_deg)`: the camera's optical axis above the horizon at
+    the frame (inference.preprocess; it follows the thigh). The frame-to-frame change of
+    it, in running standard deviations, tells the phase: below GAIT_PHASE_SD (the camera
+    pitching down) leaving a mode is GAIT_LEAVE[0] times as likely as steady's average,
+    otherwise GAIT_LEAVE[1] times (see the design notes there). Without an elevation (no
+    IMU orientation) the frame uses steady's own transition.
+    """
+
+    uses_gait = True
+
+    def __init__(self, stay: float = STEADY_STAY, evidence: float = STEADY_EVIDENCE):
+        super().__init__(stay, evidence)
+        self.method = "steady+gait"
+        leave = 1.0 - self.stay
+        self._phase_rows = tuple(
+            tuple(tuple(r) for r in steady_transition(1.0 - leave * g).tolist()) for g in GAIT_LEAVE
+        )
+        self._last_elevation = math.nan
+        self._rate_var = 1.0  # deg^2 a frame: a start that a second of walking replaces
+
+    def _reset_state(self) -> None:
+        super()._reset_state()
+        self._last_elevation = math.nan
+        self._rate_var = 1.0
+
+    def push(self, probabilities, elevation_deg: float | None = None) -> FusionOutput | None:
+        rows = self._rows
+        e = math.nan if elevation_deg is None else float(elevation_deg)
+        change = e - self._last_elevation
+        if e == e:  # not NaN
+            self._last_elevation = e
+        if change == change:
+            var = self._rate_var
+            var += (change * change - var) / GAIT_RATE_FRAMES
+            self._rate_var = var
+            in_phase = change <= GAIT_PHASE_SD * math.sqrt(var)
+            rows = self._phase_rows[0 if in_phase else 1]
+        return self._update(probabilities, rows)
+
+
 def make_fusion(
-    method: str, window: int = 5, vote_delay: int = 1, transition=PAPER_TRANSITION, lag: int = 1
+    method: str,
+    window: int = 5,
+    vote_delay: int = 1,
+    transition=PAPER_TRANSITION,
+    lag: int = 1,
+    stay: float = STEADY_STAY,
+    evidence: float = STEADY_EVIDENCE,
 ) -> Fusion:
-    """A fresh streaming fusion object; `lag` is used by "fixed-lag" only."""
+    """A fresh streaming fusion object; `lag` is used by "fixed-lag" only, `stay` and
+    `evidence` by "steady" only."""
     if int(vote_delay) != vote_delay or vote_delay < 0:
         raise InferenceError(f"vote delay l_v must be an integer >= 0, got {vote_delay}")
     if method == "cnn":
@@ -538,6 +720,10 @@ def make_fusion(
         return ForwardFilter(transition)
     if method == "fixed-lag":
         return FixedLagSmoother(transition, lag)
+    if method == "steady":
+        return SteadyFusion(stay, evidence)
+    if method == "steady+gait":
+        return GaitSteadyFusion(stay, evidence)
     raise InferenceError(f"unknown fusion method {method!r} (known: {', '.join(METHODS)})")
 
 

@@ -37,6 +37,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from devices.files import check_replaceable
 from devices.frames import MODES
 from inference.errors import InferenceError
 
@@ -47,6 +48,7 @@ FORMAT_VERSION = 1
 INPUT_SIZE = 100
 CHANNELS = (16, 32, 64)
 DEFAULT_HIDDEN = 32
+HIDDEN_MAX = 1024  # fc1 holds 40,000 weights a unit: 160 MB at this size
 INIT_STD = 0.01
 BUNDLED_PATH = Path(__file__).resolve().parent / "models" / "terrain_cnn.pt"
 
@@ -410,7 +412,8 @@ def architecture(net: TerrainCNN) -> dict:
 def save_model(net: TerrainCNN, path: str | os.PathLike, metadata: dict | None = None) -> Path:
     """Write `<path>` (state dict) and `<path>.json` (metadata with the weights' hash).
     Both are written atomically; returns the weights path."""
-    path = Path(path)
+    path = check_replaceable(path)
+    check_replaceable(metadata_path(path))
     path.parent.mkdir(parents=True, exist_ok=True)
     state = {k: v.detach().cpu().contiguous() for k, v in net.state_dict().items()}
     tmp = path.with_name(path.name + ".tmp")
@@ -463,9 +466,13 @@ def read_metadata(path: str | os.PathLike) -> dict:
             f"model {path} takes {meta.get('input_size')!r} images, "
             f"walkcap's preprocessing makes {INPUT_SIZE} x {INPUT_SIZE}"
         )
-    hidden = meta.get("architecture", {}).get("hidden")
-    if not isinstance(hidden, int) or hidden < 1:
-        raise InferenceError(f"{mpath}: architecture.hidden must be a positive integer")
+    architecture = meta.get("architecture")
+    hidden = architecture.get("hidden") if isinstance(architecture, dict) else None
+    # bool is an int to Python; a huge layer would take the machine's memory
+    if isinstance(hidden, bool) or not isinstance(hidden, int) or not 1 <= hidden <= HIDDEN_MAX:
+        raise InferenceError(
+            f"{mpath}: architecture.hidden must be an integer from 1 to {HIDDEN_MAX}"
+        )
     return meta
 
 
@@ -503,6 +510,8 @@ def load_classifier(
     weights = Path(path) if path else BUNDLED_PATH
     if weights.suffix == ".json":
         weights = weights.with_suffix(".pt")
+    if weights.exists() and not weights.is_file():
+        raise InferenceError(f"model file {weights} is not a regular file")
     if not weights.is_file():
         hint = " (the bundled model is missing: reinstall walkcap)" if not path else ""
         raise InferenceError(f"model file not found: {weights}{hint}")

@@ -237,12 +237,30 @@ def test_mock_sends_frame_k_at_k_periods_on_its_clock(short_sim):
     )
     with cam:
         cam.start()
-        frames = [cam.recv(5.0) for _ in range(7)]
-        assert cam.recv(0.05) is None
+        # Bounded waits on the frames and on the producer's end, never on a wall-clock gap.
+        frames = [cam.recv(60.0) for _ in range(7)]
+        cam._thread.join(60.0)
+        assert not cam._thread.is_alive() and cam.recv(0) is None
     assert [f.index for f in frames] == list(range(7))
     assert [f.device_time_ns - clock.start for f in frames] == [k * 50_000_000 for k in range(7)]
     assert [f.host_time_ns for f in frames] == [f.device_time_ns for f in frames]  # when due
     np.testing.assert_allclose(clock.sleeps, 0.05)  # one period before each frame after 0
+
+
+def test_the_watchdog_measures_silence_on_the_cameras_own_clock(short_sim):
+    """A camera on an injected clock is judged on it: the real clock running on while the
+    camera's stands still (a test, a loaded machine) is no silence of the camera."""
+    clock = SteppedClock(t_ns=1, sleeps_until_stop=3)  # far behind the real clock
+    cam = MockCamera(
+        CameraConfig(fps=20), simulator=short_sim, realtime=True, clock=clock, sleep=clock.sleep
+    )
+    with cam:
+        cam.start()
+        frames = [cam.recv(60.0) for _ in range(3)]
+        status = cam.status()
+    assert [f.index for f in frames] == [0, 1, 2]
+    assert status.state == "ok", status.message
+    assert not {"stall", "lost"} & {e.kind for e in cam.poll_events()}
 
 
 def test_a_mock_too_slow_for_its_rate_skips_to_the_current_frame_counted(short_sim, monkeypatch):

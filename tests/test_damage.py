@@ -136,7 +136,7 @@ def test_info_reports_damaged_chunks(recording, tmp_path, capsys):
     "command",
     [
         ["replay", "--fast"],
-        ["eval", "recordings", "--reference", "truth"],
+        ["eval", "recordings", "--reference", "terrain"],
         ["train", "--epochs", "1", "--data"],
         ["export", "--format", "csv"],
     ],

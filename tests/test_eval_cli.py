@@ -72,7 +72,13 @@ def test_scores_json_equals_live_decisions(capsys, score_files):
     )
     assert code == 0
     data = json.loads(out)
-    assert data["delay_frames"] == {"cnn": 0, "cnn+voting": 2, "hmm": 1, "hmm+voting": 3}
+    assert data["delay_frames"] == {
+        "cnn": 0,
+        "cnn+voting": 2,
+        "hmm": 1,
+        "hmm+voting": 3,
+        "steady": 1,
+    }
     assert data["parameters"]["window"] == 4
     for path, entry in zip(score_files, data["files"]):
         trial = ev.read_scores(path)
@@ -180,25 +186,32 @@ def fake_reader(tmp_path):
 
 
 def test_recordings_grouped_with_sweep_and_plots(capsys, fake_reader, tmp_path):
+    # live keys only: no terrain reference, so frame accuracy is refused unless asked for
+    code, _, err = run(capsys, "eval", "recordings", *fake_reader)
+    assert code == 1 and "A1_indoor_t03.mcap: no terrain reference" in err
     code, out, err = run(
         capsys,
         "eval",
         "recordings",
         *fake_reader,
+        "--reference",
+        "locomotion",
         "--sweep-delay",
         "2",
         "--plot",
         str(tmp_path / "fig"),
     )
     assert code == 0, err
+    assert "accuracy in % against the locomotion reference" in out
     assert "condition" in out and "S1" in out and "A1" in out and "±" in out
-    assert "against delayed frames" in out and "wrote 26 figure file(s)" in out
+    assert "against delayed frames" in out and "wrote 28 figure file(s)" in out
     fig = tmp_path / "fig"
     assert (fig / "accuracy_vs_delay.pdf").read_bytes().startswith(b"%PDF")
     from PIL import Image
 
     with Image.open(fig / "accuracy_vs_delay.png") as png:
         assert round(png.info["dpi"][0]) == 300
+    assert (fig / "switches.png").exists()  # accuracy against spurious switches
     # every trial's sequential figures, confusion matrices per condition
     assert len(list(fig.glob("decisions_*.png"))) == 4
     assert {p.name for p in fig.glob("confusion*.png")} == {
@@ -207,11 +220,14 @@ def test_recordings_grouped_with_sweep_and_plots(capsys, fake_reader, tmp_path):
     }
     code, out, _ = run(
         capsys, "eval", "recordings", *fake_reader, "--plot", str(tmp_path / "f2"),
-        "--plot-trials", "A1_",
+        "--plot-trials", "A1_", "--reference", "locomotion",
     )  # fmt: skip
     assert code == 0 and len(list((tmp_path / "f2").glob("decisions_*.png"))) == 2
-    code, out, _ = run(capsys, "eval", "recordings", *fake_reader, "--json")
+    code, out, _ = run(
+        capsys, "eval", "recordings", *fake_reader, "--json", "--reference", "locomotion"
+    )
     data = json.loads(out)
+    assert data["accuracy_reference"] == "locomotion"
     assert sorted(f["subject"] for f in data["files"]) == ["A1", "A1", "S1", "S1"]
     assert {(g["condition"], g["subject"], g["trials"]) for g in data["groups"]} == {
         ("indoor", "S1", 2),
@@ -219,8 +235,6 @@ def test_recordings_grouped_with_sweep_and_plots(capsys, fake_reader, tmp_path):
         ("outdoor", "A1", 1),
     }
     assert set(data) >= {"files", "mean", "sd", "delay_frames", "paired_t_tests"}
-    code, _, err = run(capsys, "eval", "recordings", *fake_reader, "--reference", "truth")
-    assert code == 1 and "A1_indoor_t03.mcap: no simulator truth" in err
 
 
 def test_eval_model_is_the_model_command(capsys, monkeypatch):
@@ -238,7 +252,7 @@ def test_real_recording_end_to_end(capsys, tmp_path):
 
     path = str(tmp_path / "S07_indoor_t03.mcap")
     write_recording(path, seconds=2.0)
-    code, out, err = run(capsys, "eval", "recordings", path, "--json")
+    code, out, err = run(capsys, "eval", "recordings", path, "--json", "--reference", "locomotion")
     assert code == 0, err
     data = json.loads(out)
     (entry,) = data["files"]
@@ -248,7 +262,7 @@ def test_real_recording_end_to_end(capsys, tmp_path):
     assert entry["accuracy"]["hmm"] == pytest.approx(
         live_accuracy("hmm", recorded["probabilities"], recorded["labels"])
     )
-    code, out, _ = run(capsys, "eval", "recordings", path, "--reference", "truth", "--json")
+    code, out, _ = run(capsys, "eval", "recordings", path, "--json")  # terrain: sim truth
     truth = json.loads(out)["files"][0]["accuracy"]
     assert truth["cnn"] == pytest.approx(
         np.mean(np.argmax(recorded["probabilities"], axis=1) == recorded["truth"])
@@ -256,10 +270,44 @@ def test_real_recording_end_to_end(capsys, tmp_path):
 
 
 def test_a_folder_stands_for_its_recordings(capsys, fake_reader, tmp_path):
-    code, out, err = run(capsys, "eval", "recordings", str(tmp_path), "--json")
+    code, out, err = run(
+        capsys, "eval", "recordings", str(tmp_path), "--json", "--reference", "locomotion"
+    )
     assert code == 0, err
     assert len(json.loads(out)["files"]) == 4
     empty = tmp_path / "empty"
     empty.mkdir()
     code, _, err = run(capsys, "eval", "recordings", str(empty))
     assert code == 1 and "no .mcap recordings" in err
+
+
+def test_scores_json_carries_switches_against_both_references(capsys, tmp_path):
+    """A hand-made trial: terrain LG 60 frames then US 60; the subject steps up 15 frames
+    (1 s) after the terrain changed; the CNN is sure of each frame and wrong on frame 20
+    (DS for one frame) and frame 62 (back to LG for one frame)."""
+    rows = ["LG,US,DS,UR,DR,label,locomotion"]
+    for k in range(120):
+        terrain = "LG" if k < 60 else "US"
+        decided = {20: "DS", 62: "LG"}.get(k, terrain)
+        p = [0.9 if m == decided else 0.025 for m in MODES]
+        rows.append(",".join(map(str, p)) + f",{terrain},{'LG' if k < 75 else 'US'}")
+    path = tmp_path / "t.csv"
+    path.write_text("\n".join(rows) + "\n")
+    code, out, err = run(
+        capsys, "eval", "scores", str(path), "--methods", "cnn", "--json", "--sweep-delay", "1"
+    )
+    assert code == 0, err
+    data = json.loads(out)
+    assert data["accuracy_reference"] == "terrain"
+    cnn = data["files"][0]["transitions"]["cnn"]
+    terrain, loco = cnn["terrain"], cnn["locomotion"]
+    # 5 switches: LG-DS-LG, LG-US (the change), US-LG-US; 4 spurious in 8 s
+    assert (terrain["changes"], terrain["switches"], terrain["missed"]) == (1, 5, 0)
+    assert terrain["spurious"] == 4 and terrain["spurious_per_min"] == pytest.approx(30.0)
+    assert terrain["delay_frames"]["median"] == 0 and terrain["delay_ms"]["median"] == 0
+    # against the step up (frame 75) the nearest switch to US is the one at frame 63: 0.8 s
+    assert loco["lead_ms"]["median"] == pytest.approx(800.0) and loco["late"] == 0
+    assert data["transitions"]["cnn"]["terrain"]["spurious"] == 4
+    assert data["sweep"]["spurious_per_min"]["cnn"] == [pytest.approx(30.0)] * 2
+    code, out, _ = run(capsys, "eval", "scores", str(path), "--methods", "cnn", "--fps", "30")
+    assert "spurious/min" in out and "lead median" in out and "60.0" in out

@@ -45,7 +45,10 @@ def trials():
 # --- running methods ---------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("method", METHODS)
+SCORE_METHODS = [m for m in METHODS if m != "steady+gait"]  # gait needs a recording's cue
+
+
+@pytest.mark.parametrize("method", SCORE_METHODS)
 def test_offline_decisions_are_the_live_ones(method, trials):
     params = ev.FusionParameters(window=4, vote_delay=2, lag=2)
     e = trials[0].probabilities
@@ -125,7 +128,7 @@ def test_confusion_matrix_counts_reference_rows_and_decided_columns(trials):
 
 
 def test_delay_sweep_aligns_methods_on_delayed_frames(trials):
-    methods = list(METHODS)
+    methods = SCORE_METHODS
     sweep = ev.delay_sweep(trials[:2], methods, 3, ev.FusionParameters(lag=1))
     assert sweep.delays == [0, 1, 2, 3]
     a = sweep.accuracy
@@ -234,7 +237,7 @@ def test_binary_score_file_is_a_clear_error(tmp_path):
 # --- recordings --------------------------------------------------------------------------
 
 
-def test_trial_from_recording_prefers_operator_labels():
+def test_trial_from_recording_scores_the_terrain_and_keeps_the_live_keys_for_lead_time():
     probs = np.full((3, 5), 0.2)
     data = {
         "probabilities": probs,
@@ -243,12 +246,18 @@ def test_trial_from_recording_prefers_operator_labels():
         "metadata": {"subject": "A1", "condition": "outdoor"},
     }
     trial = ev.trial_from_recording("a.mcap", data)
-    np.testing.assert_array_equal(trial.reference, [-1, 1, 1])
+    assert trial.reference_name == "terrain"
+    np.testing.assert_array_equal(trial.reference, [0, 0, 0])
+    np.testing.assert_array_equal(trial.locomotion, [-1, 1, 1])
+    assert list(trial.references()) == ["terrain", "locomotion"]
     assert (trial.subject, trial.condition) == ("A1", "outdoor")
-    truth = ev.trial_from_recording("a.mcap", dict(data, labels=[None] * 3))
-    np.testing.assert_array_equal(truth.reference, [0, 0, 0])
-    with pytest.raises(InferenceError, match="a.mcap: no simulator truth"):
-        ev.trial_from_recording("a.mcap", dict(data, truth=None), reference="truth")
+    # frame accuracy against the live keys only when asked for
+    loco = ev.trial_from_recording("a.mcap", data, reference="locomotion")
+    assert loco.reference_name == "locomotion" and loco.locomotion is None
+    np.testing.assert_array_equal(loco.reference, [-1, 1, 1])
+    # no terrain reference: refused, never replaced by the live keys
+    with pytest.raises(InferenceError, match="no terrain reference .* --reference locomotion"):
+        ev.trial_from_recording("a.mcap", dict(data, truth=None))
     obj = types.SimpleNamespace(**data)  # an object with attributes works as well
     assert ev.trial_from_recording("a.mcap", obj).subject == "A1"
 
@@ -285,6 +294,7 @@ def test_write_plots_writes_the_papers_figures(tmp_path, trials):
         *(f"{kind}_t{i}" for kind in ("decisions", "probabilities") for i in range(len(trials))),
         "confusion_indoor",
         "confusion_outdoor",
+        "switches",
     ]
     assert names == sorted(f"{stem}.{ext}" for stem in stems for ext in ("pdf", "png"))
     for p in written:
@@ -296,3 +306,11 @@ def test_write_plots_writes_the_papers_figures(tmp_path, trials):
 
 def test_paper_transition_is_the_default():
     np.testing.assert_array_equal(ev.FusionParameters().transition, PAPER_TRANSITION)
+
+
+def test_a_gait_method_needs_the_cameras_elevation(trials):
+    with pytest.raises(InferenceError, match="t0.mcap: steady.gait needs the camera"):
+        ev.evaluate_trial(trials[0], ["steady+gait"])
+    n = len(trials[0].reference)
+    trial = ev.Trial("t", trials[0].probabilities, trials[0].reference, elevation_deg=[-30.0] * n)
+    assert ev.evaluate_trial(trial, ["steady+gait"]).accuracy["steady+gait"] > 0.5

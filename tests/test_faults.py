@@ -179,7 +179,7 @@ def test_garbage_files_are_one_clear_line(garbage_and_cut, command):
     assert "garbage.mcap" in line
 
 
-@pytest.mark.parametrize("command", [["info"], ["eval", "recordings", "--reference", "truth"]])
+@pytest.mark.parametrize("command", [["info"], ["eval", "recordings", "--reference", "terrain"]])
 def test_cut_files_are_read_up_to_the_cut(garbage_and_cut, command):
     _, cut, _, _ = garbage_and_cut
     out = run_cli(*command, str(cut))
@@ -187,7 +187,7 @@ def test_cut_files_are_read_up_to_the_cut(garbage_and_cut, command):
     assert "Traceback" not in out.stderr
 
 
-@pytest.mark.parametrize("command", [["info"], ["eval", "recordings", "--reference", "truth"]])
+@pytest.mark.parametrize("command", [["info"], ["eval", "recordings", "--reference", "terrain"]])
 def test_corrupted_bytes_inside_a_file_never_give_a_traceback(garbage_and_cut, command):
     _, _, _, flipped = garbage_and_cut
     out = run_cli(*command, str(flipped))
@@ -196,8 +196,28 @@ def test_corrupted_bytes_inside_a_file_never_give_a_traceback(garbage_and_cut, c
     assert "Traceback" not in out.stderr and "internal error" not in out.stderr
 
 
+def _chunk_spans_ns(path) -> list[int]:
+    """The log-time span of every complete chunk in a (possibly cut-off) MCAP file."""
+    from mcap.records import Chunk
+    from mcap.stream_reader import StreamReader
+
+    spans = []
+    with open(path, "rb") as f:
+        try:
+            for record in StreamReader(f, skip_magic=False, emit_chunks=True).records:
+                if isinstance(record, Chunk):
+                    spans.append(record.message_end_time - record.message_start_time)
+        except Exception:  # the cut-off end: the complete chunks are what is on disk
+            pass
+    return spans
+
+
 def test_kill_9_while_recording_then_recover_loses_at_most_a_second_and_no_label(tmp_path):
-    """A real `walkcap record` process killed with SIGKILL, as a power loss would."""
+    """A real `walkcap record` process killed with SIGKILL, as a power loss would.
+
+    What a kill can lose is the open chunk; every chunk closes once it holds a second of
+    data, so the loss is bounded by the data's own time, whatever the machine's load.
+    """
     import json
     import signal
 
@@ -211,7 +231,7 @@ def test_kill_9_while_recording_then_recover_loses_at_most_a_second_and_no_label
             str(tmp_path),
             "--auto-label",
             "--duration",
-            "60",
+            "600",
         ],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -221,23 +241,34 @@ def test_kill_9_while_recording_then_recover_loses_at_most_a_second_and_no_label
         line = proc.stderr.readline()  # "recording PATH"
         assert line.startswith("recording "), line + proc.stderr.read()
         path = tmp_path / os.path.basename(line.split(" ", 1)[1].strip())
-        time.sleep(4.0)
+
+        def on_disk() -> int:
+            try:
+                return open_recording(path).topics["/camera/depth"].count
+            except Exception:  # nothing complete yet
+                return 0
+
+        # Depth on disk: a bounded wait on the file, not on a clock.
+        assert wait_for(lambda: on_disk() >= 30, 300, 0.5)
+        proc.send_signal(signal.SIGSTOP)  # what is on disk now is what the kill leaves
+        seen = on_disk()
     finally:
         proc.send_signal(signal.SIGKILL)
         proc.wait(10)
-    killed_at = time.monotonic_ns()
     journal = [json.loads(x) for x in open(str(path) + ".journal.jsonl") if x.strip()]
     labels_journaled = [(e["time_ns"], e["mode"]) for e in journal if e.get("type") == "label"]
     assert labels_journaled
 
+    spans = _chunk_spans_ns(path)
+    # a chunk closes once its sensor data spans a second (events and decisions stamped a
+    # little before or after lie in it too): what a kill loses is about a second of data
+    assert spans and max(spans) < 1.5e9
     out = run_cli("recover", str(path))
     assert out.returncode == 0, out.stderr
     fixed = path.with_suffix(".recovered.mcap")
     assert fixed.name in out.stdout + out.stderr
     rec = open_recording(fixed)
-    assert rec.topics["/camera/depth"].count >= 3 * 15 - 16  # at most ~1 s of 4 s lost
-    depth_end = max(m.log_time_ns for m in rec.messages(["/camera/depth"]))
-    assert killed_at - depth_end < 1.5e9
+    assert rec.topics["/camera/depth"].count >= seen > 0  # nothing on disk is lost
     labels = [(c[0], c[1]) for c in read_trial(fixed)["label_changes"]]
     for label in labels_journaled:
         assert label in labels

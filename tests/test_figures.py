@@ -144,7 +144,7 @@ def test_the_four_methods_are_told_apart(results, figures, tmp_path):
 def test_every_figure_reads_at_one_columns_width(results, figures, tmp_path):
     rs, sweep = results
     ev.write_plots(rs, tmp_path, METHODS, sweep=sweep, trials=["S01_indoor_t01"])
-    assert len(figures) == 7
+    assert len(figures) == 8 and "switches" in figures  # main's trade-off figure too
     for name, fig in figures.items():
         width, _ = fig.get_size_inches()
         assert width <= 3.5 + 1e-9, name

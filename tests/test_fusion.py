@@ -12,12 +12,15 @@ from inference.fusion import (
     FixedLagSmoother,
     ForwardFilter,
     HmmFusion,
+    SteadyFusion,
     Voter,
     design_transition,
     estimate_transition,
     make_fusion,
     paper_viterbi,
+    steady_transition,
     validate_transition,
+    walking_stay,
 )
 
 T = PAPER_TRANSITION
@@ -313,6 +316,8 @@ def test_make_fusion_knows_every_method_and_its_delay():
         "hmm+voting": 4,
         "forward": 0,
         "fixed-lag": 2,
+        "steady": 1,
+        "steady+gait": 1,
     }
     with pytest.raises(InferenceError, match="unknown fusion method"):
         make_fusion("kalman")
@@ -326,3 +331,133 @@ def test_bench_fusion_reports_both_timings():
     result = bench_fusion(updates=300)
     assert set(result) == {"fusion_update_us", "paper_loop_us", "speedup"}
     assert result["fusion_update_us"] > 0 and result["paper_loop_us"] > 0
+
+
+def test_steady_is_the_fixed_lag_1_smoother_of_its_walking_hmm():
+    """Frame t-1 decided at frame t: the fixed-lag-1 smoother of the HMM with the paper's
+    rules at the walking stay and the CNN's probabilities to the power `evidence`."""
+    e = random_probabilities(np.random.default_rng(9), 60)
+    steady = SteadyFusion(stay=0.987, evidence=0.75)
+    decisions, _, posteriors = stream(steady, e)
+    reference = FixedLagSmoother(steady_transition(0.987), lag=1)
+    expected, _, expected_posteriors = stream(reference, e**0.75)
+    np.testing.assert_array_equal(decisions, expected)
+    np.testing.assert_allclose(posteriors, expected_posteriors, rtol=1e-9)
+    assert steady.delay_frames == 1
+    outs = [SteadyFusion().push(row) for row in e[:1]]
+    assert outs == [None]  # frame 0 waits for frame 1
+
+
+def test_steady_design_from_walking():
+    assert walking_stay(15.0, 5.0) == pytest.approx(1 - 1 / 75)
+    t = steady_transition(0.987)
+    np.testing.assert_allclose(t.sum(axis=1), 1.0)
+    assert np.all(np.diag(t) == 0.987)
+    # the paper's proportions of what leaves a mode: 75 % of it to level ground
+    assert t[1, 0] == pytest.approx(0.75 * 0.013) and t[1, 3] == pytest.approx(0.15 * 0.013)
+    with pytest.raises(InferenceError, match="evidence"):
+        SteadyFusion(evidence=0.0)
+
+
+def test_steady_ignores_a_two_frame_error_the_hmm_follows():
+    """Level ground at 0.7 with two down-stairs frames at 0.9 (a swing blur), then up
+    stairs: Algorithm 1 switches to down stairs and back, steady holds; both follow the
+    real change on the same frame."""
+
+    def scores(mode: int, p: float) -> list[float]:
+        return [p if j == mode else (1 - p) / 4 for j in range(5)]
+
+    frames = np.array([scores(0, 0.7)] * 30 + [scores(2, 0.9)] * 2 + [scores(0, 0.7)] * 30
+                      + [scores(1, 0.7)] * 30)  # fmt: skip
+    hmm = run_offline(HmmFusion(5, T), frames).final
+    steady = run_offline(SteadyFusion(), frames).final
+    assert 2 in set(hmm[30:33]) and np.count_nonzero(np.diff(hmm)) == 3
+    assert set(steady[:62]) == {0} and np.count_nonzero(np.diff(steady)) == 1
+    assert np.argmax(steady == 1) == np.argmax(hmm == 1) == 64
+
+
+def test_bench_times_the_steady_update():
+    from capture.bench.components import bench_method_update
+
+    assert bench_method_update("steady", updates=200) > 0
+
+
+def gait_reference(e, elevation, stay=0.987, evidence=0.75):
+    """steady+gait by its definition, in numpy: per frame the transition of its gait phase,
+    the fixed-lag-1 smoother of that HMM."""
+    from inference.fusion import GAIT_LEAVE, GAIT_PHASE_SD, GAIT_RATE_FRAMES
+
+    e = np.asarray(e) ** evidence
+    var, last, rows = 1.0, np.nan, []
+    for el in elevation:
+        change, last = el - last, el
+        if np.isnan(change):
+            rows.append(steady_transition(stay))
+            continue
+        var += (change**2 - var) / GAIT_RATE_FRAMES
+        g = GAIT_LEAVE[0] if change <= GAIT_PHASE_SD * np.sqrt(var) else GAIT_LEAVE[1]
+        rows.append(steady_transition(1 - (1 - stay) * g))
+    alpha = []
+    for k, row in enumerate(e):
+        a = row if k == 0 else (alpha[-1] @ rows[k]) * row
+        alpha.append(a / a.sum())
+    decisions = [np.argmax(alpha[k] * (rows[k + 1] @ e[k + 1])) for k in range(len(e) - 1)]
+    return np.array([*decisions, np.argmax(alpha[-1])])
+
+
+def test_steady_gait_is_its_phase_dependent_smoother():
+    from inference.fusion import GaitSteadyFusion
+
+    rng = np.random.default_rng(10)
+    e = random_probabilities(rng, 80, concentration=0.3)
+    elevation = -35 + 20 * np.sin(2 * np.pi * np.arange(80) / 15) + rng.normal(0, 1, 80)
+    fusion = GaitSteadyFusion()
+    run = run_offline(fusion, e, elevation)
+    np.testing.assert_array_equal(run.final, gait_reference(e, elevation))
+    assert fusion.delay_frames == 1 and fusion.uses_gait
+    # without the camera's orientation it is steady
+    blind = run_offline(GaitSteadyFusion(), e, np.full(80, np.nan))
+    np.testing.assert_array_equal(blind.final, run_offline(SteadyFusion(), e).final)
+    with pytest.raises(InferenceError, match="orientation"):
+        run_offline(GaitSteadyFusion(), e)
+
+
+def test_steady_gait_switches_in_the_phase_where_terrain_changes_show():
+    """The same weak evidence for up stairs: taken while the camera pitches down (the
+    phase where terrain changes show), it switches; at another phase it waits."""
+    from inference.fusion import GaitSteadyFusion
+
+    def scores(mode, p):
+        return [p if j == mode else (1 - p) / 4 for j in range(5)]
+
+    frames = np.array([scores(0, 0.8)] * 40 + [scores(1, 0.9)] * 2 + [scores(0, 0.8)] * 18)
+    k = np.arange(60)  # a stride of 15 frames: 1 s at 15 fps
+    # frames 40-41 while the camera pitches down (phase 12), or up (phase 4)
+    down = run_offline(GaitSteadyFusion(), frames, -35 + 20 * np.sin(2 * np.pi * (k + 12) / 15))
+    up = run_offline(GaitSteadyFusion(), frames, -35 + 20 * np.sin(2 * np.pi * (k + 4) / 15))
+    assert 1 in set(down.final[40:42]) and 1 not in set(up.final)
+
+
+def test_the_pipeline_gives_a_gait_fusion_the_cameras_elevation():
+    from capture.pipeline import Pipeline
+    from devices.rotations import quat_from_euler
+    from devices.simulator.synthetic import synthetic_frame
+    from inference.fusion import GaitSteadyFusion
+    from inference.preprocess import PreprocessParams
+
+    class Spy(GaitSteadyFusion):
+        def push(self, probabilities, elevation_deg=None):
+            seen.append(elevation_deg)
+            return super().push(probabilities, elevation_deg)
+
+    class Classifier:
+        def predict(self, image):
+            return np.array([0.6, 0.1, 0.1, 0.1, 0.1])
+
+    seen: list = []
+    pipeline = Pipeline(PreprocessParams(), Classifier(), Spy())
+    for k in (0, 11, 22):  # thigh swing 20 degrees at ~1 Hz (synthetic_frame's)
+        q = quat_from_euler(0.0, np.radians(20.0) * np.sin(2 * np.pi * k / 45.0), 0.0)
+        pipeline.process(synthetic_frame(k, 1_000_000 * k), q)
+    assert len(seen) == 3 and all(np.isfinite(seen))
+    assert seen[1] != pytest.approx(seen[0]) and max(seen) < 0  # looking down, swinging

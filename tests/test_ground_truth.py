@@ -127,14 +127,18 @@ def test_a_folder_with_a_trial_its_copies_and_a_recovered_trial_counts_two_trial
     # the corrected labels are the reference of trial 1
     assert (read_trial(corrected)["labels"][45:] == 1).all()
 
-    assert cli.main(["eval", "recordings", str(folder), "--json"]) == 0
+    # live keys only in trial 2: its accuracy only against them, asked for
+    assert cli.main(["eval", "recordings", str(folder), "--json"]) == 1
+    assert "no terrain reference" in capsys.readouterr().err
+    assert cli.main(["eval", "recordings", str(folder), "--json", "--reference", "locomotion"]) == 0
     out = capsys.readouterr()
     assert len(json.loads(out.out)["files"]) == 2
     assert "left out 3 file(s)" in out.err and a.name in out.err
 
     with_replays = corpus.select([folder], replays=True)
     assert [p.name for p in with_replays.files] == ["S01_indoor_t01_20260101-100000.replay.mcap"]
-    assert cli.main(["eval", "recordings", str(folder), "--replays", "--json"]) == 0
+    argv = ["eval", "recordings", str(folder), "--replays", "--json", "--reference", "locomotion"]
+    assert cli.main(argv) == 0
     out = capsys.readouterr()
     assert len(json.loads(out.out)["files"]) == 1 and "no replay of this trial" in out.err
 

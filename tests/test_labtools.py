@@ -3,8 +3,10 @@
 import asyncio
 import base64
 import json
+import logging
 import socket
 import struct
+import threading
 import time
 
 import numpy as np
@@ -13,9 +15,9 @@ import pytest
 from capture import topics as T
 from capture.config import Config
 from capture.foxglove_live import LAYOUT, FoxgloveLive
-from capture.labtools import SessionController
+from capture.labtools import LabTools, SessionController
 from capture.reader import open_recording
-from capture.remote import RemoteControl, TrialRequest, parse_filename
+from capture.remote import MAX_CLIENTS, RemoteControl, TrialRequest, parse_filename
 from capture.session import Session, SubjectInfo
 from devices.base import DeviceEvent
 from devices.frames import ImuSample
@@ -177,3 +179,226 @@ def test_the_shipped_layout_names_only_walkcaps_topics():
     assert {T.DEPTH, T.BINARY_IMAGE, T.CLOUD, T.CNN, T.LABELS, T.FUSED} <= named
     panels = {key.split("!")[0] for key in layout["configById"]}
     assert panels <= {"Image", "3D", "Plot", "StateTransitions", "RawMessages"}
+
+
+# ---- remote control facing a misbehaving local program ------------------------------------
+
+
+def _wait_for(condition, timeout_s: float = 20.0) -> None:
+    """A condition, waited for with a generous bound (never a timing claim)."""
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        assert time.monotonic() < deadline, "condition not reached"
+        time.sleep(0.02)
+
+
+class _Controller:
+    def __init__(self) -> None:
+        self.started: list[TrialRequest] = []
+
+    def remote_start(self, request: TrialRequest) -> str:
+        self.started.append(request)
+        return "recording"
+
+    def remote_stop(self) -> str:
+        return "saved"
+
+
+def test_an_over_long_line_closes_its_connection_with_one_event():
+    events: list[DeviceEvent] = []
+    remote = RemoteControl(_Controller(), port=0, on_event=events.append).start()
+    try:
+        with socket.create_connection(("127.0.0.1", remote.port), timeout=20) as sock:
+            try:
+                sock.sendall(b"x" * (4 << 20))  # 4 MB, no newline
+                closed = sock.recv(16) == b""
+            except (ConnectionResetError, BrokenPipeError):
+                closed = True
+            assert closed
+        _wait_for(lambda: events)
+        with socket.create_connection(("127.0.0.1", remote.port), timeout=20) as sock:
+            assert _send(sock, "update") == b"OK"  # the next client is served as ever
+    finally:
+        remote.close()
+    assert [e.kind for e in events] == ["line_too_long"]
+    assert events[0].device == "remote"
+
+
+def test_idle_connections_beyond_a_small_bound_are_refused_politely_by_one_thread():
+    events: list[DeviceEvent] = []
+    threads_before = threading.active_count()
+    remote = RemoteControl(_Controller(), port=0, on_event=events.append).start()
+    idle: list[socket.socket] = []
+    try:
+        for _ in range(MAX_CLIENTS):
+            idle.append(socket.create_connection(("127.0.0.1", remote.port), timeout=20))
+        assert _send(idle[0], "update") == b"OK"  # the first ones are served
+        answers = []
+        for _ in range(50):
+            with socket.create_connection(("127.0.0.1", remote.port), timeout=20) as extra:
+                answers.append(extra.makefile("rb").read())  # one line, then closed
+        assert set(answers) == {
+            b"busy: walkcap takes %d remote-control connections at a time\n" % MAX_CLIENTS
+        }
+        assert threading.active_count() <= threads_before + 1  # one thread serves them all
+        assert remote.refused == 50
+        for sock in idle:
+            sock.close()
+        idle.clear()
+        _wait_for(lambda: remote.connections == 0)
+        with socket.create_connection(("127.0.0.1", remote.port), timeout=20) as sock:
+            assert _send(sock, "update") == b"OK"  # room again once they are gone
+    finally:
+        for sock in idle:
+            sock.close()
+        remote.close()
+    assert [e.kind for e in events] == ["busy"]  # reaching the limit: one event
+
+
+def _lab_session(recordings):
+    cfg = Config()
+    cfg.session.recordings = str(recordings)
+    cfg.simulator.realtime = False
+    cfg.simulator.loop = True
+    cfg.lsl.remote_control = True
+    cfg.lsl.remote_port = 0
+    session = Session(cfg, auto_label=True)
+    session.start()
+    lab = LabTools(session, cfg, SessionController(session, SubjectInfo())).start()
+    assert lab.remote is not None, lab.problems
+    return cfg, session, lab
+
+
+def _remote_events(session) -> list[DeviceEvent]:
+    return [e for e in session.snapshot().events if e.device == "remote"]
+
+
+def test_a_remote_root_is_the_remote_trials_only_and_bad_commands_are_one_event_each(
+    tmp_path, capfd
+):
+    recordings = tmp_path / "recordings"
+    cfg, session, lab = _lab_session(recordings)
+    try:
+        with socket.create_connection(("127.0.0.1", lab.remote.port), timeout=20) as sock:
+            bad = [
+                "filename {root:x\x00y}",  # a NUL in the folder
+                "filename {root:/proc/1/nope}",  # outside the recordings folder
+                "filename {root:../elsewhere}",
+                "filename {run:99999999999999999999}",
+                "filename {participant:../P07}",
+                "frobnicate \x1b[2J",
+            ]
+            for line in bad:
+                assert _send(sock, line) == b"OK"  # answered as LabRecorder answers
+            _wait_for(lambda: len(_remote_events(session)) == len(bad))
+            assert {e.kind for e in _remote_events(session)} == {"refused"}
+            line = "filename {root:study} {participant:P07} {task:stairs} {run:2}"
+            assert _send(sock, line) == b"OK"
+            assert _send(sock, "start") == b"OK"
+            _wait_for(lambda: session.snapshot().frames >= 10)
+            assert _send(sock, "stop") == b"OK"
+        assert cfg.session.recordings == str(recordings)  # the operator's folder as it was
+        local = session.start_recording(SubjectInfo(subject="OP1"))
+        session.stop_recording()
+    finally:
+        lab.stop()
+        session.stop()
+    assert len(_remote_events(session)) == len(bad)  # one event each, nothing more
+    (remote_trial,) = (recordings / "study").glob("P07_stairs_t02_*.mcap")
+    assert local.parent == recordings
+    trials = {str(p.relative_to(recordings)).split(".mcap")[0] for p in recordings.rglob("*.*")}
+    assert trials == {str(p.relative_to(recordings))[:-5] for p in (remote_trial, local)}
+    assert not (tmp_path / "elsewhere").exists()
+    err = capfd.readouterr().err
+    assert "Traceback" not in err and "\x1b" not in err
+
+
+def test_with_a_shared_token_only_a_connection_that_gives_it_is_obeyed():
+    events: list[DeviceEvent] = []
+    controller = _Controller()
+    remote = RemoteControl(controller, port=0, on_event=events.append, token="s3cret").start()
+    try:
+        for first in ("start", "token wrong"):
+            with socket.create_connection(("127.0.0.1", remote.port), timeout=20) as sock:
+                sock.sendall(first.encode() + b"\n")
+                assert sock.makefile("rb").read() == b""  # closed, unanswered
+        with socket.create_connection(("127.0.0.1", remote.port), timeout=20) as sock:
+            assert _send(sock, "token s3cret") == b"OK"
+            assert _send(sock, "start") == b"OK"
+    finally:
+        remote.close()
+    assert len(controller.started) == 1
+    assert [e.kind for e in events] == ["unauthorized", "unauthorized"]
+    assert all("s3cret" not in command for command, _ in remote.log)
+
+
+CONTROL = "\x1b]0;owned\x07\x1b[2J\x1b[31mFAKE: recording stopped\u202e"
+
+
+def _raw_control(text: str) -> bool:
+    return any(not ch.isprintable() for ch in text)
+
+
+def test_repeated_bad_commands_are_escaped_and_counted_not_flooded():
+    events: list[DeviceEvent] = []
+    remote = RemoteControl(_Controller(), port=0, on_event=events.append).start()
+    try:
+        with socket.create_connection(("127.0.0.1", remote.port), timeout=20) as sock:
+            stream = sock.makefile("rb")
+            sock.sendall((CONTROL + "\n").encode() * 100)
+            assert stream.read(2 * 100) == b"OK" * 100  # every line answered
+    finally:
+        remote.close()
+    counts = [e.details.get("count") for e in events]
+    assert counts == [None] * 10 + [100]  # the first ten, then the hundredth with its count
+    assert not any(_raw_control(e.message) for e in events)
+    assert "\\x1b]0;owned\\x07" in events[0].message  # shown, escaped
+
+
+def test_foxglove_client_text_is_escaped_and_its_repeats_counted(caplog):
+    import websockets
+
+    fox = FoxgloveLive(port=0)
+
+    async def misbehave():
+        async with websockets.connect(fox.url, subprotocols=["foxglove.sdk.v1"]) as ws:
+            await ws.send(json.dumps({"op": CONTROL}))
+            subs = [{"id": i, "channelId": 10_000_000 + i} for i in range(20_000)]
+            await ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+            deadline = time.monotonic() + 60
+            while fox.client_messages < 20_001 and time.monotonic() < deadline:
+                await asyncio.sleep(0.05)
+
+    caplog.set_level(logging.WARNING)
+    try:
+        asyncio.run(misbehave())
+        assert fox.client_messages >= 20_001  # each seen, and counted
+    finally:
+        fox.close()
+    lines = [r.getMessage() for r in caplog.records]
+    assert not any(_raw_control(line) for line in lines)
+    assert any("\\x1b]0;owned\\x07" in line for line in lines)
+    assert len(lines) <= 20  # the first few, the powers of ten, the tally at close
+    assert "not shown" in lines[-1]
+
+
+def test_a_flood_of_commands_closes_its_connection_with_one_event():
+    from capture.remote import COMMAND_BURST
+
+    events: list[DeviceEvent] = []
+    remote = RemoteControl(_Controller(), port=0, on_event=events.append).start()
+    try:
+        with socket.create_connection(("127.0.0.1", remote.port), timeout=20) as sock:
+            try:
+                sock.sendall(b"update\n" * 100_000)
+                answers = sock.makefile("rb").read()
+            except (ConnectionResetError, BrokenPipeError):
+                answers = b""
+        assert len(answers) < 2 * 100_000  # closed long before the last
+        _wait_for(lambda: events)
+        assert COMMAND_BURST <= len(remote.log) < 100_000
+        with socket.create_connection(("127.0.0.1", remote.port), timeout=20) as sock:
+            assert _send(sock, "update") == b"OK"  # the next client is served as ever
+    finally:
+        remote.close()
+    assert [e.kind for e in events] == ["flood"]

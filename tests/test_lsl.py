@@ -163,3 +163,124 @@ def test_a_stream_that_disappears_is_an_event_and_is_looked_for_again():
         assert inlets.state[name] == "looking"
     finally:
         inlets.stop()
+
+
+# ---- what a stream sent, as it sent it -----------------------------------------------------
+
+
+def _wait_for(condition, timeout_s: float = 30.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        assert time.monotonic() < deadline, "condition not reached"
+        time.sleep(0.02)
+
+
+def _outlet(name: str, channels: int, fmt, source: str, labels=()):
+    info = pylsl.StreamInfo(name, "Test", channels, 0.0, fmt, source)
+    if labels:
+        chans = info.desc().append_child("channels")
+        for label in labels:
+            chans.append_child("channel").append_child_value("label", label)
+    return pylsl.StreamOutlet(info)
+
+
+def test_every_channel_and_type_is_recorded_as_sent(tmp_path):
+    tag = uuid.uuid4().hex[:6]
+    names = [f"Mk-{tag}", f"I64-{tag}", f"F32-{tag}", f"EMG-1-{tag}", f"EMG_1_{tag}"]
+    outlets = {
+        names[0]: _outlet(names[0], 3, pylsl.cf_string, f"mk-{tag}", ("cue", "side", "note")),
+        names[1]: _outlet(names[1], 2, pylsl.cf_int64, f"i64-{tag}"),
+        names[2]: _outlet(names[2], 3, pylsl.cf_float32, f"f32-{tag}"),
+        names[3]: _outlet(names[3], 1, pylsl.cf_float32, f"e1-{tag}"),
+        names[4]: _outlet(names[4], 2, pylsl.cf_float32, f"e2-{tag}"),
+    }
+    rec = Recorder(tmp_path / "t.mcap", metadata={"session": {"subject": "S1"}})
+    rec.start()
+    events = []
+    inlets = L.LslInlets(names, lambda: rec, events.append)
+    inlets.start()
+    big = [2**53 + 1, -(2**62) - 3]
+    try:
+        for outlet in outlets.values():
+            assert outlet.wait_for_consumers(30)
+        now = pylsl.local_clock()
+        outlets[names[0]].push_sample(["go", "left", "café ☕"], now)
+        outlets[names[1]].push_sample(big, now)
+        outlets[names[2]].push_sample([float("inf"), float("nan"), float("-inf")], now)
+        outlets[names[2]].push_sample([1.5, 2.5, 3.5], 1e11)  # a time beyond the clock
+        outlets[names[3]].push_sample([1.0], now)
+        outlets[names[4]].push_sample([2.0, 3.0], now)
+        _wait_for(lambda: inlets.received[names[2]] == 2)
+        _wait_for(lambda: all(inlets.received[n] >= 1 for n in names))
+    finally:
+        inlets.stop()
+        rec.close()
+
+    recording = open_recording(tmp_path / "t.mcap")
+    (marker,) = [m.data for m in recording.messages(["/events"]) if m.data["kind"] == "marker"]
+    assert marker["details"]["values"] == ["go", "left", "café ☕"]  # every channel
+    assert marker["details"]["channels"] == ["cue", "side", "note"]
+
+    def values(name):
+        return [row for m in recording.messages([L.topic_for(name)]) for row in m.data["values"]]
+
+    assert values(names[1]) == [big]  # int64 exact
+    assert values(names[2])[0] == ["inf", None, "-inf"]  # +inf apart from NaN
+    read_back = np.asarray(values(names[2])[0], dtype=float)
+    assert np.isposinf(read_back[0]) and np.isnan(read_back[1]) and np.isneginf(read_back[2])
+    chunks = [m.data for m in recording.messages([L.topic_for(names[2])])]
+    times = [(t, lt) for c in chunks for t, lt in zip(c["time_ns"], c["lsl_time"])]
+    assert times[1] == (None, pytest.approx(1e11))  # kept as sent, no time on the clock
+    assert isinstance(times[0][0], int) and times[0][0] > 0
+    assert [e.kind for e in events if e.kind == "lsl_bad_time"] == ["lsl_bad_time"]
+    topics = {L.topic_for(n) for n in names}
+    assert len(topics) == len(names)  # EMG-1 and EMG_1 apart
+    assert values(names[3]) == [[1.0]] and values(names[4]) == [[2.0, 3.0]]
+
+
+_HANGING_OUTLET = """
+import sys, time, pylsl
+outlet = pylsl.StreamOutlet(pylsl.StreamInfo(sys.argv[1], "EMG", 1, 0.0, pylsl.cf_float32, "a"))
+assert outlet.wait_for_consumers(60)
+outlet.push_sample([1.0])
+print("sent", flush=True)
+while True:
+    time.sleep(1)
+"""
+
+
+def test_a_stream_whose_outlet_hangs_is_replaced_by_its_successor(tmp_path):
+    import signal
+    import subprocess
+    import sys
+
+    name = f"Hang-{uuid.uuid4().hex[:6]}"
+    old = subprocess.Popen(
+        [sys.executable, "-c", _HANGING_OUTLET, name],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
+    rec = Recorder(tmp_path / "t.mcap", metadata={"session": {"subject": "S1"}})
+    rec.start()
+    events = []
+    inlets = L.LslInlets([name], lambda: rec, events.append)
+    inlets.start()
+    try:
+        assert old.stdout.readline() == "sent\n"
+        _wait_for(lambda: inlets.received[name] == 1)
+        old.send_signal(signal.SIGSTOP)  # hangs: its connection stays open, silent
+        new = _outlet(name, 1, pylsl.cf_float32, "b")  # the device's software, restarted
+        assert new.wait_for_consumers(30)
+        new.push_sample([2.0])
+        _wait_for(lambda: inlets.received[name] == 2)
+    finally:
+        old.kill()
+        old.wait()
+        inlets.stop()
+        rec.close()
+    assert [e.kind for e in events] == ["lsl_found", "lsl_lost", "lsl_found"]
+    assert [e.details["source_id"] for e in events if e.kind == "lsl_found"] == ["a", "b"]
+    recording = open_recording(tmp_path / "t.mcap")
+    rows = [row for m in recording.messages([L.topic_for(name)]) for row in m.data["values"]]
+    assert rows == [[1.0], [2.0]]

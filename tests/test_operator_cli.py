@@ -10,8 +10,8 @@ import pytest
 
 from capture import config as cfg
 from capture import preflight
-from capture.alarms import GAP_PERIODS, GapCounter, TrialAlarms
-from capture.reader import find_gaps
+from capture.alarms import GAP_PERIODS, TrialAlarms
+from capture.gaps import stream_loss
 from devices.base import DeviceStatus
 from tui import cli
 from tui.commands import course_condition
@@ -73,17 +73,25 @@ def test_condition_and_course_agree_or_warn():
     assert "differs" in course_condition(args, config)
 
 
-def test_live_gap_count_is_the_files_count():
+def test_live_gap_count_is_the_files_count(tmp_path):
     rng = np.random.default_rng(1)
-    t = np.cumsum(rng.normal(10e6, 1e6, 3000)).astype(np.int64)  # 100 Hz with jitter
-    t[500:] += int(0.5e9)  # an unplug of half a second
-    t[1800:] += int(0.05e9)  # a short stall: 6 periods
-    t[2500:] += int(0.012e9)  # 2.2 periods: below the threshold (GAP_PERIODS x median)
-    counter = GapCounter()
-    for x in t:
-        counter.add(int(x))
-    assert counter.count == len(find_gaps(t)) == 2
-    assert counter.longest_s == pytest.approx(max(g for _, g in find_gaps(t)))
+    k = np.arange(3000)
+    device = (10**12 + k * 10_000_000).astype(np.int64)  # 100 Hz on the device's clock
+    host = device + rng.integers(1_000_000, 3_000_000, len(k))  # jitter on the host's
+    keep = np.ones(len(k), bool)
+    keep[500:550] = False  # an unplug of half a second: 50 samples the device sent, lost
+    keep[1800:1805] = False  # 5 more
+    host[2500:] += int(0.2e9)  # the host stalled 0.2 s: late, nothing lost
+    items = [(int(k[i]), int(device[i]), int(host[i])) for i in np.nonzero(keep)[0]]
+    alarms = TrialAlarms(tmp_path, {"imu": 0.01})
+    alarms.new_trial()
+    for seq, dev, t in items:
+        alarms.sample("imu", seq, dev, t)
+    counter = alarms.counters["imu"]
+    loss = stream_loss(items, 0.01, 1 << 16)
+    assert counter.count == len(loss.gaps) == 2 and loss.missing == 55
+    assert counter.longest_s == pytest.approx(loss.longest_s) == pytest.approx(0.51)
+    assert len(loss.late) == len(counter.loss.loss.late) == 1
     assert GAP_PERIODS == 3.0
 
 
@@ -91,14 +99,28 @@ def test_a_silent_stream_alarms_while_it_lasts(tmp_path):
     alarms = TrialAlarms(tmp_path)
     alarms.new_trial()
     for i in range(50):
-        alarms.sample("imu", i * 10_000_000)
+        alarms.sample("imu", i, i * 10_000_000, i * 10_000_000)
     state = alarms.state(49 * 10_000_000 + 1_000_000_000, None, [])
     assert any("IMU: no data for 1.0 s" in a.text and a.level == "error" for a in state.alarms)
-    for i in range(10):
-        alarms.sample("imu", 49 * 10_000_000 + 1_000_000_000 + i * 10_000_000)
+    for i in range(10):  # unplugged: the device counted on, the samples are lost
+        t = 49 * 10_000_000 + 1_000_000_000 + i * 10_000_000
+        alarms.sample("imu", 149 + i, t, t)
     state = alarms.state(49 * 10_000_000 + 1_095_000_000, None, [])
-    assert state.gaps["imu"] == 1
+    assert state.gaps["imu"] == 1 and state.missing["imu"] == 99
     assert any("gap of 1.00 s ended" in a.text for a in state.alarms)
+
+
+def test_a_host_stall_alarms_as_late_not_as_a_gap(tmp_path):
+    alarms = TrialAlarms(tmp_path)
+    alarms.new_trial()
+    for i in range(100):  # every sample there, the last 50 delivered 0.5 s late
+        alarms.sample("imu", i, i * 10_000_000, i * 10_000_000 + (500_000_000 if i >= 50 else 0))
+    state = alarms.state(99 * 10_000_000 + 600_000_000, None, [])
+    assert state.gaps["imu"] == 0 and state.late["imu"] == 1
+    texts = [a.text for a in state.alarms]
+    assert any("0.51 s late (the computer stalled), nothing lost" in t for t in texts)
+    assert not any(t.startswith("gaps this trial") for t in texts)
+    assert "late deliveries this trial: camera 0, IMU 1" in texts
 
 
 def test_low_disk_and_a_filling_queue_alarm(tmp_path):

@@ -202,3 +202,41 @@ def test_find_gaps():
     gaps = find_gaps(t)
     assert len(gaps) == 1 and gaps[0][0] == t[49] and gaps[0][1] == pytest.approx(0.088)
     assert find_gaps(np.arange(10) * 10) == []
+
+
+def test_two_references_live_keys_and_offline_terrain_labels(tmp_path):
+    """The live keys are the locomotion reference; labels made offline in replay --tui
+    (source "correction") over them are the terrain reference; with neither the
+    simulator's truth nor offline labels there is no terrain reference."""
+    from recording_fixtures import T0, frame_time, write_trial
+
+    from capture.reader import read_trial
+
+    keys = [(T0, "LG", "operator"), (frame_time(40), "US", "operator")]
+    live = tmp_path / "live.mcap"
+    write_trial(live, keys, frames=80)
+    trial = read_trial(live)
+    assert trial["terrain"] is None and trial["terrain_source"] is None
+    assert list(trial["locomotion"][[0, 39, 40, 79]]) == [0, 0, 1, 1]
+    labelled = tmp_path / "labelled.mcap"
+    write_trial(labelled, [*keys, (frame_time(25), "US", "correction")], frames=80)
+    trial = read_trial(labelled)
+    assert trial["terrain_source"] == "offline labels"
+    assert list(trial["terrain"][[0, 24, 25, 79]]) == [0, 0, 1, 1]  # the image shows US early
+    assert list(trial["locomotion"][[0, 39, 40, 79]]) == [0, 0, 1, 1]  # the keys unchanged
+
+
+def test_export_names_both_references(tmp_path):
+    from recording_fixtures import T0, frame_time, write_trial
+
+    from capture import export
+
+    keys = [(T0, "LG", "operator"), (frame_time(40), "US", "operator")]
+    path = tmp_path / "labelled.mcap"
+    write_trial(path, [*keys, (frame_time(25), "US", "correction")], frames=80)
+    frames = export.tables(path)["frames"]
+    assert list(frames["terrain"][[0, 24, 25, 79]]) == ["LG", "LG", "US", "US"]
+    assert list(frames["locomotion"][[0, 39, 40, 79]]) == ["LG", "LG", "US", "US"]
+    live = tmp_path / "live.mcap"
+    write_trial(live, keys, frames=80)
+    assert set(export.tables(live)["frames"]["terrain"]) == {""}  # labelled offline: none

@@ -219,6 +219,56 @@ def test_a_full_queue_drops_counts_and_records_but_never_blocks_or_loses_labels(
     assert len(msgs[T.LABELS]) == 6  # labels bypass the bounded queue
 
 
+def test_a_writer_behind_sheds_derived_data_and_keeps_every_raw_item(tmp_path, monkeypatch):
+    path = tmp_path / "behind.mcap"
+    real = recorder_module.encode_depth
+    encoding, disk_free = threading.Event(), threading.Event()
+
+    def stuck(*args):  # the writer falls behind on its first frame
+        encoding.set()
+        disk_free.wait(10.0)
+        return real(*args)
+
+    monkeypatch.setattr(recorder_module, "encode_depth", stuck)
+    rec = Recorder(path, metadata={}, queue_size=200)  # room for the raw items alone
+    rec.start()
+    rec.write_frame(frame_at(0))
+    assert encoding.wait(5.0)
+    for i in range(1, 60):  # 60 frames' worth: raw and derived, as a session writes them
+        t = frame_time(i)
+        rec.write_imu(imu_sample(i))
+        rec.write_frame(frame_at(i))
+        rec.write_processed(i, t, t, np.zeros((3, 3)), np.zeros((100, 100), np.uint8), None, "")
+        rec.write_inference(i, t, t, np.full(5, 0.2), {})
+        rec.write_features(i, t, {"ok": True})
+    behind = rec.stats()
+    assert behind.dropped == 0 and behind.shed > 0  # derived data went first
+    disk_free.set()
+    stats = rec.close()
+    assert stats.dropped == 0 and stats.shed == behind.shed
+    assert set(stats.shed_by_kind) <= {"processed", "inference", "features"}
+    msgs = decode_all(path)
+    assert len(msgs[T.DEPTH]) == 60 and len(msgs[T.IMU]) == 59  # every raw item
+    derived = sum(len(msgs.get(t, [])) for t in (T.CNN, T.BINARY_IMAGE, T.FEATURES))
+    assert derived + stats.shed == 3 * 59
+    (shed,) = [d for _, d in msgs[T.EVENTS] if d["kind"] == "shed"]
+    assert "raw data kept" in shed["message"] and sum(shed["details"].values()) == stats.shed
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_getscheduler"), reason="Linux only")
+def test_the_writer_thread_runs_at_the_priority_it_is_given(tmp_path):
+    rec = Recorder(tmp_path / "p.mcap", metadata={}, priority=11)
+    rec.start()
+    try:
+        if not rec.scheduling.startswith("SCHED_FIFO"):
+            pytest.skip("real-time priority not permitted here")
+        tid = rec._thread.native_id
+        assert os.sched_getscheduler(tid) == os.SCHED_FIFO
+        assert os.sched_getparam(tid).sched_priority == 11
+    finally:
+        rec.close()
+
+
 def test_labels_are_on_disk_in_the_journal_when_write_label_returns(tmp_path):
     path = tmp_path / "j.mcap"
     rec = Recorder(path, metadata={})
@@ -292,7 +342,9 @@ def test_each_recorder_compresses_at_its_own_level(tmp_path):
     a, b = decode_all(fast), decode_all(small)
     assert a.keys() == b.keys()
     for topic in a:
-        assert [m.data for m, _ in a[topic]] == [m.data for m, _ in b[topic]], topic
+        # Operator markers bypass the queue: their place among device events is the writer's
+        ordered = sorted if topic == T.EVENTS else list
+        assert ordered(m.data for m, _ in a[topic]) == ordered(m.data for m, _ in b[topic]), topic
 
 
 def disk_full_after(budget: int):

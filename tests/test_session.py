@@ -16,7 +16,7 @@ from capture.config import Config
 from capture.errors import CaptureError, ConfigError
 from capture.reader import open_recording, read_trial
 from capture.replay import replay
-from capture.session import Session, SubjectInfo
+from capture.session import INTAKE_THREADS, Session, SubjectInfo
 from devices.frames import MODES
 from devices.scheduling import realtime_priority
 
@@ -40,6 +40,9 @@ def config(tmp_path, fps=15.0) -> Config:
     return c
 
 
+_INTAKE: dict = {}  # how the recorded trial's raw-data threads ran: (said, {name: priority})
+
+
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory):
     """One 4-second mock trial, recorded with simulator labels."""
@@ -57,8 +60,12 @@ def recorded(tmp_path_factory):
         pipeline = next(t for t in session._threads if t.name == "walkcap-pipeline")
         if session.pipeline_priority.startswith("SCHED_FIFO"):  # as it says, while it runs
             assert os.sched_getscheduler(pipeline.native_id) == os.SCHED_FIFO
+        # the threads carrying raw data in, and the writer: one step above the pipeline
+        raw = [t for t in threading.enumerate() if t.name in INTAKE_THREADS + ("walkcap-recorder",)]
+        intake = {t.name: os.sched_getparam(t.native_id).sched_priority for t in raw}
     finally:
         stats = session.stop()
+    _INTAKE["seen"] = (session.intake_scheduling, intake)
     return path, stats, snap, session.pipeline_priority
 
 
@@ -84,6 +91,17 @@ def test_recording_is_named_from_the_session_and_complete(recorded):
     assert rec.metadata["software"]["model_hash"] == "stand-in"
     assert rec.metadata["software"]["pipeline_priority"] == priority
     assert "walkcap.toml" in rec.attachments
+
+
+def test_raw_data_threads_and_the_writer_run_above_the_pipeline(recorded):
+    path = recorded[0]
+    said, priorities = _INTAKE["seen"]
+    assert open_recording(path).metadata["software"]["intake_priority"] == said
+    if not said.startswith("SCHED_FIFO"):
+        pytest.skip("real-time priority not permitted here")
+    assert said == "SCHED_FIFO 11"  # the pipeline's 10, plus one
+    assert {"walkcap-camera", "walkcap-imu", "walkcap-recorder"} <= set(priorities)
+    assert set(priorities.values()) == {11}
 
 
 def test_rates_match_the_configuration(recorded):
@@ -313,3 +331,27 @@ def test_fast_replay_prepares_frames_itself_until_its_reader_process_is_ready(re
     first, q, _ = next(skipped)
     _, q5, _ = list(R.prepared_frames(path, params, imu))[5]
     assert first.index == every[5] and np.array_equal(q, q5)
+
+
+def test_switches_are_counted_over_the_last_minute():
+    from capture.session import SwitchCounter
+
+    counter = SwitchCounter(60.0)
+    s = 1_000_000_000
+    for t, final in [(0, 0), (1, 0), (2, 1), (3, None), (4, 1), (5, 0), (50, 2)]:
+        counter.add(t * s, final)
+    assert counter.count() == 3  # 0 -> 1 at 2 s, 1 -> 0 at 5 s, 0 -> 2 at 50 s
+    counter.add(66 * s, 2)
+    assert counter.count() == 1  # those at 2 s and 5 s are more than a minute old
+
+
+def test_the_snapshot_carries_switches_and_the_walkers_mode_to_key(recorded):
+    path, _, snap, _ = recorded
+    assert snap.walker_mode in MODES and isinstance(snap.switches_last_minute, int)
+    # auto-labels key the walker's locomotion mode, as an operator keys it
+    walker = {
+        m.data["time_ns"]: m.data["locomotion_mode"]
+        for m in open_recording(path).messages(["/sim/truth"])
+    }
+    keyed = [c for c in read_trial(path)["label_changes"] if c[2] == "simulator"]
+    assert keyed and all(walker[t] == mode for t, mode, _ in keyed if t in walker)

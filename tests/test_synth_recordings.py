@@ -44,7 +44,16 @@ def test_writes_one_complete_recording_per_session(synth_folder):
         assert rec.topics["/imu"].count >= 39 / 15 * 100  # the IMU at 100 Hz up to the last frame
         trial = read_trial(f)
         assert np.all(trial["labels"] >= 0)  # labelled from the first frame
-        np.testing.assert_array_equal(trial["labels"], trial["truth"])
+        # the labels key the walker's locomotion mode, as an operator keys it live; the
+        # terrain reference is what each image shows
+        walker = {
+            int(m.data["frame_index"]): m.data["locomotion_mode"]
+            for m in rec.messages(["/sim/truth"])
+        }
+        keyed = [trial["modes"][k] for k in trial["locomotion"]]
+        assert keyed == [walker[int(i)] for i in trial["frame_index"]]
+        np.testing.assert_array_equal(trial["terrain"], trial["truth"])
+        assert trial["terrain_source"] == "simulator"
 
 
 def test_recordings_are_training_sessions(synth_folder):
@@ -61,7 +70,7 @@ def test_frames_before_the_first_operator_label_are_unlabelled(tmp_path):
 
     path = tmp_path / "r.mcap"
     write_recording(path, seconds=2.0)
-    session = labeled_session(path)
+    session = labeled_session(path, reference="labels")
     first_label = label_schedule(2.0)[0][0]
     trial = read_trial(path)
     unlabelled = trial["time_ns"] < first_label

@@ -2,6 +2,7 @@
 
 import json
 import threading
+from pathlib import Path
 
 from tui_fake_session import FakeSession
 
@@ -187,6 +188,27 @@ async def test_record_key_starts_and_stops_a_trial_and_the_trial_advances():
         assert fake.recordings_started[1].trial == 2
 
 
+async def test_a_remote_root_is_the_remote_trials_folder_only():
+    from capture.remote import TrialRequest
+
+    save_last_session(SubjectInfo(subject="S02", trial=1))
+    fake = FakeSession()
+    config = Config()
+    operators = config.session.recordings
+    app = WalkcapApp(config, session=fake)
+    async with app.run_test(size=SIZE) as pilot:
+        await open_live(pilot)
+        app.remote_start(TrialRequest(root="/data/study", subject="P07"))
+        await wait_for(pilot, lambda: app.recording_path is not None)
+        assert app.recording_path.parent == Path("/data/study")
+        assert config.session.recordings == operators  # the operator's folder stays
+        app.remote_stop()
+        await wait_for(pilot, lambda: not fake.recording and app.recording_path is None)
+        await pilot.press("r")  # the operator's own next trial
+        await wait_for(pilot, lambda: fake.recording)
+        assert app.recording_path.parent == fake.recordings
+
+
 async def test_session_form_from_the_live_screen():
     fake = FakeSession()
     app = WalkcapApp(Config(), session=fake)
@@ -304,7 +326,7 @@ async def test_a_device_fault_shows_at_once_and_the_rest_goes_on():
         await pilot.pause(0.2)  # a few refresh periods
         panel = rendered(live.query_one(DevicePanel))
         assert "lost" in panel and "unplugged" in panel
-        assert any("imu lost" in n.message for n in app._notifications)
+        assert any("IMU lost" in n.text for n in app.notices)
         assert fake.recording  # the other streams keep recording
         await pilot.press("2")
         assert fake.labels[-1].mode == "US"

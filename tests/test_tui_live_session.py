@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from capture.config import Config
-from capture.reader import find_gaps, open_recording, read_trial
+from capture.gaps import recording_loss
+from capture.reader import open_recording, read_trial
 from capture.session import Session, SubjectInfo
 from tui.app import WalkcapApp
-from tui.commands.info import recorded_periods
 from tui.live_screen import LiveScreen
 
 pytestmark = pytest.mark.timeout(30)
@@ -92,13 +92,9 @@ async def test_real_session_on_mock_devices(tmp_path, monkeypatch):
     assert trial["metadata"]["session"]["subject"] == "S09"
     assert app.subject.trial == 2
     # the gaps the screen counted are the ones `walkcap info` finds in the file
-    rec = open_recording(files[0])
-    times = rec.log_times()
-    periods = recorded_periods(rec.metadata)
-    imu_gaps = find_gaps(times["/imu"], period_s=periods["/imu"])
-    assert max(g for _, g in imu_gaps) > 1.5
+    loss = recording_loss(open_recording(files[0]))
+    assert loss["/imu"].longest_s > 1.5  # the unplug: samples the IMU counted, lost
     (record,) = app.trials
-    assert record.gaps["imu"] == len(imu_gaps)
-    cam_gaps = find_gaps(times["/camera/depth"], period_s=periods["/camera/depth"])
-    assert record.gaps["camera"] == len(cam_gaps)
+    assert record.gaps["imu"] == len(loss["/imu"].gaps)
+    assert record.gaps["camera"] == len(loss["/camera/depth"].gaps)
     assert str(files[0].resolve()) in app.trials_summary()[1]

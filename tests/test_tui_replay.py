@@ -140,10 +140,11 @@ def test_corrections_go_to_a_new_file_and_the_original_is_untouched(recording):
 
 async def test_replay_in_the_live_screen(recording):
     before = digest(recording)
-    source = ReplaySource(recording)
+    # Playback on a clock that stands still: where it is, is what the keys make it.
+    source = ReplaySource(recording, clock=FakeClock())
     app = WalkcapApp(Config(), session=source, ask_subject=False, start_status="loading…")
     async with app.run_test(size=(120, 40)) as pilot:
-        for _ in range(100):
+        for _ in range(3000):  # a bound, not a measure: a loaded machine may take seconds
             if app.ready:
                 break
             await pilot.pause(0.02)
@@ -170,13 +171,13 @@ async def test_replay_in_the_live_screen(recording):
         assert isinstance(app.screen, QuitDialog)
         await pilot.press("n")
         await pilot.press("w")
-        for _ in range(100):
+        for _ in range(3000):
             if source.saved_path is not None and not source.unsaved:
                 break
             await pilot.pause(0.02)
         assert source.saved_path.exists()
         await pilot.press("q")
-        for _ in range(50):
+        for _ in range(3000):
             if not app.is_running:
                 break
             await pilot.pause(0.02)

@@ -234,3 +234,21 @@ def test_device_rows_show_state_rates_errors_clock():
     assert rows["drift"] == "+51 ppm (clock)" and rows["sync"] == "error p99 2.0 ms"
     assert not any("-2.5" in value for _, value, _ in lines)
     assert device_rows("camera", None) == [("camera", "not open", "dim")]
+
+
+def test_decision_panel_adds_switches_and_the_walkers_mode():
+    from rich.console import Console
+
+    from tui.widgets.decision import DecisionDisplay
+
+    def text(widget) -> str:
+        console = Console(width=60, record=True)
+        console.print(widget.render())
+        return " ".join(console.export_text().split())  # as read, however it wraps
+
+    panel = DecisionDisplay()
+    panel.present("US", "US", "LG")
+    assert "switches" not in text(panel) and "walker" not in text(panel)
+    panel.present_switching(3, "US")
+    out = text(panel)
+    assert "switches 3 in the last minute" in out and "walker US" in out

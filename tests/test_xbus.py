@@ -184,6 +184,9 @@ def mtdata2_values(draw):
             values[name] = draw(st.integers(0, 0xFFFF))
         elif kind == "u32":
             values[name] = draw(st.integers(0, 0xFFFFFFFF))
+        elif kind == "utc":  # ns, year, month, day, hour, minute, second, flags
+            widths = (32, 16, 8, 8, 8, 8, 8, 8)
+            values[name] = tuple(draw(st.integers(0, 2**w - 1)) for w in widths)
         elif name == "rotation_matrix":
             values[name] = tuple(tuple(draw(reals) for _ in range(3)) for _ in range(3))
         elif count == 1:
@@ -239,7 +242,7 @@ def test_rotation_matrix_is_column_major_on_the_wire_and_rows_decoded():
 @given(
     unknown=st.lists(
         st.tuples(
-            st.sampled_from([0x0001, 0x5010, 0x7777, 0xA010, 0x1010]), st.binary(max_size=40)
+            st.sampled_from([0x0001, 0x5010, 0x7777, 0xA010, 0xD010]), st.binary(max_size=40)
         ),
         max_size=4,
     ),
@@ -353,9 +356,12 @@ def test_every_device_error_code_is_named():
     assert "does not know" in xbus.error_text(0x99)
 
 
-def test_baud_codes_include_3_5_mbaud_and_send_0x0a_for_921600():
+def test_baud_codes_include_3_5_mbaud_and_send_0x80_for_921600():
+    """Xsens' library sends 0x80 for 921600 (xsbaud.c, XsBaud_rateToCode); 0x0A works
+    only from MTi firmware 2.4.6 (xsbaudcode.h). Both decode to 921600."""
     assert xbus.BAUD_CODES[0x0E] == 3_500_000
-    assert xbus.BAUD_CODE[921600] == 0x0A and xbus.BAUD_CODE[115200] == 0x02
+    assert xbus.BAUD_CODE[921600] == 0x80 and xbus.BAUD_CODE[115200] == 0x02
+    assert xbus.BAUD_CODES[0x0A] == xbus.BAUD_CODES[0x80] == 921600
 
 
 def test_only_the_timestamp_group_is_asked_for_in_every_packet():

@@ -187,14 +187,13 @@ class FakeSession:
     def recording(self) -> bool:
         return self._recording_path is not None
 
-    def start_recording(self, info: SubjectInfo) -> Path:
+    def start_recording(self, info: SubjectInfo, folder: str | Path | None = None) -> Path:
         info.validate()
         if self._recording_path is not None:
             raise CaptureError("already recording")
         self.recordings_started.append(info)
-        self._recording_path = (
-            self.recordings / f"{info.subject}_{info.condition}_t{info.trial:02d}.mcap"
-        )
+        folder = self.recordings if folder is None else Path(folder)
+        self._recording_path = folder / f"{info.subject}_{info.condition}_t{info.trial:02d}.mcap"
         return self._recording_path
 
     def stop_recording(self):

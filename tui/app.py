@@ -15,16 +15,21 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from textual import work
+from textual.actions import SkipAction
 from textual.app import App
 from textual.binding import Binding
+from textual.css.query import NoMatches
 from textual.reactive import reactive
+from textual.screen import ModalScreen
 
 from capture.config import Config
 from capture.recorder import RecorderState
 from capture.session import SubjectInfo
+from devices.frames import MODES
 from tui import messages
 from tui.live_screen import LiveScreen
 from tui.session_screen import SessionScreen, load_remembered, save_last_session
+from tui.widgets.notices import Notice
 from tui.widgets.quit_dialog import QuitDialog
 from tui.widgets.recording_panel import clock_text, human_bytes
 
@@ -67,9 +72,14 @@ class TrialRecord:
     labels: int = 0
     gaps: dict = field(default_factory=dict)
     failed: str = ""  # why the recording failed (what reached the disk is readable)
+    late: dict = field(default_factory=dict)  # late deliveries: the host stalled, nothing lost
 
     def line(self) -> str:
         gaps = f"gaps camera {self.gaps.get('camera', 0)}, IMU {self.gaps.get('imu', 0)}"
+        if any(self.late.values()):
+            gaps += ", late " + ", ".join(
+                f"{'IMU' if s == 'imu' else s} {n}" for s, n in self.late.items() if n
+            )
         state = f"  FAILED: {self.failed}" if self.failed else ""
         size = human_bytes(self.size_bytes)
         return (
@@ -88,11 +98,26 @@ def keymap(config: Config) -> dict[str, str]:
 class WalkcapApp(App):
     TITLE = "walkcap"
     CSS_PATH = "walkcap.tcss"
-    HORIZONTAL_BREAKPOINTS = [(0, "-narrow"), (120, "-normal"), (150, "-wide")]
-    VERTICAL_BREAKPOINTS = [(0, "-short"), (40, "-tall")]
+    # size classes; walkcap.tcss says what each keeps and what gives way
+    HORIZONTAL_BREAKPOINTS = [(0, "-slim"), (100, "-narrow"), (120, "-normal"), (150, "-wide")]
+    VERTICAL_BREAKPOINTS = [(0, "-short"), (28, "-medium"), (40, "-tall")]
     ENABLE_COMMAND_PALETTE = False
-    # a key no form field takes, shown in every footer
-    BINDINGS = [Binding("ctrl+q", "quit", "Quit", priority=True)]
+    # a key no form field takes, shown in every footer; the mode keys label with a dialog
+    # open over the live screen (help, marker note, quit question) as they do without one
+    BINDINGS = [
+        Binding("ctrl+q", "quit", "Quit", priority=True),
+        *[
+            Binding(
+                str(i + 1),
+                f"label_through_dialog('{m}')",
+                m,
+                id=f"walkcap.mode_{m.lower()}",
+                priority=True,
+                show=False,
+            )
+            for i, m in enumerate(MODES)
+        ],
+    ]
 
     status: reactive[str] = reactive("")  # starting devices… / stopping… / an error
 
@@ -137,6 +162,7 @@ class WalkcapApp(App):
         self.preflight_report = None
         self.trials: list[TrialRecord] = []
         self.lab = None  # LSL, remote control, Foxglove: capture.labtools.LabTools
+        self.notices: list[Notice] = []  # this session's notices, oldest first
 
     def _remembered_subject(self) -> SubjectInfo:
         """The form confirmed last, its next free trial in the recordings folder; the
@@ -159,6 +185,42 @@ class WalkcapApp(App):
             self.push_screen(SessionScreen(self.subject), self._on_subject)
         self._set_status(self.start_status)
         self.start_session()
+
+    def notify(
+        self,
+        message: str,
+        *,
+        title: str = "",
+        severity="information",
+        timeout: float | None = None,
+        markup: bool = True,
+    ) -> None:
+        """A notice goes to the live screen's notice line, never over its panels (a toast
+        would hide the newest seconds of the strips); only the session form, which has no
+        notice line, shows it as a toast as well. Thread-safe, as App.notify is."""
+        text = f"{title}: {message}" if title else str(message)
+        notice = Notice(" ".join(text.split()), str(severity))
+        level = {"error": logging.ERROR, "warning": logging.WARNING}.get(severity, logging.INFO)
+        log.log(level, "notice: %s", notice.text)  # tui.log: what the operator was told
+        self.post_message(messages.NoticePosted(notice, title, message, severity, timeout, markup))
+
+    def on_notice_posted(self, event: messages.NoticePosted) -> None:
+        self.notices.append(event.notice)
+        del self.notices[:-200]
+        live = [s for s in self.screen_stack if isinstance(s, LiveScreen)]
+        for screen in live:
+            try:
+                screen.show_notice(event.notice)
+            except NoMatches:  # the app is closing: its widgets are gone
+                pass
+        if not live or isinstance(self.screen, SessionScreen):
+            super().notify(
+                event.message,
+                title=event.title,
+                severity=event.severity,
+                timeout=event.timeout,
+                markup=event.markup,
+            )
 
     def _set_status(self, text: str, error: bool = False) -> None:
         self.status_is_error = error
@@ -206,11 +268,10 @@ class WalkcapApp(App):
         except CaptureError as e:
             self.notify(f"remote start refused: {e}", severity="error", timeout=10)
             return
-        if request.root:
-            self.config.session.recordings = request.root
         self._subject_confirmed = True
         self._busy_recording = True
-        self._start_recording(dataclasses.replace(self.subject))
+        # the remote trial's folder is its own: the configured one stays the operator's
+        self._start_recording(dataclasses.replace(self.subject), request.root or None)
 
     def remote_stop(self) -> None:
         source = self.source
@@ -338,6 +399,21 @@ class WalkcapApp(App):
         else:  # still opening the devices: on_session_started stops them, then we exit
             self._set_status("quitting as soon as the devices have started…")
 
+    def check_action(self, action: str, parameters: tuple) -> bool | None:
+        if action == "label_through_dialog":  # only a dialog over the live screen
+            return isinstance(self.screen, ModalScreen) and any(
+                isinstance(s, LiveScreen) for s in self.screen_stack
+            )
+        return True
+
+    def action_label_through_dialog(self, mode: str) -> None:
+        """A mode key with a dialog over the live screen labels as on the live screen;
+        anywhere else (the live screen itself, the form) the key goes its usual way."""
+        live = [s for s in self.screen_stack if isinstance(s, LiveScreen)]
+        if not live or not isinstance(self.screen, ModalScreen):
+            raise SkipAction()
+        live[-1].action_label(mode)
+
     async def action_quit(self) -> None:
         """ctrl+q too goes through the clean stop (and the question while recording)."""
         self.request_quit()
@@ -424,9 +500,12 @@ class WalkcapApp(App):
         self._start_recording(dataclasses.replace(self.subject))
 
     @work(thread=True, group="recording")
-    def _start_recording(self, info: SubjectInfo) -> None:
+    def _start_recording(self, info: SubjectInfo, folder: str | None = None) -> None:
         try:
-            path = self.session.start_recording(info)
+            if folder is None:
+                path = self.session.start_recording(info)
+            else:
+                path = self.session.start_recording(info, folder=folder)
         except Exception as e:
             log.exception("starting a recording")
             self.post_message(messages.RecordingFailed(describe_error(e)))
@@ -498,6 +577,7 @@ class WalkcapApp(App):
                 size_bytes=int(getattr(stats, "bytes_written", 0) or 0),
                 labels=int(getattr(stats, "labels", 0) or 0),
                 gaps=dict(getattr(alarms, "trial_gaps", {}) or {}),
+                late=dict(getattr(alarms, "trial_late", {}) or {}),
                 failed=str(getattr(stats, "message", "")) if failed else "",
             )
         )
@@ -539,12 +619,19 @@ class WalkcapApp(App):
     def on_corrections_saved(self, message: messages.CorrectionsSaved) -> None:
         self._busy_recording = False
         self._set_status("")
-        self.notify(f"saved {message.path.name} (the original is unchanged)", timeout=8)
+        self.notify(
+            f"saved {message.path.name}: its labels are the terrain reference, the live keys "
+            "its locomotion reference (the original is unchanged)",
+            timeout=8,
+        )
 
     def _refresh_live(self) -> None:
         for screen in self.screen_stack:
             if isinstance(screen, LiveScreen) and not screen.frozen:
-                screen.refresh_view()
+                try:
+                    screen.refresh_view()
+                except NoMatches:  # the app is closing: its widgets are gone
+                    pass
 
 
 class _RemoteForApp:

@@ -7,6 +7,8 @@ commands that only touch memory: nothing here waits on a device or the disk.
 
 from __future__ import annotations
 
+import bisect
+import dataclasses
 import logging
 from pathlib import Path
 
@@ -17,6 +19,7 @@ from textual.containers import Horizontal, Vertical
 from textual.screen import Screen
 from textual.widgets import Footer, Static
 
+from capture.reader import effective_changes
 from capture.recorder import RecorderState
 from capture.session import Snapshot
 from devices.clock import now_ns
@@ -24,11 +27,12 @@ from devices.frames import MODE_NAMES, MODES
 from tui.source import Playback
 from tui.widgets.binary_image import BinaryImage
 from tui.widgets.decision import DecisionDisplay
-from tui.widgets.device_panel import DevicePanel
+from tui.widgets.device_panel import DevicePanel, event_sentence
 from tui.widgets.features import FeaturesPanel
 from tui.widgets.help_screen import HelpScreen, key_label
 from tui.widgets.marker_dialog import MarkerDialog
 from tui.widgets.modes import mode_text
+from tui.widgets.notices import Notice, NoticeLine
 from tui.widgets.probability_bars import ProbabilityBars
 from tui.widgets.profile_plot import ProfilePlot
 from tui.widgets.recording_panel import RecordingPanel, clock_text
@@ -47,6 +51,7 @@ FAULT_KINDS = {
     "device_restarted": "warning",
     "end_of_course": "warning",
     "reconnected": "information",
+    "resumed": "information",
 }
 SEEK_S = 5.0
 
@@ -66,6 +71,20 @@ def pipeline_rows(snap: Snapshot) -> list[tuple[str, str, str]]:
     if stale:  # frames left undecided: no IMU orientation fresh enough to level them
         rows.append(("stale", f"{stale} frames (old IMU)", "#f0a020"))
     return rows
+
+
+def banner_path(path: Path | None, room: int) -> str:
+    """The recording's full path, or as much of its folder as fits before the file name,
+    which is always whole: "…/recordings/S03_indoor_t05_20261202-071746.mcap"."""
+    if path is None:
+        return ""
+    full = str(path)
+    if len(full) <= room:
+        return full
+    name = path.name
+    keep = room - len(name) - 1  # "…" + the end of the folder
+    folder = str(path.parent) + "/"
+    return "…" + (folder[-keep:] if keep > 0 else "") + name
 
 
 class LiveScreen(Screen):
@@ -116,11 +135,16 @@ class LiveScreen(Screen):
         self._fused: int | None = None
         self._last_event_ns: int | None = None
         self._failure_shown = False
+        # The label changes keyed here, undos included (time_ns, mode, source): the true
+        # strip shows them as they stand, an undone change as if it never happened.
+        self._label_changes: list[tuple[int, str, str]] = []
+        self._effective: list[tuple[int, str, str]] = []
 
     def compose(self) -> ComposeResult:
         yield TopBar(id="topbar")
         yield Static("", id="banner")
         yield Static("", id="alarms")
+        yield NoticeLine(id="notices")
         with Horizontal(id="main"):
             with Vertical(id="left"):
                 yield DevicePanel(id="devices")
@@ -153,11 +177,18 @@ class LiveScreen(Screen):
         self._w = {
             type(w): w for w in self.query("#main *, #timeline, #topbar") if hasattr(w, "present")
         }
+        notices = getattr(self.app, "notices", [])
+        if notices:
+            self.show_notice(notices[-1])
         self._timer = self.set_interval(1 / REFRESH_HZ, self.refresh_view)
         self.watch(self.app, "status", lambda _: self._show_topbar())
         self.refresh_view()
 
     # ---- the view ---------------------------------------------------------------------
+
+    def show_notice(self, notice: Notice) -> None:
+        """The latest notice, on its own line: it never covers the strips or the decision."""
+        self.query_one(NoticeLine).present(notice)
 
     def refresh_view(self) -> None:
         """Pull one snapshot and show it (the timer calls this; commands too, for feedback)."""
@@ -188,6 +219,9 @@ class LiveScreen(Screen):
             latest.image if latest else None, latest.flag if latest else "", key
         )
         self._w[ProfilePlot].present(latest.profile if latest else None, key)
+        self._w[DecisionDisplay].present_switching(
+            getattr(snap, "switches_last_minute", None), getattr(snap, "walker_mode", None)
+        )
         self._w[DecisionDisplay].present(
             self._fused,
             latest.cnn_decision if latest else None,
@@ -196,7 +230,7 @@ class LiveScreen(Screen):
         )
         self._w[ProbabilityBars].present(latest.probabilities if latest else None)
         self._w[FeaturesPanel].present(latest.features if latest else None)
-        self._w[TimelineStrips].present(snap.timeline, snap.time_ns)
+        self._w[TimelineStrips].present(self._labels_as_they_stand(snap.timeline), snap.time_ns)
         faults = [e for e in snap.events if e.device != "operator"]
         self._w[DevicePanel].present(
             snap.camera, snap.imu, snap.sync, faults[-1] if faults else None, pipeline_rows(snap)
@@ -207,6 +241,31 @@ class LiveScreen(Screen):
         self._show_banner(snap)
         self._show_alarms(snap)
         self._show_trials()
+
+    def _labels_as_they_stand(self, entries: list) -> list:
+        """Timeline entries with the operator's labels as they stand now: each frame
+        carries the label in force when it was taken, which an undo takes back later."""
+        if not self._label_changes or isinstance(self.app.source, Playback):
+            return entries
+        first = self._label_changes[0][0]
+        times = [c[0] for c in self._effective]
+        out = []
+        for e in entries:
+            if e.time_ns >= first:
+                k = bisect.bisect_right(times, e.time_ns) - 1
+                mode = (self._effective[k][1] if k >= 0 else "") or None
+                if mode != e.label:
+                    e = dataclasses.replace(e, label=mode)
+            out.append(e)
+        return out
+
+    def _keyed(self, time_ns: int | None, mode: str, source: str, before: str | None) -> None:
+        if time_ns is None:
+            return
+        if not self._label_changes and before and source != "undo":
+            self._label_changes.append((time_ns - 1, before, "operator"))  # the mode in force
+        self._label_changes.append((time_ns, mode, source))
+        self._effective = effective_changes(self._label_changes)
 
     def settled(self) -> bool:
         """The paced widgets show the latest snapshot's frame (for tests and screenshots)."""
@@ -234,11 +293,13 @@ class LiveScreen(Screen):
             text, cls = Text(" ▶ REPLAY — nothing records; 1-5 correct labels, w saves"), "-idle"
         elif elapsed is not None:
             path = app.recording_path
-            text = Text(
-                f" ● REC  trial {app.subject.trial}  {clock_text(elapsed)}  "
-                f"{path.resolve() if path else ''}"
-            )
+            head = f" ● REC  trial {app.subject.trial}  {clock_text(elapsed)}  "
             cls = "-rec"
+            if getattr(snap.recording, "state", "") == RecorderState.FAILED:
+                head = f" ✖ REC FAILED  trial {app.subject.trial}  ({key} closes the file)  "
+                cls = "-failed"
+            width = banner.size.width or app.size.width
+            text = Text(head + banner_path(path.resolve() if path else None, width - len(head)))
         else:
             state = getattr(app, "preflight_state", "none")
             if app.source is None:
@@ -332,9 +393,11 @@ class LiveScreen(Screen):
             if self._last_event_ns is not None and e.time_ns <= self._last_event_ns:
                 continue
             severity = FAULT_KINDS.get(e.kind)
+            if e.device != "operator" and not severity:  # gaps, drops; notices log themselves
+                log.info("%s %s: %s", e.device, e.kind, " ".join(e.message.split()))
             if e.device != "operator" and severity:
                 self.notify(
-                    f"{e.device} {e.kind}: {e.message}",
+                    event_sentence(e),
                     severity=severity,
                     timeout=10 if severity == "error" else 4,
                 )
@@ -396,7 +459,9 @@ class LiveScreen(Screen):
         source = self._source_or_warn()
         if source is None:
             return
-        source.set_label(mode)  # stamped inside, at this call: no waiting on the display
+        before = source.label
+        change = source.set_label(mode)  # stamped inside, at this call: no waiting on the display
+        self._keyed(getattr(change, "time_ns", None), mode, "operator", before)
         self._after_command()
 
     def action_undo(self) -> None:
@@ -406,6 +471,8 @@ class LiveScreen(Screen):
         change = source.undo_label()
         if change is None:
             self.notify("no label to undo", timeout=2)
+        else:
+            self._keyed(change.time_ns, change.mode, "undo", None)
         self._after_command()
 
     def action_marker(self) -> None:
@@ -421,7 +488,16 @@ class LiveScreen(Screen):
             source.add_marker(note, time_ns=pressed_ns)
             self.notify(f"marker{': ' + note if note else ''}", timeout=3)
 
-        self.app.push_screen(MarkerDialog(), place)
+        self.app.push_screen(MarkerDialog(*self._mode_keys()), place)
+
+    def _mode_keys(self) -> tuple[frozenset[str], str]:
+        """The mode keys as configured: Textual key names, and how they read (1-5)."""
+        keys = self.app.config.keys
+        names = [getattr(keys, f"mode_{m.lower()}", "") or str(i + 1) for i, m in enumerate(MODES)]
+        split = [k.strip() for name in names for k in name.split(",") if k.strip()]
+        labels = [key_label(name) for name in names]
+        text = "1-5" if labels == ["1", "2", "3", "4", "5"] else "/".join(labels)
+        return frozenset(split), text
 
     def action_record(self) -> None:
         self.app.toggle_recording()

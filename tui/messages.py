@@ -56,3 +56,13 @@ class PreflightDone(Message):
     def __init__(self, report: object) -> None:
         super().__init__()
         self.report = report
+
+
+class NoticePosted(Message):
+    """A notice for the operator (tui.widgets.notices.Notice), from any thread."""
+
+    def __init__(self, notice, title: str, message: str, severity: str, timeout, markup: bool):
+        super().__init__()
+        self.notice = notice
+        self.title, self.message, self.severity = title, message, severity
+        self.timeout, self.markup = timeout, markup

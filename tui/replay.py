@@ -31,6 +31,7 @@ from capture.pipeline import FrameResult
 from capture.session import LabelChange, Snapshot, SubjectInfo, TimelineEntry
 from devices.base import DeviceEvent, DeviceState, DeviceStatus
 from devices.clock import now_ns
+from devices.files import check_replaceable
 from devices.frames import MODES
 from inference.preprocess import STALE_ORIENTATION
 
@@ -446,6 +447,7 @@ def write_corrected(
     original, target = Path(original), Path(target)
     if target.resolve() == original.resolve():
         raise CaptureError("the corrected file must be a new file: the original is never modified")
+    check_replaceable(target)
     rec = open_recording(original)
     tmp = target.with_name(f".{target.name}.partial")
     try:

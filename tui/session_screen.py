@@ -24,6 +24,7 @@ from textual.widgets import Button, Checkbox, Footer, Input, Label, Select, Stat
 
 from capture.errors import CaptureError
 from capture.session import SubjectInfo
+from devices.files import check_replaceable
 
 log = logging.getLogger(__name__)
 
@@ -137,6 +138,7 @@ def save_last_session(
     data["operator"] = remembered.operator if operator is None else operator
     data["subjects"] = subjects
     try:
+        check_replaceable(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(".tmp")
         tmp.write_text(json.dumps(data, indent=2))
@@ -189,6 +191,18 @@ def form_values(info: SubjectInfo) -> dict[str, object]:
     return values
 
 
+class YesNoBox(Checkbox):
+    """A checkbox whose state reads without colour: a tick and "yes", or blank and "no"."""
+
+    @property
+    def BUTTON_INNER(self) -> str:  # noqa: N802  (Textual's name for the glyph)
+        return "✔" if self.value else " "
+
+    def watch_value(self) -> None:
+        super().watch_value()
+        self.label = "yes" if self.value else "no"
+
+
 class SessionScreen(Screen[SubjectInfo | None]):
     """Dismisses with the confirmed SubjectInfo, or None when cancelled (escape)."""
 
@@ -239,7 +253,9 @@ class SessionScreen(Screen[SubjectInfo | None]):
             options = [(v or "—", v) for v in kind]
             return Select(options, value=value, allow_blank=False, id=f"f-{name}", compact=True)
         if kind == "bool":
-            return Checkbox("", value=bool(value), id=f"f-{name}", compact=True)
+            return YesNoBox(
+                "yes" if value else "no", value=bool(value), id=f"f-{name}", compact=True
+            )
         # a remembered value is kept: typing goes on from its end, it does not replace it
         common = dict(value=str(value), id=f"f-{name}", compact=True, select_on_focus=False)
         if kind == "id":

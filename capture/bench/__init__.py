@@ -344,6 +344,7 @@ def run_all(seconds: float = 15.0, progress=print) -> list[Result]:
     from capture.bench.components import (
         bench_cnn,
         bench_fusion,
+        bench_method_update,
         bench_parse_rate,
         bench_preprocess,
         bench_record,
@@ -387,6 +388,10 @@ def run_all(seconds: float = 15.0, progress=print) -> list[Result]:
     progress("fusion")
     fusion = bench_fusion(20000)
     results.append(Result("fusion_update", fusion["fusion_update_us"], "us", 5.0, "lower"))
+    steady_us = bench_method_update("steady", 20000)
+    results.append(Result("fusion_update_steady", steady_us, "us", 5.0, "lower"))
+    gait_us = bench_method_update("steady+gait", 20000)
+    results.append(Result("fusion_update_steady_gait", gait_us, "us", 20.0, "lower"))
     results.append(
         Result(
             "fusion_speedup_vs_paper_loop",

@@ -25,7 +25,7 @@ from devices.simulator import Simulator, make_course
 from devices.simulator.synthetic import corridor_cloud, synthetic_frame
 from devices.xbus import MID, XbusParser, build, encode_mtdata2
 from inference.errors import InferenceError
-from inference.fusion import N_MODES, PAPER_TRANSITION, HmmFusion, paper_step
+from inference.fusion import N_MODES, PAPER_TRANSITION, HmmFusion, make_fusion, paper_step
 from inference.model import INPUT_SIZE, Classifier, TerrainCNN, load_classifier, occupied_patches
 from inference.preprocess import BACKENDS as PREPROCESS_BACKENDS
 from inference.preprocess import PreprocessParams, preprocess
@@ -212,6 +212,27 @@ def bench_fusion(updates: int = 20000, window: int = 5, seed: int = 0) -> dict:
     fast_us = float(np.median(fast)) / 1000.0
     paper_us = float(np.median(paper)) / 1000.0
     return {"fusion_update_us": fast_us, "paper_loop_us": paper_us, "speedup": paper_us / fast_us}
+
+
+def bench_method_update(method: str, updates: int = 20000, seed: int = 0) -> float:
+    """Median time of one `push` of a fusion method (inference.fusion.make_fusion), us."""
+    rng = np.random.default_rng(seed)
+    frames = rng.dirichlet(np.ones(N_MODES), size=updates + 10)
+    clock = time.perf_counter_ns
+    fusion = make_fusion(method)
+    times = []
+    if getattr(fusion, "uses_gait", False):  # with a thigh swinging 20 degrees at 1 Hz
+        elevation = (-35 + 20 * np.sin(2 * np.pi * np.arange(len(frames)) / 15)).tolist()
+        for k, row in enumerate(frames):
+            start = clock()
+            fusion.push(row, elevation[k])
+            times.append(clock() - start)
+    else:
+        for row in frames:
+            start = clock()
+            fusion.push(row)
+            times.append(clock() - start)
+    return float(np.median(times[10:])) / 1000.0
 
 
 def bench_record(

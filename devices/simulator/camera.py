@@ -54,7 +54,7 @@ class MockCamera(Camera):
         clock: Callable[[], int] = now_ns,
         sleep: Callable[[float], bool] | None = None,
     ) -> None:
-        super().__init__(config, geometry=geometry)
+        super().__init__(config, geometry=geometry, clock=clock)
         if simulator is None:
             if simulator_config is None:
                 from devices.config import SimulatorConfig
@@ -140,7 +140,7 @@ class MockCamera(Camera):
         if self.start_time_ns is None:
             self._start()
             return
-        self._resume_k = max(0, int((now_ns() - self.start_time_ns) * 1e-9 * self.config.fps))
+        self._resume_k = max(0, int((self._clock() - self.start_time_ns) * 1e-9 * self.config.fps))
         self._halt.clear()
         self._thread = threading.Thread(target=self._run, name="walkcap-mock-camera", daemon=True)
         self._thread.start()

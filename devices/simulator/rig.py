@@ -270,6 +270,11 @@ class RigCamera(Camera):
                 dropped = int(details.get("dropped", 0))
                 self._count_error(max(0, dropped - self._rig_drops))
                 self._rig_drops = max(dropped, self._rig_drops)
+                # the camera's buffer filled because this host did not read it (slow or
+                # stalled), which the camera cannot tell apart
+                message = message.replace(
+                    "the consumer is slower than the camera", "the host did not take them in time"
+                )
             self._event(kind, message, **details)
 
 

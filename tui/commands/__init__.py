@@ -2,6 +2,10 @@
 
 import argparse
 
+# capture.session.TRIAL_MAX and devices.config.SEED_MAX, not imported: `--help` stays instant
+TRIAL_MAX = 99_999
+SEED_MAX = 2**32 - 1
+
 
 def count(minimum: int, maximum: int | None = None):
     """An argparse type: an integer of at least `minimum` (and at most `maximum`), else a
@@ -33,6 +37,22 @@ def seconds(text: str) -> float:
     return value
 
 
+def folder(text: str) -> str:
+    """An argparse type: a folder to write into, existing or not; a file there is a usage
+    error that says so (not "not writable: File exists" at the pre-flight check)."""
+    import os
+
+    path = os.path.expanduser(text)
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise argparse.ArgumentTypeError(f"{text} is a file, not a folder: give a folder")
+    parent = os.path.dirname(os.path.abspath(path))
+    while parent and not os.path.exists(parent):
+        parent = os.path.dirname(parent)
+    if parent and not os.path.isdir(parent):
+        raise argparse.ArgumentTypeError(f"{parent} is a file, so {text} cannot be a folder")
+    return text
+
+
 def finish_recording(command: str, stats, path) -> int:
     """Print the file path last (scripts take it); a failed recording is one error line."""
     from capture.recorder import RecorderState
@@ -56,10 +76,14 @@ def add_device_arguments(parser, camera_backends: str = "mock | royale") -> None
     g.add_argument("--fps", type=float, help="camera frame rate")
     g.add_argument("--imu-rate", type=int, metavar="HZ", help="IMU output rate")
     g.add_argument(
-        "-o", "--out", metavar="DIR", help="recordings folder (default: [session] recordings)"
+        "-o",
+        "--out",
+        metavar="DIR",
+        type=folder,
+        help="recordings folder (default: [session] recordings)",
     )
     g.add_argument("--course", choices=("indoor", "outdoor"), help="mock walk preset")
-    g.add_argument("--seed", type=int, help="mock walk seed")
+    g.add_argument("--seed", type=count(0, SEED_MAX), help="mock walk seed")
     g.add_argument("--model", metavar="PATH", help="classifier weights (default: bundled)")
     g.add_argument("--operator", help="who runs the session (written into each recording)")
 
@@ -71,7 +95,7 @@ def add_session_arguments(parser) -> None:
     g.add_argument("--condition", help="e.g. indoor / outdoor (default: the mock course)")
     g.add_argument(
         "--trial",
-        type=count(1),
+        type=count(1, TRIAL_MAX),
         metavar="N",
         help="trial number (default: the next free one for subject and condition in the "
         "recordings folder); `record` refuses one that exists unless --overwrite, the UI "

@@ -4,7 +4,10 @@
     walkcap eval recordings FILE.mcap ... [--sweep-delay [N]] [--plot DIR] [--json]
     walkcap eval model ...            (the CNN on unseen synthetic sessions; eval_model.py)
 
-Accuracies are per trial (file), then mean +- SD across trials, as in the paper.
+Accuracies are per trial (file), then mean +- SD across trials, as in the paper, against
+the `terrain` reference (what the images show) unless `--reference locomotion` asks for the
+live keys; the transition metrics (spurious switches, missed changes, switch delay, lead
+time) against each reference a trial has.
 """
 
 from __future__ import annotations
@@ -18,7 +21,8 @@ from tui.commands import add_cluster_argument, count, eval_model
 
 HELP = "evaluate classifiers and fusion on score files or recordings"
 
-DEFAULT_METHODS = "cnn,cnn+voting,hmm,hmm+voting"
+DEFAULT_METHODS = "cnn,cnn+voting,hmm,hmm+voting,steady"
+RECORDING_METHODS = DEFAULT_METHODS + ",steady+gait"  # recordings carry the gait cue
 SWEEP_DEFAULT = 6  # frames; the paper's trade-off figure reaches 6
 SWEEP_MAX = 100  # frames: several seconds of delay, beyond any use for a prosthesis
 
@@ -51,10 +55,12 @@ def _common_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--methods",
         type=_methods,
-        default=DEFAULT_METHODS,
+        default=None,
         metavar="LIST",
-        help=f"comma-separated methods (default: {DEFAULT_METHODS}; "
-        "also forward, fixed-lag: standard HMM filter and smoother)",
+        help=f"comma-separated methods (default: {DEFAULT_METHODS}, and steady+gait for "
+        "recordings; steady switches once per terrain change, with [fusion] stay and "
+        "evidence; steady+gait adds the gait phase from the camera's pitch; also forward, "
+        "fixed-lag: standard HMM filter and smoother)",
     )
     p.add_argument(
         "--lag",
@@ -103,24 +109,36 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "scores",
         help="any classifier's per-frame scores from CSV files",
         description="Evaluate per-frame scores: each CSV has the header "
-        "LG,US,DS,UR,DR,label and one row per frame in capture order.",
+        "LG,US,DS,UR,DR,label and one row per frame in capture order; label is the terrain "
+        "each image shows. An optional last column, locomotion, the subject's mode keyed "
+        "live, adds the lead time.",
     )
     p.add_argument("files", nargs="+", metavar="FILE.csv", help="score files, one per trial")
+    p.add_argument(
+        "--fps",
+        type=float,
+        default=15.0,
+        metavar="HZ",
+        help="frames a second, for times (default: 15, the paper's camera)",
+    )
     _common_arguments(p)
 
     p = verbs.add_parser(
         "recordings",
         help="the recorded CNN outputs of MCAP recordings",
-        description="Evaluate recordings against operator labels (or "
-        "simulator truth), grouped by subject and condition.",
+        description="Evaluate recordings, grouped by subject and condition: accuracy "
+        "against the terrain reference (what each image shows: the simulator's truth or "
+        "labels made in replay --tui), switches against it and lead time against the "
+        "subject's mode keyed live (the locomotion reference).",
     )
     p.add_argument("files", nargs="+", metavar="FILE.mcap", help="recordings, or folders of them")
     p.add_argument(
         "--reference",
-        choices=("auto", "labels", "truth"),
-        default="auto",
-        help="what is true: operator labels, simulator truth, or auto (labels "
-        "when the recording has any)",
+        choices=("terrain", "locomotion"),
+        default="terrain",
+        help="what accuracy is scored against: terrain, what each image shows (the "
+        "paper's; default), or locomotion, the live keys, which change about a second "
+        "after the terrain ahead (asked for explicitly, never chosen for you)",
     )
     p.add_argument(
         "--replays",
@@ -155,10 +173,13 @@ def run(args, config) -> int:
         if args.transition == "paper"
         else validate_transition(config.fusion.transition, "fusion.transition")
     )
-    params = ev.FusionParameters(window, vote_delay, transition, args.lag)
+    steady = config.fusion.stay, config.fusion.evidence
+    params = ev.FusionParameters(window, vote_delay, transition, args.lag, *steady)
 
     if args.eval_command == "scores":
-        trials = [ev.read_scores(path) for path in args.files]
+        if not 0 < args.fps <= 1000:
+            raise InferenceError(f"--fps: expected 0 < HZ <= 1000, got {args.fps:g}")
+        trials = [ev.read_scores(path, args.fps) for path in args.files]
     else:
         files = _recordings(args.files, args.replays)
         if args.cluster:
@@ -168,10 +189,13 @@ def run(args, config) -> int:
     per_trial = params
     if args.transition == "estimated":
         per_trial = [
-            ev.FusionParameters(window, vote_delay, t, args.lag)
+            ev.FusionParameters(window, vote_delay, t, args.lag, *steady)
             for t in ev.leave_one_out_transitions(trials)
         ]
 
+    if args.methods is None:
+        default = RECORDING_METHODS if args.eval_command == "recordings" else DEFAULT_METHODS
+        args.methods = _methods(default)
     results = ev.evaluate(trials, args.methods, per_trial)
     sweep = (
         ev.delay_sweep(trials, args.methods, args.sweep_delay, per_trial)
@@ -224,9 +248,11 @@ def _table(headers: list[str], rows: list[list[str]], left: int = 1) -> list[str
 
 def format_report(data: dict, methods: list[str]) -> str:
     p = data["parameters"]
+    reference = data["accuracy_reference"]
+    reference = reference if isinstance(reference, str) else " / ".join(reference)
     out = [
         f"{len(data['files'])} file(s); l_w = {p['window']}, l_v = {p['vote_delay']}, "
-        f"transition: {p['transition']}; accuracy in %",
+        f"transition: {p['transition']}; accuracy in % against the {reference} reference",
         "",
     ]
     titles = [_title(m) for m in methods]
@@ -257,6 +283,8 @@ def format_report(data: dict, methods: list[str]) -> str:
             )
         out += _table(["condition", "subject", "trials", *titles], rows, left=2)
 
+    out += _format_transitions(data, methods)
+
     tests = data.get("paired_t_tests")
     if tests:
         out += ["", f"paired t-tests over {tests[0]['n']} trials:"]
@@ -275,6 +303,9 @@ def format_report(data: dict, methods: list[str]) -> str:
         out += ["", "accuracy (%) against delayed frames (mean over files):"]
         rows = [[_title(m), *(_pct(x) for x in sweep["mean"][m])] for m in methods]
         out += _table(["method", *map(str, sweep["delays"])], rows)
+        out += ["", f"spurious switches a minute (against {reference}) against delayed frames:"]
+        rows = [[_title(m), *(_num(x, 1) for x in sweep["spurious_per_min"][m])] for m in methods]
+        out += _table(["method", *map(str, sweep["delays"])], rows)
     if data.get("plots"):
         folders = sorted({str(Path(p).parent) for p in data["plots"]})
         out += [
@@ -282,6 +313,52 @@ def format_report(data: dict, methods: list[str]) -> str:
             f"wrote {len(data['plots'])} figure file(s) (PDF and PNG) to {', '.join(folders)}",
         ]
     return "\n".join(out)
+
+
+def _num(x: float | None, digits: int = 0) -> str:
+    return "-" if x is None or not math.isfinite(x) else f"{x:.{digits}f}"
+
+
+def _format_transitions(data: dict, methods: list[str]) -> list[str]:
+    """Switches per method and reference, pooled over the files (and per condition)."""
+    scopes = [("all", data["transitions"])]
+    if len(data.get("conditions") or []) > 1:
+        scopes += [(c["condition"] or "-", c["transitions"]) for c in data["conditions"]]
+    out: list[str] = []
+    names = list(dict.fromkeys(n for _, t in scopes for m in methods for n in t.get(m, {})))
+    for name in names:
+        if name == "locomotion":
+            out += [
+                "",
+                "lead time against the locomotion reference (the subject's mode keyed live): "
+                "how long before it changed the decision switched, ms; late: switched after it",
+            ]
+            head = ["", "method", "changes", "missed", "late", "lead median", "lead p10"]
+        else:
+            out += [
+                "",
+                f"switches against the {name} reference: spurious (a switch where the "
+                f"{name} did not change) a minute, missed changes, delay from the change "
+                "to the known switch",
+            ]
+            head = ["", "method", "changes", "missed", "spurious/min", "delay frames", "delay ms"]
+        rows = []
+        for scope, transitions in scopes:
+            for m in methods:
+                s = transitions.get(m, {}).get(name)
+                if s is None:
+                    continue
+                if name == "locomotion":
+                    tail = [str(s["late"]), _num(s["lead_ms"]["median"]), _num(s["lead_ms"]["p10"])]
+                else:
+                    tail = [
+                        _num(s["spurious_per_min"], 1),
+                        _num(s["delay_frames"]["median"], 1),
+                        _num(s["delay_ms"]["median"]),
+                    ]
+                rows.append([scope, _title(m), str(s["changes"]), str(s["missed"]), *tail])
+        out += _table(head, rows, left=2)
+    return out
 
 
 def _mean_sd(entry: dict, method: str) -> str:

@@ -259,11 +259,14 @@ def _stream_lines(imu, seconds: float | None, interval: float) -> None:
 
 
 def _stream_line(sample, status) -> str:
+    from devices.imu_clock import drift_text
+
     d = status.details
     head = (
         f"{status.state:<8} {status.measured_rate_hz:6.1f} Hz  errors {status.errors} "
         f"(crc {d['checksum_errors']}, missing {d['missing_packets']})  "
-        f"drift {d['drift_ppm']:+6.1f} ppm  jitter {d['residual_ms']:.2f} ms"
+        f"drift {drift_text(d['drift_ppm'], d.get('drift_uncertainty_ppm'))}  "
+        f"jitter {d['residual_ms']:.2f} ms"
     )
     if sample is None:
         return head

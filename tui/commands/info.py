@@ -7,8 +7,6 @@ import json
 
 HELP = "describe a recording: topics, counts, rates, gaps, metadata"
 
-GAP_TOPICS = ("/camera/depth", "/imu")  # the sensor streams; the rest derive from them
-
 
 def add_arguments(parser) -> None:
     parser.add_argument("files", nargs="+", metavar="FILE", help="MCAP recording(s)")
@@ -64,7 +62,8 @@ def describe(rec) -> list[str]:
     from capture import corpus
     from capture import topics as T
     from capture.errors import CaptureError
-    from capture.reader import effective_changes, find_gaps, is_undo
+    from capture.gaps import recording_loss
+    from capture.reader import effective_changes, is_undo
     from capture.recovery import check
 
     lines = [str(rec.path)]
@@ -72,7 +71,7 @@ def describe(rec) -> list[str]:
     if damaged:
         lines.append(
             f"  state       damaged: {len(damaged)} region(s), "
-            f"{sum(d.length for d in damaged)} bytes unreadable; "
+            f"{sum(d.length for d in damaged if d.lost)} bytes unreadable; "
             f"`walkcap recover {rec.path}` copies every intact message"
         )
         for d in damaged:
@@ -113,19 +112,28 @@ def describe(rec) -> list[str]:
         regular = topic not in (T.LABELS, T.EVENTS)
         hz = f"{(len(t) - 1) / span:6.1f} Hz" if span > 0 and regular else "      - "
         lines.append(f"    {topic:<22} {info.count:7d} {hz}  {info.schema_name}")
-    gaps = []
-    periods = recorded_periods(rec.metadata)
-    for topic in GAP_TOPICS:
-        if topic in times:
-            found = find_gaps(times[topic], period_s=periods.get(topic))
-            if found:
-                start, longest = max(found, key=lambda g: g[1])
-                at = (start - rec.start_ns) * 1e-9 if rec.start_ns is not None else 0.0
-                gaps.append(f"{topic} {len(found)} (longest {longest:.2f} s at +{at:.1f} s)")
-            else:
-                gaps.append(f"{topic} none")
+    gaps, late = [], []
+    try:
+        losses = recording_loss(rec)
+    except CaptureError:  # damaged: counted on the recovered copy
+        losses = {}
+        gaps.append("not counted (the file is damaged; count them on its recovered copy)")
+    for topic, loss in losses.items():
+        if loss.gaps:
+            g = max(loss.gaps, key=lambda g: g.length_s)
+            at = (g.start_ns - rec.start_ns) * 1e-9 if rec.start_ns is not None else 0.0
+            gaps.append(
+                f"{topic} {len(loss.gaps)}, {loss.missing} missing "
+                f"(longest {g.length_s:.2f} s at +{at:.1f} s)"
+            )
+        else:
+            gaps.append(f"{topic} none")
+        if loss.late:
+            late.append(f"{topic} {len(loss.late)} (longest {loss.longest_late_s:.2f} s)")
     if gaps:
-        lines.append("  gaps        " + "; ".join(gaps))
+        lines.append("  gaps        " + "; ".join(gaps))  # data the devices sent, not here
+    if late:
+        lines.append("  late        " + "; ".join(late) + ": delivered late, nothing lost")
     flags = frame_flags(rec)
     if flags is not None:
         stale = flags.get(STALE_ORIENTATION, 0)
@@ -196,18 +204,10 @@ def frame_flags(rec) -> dict[str, int] | None:
 
 
 def recorded_periods(metadata: dict) -> dict[str, float]:
-    """Each sensor topic's configured period from the file's metadata (the live alarms
-    count gaps against it); a topic without one falls back on its median interval."""
-    devices = metadata.get("devices", {})
-    out = {}
-    for topic, key in (("/camera/depth", "camera_fps"), ("/imu", "imu_rate_hz")):
-        try:
-            rate = float(devices.get(key, ""))
-        except (TypeError, ValueError):
-            continue
-        if rate > 0:
-            out[topic] = 1.0 / rate
-    return out
+    """Each sensor topic's configured period from the file's metadata."""
+    from capture.gaps import recorded_periods as periods
+
+    return periods(metadata)
 
 
 def _short(value, width: int = 60) -> str:
@@ -231,7 +231,8 @@ def summary(rec) -> dict:
     from capture import corpus
     from capture import topics as T
     from capture.errors import CaptureError
-    from capture.reader import effective_changes, find_gaps
+    from capture.gaps import recording_loss
+    from capture.reader import effective_changes
     from capture.recovery import check
 
     member = corpus.describe(rec)
@@ -249,16 +250,22 @@ def summary(rec) -> dict:
             "schema": info.schema_name,
             "encoding": info.message_encoding,
         }
-    gaps = {}
-    for topic in GAP_TOPICS:
-        if topic in times:
-            gaps[topic] = [
-                {
-                    "start_s": (start - rec.start_ns) * 1e-9 if rec.start_ns is not None else None,
-                    "length_s": length,
-                }
-                for start, length in find_gaps(times[topic])
-            ]
+
+    def at(t: int) -> float | None:
+        return (t - rec.start_ns) * 1e-9 if rec.start_ns is not None else None
+
+    gaps, late = {}, {}
+    try:
+        losses = recording_loss(rec)
+    except CaptureError:  # damaged: counted on the recovered copy ("damaged" says where)
+        losses = {}
+        gaps = late = None
+    for topic, loss in losses.items():
+        gaps[topic] = [
+            {"start_s": at(g.start_ns), "length_s": g.length_s, "missing": g.missing}
+            for g in loss.gaps
+        ]
+        late[topic] = [{"start_s": at(x.start_ns), "length_s": x.length_s} for x in loss.late]
     flags = frame_flags(rec)
     labels, events, markers = [], {}, []
     small = [t for t in (T.LABELS, T.EVENTS) if t in rec.topics]
@@ -312,7 +319,7 @@ def summary(rec) -> dict:
         "unix_offset_ns": rec.unix_offset_ns,
         "topics": topics,
         "gaps": gaps,
-        "frame_flags": flags,
+        "late": late,
         "stale_orientation_frames": (flags or {}).get(STALE_ORIENTATION, 0),
         "labels": [
             {

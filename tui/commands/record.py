@@ -129,11 +129,10 @@ def run(args, config) -> int:
     finally:
         if tty:
             print(file=sys.stderr)
-        remote_log = list(lab.remote.log) if lab is not None and lab.remote is not None else []
+        saved = list(lab.remote.saved) if lab is not None and lab.remote is not None else []
         if lab is not None:
             lab.stop()
         stats = session.stop()
-    saved = [r.removeprefix("saved ") for _, r in remote_log if r.startswith("saved ")]
     for path in saved:  # the trials the remote control started and stopped
         print(path)
     if stats is None:
@@ -141,11 +140,13 @@ def run(args, config) -> int:
             print("walkcap record: no trial was recorded (no remote start)", file=sys.stderr)
         return 0 if saved else 1
     snap_lat = session.snapshot().latency_ms
-    gaps = session.alarms.trial_gaps
+    gaps, late = session.alarms.trial_gaps, session.alarms.trial_late
     print(
         f"{stats.duration_s:.1f} s, {stats.messages} messages, "
         f"{stats.bytes_written / 1e6:.1f} MB, dropped {stats.dropped}, "
-        f"gaps camera {gaps.get('camera', 0)} IMU {gaps.get('imu', 0)}"
+        f"derived shed {getattr(stats, 'shed', 0)}, "
+        f"gaps camera {gaps.get('camera', 0)} IMU {gaps.get('imu', 0)}, "
+        f"late deliveries camera {late.get('camera', 0)} IMU {late.get('imu', 0)}"
         + (
             f", pipeline latency median {snap_lat['p50']:.1f} ms p99 {snap_lat['p99']:.1f} ms"
             if snap_lat

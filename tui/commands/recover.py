@@ -26,12 +26,17 @@ def run(args, config) -> int:
     from capture.recovery import recover
 
     r = recover(args.file, args.out, journal=args.journal, overwrite=args.force)
-    source = (
-        "complete file" if r.complete else f"{r.reason}; {r.lost_bytes} bytes after it unreadable"
-    )
+    if r.complete:
+        source = "complete file"
+    elif r.finished:
+        source = "finished file, damaged"
+    else:
+        source = f"{r.reason}; {r.lost_bytes} bytes after it unreadable"
     print(f"{r.source}: {source}")
     for d in r.damaged:
-        print(f"skipped damaged {d.describe(r.first_ns)}")
+        print(f"{'skipped' if d.lost else 'found'} damaged {d.describe(r.first_ns)}")
+    for why in r.journal_skipped:
+        print(f"skipped journal {why}")
     if r.unknown_channel_messages:
         print(f"skipped {r.unknown_channel_messages} messages whose channel was in damaged bytes")
     print(

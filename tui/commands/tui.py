@@ -30,7 +30,8 @@ def log_path() -> str:
 
 @contextlib.contextmanager
 def logging_to_file(path: str):
-    """While the UI owns the terminal, log lines go to a file instead of stderr."""
+    """While the UI owns the terminal, log lines go to a file instead of stderr, from INFO
+    up: the session's notices and device events, each with its time."""
     root = logging.getLogger()
     saved = root.handlers[:]
     try:
@@ -40,10 +41,14 @@ def logging_to_file(path: str):
         handler = logging.NullHandler()
     handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
     root.handlers = [handler]
+    level = root.level
+    # what happened in the session (losses, stalls, reconnects, trials saved) is INFO
+    root.setLevel(min(level, logging.INFO) if level else logging.INFO)
     try:
         yield
     finally:
         root.handlers = saved
+        root.setLevel(level)
         handler.close()
 
 

@@ -22,8 +22,8 @@ ABOUT = (
     "an IMU sample's time is from when it was taken, 99th percentile, ms. pipeline: frames "
     "processed; latency = frame received to fused decision, median and p99, ms.\n"
     "recording — elapsed time, file, size, write rate, writer queue (how full; full loses "
-    "data), gaps this trial (a stream silent for more than 3 periods; walkcap info counts the "
-    "same), messages dropped.\n"
+    "data), gaps this trial (data the device counted and the file lacks; walkcap info counts "
+    "the same), messages dropped.\n"
     "image — the leveled 100 x 100 image the CNN sees (1 cm cells, seen from the left, "
     "walking to the right). profile — the terrain's height along the walk.\n"
     "fused decision (HMM) — the mode after fusion; CNN probabilities — each mode's "
@@ -71,7 +71,9 @@ class HelpScreen(ModalScreen[None]):
             yield Static(Text("walkcap keys", style="bold"))
             yield Static(table, id="help-keys")
             yield Static(Text("\n" + ABOUT, style="dim"))
-            yield Static(Text("\nescape closes", style="dim italic"))
+            yield Static(
+                Text("\nescape closes; the mode keys label while this is open", style="dim italic")
+            )
 
     def action_close(self) -> None:
         self.dismiss(None)
