@@ -23,6 +23,8 @@ CNN_THREADS = 1
 # How far past the newest IMU sample its rate of turn carries the orientation (a few sample
 # periods); beyond that the sample is held, and the frame's orientation is stale.
 EXTRAPOLATE_NS = 50_000_000
+# How long a frame may wait for IMU samples that are late (a busy host), not missing.
+IMU_LATE_S = 0.2
 
 
 class OrientationTrack:
@@ -31,7 +33,9 @@ class OrientationTrack:
     Thread-safe: the IMU thread adds, the pipeline thread reads.
     """
 
-    def __init__(self, span_s: float = 3.0) -> None:
+    def __init__(self, span_s: float = 3.0, clock=now_ns) -> None:
+        self._clock = clock
+        self._added_ns: int | None = None  # when the newest sample came in, host clock
         self._times: collections.deque[int] = collections.deque()
         self._quats: collections.deque[np.ndarray] = collections.deque()
         self._span_ns = int(span_s * 1e9)
@@ -45,6 +49,7 @@ class OrientationTrack:
         with self._new:
             if self._times and time_ns <= self._times[-1]:
                 return  # out of order or repeated: the clock estimator already smooths
+            self._added_ns = self._clock()
             self._times.append(time_ns)
             self._quats.append(np.asarray(quaternion, dtype=np.float64))
             self._rate = (
@@ -91,6 +96,26 @@ class OrientationTrack:
             w = (time_ns - t0) / (t1 - t0)
             q = quat_slerp(self._quats[i - 1], self._quats[i], w)
             return q, min(time_ns - t0, t1 - time_ns)
+
+    def fresh_at(
+        self, time_ns: int, max_age_ns: int, late_s: float
+    ) -> tuple[np.ndarray | None, int]:
+        """at(), after waiting for the IMU when it is late rather than gone: while samples
+        keep coming (one came in within `late_s`), wait up to `late_s` for one within
+        `max_age_ns` of `time_ns`. A busy host delays the IMU thread; an unplugged IMU
+        sends nothing, and a frame then waits at most once `late_s`."""
+        q, age = self.at(time_ns)
+        if age <= max_age_ns:
+            return q, age
+        with self._new:
+            if not self._times or time_ns <= self._times[-1] or self._added_ns is None:
+                return q, age  # before the first sample, or inside the track: a real gap
+            left_s = (self._added_ns + int(late_s * 1e9) - self._clock()) * 1e-9
+            if left_s <= 0:
+                return q, age  # silent for longer than a late IMU would be
+            wanted = time_ns - max_age_ns
+            self._new.wait_for(lambda: self._times[-1] >= wanted, left_s)
+        return self.at(time_ns)
 
 
 def _rotation(rotation_vector: np.ndarray) -> np.ndarray:

@@ -31,6 +31,7 @@ from capture.alarms import AlarmState, TrialAlarms
 from capture.errors import CaptureError, ConfigError
 from capture.pipeline import (
     CNN_THREADS,
+    IMU_LATE_S,
     FrameResult,
     OrientationTrack,
     Pipeline,
@@ -155,7 +156,7 @@ class Snapshot:
     switches_last_minute: int | None = None  # final fused decision changes in SWITCHES_S
     walker_mode: str | None = None  # mock devices: the walker's locomotion mode, to key
     alarms: AlarmState | None = None  # gaps this trial, and what the operator must see now
-    stale_frames: int = 0  # frames left undecided: their IMU orientation was stale
+    stale_frames: int = 0  # frames of this (or the last) trial left undecided: stale IMU
 
 
 HOST_STALL_NS = 1_000_000_000  # the monitor (every 0.2 s) not run for this long: a host stall
@@ -601,7 +602,8 @@ class Session:
             else self._taps
         )
         # interpolated, or carried on by the rate of turn; too far from a sample: stale
-        quaternion, age_ns = self.track.at(t)
+        bound_ns = int(self.pipeline.params.max_orientation_age_ms * 1e6)
+        quaternion, age_ns = self.track.fresh_at(t, bound_ns, IMU_LATE_S)
         pre = None
         try:
             pre = self.pipeline.prepare(frame, quaternion, age_ns)
@@ -782,6 +784,8 @@ class Session:
         recorder.start()
         self.alarms.recordings = folder
         self.alarms.new_trial()
+        with self._lock:
+            self._stale_frames = 0  # counted per trial, as the file counts them
         self._recorder = recorder
         self.trial = info
         self._recording_started_ns = now_ns()

@@ -25,6 +25,16 @@ MODE_NAMES = {
     "UR": "up ramp",
     "DR": "down ramp",
 }
+# One colour per mode on every screen and figure (the live UI, replay, `eval --plot`):
+# distinct hues that stay apart on dark and light backgrounds and for the common
+# colour-vision deficiencies; the letters always go with them, so no meaning rests on colour.
+MODE_COLORS = {
+    "LG": "#4caf50",  # green
+    "US": "#2f7ff0",  # blue
+    "DS": "#00b8c4",  # cyan
+    "UR": "#f0a020",  # amber
+    "DR": "#d048c8",  # magenta
+}
 
 
 @dataclass(frozen=True)

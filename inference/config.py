@@ -110,8 +110,8 @@ DOCS: dict[type, dict[str, str]] = {
         "min_confidence": "lowest camera confidence a point needs to be used",
         "outlier_min_points": "isolated-point removal: neighbours needed in 3 x 3 cm (0: off)",
         "max_elevation_deg": "camera looking higher than this above level: no image, degrees",
-        "max_orientation_age_ms": "an IMU orientation older than this is stale: the frame "
-        "gets no image and no decision (stale_orientation), ms",
+        "max_orientation_age_ms": "IMU orientation older than this: stale_orientation, no "
+        "image, no decision, ms",
         "backend": "point-cloud backend: numpy | open3d (same result; numpy is faster)",
     },
     ModelConfig: {

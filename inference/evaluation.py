@@ -24,6 +24,7 @@ import csv
 import logging
 import math
 import re
+import textwrap
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from devices.frames import MODES
+from devices.frames import MODE_COLORS, MODES
 from inference import transitions as tr
 from inference.errors import InferenceError
 from inference.fusion import (
@@ -803,6 +804,100 @@ def synthetic_trial(
 # ---------------------------------------------------------------------------------------
 # figures (matplotlib: vector PDF and 300-dpi PNG)
 
+# A figure is as wide as one column of a two-column paper (3.5 in) and is printed at that
+# size: every text at 6 pt or more.
+COLUMN_IN = 3.5
+FIGURE_STYLE = {
+    "font.size": 7,
+    "axes.titlesize": 7.5,
+    "axes.labelsize": 7,
+    "xtick.labelsize": 6.5,
+    "ytick.labelsize": 6.5,
+    "legend.fontsize": 6.5,
+    "legend.title_fontsize": 6.5,
+    "figure.titlesize": 8,
+    "axes.linewidth": 0.6,
+    "lines.linewidth": 1.0,
+    "hatch.linewidth": 0.6,
+    "pdf.fonttype": 42,  # text stays text in the PDF
+}
+# Methods are told apart by grey level, hatch, marker and dash, never by a mode's colour
+# (colour means a mode on every screen and figure: devices.frames.MODE_COLORS).
+METHOD_STYLES = {  # shade: the method (light CNN, dark HMM); hatch: with voting
+    "cnn": {"color": "#e4e4e4", "hatch": "", "line": "#a8a8a8", "marker": "o", "linestyle": ":"},
+    "cnn+voting": {
+        "color": "#bcbcbc",
+        "hatch": "////",
+        "hatchcolor": "#4a4a4a",
+        "line": "#7c7c7c",
+        "marker": "s",
+        "linestyle": "-.",
+    },
+    "hmm": {"color": "#6a6a6a", "hatch": "", "line": "#505050", "marker": "D", "linestyle": "--"},
+    "hmm+voting": {
+        "color": "#262626",
+        "hatch": "////",
+        "hatchcolor": "#d0d0d0",
+        "line": "#000000",
+        "marker": "^",
+        "linestyle": "-",
+    },
+}
+# the streaming smoothers: white or mid grey, with hatches of their own
+METHOD_STYLES |= {
+    "steady": {
+        "color": "#ffffff",
+        "hatch": "xxxx",
+        "line": "#303030",
+        "marker": "v",
+        "linestyle": (0, (5, 1, 1, 1)),
+    },
+    "steady+gait": {
+        "color": "#949494",
+        "hatch": "\\\\\\\\",
+        "hatchcolor": "#000000",
+        "line": "#202020",
+        "marker": "P",
+        "linestyle": (0, (3, 1, 1, 1, 1, 1)),
+    },
+    "forward": {
+        "color": "#ffffff",
+        "hatch": "....",
+        "line": "#606060",
+        "marker": "X",
+        "linestyle": (0, (1, 1)),
+    },
+    "fixed-lag": {
+        "color": "#d8d8d8",
+        "hatch": "----",
+        "line": "#404040",
+        "marker": "p",
+        "linestyle": (0, (6, 2)),
+    },
+}
+_SPARE_STYLES = (
+    {
+        "color": "#909090",
+        "hatch": "xxxx",
+        "line": "#606060",
+        "marker": "v",
+        "linestyle": (0, (5, 1, 1, 1)),
+    },
+    {
+        "color": "#d0d0d0",
+        "hatch": "....",
+        "line": "#909090",
+        "marker": "*",
+        "linestyle": (0, (1, 1)),
+    },
+)
+FOOTNOTE_CHARS = 80  # characters a line of 6-pt text holds across one column
+GAP_PERIODS = 3  # frames farther apart than this many frame periods: a gap, nothing drawn
+
+
+def method_style(method: str, k: int = 0) -> dict:
+    return METHOD_STYLES.get(method) or _SPARE_STYLES[k % len(_SPARE_STYLES)]
+
 
 def _safe(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("_") or "trial"
@@ -816,8 +911,8 @@ def write_plots(
     sweep: DelaySweep | None = None,
     trials: Sequence[str] | None = None,
 ) -> list[Path]:
-    """The paper's figures in out_dir, each as a vector PDF and a 300-dpi PNG; returns the
-    files written.
+    """The paper's figures in out_dir, each as a vector PDF and a 300-dpi PNG, one column
+    (3.5 in) wide; returns the files written.
 
     accuracy_per_subject[_<condition>] (mean and SD over each subject's trials, per
     method), accuracy_vs_delay (with a sweep; mean and SD over trials, and spurious
@@ -825,7 +920,9 @@ def write_plots(
     spurious switches a minute, the trade-off, with its delay), decisions_<trial>
     and probabilities_<trial> (every trial, or those whose file name or title contains
     one of `trials`), confusion[_<condition>] (row-normalised, with counts).
-    Time is in seconds from the trial's first frame when the trial has frame times.
+    Time is in seconds from the trial's first frame when the trial has frame times; where
+    frames are missing (more than GAP_PERIODS frame periods apart) nothing is drawn.
+    Modes have their colours of the live screen (devices.frames.MODE_COLORS).
     """
     import matplotlib
 
@@ -839,27 +936,28 @@ def write_plots(
     def save(fig, name: str) -> None:
         for suffix, kwargs in ((".pdf", {}), (".png", {"dpi": 300})):
             path = out / f"{name}{suffix}"
-            fig.savefig(path, bbox_inches="tight", **kwargs)
+            fig.savefig(path, bbox_inches="tight", pad_inches=0.02, **kwargs)
             written.append(path)
         plt.close(fig)
 
-    conditions = by_condition(results)
-    for condition, rs in conditions.items():
-        suffix = f"_{_safe(condition)}" if condition else ""
-        save(_plot_per_subject(plt, rs, methods, condition), f"accuracy_per_subject{suffix}")
-    if sweep is not None:
-        save(_plot_sweep(plt, results, sweep), "accuracy_vs_delay")
-    save(_plot_switches(plt, results, methods, params), "switches")
-    for r in results:
-        name = Path(r.trial.path).stem
-        if trials and not any(t in name or t in r.trial.title for t in trials):
-            continue
-        stem = _safe(name)
-        save(_plot_decisions(plt, r, methods), f"decisions_{stem}")
-        save(_plot_probabilities(plt, r, params), f"probabilities_{stem}")
-    for condition, rs in conditions.items():
-        suffix = f"_{_safe(condition)}" if condition else ""
-        save(_plot_confusion(plt, rs, methods, condition), f"confusion{suffix}")
+    with plt.rc_context(FIGURE_STYLE):
+        conditions = by_condition(results)
+        for condition, rs in conditions.items():
+            suffix = f"_{_safe(condition)}" if condition else ""
+            save(_plot_per_subject(plt, rs, methods, condition), f"accuracy_per_subject{suffix}")
+        if sweep is not None:
+            save(_plot_sweep(plt, results, sweep), "accuracy_vs_delay")
+        save(_plot_switches(plt, results, methods, params), "switches")
+        for r in results:
+            name = Path(r.trial.path).stem
+            if trials and not any(t in name or t in r.trial.title for t in trials):
+                continue
+            stem = _safe(name)
+            save(_plot_decisions(plt, r, methods), f"decisions_{stem}")
+            save(_plot_probabilities(plt, r, params), f"probabilities_{stem}")
+        for condition, rs in conditions.items():
+            suffix = f"_{_safe(condition)}" if condition else ""
+            save(_plot_confusion(plt, rs, methods, condition), f"confusion{suffix}")
     return written
 
 
@@ -869,48 +967,109 @@ def _sd_clipped(means: np.ndarray, sds: np.ndarray) -> np.ndarray:
     return np.vstack([np.minimum(sds, means), np.minimum(sds, 100 - means)])
 
 
-def _legend_right(ax, **kwargs) -> None:
-    """The legend beside the axes, never over the data."""
-    ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), frameon=False, fontsize=8, **kwargs)
+def _axis_floor(lowest: float) -> float:
+    """Where an accuracy axis starts: a multiple of 5 % a little under the lowest value
+    shown (bars of 95-99 % on a 0-100 % axis show no difference), 0 at the least."""
+    return max(0.0, 5 * math.floor((lowest - 1.0) / 5)) if math.isfinite(lowest) else 0.0
+
+
+def _legend_below(fig, ax, ncol: int, note: str = "", **kwargs) -> None:
+    """The legend under the axes, never over the data (a column is too narrow for one
+    beside them); `note`, what the marks mean, under the legend."""
+    legend = fig.legend(
+        *ax.get_legend_handles_labels(),
+        loc="upper center",
+        bbox_to_anchor=(0.5, 0.0),
+        ncol=ncol,
+        frameon=False,
+        handlelength=2.2,
+        columnspacing=1.0,
+        **kwargs,
+    )
+    if note:
+        _footnote(fig, note, under=legend)
+
+
+def _footnote(fig, text: str, under=None) -> None:
+    """A note across the column's width under the figure (or under the artist `under`,
+    placed when the figure is drawn), at the smallest size a printed figure allows."""
+    from matplotlib.text import Annotation
+
+    fig.add_artist(
+        Annotation(
+            textwrap.fill(text, FOOTNOTE_CHARS),
+            xy=(0.0, 0.0),
+            xycoords=("figure fraction", under if under is not None else "figure fraction"),
+            xytext=(0, -3),
+            textcoords="offset points",
+            ha="left",
+            va="top",
+            fontsize=6,
+        )
+    )
 
 
 def _plot_per_subject(plt, results, methods, condition):
     groups = group_results(results)
     subjects = [f"{s}\n(n = {len(rs)})" for (_, s), rs in groups.items()]
-    fig, ax = plt.subplots(figsize=(max(5.0, 1.1 * len(subjects) + 2.5), 3.6))
-    width = 0.8 / len(methods)
+    fig, ax = plt.subplots(figsize=(COLUMN_IN, 2.3), layout="constrained")
+    width = 0.84 / len(methods)
     x = np.arange(len(subjects))
+    lowest, labels = 100.0, []
     for k, m in enumerate(methods):
         stats = [mean_sd([r.accuracy[m] for r in rs]) for rs in groups.values()]
         means = np.array([100 * st[0] for st in stats])
         sds = np.array([100 * st[1] for st in stats])
+        bars = _sd_clipped(means, sds)
+        style = method_style(m, k)
+        xs = x + (k - (len(methods) - 1) / 2) * width
         ax.bar(
-            x + (k - (len(methods) - 1) / 2) * width,
+            xs,
             means,
             width,
-            yerr=_sd_clipped(means, sds),
-            capsize=2,
-            error_kw={"linewidth": 0.8},
+            yerr=bars,
+            capsize=1.5,
+            error_kw={"linewidth": 0.6, "capthick": 0.6},
+            color=style["color"],
+            hatch=style["hatch"],
+            hatchcolor=style.get("hatchcolor", "black"),
+            edgecolor="black",
+            linewidth=0.5,
             label=TITLES.get(m, m),
         )
+        low = means - np.nan_to_num(bars[0])
+        if np.isfinite(low).any():
+            lowest = min(lowest, float(np.nanmin(low)))
+        labels += [(xi, mi, mi + np.nan_to_num(b)) for xi, mi, b in zip(xs, means, bars[1])]
+    floor = _axis_floor(lowest)
+    span = 100.0 - floor
+    for xi, mean, top in labels:  # the value of each bar, above its error bar
+        if math.isfinite(mean):
+            ax.text(
+                xi,
+                top + 0.015 * span,
+                f"{mean:.1f}",
+                rotation=90,
+                ha="center",
+                va="bottom",
+                fontsize=6,
+            )
+    ax.set_ylim(floor, 100.0 + 0.3 * span)  # room for the values over a 100 % bar
+    ax.set_yticks([v for v in ax.get_yticks() if floor <= v <= 100])
     ax.set_xticks(x, subjects)
     ax.set_xlabel("subject (number of trials)")
     ax.set_ylabel("accuracy (%)")
-    ax.set_ylim(0, 100)
     where = f", {condition}" if condition else ""
-    ax.set_title(
-        f"Accuracy per subject{where}, against the {_reference_of(results)} reference: "
-        "mean ± SD over trials",
-        fontsize=10,
+    ax.set_title(f"Accuracy per subject{where}: mean ± SD over trials")
+    ax.set_ylabel(f"accuracy against {_reference_of(results)} (%)")
+    _legend_below(
+        fig,
+        ax,
+        ncol=min(4, len(methods)),
+        note="Error bars: standard deviation across the subject's trials, cut at 0 and 100 %; "
+        "none for a single trial.",
     )
-    _legend_right(ax, title="method", title_fontsize=8)
-    _footnote(fig, "Error bars: standard deviation across the subject's trials, cut at 0 and "
-              "100 %; none for a single trial.")  # fmt: skip
     return fig
-
-
-def _footnote(fig, text: str) -> None:
-    fig.text(0.0, -0.06, text, fontsize=7, va="top", ha="left", transform=fig.transFigure)
 
 
 def _plot_sweep(plt, results, sweep):
@@ -919,10 +1078,12 @@ def _plot_sweep(plt, results, sweep):
     fig, axes = plt.subplots(
         2,
         len(conditions),
-        figsize=(4.5 * len(conditions), 6.4),
+        figsize=(COLUMN_IN, 3.4),
         squeeze=False,
         sharex=True,
-        gridspec_kw={"height_ratios": (3, 2)},
+        sharey="row",
+        height_ratios=(3, 2),
+        layout="constrained",
     )
     lowest = 100.0
     for col, (condition, rs) in enumerate(conditions.items()):
@@ -935,41 +1096,38 @@ def _plot_sweep(plt, results, sweep):
             bars = _sd_clipped(np.nan_to_num(mean), sd)
             if np.isfinite(mean).any():
                 lowest = min(lowest, float(np.nanmin(mean - np.nan_to_num(bars[0]))))
-            # methods that agree still show: each its own marker and dash
-            style = dict(
-                marker="osD^v*"[k % 6],
-                markersize=6 - k % 4,
-                linestyle=("-", "--", ":", "-.")[k % 4],
-                linewidth=1,
+            style = method_style(m, k)
+            dodge = (k - (len(sweep.accuracy) - 1) / 2) * 0.09  # methods that agree stay apart
+            x = np.asarray(sweep.delays, dtype=float) + dodge
+            look = dict(
+                color=style["line"],
+                marker=style["marker"],
+                markersize=3.5,
+                markeredgecolor="black",
+                markeredgewidth=0.4,
+                linestyle=style["linestyle"],
                 label=TITLES.get(m, m),
             )
-            ax.errorbar(sweep.delays, mean, yerr=bars, capsize=2, **style)
+            ax.errorbar(x, mean, yerr=bars, capsize=1.5, elinewidth=0.6, **look)
             if m in sweep.spurious:
-                low.plot(sweep.delays, sweep.spurious_per_min(m, rows), **style)
+                low.plot(x, sweep.spurious_per_min(m, rows), **look)
         low.set_xticks(sweep.delays)
         low.set_xlabel("decision delay (frames)")
-        low.set_ylim(bottom=0)
-        low.set_ylabel("spurious switches a minute")
         n = len(rs)
-        ax.set_title(
-            f"{condition or 'all trials'} (n = {n} trial{'s' if n != 1 else ''})", fontsize=10
-        )
-    # a line plot may start above 0 (the bars of the per-subject figure do not), never
-    # past 100 %
-    for ax in axes[0]:  # one accuracy scale for every condition
-        ax.set_ylim(max(0.0, 5 * math.floor(lowest / 5)), 100)
-    axes[0][0].set_ylabel("accuracy (%), mean ± SD over trials")
-    _legend_right(axes[0][-1], title="method", title_fontsize=8)
+        ax.set_title(f"{condition or 'all trials'} (n = {n} trial{'s' if n != 1 else ''})")
     reference = _reference_of(results)
-    fig.suptitle(
-        f"Accuracy and spurious switches against decision delay ({reference} reference)",
-        fontsize=11,
-    )
-    _footnote(
+    axes[0][0].set_ylim(_axis_floor(lowest), 100)
+    axes[1][0].set_ylim(bottom=0)  # once every condition is drawn: the row shares it
+    axes[0][0].set_ylabel("accuracy (%)\nmean ± SD")
+    axes[1][0].set_ylabel("spurious\nswitches / min")
+    fig.suptitle(f"Accuracy and spurious switches against delay ({reference} reference)")
+    _legend_below(
         fig,
-        "Error bars: standard deviation across trials, cut at 100 %. A delay of d frames: the "
-        "decision for a frame is made d frames later.\nSpurious switches: decision changes "
-        f"where the {reference} did not change, pooled over trials.",
+        axes[0][0],
+        ncol=min(4, len(sweep.accuracy)),
+        note="Error bars: SD across trials, cut at 100 %. Delay d: a frame's decision is made "
+        f"d frames later. Spurious switches: decision changes where the {reference} "
+        "reference did not change, pooled over trials.",
     )
     return fig
 
@@ -980,40 +1138,53 @@ def _reference_of(results) -> str:
 
 
 def _plot_switches(plt, results, methods, params):
-    """Per condition: each method's accuracy (mean over trials) against its spurious
-    switches a minute (pooled), marked with its delay: the trade-off a controller feels."""
+    """Per condition (one panel each, stacked): each method's accuracy (mean over trials)
+    against its spurious switches a minute (pooled), with its delay: the trade-off a
+    controller feels."""
     conditions = by_condition(results)
     fig, axes = plt.subplots(
-        1, len(conditions), figsize=(4.6 * len(conditions), 3.8), squeeze=False
+        len(conditions),
+        1,
+        figsize=(COLUMN_IN, 0.4 + 1.6 * len(conditions)),
+        squeeze=False,
+        sharex=True,
+        layout="constrained",
     )
     reference = _reference_of(results)
-    for ax, (condition, rs) in zip(axes[0], conditions.items()):
+    for (ax,), (condition, rs) in zip(axes, conditions.items()):
         for k, m in enumerate(methods):
             stats = pooled_transitions(rs, m).get(reference)
             if stats is None:
                 continue
-            acc = 100 * mean_sd([r.accuracy[m] for r in rs])[0]
+            style = method_style(m, k)
             ax.plot(
                 stats.spurious_per_min,
-                acc,
-                marker="osD^v*P"[k % 7],
+                100 * mean_sd([r.accuracy[m] for r in rs])[0],
+                marker=style["marker"],
+                color=style["line"],
+                markeredgecolor="black",
+                markeredgewidth=0.4,
                 linestyle="none",
-                markersize=7,
+                markersize=4.5,
                 label=f"{TITLES.get(m, m)} ({params.delay_frames(m)} fr)",
             )
-        right = max(1.0, ax.get_xlim()[1])
-        ax.set_xlim(-0.04 * right, right)  # a point at 0 shows whole
-        ax.set_xlabel(f"spurious switches a minute (against {reference})")
-        ax.set_ylabel(f"accuracy (%, against {reference})")
+        ax.set_ylabel("accuracy (%)")
         ax.grid(True, linewidth=0.3)
         n = len(rs)
-        ax.set_title(
-            f"{condition or 'all trials'} (n = {n} trial{'s' if n != 1 else ''})", fontsize=10
-        )
-    _legend_right(axes[0][-1], title="method (delay)", title_fontsize=8)
-    fig.suptitle("Accuracy against spurious switches: up and left is better", fontsize=11)
-    _footnote(fig, "Accuracy: mean over trials. Spurious switches: decision changes with no "
-              "change of the reference to that mode within 2 s, pooled over trials.")  # fmt: skip
+        ax.set_title(f"{condition or 'all trials'} (n = {n} trial{'s' if n != 1 else ''})")
+    for (ax,) in axes:  # a point at 0 shows whole, on one scale for every condition
+        right = max(1.0, ax.get_xlim()[1])
+        ax.set_xlim(-0.04 * right, right)
+    axes[-1][0].set_xlabel("spurious switches a minute")
+    fig.suptitle(f"Accuracy against spurious switches ({reference} reference)")
+    _legend_below(
+        fig,
+        axes[0][0],
+        ncol=2,
+        title="method (delay in frames); up and left is better",
+        note="Accuracy: mean over trials. Spurious switches: decision changes with no change "
+        "of the reference to that mode within 2 s, pooled over trials.",
+    )
     return fig
 
 
@@ -1023,39 +1194,92 @@ def _time_axis(trial: Trial) -> tuple[np.ndarray, str]:
     return np.arange(len(trial.reference), dtype=float), "frame"
 
 
+def _frame_period(t: np.ndarray) -> float:
+    steps = np.diff(t)
+    steps = steps[steps > 0]
+    return float(np.median(steps)) if len(steps) else 1.0
+
+
+def gap_breaks(t: np.ndarray) -> np.ndarray:
+    """Indices i where frames i and i+1 are a gap apart (missing frames, a stall)."""
+    if len(t) < 2:
+        return np.zeros(0, dtype=int)
+    return np.flatnonzero(np.diff(t) > GAP_PERIODS * _frame_period(t))
+
+
+def _runs(t: np.ndarray, values: np.ndarray):
+    """(start, end, value) of each run of equal values that no gap interrupts; a frame
+    spans one frame period from its time; -1 (none) is no run."""
+    period = _frame_period(t)
+    cut = np.zeros(len(t), dtype=bool)
+    cut[gap_breaks(t) + 1] = True
+    start = 0
+    for i in range(1, len(t) + 1):
+        if i == len(t) or cut[i] or values[i] != values[start]:
+            if values[start] >= 0:
+                yield t[start], t[i - 1] + period, int(values[start])
+            start = i
+
+
+def _with_gaps(t: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """t and values with a NaN row inserted in every gap, so that lines break there."""
+    breaks = gap_breaks(t)
+    if not len(breaks):
+        return t, values
+    t2 = np.insert(t.astype(float), breaks + 1, np.nan)
+    v2 = np.insert(values.astype(float), breaks + 1, np.nan, axis=0)
+    return t2, v2
+
+
+def _mode_legend(fig, none: str = "") -> None:
+    """The modes' colours with their letters, under the figure; `none`: what white means."""
+    from matplotlib.patches import Patch
+
+    handles = [Patch(facecolor=MODE_COLORS[m], label=m) for m in MODES]
+    if none:
+        handles.append(Patch(facecolor="white", edgecolor="#888888", linewidth=0.5, label=none))
+    fig.legend(
+        handles=handles,
+        loc="upper center",
+        bbox_to_anchor=(0.5, 0.0),
+        ncol=len(handles),
+        frameon=False,
+        handlelength=1.2,
+        columnspacing=0.9,
+    )
+
+
 def _plot_decisions(plt, result, methods):
+    """The paper's Fig. 8 as the live screen draws it: one strip per source (reference,
+    then each method), coloured by mode; white where there is no frame or no decision."""
     trial = result.trial
     t, xlabel = _time_axis(trial)
-    fig, ax = plt.subplots(figsize=(8, 3.4))
-    ref = np.where(trial.reference >= 0, trial.reference, np.nan)
-    ax.step(
-        t, ref, where="post", color="black", linewidth=2.5, label=f"{trial.reference_name} (ref.)"
-    )
+    rows = [(f"{trial.reference_name}\n(reference)", trial.reference)]
     if trial.locomotion is not None and trial.reference_name != "locomotion":
-        loco = np.where(trial.locomotion >= 0, trial.locomotion, np.nan)
-        ax.step(
-            t, loco, where="post", color="grey", linewidth=1, linestyle="-.", label="locomotion"
-        )
-    styles = {
-        "cnn": dict(linestyle="none", marker="o", markersize=2, fillstyle="none"),
-        "cnn+voting": dict(linewidth=1),
-        "hmm": dict(linestyle="--", linewidth=1.2),
-        "hmm+voting": dict(linestyle=":", linewidth=1.5),
-    }
-    for m in methods:
-        final = np.where(result.runs[m].final >= 0, result.runs[m].final, np.nan)
-        ax.step(t, final, where="post", label=TITLES.get(m, m), **styles.get(m, dict(linewidth=1)))
-    ax.set_yticks(range(N_MODES), MODES)
-    ax.set_ylim(-0.5, N_MODES - 0.5)
-    ax.set_ylabel("mode")
+        rows.append(("locomotion\n(keyed live)", trial.locomotion))
+    rows += [
+        (f"{TITLES.get(m, m)}\n{100 * result.accuracy[m]:.1f} %", result.runs[m].final)
+        for m in methods
+    ]
+    fig, ax = plt.subplots(figsize=(COLUMN_IN, 0.35 * len(rows) + 0.9), layout="constrained")
+    for k, (_, values) in enumerate(rows):
+        y = len(rows) - 1 - k
+        by_mode: dict[int, list] = {}
+        for start, end, mode in _runs(t, np.asarray(values)):
+            by_mode.setdefault(mode, []).append((start, end - start))
+        for mode, spans in by_mode.items():  # one shape per mode and strip: quick to draw
+            ax.broken_barh(
+                spans, (y - 0.38, 0.76), facecolors=MODE_COLORS[MODES[mode]], linewidth=0
+            )
+    ax.set_yticks(range(len(rows)), [name for name, _ in reversed(rows)])
+    ax.set_ylim(-0.6, len(rows) - 0.4)
     ax.set_xlabel(xlabel)
-    ax.set_xlim(t[0] if len(t) else 0, t[-1] if len(t) else 1)
-    accuracy = ", ".join(f"{TITLES.get(m, m)} {100 * result.accuracy[m]:.1f} %" for m in methods)
-    ax.set_title(
-        f"Sequential decisions: {trial.title}\naccuracy against {trial.reference_name}: {accuracy}",
-        fontsize=9,
-    )
-    _legend_right(ax)
+    ax.set_xlim(t[0] if len(t) else 0, (t[-1] + _frame_period(t)) if len(t) else 1)
+    ax.tick_params(axis="y", length=0)
+    for side in ("left", "right", "top"):
+        ax.spines[side].set_visible(False)
+    ax.set_title(f"Sequential decisions: {trial.title}\n(accuracy against {trial.reference_name})")
+    _mode_legend(fig, none="none")
     return fig
 
 
@@ -1065,35 +1289,42 @@ def _plot_probabilities(plt, result, params):
     run = result.runs.get("hmm") or result.runs.get("hmm+voting")
     if run is None:
         run = run_offline(HmmFusion(params.window, params.transition), trial.probabilities)
-    fig, axes = plt.subplots(2, 1, figsize=(8, 4.4), sharex=True)
+    fig, axes = plt.subplots(2, 1, figsize=(COLUMN_IN, 2.9), sharex=True, layout="constrained")
     for ax, p, title in (
         (axes[0], trial.probabilities, "CNN softmax output"),
         (axes[1], run.posteriors, f"HMM smoothed posterior (window {params.window} frames)"),
     ):
+        tt, pp = _with_gaps(t, np.asarray(p, dtype=float))
         for j, mode in enumerate(MODES):
-            ax.plot(t, p[:, j], label=mode, linewidth=1)
-        ax.set_ylim(0, 1)
+            ax.plot(tt, pp[:, j], label=mode, linewidth=0.8, color=MODE_COLORS[mode])
+        ax.set_ylim(0, 1.02)
         ax.set_ylabel("probability")
-        ax.set_title(title, fontsize=9)
+        ax.set_title(title)
     axes[1].set_xlabel(xlabel)
     axes[1].set_xlim(t[0] if len(t) else 0, t[-1] if len(t) else 1)
-    axes[0].legend(
-        title="mode", fontsize=8, title_fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0)
-    )
-    fig.suptitle(f"Probability traces: {trial.title}", fontsize=10)
+    fig.suptitle(f"Probability traces: {trial.title}")
+    _mode_legend(fig)
     return fig
 
 
 def _plot_confusion(plt, results, methods, condition=""):
+    cols = 2 if len(methods) > 1 else 1
+    grid = math.ceil(len(methods) / cols)
     fig, axes = plt.subplots(
-        1, len(methods), figsize=(2.9 * len(methods) + 0.8, 3.3), squeeze=False
+        grid,
+        cols,
+        figsize=(COLUMN_IN, 1.5 * grid + 0.45),
+        squeeze=False,
+        layout="constrained",
     )
     image = None
-    for ax, m in zip(axes[0], methods):
+    for ax in axes.flat[len(methods) :]:
+        ax.set_visible(False)
+    for ax, m in zip(axes.flat, methods):
         counts = pooled_confusion(results, m)
         with np.errstate(all="ignore"):
             rate = 100 * counts / counts.sum(axis=1, keepdims=True)
-        image = ax.imshow(np.nan_to_num(rate), vmin=0, vmax=100, cmap="Blues")
+        image = ax.imshow(np.nan_to_num(rate), vmin=0, vmax=100, cmap="Greys")
         for i in range(N_MODES):
             for j in range(N_MODES):
                 if counts[i].sum() == 0:
@@ -1101,25 +1332,26 @@ def _plot_confusion(plt, results, methods, condition=""):
                 ax.text(
                     j,
                     i,
-                    f"{rate[i, j]:.0f}\n({counts[i, j]})",
+                    f"{rate[i, j]:.0f}",
                     ha="center",
                     va="center",
-                    fontsize=5.5,
-                    color="white" if rate[i, j] > 50 else "black",
+                    fontsize=6.5,
+                    color="white" if rate[i, j] > 55 else "black",
                 )
-        ax.set_xticks(range(N_MODES), MODES, fontsize=7)
-        ax.set_yticks(range(N_MODES), MODES, fontsize=7)
-        ax.set_xlabel("decided", fontsize=8)
-        ax.set_title(TITLES.get(m, m), fontsize=9)
-    axes[0][0].set_ylabel("reference", fontsize=8)
-    bar = fig.colorbar(image, ax=list(axes[0]), fraction=0.02, pad=0.02)
-    bar.set_label("% of the reference row", fontsize=8)
-    bar.ax.tick_params(labelsize=7)
+        rows = [f"{mode} {counts[i].sum()}" for i, mode in enumerate(MODES)]
+        ax.set_xticks(range(N_MODES), MODES)
+        ax.set_yticks(range(N_MODES), rows)
+        ax.tick_params(length=0, pad=1.5)
+        ax.set_xlabel("decided", labelpad=1)
+        ax.set_title(TITLES.get(m, m))
+    for row in axes:
+        row[0].set_ylabel("reference, frames", labelpad=1)
+    bar = fig.colorbar(image, ax=axes, fraction=0.04, pad=0.02, shrink=0.8)
+    bar.set_label("% of the reference row")
     n = len(results)
     where = condition or "all trials"
     fig.suptitle(
-        f"Confusion matrices, {where} (n = {n} trial{'s' if n != 1 else ''}), against the "
-        f"{_reference_of(results)} reference: row % (frame count)",
-        fontsize=10,
+        f"Confusion, {where} (n = {n} trial{'s' if n != 1 else ''}),\n"
+        f"against the {_reference_of(results)} reference: row %"
     )
     return fig

@@ -3,11 +3,13 @@ decision; the fusion holds; the frames are counted on screen, in `info`, in the 
 flagged the same way in replay."""
 
 import json
+import threading
 
 import numpy as np
 import pytest
 from test_tui_app import rendered
 from test_tui_live_session import StubClassifier, _short_idle_wait, wait_for
+from test_tui_replay import FakeClock
 
 from capture import export
 from capture import topics as T
@@ -24,6 +26,7 @@ from inference.preprocess import STALE_ORIENTATION, PreprocessParams, preprocess
 from tui.app import WalkcapApp
 from tui.cli import main
 from tui.live_screen import LiveScreen
+from tui.replay import ReplaySource
 from tui.widgets.decision import DecisionDisplay
 
 LEVEL = np.array([1.0, 0.0, 0.0, 0.0])
@@ -39,6 +42,12 @@ class CountingFusion:
     def push(self, probs):
         self.pushed += 1
         return self.inner.push(probs)
+
+
+def nearest(times: np.ndarray, t: int) -> int:
+    """Distance (ns) from `t` to the nearest of the sorted `times`."""
+    j = int(np.searchsorted(times, t))
+    return min(abs(int(times[k]) - t) for k in (j - 1, j) if 0 <= k < len(times))
 
 
 def level_frame(index: int, time_ns: int) -> DepthFrame:
@@ -123,7 +132,7 @@ async def test_the_tui_unplug_drill_flags_the_frames_everywhere(tmp_path, monkey
         await wait_for(pilot, unknown_shown, 10)
         await wait_for(pilot, lambda: session.snapshot().stale_frames >= 15, 10)
         panel = live.query_one("#devices")
-        await wait_for(pilot, lambda: "IMU orientation old" in rendered(panel), 5)
+        await wait_for(pilot, lambda: "frames (old IMU)" in rendered(panel), 5)
         await wait_for(pilot, lambda: session.alarms.counters["imu"].longest_s > 1.5, 10)
         await wait_for(pilot, lambda: session.snapshot().latest.decided, 10)  # IMU back
         await pilot.press("r")
@@ -134,10 +143,14 @@ async def test_the_tui_unplug_drill_flags_the_frames_everywhere(tmp_path, monkey
     assert "unknown: IMU orientation stale" in seen_unknown[0]
     (path,) = (tmp_path / "recordings").glob("S09_*.mcap")
     rec = open_recording(path)
-    flags = {m.data["frame_index"]: m.data["flag"] for m in rec.messages([T.PREPROCESS])}
-    stale = sorted(i for i, f in flags.items() if f == STALE_ORIENTATION)
-    assert 15 <= len(stale) <= on_screen  # ~2 s at 15 fps, all of the trial's on screen
-    assert stale == list(range(stale[0], stale[-1] + 1))  # one run: the unplugged span
+    pre = {m.data["frame_index"]: m.data for m in rec.messages([T.PREPROCESS])}
+    stale = sorted(i for i, d in pre.items() if d["flag"] == STALE_ORIENTATION)
+    # the frames the file itself has no orientation for: farther than the bound from every
+    # IMU sample recorded (the unplugged span)
+    imu = np.sort([m.data["time_ns"] for m in rec.messages([T.IMU]) if m.data.get("quaternion")])
+    in_gap = sorted(i for i, d in pre.items() if nearest(imu, d["time_ns"]) > 50_000_000)
+    assert len(in_gap) >= 15  # ~2 s at 15 fps
+    assert set(in_gap) <= set(stale) and len(stale) <= on_screen  # flagged, counted on screen
     decided = set(read_trial(path)["frame_index"].tolist())
     assert not decided & set(stale)  # no CNN output for a stale frame
     fused = [m.data for m in rec.messages([T.FUSED])]
@@ -152,6 +165,16 @@ async def test_the_tui_unplug_drill_flags_the_frames_everywhere(tmp_path, monkey
     frames = tables["frames"].set_index("frame_index")
     assert (frames.loc[stale, "preprocess_flag"] == STALE_ORIENTATION).all()
     assert (frames.loc[stale, "cnn_decision"] == "").all()
+    # the review screen (replay --tui) shows them as the live one did: undecided, counted
+    source = ReplaySource(path, clock=(clock := FakeClock()))
+    source.start()
+    times = {m.data["frame_index"]: m.data["time_ns"] for m in rec.messages([T.PREPROCESS])}
+    # a millisecond past the frame: the cursor is on it, not on the one before
+    middle = in_gap[len(in_gap) // 2]
+    clock.t += times[middle] - int(source.frames.time_ns[0]) + 1_000_000
+    snap = source.snapshot()
+    assert snap.latest.index == middle and snap.latest.flag == STALE_ORIENTATION
+    assert not snap.latest.decided and 0 < snap.stale_frames < len(stale)
     # replay flags the frames of the gap too (it interpolates across it: older than the bound)
     report = replay(str(path), Config(), classifier=StubClassifier(), output=tmp_path / "r.mcap")
     again = open_recording(report.output)
@@ -160,5 +183,28 @@ async def test_the_tui_unplug_drill_flags_the_frames_everywhere(tmp_path, monkey
         for m in again.messages([T.PREPROCESS])
         if m.data["flag"] == STALE_ORIENTATION
     }
-    assert len(replayed & set(stale)) >= len(stale) - 2  # the gap's edges may differ by a frame
+    assert set(in_gap) <= replayed  # every frame of the unplugged span, with no decision
     assert not set(read_trial(report.output)["frame_index"].tolist()) & replayed
+
+
+def test_a_late_imu_is_waited_for_and_a_silent_one_is_not():
+    clock = FakeClock()
+    track = OrientationTrack(clock=clock)
+    for k in range(10):  # 100 Hz up to 90 ms
+        track.add(k * 10_000_000, LEVEL)
+    frame_t, bound = 200_000_000, 50_000_000
+    # silent for longer than a late IMU would be: stale at once, without waiting
+    clock.t = int(10 * 1e9)
+    q, age = track.fresh_at(frame_t, bound, late_s=5.0)
+    assert age > bound
+    # samples still coming (a busy host delays them): the frame waits for them
+    clock.t = track_added = int(10 * 1e9)
+    track.add(100_000_000, LEVEL)
+    assert track._added_ns == track_added
+    late = threading.Thread(
+        target=lambda: [track.add(k * 10_000_000, LEVEL) for k in range(11, 21)]
+    )
+    late.start()
+    q, age = track.fresh_at(frame_t, bound, late_s=60.0)  # generous: never reached
+    late.join()
+    assert age <= bound and q is not None

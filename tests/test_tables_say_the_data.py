@@ -93,7 +93,7 @@ def test_info_shows_marker_notes_and_the_modes_as_they_stand(tmp_path, capsys):
     assert main(["info", str(path)]) == 0
     out = capsys.readouterr().out
     (line,) = [x for x in out.splitlines() if x.startswith("  labels")]
-    assert line.endswith(": LG US") and "DS" not in line and "1 undone" in line
+    assert line.endswith(": LG US") and "DS" not in line and "1 undo(s) applied" in line
     assert re.search(r"marker\s+\+0\.\d s\s+slip", out)
     assert main(["info", "--json", str(path)]) == 0
     data = json.loads(capsys.readouterr().out)[0]

@@ -69,7 +69,7 @@ def pipeline_rows(snap: Snapshot) -> list[tuple[str, str, str]]:
         rows.append(("latency", f"median {p50:.0f}, p99 {p99:.0f} ms", ""))
     stale = getattr(snap, "stale_frames", 0)
     if stale:  # frames left undecided: no IMU orientation fresh enough to level them
-        rows.append(("stale", f"{stale} frames, IMU orientation old", "#f0a020"))
+        rows.append(("stale", f"{stale} frames (old IMU)", "#f0a020"))
     return rows
 
 

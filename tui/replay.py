@@ -33,6 +33,7 @@ from devices.base import DeviceEvent, DeviceState, DeviceStatus
 from devices.clock import now_ns
 from devices.files import check_replaceable
 from devices.frames import MODES
+from inference.preprocess import STALE_ORIENTATION
 
 log = logging.getLogger(__name__)
 
@@ -97,6 +98,10 @@ class ReplaySource:
         rec = open_recording(self.path)
         self.metadata = rec.metadata
         self.frames = self._load(rec)
+        # stale frames up to each frame, for the devices panel's count
+        self._stale_upto = np.cumsum(
+            [self.frames.flags.get(int(i)) == STALE_ORIENTATION for i in self.frames.index]
+        )
         n = len(self.frames.index)
         if n == 0:
             raise CaptureError(f"{self.path}: no classified frames to replay")
@@ -108,7 +113,7 @@ class ReplaySource:
         self.playing = self._play_on_start
 
     def _load(self, rec) -> _Frames:
-        cnn, fused, voted, produced, truth = {}, {}, {}, {}, {}
+        cnn, fused, voted, produced, truth, undecided = {}, {}, {}, {}, {}, {}
         images, profiles, flags, features = {}, {}, {}, {}
         wanted = [
             T.CNN,
@@ -156,6 +161,8 @@ class ReplaySource:
                 profiles[m.sequence] = cloud[:, [0, 2]].astype(np.float16)  # forward, height
             elif m.topic == T.PREPROCESS:
                 flags[int(d["frame_index"])] = d.get("flag", "")
+                if d.get("flag") == STALE_ORIENTATION:  # a frame left without a decision
+                    undecided[int(d["frame_index"])] = (int(d["time_ns"]), m.log_time_ns, None)
             elif m.topic == T.FEATURES:
                 features[int(d["frame_index"])] = {
                     k: v
@@ -164,9 +171,11 @@ class ReplaySource:
                 }
         self.original_labels.sort(key=lambda c: c[0])
         self.events.sort(key=lambda e: e.time_ns)
+        cnn = {**undecided, **cnn}  # stale frames are shown too, as undecided
         index = np.array(sorted(cnn), dtype=np.int64)
         probs = np.array(
-            [[np.nan if p is None else p for p in cnn[i][2]] for i in index], dtype=np.float64
+            [[np.nan if p is None else p for p in cnn[i][2] or [None] * len(MODES)] for i in index],
+            dtype=np.float64,
         ).reshape(-1, len(MODES))
         shown = np.full(len(index), -1, dtype=int)
         last = -1
@@ -384,6 +393,7 @@ class ReplaySource:
             recording_started_ns=None,
             frames=k + 1,
             latency_ms={},
+            stale_frames=int(self._stale_upto[k]),
         )
 
 

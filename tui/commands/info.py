@@ -160,7 +160,7 @@ def describe(rec) -> list[str]:
         # the modes as they stand: an undone change (and the undo) is no mode of the trial
         sequence = " ".join(mode or "-" for _, mode, _ in effective_changes(labels))
         undos = sum(1 for _, _, source in labels if is_undo(source))
-        undone = f" ({undos} undone, left out)" if undos else ""
+        undone = f" ({undos} undo(s) applied: what they took back is left out)" if undos else ""
         lines.append(f"  labels      {len(labels)} changes{undone}: {_clip(sequence)}")
     if kinds:
         lines.append("  events      " + ", ".join(f"{k} {v}" for k, v in sorted(kinds.items())))

@@ -5,17 +5,9 @@ from __future__ import annotations
 from rich.text import Text
 
 from devices.base import DeviceState
-from devices.frames import MODES
+from devices.frames import MODE_COLORS, MODES
 
-# Distinct hues that stay apart on dark and light themes and for the common colour-vision
-# deficiencies (no red/green pair carries meaning alone: every strip also has the letters).
-MODE_COLORS = {
-    "LG": "#4caf50",  # green
-    "US": "#2f7ff0",  # blue
-    "DS": "#00b8c4",  # cyan
-    "UR": "#f0a020",  # amber
-    "DR": "#d048c8",  # magenta
-}
+# MODE_COLORS: devices.frames', the same on every panel and in every figure
 NO_MODE_COLOR = "#555555"
 
 STATE_COLORS = {
