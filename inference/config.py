@@ -131,7 +131,7 @@ DOCS: dict[type, dict[str, str]] = {
         "stay": "steady: per-frame stay probability (0.987: a terrain held ~5 s at 15 fps)",
         "evidence": "steady: each frame's CNN probabilities to this power (its errors come "
         "in runs of 1.34 frames)",
-        "hysteresis": "steady+hysteresis: the posterior a new mode needs before the decision "
-        "switches to it (0.8: 4 to 1 against the others)",
+        "hysteresis": "steady+hysteresis: the posterior level ground needs before the decision "
+        "leaves stairs or a ramp for it (0.8: 4 to 1 against the others)",
     },
 }

@@ -467,12 +467,14 @@ def test_the_pipeline_gives_a_gait_fusion_the_cameras_elevation():
 
 
 def hysteresis_reference(posteriors: np.ndarray, margin: float) -> np.ndarray:
-    """steady+hysteresis by its definition: the first frame's argmax, then a move to
-    another mode only where that mode's posterior reaches the margin."""
+    """steady+hysteresis by its definition: steady's decision (the posterior's argmax),
+    except that a move from stairs or a ramp to level ground (0) needs level ground's
+    posterior at the margin."""
     out, held = [], -1
     for g in posteriors:
         best = int(np.argmax(g))
-        if held < 0 or g[best] >= margin:
+        to_level = best == 0 and held > 0
+        if held < 0 or not to_level or g[best] >= margin:
             held = best
         out.append(held)
     return np.array(out)

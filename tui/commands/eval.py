@@ -59,7 +59,8 @@ def _common_arguments(p: argparse.ArgumentParser) -> None:
         metavar="LIST",
         help=f"comma-separated methods (default: {DEFAULT_METHODS}, and steady+gait for "
         "recordings; steady switches once per terrain change, with [fusion] stay and "
-        "evidence; steady+hysteresis switches only at [fusion] hysteresis posterior; "
+        "evidence; steady+hysteresis leaves stairs or a ramp for level ground only at "
+        "[fusion] hysteresis posterior; "
         "steady+gait adds the gait phase from the camera's pitch; also forward, "
         "fixed-lag: standard HMM filter and smoother)",
     )
