@@ -365,6 +365,7 @@ def _replay(
         transition=np.asarray(cfg.transition),
         stay=cfg.stay,
         evidence=cfg.evidence,
+        hysteresis=cfg.hysteresis,
     )
     pipeline = Pipeline(params, classifier, fusion)
 

@@ -389,6 +389,7 @@ class Session:
             transition=np.asarray(cfg.fusion.transition),
             stay=cfg.fusion.stay,
             evidence=cfg.fusion.evidence,
+            hysteresis=cfg.fusion.hysteresis,
         )
         self.pipeline = Pipeline(PreprocessParams.from_config(cfg), self._classifier, fusion)
         # First calls are slow (torch's lazy set-up, numpy caches, the recorder's schema

@@ -92,6 +92,7 @@ def synth_recording(
         transition=np.asarray(cfg.fusion.transition),
         stay=cfg.fusion.stay,
         evidence=cfg.fusion.evidence,
+        hysteresis=cfg.fusion.hysteresis,
     )
     pipeline = Pipeline(PreprocessParams.from_config(cfg), classifier, fusion)
     metadata = {

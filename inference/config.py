@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 
 from devices.config import Problems, number_in, one_of
 from inference.fusion import (  # the authors' matrix and the methods, defined once
+    HYSTERESIS,
     METHODS,
     N_MODES,
     PAPER_TRANSITION,
@@ -74,6 +75,7 @@ class FusionConfig:
     transition: list[list[float]] = field(default_factory=lambda: PAPER_TRANSITION.tolist())
     stay: float = STEADY_STAY  # "steady": per-frame stay probability
     evidence: float = STEADY_EVIDENCE  # "steady": exponent of each frame's probabilities
+    hysteresis: float = HYSTERESIS  # "steady+hysteresis": posterior a switch needs
 
     def problems(self) -> Problems:
         out = one_of("method", self.method, METHODS)
@@ -81,6 +83,8 @@ class FusionConfig:
             out.append(("stay", "0.2 < stay < 1 (a mode must be left more rarely than kept)"))
         if not number_in(self.evidence, 0.0, 1.0, low_open=True):
             out.append(("evidence", "0 < evidence <= 1"))
+        if not number_in(self.hysteresis, 0.0, 1.0) or self.hysteresis >= 1.0:
+            out.append(("hysteresis", "0 <= hysteresis < 1"))
         if not 1 <= self.window <= 1000:
             out.append(("window", "1 to 1000 frames"))
         if not 0 <= self.vote_delay <= 1000:
@@ -127,5 +131,7 @@ DOCS: dict[type, dict[str, str]] = {
         "stay": "steady: per-frame stay probability (0.987: a terrain held ~5 s at 15 fps)",
         "evidence": "steady: each frame's CNN probabilities to this power (its errors come "
         "in runs of 1.34 frames)",
+        "hysteresis": "steady+hysteresis: the posterior level ground needs before the decision "
+        "leaves stairs or a ramp for it (0.8: 4 to 1 against the others)",
     },
 }

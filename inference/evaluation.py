@@ -36,6 +36,7 @@ from devices.frames import MODE_COLORS, MODES
 from inference import transitions as tr
 from inference.errors import InferenceError
 from inference.fusion import (
+    HYSTERESIS,
     N_MODES,
     PAPER_TRANSITION,
     STEADY_EVIDENCE,
@@ -61,6 +62,7 @@ TITLES = {
     "fixed-lag": "fixed-lag smoother",
     "steady": "steady",
     "steady+gait": "steady + gait",
+    "steady+hysteresis": "steady + hysteresis",
 }
 SCORE_HEADER = (*MODES, "label")  # label: the terrain each image shows
 SCORE_HEADER_LOCOMOTION = (*SCORE_HEADER, "locomotion")  # + the mode keyed live
@@ -79,6 +81,7 @@ class FusionParameters:
     lag: int = 1  # fixed-lag smoother only
     stay: float = STEADY_STAY  # "steady" only
     evidence: float = STEADY_EVIDENCE  # "steady" only
+    hysteresis: float = HYSTERESIS  # "steady+hysteresis" only
 
     def make(self, method: str) -> Fusion:
         return make_fusion(
@@ -89,6 +92,7 @@ class FusionParameters:
             self.lag,
             self.stay,
             self.evidence,
+            self.hysteresis,
         )
 
     def delay_frames(self, method: str) -> int:
@@ -562,7 +566,12 @@ def report(
             "window": params.window,
             "vote_delay": params.vote_delay,
             **({"lag": params.lag} if "fixed-lag" in methods else {}),
-            **({"stay": params.stay, "evidence": params.evidence} if "steady" in methods else {}),
+            **(
+                {"stay": params.stay, "evidence": params.evidence}
+                if any(m.startswith("steady") for m in methods)
+                else {}
+            ),
+            **({"hysteresis": params.hysteresis} if "steady+hysteresis" in methods else {}),
         },
     }
     if len(results) >= 2:

@@ -63,3 +63,13 @@ def test_save_then_load_round_trips(tmp_path):
     path = cfg.save(c, tmp_path / "w.toml")
     back = cfg.load(path)
     assert cfg.to_dict(back) == cfg.to_dict(c)
+
+
+def test_fusion_hysteresis_is_read_and_checked(tmp_path):
+    p = tmp_path / "c.toml"
+    p.write_text("[fusion]\nmethod = 'steady+hysteresis'\nhysteresis = 0.9\n")
+    c = cfg.load(p)
+    assert c.fusion.method == "steady+hysteresis" and c.fusion.hysteresis == 0.9
+    p.write_text("[fusion]\nhysteresis = 1.0\n")
+    with pytest.raises(ConfigError, match="0 <= hysteresis < 1"):
+        cfg.load(p)

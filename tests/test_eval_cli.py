@@ -78,6 +78,7 @@ def test_scores_json_equals_live_decisions(capsys, score_files):
         "hmm": 1,
         "hmm+voting": 3,
         "steady": 1,
+        "steady+hysteresis": 1,
     }
     assert data["parameters"]["window"] == 4
     for path, entry in zip(score_files, data["files"]):
@@ -94,10 +95,11 @@ def test_scores_json_equals_live_decisions(capsys, score_files):
 
 def test_scores_use_the_configured_fusion(capsys, score_files, tmp_path):
     config = tmp_path / "walkcap.toml"
-    config.write_text("[fusion]\nwindow = 3\nvote_delay = 4\n")
+    config.write_text("[fusion]\nwindow = 3\nvote_delay = 4\nhysteresis = 0.9\n")
     code, out, _ = run(capsys, "--config", str(config), "eval", "scores", score_files[0], "--json")
     data = json.loads(out)
     assert data["parameters"]["window"] == 3 and data["delay_frames"]["cnn+voting"] == 4
+    assert data["parameters"]["hysteresis"] == 0.9
     config.write_text("[fusion]\ntransition = [[1.0, 0.0, 0.0, 0.0, 0.0]]\n")
     code, _, err = run(capsys, "--config", str(config), "eval", "scores", score_files[0])
     assert code == 1 and "fusion.transition" in err and len(err.strip().splitlines()) == 1

@@ -12,6 +12,7 @@ from inference.fusion import (
     FixedLagSmoother,
     ForwardFilter,
     HmmFusion,
+    HysteresisFusion,
     SteadyFusion,
     Voter,
     design_transition,
@@ -318,6 +319,7 @@ def test_make_fusion_knows_every_method_and_its_delay():
         "fixed-lag": 2,
         "steady": 1,
         "steady+gait": 1,
+        "steady+hysteresis": 1,
     }
     with pytest.raises(InferenceError, match="unknown fusion method"):
         make_fusion("kalman")
@@ -380,6 +382,7 @@ def test_bench_times_the_steady_update():
     from capture.bench.components import bench_method_update
 
     assert bench_method_update("steady", updates=200) > 0
+    assert bench_method_update("steady+hysteresis", updates=200) > 0
 
 
 def gait_reference(e, elevation, stay=0.987, evidence=0.75):
@@ -461,3 +464,59 @@ def test_the_pipeline_gives_a_gait_fusion_the_cameras_elevation():
         pipeline.process(synthetic_frame(k, 1_000_000 * k), q)
     assert len(seen) == 3 and all(np.isfinite(seen))
     assert seen[1] != pytest.approx(seen[0]) and max(seen) < 0  # looking down, swinging
+
+
+def hysteresis_reference(posteriors: np.ndarray, margin: float) -> np.ndarray:
+    """steady+hysteresis by its definition: steady's decision (the posterior's argmax),
+    except that a move from stairs or a ramp to level ground (0) needs level ground's
+    posterior at the margin."""
+    out, held = [], -1
+    for g in posteriors:
+        best = int(np.argmax(g))
+        to_level = best == 0 and held > 0
+        if held < 0 or not to_level or g[best] >= margin:
+            held = best
+        out.append(held)
+    return np.array(out)
+
+
+@pytest.mark.parametrize("margin", [0.0, 0.6, 0.8, 0.95])
+def test_steady_hysteresis_is_steadys_posterior_with_a_switch_margin(margin):
+    e = random_probabilities(np.random.default_rng(11), 200, concentration=0.3)
+    fusion = HysteresisFusion(hysteresis=margin)
+    decisions, _, posteriors = stream(fusion, e)
+    _, _, steady_posteriors = stream(SteadyFusion(), e)
+    np.testing.assert_allclose(posteriors, steady_posteriors, rtol=1e-12)
+    np.testing.assert_array_equal(decisions, hysteresis_reference(steady_posteriors, margin))
+    assert fusion.delay_frames == 1 and fusion.method == "steady+hysteresis"
+    if margin == 0.0:  # no margin: steady itself
+        np.testing.assert_array_equal(decisions, stream(SteadyFusion(), e)[0])
+    fusion.reset()  # a new sequence starts without the held decision
+    again = stream(fusion, e[::-1])[0]
+    np.testing.assert_array_equal(
+        again, hysteresis_reference(stream(SteadyFusion(), e[::-1])[2], margin)
+    )
+
+
+def test_steady_hysteresis_holds_a_misread_run_steady_follows():
+    """Up stairs at 0.8 with four level-ground frames at 0.6 (the CNN reading level ground
+    on the stairs), then level ground at 0.95: steady switches to level ground and back,
+    steady+hysteresis holds; both follow the real change on the same frame."""
+
+    def scores(mode: int, p: float) -> list[float]:
+        return [p if j == mode else (1 - p) / 4 for j in range(5)]
+
+    frames = np.array([scores(1, 0.8)] * 30 + [scores(0, 0.6)] * 4 + [scores(1, 0.8)] * 30
+                      + [scores(0, 0.95)] * 30)  # fmt: skip
+    steady = run_offline(SteadyFusion(), frames).final
+    held = run_offline(make_fusion("steady+hysteresis"), frames).final
+    assert 0 in set(steady[30:35]) and np.count_nonzero(np.diff(steady)) == 3
+    assert set(held[:64]) == {1} and np.count_nonzero(np.diff(held)) == 1
+    assert np.argmax(held[40:] == 0) == np.argmax(steady[40:] == 0) == 64 - 40
+
+
+def test_steady_hysteresis_margin_is_checked_and_configured():
+    with pytest.raises(InferenceError, match="margin"):
+        HysteresisFusion(hysteresis=1.0)
+    assert make_fusion("steady+hysteresis", hysteresis=0.9).hysteresis == 0.9
+    assert HysteresisFusion().hysteresis == 0.8  # 4 to 1 against the other modes

@@ -390,6 +390,8 @@ def run_all(seconds: float = 15.0, progress=print) -> list[Result]:
     results.append(Result("fusion_update", fusion["fusion_update_us"], "us", 5.0, "lower"))
     steady_us = bench_method_update("steady", 20000)
     results.append(Result("fusion_update_steady", steady_us, "us", 5.0, "lower"))
+    hysteresis_us = bench_method_update("steady+hysteresis", 20000)
+    results.append(Result("fusion_update_steady_hysteresis", hysteresis_us, "us", 5.0, "lower"))
     gait_us = bench_method_update("steady+gait", 20000)
     results.append(Result("fusion_update_steady_gait", gait_us, "us", 20.0, "lower"))
     results.append(

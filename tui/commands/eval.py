@@ -21,7 +21,7 @@ from tui.commands import add_cluster_argument, count, eval_model
 
 HELP = "evaluate classifiers and fusion on score files or recordings"
 
-DEFAULT_METHODS = "cnn,cnn+voting,hmm,hmm+voting,steady"
+DEFAULT_METHODS = "cnn,cnn+voting,hmm,hmm+voting,steady,steady+hysteresis"
 RECORDING_METHODS = DEFAULT_METHODS + ",steady+gait"  # recordings carry the gait cue
 SWEEP_DEFAULT = 6  # frames; the paper's trade-off figure reaches 6
 SWEEP_MAX = 100  # frames: several seconds of delay, beyond any use for a prosthesis
@@ -59,7 +59,9 @@ def _common_arguments(p: argparse.ArgumentParser) -> None:
         metavar="LIST",
         help=f"comma-separated methods (default: {DEFAULT_METHODS}, and steady+gait for "
         "recordings; steady switches once per terrain change, with [fusion] stay and "
-        "evidence; steady+gait adds the gait phase from the camera's pitch; also forward, "
+        "evidence; steady+hysteresis leaves stairs or a ramp for level ground only at "
+        "[fusion] hysteresis posterior; "
+        "steady+gait adds the gait phase from the camera's pitch; also forward, "
         "fixed-lag: standard HMM filter and smoother)",
     )
     p.add_argument(
@@ -173,7 +175,7 @@ def run(args, config) -> int:
         if args.transition == "paper"
         else validate_transition(config.fusion.transition, "fusion.transition")
     )
-    steady = config.fusion.stay, config.fusion.evidence
+    steady = config.fusion.stay, config.fusion.evidence, config.fusion.hysteresis
     params = ev.FusionParameters(window, vote_delay, transition, args.lag, *steady)
 
     if args.eval_command == "scores":
