@@ -876,6 +876,14 @@ METHOD_STYLES |= {
         "marker": "X",
         "linestyle": (0, (1, 1)),
     },
+    "steady+hysteresis": {
+        "color": "#b4b4b4",
+        "hatch": "++++",
+        "hatchcolor": "#000000",
+        "line": "#101010",
+        "marker": "h",
+        "linestyle": (0, (8, 2, 2, 2)),
+    },
     "fixed-lag": {
         "color": "#d8d8d8",
         "hatch": "----",
