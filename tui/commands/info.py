@@ -113,7 +113,12 @@ def describe(rec) -> list[str]:
         hz = f"{(len(t) - 1) / span:6.1f} Hz" if span > 0 and regular else "      - "
         lines.append(f"    {topic:<22} {info.count:7d} {hz}  {info.schema_name}")
     gaps, late = [], []
-    for topic, loss in recording_loss(rec).items():
+    try:
+        losses = recording_loss(rec)
+    except CaptureError:  # damaged: counted on the recovered copy
+        losses = {}
+        gaps.append("not counted (the file is damaged; count them on its recovered copy)")
+    for topic, loss in losses.items():
         if loss.gaps:
             g = max(loss.gaps, key=lambda g: g.length_s)
             at = (g.start_ns - rec.start_ns) * 1e-9 if rec.start_ns is not None else 0.0
@@ -214,7 +219,12 @@ def summary(rec) -> dict:
         return (t - rec.start_ns) * 1e-9 if rec.start_ns is not None else None
 
     gaps, late = {}, {}
-    for topic, loss in recording_loss(rec).items():
+    try:
+        losses = recording_loss(rec)
+    except CaptureError:  # damaged: counted on the recovered copy ("damaged" says where)
+        losses = {}
+        gaps = late = None
+    for topic, loss in losses.items():
         gaps[topic] = [
             {"start_s": at(g.start_ns), "length_s": g.length_s, "missing": g.missing}
             for g in loss.gaps
