@@ -299,7 +299,7 @@ def _ending(data, at: int) -> str:
                 return "complete"
     while at + RECORD_HEAD.size <= size:
         opcode, length = RECORD_HEAD.unpack_from(data, at)
-        if opcode == 0 and not any(data[at : at + 4096]) and not data[at:].strip(b"\0"):
+        if opcode == 0 and _zeros_to_end(data, at):
             return "cut"
         if opcode not in _SUMMARY_OPCODES or opcode == Opcode.FOOTER:
             return ""
@@ -316,7 +316,15 @@ def _plausible_next(data, at: int) -> bool:
     opcode, length = RECORD_HEAD.unpack_from(data, at)
     if opcode in _DATA_OPCODES and length <= _RECORD_LIMIT:
         return True
-    return opcode == 0 and not data[at : at + 65536].strip(b"\0") and not data[at:].strip(b"\0")
+    return opcode == 0 and _zeros_to_end(data, at)
+
+
+_NONZERO = re.compile(rb"[^\x00]")
+
+
+def _zeros_to_end(data, at: int) -> bool:
+    """Only zeros from `at` on: what a file system leaves after a power loss."""
+    return _NONZERO.search(data, at) is None
 
 
 def _attachment_end(data, body_at: int) -> int:
@@ -344,6 +352,8 @@ def _check_attachment(data, body_at: int, end: int, need_crc: bool) -> list:
 
 def _metadata_end(data, body_at: int) -> int:
     (n,) = struct.unpack_from("<I", data, body_at)
+    if not n:
+        raise ValueError("no name")  # walkcap names every metadata record
     at = body_at + 4 + n
     (m,) = struct.unpack_from("<I", data, at)
     end = at + 4 + m
@@ -402,6 +412,8 @@ def _prove(data, at: int, positions: dict | None, resync: bool = False) -> _Prov
             Opcode.METADATA: Metadata,
         }[opcode]
         record = _exact(cls, data[body_at:end])
+        if isinstance(record, Metadata) and not record.name:
+            raise ValueError("no name")  # walkcap names every metadata record: zeros
         if not _plausible_next(data, end):
             raise ValueError("no record follows it")
         return _Proven(opcode, [record], end)

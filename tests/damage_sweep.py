@@ -93,6 +93,14 @@ def plan(
                     cases["length"].append(
                         Case("length", start + bit // 8, bit % 8, None, f"chunk field at {start}")
                     )
+    for at, _, length in table:  # a crash at every record boundary, +-1, zero-filled tails
+        if at > data_end:
+            break
+        for cutoff in (at - 1, at, at + 1):
+            cases["cut"].append(Case("cut", cutoff, -1, cutoff, "cut"))
+        middle = at + (RECORD_HEAD.size + length) // 2
+        for cutoff in (at, middle):
+            cases["cut"].append(Case("cut", cutoff, -2, cutoff, "cut, zero-filled tail"))
     summary_start = data_end + RECORD_HEAD.size + 4
     for at in range(summary_start, len(data)):
         for bit in range(8) if every_bit else (at % 8,):
@@ -105,7 +113,7 @@ def plan(
                 for bit in range(8):
                     cases["journal"].append(Case("journal", at, bit, cutoff, "journal"))
     out = []
-    for kind in ("opcode", "length", "summary", "journal"):
+    for kind in ("opcode", "length", "summary", "journal", "cut"):
         if kind not in classes:
             continue
         items = cases[kind]
@@ -148,6 +156,15 @@ class Baseline:
     cut_messages: dict  # cut offset -> Counter of what a cut copy holds intact
     labels: set  # every label the file and its journal hold
     journal_labels: set
+    chunks: list = field(default_factory=list)  # (end offset, Counter) of every chunk
+
+    def before(self, cut: int) -> collections.Counter:
+        """The messages of the chunks that end before a cut: what must survive it."""
+        out: collections.Counter = collections.Counter()
+        for end, messages in self.chunks:
+            if end <= cut:
+                out += messages
+        return out
 
 
 def baseline(path: Path, cuts: set) -> Baseline:
@@ -175,7 +192,27 @@ def baseline(path: Path, cuts: set) -> Baseline:
     }
     labels = label_keys(path) | journal
     shutil.rmtree(work, ignore_errors=True)
-    return Baseline(path, messages, cut_messages, labels, journal)
+    return Baseline(path, messages, cut_messages, labels, journal, chunk_messages(path))
+
+
+def chunk_messages(path: Path) -> list:
+    from mcap.reader import make_reader
+
+    from capture.reader import _chunk_messages
+
+    out = []
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+        every = set(summary.channels)
+        for c in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
+            got = collections.Counter(
+                _message_key(summary.channels[cid].topic, log, seq, data)
+                for cid, seq, log, _, data in _chunk_messages(
+                    f, c.chunk_start_offset, c.chunk_length, every
+                )
+            )
+            out.append((c.chunk_start_offset + c.chunk_length, got))
+    return out
 
 
 def damaged_copy(base: Baseline, case: Case, work: Path) -> Path:
@@ -185,10 +222,12 @@ def damaged_copy(base: Baseline, case: Case, work: Path) -> Path:
     journal = bytearray(journal_path(base.path).read_bytes())
     if case.kind == "journal":
         journal[case.offset] ^= 1 << case.bit
-    else:
+    elif case.kind != "cut":
         data[case.offset] ^= 1 << case.bit
     if case.cut is not None:
         data = data[: case.cut]
+    if case.bit == -2:  # the file system's zeros after a power loss
+        data += bytes(64 * 1024)
     path = work / "damaged.mcap"
     path.write_bytes(bytes(data))
     journal_path(path).write_bytes(bytes(journal))
@@ -202,7 +241,10 @@ def run_case(base: Baseline, case: Case, work: Path) -> Outcome:
 
     out = Outcome()
     path = damaged_copy(base, case, work)
-    expected = base.messages if case.cut is None else base.cut_messages[case.cut]
+    if case.kind == "cut":
+        expected = base.before(case.cut)
+    else:
+        expected = base.messages if case.cut is None else base.cut_messages[case.cut]
     # recover
     try:
         report = recover(path, work / "out.mcap", overwrite=True)
@@ -219,15 +261,15 @@ def run_case(base: Baseline, case: Case, work: Path) -> Outcome:
         )
         phantom = got - expected - labels_from_journal
         missing = expected - got
-        lost_reported = bool([d for d in report.damaged if d.lost]) or (
-            case.cut is None and not report.finished
+        lost_reported = bool([d for d in report.damaged if getattr(d, "lost", True)]) or (
+            case.cut is None and not getattr(report, "finished", report.complete)
         )
         if phantom:
             out.phantom += sum(phantom.values())
             out.notes.append(f"recover: {sum(phantom.values())} phantom")
         if missing:
             n = sum(missing.values())
-            if lost_reported and not report.complete:
+            if lost_reported and not report.complete and case.kind != "cut":
                 out.lost_reported += n
             else:
                 out.silent_loss += n
@@ -243,7 +285,8 @@ def run_case(base: Baseline, case: Case, work: Path) -> Outcome:
             out.phantom += len(extra)
             out.notes.append(f"recover: {len(extra)} phantom labels")
         wanted = base.journal_labels - labels
-        if wanted and not getattr(report, "journal_skipped", None) and case.kind == "journal":
+        skipped = getattr(report, "journal_skipped", None)
+        if wanted and (case.kind == "cut" or (case.kind == "journal" and not skipped)):
             out.silent_loss += len(wanted)
             out.notes.append(f"recover: {len(wanted)} journal labels lost silently")
     if case.kind == "journal":
@@ -293,7 +336,7 @@ def sweep(
 
     logging.disable(logging.WARNING)
     cases = plan(path, classes, sample, every_bit)
-    base = baseline(path, {c.cut for c in cases})
+    base = baseline(path, {c.cut for c in cases if c.kind != "cut"})
     batches = [(base, cases[k::jobs]) for k in range(jobs)]
     if jobs > 1:
         import multiprocessing
@@ -324,7 +367,7 @@ def main(argv=None) -> int:
     parser.add_argument(
         "--make", action="store_true", help="write a small synthetic recording to FILE first"
     )
-    parser.add_argument("--classes", default="opcode,length,summary,journal")
+    parser.add_argument("--classes", default="opcode,length,summary,journal,cut")
     parser.add_argument("--sample", type=int, help="about N cases per class (default: all)")
     parser.add_argument("--jobs", type=int, default=1)
     parser.add_argument("--every-bit", action="store_true", help="all 8 bits of each summary byte")

@@ -45,7 +45,7 @@ def record_offsets(path, opcode: int) -> list[int]:
     return [at for at, op, _ in records(path.read_bytes()) if op == opcode]
 
 
-@pytest.mark.parametrize("kind", ["opcode", "length", "summary", "journal"])
+@pytest.mark.parametrize("kind", ["opcode", "length", "summary", "journal", "cut"])
 def test_a_sample_of_each_class_loses_nothing_silently(recording, kind):
     totals, failing = sweep(recording, {kind}, sample=12)
     cases, silent, phantom, internal, _ = totals[kind]
