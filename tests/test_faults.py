@@ -15,6 +15,7 @@ import pytest
 from test_session import StandInClassifier
 
 from capture.config import Config
+from capture.journal import check_journal
 from capture.reader import open_recording, read_trial
 from capture.session import Session, SubjectInfo
 
@@ -218,7 +219,6 @@ def test_kill_9_while_recording_then_recover_loses_at_most_a_second_and_no_label
     What a kill can lose is the open chunk; every chunk closes once it holds a second of
     data, so the loss is bounded by the data's own time, whatever the machine's load.
     """
-    import json
     import signal
 
     proc = subprocess.Popen(
@@ -255,7 +255,7 @@ def test_kill_9_while_recording_then_recover_loses_at_most_a_second_and_no_label
     finally:
         proc.send_signal(signal.SIGKILL)
         proc.wait(10)
-    journal = [json.loads(x) for x in open(str(path) + ".journal.jsonl") if x.strip()]
+    journal = check_journal(str(path) + ".journal.jsonl").entries  # each line its CRC
     labels_journaled = [(e["time_ns"], e["mode"]) for e in journal if e.get("type") == "label"]
     assert labels_journaled
 
