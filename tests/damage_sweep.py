@@ -10,10 +10,12 @@ off by a crash, and counts against the undamaged file:
 All three must be 0. The suite runs a sample of each class (tests/test_damage_sweep.py);
 the full sweep is
 
-    python -m tests.damage_sweep FILE [--jobs 2] [--classes opcode,length,summary,journal]
+    python -m tests.damage_sweep FILE [--jobs 2] [--classes opcode,length,summary,journal,cut]
 
-(FILE: a finished recording with its journal beside it; `--make FILE` writes a small
-synthetic one first). It prints one line per class and a total, and exits 1 when any
+(FILE: a finished recording with its journal beside it; with `--make` a small
+synthetic one is written there first). Class "cut" cuts the file at every record
+boundary instead (+-1, and with a zero-filled tail): every chunk before the cut must
+survive. It prints one line per class and a total, and exits 1 when any
 count is not 0.
 """
 
