@@ -252,3 +252,17 @@ def test_decision_panel_adds_switches_and_the_walkers_mode():
     panel.present_switching(3, "US")
     out = text(panel)
     assert "switches/min 3" in out and "walker US" in out
+
+
+def test_the_image_caption_fits_a_narrow_panel_with_a_long_flag():
+    """At 80x24 the image panel is 18 cells wide: a stale_orientation flag (17 characters)
+    leaves no room for any caption, and the panel still draws: during the unplug drill
+    a drawing fault would end the live screen mid-trial."""
+    from tui.widgets.binary_image import BinaryImage
+
+    widget = BinaryImage()
+    widget.present(np.zeros((100, 100), dtype=bool), "stale_orientation")
+    for width in (18, 12, 8):
+        lines = widget.build_lines(width, 10)
+        text = "".join(t for t, _ in lines[-1])
+        assert len(text) <= width and "stale" in text

@@ -584,12 +584,20 @@ class WalkcapApp(App):
 
     def trials_summary(self) -> list[str]:
         """What this session saved, for the terminal after quit."""
-        if not self.trials:
+        # a trial still open when the app ended (quit or a fault) is closed by the session
+        open_trial = (
+            [f"  trial {self.subject.trial}: {self.recording_path} (open when walkcap ended)"]
+            if self.recording_path is not None
+            else []
+        )
+        if not self.trials and not open_trial:
             return ["walkcap: no trial recorded in this session"]
-        n = len(self.trials)
-        return [f"walkcap: {n} trial{'s' if n != 1 else ''} saved in this session"] + [
-            "  " + t.line() for t in self.trials
-        ]
+        n = len(self.trials) + len(open_trial)
+        return (
+            [f"walkcap: {n} trial{'s' if n != 1 else ''} saved in this session"]
+            + ["  " + t.line() for t in self.trials]
+            + open_trial
+        )
 
     def on_recording_failed(self, message: messages.RecordingFailed) -> None:
         self._busy_recording = False

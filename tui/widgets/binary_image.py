@@ -55,6 +55,7 @@ class BinaryImage(CachedLines):
         pooled = f", shown 1:{factor}" if factor > 1 else ""
         # the longest wording that fits: abbreviated deliberately, never cut
         captions = (f"leveled image {w} x {h} cells{pooled}", f"{w} x {h} cells{pooled}", "")
-        caption = next(c for c in captions if len(c) + len(self._flag) + 2 <= width)
-        out.append([(caption, _DIM), (f"  {self._flag}" if self._flag else "", _FLAG)])
+        flag = self._flag if len(self._flag) + 2 <= width else self._flag.split("_")[0]
+        caption = next((c for c in captions if len(c) + len(flag) + 2 <= width), "")
+        out.append([(caption, _DIM), (f"  {flag}"[:width] if flag else "", _FLAG)])
         return out

@@ -6,11 +6,15 @@ plain segments costs a fraction of rendering the same text through Rich every ti
 
 from __future__ import annotations
 
+import logging
+
 from rich.segment import Segment
 from rich.style import Style
 from textual.geometry import Size
 from textual.strip import Strip
 from textual.widget import Widget
+
+log = logging.getLogger(__name__)
 
 Line = list[tuple[str, Style | None]]  # (text, style) runs; None: the widget's own style
 
@@ -34,7 +38,12 @@ class CachedLines(Widget):
         if self._strips is None or self._built_for != size:
             base = self.rich_style
             strips = []
-            for line in self.build_lines(size.width, size.height)[: size.height]:
+            try:
+                lines = self.build_lines(size.width, size.height)
+            except Exception:  # a drawing fault must never end a session that records
+                log.exception("%s could not be drawn", type(self).__name__)
+                lines = [[("(display error: see tui.log)", None)]]
+            for line in lines[: size.height]:
                 segments = [
                     Segment(text, base + style if style else base) for text, style in line if text
                 ]
