@@ -336,17 +336,21 @@ def sweep(
     failing cases."""
     import logging
 
-    logging.disable(logging.WARNING)
-    cases = plan(path, classes, sample, every_bit)
-    base = baseline(path, {c.cut for c in cases if c.kind != "cut"})
-    batches = [(base, cases[k::jobs]) for k in range(jobs)]
-    if jobs > 1:
-        import multiprocessing
+    before = logging.root.manager.disable
+    logging.disable(logging.WARNING)  # every damaged case logs; the counts say it all
+    try:
+        cases = plan(path, classes, sample, every_bit)
+        base = baseline(path, {c.cut for c in cases if c.kind != "cut"})
+        batches = [(base, cases[k::jobs]) for k in range(jobs)]
+        if jobs > 1:
+            import multiprocessing
 
-        with multiprocessing.get_context("fork").Pool(jobs) as pool:
-            results = [r for batch in pool.map(_worker, batches) for r in batch]
-    else:
-        results = _worker(batches[0])
+            with multiprocessing.get_context("fork").Pool(jobs) as pool:
+                results = [r for batch in pool.map(_worker, batches) for r in batch]
+        else:
+            results = _worker(batches[0])
+    finally:
+        logging.disable(before)  # the process's logging as it was (a test run goes on)
     totals: dict[str, list[int]] = {}
     failing = []
     for case, outcome in results:

@@ -278,7 +278,9 @@ async def test_the_log_holds_what_happened_with_times(tmp_path):
         "IMU back after a gap of 2.01 s",
         "saved S01_indoor_t01.mcap",
     ):
-        (line,) = [line for line in lines if said in line]
+        found = [line for line in lines if said in line]
+        assert len(found) == 1, (said, lines, _logging_state())
+        (line,) = found
         assert re.match(r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d", line), line  # with its time
 
 
@@ -392,3 +394,14 @@ def test_check_stream_and_panel_say_the_drift_with_its_uncertainty():
     details["drift_uncertainty_ppm"] = None  # the first 2 s: held at zero, and said so
     assert "drift not fitted yet" in _stream_line(None, status)
     assert "clock drift not fitted yet" in preflight.device_item("imu", status).summary
+
+
+def _logging_state() -> dict:
+    import logging
+
+    names = ("tui", "tui.app", "tui.live_screen", "capture", "capture.session")
+    return {
+        "disable": logging.root.manager.disable,
+        "root": logging.getLogger().level,
+        **{n: (logging.getLogger(n).level, logging.getLogger(n).disabled) for n in names},
+    }
