@@ -488,6 +488,8 @@ class RoyaleCamera(Camera):
                         )
                 else:
                     reason = self._lost_reason or self._disconnected(silent)
+                    if reason and self._lost_reason:  # the SDK's own words, if they came meanwhile
+                        reason = self._lost_reason
                     if reason:
                         self._lose(reason)
             self._watching.wait(WATCH_INTERVAL_S)

