@@ -227,35 +227,29 @@ class Pipeline:
             prepared = self.prepare(frame, quaternion, orientation_age_ns)
         pre = prepared
         if pre.flag == STALE_ORIENTATION:
-            return FrameResult(
-                index=frame.index,
-                time_ns=frame.device_time_ns if time_ns is None else time_ns,
-                host_time_ns=frame.host_time_ns,
-                quaternion=None if not np.all(np.isfinite(quaternion)) else quaternion,
-                image=pre.image,
-                cloud=pre.cloud,
-                profile=pre.profile,
-                flag=pre.flag,
-                probabilities=np.full(len(MODES), np.nan),
-                cnn_decision=-1,
-                fused=None,
-                done_ns=now_ns(),
+            # no image to trust: no CNN output, and the fusion is not fed (it holds)
+            probs, cnn, fused, feats, done_ns = (
+                np.full(len(MODES), np.nan),
+                -1,
+                None,
+                None,
+                now_ns(),
             )
-        probs = np.asarray(
-            probabilities if probabilities is not None else self.classifier.predict(pre.image),
-            dtype=np.float64,
-        )
-        if probs.shape != (len(MODES),) or not np.all(np.isfinite(probs)):
-            # before the fusion: one NaN would stay in the HMM's state for good
-            raise InferenceError(f"the classifier's output is not finite: {probs.tolist()}")
-        fused = self._push(frame.index, probs, pre.elevation_deg)
-        done_ns = now_ns()  # the decision is out; features are for display and recording
-        hint = (
-            MODES[fused.decision]
-            if fused is not None and fused.decision is not None
-            else MODES[int(np.argmax(probs))]
-        )
-        feats = terrain_features(pre.profile, hint) if pre.ok else None
+        else:
+            probs = np.asarray(
+                probabilities if probabilities is not None else self.classifier.predict(pre.image),
+                dtype=np.float64,
+            )
+            if probs.shape != (len(MODES),) or not np.all(np.isfinite(probs)):
+                # before the fusion: one NaN would stay in the HMM's state for good
+                raise InferenceError(f"the classifier's output is not finite: {probs.tolist()}")
+            cnn = int(np.argmax(probs))
+            fused = self._push(frame.index, probs, pre.elevation_deg)
+            done_ns = now_ns()  # the decision is out; features are for display and recording
+            hint = MODES[
+                fused.decision if fused is not None and fused.decision is not None else cnn
+            ]
+            feats = terrain_features(pre.profile, hint) if pre.ok else None
         return FrameResult(
             index=frame.index,
             time_ns=frame.device_time_ns if time_ns is None else time_ns,
@@ -266,7 +260,7 @@ class Pipeline:
             profile=pre.profile,
             flag=pre.flag,
             probabilities=probs,
-            cnn_decision=int(np.argmax(probs)),
+            cnn_decision=cnn,
             fused=fused,
             features=_features_dict(feats),
             done_ns=done_ns,

@@ -819,31 +819,25 @@ class Recorder:
         shed = collections.Counter(self._queue.shed)
         new_shed, self._reported_shed = shed - self._reported_shed, shed
         if new_shed:
-            n = sum(new_shed.values())
-            what = ", ".join(f"{k} {v}" for k, v in sorted(new_shed.items()))
-            t = now_ns()
-            event = {
-                "time_ns": t,
-                "device": "recorder",
-                "kind": "shed",
-                "message": f"recorder behind: {n} derived items shed ({what}); raw data kept",
-                "details": dict(new_shed),
-            }
-            self._add(T.EVENTS, t, t, T.encode_json(event))
+            self._recorder_event(
+                "shed", "recorder behind: {n} derived items shed ({what}); raw data kept", new_shed
+            )
         with self._lock:
             new = self._dropped - self._reported_drops
             self._reported_drops = collections.Counter(self._dropped)
-        if not new:
-            return
-        n = sum(new.values())
-        what = ", ".join(f"{k} {v}" for k, v in sorted(new.items()))
+        if new:
+            self._recorder_event("drop", "recorder fell behind: {n} items dropped ({what})", new)
+
+    def _recorder_event(self, kind: str, message: str, counts: collections.Counter) -> None:
+        """One /events entry for items the recorder lost or shed, counted by topic."""
+        what = ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
         t = now_ns()
         event = {
             "time_ns": t,
             "device": "recorder",
-            "kind": "drop",
-            "message": f"recorder fell behind: {n} items dropped ({what})",
-            "details": dict(new),
+            "kind": kind,
+            "message": message.format(n=sum(counts.values()), what=what),
+            "details": dict(counts),
         }
         self._add(T.EVENTS, t, t, T.encode_json(event))
 

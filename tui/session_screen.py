@@ -25,6 +25,7 @@ from textual.widgets import Button, Checkbox, Footer, Input, Label, Select, Stat
 from capture.errors import CaptureError
 from capture.session import SubjectInfo
 from devices.files import check_replaceable
+from tui.commands import SUBJECT_FIELDS
 
 log = logging.getLogger(__name__)
 
@@ -43,19 +44,6 @@ FIELDS = {
     "residual_limb_cm": ("Residual limb (cm)", "float"),
     "notes": ("Notes", "text"),
 }
-
-
-# What describes the person, not the session: remembered per subject id.
-SUBJECT_FIELDS = (
-    "height_m",
-    "weight_kg",
-    "age",
-    "sex",
-    "amputee",
-    "side",
-    "residual_limb_cm",
-    "notes",
-)
 
 
 def last_session_path() -> Path:

@@ -119,10 +119,8 @@ def add_session_arguments(parser) -> None:
     g.add_argument("--notes", help="free text kept with the recording")
 
 
-SESSION_FLAGS = (
-    "subject",
-    "condition",
-    "trial",
+# What describes the person, not the session: remembered per subject id.
+SUBJECT_FIELDS = (
     "height_m",
     "weight_kg",
     "age",
@@ -132,6 +130,7 @@ SESSION_FLAGS = (
     "residual_limb_cm",
     "notes",
 )
+SESSION_FLAGS = ("subject", "condition", "trial", *SUBJECT_FIELDS)
 
 
 def apply_device_flags(args, config) -> None:
