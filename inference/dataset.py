@@ -4,12 +4,13 @@ A `LabeledSession` is one walk: its preprocessed 100 x 100 images, a mode index 
 (-1: unlabelled) and where it came from. Training, validation and evaluation only ever
 see LabeledSessions, whatever wrote them:
 - synthesized sessions (`walkcap synth --format dataset`): one compressed .npz per walk,
-  written by `capture.dataset.render_synth_session` + `write_session`, read by `read_session`;
-- recordings with operator labels (.mcap): `capture.reader.labeled_session` (the
+  written by `capture.corpus.dataset.render_synth_session` + `write_session`, read by
+  `read_session`;
+- recordings with operator labels (.mcap): `capture.recording.reader.labeled_session` (the
   recorded /camera/binary_image, labelled with the operator's mode in force at each
   frame; frames before the first label are unlabelled).
 
-Synthesizing sessions and finding them in files is capture's (capture.dataset); this module
+Synthesizing sessions and finding them in files is capture's (capture.corpus.dataset); this module
 holds the record and its file format, which training and evaluation read.
 
 The .npz layout (format "walkcap-dataset", version 1): `images` (N, 1250) uint8 from

@@ -14,7 +14,7 @@ trial's `reference` (named by `reference_name`, `terrain` unless asked otherwise
 transition metrics (`inference.transitions`: spurious switches a minute, missed
 transitions, switch delay, lead time) against each reference the trial has.
 
-Inputs: score files (CSV, `read_scores`) or recordings (capture.reader.read_trials turns
+Inputs: score files (CSV, `read_scores`) or recordings (capture.recording.reader.read_trials turns
 each into a Trial with `trial_from_recording`), both as `Trial`s.
 """
 
@@ -726,7 +726,7 @@ _REFERENCE_ALIASES = {"truth": "terrain", "labels": "locomotion", "auto": "terra
 
 
 def trial_from_recording(path: str, data: Any, reference: str = "terrain") -> Trial:
-    """A Trial from what `capture.reader.read_trial` returns for one recording.
+    """A Trial from what `capture.recording.reader.read_trial` returns for one recording.
 
     data: a mapping (or object) with "probabilities" (N, 5), "terrain" (N modes each image
     shows, or None; a flat dict may give "truth" instead), "locomotion" (N modes keyed live,

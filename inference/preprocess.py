@@ -178,7 +178,7 @@ def preprocess(
 
     xyz: (H, W, 3) metres, camera frame; confidence: (H, W), 0 = invalid;
     quaternion: [w, x, y, z] IMU -> world at the frame's time; orientation_age_ns: how far
-    the quaternion is from the IMU sample it comes from (capture.pipeline.OrientationTrack).
+    the quaternion is from the IMU sample it comes from (capture.live.pipeline.OrientationTrack).
     """
     xyz = np.asarray(xyz)
     confidence = np.asarray(confidence)

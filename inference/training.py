@@ -19,7 +19,7 @@
   training stops after `patience` epochs without improvement, keeping the best weights.
 - Deterministic for a seed on one machine (one process, seeded generators, deterministic
   algorithms); CPU by default, the GPU when there is one (device "auto").
-- Distributed when torch.distributed is set up (capture.cluster starts it): the model in
+- Distributed when torch.distributed is set up (capture.corpus.cluster starts it): the model in
   DistributedDataParallel, each epoch's frames and each batch split between the processes
   (the batch size is the total), validation split and summed, so every process takes the
   same early-stopping and learning-rate steps.

@@ -7,12 +7,14 @@ noise), a few of them re-stamped; times are synthetic session-clock times starti
 from __future__ import annotations
 
 import dataclasses
+import errno
 import functools
+import os
 from pathlib import Path
 
 import numpy as np
 
-from capture.recorder import Recorder
+from capture.recording.writer import Recorder, _TrackedFile
 from devices.base import DeviceEvent
 from devices.frames import MODES, ImuSample
 from devices.simulator.synthetic import synthetic_frame
@@ -186,3 +188,15 @@ def write_trial(
     if close:
         rec.close()
     return rec
+
+
+def disk_full_after(budget: int):
+    """A `_TrackedFile.write` that raises ENOSPC past `budget` bytes, as a full disk does."""
+    real = _TrackedFile.write
+
+    def write(file, data):
+        if file.position + len(data) > budget:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        return real(file, data)
+
+    return write

@@ -6,9 +6,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-from recording_fixtures import write_recording
-
-from capture import export
+from capture.corpus import export
+from tests.recording_fixtures import write_recording
 from tui.cli import main
 
 README = (Path(__file__).parent.parent / "README.md").read_text()

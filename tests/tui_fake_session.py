@@ -1,4 +1,4 @@
-"""A stand-in for capture.session.Session for the UI tests: same public surface,
+"""A stand-in for capture.live.session.Session for the UI tests: same public surface,
 deterministic snapshots built from the real dataclasses, and a record of every command."""
 
 from __future__ import annotations
@@ -10,9 +10,9 @@ from types import SimpleNamespace
 import numpy as np
 
 from capture.errors import CaptureError
-from capture.pipeline import FrameResult
-from capture.recorder import RecorderState, RecorderStats
-from capture.session import LabelChange, Snapshot, SubjectInfo, TimelineEntry
+from capture.live.pipeline import FrameResult
+from capture.live.session import LabelChange, Snapshot, SubjectInfo, TimelineEntry
+from capture.recording.writer import RecorderState, RecorderStats
 from devices.base import DeviceEvent, DeviceState, DeviceStatus
 from devices.clock import now_ns
 from devices.frames import MODES

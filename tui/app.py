@@ -23,8 +23,8 @@ from textual.reactive import reactive
 from textual.screen import ModalScreen
 
 from capture.config import Config
-from capture.recorder import RecorderState
-from capture.session import SubjectInfo
+from capture.live.session import SubjectInfo
+from capture.recording.writer import RecorderState
 from devices.frames import MODES
 from tui import messages
 from tui.live_screen import LiveScreen
@@ -37,7 +37,7 @@ log = logging.getLogger(__name__)
 
 
 def default_session_factory(config: Config):
-    from capture.session import Session
+    from capture.live.session import Session
 
     return Session(config)
 
@@ -56,7 +56,7 @@ def describe_error(e: BaseException) -> str:
 
 
 def default_preflight(session):
-    from capture import preflight
+    from capture.live import preflight
 
     return preflight.run(session)
 
@@ -134,7 +134,7 @@ class WalkcapApp(App):
         preflight: Callable[[object], object] | None = None,
     ) -> None:
         """`session`: a ready-made source (tests pass a fake); otherwise `session_factory`
-        (default: capture.session.Session) builds one from the configuration in a worker.
+        (default: capture.live.session.Session) builds one from the configuration in a worker.
         `preflight(session) -> PreflightReport` runs before the first trial (default: the
         full check for a session built here; none for a ready-made source). `drills`: keys
         that inject faults into mock devices."""
@@ -161,7 +161,7 @@ class WalkcapApp(App):
         self.preflight_state = "none"  # none | running | ok | failed
         self.preflight_report = None
         self.trials: list[TrialRecord] = []
-        self.lab = None  # LSL, remote control, Foxglove: capture.labtools.LabTools
+        self.lab = None  # LSL, remote control, Foxglove: capture.labtools.connections.LabTools
         self.notices: list[Notice] = []  # this session's notices, oldest first
 
     def _remembered_subject(self) -> SubjectInfo:
@@ -246,7 +246,7 @@ class WalkcapApp(App):
         lsl, fox = self.config.lsl, self.config.foxglove
         if not (lsl.enabled or lsl.record or lsl.remote_control or fox.enabled):
             return
-        from capture.labtools import LabTools
+        from capture.labtools.connections import LabTools
 
         self.lab = LabTools(self.session, self.config, _RemoteForApp(self)).start()
         for line in self.lab.describe():
@@ -258,7 +258,7 @@ class WalkcapApp(App):
     def remote_start(self, request) -> None:
         """The remote control's start: the trial it named, as if the operator pressed r."""
         from capture.errors import CaptureError
-        from capture.labtools import trial_info
+        from capture.labtools.connections import trial_info
 
         source = self.source
         if source is None or source.recording or self._busy_recording:
@@ -305,7 +305,7 @@ class WalkcapApp(App):
             report = self._preflight(self.session)
         except Exception as e:
             log.exception("pre-flight")
-            from capture.preflight import CheckItem, PreflightReport
+            from capture.live.preflight import CheckItem, PreflightReport
 
             report = PreflightReport([CheckItem("check", False, "", describe_error(e))])
         self.post_message(messages.PreflightDone(report))

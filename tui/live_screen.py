@@ -19,9 +19,9 @@ from textual.containers import Horizontal, Vertical
 from textual.screen import Screen
 from textual.widgets import Footer, Static
 
-from capture.reader import effective_changes
-from capture.recorder import RecorderState
-from capture.session import Snapshot
+from capture.live.session import Snapshot
+from capture.recording.reader import effective_changes
+from capture.recording.writer import RecorderState
 from devices.clock import now_ns
 from devices.frames import MODE_NAMES, MODES
 from tui.source import Playback

@@ -51,7 +51,7 @@ class CorrectionsSaved(Message):
 
 
 class PreflightDone(Message):
-    """The pre-flight check finished; `report` is a capture.preflight.PreflightReport."""
+    """The pre-flight check finished; `report` is a capture.live.preflight.PreflightReport."""
 
     def __init__(self, report: object) -> None:
         super().__init__()

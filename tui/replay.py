@@ -1,13 +1,13 @@
 """A recording as a source for the live screen: play, pause, seek, and label corrections.
 
-`ReplaySource` has the surface of capture.session.Session that the screens use
+`ReplaySource` has the surface of capture.live.session.Session that the screens use
 (snapshot, set_label, undo_label, add_marker, ...) plus playback (tui.source.Playback),
 so `walkcap replay FILE --tui` shows a recording in the same screens as a live session.
 
 Label corrections never touch the original file: `save_corrections()` writes a new file,
 a message-for-message copy of the original (same schemas, channels, bytes, times) with the
 corrections added to /labels (source "correction") and to /events (markers), plus a
-"corrections" metadata record naming the original. Later changes win (capture.reader
+"corrections" metadata record naming the original. Later changes win (capture.recording.reader
 labels_at), so a correction at time t applies from t until the next change.
 """
 
@@ -24,11 +24,11 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from capture import topics as T
-from capture.corpus import derivation
 from capture.errors import CaptureError
-from capture.pipeline import FrameResult
-from capture.session import LabelChange, Snapshot, SubjectInfo, TimelineEntry
+from capture.live.pipeline import FrameResult
+from capture.live.session import LabelChange, Snapshot, SubjectInfo, TimelineEntry
+from capture.recording import topics as T
+from capture.recording.lineage import derivation
 from devices.base import DeviceEvent, DeviceState, DeviceStatus
 from devices.clock import now_ns
 from devices.files import check_replaceable
@@ -39,7 +39,7 @@ log = logging.getLogger(__name__)
 
 TIMELINE_S = 20.0
 PROFILE_POINTS = 600  # per frame kept for the profile plot (the display is ~100 dots wide)
-CORRECTION = "correction"  # capture.reader.CORRECTION
+CORRECTION = "correction"  # capture.recording.reader.CORRECTION
 
 
 def _mode_index(mode) -> int:
@@ -93,7 +93,7 @@ class ReplaySource:
 
     def start(self) -> None:
         """Read the recording into memory (images packed, profiles decimated)."""
-        from capture.reader import open_recording
+        from capture.recording.reader import open_recording
 
         rec = open_recording(self.path)
         self.metadata = rec.metadata
@@ -263,15 +263,15 @@ class ReplaySource:
     # ---- labels -----------------------------------------------------------------------
 
     def label_changes(self) -> list[tuple[int, str, str]]:
-        """The reference: the original changes with their undos applied (capture.reader
+        """The reference: the original changes with their undos applied (capture.recording.reader
         effective_changes), and the corrections, in time order (corrections last on ties)."""
-        from capture.reader import effective_changes
+        from capture.recording.reader import effective_changes
 
         merged = self.original_labels + [(c.time_ns, c.mode, CORRECTION) for c in self.corrections]
         return effective_changes(merged)
 
     def _labels_at(self, times_ns: np.ndarray) -> np.ndarray:
-        from capture.reader import labels_at
+        from capture.recording.reader import labels_at
 
         return labels_at(times_ns, self.label_changes())
 
@@ -436,13 +436,13 @@ def write_corrected(
     """Copy `original` message for message into `target` (never overwritten), adding the
     corrections to /labels and the markers to /events.
 
-    A raw copy rather than capture.recorder.Recorder: the Recorder re-encodes (depth from
+    A raw copy rather than capture.recording.writer.Recorder: the Recorder re-encodes (depth from
     xyz with rays rebuilt from intrinsics, clouds decimated again) and drops what its
     bounded queue cannot take; a copy keeps every recorded byte as it was.
     """
     from mcap.writer import CompressionType, Writer
 
-    from capture.reader import _iter_raw, open_recording
+    from capture.recording.reader import _iter_raw, open_recording
 
     original, target = Path(original), Path(target)
     if target.resolve() == original.resolve():
@@ -549,7 +549,7 @@ def _json_channel(writer, topic: str, by_topic: dict[str, int]) -> int:
 def run_tui(path: str | os.PathLike, config) -> int:
     """`walkcap replay FILE --tui`: the recording in the live screens."""
     from tui.app import WalkcapApp
-    from tui.commands.tui import log_path, logging_to_file
+    from tui.logfile import log_path, logging_to_file
 
     p = Path(path)
     if not p.is_file():

@@ -23,9 +23,9 @@ from textual.suggester import SuggestFromList
 from textual.widgets import Button, Checkbox, Footer, Input, Label, Select, Static
 
 from capture.errors import CaptureError
-from capture.session import SubjectInfo
+from capture.live.session import SubjectInfo
 from devices.files import check_replaceable
-from tui.commands import SUBJECT_FIELDS
+from tui.subject import SUBJECT_FIELDS
 
 log = logging.getLogger(__name__)
 
@@ -73,7 +73,7 @@ class Remembered:
         """The form for `subject` and `condition`: that subject's own fields and the next
         free trial in `folder` (from the remembered trial when the subject and condition
         are the ones confirmed last, else from 1)."""
-        from capture.corpus import next_free_trial, trial_files
+        from capture.recording.naming import next_free_trial, trial_files
 
         same = subject == self.last.subject and condition == self.last.condition
         start = self.last.trial if same else 1

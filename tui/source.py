@@ -1,7 +1,7 @@
 """What the screens are driven by: the live Session, or a recording being replayed.
 
 The live screen only pulls `snapshot()` and sends these commands; anything with this
-surface can drive it (capture.session.Session does; tests use a fake; replay its own).
+surface can drive it (capture.live.session.Session does; tests use a fake; replay its own).
 """
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Protocol, runtime_checkable
 
-from capture.session import Snapshot, SubjectInfo
+from capture.live.session import Snapshot, SubjectInfo
 
 
 class Source(Protocol):

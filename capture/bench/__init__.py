@@ -107,7 +107,7 @@ def rss_growth_mib_per_min(samples: list, after_s: float = 60.0) -> tuple[float,
 
 def classifier(path: str | None = None):
     """The bundled model; an untrained network of the same shape (same cost) without it."""
-    from capture.pipeline import CNN_THREADS
+    from capture.live.pipeline import CNN_THREADS
     from inference.errors import InferenceError
     from inference.model import load_classifier
 
@@ -190,7 +190,7 @@ def session_run(
     `lab_tools`: with LSL outlets pulled by an inlet and a Foxglove server whose client
     subscribes to every topic, as a lab running both would.
     """
-    from capture.session import Session, SubjectInfo
+    from capture.live.session import Session, SubjectInfo
 
     cfg = Config()
     cfg.camera.fps = fps
@@ -260,7 +260,7 @@ class _LabPeers:
     def __init__(self, session, cfg) -> None:
         import asyncio
 
-        from capture.labtools import LabTools
+        from capture.labtools.connections import LabTools
 
         cfg.lsl.enabled = True
         cfg.foxglove.enabled = True
@@ -280,7 +280,7 @@ class _LabPeers:
             t.start()
 
     def _pull_lsl(self) -> None:
-        from capture.lsl import pylsl
+        from capture.labtools.lsl import pylsl
 
         lsl = pylsl()
         inlets = []
@@ -328,7 +328,7 @@ class _LabPeers:
 def replay_speedup(path: str, clf=None, runs: int = 3) -> float:
     """`replay --fast` of the recording: the median of `runs` replays (one run varies by
     +-15 % on a 2-core machine with two processes and three busy threads)."""
-    from capture.replay import replay
+    from capture.corpus.replay import replay
 
     clf = clf or classifier()
     speedups = []

@@ -14,10 +14,10 @@ import numpy as np
 import torch
 import zstandard
 
-from capture import topics as T
-from capture.dataset import render_synth_session
-from capture.reader import open_recording
-from capture.recorder import Recorder
+from capture.corpus.dataset import render_synth_session
+from capture.recording import topics as T
+from capture.recording.reader import open_recording
+from capture.recording.writer import Recorder
 from devices.clock import now_ns
 from devices.frames import CameraGeometry, ImuSample
 from devices.rotations import mounting_matrix, quat_from_euler, quat_to_matrix

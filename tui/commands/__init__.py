@@ -2,7 +2,9 @@
 
 import argparse
 
-# capture.session.TRIAL_MAX and devices.config.SEED_MAX, not imported: `--help` stays instant
+from tui.subject import SUBJECT_FIELDS
+
+# capture.live.session.TRIAL_MAX and devices.config.SEED_MAX, not imported: `--help` stays instant
 TRIAL_MAX = 99_999
 SEED_MAX = 2**32 - 1
 
@@ -55,7 +57,7 @@ def folder(text: str) -> str:
 
 def finish_recording(command: str, stats, path) -> int:
     """Print the file path last (scripts take it); a failed recording is one error line."""
-    from capture.recorder import RecorderState
+    from capture.recording.writer import RecorderState
 
     if stats.state == RecorderState.FAILED:
         from tui.cli import error_line
@@ -119,17 +121,6 @@ def add_session_arguments(parser) -> None:
     g.add_argument("--notes", help="free text kept with the recording")
 
 
-# What describes the person, not the session: remembered per subject id.
-SUBJECT_FIELDS = (
-    "height_m",
-    "weight_kg",
-    "age",
-    "sex",
-    "amputee",
-    "side",
-    "residual_limb_cm",
-    "notes",
-)
 SESSION_FLAGS = ("subject", "condition", "trial", *SUBJECT_FIELDS)
 
 
@@ -188,7 +179,8 @@ def course_condition(args, config) -> str | None:
 
 
 def add_cluster_argument(parser, work: str) -> None:
-    """`--cluster ADDRESS|local`: `work` as one task each on a Ray cluster (capture.cluster)."""
+    """`--cluster ADDRESS|local`: `work` as one task each on a Ray cluster
+    (capture.corpus.cluster)."""
     parser.add_argument(
         "--cluster",
         metavar="ADDRESS|local",

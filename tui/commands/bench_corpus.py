@@ -114,8 +114,8 @@ def _frames(folder: Path, suffix: str) -> int:
         from inference.dataset import read_session
 
         return sum(len(read_session(p)) for p in folder.glob("*.npz"))
-    from capture.reader import open_recording
-    from capture.topics import DEPTH
+    from capture.recording.reader import open_recording
+    from capture.recording.topics import DEPTH
 
     return sum(open_recording(p).topics[DEPTH].count for p in folder.glob("*.replay.mcap"))
 

@@ -47,7 +47,7 @@ def add_arguments(parser) -> None:
 
 
 def run(args, config) -> int:
-    from capture.session import close_devices
+    from capture.live.session import close_devices
     from inference.calibration import CalibrationError, estimate_mounting
 
     if not args.seconds > 0:
@@ -99,7 +99,7 @@ def _json_result(args, config, result, current) -> int:
     import dataclasses
     import json
 
-    from capture.topics import jsonable
+    from capture.recording.topics import jsonable
     from inference.calibration import CalibrationError
 
     data = {k: v for k, v in dataclasses.asdict(result).items() if k != "per_frame"}
@@ -132,7 +132,7 @@ def open_devices(config):
     """The configured camera and IMU, opened as a session opens them; a mock walker stands."""
     import copy
 
-    from capture.session import open_devices as open_session_devices
+    from capture.live.session import open_devices as open_session_devices
 
     if config.camera.backend == "mock":
         config = copy.deepcopy(config)  # standing is for this run, never saved
@@ -142,7 +142,7 @@ def open_devices(config):
 
 def collect(camera, imu, seconds: float) -> tuple[list, list[np.ndarray]]:
     """Frames for `seconds` and the IMU orientation at each frame's time (NaN if none)."""
-    from capture.pipeline import OrientationTrack
+    from capture.live.pipeline import OrientationTrack
     from devices.errors import DeviceOperationError
 
     track = OrientationTrack(span_s=seconds + 10.0)

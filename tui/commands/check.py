@@ -22,8 +22,8 @@ def add_arguments(parser) -> None:
 
 
 def run(args, config) -> int:
-    from capture import preflight
-    from capture.session import Session
+    from capture.live import preflight
+    from capture.live.session import Session
     from tui.commands import apply_device_flags
 
     apply_device_flags(args, config)

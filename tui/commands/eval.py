@@ -159,7 +159,7 @@ def run(args, config) -> int:
     if args.eval_command == "model":
         return eval_model.run(args, config)
 
-    from capture.reader import read_trials
+    from capture.recording.reader import read_trials
     from inference import evaluation as ev
     from inference.errors import InferenceError
     from inference.fusion import PAPER_TRANSITION, validate_transition
@@ -369,11 +369,11 @@ def _mean_sd(entry: dict, method: str) -> str:
 
 
 def _recordings(paths: list[str], replays: bool = False) -> list[str]:
-    """One file per trial from the files and folders given (capture.corpus.select); the
+    """One file per trial from the files and folders given (capture.corpus.selection.select); the
     files left out are listed on stderr, with why."""
     import sys
 
-    from capture.corpus import select
+    from capture.corpus.selection import select
 
     corpus = select(paths, replays=replays)
     if not corpus.chosen:
@@ -387,8 +387,8 @@ def _trials_on_cluster(files: list[str], reference: str, address: str) -> list:
     """read_trials with one Ray task per recording; the trials in the order given."""
     from pathlib import Path
 
-    from capture import cluster
-    from capture.reader import read_evaluation_trial
+    from capture.corpus import cluster
+    from capture.recording.reader import read_evaluation_trial
 
     tasks = [  # absolute paths for the nodes; each trial keeps the path as given
         cluster.Task(Path(f).name, read_evaluation_trial, (str(Path(f).resolve()), reference, f))

@@ -71,7 +71,7 @@ def add_arguments(parser) -> None:
 def run(args, config) -> int:
     import logging
 
-    from capture.dataset import SynthSettings, read_sessions
+    from capture.corpus.dataset import SynthSettings, read_sessions
     from inference.model import load_classifier
     from inference.preprocess import PreprocessParams
     from inference.training import evaluate_sessions, format_metrics
@@ -87,7 +87,7 @@ def run(args, config) -> int:
     else:
         from tqdm import tqdm
 
-        from capture.dataset import render_synth_session, session_plan
+        from capture.corpus.dataset import render_synth_session, session_plan
 
         params = PreprocessParams.from_config(config)
         settings = SynthSettings(max_frames=args.frames or 0)

@@ -5,7 +5,7 @@
 
 One file per trial (a corrected copy stands for its trial, a recovered copy for its
 unfinished original, replays only with --replays); the files left out are listed, why.
-Tables: frames, imu, labels, events, trials (capture.export).
+Tables: frames, imu, labels, events, trials (capture.corpus.export).
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ def add_arguments(parser) -> None:
 def run(args, config) -> int:
     import json
 
-    from capture import export
+    from capture.corpus import export
 
     tables, corpus = export.corpus_tables(
         args.files,

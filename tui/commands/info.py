@@ -18,7 +18,7 @@ def add_arguments(parser) -> None:
 
 
 def run(args, config) -> int:
-    from capture.reader import open_recording
+    from capture.recording.reader import open_recording
 
     if args.json:
         data = [summary(open_recording(path)) for path in args.files]
@@ -59,12 +59,11 @@ def _iso(unix_ns: int | None) -> str | None:
 
 def describe(rec) -> list[str]:
     """The recording in a few readable lines."""
-    from capture import corpus
-    from capture import topics as T
     from capture.errors import CaptureError
-    from capture.gaps import recording_loss
-    from capture.reader import effective_changes, is_undo
-    from capture.recovery import check
+    from capture.recording import check, lineage
+    from capture.recording import topics as T
+    from capture.recording.gaps import recording_loss
+    from capture.recording.reader import effective_changes, is_undo
 
     lines = [str(rec.path)]
     damaged = check(rec.path).damaged  # every chunk's CRC, finished file or not
@@ -85,10 +84,10 @@ def describe(rec) -> list[str]:
         )
     rate = f" ({_size(rec.size / rec.duration_s)}/s)" if rec.duration_s > 0 else ""
     lines.append(f"  size        {_size(rec.size)}{rate}")
-    member = corpus.describe(rec)
+    member = lineage.describe(rec)
     subject, condition, trial = rec.trial
     lines.append(f"  trial       {member.trial_name}; id {member.id}")
-    if member.kind != corpus.RECORDING:
+    if member.kind != lineage.RECORDING:
         lines.append(
             f"  derived     {member.kind} of {member.source_name or '?'}"
             + (f" (id {member.source_id})" if member.source_id else "")
@@ -187,8 +186,8 @@ STALE_ORIENTATION = "stale_orientation"  # inference.preprocess's flag of an und
 def frame_flags(rec) -> dict[str, int] | None:
     """How many frames have each preprocessing flag (why their image is empty); None when
     the file has no /camera/preprocess. Damage ends the count where it starts."""
-    from capture import topics as T
     from capture.errors import CaptureError
+    from capture.recording import topics as T
 
     if T.PREPROCESS not in rec.topics:
         return None
@@ -205,7 +204,7 @@ def frame_flags(rec) -> dict[str, int] | None:
 
 def recorded_periods(metadata: dict) -> dict[str, float]:
     """Each sensor topic's configured period from the file's metadata."""
-    from capture.gaps import recorded_periods as periods
+    from capture.recording.gaps import recorded_periods as periods
 
     return periods(metadata)
 
@@ -228,14 +227,13 @@ def _clip(text: str, width: int = 100) -> str:
 def summary(rec) -> dict:
     """Everything `describe` shows, as JSON-ready data: times on the session clock (ns)
     with their Unix time (ns) and UTC ISO text, metadata typed."""
-    from capture import corpus
-    from capture import topics as T
     from capture.errors import CaptureError
-    from capture.gaps import recording_loss
-    from capture.reader import effective_changes
-    from capture.recovery import check
+    from capture.recording import check, lineage
+    from capture.recording import topics as T
+    from capture.recording.gaps import recording_loss
+    from capture.recording.reader import effective_changes
 
-    member = corpus.describe(rec)
+    member = lineage.describe(rec)
     subject, condition, trial = rec.trial
     times = rec.log_times()
     topics = {}
@@ -310,7 +308,7 @@ def summary(rec) -> dict:
         "id": member.id,
         "kind": member.kind,
         "source": {"id": member.source_id, "name": member.source_name, "how": member.how}
-        if member.kind != corpus.RECORDING
+        if member.kind != lineage.RECORDING
         else None,
         "trial": {"subject": subject, "condition": condition, "trial": trial},
         "start": when(rec.start_ns) if rec.start_ns is not None else None,

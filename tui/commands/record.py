@@ -70,10 +70,10 @@ def status_line(elapsed_s: float, total_s: float | None, snap) -> str:
 
 
 def run(args, config) -> int:
-    from capture.corpus import trial_conflict
-    from capture.labtools import LabTools, SessionController
-    from capture.recorder import RecorderState
-    from capture.session import Session, SubjectInfo
+    from capture.labtools.connections import LabTools, SessionController
+    from capture.live.session import Session, SubjectInfo
+    from capture.recording.naming import trial_conflict
+    from capture.recording.writer import RecorderState
 
     apply_device_flags(args, config)
     lab_flags.apply(args, config)
@@ -159,7 +159,7 @@ def run(args, config) -> int:
 
 def _on_existing(args) -> str:
     """What an existing trial means: the next free number unless --trial was given."""
-    from capture.corpus import NEXT_TRIAL, OVERWRITE, TRIAL_ERROR
+    from capture.recording.naming import NEXT_TRIAL, OVERWRITE, TRIAL_ERROR
 
     if args.trial is None:
         return NEXT_TRIAL

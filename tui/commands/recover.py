@@ -23,7 +23,7 @@ def add_arguments(parser) -> None:
 
 
 def run(args, config) -> int:
-    from capture.recovery import recover
+    from capture.recording.recover import recover
 
     r = recover(args.file, args.out, journal=args.journal, overwrite=args.force)
     if r.complete:

@@ -66,8 +66,8 @@ def _outputs(files: list[str], out: str | None) -> list[str | None]:
     --out folder when given (None: decided by replay, beside the original)."""
     from pathlib import Path
 
+    from capture.corpus.replay import default_output
     from capture.errors import CaptureError
-    from capture.replay import default_output
 
     if len(files) == 1:
         return [out]
@@ -91,7 +91,7 @@ def _outputs(files: list[str], out: str | None) -> list[str | None]:
 def _replay_one(args, config, source: str, output: str | None) -> int:
     from tqdm import tqdm
 
-    from capture.replay import replay
+    from capture.corpus.replay import replay
 
     bar = tqdm(unit="frame", desc="replay", file=sys.stderr, disable=not sys.stderr.isatty())
     try:
@@ -113,8 +113,8 @@ def _on_cluster(args, config, outputs: list[str | None]) -> int:
     """One task per recording; the new files' paths printed in the order given."""
     from pathlib import Path
 
-    from capture import cluster
-    from capture.replay import default_output, replay_file
+    from capture.corpus import cluster
+    from capture.corpus.replay import default_output, replay_file
 
     outputs = [o or str(default_output(Path(f))) for f, o in zip(args.files, outputs)]
     tasks = [  # absolute paths: a node's worker need not start in this folder

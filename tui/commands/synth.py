@@ -77,7 +77,7 @@ def run(args, config) -> int:
         return _recordings(args, config)
     from dataclasses import replace
 
-    from capture.dataset import SynthSettings, synth_dataset
+    from capture.corpus.dataset import SynthSettings, synth_dataset
     from inference.preprocess import PreprocessParams
 
     settings = SynthSettings(max_frames=args.frames or 0, vary_walker=not args.fixed_walker)
@@ -110,9 +110,9 @@ def _recordings(args, config) -> int:
 
     from tqdm import tqdm
 
-    from capture.dataset import session_plan
-    from capture.pipeline import CNN_THREADS
-    from capture.synth import synth_recording
+    from capture.corpus.dataset import session_plan
+    from capture.corpus.synth import synth_recording
+    from capture.live.pipeline import CNN_THREADS
     from inference.model import load_classifier
 
     out = Path(args.out)
@@ -120,8 +120,8 @@ def _recordings(args, config) -> int:
     plan = session_plan(args.sessions, args.preset, args.seed)
     names = [f"SIM_{preset}_t{i + 1:02d}_seed{seed}.mcap" for i, (preset, seed) in enumerate(plan)]
     if args.cluster:
-        from capture import cluster
-        from capture.synth import synth_recording_file
+        from capture.corpus import cluster
+        from capture.corpus.synth import synth_recording_file
 
         tasks = [
             cluster.Task(

@@ -167,7 +167,7 @@ def add_arguments(parser) -> None:
 
 
 def run(args, config) -> int:
-    from capture.dataset import read_sessions, select_session_files
+    from capture.corpus.dataset import read_sessions, select_session_files
     from inference.model import file_sha256
     from inference.preprocess import PreprocessParams
     from inference.training import (
@@ -268,11 +268,12 @@ def _preprocess_params(sessions) -> dict | None:
 
 
 def _train_on_cluster(args, settings, files, quiet: bool):
-    from capture import cluster
+    from capture.corpus import cluster
+    from capture.corpus.dataset import read_sessions
 
     with cluster.connect(args.cluster, worker_logs=False) as resources:
         workers = cluster.training_workers(
             settings.batch_size, resources.get("CPU", 1), args.workers or 0
         )
         print(f"training on {workers} worker(s) of the cluster (DDP, gloo)", file=sys.stderr)
-        return cluster.train(files, settings, workers, show_progress=not quiet)
+        return cluster.train(files, settings, workers, read_sessions, show_progress=not quiet)

@@ -2,12 +2,9 @@
 
 from __future__ import annotations
 
-import contextlib
-import logging
-import os
-
 from tui import lab_flags
 from tui.commands import add_device_arguments, add_session_arguments
+from tui.logfile import log_path, logging_to_file
 
 HELP = "open the terminal UI (mock devices and the bundled model by default)"
 
@@ -22,34 +19,6 @@ def add_arguments(parser) -> None:
     add_device_arguments(parser, "mock | royale | replay")
     add_session_arguments(parser)
     lab_flags.add_arguments(parser)
-
-
-def log_path() -> str:
-    return os.path.join(os.path.expanduser("~"), ".cache", "walkcap", "tui.log")
-
-
-@contextlib.contextmanager
-def logging_to_file(path: str):
-    """While the UI owns the terminal, log lines go to a file instead of stderr, from INFO
-    up: the session's notices and device events, each with its time."""
-    root = logging.getLogger()
-    saved = root.handlers[:]
-    try:
-        os.makedirs(os.path.dirname(path), exist_ok=True)
-        handler: logging.Handler = logging.FileHandler(path)
-    except OSError:
-        handler = logging.NullHandler()
-    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
-    root.handlers = [handler]
-    level = root.level
-    # what happened in the session (losses, stalls, reconnects, trials saved) is INFO
-    root.setLevel(min(level, logging.INFO) if level else logging.INFO)
-    try:
-        yield
-    finally:
-        root.handlers = saved
-        root.setLevel(level)
-        handler.close()
 
 
 def starting_form(args, config):

@@ -9,7 +9,7 @@ from rich.table import Table
 from rich.text import Text
 from textual.widget import Widget
 
-from capture.recorder import RecorderState
+from capture.recording.writer import RecorderState
 from tui.widgets.pacing import Pacer
 
 

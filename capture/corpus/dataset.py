@@ -1,0 +1,272 @@
+"""Labelled sessions from files and from the simulator, for training and evaluation.
+
+Reading: `read_sessions` takes files and folders of synthesized sessions (.npz, the format
+of inference.dataset) and of recordings (.mcap, the recorded /camera/binary_image labelled
+with the operator's mode in force at each frame; capture.recording.reader.labeled_session).
+
+Synthesizing: `render_synth_session` walks one simulated course and preprocesses every
+frame as the live pipeline does; `synth_dataset` writes many, one .npz each.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from capture.errors import CaptureError
+from capture.recording.reader import labeled_session
+from devices.config import SimulatorConfig
+from devices.frames import MODES
+from devices.orientation_error import OrientationError, OrientationErrorModel
+from devices.simulator import Simulator, make_course
+from inference.dataset import LabeledSession, read_session, write_session
+from inference.errors import InferenceError
+from inference.preprocess import PreprocessParams, preprocess_frame
+
+
+def _read_recording(path: Path) -> LabeledSession:
+    """A walkcap recording: its classifier inputs, labelled by the operator's mode."""
+    try:
+        return labeled_session(path)
+    except CaptureError as e:
+        raise InferenceError(str(e)) from None
+
+
+# Readers by file suffix.
+READERS: dict[str, Callable[[Path], LabeledSession]] = {
+    ".npz": read_session,
+    ".mcap": _read_recording,
+}
+
+
+def register_reader(suffix: str, reader: Callable[[Path], LabeledSession]) -> None:
+    READERS[suffix.lower()] = reader
+
+
+def find_session_files(paths: list[str | os.PathLike]) -> list[Path]:
+    """Files of sessions: the given files, and every known file in the given folders."""
+    files: list[Path] = []
+    for p in map(Path, paths):
+        if p.is_dir():
+            found = sorted(
+                f for f in p.rglob("*") if f.suffix.lower() in READERS and ".tmp" not in f.name
+            )
+            if not found:
+                raise InferenceError(f"no sessions (.npz or .mcap) in {p}")
+            files += found
+        elif p.exists():
+            files.append(p)
+        else:
+            raise InferenceError(f"no such file or folder: {p}")
+    return files
+
+
+def select_session_files(
+    paths: list[str | os.PathLike], replays: bool = False
+) -> tuple[list[Path], list[str]]:
+    """Like find_session_files, with one recording per trial (capture.corpus.selection.select): a
+    trial's derived copies never stand beside it (one trial in both training and test).
+    Returns the files and the lines that say which recordings were left out, and why."""
+    from capture.corpus.selection import select
+
+    files = find_session_files(paths)
+    recordings = [f for f in files if f.suffix.lower() == ".mcap"]
+    if not recordings:
+        return files, []
+    corpus = select(recordings, replays=replays)
+    chosen = set(corpus.files)
+    return [f for f in files if f.suffix.lower() != ".mcap" or f in chosen], corpus.report_lines()
+
+
+def read_sessions(paths: list[str | os.PathLike]) -> list[LabeledSession]:
+    """Every session under `paths` (files or folders), whatever its source."""
+    sessions = []
+    for f in find_session_files(paths):
+        reader = READERS.get(f.suffix.lower())
+        if reader is None:
+            raise InferenceError(f"{f}: unknown session file type {f.suffix!r}")
+        sessions.append(reader(f))
+    return sessions
+
+
+@dataclass(frozen=True)
+class SynthSettings:
+    """How a synthesized session is made, beyond its preset and seed."""
+
+    fps: float = 15.0  # the paper's camera rate
+    # The attitude filter's error: the MTi 1-series' roll/pitch accuracy as a slowly
+    # drifting error (devices.orientation_error).
+    imu_error: OrientationErrorModel = OrientationErrorModel()
+    # Per session: the mounting's pitch error left after `walkcap calibrate` (1 sigma; the
+    # strap settling).
+    mounting_error_deg: float = 0.5
+    vary_walker: bool = True  # draw speed, cadence, camera height and tilt per session
+    max_frames: int = 0  # stop a session after this many frames (0: the whole walk)
+
+
+def session_seed(base_seed: int, index: int) -> int:
+    return base_seed + index
+
+
+def session_plan(count: int, preset: str, base_seed: int) -> list[tuple[str, int]]:
+    """(preset, seed) of each session; "both" alternates indoor and outdoor."""
+    if preset not in ("indoor", "outdoor", "both"):
+        raise InferenceError(f"unknown preset {preset!r} (indoor, outdoor or both)")
+    presets = ("indoor", "outdoor") if preset == "both" else (preset,)
+    return [(presets[i % len(presets)], session_seed(base_seed, i)) for i in range(count)]
+
+
+def _walker(rng: np.random.Generator, vary: bool, config) -> dict:
+    base = {
+        "speed_mps": config.speed_mps,
+        "cadence_spm": config.cadence_spm,
+        "camera_height_m": config.camera_height_m,
+        "camera_tilt_deg": config.camera_tilt_deg,
+    }
+    if not vary:
+        return base
+    # Subjects and mountings differ: speed, cadence, thigh length, strap angle.
+    return {
+        "speed_mps": float(rng.uniform(0.85, 1.35)),
+        "cadence_spm": float(rng.uniform(90.0, 120.0)),
+        "camera_height_m": float(rng.uniform(0.48, 0.62)),
+        "camera_tilt_deg": float(rng.uniform(28.0, 42.0)),
+    }
+
+
+def render_synth_session(
+    preset: str,
+    seed: int,
+    params=None,
+    settings: SynthSettings = SynthSettings(),
+    simulator_config=None,
+    progress: Callable[[int], None] | None = None,
+) -> tuple[LabeledSession, dict]:
+    """Walk one simulated course and preprocess every frame as the live pipeline does.
+
+    The IMU orientation is the simulator's thigh orientation with the attitude filter's
+    slowly drifting error; the preprocessing uses the mounting the operator would have
+    calibrated (true tilt plus a small error). Returns the session and extra per-frame
+    arrays (time_ns, locomotion_modes, errors) for `write_session`.
+    """
+    params = params or PreprocessParams()
+    simulator_config = simulator_config or SimulatorConfig()
+    rng = np.random.default_rng([seed, 7919])
+    walker = _walker(rng, settings.vary_walker, simulator_config)
+    try:
+        course = make_course(preset, seed)
+    except ValueError as e:
+        raise InferenceError(str(e)) from None
+    sim = Simulator(course, seed=seed, fps=settings.fps, **walker)
+    mounting_pitch = walker["camera_tilt_deg"] + float(rng.normal(0.0, settings.mounting_error_deg))
+    params = replace(params, mounting_pitch_deg=mounting_pitch)
+    imu_error = OrientationError(settings.imu_error, rng)
+
+    n = int(sim.duration_s * settings.fps)
+    if settings.max_frames:
+        n = min(n, settings.max_frames)
+    images = np.zeros((n, params.grid_size, params.grid_size), np.uint8)
+    labels = np.zeros(n, np.int64)
+    flags, locomotion_modes, errors = [], [], []
+    time_ns = np.zeros(n, np.int64)
+    for k in range(n):
+        t = k / settings.fps
+        frame = sim.render(t, k)
+        truth = frame.truth
+        q = imu_error.apply(np.asarray(truth["thigh_quaternion"], dtype=np.float64), t)
+        pre = preprocess_frame(frame, q, params)
+        images[k] = pre.image
+        labels[k] = MODES.index(truth["mode"])
+        flags.append(pre.flag)
+        locomotion_modes.append(truth.get("locomotion_mode", ""))
+        errors.append(truth.get("error", ""))
+        time_ns[k] = frame.device_time_ns
+        if progress:
+            progress(1)
+    meta = {
+        "seed": seed,
+        "fps": settings.fps,
+        "preprocess": params.to_dict(),
+        "walker": walker,
+        "imu_error": dataclasses.asdict(settings.imu_error),
+        "mounting_error_deg": settings.mounting_error_deg,
+        "course": [[s.mode, round(float(s.length_m), 3)] for s in course.segments],
+    }
+    session = LabeledSession(
+        name=f"{preset}-{seed:06d}",
+        images=images,
+        labels=labels,
+        preset=preset,
+        source="synth",
+        flags=np.array(flags, dtype=str),
+        meta=meta,
+        locomotion_modes=np.array(locomotion_modes, dtype=str),
+        errors=np.array(errors, dtype=str),
+    )
+    extra = {"locomotion_modes": session.locomotion_modes, "errors": session.errors}
+    return session, {"time_ns": time_ns, "extra": extra}
+
+
+def synth_dataset(
+    out: str | os.PathLike,
+    count: int,
+    preset: str,
+    base_seed: int,
+    params=None,
+    settings: SynthSettings = SynthSettings(),
+    simulator_config=None,
+    workers: int = 1,
+    show_progress: bool = True,
+    cluster: str | None = None,
+) -> list[Path]:
+    """Render `count` sessions into `out` (one .npz each) with a progress bar over sessions.
+    `cluster`: a Ray cluster's address or "local" (capture.corpus.cluster), one task a session."""
+    from tqdm import tqdm
+
+    plan = session_plan(count, preset, base_seed)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    jobs = [
+        (p, s, params, settings, simulator_config, str(out / f"{p}-{s:06d}.npz")) for p, s in plan
+    ]
+    if cluster:
+        from capture.corpus import cluster as cluster_mod
+
+        tasks = [  # absolute paths: a node's worker need not start in this folder
+            cluster_mod.Task(
+                Path(job[-1]).name, _synth_job, ((*job[:-1], str(Path(job[-1]).resolve())),)
+            )
+            for job in jobs
+        ]
+        with cluster_mod.connect(cluster):
+            cluster_mod.run(tasks, desc="synth", unit="session", show_progress=show_progress)
+        return [Path(job[-1]) for job in jobs]
+    paths: list[Path] = []
+    with tqdm(total=len(jobs), unit="session", desc="synth", disable=not show_progress) as bar:
+        if workers > 1 and len(jobs) > 1:
+            import multiprocessing as mp
+
+            with mp.get_context("spawn").Pool(workers) as pool:
+                for path, frames in pool.imap(_synth_job, jobs):
+                    paths.append(Path(path))
+                    bar.set_postfix(frames=frames)
+                    bar.update(1)
+        else:
+            for job in jobs:
+                path, frames = _synth_job(job)
+                paths.append(Path(path))
+                bar.set_postfix(frames=frames)
+                bar.update(1)
+    return paths
+
+
+def _synth_job(job) -> tuple[str, int]:
+    preset, seed, params, settings, simulator_config, path = job
+    session, extra = render_synth_session(preset, seed, params, settings, simulator_config)
+    write_session(path, session, extra["time_ns"], extra["extra"])
+    return path, len(session)

@@ -1,0 +1,472 @@
+"""Recordings as tables: pandas DataFrames in Python, Parquet, CSV or MATLAB files.
+
+    from capture.corpus import export
+    t = export.tables("S01_indoor_t01.mcap")       # {"frames": DataFrame, "imu": ..., ...}
+    t["frames"][["time_s", "label", "decision"]]
+    t, corpus = export.corpus_tables(["recordings/"])   # one file per trial, rows concatenated
+    export.write(t, "out/", "parquet")              # frames.parquet, imu.parquet, ...
+
+Tables (every row names its file, recording id, subject, condition and trial; every column
+is described in docs/export.md):
+- frames: one row per camera frame: frame_index; time_ns (sample time, session clock),
+  unix_time_ns, time_s (seconds since the recording's start: its earliest time, receive or
+  sample, the same origin in every table of the file); label (the operator's mode in
+  force, undos applied), truth (simulator, when recorded); p_<MODE> (CNN softmax) and
+  cnn_decision; posterior_<MODE> (fused HMM posterior for this frame), decision (the fused
+  decision for this frame) and decision_at_frame (the frame whose arrival produced it),
+  voted and voted_at_frame; terrain_* (terrain features); preprocess_flag, oriented,
+  cloud_points; qw, qx, qy, qz (the camera's orientation at the frame time).
+- imu: one row per IMU sample (time_ns: sample time, host_time_ns: arrival).
+- labels: every recorded change, undos included, with in_reference (whether it defines
+  `label`) and undone (taken back by a later undo).
+- events: device events and operator markers, in time order.
+- trials: one row per file: identity, lineage, session form, model; start_time_ns and
+  end_time_ns (session clock), start_unix_time_ns and end_unix_time_ns, duration_s; per
+  sensor stream its gaps, items missing and late deliveries (capture.recording.gaps).
+Modes are names (LG, US, DS, UR, DR); "" where there is none.
+The frames' terrain and locomotion columns are the two references eval uses: terrain,
+what the image shows (the simulator's truth, else the labels made offline in `replay
+--tui` over the keys, else ""); locomotion, the mode keyed live (undos applied, offline
+labels not).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from collections.abc import Iterable
+from pathlib import Path
+
+import numpy as np
+
+from capture.corpus import selection as corpus_mod
+from capture.errors import CaptureError
+from capture.recording import reader
+from capture.recording import topics as T
+from capture.recording.gaps import TOPICS as GAP_TOPICS
+from capture.recording.gaps import recording_loss
+from capture.recording.lineage import describe
+from capture.recording.reader import effective_changes, is_undo, open_recording
+from devices.files import check_replaceable
+from devices.frames import MODES
+
+TABLES = ("frames", "imu", "labels", "events", "trials")
+FORMATS = ("parquet", "csv", "mat")
+FEATURE_FIELDS = (
+    "kind",
+    "slope_deg",
+    "riser_m",
+    "tread_m",
+    "direction",
+    "steps",
+    "inlier_fraction",
+    "residual_m",
+)
+
+
+def _pd():
+    try:
+        import pandas
+    except ModuleNotFoundError:  # pragma: no cover - a dependency of walkcap
+        raise CaptureError("export needs pandas: pip install pandas pyarrow") from None
+    return pandas
+
+
+def tables(path: str | os.PathLike) -> dict:
+    """The tables of one recording as pandas DataFrames (see the module's docstring)."""
+    pd = _pd()
+    rec = open_recording(path)
+    member = describe(rec)
+    subject, condition, trial = rec.trial
+    offset = rec.unix_offset_ns
+    identity = {
+        "file": rec.path.name,
+        "recording_id": member.id,
+        "subject": subject,
+        "condition": condition,
+        "trial": trial,
+    }
+
+    cnn: dict[int, dict] = {}
+    fused: dict[int, dict] = {}  # frame -> decision fields
+    posterior: dict[int, list] = {}
+    voted: dict[int, dict] = {}
+    features: dict[int, dict] = {}
+    pre: dict[int, dict] = {}
+    quats: dict[int, np.ndarray] = {}
+    truth: dict[int, str] = {}
+    imu, changes, events = [], [], []
+    wanted = [
+        T.CNN,
+        T.FUSED,
+        T.FEATURES,
+        T.PREPROCESS,
+        T.TF,
+        T.TRUTH,
+        T.LABELS,
+        T.EVENTS,
+        T.IMU,
+    ]
+    for m in rec.messages([w for w in wanted if w in rec.topics]):
+        d = m.data
+        if m.topic == T.IMU:
+            imu.append(d)
+        elif m.topic == T.CNN:
+            cnn[int(d["frame_index"])] = d
+        elif m.topic == T.FUSED:
+            made = int(d.get("source_frame_index", d["frame_index"]))
+            if d.get("decision") is not None:
+                fused[int(d["frame_index"])] = {"decision": d["decision"], "at": made}
+            if d.get("posterior") is not None:
+                posterior[int(d.get("posterior_frame_index", d["frame_index"]))] = d["posterior"]
+            if d.get("voted") is not None and d.get("voted_frame_index") is not None:
+                voted[int(d["voted_frame_index"])] = {"voted": d["voted"], "at": made}
+        elif m.topic == T.FEATURES:
+            features[int(d["frame_index"])] = d
+        elif m.topic == T.PREPROCESS:
+            pre[int(d["frame_index"])] = d
+        elif m.topic == T.TF:
+            quats[m.sequence] = np.asarray(d, dtype=float)
+        elif m.topic == T.TRUTH:
+            truth[int(d["frame_index"])] = d.get("mode") or ""
+        elif m.topic == T.LABELS:
+            changes.append((int(d["time_ns"]), d.get("mode", "") or "", d.get("source", "")))
+        elif m.topic == T.EVENTS:
+            events.append(d)
+
+    changes.sort(key=lambda c: c[0])
+    events.sort(key=lambda e: int(e.get("time_ns", 0)))  # in time order, as the rest
+    reference = effective_changes(changes)
+    index = np.array(sorted(set(cnn) | set(pre)), dtype=np.int64)
+    times = np.array(
+        [int((cnn.get(i) or pre.get(i))["time_ns"]) for i in index], dtype=np.int64
+    ).reshape(-1)
+    imu_t = np.array(
+        [int(s["time_ns"] if s.get("time_ns") is not None else s["host_time_ns"]) for s in imu],
+        dtype=np.int64,
+    )
+    label_t = np.array([c[0] for c in changes], dtype=np.int64)
+    event_t = np.array([int(e.get("time_ns", 0)) for e in events], dtype=np.int64)
+    # time_s counts from the recording's start: its earliest time, receive or sample (an
+    # IMU sample's time precedes its arrival), so that no row has a negative time
+    t0 = min(
+        [int(a.min()) for a in (times, imu_t, label_t, event_t) if len(a)]
+        + ([rec.start_ns] if rec.start_ns is not None else []),
+        default=0,
+    )
+
+    frames = {"frame_index": index, "time_ns": times}
+    frames.update(_clock(times, offset, t0))
+    frames["label"] = _modes_at(times, reference)
+    if T.TRUTH in rec.topics:
+        frames["truth"] = [truth.get(int(i), "") for i in index]
+        frames["terrain"] = frames["truth"]
+    elif any(c[2] == reader.CORRECTION for c in changes):
+        frames["terrain"] = frames["label"]
+    else:
+        frames["terrain"] = [""] * len(index)
+    frames["locomotion"] = _modes_at(times, [c for c in reference if c[2] != reader.CORRECTION])
+    probs = np.full((len(index), len(MODES)), np.nan)
+    post = np.full((len(index), len(MODES)), np.nan)
+    for k, i in enumerate(index):
+        if int(i) in cnn:
+            probs[k] = [np.nan if p is None else p for p in cnn[int(i)]["probabilities"]]
+        if int(i) in posterior:
+            post[k] = [np.nan if p is None else p for p in posterior[int(i)]]
+    for j, mode in enumerate(MODES):
+        frames[f"p_{mode}"] = probs[:, j]
+    frames["cnn_decision"] = [cnn[int(i)]["decision"] if int(i) in cnn else "" for i in index]
+    for j, mode in enumerate(MODES):
+        frames[f"posterior_{mode}"] = post[:, j]
+    frames["decision"] = [fused.get(int(i), {}).get("decision", "") for i in index]
+    frames["decision_at_frame"] = _ints([fused.get(int(i), {}).get("at") for i in index])
+    frames["voted"] = [voted.get(int(i), {}).get("voted", "") for i in index]
+    frames["voted_at_frame"] = _ints([voted.get(int(i), {}).get("at") for i in index])
+    for name in FEATURE_FIELDS:
+        values = [features.get(int(i), {}).get(name) for i in index]
+        frames[f"terrain_{name}"] = _column(values)
+    frames["preprocess_flag"] = [pre.get(int(i), {}).get("flag", "") or "" for i in index]
+    frames["oriented"] = [bool(pre.get(int(i), {}).get("oriented", False)) for i in index]
+    frames["cloud_points"] = _ints([pre.get(int(i), {}).get("cloud_points") for i in index])
+    q = np.full((len(index), 4), np.nan)
+    for k, i in enumerate(index):
+        if int(i) in quats:
+            q[k] = quats[int(i)]
+    for j, name in enumerate(("qw", "qx", "qy", "qz")):
+        frames[name] = q[:, j]
+
+    imu_cols = {"time_ns": imu_t, "host_time_ns": _ints([s.get("host_time_ns") for s in imu])}
+    imu_cols.update(_clock(imu_t, offset, t0))
+    imu_cols["packet_counter"] = _ints([s.get("packet_counter") for s in imu])
+    imu_cols["sample_time_fine"] = _ints([s.get("sample_time_fine") for s in imu])
+    for key, names in (
+        ("quaternion", ("qw", "qx", "qy", "qz")),
+        ("acceleration", ("acc_x", "acc_y", "acc_z")),
+        ("rate_of_turn", ("gyr_x", "gyr_y", "gyr_z")),
+    ):
+        values = np.full((len(imu), len(names)), np.nan)
+        for k, s in enumerate(imu):
+            v = s.get(key)
+            if v is not None:
+                values[k] = [np.nan if x is None else x for x in v]
+        for j, name in enumerate(names):
+            imu_cols[name] = values[:, j]
+    imu_cols["status_word"] = _ints([s.get("status_word") for s in imu])
+
+    in_force = set(reference)
+    undone = _undone(changes)
+    labels = {"time_ns": label_t}
+    labels.update(_clock(label_t, offset, t0))
+    labels["mode"] = [c[1] for c in changes]
+    labels["source"] = [c[2] for c in changes]
+    labels["is_undo"] = [is_undo(c[2]) for c in changes]
+    labels["undone"] = [k in undone for k in range(len(changes))]
+    labels["in_reference"] = [c in in_force for c in changes]
+
+    event_cols = {"time_ns": event_t}
+    event_cols.update(_clock(event_t, offset, t0))
+    event_cols["device"] = [str(e.get("device", "")) for e in events]
+    event_cols["kind"] = [str(e.get("kind", "")) for e in events]
+    event_cols["message"] = [str(e.get("message", "")) for e in events]
+    event_cols["details"] = [_json_text(e.get("details") or {}) for e in events]
+
+    trials = {**identity}
+    trials.update(
+        {
+            "kind": member.kind,
+            "source_id": member.source_id,
+            "source_name": member.source_name,
+            "derived_how": member.how,
+            "complete": rec.complete,
+            "start_time_ns": rec.start_ns,
+            "end_time_ns": rec.end_ns,
+            "start_unix_time_ns": rec.unix_time_ns(rec.start_ns),
+            "end_unix_time_ns": rec.unix_time_ns(rec.end_ns),
+            "duration_s": rec.duration_s,
+            "frames": len(index),
+            # frames left undecided: their IMU orientation was too old to level the cloud
+            "stale_orientation_frames": sum(
+                1 for d in pre.values() if d.get("flag") == "stale_orientation"
+            ),
+            "unix_offset_ns": offset,
+        }
+    )
+    session = rec.metadata.get("session", {})
+    for key, value in session.items():
+        if key not in ("subject", "condition", "trial"):
+            trials[f"session_{key}"] = (
+                value if not isinstance(value, (list, dict)) else (_json_text(value))
+            )
+    software = rec.metadata.get("software", {})
+    for key in (
+        "model_hash",
+        "model_path",
+        "walkcap_version",
+        "fusion_window",
+        "fusion_vote_delay",
+    ):
+        if key in software:
+            trials[key] = software[key]
+
+    # loss by the one definition of the live alarms and `walkcap info` (capture.recording.gaps)
+    for topic, loss in recording_loss(rec).items():
+        stream = GAP_TOPICS[topic]
+        trials[f"{stream}_gaps"] = len(loss.gaps)
+        trials[f"{stream}_missing"] = loss.missing
+        trials[f"{stream}_longest_gap_s"] = loss.longest_s
+        trials[f"{stream}_late"] = len(loss.late)
+
+    def frame(columns: dict, n: int):
+        df = pd.DataFrame(columns)
+        for k, v in reversed(list(identity.items())):
+            df.insert(0, k, pd.Series([v] * n, dtype=_identity_dtype(pd, k)))
+        return df
+
+    return {
+        "frames": frame(frames, len(index)),
+        "imu": frame(imu_cols, len(imu)),
+        "labels": frame(labels, len(changes)),
+        "events": frame(event_cols, len(events)),
+        "trials": pd.DataFrame([trials]),
+    }
+
+
+def corpus_tables(
+    paths: Iterable[str | os.PathLike],
+    *,
+    replays: bool = False,
+    every_file: bool = False,
+    progress: bool = False,
+    cluster: str | None = None,
+):
+    """Tables of many recordings, rows concatenated, and the corpus they came from: one
+    file per trial (capture.corpus.selection.select), or `every_file` as found. `cluster`: a Ray
+    cluster's address or "local" (capture.corpus.cluster), one task a recording."""
+    pd = _pd()
+    if every_file:
+        files = corpus_mod.recording_files(paths)
+        chosen = corpus_mod.Corpus([], [])
+    else:
+        chosen = corpus_mod.select(paths, replays=replays)
+        files = chosen.files
+    if not files:
+        raise chosen.nothing_left("nothing to export")
+    parts: dict[str, list] = {name: [] for name in TABLES}
+    if cluster:
+        from capture.corpus import cluster as cluster_mod
+
+        tasks = [cluster_mod.Task(Path(f).name, tables, (str(Path(f).resolve()),)) for f in files]
+        with cluster_mod.connect(cluster):
+            per_file = cluster_mod.run(
+                tasks, desc="export", unit="recording", show_progress=progress
+            )
+    else:
+        iterator = files
+        if progress and len(files) > 1:
+            from tqdm import tqdm
+
+            iterator = tqdm(files, unit="file", desc="export", leave=False)
+        per_file = (tables(f) for f in iterator)
+    for file_tables in per_file:
+        for name, df in file_tables.items():
+            parts[name].append(df)
+    out = {}
+    for name, dfs in parts.items():
+        nonempty = [d for d in dfs if len(d)] or dfs[:1]
+        out[name] = pd.concat(nonempty, ignore_index=True) if len(nonempty) > 1 else nonempty[0]
+    return out, chosen
+
+
+def write(tables_: dict, out: str | os.PathLike, fmt: str = "parquet") -> list[Path]:
+    """Write the tables into folder `out`: one file per table (parquet, csv), or one
+    walkcap.mat with a struct per table whose fields are the columns (MATLAB)."""
+    if fmt not in FORMATS:
+        raise CaptureError(f"export format {fmt!r}: one of {', '.join(FORMATS)}")
+    folder = Path(out)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise CaptureError(f"cannot create {folder}: {e.strerror}") from None
+    if fmt == "mat":
+        from scipy.io import savemat
+
+        structs = {name: _mat_struct(df) for name, df in tables_.items()}
+        return [_whole(folder / "walkcap.mat", lambda p: savemat(p, structs, oned_as="column"))]
+    written: list[Path] = []
+    for name, df in tables_.items():
+        path = folder / f"{name}.{fmt}"
+        if fmt == "parquet":
+            write_table = lambda p, df=df: df.to_parquet(p, index=False)  # noqa: E731
+        else:
+            write_table = lambda p, df=df: df.to_csv(p, index=False)  # noqa: E731
+        try:
+            written.append(_whole(path, write_table))
+        except ImportError:
+            raise CaptureError("Parquet needs pyarrow: pip install pyarrow") from None
+        except CaptureError as e:
+            done = f"; written before it: {', '.join(p.name for p in written)}" if written else ""
+            raise CaptureError(f"{e}{done}") from None
+    return written
+
+
+def _whole(path: Path, write) -> Path:
+    """`write(tmp)` beside `path`, renamed into place once whole: a full disk leaves no
+    truncated table under the table's name, and the error names the file."""
+    check_replaceable(path)
+    tmp = path.with_name(f".{path.stem}.partial{path.suffix}")  # savemat wants .mat
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except OSError as e:
+        tmp.unlink(missing_ok=True)
+        raise CaptureError(
+            f"{path}: not written ({e.strerror or e}); nothing of it is left"
+        ) from None
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return path
+
+
+# ---- helpers -----------------------------------------------------------------------------
+
+
+def _clock(times: np.ndarray, offset: int | None, t0: int) -> dict:
+    return {
+        "unix_time_ns": _ints([None if offset is None else int(t) + offset for t in times]),
+        "time_s": (times.astype(np.int64) - t0) * 1e-9 if len(times) else np.zeros(0),
+    }
+
+
+def _modes_at(times: np.ndarray, changes: list[tuple[int, str, str]]) -> list[str]:
+    from capture.recording.reader import labels_at
+
+    return [MODES[k] if k >= 0 else "" for k in labels_at(times, changes)]
+
+
+def _undone(changes: list[tuple[int, str, str]]) -> set[int]:
+    """Positions (in `changes`, time order) of the changes an undo took back."""
+    stack: list[int] = []
+    out: set[int] = set()
+    for k, (_, _, source) in enumerate(changes):
+        if source == "correction":
+            continue
+        if is_undo(source):
+            if stack:
+                out.add(stack.pop())
+        else:
+            stack.append(k)
+    return out
+
+
+def _ints(values: list):
+    """An integer column that may have gaps: pandas' nullable Int64."""
+    pd = _pd()
+    return pd.array(values, dtype="Int64")
+
+
+def _column(values: list):
+    """Numbers as float (None -> NaN), anything else as text (None -> "")."""
+    if all(v is None or (isinstance(v, (int, float)) and not isinstance(v, bool)) for v in values):
+        return np.array([np.nan if v is None else float(v) for v in values], dtype=float)
+    return ["" if v is None else str(v) for v in values]
+
+
+def _json_text(value) -> str:
+    return T.encode_json(value).decode() if isinstance(value, dict) else str(value)
+
+
+def _identity_dtype(pd, key: str):
+    return "Int64" if key == "trial" else object
+
+
+_MATLAB_NAME = re.compile(r"[^A-Za-z0-9_]")
+
+
+def matlab_name(name: str) -> str:
+    """A valid MATLAB identifier: letters, digits, _; starts with a letter; <= 63 chars."""
+    out = _MATLAB_NAME.sub("_", name)
+    if not out or not out[0].isalpha():
+        out = "x" + out
+    return out[:63]
+
+
+def _mat_struct(df) -> dict:
+    """A DataFrame as a MATLAB struct of columns: integers as int64 (double, gaps NaN,
+    where a value is missing), other numbers as double, booleans as logical, text as
+    cell arrays of char."""
+    from pandas.api.types import is_bool_dtype, is_integer_dtype, is_numeric_dtype
+
+    out = {}
+    for column in df.columns:
+        s = df[column]
+        if is_bool_dtype(s.dtype):
+            values = s.to_numpy(dtype=bool)
+        elif is_integer_dtype(s.dtype) and not s.isna().any():
+            values = s.to_numpy(dtype=np.int64)  # ns times need all 64 bits
+        elif is_numeric_dtype(s.dtype):
+            values = s.astype("float64").to_numpy(na_value=np.nan)
+        else:
+            values = np.array(["" if v is None else str(v) for v in s], dtype=object)
+        out[matlab_name(str(column))] = values
+    return out

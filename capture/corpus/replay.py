@@ -1,0 +1,465 @@
+"""Replay: the pipeline run again on a recording's depth and IMU, into a new recording.
+
+Deterministic: frames in order, each with the IMU samples recorded up to just after its
+time in the orientation track, exactly as the live session would have had them. The
+original file is only read.
+
+As fast as possible (`speed=None`), the work is split over two processes, since one
+Python process cannot use a second core: a reader process decodes the frames, levels and
+preprocesses them and encodes what the new recording keeps of them (depth, cloud, image,
+orientation, truth); this one classifies them in batches, fuses, measures the terrain and
+records. While the reader process starts, this one prepares the first frames itself.
+The frames are classified in batches of BATCH from the first frame on, whatever the reader
+process has sent so far: the CNN's float results depend on the batch's size, and fixed
+batches give the same file on every run. Paced replays (`speed=X`), and replays that are
+one task of a corpus job (`reader_process=False`: the cluster has given each task one
+core), run in this process alone.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import queue
+import socket
+import threading
+import time
+import uuid
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from capture.errors import CaptureError
+from capture.live.pipeline import (
+    CNN_THREADS,
+    OrientationTrack,
+    Pipeline,
+    model_hash,
+    record_decisions,
+)
+from capture.recording import topics as T
+from capture.recording.lineage import REPLAY, derivation
+from capture.recording.reader import imu_sample
+from devices.frames import DepthFrame, ImuSample
+
+IMU_LOOKAHEAD_NS = 20_000_000  # samples recorded up to this long after a frame may be used
+BATCH = 16  # frames classified at once when replaying as fast as possible
+
+
+@dataclass
+class ReplayReport:
+    source: str
+    output: str
+    frames: int
+    seconds_recorded: float
+    seconds_taken: float
+    stats: object  # RecorderStats of the new file
+
+    @property
+    def speedup(self) -> float:
+        return (
+            self.seconds_recorded / self.seconds_taken if self.seconds_taken > 0 else float("inf")
+        )
+
+
+def default_output(source: Path, folder: Path | None = None) -> Path:
+    folder = folder or source.parent
+    stem = source.stem
+    k = 1
+    while True:
+        out = folder / f"{stem}.replay{'' if k == 1 else k}.mcap"
+        if not out.exists():
+            return out
+        k += 1
+
+
+def recorded(rec) -> tuple[list[ImuSample], list[dict], list[dict]]:
+    """The recording's IMU samples (in sample-time order), labels and events: one pass."""
+    imu, labels, events = [], [], []
+    for m in rec.messages([T.IMU, T.LABELS, T.EVENTS]):
+        if m.topic == T.IMU:
+            imu.append(imu_sample(m.data))
+        else:
+            (labels if m.topic == T.LABELS else events).append(m.data)
+    imu.sort(key=_sample_time)
+    return imu, labels, events
+
+
+def _sample_time(s: ImuSample) -> int:
+    return s.time_ns if s.time_ns is not None else s.host_time_ns
+
+
+def orientations(imu: list[ImuSample]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(times ns, quaternions N x 4, rates of turn N x 3, NaN where absent) of the samples
+    that carry an orientation: what the orientation track needs, compact to hand over."""
+    kept = [s for s in imu if s.quaternion is not None]
+    times = np.array([_sample_time(s) for s in kept], dtype=np.int64)
+    quats = np.array([s.quaternion for s in kept], dtype=np.float64).reshape(-1, 4)
+    rates = np.array(
+        [s.rate_of_turn if s.rate_of_turn is not None else np.full(3, np.nan) for s in kept],
+        dtype=np.float64,
+    ).reshape(-1, 3)
+    return times, quats, rates
+
+
+def prepared_frames(
+    source: str | Path, params, imu_orientations=None, skip: int = 0
+) -> Iterator[tuple[DepthFrame, np.ndarray | None, object]]:
+    """(frame, orientation, Preprocessed) for every recorded frame, in order, after the
+    first `skip`. `imu_orientations`: orientations() of the recording's IMU, if already read."""
+    from capture.recording.reader import depth_frames, open_recording
+    from inference.preprocess import preprocess
+
+    if imu_orientations is None:
+        imu_orientations = orientations(recorded(open_recording(source))[0])
+    times, quats, rates = imu_orientations
+    track = OrientationTrack(span_s=5.0)
+    i = 0
+    for k, frame in enumerate(depth_frames(source)):
+        if k < skip:  # decoded for nothing (~0.5 ms each); rebuilding xyz is 0.2 ms of it
+            continue
+        t = frame.device_time_ns
+        while i < len(times) and times[i] <= t + IMU_LOOKAHEAD_NS:
+            track.add(int(times[i]), quats[i], rates[i] if np.isfinite(rates[i, 0]) else None)
+            i += 1
+        q, age_ns = track.at(t)
+        level = q if q is not None else np.full(4, np.nan)
+        yield frame, q, preprocess(frame.xyz, frame.confidence, level, params, age_ns)
+
+
+class _ReaderProcess:
+    """prepared_frames() run in a child process, read back in order. A thread here takes
+    the frames off the socket as they come: the socket holds about one frame, so without
+    it the reader would stop while this process classifies a batch, and the two would
+    take turns instead of working at once. The child says when it is ready (`ready`) and
+    is then told how many frames to skip (`start_at`): those this process has done itself
+    meanwhile."""
+
+    AHEAD = 64  # frames received and not yet taken (~10 MB)
+
+    def __init__(self, source: Path, params) -> None:
+        from devices.child import Child
+
+        self._child = Child("capture.corpus.replay:_serve_prepared", str(source), params)
+        self._received: queue.Queue = queue.Queue(maxsize=self.AHEAD)
+        self._closed = threading.Event()
+        self.ready = threading.Event()  # set at the child's first message
+        self._receiver = threading.Thread(
+            target=self._receive, name="walkcap-replay-receiver", daemon=True
+        )
+
+    def start(self, imu_orientations) -> None:
+        """The IMU's orientations, read meanwhile in this process: frames start coming."""
+        self._child.conn.send(imu_orientations)
+        self._receiver.start()
+
+    def _receive(self) -> None:
+        conn = self._child.conn
+        while not self._closed.is_set():
+            try:
+                message = conn.recv()
+            except (EOFError, OSError):
+                message = ("error", "replay: the frame reader process ended unexpectedly")
+            except Exception as e:  # never leave the consumer waiting for nothing
+                message = ("error", f"replay: unreadable data from the frame reader ({e})")
+            if not self.ready.is_set():  # or it failed before it was: nothing more to wait for
+                self.ready.set()
+            if message[0] == "ready":
+                continue
+            while not self._closed.is_set():
+                try:
+                    self._received.put(message, timeout=0.2)
+                    break
+                except queue.Full:
+                    continue
+            if message[0] != "frame":
+                return
+
+    def start_at(self, skip: int) -> None:
+        """Frames from number `skip` on (the child waits for this after `ready`)."""
+        try:
+            self._child.conn.send(skip)
+        except OSError:
+            pass  # it has ended: its error, if any, is already queued
+
+    def batches(self, size: int):
+        """Lists of up to `size` frames: the first frame received, then those already
+        waiting. Classifying what has come rather than waiting for `size` keeps this
+        process busy from the first frame on; when it falls behind, batches fill up."""
+        batch: list = []
+        while True:
+            message = self._received.get() if not batch else self._waiting()
+            if message is None or message[0] != "frame":
+                if batch:
+                    yield batch
+                    batch = []
+                if message is None:
+                    continue
+                if message[0] == "error":
+                    raise CaptureError(message[1])
+                return
+            batch.append(message[1])
+            if len(batch) == size:
+                yield batch
+                batch = []
+
+    def _waiting(self):
+        try:
+            return self._received.get_nowait()
+        except queue.Empty:
+            return None
+
+    def close(self) -> None:
+        self._closed.set()
+        # Shut the socket down rather than close it under the receiving thread: its recv
+        # returns, and a reader still sending sees the connection break and ends.
+        try:
+            with socket.socket(fileno=os.dup(self._child.conn.fileno())) as end:
+                end.shutdown(socket.SHUT_RDWR)
+        except OSError:
+            pass
+        if self._receiver.is_alive():
+            self._receiver.join(timeout=2.0)
+        self._child.end(timeout_s=2.0)
+
+
+def _serve_prepared(conn, source: str, params) -> None:
+    from capture.recording.reader import depth_frames  # noqa: F401  (imported while the host reads)
+    from capture.recording.writer import encode_depth  # noqa: F401
+
+    try:
+        imu_orientations = conn.recv()
+        conn.send(("ready",))
+        skip = conn.recv()
+        for frame, q, pre in prepared_frames(source, params, imu_orientations, skip):
+            conn.send(("frame", _encoded(frame, q, pre)))
+        conn.send(("end",))
+    except (BrokenPipeError, ConnectionResetError, EOFError):
+        pass  # the replay was stopped
+    except CaptureError as e:
+        conn.send(("error", str(e)))
+    except Exception as e:  # a corrupt file: one message on the other side
+        conn.send(("error", f"{source}: {type(e).__name__}: {e}"))
+
+
+def _encoded(frame: DepthFrame, q, pre):
+    """What the recording needs of a frame that fusion does not change, encoded (in the
+    reader process when replaying fast); the frame and its Preprocessed go on without
+    their bulky arrays. The rays come with the source's attachments."""
+    from capture.recording.writer import encode_depth, encode_processed, encode_truth
+
+    t, log_time = frame.device_time_ns, frame.host_time_ns
+    messages = encode_depth(frame, t, log_time) + encode_processed(
+        frame.index, t, log_time, pre.cloud, pre.image, q, pre.flag
+    )
+    if frame.truth:
+        messages += encode_truth(frame.index, t, log_time, frame.truth)
+    none = np.zeros((0, 0), np.uint8)
+    slim = dataclasses.replace(
+        frame, xyz=np.zeros((0, 0, 3), np.float32), confidence=none, gray=none, range_mm=None
+    )
+    return slim, q, dataclasses.replace(pre, cloud=np.zeros((0, 3), np.float32)), messages
+
+
+def replay(
+    source: str | Path,
+    config,
+    *,
+    output: str | Path | None = None,
+    speed: float | None = None,
+    classifier=None,
+    progress=None,
+    reader_process: bool = True,
+) -> ReplayReport:
+    """Run the pipeline on `source` into `output`. speed None: as fast as possible (with
+    a reader process unless `reader_process` is False); else paced at `speed` x the
+    recorded rate."""
+    from capture.recording.reader import open_recording
+    from inference.preprocess import PreprocessParams
+
+    source = Path(source)
+    rec = open_recording(source)
+    if T.DEPTH not in rec.topics:
+        raise CaptureError(f"{source}: no depth frames to replay")
+    output = Path(output) if output else default_output(source)
+    if output.resolve() == source.resolve():
+        raise CaptureError("the replay must go to a new file; the original is never modified")
+    params = PreprocessParams.from_config(config)
+    fast = not speed
+    # the reader process starts first: its imports overlap with reading the IMU here
+    frames_in = _ReaderProcess(source, params) if fast and reader_process else None
+    try:
+        imu, labels, events = recorded(rec)
+        imu_orientations = orientations(imu)
+        if frames_in is not None:
+            frames_in.start(imu_orientations)
+            blocks = _head_start(source, params, imu_orientations, frames_in)
+        else:  # one by one, in this process
+            blocks = (
+                [_encoded(frame, q, pre)]
+                for frame, q, pre in prepared_frames(source, params, imu_orientations)
+            )
+        if fast:
+            blocks = _fixed_batches(blocks, BATCH)
+        return _replay(
+            source,
+            rec,
+            output,
+            config,
+            params,
+            speed,
+            classifier,
+            progress,
+            blocks,
+            (imu, labels, events),
+        )
+    finally:
+        if frames_in is not None:
+            frames_in.close()
+
+
+def _fixed_batches(blocks, size: int):
+    """The frames of `blocks` regrouped into lists of exactly `size` (the last may be
+    shorter), however they came."""
+    batch: list = []
+    for block in blocks:
+        for item in block:
+            batch.append(item)
+            if len(batch) == size:
+                yield batch
+                batch = []
+    if batch:
+        yield batch
+
+
+def _head_start(source, params, imu_orientations, frames_in: _ReaderProcess):
+    """Blocks of frames: prepared here, one at a time, until the reader process is ready
+    (a Python with numpy, mcap and protobuf: 0.16-0.22 s after replay() begins; waiting
+    for it would cost ~0.1 s, an eighth of a 15 s recording's replay at 20x); then the
+    reader's batches, from the next frame on."""
+    done = 0
+    if not frames_in.ready.is_set():
+        own = prepared_frames(source, params, imu_orientations)
+        try:
+            for frame, q, pre in own:
+                yield [_encoded(frame, q, pre)]
+                done += 1
+                if frames_in.ready.is_set():
+                    break
+        finally:
+            own.close()
+    frames_in.start_at(done)
+    yield from frames_in.batches(BATCH)
+
+
+def _replay(
+    source, rec, output, config, params, speed, classifier, progress, blocks, recorded_streams
+) -> ReplayReport:
+    from capture.recording.writer import ZSTD_LEVEL_FAST, Recorder
+    from inference import features  # noqa: F401  (imported now, not in the first frame's time)
+    from inference.fusion import make_fusion
+    from inference.model import load_classifier
+
+    classifier = classifier or load_classifier(config.model.path or None, threads=CNN_THREADS)
+    cfg = config.fusion
+    fusion = make_fusion(
+        cfg.method,
+        window=cfg.window,
+        vote_delay=cfg.vote_delay,
+        transition=np.asarray(cfg.transition),
+        stay=cfg.stay,
+        evidence=cfg.evidence,
+        hysteresis=cfg.hysteresis,
+    )
+    pipeline = Pipeline(params, classifier, fusion)
+
+    imu, labels, events = recorded_streams
+
+    metadata = {
+        name: dict(values)
+        for name, values in rec.metadata.items()
+        if name in ("session", "devices", "camera")
+    }
+    software = dict(rec.metadata.get("software", {}))
+    software.update(
+        {
+            "replay_of": source.name,
+            "model_path": config.model.path or "bundled",
+            "model_hash": model_hash(classifier),
+            "fusion_window": cfg.window,
+            "fusion_vote_delay": cfg.vote_delay,
+            "fusion_transition": T.jsonable(cfg.transition),
+            "preprocess": T.jsonable(pipeline.params.to_dict()),
+        }
+    )
+    metadata["software"] = software
+    replay_id = str(uuid.uuid4())
+    metadata["derivation"] = derivation(
+        rec,
+        replay_id,
+        REPLAY,
+        f"replay with model {software['model_hash'][:12] or '?'} ({software['model_path']})",
+        model_hash=software["model_hash"],
+        model_path=software["model_path"],
+    )
+    attachments = {name: data for name, data in rec.attachments.items()}
+    recorder = Recorder(
+        output,
+        recording_id=replay_id,
+        metadata=metadata,
+        attachments=attachments,
+        blocking=True,
+        zstd_level=ZSTD_LEVEL_FAST,
+    )
+    recorder.start()
+    batch = getattr(classifier, "predict_batch", None)
+    i_imu = 0
+    frames = 0
+    first_t = last_t = None
+    wall0 = time.monotonic()
+    try:
+        for lab in labels:
+            recorder.write_label(int(lab["time_ns"]), lab.get("mode", ""), lab.get("source", ""))
+        for ev in events:
+            recorder.write_event(dict(ev))
+        for block in blocks:
+            probs = (
+                batch(np.stack([pre.image for _, _, pre, _ in block]))
+                if batch is not None
+                else [classifier.predict(pre.image) for _, _, pre, _ in block]
+            )
+            for (frame, q, pre, encoded), p in zip(block, probs):
+                t = frame.device_time_ns
+                first_t = t if first_t is None else first_t
+                last_t = t
+                if speed:  # recorded pace, scaled
+                    wait = (t - first_t) * 1e-9 / speed - (time.monotonic() - wall0)
+                    if wait > 0:
+                        time.sleep(wait)
+                while i_imu < len(imu) and _sample_time(imu[i_imu]) <= t + IMU_LOOKAHEAD_NS:
+                    recorder.write_imu(imu[i_imu])
+                    i_imu += 1
+                result = pipeline.process(frame, q, t, prepared=pre, probabilities=p)
+                recorder.write_encoded(frame.index, t, frame.host_time_ns, encoded)
+                record_decisions(recorder, result, frame.host_time_ns)
+                frames += 1
+                if progress is not None:
+                    progress(frames)
+        for s in imu[i_imu:]:
+            recorder.write_imu(s)
+    finally:
+        stats = recorder.close()
+    taken = time.monotonic() - wall0
+    recorded = (last_t - first_t) * 1e-9 if frames > 1 else 0.0
+    return ReplayReport(str(source), str(output), frames, recorded, taken, stats)
+
+
+def replay_file(source: str, config, output: str) -> ReplayReport:
+    """One recording's replay as a task of a corpus job (capture.corpus.cluster): as fast as
+    possible in this process, the same file as `replay` writes."""
+    report = replay(source, config, output=output, reader_process=False)
+    if report.stats.state == "failed":
+        raise CaptureError(f"{output}: {report.stats.message}")
+    return report

@@ -1,0 +1,892 @@
+"""A data-collection session: devices in; pipeline, recording and UI snapshots out.
+
+Threads: one reads the IMU into the orientation track (and the recorder); one reads camera
+frames, records each at once (raw data and labels first, whatever the pipeline does) and
+hands the newest to the pipeline thread; the recorder writes on its own thread. Nothing here
+waits on the UI or the disk: the UI pulls `snapshot()` at its own pace and sends commands
+(`set_label`, `add_marker`, `start_recording`, ...) that only touch memory and queues.
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import datetime as dt
+import gc
+import json
+import logging
+import re
+import sys
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from capture import __version__
+from capture import config as config_mod
+from capture.errors import CaptureError, ConfigError
+from capture.live.alarms import AlarmState, TrialAlarms
+from capture.live.pipeline import (
+    CNN_THREADS,
+    IMU_LATE_S,
+    FrameResult,
+    OrientationTrack,
+    Pipeline,
+    model_hash,
+    record_decisions,
+)
+from capture.recording import topics as T
+from devices.base import DeviceEvent, DeviceState, DeviceStatus
+from devices.clock import now_ns
+from devices.frames import MODES, DepthFrame
+from devices.scheduling import NORMAL_PRIORITY, realtime_priority
+from inference.errors import InferenceError
+
+log = logging.getLogger(__name__)
+
+TIMELINE_S = 20.0
+TRIAL_MAX = 99_999  # trial numbers name files (t01 ... t99999) and fit every integer field
+SWITCH_INTERVAL_S = 0.0005
+
+
+@dataclass
+class SubjectInfo:
+    """The session form: the paper's subject tables plus condition and trial."""
+
+    subject: str = "S01"  # pseudonymous id, never a name
+    height_m: float | None = None
+    weight_kg: float | None = None
+    age: int | None = None
+    sex: str = ""  # female | male | other | ""
+    amputee: bool = False
+    side: str = ""  # left | right (amputees)
+    residual_limb_cm: float | None = None
+    condition: str = "indoor"  # indoor | outdoor | free text
+    trial: int = 1
+    notes: str = ""
+
+    def validate(self) -> None:
+        if not re.fullmatch(r"[A-Za-z0-9_-]{1,32}", self.subject):
+            raise CaptureError(
+                "subject id: 1-32 letters, digits, '-' or '_' (pseudonymous, no names)"
+            )
+        if self.height_m is not None and not 0.5 <= self.height_m <= 2.5:
+            raise CaptureError("height: expected metres between 0.5 and 2.5")
+        if self.weight_kg is not None and not 20 <= self.weight_kg <= 300:
+            raise CaptureError("weight: expected kilograms between 20 and 300")
+        if self.age is not None and not 1 <= self.age <= 120:
+            raise CaptureError("age: expected years between 1 and 120")
+        if self.sex not in ("", "female", "male", "other"):
+            raise CaptureError("sex: female, male, other or empty")
+        if self.side not in ("", "left", "right"):
+            raise CaptureError("side: left, right or empty")
+        if self.amputee and not self.side:
+            raise CaptureError("side: required for an amputee (left or right)")
+        if not re.fullmatch(r"[A-Za-z0-9_-]{1,32}", self.condition):
+            raise CaptureError("condition: 1-32 letters, digits, '-' or '_' (e.g. indoor)")
+        if not 1 <= self.trial <= TRIAL_MAX:
+            raise CaptureError(f"trial: a number from 1 to {TRIAL_MAX}")
+
+    def to_metadata(self) -> dict:
+        """The form as the "session" metadata record: typed values (None: not given)."""
+        return dataclasses.asdict(self)
+
+
+@dataclass
+class LabelChange:
+    time_ns: int
+    mode: str
+    source: str  # operator | undo | simulator
+
+
+@dataclass
+class TimelineEntry:
+    index: int
+    time_ns: int
+    label: str | None
+    cnn: int
+    fused: int | None = None  # filled in when the fused decision for this frame arrives
+    voted: int | None = None
+    truth: str | None = None
+
+
+SWITCHES_S = 60.0  # the live screen counts the fused decision's switches over this long
+
+
+class SwitchCounter:
+    """Changes of the final fused decision over the last `span_s` of frame time."""
+
+    def __init__(self, span_s: float) -> None:
+        self.span_ns = int(span_s * 1e9)
+        self._last: int | None = None
+        self._times: collections.deque[int] = collections.deque()
+
+    def add(self, time_ns: int, final: int | None) -> None:
+        """The final decision made at `time_ns` (None: none made then)."""
+        if final is not None:
+            if self._last is not None and final != self._last:
+                self._times.append(time_ns)
+            self._last = final
+        while self._times and self._times[0] < time_ns - self.span_ns:
+            self._times.popleft()
+
+    def count(self) -> int:
+        return len(self._times)
+
+
+@dataclass
+class Snapshot:
+    """Everything the UI shows, copied out under the lock: the UI never touches threads."""
+
+    time_ns: int
+    running: bool
+    camera: DeviceStatus | None
+    imu: DeviceStatus | None
+    sync: dict
+    label: str | None
+    latest: FrameResult | None
+    timeline: list[TimelineEntry]
+    events: list[DeviceEvent]
+    recording: object | None  # capture.recording.writer.RecorderStats
+    recording_started_ns: int | None
+    frames: int
+    latency_ms: dict
+    switches_last_minute: int | None = None  # final fused decision changes in SWITCHES_S
+    walker_mode: str | None = None  # mock devices: the walker's locomotion mode, to key
+    alarms: AlarmState | None = None  # gaps this trial, and what the operator must see now
+    stale_frames: int = 0  # frames of this (or the last) trial left undecided: stale IMU
+
+
+HOST_STALL_NS = 1_000_000_000  # the monitor (every 0.2 s) not run for this long: a host stall
+
+# Threads carrying raw data in: the rig's reader, the IMU driver's and this session's
+# camera and IMU threads (the IMU's share one name).
+INTAKE_THREADS = ("walkcap-rig-reader", "walkcap-imu", "walkcap-camera")
+
+
+def stream_periods(config: config_mod.Config) -> dict[str, float]:
+    """The configured period of each sensor stream (what a gap is measured against)."""
+    return {"camera": 1.0 / config.camera.fps, "imu": 1.0 / config.imu.rate_hz}
+
+
+def open_devices(config: config_mod.Config, camera=None, imu=None):
+    """The configured camera and IMU, opened and configured, not yet started.
+
+    On a mock walk the IMU emulator feels the same thigh the camera rides on: both count
+    walk time from one instant, as a real sensor pair on one leg would. In real time (the
+    default) both run in a child process, the mock rig, as hardware runs outside the host.
+    """
+    from devices.camera import open_camera
+    from devices.imu import open_imu
+
+    sim = config.simulator
+    if (
+        camera is None
+        and imu is None
+        and config.camera.backend == "mock"
+        and config.imu.backend == "mock"
+        and sim.realtime
+        and sim.process
+    ):
+        return _open_rig(config)
+    if camera is None:
+        camera = open_camera(config.camera, config.simulator)
+    try:
+        camera.open()
+        if imu is None:
+            if hasattr(camera, "orientation_at"):
+                camera.start_time_ns = now_ns()
+                offset = {"s": 0.0}  # emulator start - camera start, known once it runs
+                imu = open_imu(
+                    config.imu, orientation_at=lambda t: camera.orientation_at(t + offset["s"])
+                )
+                emulator = getattr(imu, "emulator", None)
+                if emulator is not None and emulator.start_time_ns is not None:
+                    offset["s"] = (emulator.start_time_ns - camera.start_time_ns) * 1e-9
+            else:
+                imu = open_imu(config.imu)
+        imu.open()
+    except BaseException:
+        close_devices(imu, camera)
+        raise
+    return camera, imu
+
+
+def _open_rig(config: config_mod.Config):
+    from devices.simulator.rig import MockRig
+
+    rig = MockRig(config.camera, config.simulator, config.imu)
+    camera = imu = None
+    try:
+        camera, imu = rig.camera(), rig.imu()
+        camera.open()
+        imu.open()
+    except BaseException:
+        close_devices(imu, camera)
+        rig.close()
+        raise
+    return camera, imu
+
+
+def close_devices(*devices) -> None:
+    """Stop and close each device; one failing (a lost device) never keeps another open."""
+    for device in devices:
+        if device is None:
+            continue
+        for step in ("stop", "close"):
+            try:
+                getattr(device, step)()
+            except Exception as e:
+                log.warning("%s %s: %s", step, type(device).__name__, e)
+
+
+class _FrameInbox:
+    """The camera thread's hand-over to the pipeline thread: (frame, recorder) items, up to
+    `size` (a hiccup of the pipeline is caught up, as the camera's buffer did). Full in real
+    time, the oldest item goes unclassified (it is already recorded); `blocking`, the camera
+    thread waits for the pipeline instead."""
+
+    def __init__(self, size: int = 8) -> None:
+        self._items: collections.deque[tuple] = collections.deque()
+        self.size = max(1, size)
+        self._closed = False
+        self.blocking = False
+        self._cond = threading.Condition()
+
+    def put(self, item: tuple) -> tuple | None:
+        """Hand `item` over; the oldest one it pushed out, if any."""
+        with self._cond:
+            while self.blocking and len(self._items) >= self.size and not self._closed:
+                self._cond.wait(0.1)
+            dropped = self._items.popleft() if len(self._items) >= self.size else None
+            self._items.append(item)
+            self._cond.notify_all()
+            return dropped
+
+    def take(self, timeout_s: float) -> tuple | None:
+        with self._cond:
+            if not self._items and timeout_s > 0:
+                self._cond.wait(timeout_s)
+            item = self._items.popleft() if self._items else None
+            self._cond.notify_all()
+            return item
+
+    def close(self) -> None:
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+
+
+class _Streak:
+    """A run of frames that failed the same way, as two events: when it starts, and when
+    it ends (`settle` frames in a row go through again, or the trial stops) with how many
+    frames it cost. A flaky classifier is one run, not an event per frame."""
+
+    def __init__(self, device: str, kind: str, why: str, settle: int = 30) -> None:
+        self.device, self.kind, self.why = device, kind, why
+        self.settle = settle
+        self.count = 0
+        self.first = ""
+        self._good = 0
+        self._lock = threading.Lock()
+
+    def fail(self, t_ns: int, message: str) -> DeviceEvent | None:
+        with self._lock:
+            self._good = 0
+            self.count += 1
+            if self.count > 1:
+                return None
+            self.first = message
+        text = f"{message} ({self.why}; frames not classified from here on are counted)"
+        return DeviceEvent(t_ns, self.device, self.kind, text, {"count": 1})
+
+    def ok(self, t_ns: int, final: bool = False) -> DeviceEvent | None:
+        with self._lock:
+            n, first = self.count, self.first
+            if n == 0:
+                return None
+            self._good += 1
+            if self._good < self.settle and not final:
+                return None
+            self.count = self._good = 0
+        text = f"{n} frames not classified: {self.why} (first: {first})"
+        return DeviceEvent(t_ns, self.device, self.kind, text, {"count": n})
+
+
+class Session:
+    """Open devices, run the pipeline, record trials, serve snapshots and commands."""
+
+    def __init__(
+        self,
+        config: config_mod.Config,
+        *,
+        camera=None,
+        imu=None,
+        classifier=None,
+        auto_label: bool = False,
+    ) -> None:
+        self.config = config
+        self._camera = camera
+        self._imu = imu
+        self._classifier = classifier
+        self.auto_label = auto_label
+        self.track = OrientationTrack()
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._recorder = None
+        self._recording_started_ns: int | None = None
+        self._label: str | None = None
+        self._label_history: list[LabelChange] = []
+        self._latest: FrameResult | None = None
+        self._timeline: collections.deque[TimelineEntry] = collections.deque()
+        self._by_index: dict[int, TimelineEntry] = {}
+        self._events: collections.deque[DeviceEvent] = collections.deque(maxlen=200)
+        self._latencies: collections.deque[float] = collections.deque(maxlen=2000)
+        self._latency_sinks: list[Callable[[float], None]] = []
+        self._taps: tuple = ()  # live outputs beside the recorder (LSL, Foxglove)
+        self._sync_errors: collections.deque[float] = collections.deque(maxlen=5000)
+        self._frames = 0
+        self._stale_frames = 0
+        self._last_truth_mode: str | None = None
+        self._walker_mode: str | None = None
+        self._switches = SwitchCounter(SWITCHES_S)
+        self._inbox = _FrameInbox()
+        self._failures = _Streak("pipeline", "error", "the pipeline failed on it")
+        self._behind = _Streak("pipeline", "behind", "the pipeline fell behind")
+        self.pipeline: Pipeline | None = None
+        self.pipeline_priority = NORMAL_PRIORITY  # how the pipeline thread is scheduled
+        self.intake_scheduling = NORMAL_PRIORITY  # how the intake threads and writer are
+        self.model_metadata: dict = {}
+        self.finished = threading.Event()  # the camera ran out of frames (end of a mock course)
+        self.trial_notice = ""  # why the last recording has another trial number than asked
+        self.trial: SubjectInfo | None = None  # the form of the recording in progress
+        self.alarms = TrialAlarms(config.session.recordings, stream_periods(config))
+
+    # ---- life cycle -------------------------------------------------------------------
+
+    def start(self) -> None:
+        """Load the model, open both devices and start the threads."""
+        from inference.fusion import make_fusion
+        from inference.model import load_classifier
+        from inference.preprocess import PreprocessParams
+
+        cfg = self.config
+        if not 0 <= cfg.session.realtime_priority <= 99:
+            raise ConfigError(
+                f"session.realtime_priority: 1-99, or 0 for normal scheduling; "
+                f"got {cfg.session.realtime_priority}"
+            )
+        if self._classifier is None:
+            self._classifier = load_classifier(cfg.model.path or None, threads=CNN_THREADS)
+        self.model_metadata = dict(getattr(self._classifier, "metadata", {}) or {})
+        fusion = make_fusion(
+            cfg.fusion.method,
+            window=cfg.fusion.window,
+            vote_delay=cfg.fusion.vote_delay,
+            transition=np.asarray(cfg.fusion.transition),
+            stay=cfg.fusion.stay,
+            evidence=cfg.fusion.evidence,
+            hysteresis=cfg.fusion.hysteresis,
+        )
+        self.pipeline = Pipeline(PreprocessParams.from_config(cfg), self._classifier, fusion)
+        # First calls are slow (torch's lazy set-up, numpy caches, the recorder's schema
+        # modules): pay for them before the camera runs, not in the first frames of a trial.
+        try:
+            for _ in range(3):
+                self._classifier.predict(np.zeros((100, 100), np.uint8))
+        except Exception as e:  # refused before any device opens, as a model file is
+            raise InferenceError(f"the classifier fails on a blank image: {e}") from None
+        import capture.recording.writer  # noqa: F401  (mcap, protobuf: a second of imports)
+
+        # The pipeline thread gives the GIL up hundreds of times a frame (numpy, torch) and
+        # each time may wait a whole switch interval behind the IMU's or the recorder's
+        # Python code to get it back: at the default 5 ms that is p99 latencies of 20-70 ms
+        # at 45 fps for 4 ms of work. A 0.5 ms interval bounds that wait (process-wide).
+        sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
+        # A full garbage collection walks every object of torch, Open3D and the UI: 50-100 ms
+        # with every thread stopped, a few times a minute (dropped frames, the p99). Objects
+        # alive now live for the session: freeze them out of the collector's walks (until
+        # stop()).
+        gc.collect()
+        gc.freeze()
+        if self._camera is None or self._imu is None:
+            self._camera, self._imu = open_devices(cfg, self._camera, self._imu)
+        try:
+            self._imu.start()
+            self._camera.start()
+        except BaseException:
+            close_devices(self._camera, self._imu)
+            raise
+        # As fast as the pipeline runs (a mock camera not in real time): every frame waits
+        # for its classification; in real time the pipeline takes the newest frame.
+        self._inbox.blocking = cfg.camera.backend == "mock" and not cfg.simulator.realtime
+        self._inbox.size = cfg.camera.buffer_frames
+        self._spawn(self._imu_loop, "imu")
+        self._spawn(self._frame_loop, "camera")
+        pipeline = self._spawn(self._pipeline_loop, "pipeline")
+        self.pipeline_priority = realtime_priority(
+            pipeline.native_id, cfg.session.realtime_priority
+        )
+        # The threads that carry raw data in (the devices' readers, this session's intake)
+        # and the recorder's writer run one step above the pipeline: what is derived from
+        # the data never starves the data itself. They sleep between items.
+        for thread in threading.enumerate():
+            if thread.name in INTAKE_THREADS:
+                self.intake_scheduling = realtime_priority(thread.native_id, self.intake_priority)
+        self._spawn(self._monitor_loop, "monitor")
+
+    @property
+    def intake_priority(self) -> int:
+        """SCHED_FIFO priority of the threads carrying raw data (0: normal scheduling)."""
+        pipeline = self.config.session.realtime_priority
+        return min(99, pipeline + 1) if pipeline > 0 else 0
+
+    def _spawn(self, target, name: str) -> threading.Thread:
+        t = threading.Thread(target=target, name=f"walkcap-{name}", daemon=True)
+        t.start()
+        self._threads.append(t)
+        return t
+
+    def stop(self):
+        """Stop the threads and devices; finalise a recording in progress. Idempotent."""
+        self._stop.set()
+        self._inbox.close()
+        for t in self._threads:
+            t.join(timeout=3.0)
+        self._threads.clear()
+        stats = self.stop_recording() if self._recorder is not None else None
+        close_devices(self._camera, self._imu)
+        gc.unfreeze()  # what the session held may be collected again (the UI runs on)
+        return stats
+
+    def __enter__(self) -> Session:
+        self.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    # ---- threads ----------------------------------------------------------------------
+
+    def _imu_loop(self) -> None:
+        while not self._stop.is_set():
+            sample = self._imu.recv(0.1)
+            if sample is None:
+                continue
+            t = sample.time_ns if sample.time_ns is not None else sample.host_time_ns
+            # the device's count and time, and the recorder's log time
+            self.alarms.sample("imu", sample.packet_counter, t, sample.host_time_ns)
+            if sample.quaternion is not None:
+                self.track.add(t, sample.quaternion, sample.rate_of_turn)
+            truth = getattr(self._imu, "true_time_ns", None)
+            if truth is not None and sample.sample_time_fine is not None:
+                self._sync_errors.append(abs(t - truth(sample.sample_time_fine)) * 1e-6)
+            for out in self._outputs():
+                out.write_imu(sample)
+
+    def _frame_loop(self) -> None:
+        """Camera frames in: each recorded at once, then handed to the pipeline thread."""
+        while not self._stop.is_set():
+            frame = self._camera.recv(0.1)
+            if frame is None:
+                if self._camera_finished():
+                    self.finished.set()
+                continue
+            recorder = self.record_frame(frame)
+            skipped = self._inbox.put((frame, recorder))
+            t = frame.device_time_ns
+            if skipped is not None:
+                self._report(self._behind.fail(t, f"frame {skipped[0].index}"))
+            else:
+                self._report(self._behind.ok(t))
+
+    def _pipeline_loop(self) -> None:
+        # On stop, the frames the camera thread handed over last are classified too, so
+        # that a trial's last recorded frames have their decisions like the others.
+        camera = next(t for t in self._threads if t.name == "walkcap-camera")
+        while not (self._stop.is_set() and not camera.is_alive()):
+            item = self._inbox.take(0.1)
+            if item is not None:
+                self.classify_frame(*item)
+        deadline = now_ns() + 1_000_000_000  # a slow classifier must not hold the stop up
+        while now_ns() < deadline and (item := self._inbox.take(0.0)) is not None:
+            self.classify_frame(*item)
+
+    def _camera_finished(self) -> bool:
+        status = self._camera.status()
+        return status.state == DeviceState.STOPPED and not self._stop.is_set()
+
+    def _monitor_loop(self) -> None:
+        last = now_ns()
+        while not self._stop.wait(0.2):
+            t = now_ns()
+            if t - last > HOST_STALL_NS:  # this loop wakes every 0.2 s: the host stalled
+                stall_s = (t - last) * 1e-9
+                self._event(
+                    DeviceEvent(
+                        t,
+                        "host",
+                        "stall",
+                        f"the computer stalled for {stall_s:.2f} s (no walkcap thread ran): "
+                        "what the devices kept meanwhile is recorded, the rest is a gap",
+                        {"gap_s": stall_s, "gap_start_ns": last, "gap_end_ns": t},
+                    )
+                )
+            last = t
+            for device in (self._camera, self._imu):
+                for event in device.poll_events():
+                    self._event(event)
+
+    def _event(self, event: DeviceEvent) -> None:
+        with self._lock:
+            self._events.append(event)
+        for out in self._outputs():
+            out.write_event(event)
+
+    def _outputs(self) -> tuple:
+        """Where the session's data goes: the recorder (while recording), then the taps."""
+        rec = self._recorder
+        return self._taps if rec is None else (rec, *self._taps)
+
+    def add_event(self, event: DeviceEvent) -> None:
+        """An event from beside the devices (an LSL peer, a lab tool): shown and recorded."""
+        self._event(event)
+
+    def active_recorder(self):
+        """The recorder of the trial being recorded, or None between trials."""
+        return self._recorder
+
+    def add_tap(self, tap) -> None:
+        """A live output beside the recorder: it gets the recorder's write_* calls (frames,
+        IMU samples, labels, events) whether or not a trial is recording. Each call must
+        return at once (queue, or a non-blocking send) and must not raise."""
+        self._taps = (*self._taps, tap)
+
+    def remove_tap(self, tap) -> None:
+        self._taps = tuple(t for t in self._taps if t is not tap)
+
+    # ---- per frame --------------------------------------------------------------------
+
+    def process_frame(self, frame: DepthFrame) -> FrameResult | None:
+        """One frame, start to end: recorded, then classified (None when that fails)."""
+        return self.classify_frame(frame, self.record_frame(frame))
+
+    def record_frame(self, frame: DepthFrame):
+        """The raw frame, its truth and an automatic label: written before any processing.
+        Returns the recorder it went to (None between trials)."""
+        t = frame.device_time_ns
+        # the walker's locomotion mode, what an operator keys (the image's mode leads it)
+        truth_mode = frame.truth.get("locomotion_mode") if frame.truth else None
+        self._walker_mode = truth_mode
+        if self.auto_label and truth_mode and truth_mode != self._last_truth_mode:
+            self.set_label(truth_mode, source="simulator", time_ns=t)
+        self._last_truth_mode = truth_mode
+        self.alarms.sample("camera", frame.index, t, frame.host_time_ns)  # as the file has it
+        rec = self._recorder
+        for out in self._outputs():
+            out.write_frame(frame, t)
+            if frame.truth:
+                out.write_truth(frame.index, t, frame.truth)
+        return rec
+
+    def classify_frame(self, frame: DepthFrame, recorder=None) -> FrameResult | None:
+        """Preprocess, classify, fuse; the results recorded (into `recorder`, the one the
+        raw frame went to, if it still records) and published. A failure (a classifier that
+        raises or returns NaN) is one event for a run of failed frames."""
+        t = frame.device_time_ns
+        outputs = (
+            (recorder, *self._taps)
+            if recorder is not None and recorder is self._recorder
+            else self._taps
+        )
+        # interpolated, or carried on by the rate of turn; too far from a sample: stale
+        bound_ns = int(self.pipeline.params.max_orientation_age_ms * 1e6)
+        quaternion, age_ns = self.track.fresh_at(t, bound_ns, IMU_LATE_S)
+        pre = None
+        try:
+            pre = self.pipeline.prepare(frame, quaternion, age_ns)
+            result = self.pipeline.process(frame, quaternion, t, prepared=pre)
+        except Exception as e:  # one bad frame (or a broken model) must not end the session
+            log.debug("frame %d", frame.index, exc_info=True)
+            self._report(self._failures.fail(t, f"frame {frame.index}: {e}"), say=True)
+            if pre is not None:
+                q = (
+                    quaternion
+                    if quaternion is not None and np.all(np.isfinite(quaternion))
+                    else None
+                )
+                for out in outputs:
+                    out.write_processed(
+                        frame.index, t, frame.host_time_ns, pre.cloud, pre.image, q, pre.flag
+                    )
+            return None
+        self._report(self._failures.ok(t))
+        for out in outputs:
+            out.write_processed(
+                result.index,
+                result.time_ns,
+                result.host_time_ns,
+                result.cloud,
+                result.image,
+                result.quaternion,
+                result.flag,
+            )
+            record_decisions(out, result)
+        truth_mode = frame.truth.get("mode") if frame.truth else None
+        self._publish(result, truth_mode)
+        return result
+
+    def _report(self, event: DeviceEvent | None, say: bool = False) -> None:
+        if event is not None:
+            if say:  # the start of a run, once: the rest is counted in the events
+                log.warning("%s: %s", event.device, event.message)
+            self._event(event)
+
+    def _publish(self, r: FrameResult, truth_mode: str | None) -> None:
+        entry = TimelineEntry(r.index, r.time_ns, self._label, r.cnn_decision, truth=truth_mode)
+        horizon = r.time_ns - int(TIMELINE_S * 1e9)
+        with self._lock:
+            self._latest = r
+            self._frames += 1
+            self._stale_frames += not r.decided
+            self._timeline.append(entry)
+            self._by_index[r.index] = entry
+            while self._timeline and self._timeline[0].time_ns < horizon:
+                self._by_index.pop(self._timeline.popleft().index, None)
+            fused = r.fused
+            if fused is not None:
+                e = self._by_index.get(fused.frame_index)
+                if e is not None:
+                    e.fused = fused.decision
+                if fused.voted is not None:
+                    e = self._by_index.get(fused.voted_frame_index)
+                    if e is not None:
+                        e.voted = fused.voted
+                votes = getattr(getattr(self.pipeline, "fusion", None), "votes", False)
+                self._switches.add(r.time_ns, fused.voted if votes else fused.decision)
+            self._latencies.append(r.latency_ms)
+            for sink in self._latency_sinks:
+                sink(r.latency_ms)
+
+    def add_latency_sink(self, sink: Callable[[float], None]) -> None:
+        """Call `sink(ms)` with every frame's pipeline latency, in frame order.
+
+        It runs on the pipeline thread, under the lock that counts the frame, so a sink
+        sees exactly the frames a snapshot counts. It must be quick and must not call back
+        into the session.
+        """
+        with self._lock:
+            self._latency_sinks.append(sink)
+
+    @property
+    def rig_pid(self) -> int | None:
+        """The mock rig's process id when the devices run in it, else None."""
+        rig = getattr(self._camera, "rig", None)
+        return getattr(rig, "pid", None)
+
+    # ---- commands (from the UI or the CLI) --------------------------------------------
+
+    def set_label(
+        self, mode: str, source: str = "operator", time_ns: int | None = None
+    ) -> LabelChange:
+        """The true mode from now on. Stamped here, at the key press, not at the next frame."""
+        if mode not in MODES:
+            raise CaptureError(f"unknown mode {mode!r} (one of {', '.join(MODES)})")
+        change = LabelChange(now_ns() if time_ns is None else time_ns, mode, source)
+        with self._lock:
+            self._label_history.append(change)
+            self._label = mode
+        for out in self._outputs():
+            out.write_label(change.time_ns, mode, source)
+        return change
+
+    def undo_label(self) -> LabelChange | None:
+        """Take back the last change: the mode before it applies again from now on."""
+        with self._lock:
+            if not self._label_history:
+                return None
+            undone = self._label_history.pop()
+            previous = self._label_history[-1].mode if self._label_history else None
+            self._label = previous
+        change = LabelChange(now_ns(), previous or "", "undo")
+        for out in self._outputs():
+            out.write_label(change.time_ns, previous or "", f"undo:{undone.mode}")
+        return change
+
+    def add_marker(self, note: str = "", time_ns: int | None = None) -> None:
+        """A marker at `time_ns` (the key press; default now), with the operator's note."""
+        self._event(
+            DeviceEvent(
+                now_ns() if time_ns is None else time_ns, "operator", "marker", note or "marker"
+            )
+        )
+
+    def recent_sync_ms(self, samples: int = 100) -> dict:
+        """The IMU-to-frame sync error of the last `samples` IMU samples (p50, p99 in ms):
+        what the clock fit achieves now, without its first seconds of settling."""
+        recent = list(self._sync_errors)[-samples:]
+        if not recent:
+            return {}
+        return {"p50_ms": float(np.median(recent)), "p99_ms": float(np.percentile(recent, 99))}
+
+    def inject(self, device: str, fault: str, **kw) -> None:
+        """A fault of a mock device, for drills and tests ("imu", "disconnect", seconds=2)."""
+        target = self._imu if device == "imu" else self._camera
+        if getattr(target, "backend", "") != "mock" or not hasattr(target, "inject"):
+            raise CaptureError(f"faults can be injected into mock devices only, not {device}")
+        target.inject(fault, **kw)
+
+    @property
+    def label(self) -> str | None:
+        return self._label
+
+    @property
+    def recording(self) -> bool:
+        return self._recorder is not None
+
+    def start_recording(
+        self, info: SubjectInfo, existing: str = "next", folder: str | Path | None = None
+    ) -> Path:
+        """One MCAP file per trial, named from subject, condition, trial and time.
+
+        A trial that has files in the folder already is never recorded twice by accident
+        (capture.recording.naming.trial_conflict): `existing` "next" records the next free trial
+        number instead (and says so in `trial_notice`), "error" refuses, "overwrite"
+        records it again, the new file superseding the earlier ones (kept on disk;
+        corpora leave them out). `folder` is this trial's only (a remote `filename`'s root);
+        by default the configured recordings folder."""
+        from capture.recording.writer import Recorder
+
+        info.validate()
+        if self._recorder is not None:
+            raise CaptureError("already recording")
+        folder = Path(self.config.session.recordings if folder is None else folder)
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise CaptureError(
+                f"cannot create the recordings folder {folder}: {e.strerror}"
+            ) from None
+        info, supersedes = self._free_trial(folder, info, existing)
+        stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+        path = folder / f"{info.subject}_{info.condition}_t{info.trial:02d}_{stamp}.mcap"
+        metadata = self._metadata(info)
+        if supersedes:
+            metadata["session"]["supersedes"] = supersedes
+        recorder = Recorder(
+            path,
+            metadata=metadata,
+            attachments=self._attachments(),
+            priority=self.intake_priority,
+        )
+        recorder.start()
+        self.alarms.recordings = folder
+        self.alarms.new_trial()
+        with self._lock:
+            self._stale_frames = 0  # counted per trial, as the file counts them
+        self._recorder = recorder
+        self.trial = info
+        self._recording_started_ns = now_ns()
+        if self._label is not None:  # the mode in force when the trial starts
+            recorder.write_label(self._recording_started_ns, self._label, "start")
+        return path
+
+    def _free_trial(
+        self, folder: Path, info: SubjectInfo, existing: str
+    ) -> tuple[SubjectInfo, list[str]]:
+        from capture.recording.naming import trial_conflict
+
+        self.trial_notice = ""
+        trial, supersedes, notice = trial_conflict(
+            folder, info.subject, info.condition, info.trial, existing
+        )
+        self.trial_notice = notice
+        return dataclasses.replace(info, trial=trial), supersedes
+
+    def stop_recording(self):
+        for streak in (self._failures, self._behind):  # a run still going: its count
+            self._report(streak.ok(now_ns(), final=True))
+        rec, self._recorder = self._recorder, None
+        self._recording_started_ns = None
+        self.alarms.end_trial()
+        return rec.close() if rec is not None else None
+
+    def _metadata(self, info: SubjectInfo) -> dict[str, dict]:
+        cfg = self.config
+        cam = self._camera.status() if self._camera else None
+        imu = self._imu.status() if self._imu else None
+        devices = {
+            "camera_backend": cfg.camera.backend,
+            "camera_fps": cfg.camera.fps,
+            "camera_use_case": cfg.camera.use_case,
+            "camera_details": T.jsonable(cam.details if cam else {}),
+            "imu_backend": cfg.imu.backend,
+            "imu_port": cfg.imu.port,
+            "imu_rate_hz": cfg.imu.rate_hz,
+            "imu_info": T.jsonable(getattr(self._imu, "info", {}) or {}),
+            "imu_details": T.jsonable(imu.details if imu else {}),
+        }
+        if cfg.camera.backend == "mock":
+            devices["simulator"] = T.jsonable(dataclasses.asdict(cfg.simulator))
+        software = {
+            "walkcap_version": __version__,
+            "model_path": cfg.model.path or "bundled",
+            "model_hash": model_hash(self._classifier),
+            "fusion_method": cfg.fusion.method,
+            "fusion_window": cfg.fusion.window,
+            "fusion_vote_delay": cfg.fusion.vote_delay,
+            "fusion_transition": T.jsonable(cfg.fusion.transition),
+            "preprocess": T.jsonable(self.pipeline.params.to_dict() if self.pipeline else {}),
+            "pipeline_priority": self.pipeline_priority,
+            "intake_priority": self.intake_scheduling,
+        }
+        session = info.to_metadata()
+        session["operator"] = cfg.session.operator
+        return {"session": session, "devices": devices, "software": software}
+
+    def _attachments(self) -> dict[str, bytes]:
+        return {
+            "walkcap.toml": config_mod.dumps(self.config).encode(),
+            "model.json": json.dumps(self.model_metadata, indent=2, default=str).encode(),
+        }
+
+    # ---- what the UI reads ------------------------------------------------------------
+
+    def snapshot(self) -> Snapshot:
+        with self._lock:
+            latencies = np.asarray(self._latencies) if self._latencies else None
+            sync = np.asarray(self._sync_errors) if self._sync_errors else None
+            snap = Snapshot(
+                time_ns=now_ns(),
+                running=not self._stop.is_set(),
+                camera=None,
+                imu=None,
+                sync={},
+                label=self._label,
+                latest=self._latest,
+                timeline=list(self._timeline),  # entries only gain a late fused decision
+                switches_last_minute=self._switches.count(),
+                walker_mode=self._walker_mode,
+                events=list(self._events),
+                recording=None,
+                recording_started_ns=self._recording_started_ns,
+                frames=self._frames,
+                stale_frames=self._stale_frames,
+                latency_ms={}
+                if latencies is None
+                else {
+                    "p50": float(np.median(latencies)),
+                    "p99": float(np.percentile(latencies, 99)),
+                },
+            )
+        snap.camera = self._camera.status() if self._camera else None
+        snap.imu = self._imu.status() if self._imu else None
+        if sync is not None:
+            snap.sync = {"p50_ms": float(np.median(sync)), "p99_ms": float(np.percentile(sync, 99))}
+        rec = self._recorder
+        snap.recording = rec.stats() if rec is not None else None
+        snap.alarms = self.alarms.state(snap.time_ns, snap.recording, snap.events)
+        return snap

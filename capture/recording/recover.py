@@ -1,0 +1,322 @@
+"""Rebuilding cut-off recordings: `recover` writes what the scan (capture.recording._mcap)
+found into a new, indexed file and merges the journal: labels and operator markers missing
+from the file are added.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from mcap.records import (
+    Attachment,
+    Channel,
+    Header,
+    Message,
+    Metadata,
+    Schema,
+)
+
+from capture.errors import CaptureError
+from capture.recording import topics as T
+from capture.recording._mcap import (
+    Damage,
+    ScanResult,
+    check_magic,
+    describe_damage,
+    scan,
+    summary_of,
+)
+from capture.recording.journal import check_journal, journal_path
+from devices.files import check_replaceable
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class RecoveryReport:
+    source: str
+    output: str
+    complete: bool  # the source was a finished file, nothing in it damaged
+    reason: str  # where and why the source stopped
+    valid_bytes: int
+    lost_bytes: int
+    messages: int
+    topics: dict[str, int] = field(default_factory=dict)
+    first_ns: int | None = None
+    last_ns: int | None = None
+    labels_added: int = 0
+    events_added: int = 0
+    journal: str = ""
+    damaged: list[Damage] = field(default_factory=list)  # skipped inside the file
+    unknown_channel_messages: int = 0  # messages whose channel record was in damaged bytes
+    finished: bool = False  # the source ends with its footer (damaged or not)
+    journal_skipped: list[str] = field(default_factory=list)  # "line N: why"
+
+    @property
+    def salvaged(self) -> bool:
+        return self.messages > 0
+
+    @property
+    def duration_s(self) -> float:
+        if self.first_ns is None or self.last_ns is None:
+            return 0.0
+        return (self.last_ns - self.first_ns) * 1e-9
+
+
+def default_output(path: str | os.PathLike) -> Path:
+    p = Path(path)
+    return p.with_name(p.stem + ".recovered" + p.suffix)
+
+
+def recover(
+    path: str | os.PathLike,
+    output: str | os.PathLike | None = None,
+    *,
+    journal: str | os.PathLike | None = None,
+    overwrite: bool = False,
+) -> RecoveryReport:
+    """Write every complete record of `path` into a new indexed MCAP file, with the labels
+    and markers of the journal that the file lacks. The source is never modified."""
+    from mcap.writer import CompressionType, Writer
+
+    source = Path(path)
+    check_magic(source)
+    if output is not None and not os.fspath(output):
+        raise CaptureError("the output path is empty: name the file to write")
+    out = Path(output) if output is not None else default_output(source)
+    check_replaceable(out)
+    if out.resolve() == source.resolve():
+        raise CaptureError("the output must be a new file: the original is kept as it is")
+    if out.exists() and not overwrite:
+        raise CaptureError(f"{out} exists (choose another output, or remove it)")
+    if journal is not None and not Path(journal).is_file():
+        raise CaptureError(f"{journal}: no such journal (its labels would be missing)")
+    jpath = Path(journal) if journal is not None else journal_path(source)
+    journal_read = check_journal(jpath)
+    entries = journal_read.entries
+
+    result = ScanResult()
+    schema_ids: dict[int, int] = {}
+    channel_ids: dict[int, int] = {}
+    topics_by_channel: dict[int, str] = {}
+    counts: dict[str, int] = {}
+    seen: dict[str, set] = {T.LABELS: set(), T.EVENTS: set()}
+    first = last = None
+    unknown_channel = 0
+    tmp = out.with_name(out.name + ".partial")
+    try:
+        with open(source, "rb") as f, open(tmp, "wb") as g:
+            # A damaged chunk can hold the schema and channel records of later chunks: a
+            # finished file's summary repeats them.
+            summary = summary_of(f)
+            writer = Writer(g, chunk_size=4 * 1024 * 1024, compression=CompressionType.ZSTD)
+            started = False
+            for record in scan(f, result):
+                if isinstance(record, Header):
+                    writer.start(profile=record.profile, library=record.library)
+                    started = True
+                    continue
+                if not started:
+                    writer.start()
+                    started = True
+                if isinstance(record, Schema):
+                    if record.id not in schema_ids:
+                        schema_ids[record.id] = writer.register_schema(
+                            record.name, record.encoding, record.data
+                        )
+                elif isinstance(record, Channel):
+                    if record.id not in channel_ids:
+                        channel_ids[record.id] = writer.register_channel(
+                            record.topic,
+                            record.message_encoding,
+                            schema_ids.get(record.schema_id, 0),
+                            record.metadata,
+                        )
+                        topics_by_channel[record.id] = record.topic
+                elif isinstance(record, Message):
+                    channel = channel_ids.get(record.channel_id)
+                    if channel is None and summary is not None:
+                        channel = _register_from_summary(
+                            writer, summary, record.channel_id, schema_ids, channel_ids
+                        )
+                        if channel is not None:
+                            topics_by_channel[record.channel_id] = summary.channels[
+                                record.channel_id
+                            ].topic
+                    if channel is None:
+                        unknown_channel += 1  # its channel record was lost: undecodable
+                        continue
+                    topic = topics_by_channel[record.channel_id]
+                    writer.add_message(
+                        channel, record.log_time, record.data, record.publish_time, record.sequence
+                    )
+                    counts[topic] = counts.get(topic, 0) + 1
+                    if topic in seen:
+                        seen[topic].add(_key(topic, record.data))
+                    if topic not in (T.LABELS, T.EVENTS):
+                        first = record.log_time if first is None else min(first, record.log_time)
+                        last = record.log_time if last is None else max(last, record.log_time)
+                elif isinstance(record, Metadata):
+                    writer.add_metadata(record.name, record.metadata)
+                elif isinstance(record, Attachment):
+                    writer.add_attachment(
+                        record.create_time,
+                        record.log_time,
+                        record.name,
+                        record.media_type,
+                        record.data,
+                    )
+            if not started:
+                writer.start()
+            if result.records == 0 and not entries:
+                g.close()
+                tmp.unlink()
+                raise CaptureError(
+                    f"{source}: nothing to recover ({result.reason or 'no readable record'})"
+                )
+            describe_damage(result.damaged, summary)
+            labels_added, events_added = _merge_journal(
+                writer, entries, seen, topics_by_channel, channel_ids, counts
+            )
+            writer.add_metadata(
+                "recovery",
+                {
+                    "source": source.name,
+                    "source_bytes": str(result.size),
+                    "valid_bytes": str(result.valid_end),
+                    "source_complete": str(result.complete),
+                    "reason": result.reason,
+                    "damaged_bytes": str(result.damaged_bytes),
+                    "damaged": "; ".join(d.describe() for d in result.damaged),
+                    "journal": jpath.name if entries else "",
+                    "journal_skipped": "; ".join(journal_read.skipped),
+                    "labels_added_from_journal": str(labels_added),
+                    "events_added_from_journal": str(events_added),
+                },
+            )
+            _add_derivation(writer, source, result)
+            writer.finish()
+            g.flush()
+            os.fsync(g.fileno())
+        os.replace(tmp, out)
+    except BaseException as e:
+        tmp.unlink(missing_ok=True)  # half a copy is no copy: nothing is left behind
+        if isinstance(e, OSError) and not isinstance(e, FileNotFoundError):
+            why = e.strerror or str(e)
+            raise CaptureError(
+                f"{out}: not written ({why}); nothing of it is left, {source} is unchanged"
+            ) from None
+        raise
+    return RecoveryReport(
+        source=str(source),
+        output=str(out),
+        complete=result.complete,
+        finished=result.finished,
+        journal_skipped=journal_read.skipped,
+        reason=result.reason,
+        valid_bytes=result.valid_end,
+        lost_bytes=result.lost_bytes,
+        messages=sum(counts.values()),
+        topics=counts,
+        first_ns=first,
+        last_ns=last,
+        labels_added=labels_added,
+        events_added=events_added,
+        journal=str(jpath) if entries else "",
+        damaged=result.damaged,
+        unknown_channel_messages=unknown_channel,
+    )
+
+
+def _register_from_summary(writer, summary, channel_id, schema_ids, channel_ids):
+    channel = summary.channels.get(channel_id)
+    if channel is None:
+        return None
+    schema = summary.schemas.get(channel.schema_id)
+    if schema is not None and schema.id not in schema_ids:
+        schema_ids[schema.id] = writer.register_schema(schema.name, schema.encoding, schema.data)
+    channel_ids[channel_id] = writer.register_channel(
+        channel.topic,
+        channel.message_encoding,
+        schema_ids.get(channel.schema_id, 0),
+        channel.metadata,
+    )
+    return channel_ids[channel_id]
+
+
+def _key(topic: str, data: bytes | dict) -> tuple:
+    import json
+
+    m = json.loads(data) if isinstance(data, (bytes, bytearray)) else data
+    if topic == T.LABELS:
+        return (int(m.get("time_ns", 0)), m.get("mode", ""), m.get("source", ""))
+    return (int(m.get("time_ns", 0)), m.get("device", ""), m.get("kind", ""), m.get("message", ""))
+
+
+def _merge_journal(
+    writer,
+    entries: list[dict],
+    seen: dict[str, set],
+    topics_by_channel: dict[int, str],
+    channel_ids: dict[int, int],
+    counts: dict[str, int],
+) -> tuple[int, int]:
+    """Add the journal's labels and markers that the file does not have."""
+    by_topic = {topics_by_channel[old]: new for old, new in channel_ids.items()}
+    added = {T.LABELS: 0, T.EVENTS: 0}
+    for entry in entries:
+        kind = entry.get("type")
+        if kind == "label":
+            topic, message = (
+                T.LABELS,
+                T.label_json(
+                    entry.get("time_ns", 0), entry.get("mode", ""), entry.get("source", "")
+                ),
+            )
+        elif kind == "event":
+            topic = T.EVENTS
+            message = T.event_json({k: v for k, v in entry.items() if k != "type"})
+        else:
+            continue
+        key = _key(topic, message)
+        if key in seen[topic]:
+            continue
+        seen[topic].add(key)
+        channel = by_topic.get(topic)
+        if channel is None:
+            spec = T.topic_spec(topic)
+            schema = writer.register_schema(
+                spec.schema_name, spec.schema_encoding, spec.schema_data
+            )
+            channel = writer.register_channel(
+                topic, spec.message_encoding, schema, {"description": T.DESCRIPTIONS[topic]}
+            )
+            by_topic[topic] = channel
+        t = message["time_ns"]
+        writer.add_message(channel, t, T.encode_json(message), t, 0)
+        counts[topic] = counts.get(topic, 0) + 1
+        added[topic] += 1
+    return added[T.LABELS], added[T.EVENTS]
+
+
+def _add_derivation(writer, source: Path, result: ScanResult) -> None:
+    """The recovered copy's own identity and lineage (capture.corpus.selection)."""
+    import uuid
+
+    from capture.recording.lineage import RECOVERED, derivation
+    from capture.recording.reader import open_recording
+
+    try:
+        original = open_recording(source)
+    except CaptureError:
+        return  # its metadata is unreadable: the "recovery" record names the source
+    how = f"recovered: {result.valid_end} of {result.size} bytes readable"
+    if result.reason:
+        how += f" ({result.reason})"
+    writer.add_metadata(
+        "derivation",
+        T.encode_metadata(derivation(original, str(uuid.uuid4()), RECOVERED, how)),
+    )

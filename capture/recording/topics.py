@@ -1,0 +1,533 @@
+"""The recording's topics: names, schemas, and pure functions between walkcap data and messages.
+
+Every topic of a walkcap MCAP file is listed in TOPICS with its encoding and schema. Images,
+clouds and transforms use Foxglove's protobuf schemas (they display in Foxglove as they are);
+everything else is JSON with a JSON Schema. Builders (`*_message`, `*_json`) turn walkcap
+data into messages; decoders (`*_from_message`) turn them back into numpy arrays.
+
+Depth, losslessly at the sensor's precision and compactly:
+- /camera/depth is a foxglove.RawImage "16UC1": the radial distance along each pixel's ray
+  in millimetres (0 = invalid pixel). The unit ray of every pixel is stored once, as the
+  attachment "camera_rays.npy" (float32, height x width x 3), so x, y, z = range * ray.
+  Rounding to whole millimetres moves a point at most 0.5 mm along its ray (the pico flexx
+  is good to about 1 % of range, i.e. several millimetres); nothing moves across the ray.
+- /camera/confidence is a foxglove.RawImage "mono8": royale's per-pixel confidence, as is.
+Together they rebuild the frame's xyz and confidence (see capture.recording.reader.depth_frames).
+
+Clouds are foxglove.PointCloud with float32 x, y, z in metres, rounded to 1/1024 m: well
+below the sensor's precision, and the zeroed low mantissa bits halve the compressed size.
+A cloud is a set of points: it is stored sorted by x (forward), which compresses better.
+
+Times: log_time is the host receive time, publish_time the sample time, both integer
+nanoseconds on the session clock (devices.clock.now_ns, monotonic). Message `timestamp`
+fields carry the publish time on the same clock.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import orjson
+from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
+from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
+from foxglove_schemas_protobuf.Quaternion_pb2 import Quaternion
+from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
+from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
+from google.protobuf.timestamp_pb2 import Timestamp
+
+from devices.frames import MODES
+
+FORMAT_VERSION = "1"
+
+DEPTH = "/camera/depth"
+CONFIDENCE = "/camera/confidence"
+GRAY = "/camera/gray"  # only when the recorder is asked to keep the amplitude image
+CLOUD = "/camera/cloud"
+BINARY_IMAGE = "/camera/binary_image"
+PREPROCESS = "/camera/preprocess"
+TF = "/tf"
+IMU = "/imu"
+LABELS = "/labels"
+EVENTS = "/events"
+CNN = "/inference/cnn"
+FUSED = "/inference/fused"
+FEATURES = "/terrain/features"
+TRUTH = "/sim/truth"
+
+CAMERA_FRAME = "camera"  # royale axes: x right, y down, z forward
+WORLD_FRAME = "world"  # leveled: x forward, y left, z up
+RAYS_ATTACHMENT = "camera_rays.npy"
+CLOUD_QUANTUM_M = 1.0 / 1024.0
+
+_NUMBER_OR_NULL = {"type": ["number", "null"]}
+_INT = {"type": "integer"}
+_INT_OR_NULL = {"type": ["integer", "null"]}
+_MODE = {"type": "string", "enum": list(MODES)}
+_MODE_OR_EMPTY = {"type": "string", "enum": [*MODES, ""]}
+_MODE_OR_NULL = {"type": ["string", "null"], "enum": [*MODES, None]}
+_VEC3 = {"type": ["array", "null"], "items": _NUMBER_OR_NULL, "minItems": 3, "maxItems": 3}
+_QUAT = {"type": ["array", "null"], "items": _NUMBER_OR_NULL, "minItems": 4, "maxItems": 4}
+_PROBS = {"type": "array", "items": _NUMBER_OR_NULL, "minItems": len(MODES), "maxItems": len(MODES)}
+
+
+def _object(
+    title: str, description: str, properties: dict, required: list[str], extra: bool = False
+) -> dict:
+    return {
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": title,
+        "description": description,
+        "type": "object",
+        "properties": properties,
+        "required": required,
+        "additionalProperties": extra,
+    }
+
+
+JSON_SCHEMAS: dict[str, dict] = {
+    IMU: _object(
+        "walkcap.ImuSample",
+        "One IMU sample. Quaternion [w, x, y, z] sensor -> world; vectors in the sensor frame.",
+        {
+            "host_time_ns": _INT,
+            "time_ns": _INT_OR_NULL,
+            "packet_counter": _INT_OR_NULL,
+            "sample_time_fine": _INT_OR_NULL,
+            "quaternion": _QUAT,
+            "acceleration": _VEC3,
+            "rate_of_turn": _VEC3,
+            "status_word": _INT_OR_NULL,
+            "extra": {"type": "object"},
+        },
+        [
+            "host_time_ns",
+            "time_ns",
+            "packet_counter",
+            "quaternion",
+            "acceleration",
+            "rate_of_turn",
+            "status_word",
+        ],
+    ),
+    LABELS: _object(
+        "walkcap.Label",
+        "The operator's mode from time_ns on ('' = no mode, after undoing the first).",
+        {"time_ns": _INT, "mode": _MODE_OR_EMPTY, "source": {"type": "string"}},
+        ["time_ns", "mode", "source"],
+    ),
+    EVENTS: _object(
+        "walkcap.Event",
+        "A marker, note, device fault, gap or recorder drop.",
+        {
+            "time_ns": _INT,
+            "device": {"type": "string"},
+            "kind": {"type": "string"},
+            "message": {"type": "string"},
+            "details": {"type": "object"},
+        },
+        ["time_ns", "device", "kind", "message", "details"],
+    ),
+    PREPROCESS: _object(
+        "walkcap.Preprocess",
+        "How a frame became the classifier input: why the image is empty (flag), cloud size.",
+        {
+            "frame_index": _INT,
+            "time_ns": _INT,
+            "flag": {"type": "string"},
+            "oriented": {"type": "boolean"},
+            "cloud_points": _INT,
+            "cloud_points_recorded": _INT,
+        },
+        ["frame_index", "time_ns", "flag", "oriented", "cloud_points", "cloud_points_recorded"],
+    ),
+    CNN: _object(
+        "walkcap.CnnOutput",
+        "The CNN's softmax for one frame, in mode order " + ", ".join(MODES) + ".",
+        {"frame_index": _INT, "time_ns": _INT, "probabilities": _PROBS, "decision": _MODE},
+        ["frame_index", "time_ns", "probabilities", "decision"],
+    ),
+    FUSED: _object(
+        "walkcap.FusedOutput",
+        "HMM fusion output produced at source_frame_index; it refers to frame_index (and the "
+        "vote to voted_frame_index), earlier frames because of the smoothing window.",
+        {
+            "source_frame_index": _INT,
+            "time_ns": _INT,
+            "frame_index": _INT,
+            "decision": _MODE,
+            "posterior": _PROBS,
+            "voted": _MODE_OR_NULL,
+            "voted_frame_index": _INT_OR_NULL,
+        },
+        ["source_frame_index", "time_ns", "frame_index", "decision", "posterior"],
+        extra=True,
+    ),
+    FEATURES: _object(
+        "walkcap.TerrainFeatures",
+        "Terrain features of one frame (riser, tread, slope, distance ...), SI units.",
+        {"frame_index": _INT, "time_ns": _INT},
+        ["frame_index", "time_ns"],
+        extra=True,
+    ),
+    TRUTH: _object(
+        "walkcap.SimTruth",
+        "Simulator ground truth of one frame: the true mode and the camera pose (4x4, world).",
+        {
+            "frame_index": _INT,
+            "time_ns": _INT,
+            "mode": _MODE_OR_NULL,
+            "pose": {"type": ["array", "null"]},
+        },
+        ["frame_index", "time_ns", "mode"],
+        extra=True,
+    ),
+}
+
+PROTOBUF_TYPES: dict[str, type] = {
+    DEPTH: RawImage,
+    CONFIDENCE: RawImage,
+    GRAY: RawImage,
+    CLOUD: PointCloud,
+    BINARY_IMAGE: RawImage,
+    TF: FrameTransform,
+}
+
+DESCRIPTIONS: dict[str, str] = {
+    DEPTH: "foxglove.RawImage 16UC1: range along each pixel's ray, mm (0 = invalid)",
+    CONFIDENCE: "foxglove.RawImage mono8: royale depth confidence (0 = invalid)",
+    GRAY: "foxglove.RawImage 16UC1: amplitude (optional)",
+    CLOUD: "foxglove.PointCloud: leveled, cropped cloud, world frame, float32 m",
+    BINARY_IMAGE: "foxglove.RawImage mono8: the classifier input (255 = terrain)",
+    PREPROCESS: "JSON: preprocessing flag and cloud size per frame",
+    TF: "foxglove.FrameTransform world -> camera: camera orientation",
+    IMU: "JSON: every IMU sample",
+    LABELS: "JSON: operator mode changes",
+    EVENTS: "JSON: markers, notes, device faults, gaps, drops",
+    CNN: "JSON: CNN probabilities per frame",
+    FUSED: "JSON: fused posterior, decision and vote, with the frames they refer to",
+    FEATURES: "JSON: terrain features per frame",
+    TRUTH: "JSON: simulator truth (mock sessions)",
+}
+
+
+@dataclass(frozen=True)
+class TopicSpec:
+    topic: str
+    message_encoding: str  # "protobuf" | "json"
+    schema_name: str
+    schema_encoding: str  # "protobuf" | "jsonschema"
+    schema_data: bytes
+
+
+def topic_spec(topic: str) -> TopicSpec:
+    """Encoding and schema of a topic, as written into the file."""
+    if topic in PROTOBUF_TYPES:
+        from mcap_protobuf.schema import build_file_descriptor_set
+
+        cls = PROTOBUF_TYPES[topic]
+        return TopicSpec(
+            topic,
+            "protobuf",
+            cls.DESCRIPTOR.full_name,
+            "protobuf",
+            build_file_descriptor_set(cls).SerializeToString(),
+        )
+    return json_topic_spec(topic, JSON_SCHEMAS[topic])
+
+
+def json_topic_spec(topic: str, schema: dict) -> TopicSpec:
+    """A JSON topic's spec from its JSON Schema (its title names the schema)."""
+    return TopicSpec(
+        topic,
+        "json",
+        schema.get("title", topic),
+        "jsonschema",
+        json.dumps(schema, separators=(",", ":")).encode(),
+    )
+
+
+TOPICS: tuple[str, ...] = (
+    DEPTH,
+    CONFIDENCE,
+    GRAY,
+    CLOUD,
+    BINARY_IMAGE,
+    PREPROCESS,
+    TF,
+    IMU,
+    LABELS,
+    EVENTS,
+    CNN,
+    FUSED,
+    FEATURES,
+    TRUTH,
+)
+
+# ---- helpers ------------------------------------------------------------------------------
+
+
+def timestamp(ns: int) -> Timestamp:
+    return Timestamp(seconds=int(ns) // 1_000_000_000, nanos=int(ns) % 1_000_000_000)
+
+
+def jsonable(value: Any) -> Any:
+    """Plain JSON types: numpy to lists and numbers, NaN and infinity to null."""
+    if isinstance(value, dict):
+        return {str(k): jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return jsonable(value.tolist())
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return float(value) if math.isfinite(value) else None
+    if value is None or isinstance(value, str):
+        return value
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return jsonable(dataclasses.asdict(value))
+    if isinstance(value, bytes):
+        return value.hex()
+    return str(value)
+
+
+_ORJSON_OPTIONS = orjson.OPT_SERIALIZE_NUMPY | orjson.OPT_NON_STR_KEYS
+
+
+def encode_json(value: dict) -> bytes:
+    """Compact JSON as jsonable() would give it (NaN and infinity as null), without walking
+    the value in Python: the 400 Hz IMU and every frame's messages pass here."""
+    return orjson.dumps(value, default=jsonable, option=_ORJSON_OPTIONS)
+
+
+# ---- metadata ---------------------------------------------------------------------------
+
+# MCAP metadata maps strings to strings. walkcap stores each value as JSON (numbers,
+# booleans, lists and objects keep their type) and says so with this key in the
+# "recording" record; files without it hold plain strings.
+METADATA_VALUES_KEY = "metadata_values"
+METADATA_VALUES = "json"
+# Records only ever written with JSON values, whatever the rest of the file holds (a
+# recovered or corrected copy of an older file adds them).
+JSON_ONLY_RECORDS = ("derivation",)
+
+
+def encode_metadata(values: dict) -> dict[str, str]:
+    """A metadata record's values as JSON text, ready for MCAP."""
+    return {str(k): encode_json({"v": v})[5:-1].decode() for k, v in values.items()}
+
+
+def decode_metadata_value(text: str) -> Any:
+    """A JSON-encoded metadata value; text that is not JSON stays text."""
+    try:
+        return orjson.loads(text)
+    except orjson.JSONDecodeError:
+        return text
+
+
+# ---- depth --------------------------------------------------------------------------------
+
+
+def range_mm(xyz: np.ndarray, confidence: np.ndarray) -> np.ndarray:
+    """Radial distance of every pixel in whole millimetres, uint16; 0 where invalid."""
+    r = np.sqrt(np.einsum("...i,...i->...", xyz.astype(np.float64), xyz.astype(np.float64)))
+    mm = np.rint(r * 1000.0)
+    mm[(confidence == 0) | ~np.isfinite(mm)] = 0
+    return np.clip(mm, 0, 65535).astype("<u2")
+
+
+def xyz_from_range(mm: np.ndarray, rays: np.ndarray) -> np.ndarray:
+    """Rebuild the camera-frame points (H, W, 3) float32 metres from range and unit rays."""
+    return (mm.astype(np.float32)[..., None] * np.float32(0.001)) * rays.astype(np.float32)
+
+
+def ray_error_m(xyz: np.ndarray, rays: np.ndarray, confidence: np.ndarray) -> float:
+    """Largest distance of a valid point from its pixel's ray: 0 when the rays fit the data."""
+    valid = confidence > 0
+    if not valid.any():
+        return 0.0
+    p = xyz[valid].astype(np.float64)
+    d = rays[valid].astype(np.float64)
+    along = np.einsum("ij,ij->i", p, d)[:, None] * d
+    return float(np.max(np.linalg.norm(p - along, axis=1)))
+
+
+def raw_image(
+    image: np.ndarray, time_ns: int, encoding: str, frame_id: str = CAMERA_FRAME
+) -> RawImage:
+    image = np.ascontiguousarray(image)
+    h, w = image.shape[:2]
+    return RawImage(
+        timestamp=timestamp(time_ns),
+        frame_id=frame_id,
+        width=w,
+        height=h,
+        encoding=encoding,
+        step=w * image.itemsize,
+        data=image.tobytes(),
+    )
+
+
+def image_from_message(msg: RawImage) -> np.ndarray:
+    """A RawImage back into a numpy array (uint16 for 16UC1/mono16, uint8 for mono8)."""
+    dtype = {"16UC1": "<u2", "mono16": "<u2", "mono8": "u1", "8UC1": "u1"}[msg.encoding]
+    itemsize = np.dtype(dtype).itemsize
+    rows = np.frombuffer(msg.data, dtype=np.uint8).reshape(msg.height, msg.step)
+    return rows[:, : msg.width * itemsize].copy().view(dtype).reshape(msg.height, msg.width)
+
+
+def binary_image_u8(image: np.ndarray) -> np.ndarray:
+    """The classifier input as mono8: 0/1 (or bool) become 0/255 so it is visible."""
+    a = np.asarray(image)
+    if a.dtype == bool or (a.size and float(np.nanmax(a)) <= 1.0):
+        return (np.nan_to_num(a.astype(np.float32)) * 255).round().astype(np.uint8)
+    return np.clip(np.nan_to_num(a), 0, 255).astype(np.uint8)
+
+
+# ---- cloud and transform ------------------------------------------------------------------
+
+_XYZ_FIELDS = [
+    PackedElementField(name=n, offset=4 * i, type=PackedElementField.FLOAT32)
+    for i, n in enumerate("xyz")
+]
+
+
+def cloud_message(cloud: np.ndarray, time_ns: int, frame_id: str = WORLD_FRAME) -> PointCloud:
+    """The cloud as a set: finite points, rounded to CLOUD_QUANTUM_M, sorted by x (forward),
+    which makes neighbours alike and the compressed cloud about 13 % smaller."""
+    points = np.asarray(cloud, dtype=np.float64).reshape(-1, 3)
+    points = points[np.all(np.isfinite(points), axis=1)]
+    points = points[np.argsort(points[:, 0], kind="stable")]
+    q = (np.rint(points / CLOUD_QUANTUM_M) * CLOUD_QUANTUM_M).astype("<f4")
+    return PointCloud(
+        timestamp=timestamp(time_ns),
+        frame_id=frame_id,
+        point_stride=12,
+        fields=_XYZ_FIELDS,
+        data=q.tobytes(),
+    )
+
+
+def cloud_from_message(msg: PointCloud) -> np.ndarray:
+    """(N, 3) float32 metres from a PointCloud with float32 x, y, z fields."""
+    offsets = {f.name: f.offset for f in msg.fields}
+    raw = np.frombuffer(msg.data, dtype=np.uint8).reshape(-1, msg.point_stride)
+    return np.stack(
+        [raw[:, offsets[n] : offsets[n] + 4].copy().view("<f4")[:, 0] for n in "xyz"], axis=1
+    )
+
+
+def transform_message(quaternion: np.ndarray, time_ns: int) -> FrameTransform:
+    """Camera orientation: walkcap's [w, x, y, z] (camera -> world) into Foxglove's x, y, z, w."""
+    w, x, y, z = (float(v) for v in quaternion)
+    return FrameTransform(
+        timestamp=timestamp(time_ns),
+        parent_frame_id=WORLD_FRAME,
+        child_frame_id=CAMERA_FRAME,
+        translation=Vector3(x=0, y=0, z=0),
+        rotation=Quaternion(x=x, y=y, z=z, w=w),
+    )
+
+
+def quaternion_from_transform(msg: FrameTransform) -> np.ndarray:
+    r = msg.rotation
+    return np.array([r.w, r.x, r.y, r.z])
+
+
+# ---- JSON messages ------------------------------------------------------------------------
+
+
+def imu_json(sample) -> dict:
+    return {
+        "host_time_ns": sample.host_time_ns,
+        "time_ns": sample.time_ns,
+        "packet_counter": sample.packet_counter,
+        "sample_time_fine": sample.sample_time_fine,
+        "quaternion": sample.quaternion,
+        "acceleration": sample.acceleration,
+        "rate_of_turn": sample.rate_of_turn,
+        "status_word": sample.status_word,
+        "extra": sample.extra or {},
+    }
+
+
+def label_json(time_ns: int, mode: str, source: str) -> dict:
+    return {"time_ns": int(time_ns), "mode": mode or "", "source": source}
+
+
+def event_json(event) -> dict:
+    """A devices.base.DeviceEvent or a dict with the same keys (time_ns defaults to 0)."""
+    if isinstance(event, dict):
+        e = dict(event)
+        return {
+            "time_ns": int(e.pop("time_ns", 0)),
+            "device": str(e.pop("device", "")),
+            "kind": str(e.pop("kind", "")),
+            "message": str(e.pop("message", "")),
+            "details": {**e.pop("details", {}), **e},
+        }
+    return {
+        "time_ns": int(event.time_ns),
+        "device": event.device,
+        "kind": event.kind,
+        "message": event.message,
+        "details": event.details or {},
+    }
+
+
+def cnn_json(frame_index: int, time_ns: int, probabilities) -> dict:
+    p = np.asarray(probabilities, dtype=np.float64).reshape(-1)
+    return {
+        "frame_index": int(frame_index),
+        "time_ns": int(time_ns),
+        "probabilities": p,
+        "decision": MODES[int(np.nanargmax(p))] if np.isfinite(p).any() else MODES[0],
+    }
+
+
+def fused_json(frame_index: int, time_ns: int, fused: dict) -> dict:
+    """The fusion output produced at `frame_index`; `fused` says which frame it refers to."""
+    out = dict(fused)
+    out["source_frame_index"] = int(frame_index)
+    out["time_ns"] = int(time_ns)
+    for key in ("decision", "voted"):  # accept mode indices as well as names
+        if isinstance(out.get(key), (int, np.integer)) and not isinstance(out[key], bool):
+            out[key] = MODES[int(out[key])]
+    out.setdefault("frame_index", int(frame_index))
+    return out
+
+
+def features_json(frame_index: int, time_ns: int, features: dict) -> dict:
+    return {**features, "frame_index": int(frame_index), "time_ns": int(time_ns)}
+
+
+def truth_json(frame_index: int, time_ns: int, truth: dict) -> dict:
+    out = {**truth, "frame_index": int(frame_index), "time_ns": int(time_ns)}
+    out.setdefault("mode", None)
+    return out
+
+
+def preprocess_json(
+    frame_index: int,
+    time_ns: int,
+    flag: str,
+    oriented: bool,
+    cloud_points: int,
+    cloud_points_recorded: int,
+) -> dict:
+    return {
+        "frame_index": int(frame_index),
+        "time_ns": int(time_ns),
+        "flag": flag or "",
+        "oriented": bool(oriented),
+        "cloud_points": int(cloud_points),
+        "cloud_points_recorded": int(cloud_points_recorded),
+    }

@@ -1,0 +1,402 @@
+"""The live session on mock devices, end to end: devices -> pipeline -> recording -> replay.
+
+A stand-in classifier keeps these tests independent of the bundled weights; the devices,
+preprocessing, fusion and recorder are the real ones.
+"""
+
+import os
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from capture.config import Config
+from capture.corpus.replay import replay
+from capture.errors import CaptureError, ConfigError
+from capture.live.session import INTAKE_THREADS, Session, SubjectInfo
+from capture.recording import topics as T
+from capture.recording.reader import open_recording, read_trial
+from devices.frames import MODES
+from devices.scheduling import realtime_priority
+
+
+class StandInClassifier:
+    """Scores from the image's column profile: deterministic, cheap, image-dependent."""
+
+    metadata = {"weights_sha256": "stand-in"}
+
+    def predict(self, image):
+        cols = image.any(axis=0).sum()
+        p = np.full(5, 0.05)
+        p[int(cols) % 5] = 0.8
+        return p
+
+
+def config(tmp_path, fps=15.0) -> Config:
+    c = Config()
+    c.session.recordings = str(tmp_path / "recordings")
+    c.camera.fps = fps
+    return c
+
+
+_INTAKE: dict = {}  # how the recorded trial's raw-data threads ran: (said, {name: priority})
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory):
+    """One 4-second mock trial, recorded with simulator labels."""
+    tmp = tmp_path_factory.mktemp("session")
+    session = Session(config(tmp), classifier=StandInClassifier(), auto_label=True)
+    session.start()
+    try:
+        path = session.start_recording(SubjectInfo(subject="S07", condition="indoor", trial=3))
+        time.sleep(0.5)
+        session.add_marker("subject paused")
+        session.set_label("US")
+        session.undo_label()
+        time.sleep(3.5)
+        snap = session.snapshot()
+        pipeline = next(t for t in session._threads if t.name == "walkcap-pipeline")
+        if session.pipeline_priority.startswith("SCHED_FIFO"):  # as it says, while it runs
+            assert os.sched_getscheduler(pipeline.native_id) == os.SCHED_FIFO
+        # the threads carrying raw data in, and the writer: one step above the pipeline
+        raw = [t for t in threading.enumerate() if t.name in INTAKE_THREADS + ("walkcap-recorder",)]
+        intake = {t.name: os.sched_getparam(t.native_id).sched_priority for t in raw}
+    finally:
+        stats = session.stop()
+    _INTAKE["seen"] = (session.intake_scheduling, intake)
+    return path, stats, snap, session.pipeline_priority
+
+
+def test_recording_is_named_from_the_session_and_complete(recorded):
+    path, stats, _, priority = recorded
+    assert path.name.startswith("S07_indoor_t03_") and path.suffix == ".mcap"
+    assert stats.state == "stopped" and stats.dropped == 0
+    rec = open_recording(path)
+    for topic in (
+        "/camera/depth",
+        "/camera/cloud",
+        "/camera/binary_image",
+        "/tf",
+        "/imu",
+        "/labels",
+        "/events",
+        "/inference/cnn",
+        "/inference/fused",
+        "/sim/truth",
+    ):
+        assert topic in rec.topics, topic
+    assert rec.metadata["session"]["subject"] == "S07"
+    assert rec.metadata["software"]["model_hash"] == "stand-in"
+    assert rec.metadata["software"]["pipeline_priority"] == priority
+    assert "walkcap.toml" in rec.attachments
+
+
+def test_raw_data_threads_and_the_writer_run_above_the_pipeline(recorded):
+    path = recorded[0]
+    said, priorities = _INTAKE["seen"]
+    assert open_recording(path).metadata["software"]["intake_priority"] == said
+    if not said.startswith("SCHED_FIFO"):
+        pytest.skip("real-time priority not permitted here")
+    assert said == "SCHED_FIFO 11"  # the pipeline's 10, plus one
+    assert {"walkcap-camera", "walkcap-imu", "walkcap-recorder"} <= set(priorities)
+    assert set(priorities.values()) == {11}
+
+
+def test_rates_match_the_configuration(recorded):
+    path, _, snap, _ = recorded
+    rec = open_recording(path)
+    # Frame k is at k / 15 s of the camera's time line (a loaded machine may skip frames:
+    # their indices are missing, the others keep their times).
+    depth = [(m.sequence, m.publish_time_ns) for m in rec.messages(["/camera/depth"])]
+    starts = {t - int(round(k * (1.0 / 15.0) * 1e9)) for k, t in depth}
+    assert len(depth) > 1 and len(starts) == 1
+    # The IMU at 100 Hz: 100 ticks of its 10 kHz clock per packet, none lost unseen.
+    imu = [m.data for m in rec.messages(["/imu"])]
+    ticks = np.diff([s["sample_time_fine"] for s in imu]) % 2**32
+    packets = np.diff([s["packet_counter"] for s in imu]) % 2**16
+    assert len(imu) > 1 and (packets >= 1).all()
+    np.testing.assert_array_equal(ticks, packets * (10_000 // Config().imu.rate_hz))
+    assert snap.camera.state == "ok" and snap.imu.state == "ok"
+
+
+def test_labels_markers_and_undo_are_recorded(recorded):
+    path, _, _, _ = recorded
+    trial = read_trial(path)
+    sources = [c[2] for c in trial["label_changes"]]
+    assert "operator" in sources and any(s.startswith("undo") for s in sources)
+    assert "simulator" in sources or "start" in sources
+    events = [m.data for m in open_recording(path).messages(["/events"])]
+    assert any(e["kind"] == "marker" and e["message"] == "subject paused" for e in events)
+
+
+def test_fused_decisions_refer_to_earlier_frames(recorded):
+    path, _, _, _ = recorded
+    fused = [m.data for m in open_recording(path).messages(["/inference/fused"])]
+    cnn = {
+        m.data["frame_index"]: m.sequence for m in open_recording(path).messages(["/inference/cnn"])
+    }
+    assert fused
+    first = min(cnn)  # frames before the recording started are decided in it too
+    for f in fused:
+        assert f["frame_index"] in cnn or f["frame_index"] < first  # camera frame indices
+        assert f["frame_index"] < max(cnn)
+        assert f["decision"] in MODES
+
+
+def test_imu_is_aligned_with_frames_on_the_session_clock(recorded):
+    _, _, snap, _ = recorded
+    # the emulator knows when it really sampled: the mapped times are close to that
+    assert snap.sync and snap.sync["p50_ms"] < 1.0
+
+
+def test_replay_reproduces_the_trial_into_a_new_file(recorded, tmp_path):
+    path, _, _, _ = recorded
+    before = path.read_bytes()
+    report = replay(path, Config(), output=tmp_path / "again.mcap", classifier=StandInClassifier())
+    assert path.read_bytes() == before  # the original is never modified
+    a, b = read_trial(path), read_trial(report.output)
+
+    def stale(file) -> dict[int, int]:
+        return {
+            m.data["frame_index"]: m.data["time_ns"]
+            for m in open_recording(file).messages(["/camera/preprocess"])
+            if m.data.get("flag") == "stale_orientation"
+        }
+
+    # The live run may leave a frame undecided because its IMU sample came too late (a
+    # busy host); replay, with every sample there, decides it. Replay may leave the last
+    # frames undecided when the file's IMU samples end before them (the ones the live run
+    # used arrived after the recording stopped). Every other frame is the same.
+    live, again = stale(path), stale(report.output)
+    last_imu = max(m.publish_time_ns for m in open_recording(path).messages(["/imu"]))
+    assert all(t > last_imu for i, t in again.items() if i not in live)
+    either = set(live) | set(again)
+    assert set(a["frame_index"]) | either == set(b["frame_index"]) | either
+    assert not set(a["frame_index"]) & set(live) and not set(b["frame_index"]) & set(again)
+    assert len(b["frame_index"]) + len(again) == report.frames
+    assert [c[:2] for c in a["label_changes"]] == [c[:2] for c in b["label_changes"]]
+    assert report.speedup > 0
+    depth_a = [m.data for m in open_recording(path).messages(["/camera/depth"])]
+    depth_b = [m.data for m in open_recording(report.output).messages(["/camera/depth"])]
+    assert len(depth_a) == len(depth_b)
+    for x, y in zip(depth_a, depth_b):
+        np.testing.assert_array_equal(x, y)  # the recorded millimetres, not a re-encoding
+
+
+def test_a_fast_replay_stopped_by_an_error_ends_its_reader(recorded, tmp_path, monkeypatch):
+    """The reader process is still sending when this side fails: it ends at once, and
+    what was recorded up to there stays readable."""
+    import capture.corpus.replay as R
+
+    readers = []
+
+    class Kept(R._ReaderProcess):
+        def __init__(self, *args):
+            super().__init__(*args)
+            readers.append(self)
+
+    monkeypatch.setattr(R, "_ReaderProcess", Kept)
+
+    class Failing(StandInClassifier):
+        def predict(self, image):
+            if len(calls) == 40:  # in the third block of 16
+                raise RuntimeError("classifier broke")
+            calls.append(1)
+            return super().predict(image)
+
+    calls: list = []
+    path, _, _, _ = recorded
+    started = time.monotonic()
+    with pytest.raises(RuntimeError, match="classifier broke"):
+        replay(path, Config(), output=tmp_path / "cut.mcap", classifier=Failing())
+    assert time.monotonic() - started < 10
+    (reader,) = readers
+    assert not reader._child.running() and not reader._receiver.is_alive()
+    assert open_recording(tmp_path / "cut.mcap").topics["/camera/depth"].count >= 1
+
+
+def test_replay_refuses_to_overwrite_its_source(recorded):
+    path, _, _, _ = recorded
+    with pytest.raises(CaptureError, match="new file"):
+        replay(path, Config(), output=path, classifier=StandInClassifier())
+
+
+def test_realtime_priority_goes_to_the_given_thread_alone_where_permitted(monkeypatch):
+    waiting = threading.Event()
+    thread = threading.Thread(target=waiting.wait)
+    thread.start()
+    try:
+        assert realtime_priority(thread.native_id, 0) == "normal"
+        said = realtime_priority(thread.native_id, 10)
+        if os.geteuid() == 0:  # root may; CI and the bench run as root
+            assert said == "SCHED_FIFO 10"
+        expected = os.SCHED_FIFO if said.startswith("SCHED_FIFO") else os.SCHED_OTHER
+        assert os.sched_getscheduler(thread.native_id) == expected
+        assert os.sched_getscheduler(threading.get_native_id()) == os.SCHED_OTHER
+
+        def refused(*args):
+            raise PermissionError(1, "Operation not permitted")
+
+        monkeypatch.setattr(os, "sched_setscheduler", refused)
+        assert (
+            realtime_priority(thread.native_id, 10) == "normal (real-time priority not permitted)"
+        )
+    finally:
+        waiting.set()
+        thread.join()
+
+
+def test_a_priority_out_of_range_is_refused_before_any_device_opens():
+    cfg = Config()
+    cfg.session.realtime_priority = 120
+    session = Session(cfg, classifier=StandInClassifier())
+    with pytest.raises(ConfigError, match="realtime_priority"):
+        session.start()
+    assert session._camera is None and not session._threads
+
+
+def test_unknown_label_is_refused():
+    session = Session(Config(), classifier=StandInClassifier())
+    with pytest.raises(CaptureError, match="unknown mode"):
+        session.set_label("XX")
+
+
+def test_fast_replay_in_two_processes_matches_a_paced_one(recorded, tmp_path):
+    """The reader process and batched classification change nothing but the speed."""
+    path, _, _, _ = recorded
+    fast = replay(path, Config(), output=tmp_path / "fast.mcap", classifier=StandInClassifier())
+    paced = replay(
+        path, Config(), output=tmp_path / "paced.mcap", speed=50.0, classifier=StandInClassifier()
+    )
+    a, b = read_trial(fast.output), read_trial(paced.output)
+    assert fast.frames == paced.frames > 30
+    for key in ("frame_index", "probabilities", "cnn_decisions", "decisions", "voted"):
+        np.testing.assert_array_equal(a[key], b[key])
+
+    def features(p):  # measured from the terrain the reader process prepared, or this one
+        return [(m.sequence, m.data) for m in open_recording(p).messages([T.FEATURES])]
+
+    assert len(features(fast.output)) > 30
+    assert features(fast.output) == features(paced.output)
+    assert sum(d["kind"] != "unknown" for _, d in features(fast.output)) > 10
+
+
+def test_fast_replay_classifies_in_batches_of_a_fixed_size_however_frames_come():
+    """The CNN's float results depend on a batch's size: fixed batches from the first
+    frame on make every fast replay of a file the same."""
+    import capture.corpus.replay as R
+
+    blocks = [[0], [1, 2, 3], [4], [5, 6, 7, 8, 9], [10]]
+    assert list(R._fixed_batches(iter(blocks), 4)) == [[0, 1, 2, 3], [4, 5, 6, 7], [8, 9, 10]]
+    assert list(R._fixed_batches(iter([]), 4)) == []
+
+
+def test_the_reader_process_hands_over_what_has_come_without_waiting_for_a_full_batch():
+    """Frames already waiting join the first frame's block (up to the size), and an
+    error still gives the frames before it first."""
+    import queue
+
+    import capture.corpus.replay as R
+
+    reader = R._ReaderProcess.__new__(R._ReaderProcess)  # its queue alone, no process
+    reader._received = queue.Queue()
+    reader._received.put(("frame", 0))
+    batches = reader.batches(4)
+    assert next(batches) == [0]
+    for k in range(1, 7):
+        reader._received.put(("frame", k))
+    reader._received.put(("error", "the recording is damaged"))
+    assert next(batches) == [1, 2, 3, 4]
+    assert next(batches) == [5, 6]
+    with pytest.raises(CaptureError, match="damaged"):
+        next(batches)
+
+
+def test_fast_replay_prepares_frames_itself_until_its_reader_process_is_ready(recorded):
+    """The frames done here while the reader starts, then the reader's from the next on:
+    each frame once, in order, the same as the reader would have made them."""
+    import capture.corpus.replay as R
+    from inference.preprocess import PreprocessParams
+
+    path, _, _, _ = recorded
+    params = PreprocessParams.from_config(Config())
+    imu = R.orientations(R.recorded(open_recording(path))[0])
+
+    class Reader:  # stands in for the reader process
+        ready = threading.Event()
+        skip = None
+
+        def start_at(self, skip):
+            self.skip = skip
+
+        def batches(self, size):
+            for frame, q, pre in R.prepared_frames(path, params, imu, self.skip):
+                yield [R._encoded(frame, q, pre)]
+
+    reader = Reader()
+    frames = []
+    for block in R._head_start(path, params, imu, reader):
+        frames += [frame.index for frame, _, _, _ in block]
+        if len(frames) == 3:
+            reader.ready.set()  # the reader process says it is ready
+    every = [frame.index for frame, _, _ in R.prepared_frames(path, params, imu)]
+    assert reader.skip == 3
+    assert frames == every and len(every) > 30
+    skipped = R.prepared_frames(path, params, imu, skip=5)
+    first, q, _ = next(skipped)
+    _, q5, _ = list(R.prepared_frames(path, params, imu))[5]
+    assert first.index == every[5] and np.array_equal(q, q5)
+
+
+def test_switches_are_counted_over_the_last_minute():
+    from capture.live.session import SwitchCounter
+
+    counter = SwitchCounter(60.0)
+    s = 1_000_000_000
+    for t, final in [(0, 0), (1, 0), (2, 1), (3, None), (4, 1), (5, 0), (50, 2)]:
+        counter.add(t * s, final)
+    assert counter.count() == 3  # 0 -> 1 at 2 s, 1 -> 0 at 5 s, 0 -> 2 at 50 s
+    counter.add(66 * s, 2)
+    assert counter.count() == 1  # those at 2 s and 5 s are more than a minute old
+
+
+def test_the_snapshot_carries_switches_and_the_walkers_mode_to_key(recorded):
+    path, _, snap, _ = recorded
+    assert snap.walker_mode in MODES and isinstance(snap.switches_last_minute, int)
+    # auto-labels key the walker's locomotion mode, as an operator keys it
+    walker = {
+        m.data["time_ns"]: m.data["locomotion_mode"]
+        for m in open_recording(path).messages(["/sim/truth"])
+    }
+    keyed = [c for c in read_trial(path)["label_changes"] if c[2] == "simulator"]
+    assert keyed and all(walker[t] == mode for t, mode, _ in keyed if t in walker)
+
+
+def test_a_host_stall_is_one_event_that_names_the_host(tmp_path, monkeypatch):
+    import types
+
+    import capture.live.session as session_module
+
+    session = Session(config(tmp_path), classifier=StandInClassifier())
+    quiet = types.SimpleNamespace(poll_events=lambda: [])
+    session._camera = session._imu = quiet
+    clock = {"t": 10**12, "ticks": 0}
+
+    def now():  # 0.2 s a tick, and once 5 s: the host stood still
+        clock["ticks"] += 1
+        clock["t"] += 5_000_000_000 if clock["ticks"] == 3 else 200_000_000
+        if clock["ticks"] >= 6:
+            session._stop.set()
+        return clock["t"]
+
+    monkeypatch.setattr(session_module, "now_ns", now)
+    worker = threading.Thread(target=session._monitor_loop, daemon=True)
+    worker.start()
+    worker.join(60.0)  # a bound: it ends once the clock above stopped it
+    session._stop.set()
+    worker.join(5.0)
+    stalls = [e for e in session._events if e.kind == "stall"]
+    assert [(e.device, round(e.details["gap_s"], 1)) for e in stalls] == [("host", 5.0)]
+    assert "the computer stalled for 5.00 s" in stalls[0].message

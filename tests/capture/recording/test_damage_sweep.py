@@ -1,0 +1,188 @@
+"""Single-bit damage where no CRC covers the byte (record types, lengths, the summary, the
+journal): nothing is lost without being reported, no message or label appears that the
+original never had, and no byte makes an internal error. A sample of each class of the
+full sweep (`python -m tests.capture.recording.damage_sweep FILE`), and one test per case the
+issue names."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import struct
+
+import pytest
+from mcap.reader import make_reader
+
+from capture.recording import check, recover
+from capture.recording import topics as T
+from capture.recording.journal import check_journal, encode_line, journal_path
+from capture.recording.reader import open_recording
+from tests.capture.recording.damage_sweep import records, sweep
+from tests.recording_fixtures import write_recording
+from tui import cli
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    path = tmp_path_factory.mktemp("sweep") / "trial.mcap"
+    write_recording(path, seconds=1.0, chunk_interval_s=0.25)
+    return path
+
+
+def total(path) -> int:
+    with open(path, "rb") as f:
+        return sum(1 for _ in make_reader(f).iter_messages(log_time_order=False))
+
+
+def flipped(recording, tmp_path, at: int, bit: int, cut: int | None = None):
+    data = bytearray(recording.read_bytes())
+    data[at] ^= 1 << bit
+    out = tmp_path / "flipped.mcap"
+    out.write_bytes(bytes(data[:cut]))
+    return out
+
+
+def record_offsets(path, opcode: int) -> list[int]:
+    return [at for at, op, _ in records(path.read_bytes()) if op == opcode]
+
+
+@pytest.mark.parametrize("kind", ["opcode", "length", "summary", "journal", "cut"])
+def test_a_sample_of_each_class_loses_nothing_silently(recording, kind):
+    totals, failing = sweep(recording, {kind}, sample=12)
+    cases, silent, phantom, internal, _ = totals[kind]
+    assert cases == 12
+    assert (silent, phantom, internal) == (0, 0, 0), failing[:3]
+
+
+def test_a_chunk_whose_type_byte_flips_is_kept_and_reported(recording, tmp_path, capsys):
+    """0x06 -> 0x07: the chunk read as a message index was dropped, "complete file"."""
+    first = record_offsets(recording, 0x06)[0]
+    bad = flipped(recording, tmp_path, first, 0)
+    assert cli.main(["recover", str(bad), "-o", str(tmp_path / "out.mcap")]) == 0
+    out = capsys.readouterr().out
+    assert "complete file" not in out and f"at byte {first}" in out
+    assert total(tmp_path / "out.mcap") == total(recording)
+    assert [d.offset for d in check(bad).damaged] == [first]
+
+
+def test_a_message_index_read_as_data_end_does_not_end_the_file(recording, tmp_path):
+    """0x07 -> 0x0f: recovery stopped at the first chunk's index."""
+    index = record_offsets(recording, 0x07)[0]
+    report = recover(flipped(recording, tmp_path, index, 3), tmp_path / "out.mcap")
+    assert total(tmp_path / "out.mcap") == total(recording)
+    assert not report.complete and [d.offset for d in report.damaged] == [index]
+
+
+def test_a_message_index_read_as_a_message_injects_nothing(recording, tmp_path):
+    """0x07 -> 0x05: a garbage message on a real channel (an internal error on /labels)."""
+    for index in record_offsets(recording, 0x07)[:12]:
+        report = recover(
+            flipped(recording, tmp_path, index, 1), tmp_path / "out.mcap", overwrite=True
+        )
+        assert report.messages == total(recording) and report.damaged
+
+
+def test_a_chunk_read_as_a_footer_does_not_stop_the_reader_of_a_cut_file(recording, tmp_path):
+    """0x06 -> 0x02 in a file cut by a crash: every reader stopped at the first chunk."""
+    chunks = record_offsets(recording, 0x06)
+    bad = flipped(recording, tmp_path, chunks[0], 2, cut=chunks[-1] + 100)
+    rec = open_recording(bad)
+    assert not rec.complete
+    assert len(rec.read(T.DEPTH)) == sum(1 for _ in range(rec.topics[T.DEPTH].count)) > 0
+    whole = open_recording(recording).topics[T.DEPTH].count
+    assert rec.topics[T.DEPTH].count < whole  # the cut chunk only
+
+
+def test_a_flipped_length_keeps_the_neighbours_and_names_the_record(recording, tmp_path):
+    chunks = record_offsets(recording, 0x06)
+    at = chunks[1]
+    body = at + 9
+    (name_length,) = struct.unpack_from("<I", recording.read_bytes(), body + 28)
+    # the records length inside the chunk: nothing but the head's length can fix it
+    bad = flipped(recording, tmp_path, body + 32 + name_length + 2, 5)
+    report = recover(bad, tmp_path / "out.mcap")
+    assert report.damaged and report.damaged[0].offset == at
+    assert report.messages == total(recording)  # the head's length gives the extent back
+    bad = flipped(recording, tmp_path, at + 3, 1)  # the head's own length
+    report = recover(bad, tmp_path / "out.mcap", overwrite=True)
+    assert report.damaged[0].offset == at and report.messages == total(recording)
+
+
+def test_a_damaged_summary_is_not_believed(recording, tmp_path, capsys):
+    """A flip in the statistics emptied /camera/depth for info, replay wrote nothing."""
+    data = recording.read_bytes()
+    (stats,) = record_offsets(recording, 0x0B)
+    whole = open_recording(recording).topics[T.DEPTH].count
+    depth = next(
+        cid
+        for cid, c in make_reader(open(recording, "rb")).get_summary().channels.items()
+        if c.topic == T.DEPTH
+    )
+    # message count u64, schema u16, channel u32, attachment u32, metadata u32, chunk u32,
+    # start u64, end u64, then the map's byte length u32 and (channel u16, count u64) pairs
+    body = stats + 9
+    at = body + 8 + 2 + 4 + 4 + 4 + 4 + 8 + 8 + 4
+    while struct.unpack_from("<H", data, at)[0] != depth:
+        at += 10
+    bad = flipped(recording, tmp_path, at, 0)  # the depth channel's id in the counts
+    rec = open_recording(bad)
+    assert not rec.complete and rec.topics[T.DEPTH].count == whole
+    assert len(rec.read(T.DEPTH)) == whole
+    assert cli.main(["info", str(bad)]) == 0
+    out = capsys.readouterr().out
+    assert "summary CRC mismatch" in out and "state       complete" not in out
+
+
+def journal_lines(path):
+    return journal_path(path).read_bytes().splitlines(keepends=True)
+
+
+def test_each_journal_line_carries_its_crc(recording, tmp_path, capsys):
+    copy = tmp_path / "trial.mcap"
+    shutil.copy(recording, copy)
+    lines = journal_lines(recording)
+    assert all(b"\t" in line for line in lines)
+    number = next(k for k, line in enumerate(lines, 1) if b'"label"' in line)
+    damaged = bytearray(lines[number - 1])
+    damaged[damaged.index(b"time_ns") + 1] ^= 0x01  # the key: a label at time 0 before
+    lines[number - 1] = bytes(damaged)
+    journal_path(copy).write_bytes(b"".join(lines))
+    assert check_journal(journal_path(copy)).skipped == [f"line {number}: CRC mismatch"]
+    assert cli.main(["recover", str(copy)]) == 0
+    assert f"skipped journal line {number}: CRC mismatch" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    "entry",
+    [
+        {"type": "label", "time_ns": "abc", "mode": "LG", "source": "operator"},
+        {"type": "label", "time_ns": None, "mode": "LG", "source": "operator"},
+        {"type": "label", "time_ns": 1e30, "mode": "LG", "source": "operator"},
+        {"type": "label", "time_ns": 2**64, "mode": "LG", "source": "operator"},
+        {"type": "label", "time_ns": -5, "mode": "LG", "source": "operator"},
+        {"type": "label", "time_ns": float("nan"), "mode": "LG", "source": "operator"},
+        {"type": "event", "time_ns": 5, "device": "operator", "kind": "m", "details": "x"},
+    ],
+    ids=["text", "null", "1e30", "2^64", "negative", "nan", "details"],
+)
+def test_impossible_journal_values_are_skipped_and_reported(recording, tmp_path, entry):
+    copy = tmp_path / "trial.mcap"
+    shutil.copy(recording, copy)
+    lines = journal_lines(recording)
+    lines.insert(2, encode_line(entry))
+    journal_path(copy).write_bytes(b"".join(lines))
+    report = recover(copy, tmp_path / "out.mcap")
+    assert [s.split(":")[0] for s in report.journal_skipped] == ["line 3"]
+
+
+def test_a_journal_without_crcs_still_reads_and_a_cut_line_is_reported(recording, tmp_path):
+    old = tmp_path / "old.jsonl"
+    entries = [
+        {"type": "label", "time_ns": 5, "mode": "LG", "source": "operator"},
+        {"type": "label", "time_ns": 9, "mode": "US", "source": "operator"},
+    ]
+    text = "".join(json.dumps(e) + "\n" for e in entries)
+    old.write_text(text + '{"type": "label", "ti')
+    read = check_journal(old)
+    assert read.entries == entries
+    assert read.skipped == ["line 3: cut off (a crash while it was written)"]

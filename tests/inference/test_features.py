@@ -1,0 +1,144 @@
+import numpy as np
+import pytest
+
+from inference.features import TerrainFeatures, terrain_features
+from inference.preprocess import PreprocessParams, preprocess
+from tests import terrain_raycast as tr
+
+PARAMS = PreprocessParams()
+
+
+def poses(count: int, seed: int, pitch_deg: tuple[float, float]):
+    """Thigh orientations (pitch: negative = thigh raised, camera looking higher) and
+    camera heights of a walking subject, any heading."""
+    rng = np.random.default_rng(seed)
+    for k in range(count):
+        q = tr.thigh_quaternion(rng.uniform(*pitch_deg), rng.uniform(-3, 3), rng.uniform(-180, 180))
+        yield q, rng.uniform(0.5, 0.6), k
+
+
+def features_over_poses(
+    terrain, count: int = 8, seed: int = 0, hint=None, pitch_deg: tuple[float, float] = (-20, 10)
+):
+    """Features of the terrain seen from a set of poses, with the range noise of the
+    authors' simulation (+-1 cm); frames the preprocessing flags are left out."""
+    out = []
+    for q, height, k in poses(count, seed, pitch_deg):
+        xyz, conf = tr.render(terrain, q, height_m=height, noise_m=0.01, seed=seed * 100 + k)
+        pre = preprocess(xyz, conf, q, PARAMS)
+        if pre.ok:
+            out.append(terrain_features(pre.profile, hint))
+    return out
+
+
+@pytest.mark.parametrize("angle", [-20.0, -15.0, -10.0, 10.0, 15.0, 20.0])
+def test_ramp_slope_within_a_degree(angle):
+    feats = features_over_poses(tr.ramp(angle), seed=int(angle) + 30)
+    ramps = [f for f in feats if f.kind == "ramp"]
+    assert len(ramps) >= 0.8 * len(feats) >= 5
+    assert abs(np.median([f.slope_deg for f in ramps]) - angle) < 1.0
+    assert all(f.direction == ("up" if angle > 0 else "down") for f in ramps)
+    assert all(f.riser_m is None and f.tread_m is None for f in ramps)
+
+
+def test_ramp_ahead_of_level_ground():
+    feats = features_over_poses(tr.ramp(14.0, start_m=0.5), seed=3)
+    ramps = [f for f in feats if f.kind == "ramp"]
+    assert len(ramps) >= 0.7 * len(feats)
+    assert abs(np.median([f.slope_deg for f in ramps]) - 14.0) < 1.0
+
+
+def test_level_ground():
+    feats = features_over_poses(tr.level(), seed=5)
+    assert len(feats) >= 5 and all(f.kind == "level" for f in feats)
+    assert all(abs(f.slope_deg) < 1.0 for f in feats)
+    assert all(f.riser_m is None and f.tread_m is None for f in feats)
+    assert all(f.inlier_fraction > 0.95 and f.residual_m < 0.01 for f in feats)
+
+
+# The authors' stairs: riser 0.15 +- 0.05 m, tread 0.33 +- 0.05 m, first riser 0.2 m ahead.
+STAIRS = [(0.11, 0.29), (0.15, 0.33), (0.19, 0.37)]
+
+
+@pytest.mark.parametrize("up", [True, False], ids=["up", "down"])
+@pytest.mark.parametrize("riser, tread", STAIRS)
+def test_stairs_riser_and_tread_within_a_centimetre(riser, tread, up):
+    # Going down, the thigh is raised less: the camera looks further down.
+    feats = features_over_poses(
+        tr.stairs(riser, tread, first_m=0.2, up=up),
+        count=10,
+        seed=int(riser * 100) + up,
+        pitch_deg=(-20, 10) if up else (-10, 15),
+    )
+    stairs = [f for f in feats if f.kind == "stairs"]
+    assert len(stairs) >= 0.7 * len(feats) >= 5
+    assert all(f.direction == ("up" if up else "down") for f in stairs)
+    risers = [f.riser_m for f in stairs if f.riser_m is not None]
+    treads = [f.tread_m for f in stairs if f.tread_m is not None]
+    assert len(risers) >= 0.7 * len(stairs)
+    assert len(treads) >= 0.4 * len(stairs)  # needs two stair edges in view
+    assert abs(np.median(risers) - riser) < 0.01
+    assert abs(np.median(treads) - tread) < 0.01
+    assert all(f.slope_deg is None for f in stairs)
+
+
+def sagittal(polyline, spacing=0.003, noise=0.0, seed=0):
+    """Points along a polyline (x, z), as a densely sampled profile."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for (x0, z0), (x1, z1) in zip(polyline[:-1], polyline[1:]):
+        n = max(int(np.hypot(x1 - x0, z1 - z0) / spacing), 2)
+        t = np.linspace(0, 1, n, endpoint=False)
+        out.append(np.stack([x0 + t * (x1 - x0), z0 + t * (z1 - z0)], axis=1))
+    pts = np.concatenate(out)
+    return (pts + rng.uniform(-noise, noise, pts.shape)).astype(np.float32)
+
+
+def test_the_fused_decision_only_relaxes_the_evidence():
+    # Level ground with a short incline (20 cm long, 14 degrees) in the middle.
+    k = np.tan(np.radians(14))
+    profile = sagittal([(0.3, -0.55), (0.7, -0.55), (0.9, -0.55 + 0.2 * k), (1.4, -0.55 + 0.2 * k)])
+    assert terrain_features(profile).kind == "level"
+    hinted = terrain_features(profile, "UR")
+    assert hinted.kind == "ramp" and hinted.slope_deg == pytest.approx(14.0, abs=1.0)
+    # A hint never invents terrain that is not there.
+    flat = sagittal([(0.3, -0.55), (1.4, -0.55)], noise=0.005)
+    for hint in ("US", "DS", "UR", "DR", "LG", None):
+        assert terrain_features(flat, hint).kind == "level"
+
+
+def test_stairs_from_a_clean_profile():
+    # Up stairs as the camera sees them: treads and risers, nothing hidden.
+    profile = sagittal(
+        [
+            (0.3, -0.55),
+            (0.5, -0.55),
+            (0.5, -0.39),
+            (0.8, -0.39),
+            (0.8, -0.23),
+            (1.1, -0.23),
+            (1.1, -0.07),
+        ]
+    )
+    f = terrain_features(profile)
+    assert f.kind == "stairs" and f.direction == "up"
+    assert f.riser_m == pytest.approx(0.16, abs=0.003)
+    assert f.tread_m == pytest.approx(0.30, abs=0.003)
+    assert f.steps == 3
+    assert len(f.segments) >= 6
+
+
+@pytest.mark.parametrize(
+    "profile",
+    [
+        np.zeros((0, 2)),
+        np.full((50, 2), np.nan),
+        np.ones((3, 2)),
+        np.zeros((100, 2)),
+        np.random.default_rng(0).normal(size=(500, 2)),
+    ],
+)
+def test_degenerate_profiles_are_unknown(profile):
+    f = terrain_features(profile)
+    assert isinstance(f, TerrainFeatures) and f.kind == "unknown"
+    assert f.slope_deg is None and f.riser_m is None and f.tread_m is None

@@ -1,0 +1,124 @@
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tui import cli
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def walkcap(*args: str) -> subprocess.CompletedProcess:
+    """The command from this tree (the tests run in a temporary folder)."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    return subprocess.run(
+        [sys.executable, "-m", "tui.cli", *args],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=env,
+    )
+
+
+def test_help_lists_every_subcommand():
+    out = walkcap("--help")
+    assert out.returncode == 0
+    for name in cli.COMMANDS:
+        assert name in out.stdout
+
+
+@pytest.mark.parametrize("name", cli.COMMANDS)
+def test_every_subcommand_has_help(name, capsys):
+    with pytest.raises(SystemExit) as e:
+        cli.main([name, "--help"])
+    assert e.value.code == 0
+    assert "usage: walkcap " + name in capsys.readouterr().out
+
+
+def test_unknown_flag_is_one_line_without_traceback():
+    out = walkcap("record", "--no-such-flag")
+    assert out.returncode == 2
+    assert "Traceback" not in out.stderr
+    assert len(out.stderr.strip().splitlines()) == 1
+    assert "--no-such-flag" in out.stderr
+
+
+def test_bad_config_is_one_line_naming_the_key(tmp_path):
+    cfg = tmp_path / "bad.toml"
+    cfg.write_text("[camera]\nfps = 'fast'\n")
+    out = walkcap("--config", str(cfg), "info", "x.mcap")
+    assert out.returncode == 1
+    assert "Traceback" not in out.stderr
+    assert len(out.stderr.strip().splitlines()) == 1
+    assert "camera.fps" in out.stderr
+
+
+def test_missing_config_file_is_a_clear_error(capsys):
+    assert cli.main(["--config", "nowhere.toml", "info", "x"]) == 1
+    err = capsys.readouterr().err
+    assert "nowhere.toml" in err and "Traceback" not in err
+
+
+def test_internal_errors_go_to_a_crash_log(monkeypatch, capsys, tmp_path):
+    from tui.commands import info
+
+    def boom(args, config):
+        raise ZeroDivisionError("bug")
+
+    monkeypatch.setattr(info, "run", boom)
+    monkeypatch.delenv("WALKCAP_DEBUG", raising=False)
+    assert cli.main(["info", "x"]) == 70
+    err = capsys.readouterr().err
+    assert "internal error" in err and "Traceback" not in err
+    assert "ZeroDivisionError" in (tmp_path / ".cache" / "walkcap" / "crash.log").read_text()
+
+
+def test_a_closed_pipe_is_not_an_error(tmp_path):
+    """`walkcap info FILE | head -1`: the reader leaves early; no error message."""
+    from tests.recording_fixtures import write_recording
+
+    path = tmp_path / "r.mcap"
+    write_recording(path, seconds=1.0)
+    many = " ".join([f"'{path}'"] * 400)  # far more output than a pipe holds
+    out = subprocess.run(
+        f"'{sys.executable}' -m tui.cli info {many} | head -1",
+        shell=True,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert out.stdout.strip() == str(path)
+    assert "error" not in out.stderr.lower() and "Traceback" not in out.stderr
+
+
+def _every_action(parser, name="walkcap"):
+    import argparse
+
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for verb, sub in action.choices.items():
+                yield from _every_action(sub, f"{name} {verb}")
+        elif not isinstance(action, argparse._HelpAction):
+            yield name, action
+
+
+def test_one_vocabulary_every_flag_has_help_no_empty_choice_outputs_are_o_out():
+    problems = []
+    for name, action in _every_action(cli.build_parser()):
+        flags = action.option_strings
+        if not action.help:
+            problems.append(f"{name} {flags or action.dest}: no help")
+        if action.choices and "" in action.choices:
+            problems.append(f"{name} {flags}: an empty choice")
+        if "--output" in flags or (("-o" in flags) != ("--out" in flags)):
+            problems.append(f"{name} {flags}: outputs are -o/--out")
+    assert problems == []
+
+
+def test_an_unknown_flag_of_a_subcommand_points_to_its_help(capsys):
+    with pytest.raises(SystemExit):
+        cli.main(["eval", "recordings", "x.mcap", "--bogus"])
+    err = capsys.readouterr().err
+    assert "walkcap eval recordings --help" in err and "--bogus" in err
