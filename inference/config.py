@@ -10,9 +10,9 @@ import math
 from dataclasses import dataclass, field
 
 from devices.config import Problems, number_in, one_of
-from inference.fusion import (  # the authors' matrix and the methods, defined once
+from inference.fusion import METHODS  # the methods and the authors' matrix, defined once
+from inference.fusion_design import (
     HYSTERESIS,
-    METHODS,
     N_MODES,
     PAPER_TRANSITION,
     STEADY_EVIDENCE,

@@ -35,18 +35,14 @@ import numpy as np
 from devices.frames import MODE_COLORS, MODES
 from inference import transitions as tr
 from inference.errors import InferenceError
-from inference.fusion import (
+from inference.fusion import FixedLagSmoother, Fusion, HmmFusion, Voter, make_fusion
+from inference.fusion_design import (
     HYSTERESIS,
     N_MODES,
     PAPER_TRANSITION,
     STEADY_EVIDENCE,
     STEADY_STAY,
-    FixedLagSmoother,
-    Fusion,
-    HmmFusion,
-    Voter,
     estimate_transition,
-    make_fusion,
     mode_indices,
 )
 

@@ -25,7 +25,8 @@ from devices.simulator import Simulator, make_course
 from devices.simulator.synthetic import corridor_cloud, synthetic_frame
 from devices.xbus import MID, XbusParser, build, encode_mtdata2
 from inference.errors import InferenceError
-from inference.fusion import N_MODES, PAPER_TRANSITION, HmmFusion, make_fusion, paper_step
+from inference.fusion import HmmFusion, make_fusion, paper_step
+from inference.fusion_design import N_MODES, PAPER_TRANSITION
 from inference.model import INPUT_SIZE, Classifier, TerrainCNN, load_classifier, occupied_patches
 from inference.preprocess import BACKENDS as PREPROCESS_BACKENDS
 from inference.preprocess import PreprocessParams, preprocess

@@ -8,7 +8,8 @@ from scipy import stats
 
 from inference import evaluation as ev
 from inference.errors import InferenceError
-from inference.fusion import METHODS, PAPER_TRANSITION, make_fusion
+from inference.fusion import METHODS, make_fusion
+from inference.fusion_design import PAPER_TRANSITION
 
 HEADER = "LG,US,DS,UR,DR,label\n"
 
@@ -159,7 +160,7 @@ def test_delay_sweep_aligns_methods_on_delayed_frames(trials):
 
 def test_leave_one_out_transitions_exclude_the_trial_itself(trials):
     ts = ev.leave_one_out_transitions(trials[:3])
-    from inference.fusion import estimate_transition
+    from inference.fusion_design import estimate_transition
 
     np.testing.assert_allclose(ts[0], estimate_transition([t.reference for t in trials[1:3]]))
     assert len(ev.leave_one_out_transitions(trials[:1])) == 1

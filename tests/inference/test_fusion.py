@@ -3,26 +3,28 @@
 import numpy as np
 import pytest
 
-from inference.config import PAPER_TRANSITION as CONFIG_TRANSITION
+from inference.config import FusionConfig
 from inference.errors import InferenceError
 from inference.evaluation import accuracy, run_offline, synthetic_trial
 from inference.fusion import (
     METHODS,
-    PAPER_TRANSITION,
     FixedLagSmoother,
     ForwardFilter,
     HmmFusion,
     HysteresisFusion,
     SteadyFusion,
     Voter,
+    make_fusion,
+)
+from inference.fusion_design import (
+    PAPER_TRANSITION,
     design_transition,
     estimate_transition,
-    make_fusion,
-    paper_viterbi,
     steady_transition,
     validate_transition,
     walking_stay,
 )
+from tests.inference.paper_reference import paper_viterbi
 
 T = PAPER_TRANSITION
 
@@ -53,7 +55,7 @@ def stream(fusion, probabilities):
 
 
 def test_paper_matrix_is_the_authors_and_the_six_rules_with_defaults():
-    np.testing.assert_array_equal(T, np.array(CONFIG_TRANSITION))
+    np.testing.assert_array_equal(T, np.array(FusionConfig().transition))
     np.testing.assert_allclose(design_transition(), T, atol=1e-15)
 
 
@@ -388,7 +390,7 @@ def test_bench_times_the_steady_update():
 def gait_reference(e, elevation, stay=0.987, evidence=0.75):
     """steady+gait by its definition, in numpy: per frame the transition of its gait phase,
     the fixed-lag-1 smoother of that HMM."""
-    from inference.fusion import GAIT_LEAVE, GAIT_PHASE_SD, GAIT_RATE_FRAMES
+    from inference.fusion_design import GAIT_LEAVE, GAIT_PHASE_SD, GAIT_RATE_FRAMES
 
     e = np.asarray(e) ** evidence
     var, last, rows = 1.0, np.nan, []

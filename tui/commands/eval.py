@@ -162,7 +162,7 @@ def run(args, config) -> int:
     from capture.recording.reader import read_trials
     from inference import evaluation as ev
     from inference.errors import InferenceError
-    from inference.fusion import PAPER_TRANSITION, validate_transition
+    from inference.fusion_design import PAPER_TRANSITION, validate_transition
 
     window = args.window if args.window is not None else config.fusion.window
     vote_delay = args.vote_delay if args.vote_delay is not None else config.fusion.vote_delay

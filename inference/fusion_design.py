@@ -1,0 +1,178 @@
+"""What the fusion methods' HMMs are built from: transition matrices and the designed
+parameters of the "steady" methods (inference.fusion runs them).
+
+The transition matrix follows the paper's six rules (`design_transition`; the authors'
+numbers are `PAPER_TRANSITION`), or is counted from labelled sequences
+(`estimate_transition`). Every designed number here comes from walking or from simulated
+design recordings (seeds 900000-900011 and 910000-910011), never from a data set a figure
+is reported on.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import numpy as np
+
+from devices.frames import MODES
+from inference.errors import InferenceError
+
+N_MODES = len(MODES)
+
+
+# The authors' transition matrix (rows: from, columns: to; LG, US, DS, UR, DR), as in
+# ../shared/paper/README.md; the configuration's default.
+PAPER_TRANSITION = np.array(
+    [
+        [0.80, 0.05, 0.05, 0.05, 0.05],
+        [0.15, 0.80, 0.01, 0.03, 0.01],
+        [0.15, 0.01, 0.80, 0.01, 0.03],
+        [0.15, 0.03, 0.01, 0.80, 0.01],
+        [0.15, 0.01, 0.03, 0.01, 0.80],
+    ]
+)
+
+# "steady"'s design, from walking, not from any data set it is evaluated on:
+# - a terrain lasts about a flight of stairs or a ramp: some 8 steps, 4.6 s at 105 steps a
+#   minute; so about 5 s, and at the paper's 15 fps a frame stays in its mode with
+#   probability 1 - 1/(15 * 5) = 0.987;
+# - the CNN's errors come in runs (swing blur, a foot in view): 1.34 frames on average on
+#   12 simulated recordings (`walkcap synth --format recording --sessions 12 --seed
+#   900000`), so one frame carries about 1/1.34 = 0.75 of an independent frame's
+#   evidence: its probabilities enter raised to the power 0.75.
+TERRAIN_DWELL_S = 5.0
+STEADY_EVIDENCE = 0.75
+
+
+def walking_stay(fps: float = 15.0, dwell_s: float = TERRAIN_DWELL_S) -> float:
+    """The per-frame probability of staying in a mode held `dwell_s` on average."""
+    return 1.0 - 1.0 / (fps * dwell_s)
+
+
+STEADY_STAY = round(walking_stay(), 3)  # 0.987 at 15 fps
+
+# "steady+gait": on the same 12 simulated recordings, 63 % of the terrain changes (settled,
+# inference.transitions) came while the camera pitched down faster than 0.75 standard
+# deviations of its frame-to-frame pitch change, in 30 % of the frames; so a change is
+# 0.63 / 0.30 = 2.1 times likelier than average in that phase and 0.37 / 0.70 = 0.53 times
+# outside it. The CNN's errors start at any phase (35 % in it).
+GAIT_PHASE_SD = -0.75  # the phase: pitch change below this many standard deviations
+GAIT_LEAVE = (2.1, 0.53)  # leaving a mode, times the average: in the phase, outside it
+GAIT_RATE_FRAMES = 15  # the pitch change's variance: running over about a second
+
+# "steady+hysteresis": the CNN's misreads outdoors (level ground on a ramp or stairs) come in
+# runs of 1 frame up to about a step (13 frames at 15 fps) read with a middling
+# probability: 0.73 on average, 0.58-0.89 for 80 % of the runs (`walkcap synth --format
+# recording --sessions 12 --seed 900000`), and steady's posterior follows the longer runs.
+# A change to level ground is read at 0.86 (median over its first 4 frames) as the new
+# terrain fills the view. So a switch from stairs or a ramp to level ground needs level
+# ground's posterior at 4 to 1 against all the others together: 0.8. The other switches
+# (onto stairs or a ramp, between them) keep steady's timing: the CNN rarely reads stairs or
+# a ramp on level ground, and a margin there only delays real changes, which costs
+# accuracy where the terrain flickers near a change. On separate simulated sessions
+# (`--sessions 12 --preset outdoor --seed 910000`) this halves Algorithm 1's spurious
+# switches outdoors at steady's accuracy and median switch delay (1 frame); the same
+# margin on every switch costs 0.4 points of accuracy; a margin of 0.7 leaves more than half
+# of them (2.3 a minute against 3.6).
+HYSTERESIS = 0.8
+
+
+def steady_transition(stay: float = STEADY_STAY) -> np.ndarray:
+    """The paper's transition rules and proportions (of what leaves a non-level mode, 75 %
+    goes to level ground, 15 % to the same direction, 5 % to each opposite one; level
+    ground leaves equally) with the stay probability `stay`."""
+    return design_transition(stay, 0.75 * (1.0 - stay), 0.15 * (1.0 - stay))
+
+
+def validate_transition(matrix, name: str = "transition") -> np.ndarray:
+    """A 5x5 row-stochastic matrix with positive entries, as float64; else InferenceError."""
+    try:
+        t = np.array(matrix, dtype=float)
+    except (TypeError, ValueError):
+        raise InferenceError(f"{name}: expected 5 rows of 5 numbers") from None
+    if t.shape != (N_MODES, N_MODES):
+        raise InferenceError(
+            f"{name}: expected 5 rows of 5 numbers ({', '.join(MODES)}), got shape {t.shape}"
+        )
+    if not np.all(np.isfinite(t)) or np.any(t <= 0):
+        raise InferenceError(
+            f"{name}: every entry must be a positive number (a zero transition could never be left)"
+        )
+    for i, row in enumerate(t):
+        if abs(row.sum() - 1.0) > 1e-3:
+            raise InferenceError(f"{name}: row {MODES[i]} sums to {row.sum():.4g}, expected 1")
+    return t
+
+
+def design_transition(
+    stay: float = 0.80, to_level: float = 0.15, same_direction: float = 0.03
+) -> np.ndarray:
+    """The transition matrix from the paper's six rules, as a function of three numbers.
+
+    stay: t_ii for every mode (rules 1, 2); leaving level ground is split equally over the
+    four other modes (rule 3); to_level: from any non-level mode to LG (rule 4);
+    same_direction: between US and UR or DS and DR (|i-j| even, rule 5); the rest of each
+    row goes equally to the two opposite-direction modes (|i-j| odd, the lowest, rule 6).
+    The defaults give the authors' matrix.
+    """
+    opposite = (1.0 - stay - to_level - same_direction) / 2.0
+    leave_level = (1.0 - stay) / (N_MODES - 1)
+    if min(stay, to_level, same_direction, opposite, leave_level) <= 0:
+        raise InferenceError(
+            "transition design: every probability must be positive "
+            f"(stay={stay}, to_level={to_level}, "
+            f"same_direction={same_direction}, opposite={opposite:.4g})"
+        )
+    if stay <= max(to_level, same_direction, leave_level):
+        raise InferenceError("transition design: staying must be more likely than any change")
+    if same_direction <= opposite:
+        raise InferenceError(
+            "transition design: same-direction changes must be more likely "
+            f"than opposite-direction ones ({same_direction} <= {opposite:.4g})"
+        )
+    t = np.empty((N_MODES, N_MODES))
+    t[0, :] = leave_level
+    t[1:, 0] = to_level
+    for i in range(1, N_MODES):
+        for j in range(1, N_MODES):
+            if i == j:
+                continue
+            t[i, j] = same_direction if (i - j) % 2 == 0 else opposite
+    np.fill_diagonal(t, stay)
+    return t
+
+
+def mode_indices(labels: Iterable) -> np.ndarray:
+    """Labels as mode indices: names ("LG") or ints; None, "" or -1 mean unlabeled (-1)."""
+    out = []
+    for label in labels:
+        if label is None or label == "":
+            out.append(-1)
+        elif isinstance(label, str):
+            if label not in MODES:
+                raise InferenceError(f"unknown mode {label!r} (expected one of {', '.join(MODES)})")
+            out.append(MODES.index(label))
+        else:
+            index = int(label)
+            if not -1 <= index < N_MODES:
+                raise InferenceError(f"mode index {index} out of range 0..{N_MODES - 1}")
+            out.append(index)
+    return np.array(out, dtype=int)
+
+
+def estimate_transition(label_sequences: Iterable[Iterable], smoothing: float = 1.0) -> np.ndarray:
+    """Transition probabilities counted from labeled frame sequences, additively smoothed.
+
+    Pairs of consecutive frames count when both are labeled. Note that per-frame counts at
+    15 fps give a much higher stay probability than the authors' designed 0.80.
+    """
+    if smoothing <= 0:
+        raise InferenceError("transition estimate: smoothing must be positive")
+    counts = np.zeros((N_MODES, N_MODES))
+    for labels in label_sequences:
+        z = mode_indices(labels)
+        a, b = z[:-1], z[1:]
+        keep = (a >= 0) & (b >= 0)
+        np.add.at(counts, (a[keep], b[keep]), 1.0)
+    counts += smoothing
+    return counts / counts.sum(axis=1, keepdims=True)
