@@ -110,7 +110,7 @@ def output_settings(
     names: Iterable[str], rate_hz: int, precision: int = FLOAT32, coordinate_system: str = "ENU"
 ) -> list[OutputSetting]:
     """SetOutputConfiguration entries: the timestamp group in every message, every other
-    output (the status word too) at `rate_hz`. devices.imu_family fits them to a model."""
+    output (the status word too) at `rate_hz`. devices.imu.family fits them to a model."""
     settings = []
     for name in names:
         xdi = xdi_of(name, precision, coordinate_system)
