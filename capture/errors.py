@@ -1,4 +1,7 @@
-class CaptureError(Exception):
+from devices.errors import WalkcapError
+
+
+class CaptureError(WalkcapError):
     """A session or recording error; its message is shown to the user as is."""
 
 

@@ -94,7 +94,7 @@ class ImuConfig:
     rate_hz: int = 100
     drift_ppm: float = 50.0  # emulator only
     jitter_ms: float = 2.0  # emulator only
-    # The model the mock backend plays (devices/imu_family.py): "MTi-3" (AHRS, 1-series,
+    # The model the mock backend plays (devices/imu/family.py): "MTi-3" (AHRS, 1-series,
     # 100 Hz at most), "MTi-1" (IMU only), "MTi-630" (600-series, 400 Hz), ...
     emulate: str = "MTi-3"
 

@@ -1,7 +1,17 @@
-"""Device errors: a misconfiguration differs from a device lost while running."""
+"""Errors: one root for all of walkcap, and the devices' own.
+
+`WalkcapError` lives here, in the lowest layer, so that every package's errors derive from
+it (inference, capture and tui own theirs) and the CLI names one type when it prints a
+user error as one line. A device error says whether the device was misconfigured or lost
+while running.
+"""
 
 
-class DeviceError(Exception):
+class WalkcapError(Exception):
+    """Base of every walkcap error; its message is meant for the user as is."""
+
+
+class DeviceError(WalkcapError):
     """Base of every device error; its message is shown to the user as is."""
 
 

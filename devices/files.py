@@ -6,8 +6,10 @@ import os
 import stat
 from pathlib import Path
 
+from devices.errors import WalkcapError
 
-class NotARegularFile(FileExistsError):
+
+class NotARegularFile(WalkcapError, FileExistsError):
     """The output path names a device, a pipe, a socket or a folder: renaming a new file
     over it would replace that node (/dev/null as a regular file breaks the machine)."""
 

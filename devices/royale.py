@@ -105,18 +105,12 @@ def choose_use_case(available: list[str], fps: float, requested: str = "") -> st
     return min(rated)[2] if rated else available[0]
 
 
-def geometry_from_lens(
-    lens: Any, width: int, height: int, name: str = "", serial: str = ""
-) -> CameraGeometry:
-    """CameraGeometry from getLensParameters() (royale 3/4 or royale 5 key names); a lens
-    this does not understand gives the nominal pico flexx intrinsics."""
-    return lens_geometry(lens, width, height, name, serial)[0]
-
-
 def lens_geometry(
     lens: Any, width: int, height: int, name: str = "", serial: str = ""
 ) -> tuple[CameraGeometry, str]:
-    """(geometry, "device" or "nominal: why") from what getLensParameters gave."""
+    """(geometry, "device" or "nominal: why") from what getLensParameters gave (royale 3/4
+    or royale 5 key names); a lens this does not understand gives the nominal pico flexx
+    intrinsics."""
     source = "device"
     try:
         if hasattr(lens, "asdict"):  # a SWIG map (LensParamMap)

@@ -44,11 +44,9 @@ def default_session_factory(config: Config):
 
 def describe_error(e: BaseException) -> str:
     """One line for the operator; our own errors carry a message meant to be read as is."""
-    from capture.errors import CaptureError
-    from devices.errors import DeviceError
-    from inference.errors import InferenceError
+    from devices.errors import WalkcapError
 
-    if isinstance(e, (CaptureError, DeviceError, InferenceError)):
+    if isinstance(e, WalkcapError):
         return str(e)
     if isinstance(e, OSError) and e.strerror:
         return f"{e.strerror}{': ' + str(e.filename) if e.filename else ''}"

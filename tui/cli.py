@@ -42,11 +42,9 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _user_errors() -> tuple[type[BaseException], ...]:
-    from capture.errors import CaptureError
-    from devices.errors import DeviceError
-    from inference.errors import InferenceError
+    from devices.errors import WalkcapError
 
-    return (CaptureError, DeviceError, InferenceError, OSError)
+    return (WalkcapError, OSError)
 
 
 def build_parser() -> argparse.ArgumentParser:

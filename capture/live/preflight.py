@@ -20,7 +20,7 @@ import numpy as np
 
 from capture.live.alarms import DISK_MINUTES_LOW, disk_minutes
 from devices.base import DeviceState
-from devices.imu_clock import drift_text
+from devices.imu.clock import drift_text
 
 MIN_RATE = 0.8  # a device below this fraction of its configured rate fails
 SYNC_P99_MS = 5.0  # IMU-to-frame sync error above this (p99): a warning

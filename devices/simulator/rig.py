@@ -81,7 +81,7 @@ class MockRig:
         self.port: str = info["port"]
         self.geometry = info["geometry"]
         self.details: dict = info["details"]
-        self.imu_clock = info["clock"]  # devices.imu_emulator.EmulatorClock
+        self.imu_clock = info["clock"]  # devices.imu.emulator.EmulatorClock
         self._reader = threading.Thread(target=self._read, name="walkcap-rig-reader", daemon=True)
         self._reader.start()
 
@@ -324,7 +324,7 @@ def _serve(conn, camera_config, simulator_config, imu_config) -> None:
                 conn.send_bytes(b)
 
     try:
-        from devices.imu_emulator import ImuEmulator
+        from devices.imu.emulator import ImuEmulator
         from devices.simulator.camera import MockCamera
 
         camera = MockCamera(camera_config, simulator_config)

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from devices.imu_clock import WRAP, DeviceClock, lower_envelope
+from devices.imu.clock import WRAP, DeviceClock, lower_envelope
 
 RATE = 100  # samples per second
 TICKS_PER_SAMPLE = 10_000 // RATE

@@ -12,7 +12,7 @@ import serial
 from devices import xbus
 from devices.errors import DeviceInitError, DeviceNotAvailable
 from devices.imu import EmulatedImu, XbusImu, open_imu
-from devices.imu_emulator import ImuEmulator, gait_orientation
+from devices.imu.emulator import ImuEmulator, gait_orientation
 from devices.rotations import quat_to_matrix
 from devices.xbus import MID
 
@@ -381,7 +381,7 @@ def test_a_host_stall_loses_no_sample_the_port_kept(mock_imu):
     imu = mock_imu(rate_hz=100)
     imu.start()
     first = collect_n(imu, 50)
-    port, stalled = imu._serial, threading.Event()
+    port, stalled = imu.link.serial, threading.Event()
     real_read = port.read
 
     def read(n=1):

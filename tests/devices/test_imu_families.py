@@ -1,7 +1,7 @@
 """The driver against each emulated family: granted rates, refused outputs, link budget.
 
 Profiles: an IMU-only 1-series (MTi-1), a VRU/AHRS 1-series (MTi-2, MTi-3), a 600-series
-(MTi-630, MTi-610) and an MTi-20 (status group at 2000 Hz). Facts: devices/imu_family.py.
+(MTi-630, MTi-610) and an MTi-20 (status group at 2000 Hz). Facts: devices/imu/family.py.
 """
 
 import time
@@ -10,10 +10,11 @@ import numpy as np
 import pytest
 import serial
 
-from devices import imu_family, xbus
+from devices import xbus
 from devices.errors import DeviceInitError
 from devices.imu import EmulatedImu, XbusImu
-from devices.imu_emulator import ImuEmulator
+from devices.imu import family as imu_family
+from devices.imu.emulator import ImuEmulator
 from devices.xbus import MID
 
 pytestmark = pytest.mark.timeout(60)
@@ -129,7 +130,7 @@ def test_configures_and_streams_what_the_family_has(mock_imu, model):
     imu = mock_imu(model=model, rate_hz=100)
     imu.start()
     samples = collect(imu, 0.5)
-    request = imu.emulator.last_output_request
+    request = imu.emulator.settings.last_output_request
     # Nothing but the timestamp group at 0xFFFF; the status word at the data rate.
     assert {s.name for s in request if s.rate_hz == xbus.EVERY_PACKET} == {
         "packet_counter",
@@ -163,7 +164,7 @@ def test_what_the_device_grants_instead_is_said(mock_imu):
     """A product code the driver does not know: it asks for 125 Hz as configured; the
     device (a 1-series) uses 100 Hz, and the driver says so and runs at 100 Hz."""
     imu = mock_imu(model="MTi-3", rate_hz=100)
-    imu.emulator.product_code = "MTi-X-PROTOTYPE"
+    imu.emulator.settings.product_code = "MTi-X-PROTOTYPE"
     imu._settings = xbus.output_settings(xbus.DEFAULT_OUTPUTS, 125)
     imu.open()
     assert imu.family is None
@@ -217,7 +218,7 @@ def test_the_emulator_overflows_and_reports_0x29_when_the_line_is_too_slow():
         finally:
             line.close()
     assert errors and errors[0].data[0] == 0x29
-    assert emulator.overflowed > 0
+    assert emulator.line.overflowed > 0
     assert "data overflow" in xbus.error_text(errors[0].data[0])
 
 
@@ -230,9 +231,9 @@ def test_an_emulator_thread_catching_up_after_the_host_starved_it_loses_no_sampl
     t0 = 10**12
     emulator._power_up(t0)
     for k in range(400):  # a second of samples at once
-        emulator._transmit(frame, t0 + k * 2_500_000)
-    assert emulator.overflowed == 0
-    assert len(emulator._out) + sum(len(f) for _, f in emulator._queue) == 400 * len(frame)
+        emulator.line.transmit(frame, t0 + k * 2_500_000)
+    assert emulator.line.overflowed == 0
+    assert len(emulator.line.out) + sum(len(f) for _, f in emulator.line.queue) == 400 * len(frame)
 
 
 # ---- the emulator's rules --------------------------------------------------------------------

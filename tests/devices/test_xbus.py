@@ -306,7 +306,7 @@ def test_a_payload_the_decoder_cannot_explain_is_counted_and_the_stream_goes_on(
     def broken(payload):
         raise IndexError("tuple index out of range")
 
-    monkeypatch.setattr(xbus, "decode_mtdata2", broken)
+    monkeypatch.setattr(xbus.frames, "decode_mtdata2", broken)  # the parser decodes there
     parser = XbusParser()
     frame = xbus.build(MID.MTDATA2, sample_payload(1))
     msgs = parser.feed(frame + xbus.build(MID.GOTO_CONFIG_ACK))

@@ -20,10 +20,11 @@ import time
 import pytest
 import serial
 
-from devices import imu_family, xbus
+from devices import xbus
 from devices.errors import DeviceInitError
 from devices.imu import XbusImu, device_id_text
-from devices.imu_emulator import PORT_NAME_MAX, ImuEmulator
+from devices.imu import family as imu_family
+from devices.imu.emulator import PORT_NAME_MAX, ImuEmulator
 from devices.xbus import MID
 
 pytestmark = pytest.mark.timeout(120)

@@ -8,7 +8,7 @@ import sys
 import pytest
 
 from devices import xbus
-from devices.imu_emulator import ImuEmulator
+from devices.imu.emulator import ImuEmulator
 from tui import cli
 from tui.commands.imu import DECODE_KEYS
 

@@ -347,7 +347,7 @@ async def test_every_size_class_keeps_what_the_operator_needs(size):
 def _fit(drift_ppm: float, jitter_ms: float, seconds: float, seed: int):
     """A DeviceClock fed `seconds` of 100 Hz samples whose receive delay is 0.3 ms plus
     exponential jitter, now and then a sample 20 ms late."""
-    from devices.imu_clock import TICK_NS, DeviceClock
+    from devices.imu.clock import TICK_NS, DeviceClock
 
     rng = np.random.default_rng(seed)
     clock = DeviceClock()

@@ -32,11 +32,9 @@ def run(args, config) -> int:
         try:
             session.start()
         except Exception as e:  # the report names what failed; a bug still goes up
-            from capture.errors import CaptureError
-            from devices.errors import DeviceError
-            from inference.errors import InferenceError
+            from devices.errors import WalkcapError
 
-            if not isinstance(e, (CaptureError, DeviceError, InferenceError, OSError)):
+            if not isinstance(e, (WalkcapError, OSError)):
                 raise
             report = preflight.start_failure(config, e)
         else:

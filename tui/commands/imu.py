@@ -259,7 +259,7 @@ def _stream_lines(imu, seconds: float | None, interval: float) -> None:
 
 
 def _stream_line(sample, status) -> str:
-    from devices.imu_clock import drift_text
+    from devices.imu.clock import drift_text
 
     d = status.details
     head = (
@@ -290,7 +290,7 @@ def _stream_line(sample, status) -> str:
 
 def _emulate(args, config) -> int:
     from devices.errors import DeviceInitError
-    from devices.imu_emulator import ImuEmulator
+    from devices.imu.emulator import ImuEmulator
 
     try:
         emulator = ImuEmulator(

@@ -9,7 +9,7 @@ from rich.text import Text
 from textual.widget import Widget
 
 from devices.base import DeviceEvent, DeviceState, DeviceStatus
-from devices.imu_clock import drift_text
+from devices.imu.clock import drift_text
 from tui.widgets.modes import STATE_COLORS
 from tui.widgets.pacing import Pacer
 

@@ -1,7 +1,7 @@
 """Xsens MTi families: which outputs a model has, at which rates, and how slowly it writes.
 
-Pure data and functions, shared by the driver (devices/imu.py) and the emulator
-(devices/imu_emulator.py). Facts from Xsens' public device SDK (the `xspublic` sources):
+Pure data and functions, shared by the driver (devices/imu/driver.py) and the emulator
+(devices/imu/emulator/). Facts from Xsens' public device SDK (the `xspublic` sources):
 a family is known from the product code ("MTi-3-8A7G6", "MTi-630-...", "MTi-G-710-...",
 xsdeviceid.c); each data group has a base rate, and a device outputs a group at the base
 rate divided by a whole number (mtibasedevice.cpp, supportedUpdateRates; the base rates

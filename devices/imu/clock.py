@@ -182,10 +182,6 @@ class DeviceClock:
         return self._ref_host - self._ref_ticks * self.tick_ns + self._a + self._b * self._x
 
     @property
-    def residual_ns(self) -> float:
-        return self._residual
-
-    @property
     def drift_uncertainty_ppm(self) -> float | None:
         """How far the fitted drift may be off, ppm: the standard error of a straight-line
         fit through the window's bucket minima, their scatter above the envelope taken as
