@@ -200,3 +200,32 @@ def disk_full_after(budget: int):
         return real(file, data)
 
     return write
+
+
+def decoded_messages(path: str | os.PathLike, relative: bool = False) -> dict:
+    """Every message of a recording decoded, per topic, in file order, for comparing two
+    files by content; `relative`: times counted from the first IMU sample (a synthesized
+    recording starts at the clock's time)."""
+    from capture.recording import open_recording
+
+    rec = open_recording(path)
+    t0 = next(m.data["time_ns"] for m in rec.messages(["/imu"])) if relative else 0
+
+    def plain(v):
+        if isinstance(v, dict):
+            return {
+                k: x - t0 if k.endswith("time_ns") and isinstance(x, int) else plain(x)
+                for k, x in v.items()
+            }
+        if isinstance(v, list):
+            return [plain(x) for x in v]
+        if isinstance(v, np.ndarray):
+            return (v.dtype.str, v.shape, v.tobytes())
+        return v
+
+    out: dict = {}
+    for m in rec.messages():
+        out.setdefault(m.topic, []).append(
+            (m.log_time_ns - t0, m.publish_time_ns - t0, m.sequence, plain(m.data))
+        )
+    return out

@@ -1,13 +1,8 @@
-"""Corpus jobs on a Ray cluster: one task per session or trial, training with torch DDP.
+"""The Ray cluster behind corpus jobs (capture.corpus.jobs) and training with torch DDP.
 
 `connect("local")` starts a cluster on this machine's cores (no dashboard, Ray's own logs
 at errors only); any other address joins a running cluster (`ray start --head` prints
-it). `run` sends one task per session or trial, shows a progress bar over tasks and
-returns their results in task order; a task that fails is retried once, then named with
-its error, and the job raises once every other task has finished, so no trial is ever
-silently missing. A task is a module-level function of walkcap: every node imports it
-from its own walkcap installation, and reads and writes files at the paths the driver
-gives, so those paths must be reachable from every node (one machine, or shared storage).
+it). `describe` puts a failed task's error in one line.
 
 `train` runs inference.training.train on Ray Train's TorchTrainer: DistributedDataParallel
 over gloo, each worker reading the sessions itself.
@@ -22,7 +17,6 @@ import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
 from pathlib import Path
 
 from capture.errors import CaptureError
@@ -30,7 +24,6 @@ from capture.errors import CaptureError
 log = logging.getLogger(__name__)
 
 LOCAL = "local"
-RETRIES = 1  # a failed task runs once more (a lost node, a worker killed for memory)
 INSTALL_HINT = "--cluster needs Ray: pip install 'walkcap[cluster]'"
 
 
@@ -41,21 +34,6 @@ class ClusterError(CaptureError):
     def __init__(self, message: str, results: list | None = None) -> None:
         super().__init__(message)
         self.results = results or []
-
-
-@dataclass(frozen=True)
-class Task:
-    """One session's or trial's work: `function(*args)` on some node of the cluster."""
-
-    name: str  # what a failure is reported by: the output or input file, the session
-    function: Callable
-    args: tuple = ()
-
-
-@dataclass(frozen=True)
-class TaskFailure:
-    name: str
-    error: str
 
 
 def _ray():
@@ -165,81 +143,6 @@ def _reachable(address: str, timeout_s: float = 3.0) -> None:
             f"no Ray cluster answers at {address} ({e.strerror or e}); start one with "
             "`ray start --head` on the head node and give the address it prints"
         ) from None
-
-
-def run(
-    tasks: Sequence[Task],
-    *,
-    desc: str = "cluster",
-    unit: str = "task",
-    show_progress: bool | None = None,
-) -> list:
-    """The tasks' results in task order, on the connected cluster (see `connect`).
-
-    A task that fails (its function raised, or its worker or node was lost) runs once
-    more (RETRIES); if it fails again it is reported on stderr by name with its error, and
-    once all have ended ClusterError says how many failed. Errors are caught in the
-    worker, so the report is one line, not Ray's traceback."""
-    from tqdm import tqdm
-
-    ray = _ray()
-    remote = ray.remote(max_retries=0, num_cpus=1)(_call)
-
-    def submit(i: int):
-        return remote.options(name=tasks[i].name).remote(tasks[i].function, *tasks[i].args)
-
-    index = {submit(i): i for i in range(len(tasks))}
-    attempts = [1] * len(tasks)
-    results: list = [None] * len(tasks)
-    failures: list[TaskFailure] = []
-    if show_progress is None:
-        show_progress = sys.stderr.isatty()
-    try:
-        with tqdm(
-            total=len(tasks), desc=desc, unit=unit, file=sys.stderr, disable=not show_progress
-        ) as bar:
-            while index:
-                done, _ = ray.wait(list(index), num_returns=1)
-                for ref in done:
-                    i = index.pop(ref)
-                    try:
-                        ok, value = ray.get(ref)
-                    except ray.exceptions.RayError as e:  # the worker or its node was lost
-                        ok, value = False, describe(e)
-                    if ok:
-                        results[i] = value
-                    elif attempts[i] <= RETRIES:
-                        attempts[i] += 1
-                        log.info("%s failed (%s); running it again", tasks[i].name, value)
-                        index[submit(i)] = i
-                        continue
-                    else:
-                        failures.append(TaskFailure(tasks[i].name, value))
-                        tqdm.write(f"{tasks[i].name}: failed: {value}", file=sys.stderr)
-                    bar.update(1)
-    except KeyboardInterrupt:
-        for ref in index:
-            ray.cancel(ref, force=True)
-        raise
-    if failures:
-        names = ", ".join(f.name for f in failures)
-        raise ClusterError(
-            f"{len(failures)} of {len(tasks)} {unit}s failed ({RETRIES + 1} attempts each): "
-            f"{names}",
-            results,
-        )
-    return results
-
-
-def _call(function: Callable, *args) -> tuple[bool, object]:
-    """(True, the result) or (False, the error in one line; its traceback in the worker's
-    log with WALKCAP_DEBUG)."""
-    try:
-        return True, function(*args)
-    except Exception as e:
-        if os.environ.get("WALKCAP_DEBUG"):
-            log.exception("task failed")
-        return False, describe(e)
 
 
 def describe(error: BaseException) -> str:

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from capture.corpus import jobs
 from capture.errors import CaptureError
 from capture.recording.reader import labeled_session
 from devices.config import SimulatorConfig
@@ -224,49 +225,33 @@ def synth_dataset(
     show_progress: bool = True,
     cluster: str | None = None,
 ) -> list[Path]:
-    """Render `count` sessions into `out` (one .npz each) with a progress bar over sessions.
-    `cluster`: a Ray cluster's address or "local" (capture.corpus.cluster), one task a session."""
-    from tqdm import tqdm
-
+    """Render `count` sessions into `out` (one .npz each) with a progress bar over sessions:
+    `workers` processes, or `cluster` (a Ray cluster's address or "local"), one task a
+    session (capture.corpus.jobs)."""
     plan = session_plan(count, preset, base_seed)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    jobs = [
-        (p, s, params, settings, simulator_config, str(out / f"{p}-{s:06d}.npz")) for p, s in plan
+    where = jobs.choose(cluster, workers)
+    paths = [out / f"{p}-{s:06d}.npz" for p, s in plan]
+    tasks = [
+        jobs.Task(
+            path.name,
+            _synth_job,
+            (p, s, params, settings, simulator_config, jobs.task_path(where, path)),
+        )
+        for path, (p, s) in zip(paths, plan)
     ]
-    if cluster:
-        from capture.corpus import cluster as cluster_mod
-
-        tasks = [  # absolute paths: a node's worker need not start in this folder
-            cluster_mod.Task(
-                Path(job[-1]).name, _synth_job, ((*job[:-1], str(Path(job[-1]).resolve())),)
-            )
-            for job in jobs
-        ]
-        with cluster_mod.connect(cluster):
-            cluster_mod.run(tasks, desc="synth", unit="session", show_progress=show_progress)
-        return [Path(job[-1]) for job in jobs]
-    paths: list[Path] = []
-    with tqdm(total=len(jobs), unit="session", desc="synth", disable=not show_progress) as bar:
-        if workers > 1 and len(jobs) > 1:
-            import multiprocessing as mp
-
-            with mp.get_context("spawn").Pool(workers) as pool:
-                for path, frames in pool.imap(_synth_job, jobs):
-                    paths.append(Path(path))
-                    bar.set_postfix(frames=frames)
-                    bar.update(1)
-        else:
-            for job in jobs:
-                path, frames = _synth_job(job)
-                paths.append(Path(path))
-                bar.set_postfix(frames=frames)
-                bar.update(1)
+    jobs.run(
+        tasks,
+        where,
+        desc="synth",
+        unit="session",
+        show_progress=show_progress,
+    )
     return paths
 
 
-def _synth_job(job) -> tuple[str, int]:
-    preset, seed, params, settings, simulator_config, path = job
+def _synth_job(preset, seed, params, settings, simulator_config, path) -> tuple[str, int]:
     session, extra = render_synth_session(preset, seed, params, settings, simulator_config)
     write_session(path, session, extra["time_ns"], extra["extra"])
     return path, len(session)

@@ -39,6 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
+from capture.corpus import jobs
 from capture.corpus import selection as corpus_mod
 from capture.errors import CaptureError
 from capture.recording import reader
@@ -301,7 +302,7 @@ def corpus_tables(
 ):
     """Tables of many recordings, rows concatenated, and the corpus they came from: one
     file per trial (capture.corpus.selection.select), or `every_file` as found. `cluster`: a Ray
-    cluster's address or "local" (capture.corpus.cluster), one task a recording."""
+    cluster's address or "local", one task a recording (capture.corpus.jobs)."""
     pd = _pd()
     if every_file:
         files = corpus_mod.recording_files(paths)
@@ -312,21 +313,15 @@ def corpus_tables(
     if not files:
         raise chosen.nothing_left("nothing to export")
     parts: dict[str, list] = {name: [] for name in TABLES}
-    if cluster:
-        from capture.corpus import cluster as cluster_mod
-
-        tasks = [cluster_mod.Task(Path(f).name, tables, (str(Path(f).resolve()),)) for f in files]
-        with cluster_mod.connect(cluster):
-            per_file = cluster_mod.run(
-                tasks, desc="export", unit="recording", show_progress=progress
-            )
-    else:
-        iterator = files
-        if progress and len(files) > 1:
-            from tqdm import tqdm
-
-            iterator = tqdm(files, unit="file", desc="export", leave=False)
-        per_file = (tables(f) for f in iterator)
+    where = jobs.choose(cluster)
+    tasks = [jobs.Task(Path(f).name, tables, (jobs.task_path(where, f),)) for f in files]
+    per_file = jobs.run(
+        tasks,
+        where,
+        desc="export",
+        unit="recording",
+        show_progress=progress and len(files) > 1,
+    )
     for file_tables in per_file:
         for name, df in file_tables.items():
             parts[name].append(df)

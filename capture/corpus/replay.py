@@ -457,7 +457,7 @@ def _replay(
 
 
 def replay_file(source: str, config, output: str) -> ReplayReport:
-    """One recording's replay as a task of a corpus job (capture.corpus.cluster): as fast as
+    """One recording's replay as a task of a corpus job (capture.corpus.jobs): as fast as
     possible in this process, the same file as `replay` writes."""
     report = replay(source, config, output=output, reader_process=False)
     if report.stats.state == "failed":

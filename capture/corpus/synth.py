@@ -157,14 +157,14 @@ def synth_recording(
     return stats
 
 
-_classifiers: dict = {}  # per process: a cluster worker loads the model once for its tasks
+_classifiers: dict = {}  # per process: a job's worker loads the model once for its tasks
 
 
 def synth_recording_file(
     path: str | Path, config: config_mod.Config, preset: str, seed: int, trial: int, max_frames: int
 ) -> str:
-    """synth_recording with the configured model, as one task of a corpus job (capture.
-    cluster): the path written, or CaptureError when the recording failed."""
+    """synth_recording with the configured model, as one task of a corpus job
+    (capture.corpus.jobs): the path written, or CaptureError when the recording failed."""
     from capture.errors import CaptureError
     from capture.live.pipeline import CNN_THREADS
     from inference.model import load_classifier

@@ -159,7 +159,6 @@ def run(args, config) -> int:
     if args.eval_command == "model":
         return eval_model.run(args, config)
 
-    from capture.recording.reader import read_trials
     from inference import evaluation as ev
     from inference.errors import InferenceError
     from inference.fusion_design import PAPER_TRANSITION, validate_transition
@@ -184,10 +183,7 @@ def run(args, config) -> int:
         trials = [ev.read_scores(path, args.fps) for path in args.files]
     else:
         files = _recordings(args.files, args.replays)
-        if args.cluster:
-            trials = _trials_on_cluster(files, args.reference, args.cluster)
-        else:
-            trials = read_trials(files, args.reference)
+        trials = _trials(files, args.reference, args.cluster)
     per_trial = params
     if args.transition == "estimated":
         per_trial = [
@@ -383,16 +379,17 @@ def _recordings(paths: list[str], replays: bool = False) -> list[str]:
     return [str(p) for p in corpus.files]
 
 
-def _trials_on_cluster(files: list[str], reference: str, address: str) -> list:
-    """read_trials with one Ray task per recording; the trials in the order given."""
-    from pathlib import Path
-
-    from capture.corpus import cluster
+def _trials(files: list[str], reference: str, address: str | None) -> list:
+    """One evaluation trial per recording, here or with one Ray task each; in the order
+    given, each named by its path as given."""
+    from capture.corpus import jobs
     from capture.recording.reader import read_evaluation_trial
 
-    tasks = [  # absolute paths for the nodes; each trial keeps the path as given
-        cluster.Task(Path(f).name, read_evaluation_trial, (str(Path(f).resolve()), reference, f))
+    where = jobs.choose(address)
+    tasks = [
+        jobs.Task(Path(f).name, read_evaluation_trial, (jobs.task_path(where, f), reference, f))
         for f in files
     ]
-    with cluster.connect(address):
-        return cluster.run(tasks, desc="eval", unit="recording")
+    # a bar on a terminal for a cluster's job; here the trials are read without one
+    progress = None if address else False
+    return jobs.run(tasks, where, desc="eval", unit="recording", show_progress=progress)

@@ -113,24 +113,27 @@ def _on_cluster(args, config, outputs: list[str | None]) -> int:
     """One task per recording; the new files' paths printed in the order given."""
     from pathlib import Path
 
-    from capture.corpus import cluster
+    from capture.corpus import jobs
+    from capture.corpus.cluster import ClusterError
     from capture.corpus.replay import default_output, replay_file
 
+    where = jobs.Cluster(args.cluster)
     outputs = [o or str(default_output(Path(f))) for f, o in zip(args.files, outputs)]
-    tasks = [  # absolute paths: a node's worker need not start in this folder
-        cluster.Task(
-            Path(f).name, replay_file, (str(Path(f).resolve()), config, str(Path(o).resolve()))
+    tasks = [
+        jobs.Task(
+            Path(f).name,
+            replay_file,
+            (jobs.task_path(where, f), config, jobs.task_path(where, o)),
         )
         for f, o in zip(args.files, outputs)
     ]
-    with cluster.connect(args.cluster):
-        try:
-            reports = cluster.run(tasks, desc="replay", unit="recording")
-        except cluster.ClusterError as e:  # the replays written are still said
-            for o, report in zip(outputs, e.results):
-                if report is not None:
-                    print(o)
-            raise
+    try:
+        reports = jobs.run(tasks, where, desc="replay", unit="recording")
+    except ClusterError as e:  # the replays written are still said
+        for o, report in zip(outputs, e.results):
+            if report is not None:
+                print(o)
+        raise
     frames = sum(r.frames for r in reports)
     recorded = sum(r.seconds_recorded for r in reports)
     print(

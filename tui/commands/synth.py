@@ -54,7 +54,7 @@ def add_arguments(parser) -> None:
         type=_positive,
         default=1,
         metavar="N",
-        help="processes rendering sessions in parallel (default 1)",
+        help="processes synthesizing sessions in parallel (default 1)",
     )
     add_cluster_argument(parser, "each session")
     parser.add_argument(
@@ -104,61 +104,30 @@ def run(args, config) -> int:
 
 
 def _recordings(args, config) -> int:
-    """One MCAP per session, as a live mock session would record it, with simulator labels."""
+    """One MCAP per session, as a live mock session would record it, with simulator labels:
+    here, in `--workers` processes or on the cluster; each path printed once written."""
     import sys
     from pathlib import Path
 
-    from tqdm import tqdm
-
+    from capture.corpus import jobs
     from capture.corpus.dataset import session_plan
-    from capture.corpus.synth import synth_recording
-    from capture.live.pipeline import CNN_THREADS
-    from inference.model import load_classifier
+    from capture.corpus.synth import synth_recording_file
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     plan = session_plan(args.sessions, args.preset, args.seed)
-    names = [f"SIM_{preset}_t{i + 1:02d}_seed{seed}.mcap" for i, (preset, seed) in enumerate(plan)]
-    if args.cluster:
-        from capture.corpus import cluster
-        from capture.corpus.synth import synth_recording_file
-
-        tasks = [
-            cluster.Task(
-                name,
-                synth_recording_file,
-                (str((out / name).resolve()), config, preset, seed, i + 1, args.frames or 0),
-            )
-            for i, (name, (preset, seed)) in enumerate(zip(names, plan))
-        ]
-        with cluster.connect(args.cluster):
-            cluster.run(tasks, desc="synth", unit="recording")
-        for name in names:
-            print(out / name)
-        print(f"wrote {len(names)} recording(s) to {out}", file=sys.stderr)
-        return 0
-    classifier = load_classifier(config.model.path or None, threads=CNN_THREADS)
-    written = []
-    for i, (name, (preset, seed)) in enumerate(zip(names, plan)):
-        path = out / name
-        with tqdm(
-            desc=path.name, unit="frame", file=sys.stderr, disable=not sys.stderr.isatty()
-        ) as bar:
-            stats = synth_recording(
-                path,
-                config,
-                classifier,
-                preset=preset,
-                seed=seed,
-                trial=i + 1,
-                max_frames=args.frames or 0,
-                progress=bar.update,
-            )
-        if stats.state == "failed":
-            from capture.errors import CaptureError
-
-            raise CaptureError(f"{path}: {stats.message}")
-        written.append(path)
-        print(path)
-    print(f"wrote {len(written)} recording(s) to {out}", file=sys.stderr)
+    paths = [
+        out / f"SIM_{preset}_t{i + 1:02d}_seed{seed}.mcap" for i, (preset, seed) in enumerate(plan)
+    ]
+    where = jobs.choose(args.cluster, args.workers)
+    tasks = [
+        jobs.Task(
+            path.name,
+            synth_recording_file,
+            (jobs.task_path(where, path), config, preset, seed, i + 1, args.frames or 0),
+        )
+        for i, (path, (preset, seed)) in enumerate(zip(paths, plan))
+    ]
+    jobs.run(tasks, where, desc="synth", unit="recording", on_result=lambda i, _: print(paths[i]))
+    print(f"wrote {len(paths)} recording(s) to {out}", file=sys.stderr)
     return 0

@@ -9,13 +9,12 @@ import os
 import sys
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 ray = pytest.importorskip("ray")
 
-from capture.corpus import cluster  # noqa: E402
-from capture.recording.reader import open_recording  # noqa: E402
+from capture.corpus import cluster, jobs  # noqa: E402
+from tests.recording_fixtures import decoded_messages  # noqa: E402
 from tui.cli import main  # noqa: E402
 
 
@@ -25,32 +24,6 @@ def local_cluster():
     ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])
     with cluster.connect("local", num_cpus=2):
         yield
-
-
-def _messages(path: Path, relative: bool = False) -> dict:
-    """Every message decoded, per topic, in file order; `relative`: times counted from
-    the first IMU sample (a synthesized recording starts at the clock's time)."""
-    rec = open_recording(path)
-    t0 = next(m.data["time_ns"] for m in rec.messages(["/imu"])) if relative else 0
-
-    def plain(v):
-        if isinstance(v, dict):
-            return {
-                k: x - t0 if k.endswith("time_ns") and isinstance(x, int) else plain(x)
-                for k, x in v.items()
-            }
-        if isinstance(v, list):
-            return [plain(x) for x in v]
-        if isinstance(v, np.ndarray):
-            return (v.dtype.str, v.shape, v.tobytes())
-        return v
-
-    out: dict = {}
-    for m in rec.messages():
-        out.setdefault(m.topic, []).append(
-            (m.log_time_ns - t0, m.publish_time_ns - t0, m.sequence, plain(m.data))
-        )
-    return out
 
 
 def _run(capsys, *argv) -> tuple[int, str, str]:
@@ -85,7 +58,7 @@ def test_synth_recordings_hold_the_same_messages(recordings):
     assert len(one) == 2
     for p in one:
         ray_copy = recordings / "ray" / p.name
-        assert _messages(p, relative=True) == _messages(ray_copy, relative=True)
+        assert decoded_messages(p, relative=True) == decoded_messages(ray_copy, relative=True)
 
 
 def test_replay_outputs_equal_and_eval_tables_equal(recordings, tmp_path, capsys):
@@ -98,7 +71,7 @@ def test_replay_outputs_equal_and_eval_tables_equal(recordings, tmp_path, capsys
     assert code == 0
     assert [Path(p).name for p in out_one.split()] == [Path(p).name for p in out_ray.split()]
     for p in out_one.split():
-        assert _messages(Path(p)) == _messages(tmp_path / "ray" / Path(p).name)
+        assert decoded_messages(Path(p)) == decoded_messages(tmp_path / "ray" / Path(p).name)
 
     code, table_one, _ = _run(capsys, "eval", "recordings", *files, "--json")
     assert code == 0
@@ -145,11 +118,14 @@ def _broken(name: str) -> str:
 
 def test_a_task_is_retried_once_then_reported(tmp_path, capsys):
     marker = str(tmp_path / "marker")
-    assert cluster.run([cluster.Task("flaky", _flaky, (marker,))]) == ["second attempt"]
-    tasks = [cluster.Task("ok", _flaky, (marker,)), cluster.Task("t07", _broken, ("t07",))]
+    here = jobs.Cluster("local")
+    assert jobs.run([jobs.Task("flaky", _flaky, (marker,))], here) == ["second attempt"]
+    tasks = [jobs.Task("ok", _flaky, (marker,)), jobs.Task("t07", _broken, ("t07",))]
+    said = []
     with pytest.raises(cluster.ClusterError, match=r"1 of 2 tasks failed .*: t07") as e:
-        cluster.run(tasks)
+        jobs.run(tasks, here, on_result=lambda i, r: said.append((i, r)))
     assert e.value.results == ["second attempt", None]
+    assert said == [(0, "second attempt")]
     assert "t07: failed: ValueError: t07 is broken" in capsys.readouterr().err
 
 
