@@ -1,7 +1,8 @@
 """The documentation points at things that exist: every relative link in README.md and docs/
 resolves to a file (and a heading, for an anchor), every `walkcap` command in README's
 command table is one the CLI parses (and every command the CLI parses is in the table),
-and every repository path or module the documents cite is in the repository."""
+every repository path or module the documents cite is in the repository, the README stays
+an introduction (300 lines at most), and the Python example of docs/recordings.md runs."""
 
 import argparse
 import re
@@ -9,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from tests.recording_fixtures import write_recording
 from tui.cli import build_parser
 
 ROOT = Path(__file__).parent.parent
@@ -163,3 +165,20 @@ def test_every_cited_path_exists(doc):
     cited = cited_paths(text) | (layout_paths(text) if doc.name == "ARCHITECTURE.md" else set())
     missing = sorted(c for c in cited if not exists(c))
     assert not missing, f"{name(doc)} cites what the repository lacks: {missing}"
+
+
+def test_readme_stays_an_introduction():
+    lines = (ROOT / "README.md").read_text().count("\n")
+    assert lines <= 300, f"README.md has {lines} lines; the manual belongs in docs/"
+
+
+def test_the_python_example_of_docs_recordings_runs(tmp_path, monkeypatch, capsys):
+    (example,) = re.findall(
+        r"^```python\n(.*?)^```", (ROOT / "docs" / "recordings.md").read_text(), re.S | re.M
+    )
+    (path,) = re.findall(r'open_recording\("([^"]+)"\)', example)
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / path).parent.mkdir(parents=True)
+    write_recording(tmp_path / path, seconds=0.5)
+    exec(compile(example, "docs/recordings.md", "exec"), {})
+    assert "'subject'" in capsys.readouterr().out  # the session metadata it prints
