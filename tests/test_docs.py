@@ -141,9 +141,10 @@ def module_file(parts: list[str]) -> Path | None:
 
 
 def defines(module: Path, attr: str) -> bool:
-    """The module defines, assigns or imports `attr` at its top level."""
+    """The module defines, assigns or imports `attr` at its top level (an import of several
+    names lists one a line)."""
     a = re.escape(attr)
-    pattern = rf"^(?:def|class)\s+{a}\b|^{a}\s*[:=]|^(?:from|import)\s.*\b{a}\b"
+    pattern = rf"^(?:def|class)\s+{a}\b|^{a}\s*[:=]|^(?:from|import)\s.*\b{a}\b|^\s+{a},?$"
     return bool(re.search(pattern, module.read_text(), re.M))
 
 
