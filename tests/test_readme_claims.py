@@ -1,5 +1,6 @@
-"""What README.md says the program does, checked against the program: the name `recover`
-writes, the exit codes of usage and user errors, the time columns of every exported table."""
+"""What README.md and docs/recordings.md say the program does, checked against the program:
+the exit codes of usage and user errors (README), the name `recover` writes and the time
+columns of every exported table (docs/recordings.md)."""
 
 import re
 import subprocess
@@ -10,7 +11,9 @@ from capture.corpus import export
 from tests.recording_fixtures import write_recording
 from tui.cli import main
 
-README = (Path(__file__).parent.parent / "README.md").read_text()
+ROOT = Path(__file__).parent.parent
+README = (ROOT / "README.md").read_text()
+RECORDINGS = (ROOT / "docs" / "recordings.md").read_text()
 
 
 def flat(text: str) -> str:
@@ -23,8 +26,8 @@ def walkcap(*argv: str) -> subprocess.CompletedProcess:
     )
 
 
-def test_recover_writes_the_file_the_readme_names(tmp_path):
-    (template,) = re.findall(r"`walkcap recover FILE` writes `([^`]+)`", flat(README))
+def test_recover_writes_the_file_the_docs_name(tmp_path):
+    (template,) = re.findall(r"`walkcap recover FILE` writes `([^`]+)`", flat(RECORDINGS))
     path = tmp_path / "S01_indoor_t02_20261122-102000.mcap"
     write_recording(path, seconds=0.5)
     assert main(["recover", str(path)]) == 0
@@ -46,8 +49,8 @@ def test_usage_errors_and_user_errors_exit_as_the_readme_says(tmp_path):
     assert done.returncode == int(other.group(1)) and "no such file" in done.stderr
 
 
-def test_every_exported_table_has_the_time_columns_the_readme_lists(tmp_path):
-    text = flat(README)
+def test_every_exported_table_has_the_time_columns_the_docs_list(tmp_path):
+    text = flat(RECORDINGS)
     claim = re.search(r"exported (.*?) tables? ha(?:ve|s) `time_ns`", text)
     assert claim
     named = re.findall(r"`(\w+)`", claim.group(1))
@@ -57,7 +60,7 @@ def test_every_exported_table_has_the_time_columns_the_readme_lists(tmp_path):
     for name in named or export.TABLES:  # "every exported table": all of them
         assert {"time_ns", "unix_time_ns", "time_s"} <= set(tables[name].columns), name
     trials = re.search(r"`trials` has the file's (.*?)\.", text)
-    assert trials, "README says which times `trials` has"
+    assert trials, "docs/recordings.md says which times `trials` has"
     columns = re.findall(r"`(\w+)`", trials.group(1))
     assert columns and set(columns) <= set(tables["trials"].columns)
     assert int(tables["trials"]["end_time_ns"][0]) > int(tables["trials"]["start_time_ns"][0])
