@@ -166,26 +166,30 @@ class FoxgloveLive(Sink):
         t = frame.device_time_ns if time_ns is None else time_ns
         self._put(E.encode_depth, frame, t, frame.host_time_ns)
 
-    def write_processed(self, index, time_ns, log_time_ns, cloud, image, quaternion, flag) -> None:
+    def write_processed(
+        self, frame_index, time_ns, log_time_ns, cloud, image, quaternion, flag
+    ) -> None:
         if not self._watched(T.CLOUD, T.BINARY_IMAGE, T.TF, T.PREPROCESS):
             return
         now = time.monotonic()
         if now < self._next_processed:
             return
         self._next_processed = now + self._min_image_s
-        self._put(E.encode_processed, index, time_ns, log_time_ns, cloud, image, quaternion, flag)
+        self._put(
+            E.encode_processed, frame_index, time_ns, log_time_ns, cloud, image, quaternion, flag
+        )
 
-    def write_inference(self, index, time_ns, log_time_ns, probabilities, fused) -> None:
+    def write_inference(self, frame_index, time_ns, log_time_ns, cnn_probs, fused) -> None:
         if self._watched(T.CNN, T.FUSED):
-            self._put(E.encode_inference, index, time_ns, log_time_ns, probabilities, fused)
+            self._put(E.encode_inference, frame_index, time_ns, log_time_ns, cnn_probs, fused)
 
-    def write_features(self, index, time_ns, features) -> None:
+    def write_features(self, frame_index, time_ns, features) -> None:
         if self._watched(T.FEATURES):
-            self._put(E.encode_features, index, time_ns, time_ns, features)
+            self._put(E.encode_features, frame_index, time_ns, time_ns, features)
 
-    def write_truth(self, index, time_ns, truth) -> None:
+    def write_truth(self, frame_index, time_ns, truth) -> None:
         if self._watched(T.TRUTH):
-            self._put(E.encode_truth, index, time_ns, time_ns, truth)
+            self._put(E.encode_truth, frame_index, time_ns, time_ns, truth)
 
     def write_imu(self, sample) -> None:
         if self._watched(T.IMU):

@@ -4,6 +4,8 @@ given, under the schema the registry names; every sink accepts every write of a 
 from __future__ import annotations
 
 import inspect
+import re
+from pathlib import Path
 
 import jsonschema
 import numpy as np
@@ -180,3 +182,18 @@ def test_a_sink_that_implements_nothing_accepts_every_write():
 def test_the_recorder_keeps_every_write_a_session_makes():
     for name in _writes(Sink):  # nothing the session hands out is silently left unrecorded
         assert getattr(Recorder, name) is not getattr(Sink, name), name
+
+
+def test_the_documented_topic_table_is_the_registry():
+    """The topic table of the docs (README or docs/) names every topic, with its schema."""
+    root = Path(__file__).resolve().parents[3]
+    rows = {}
+    for doc in [root / "README.md", *sorted((root / "docs").glob("*.md"))]:
+        for topic, encoding in re.findall(r"^\| `(/[^`]+)` \| ([^|]+) \|", doc.read_text(), re.M):
+            rows.setdefault(topic, encoding.strip())
+    assert set(rows) == set(T.TOPICS)
+    for topic, encoding in rows.items():
+        spec = T.TOPICS[topic]
+        assert encoding.split()[0] == (
+            "JSON" if spec.message_encoding == "json" else spec.schema_name
+        )
