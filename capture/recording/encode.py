@@ -29,7 +29,7 @@ class Encoded:
     sequence: int = 0  # frame index on per-frame topics, packet counter on /imu
 
 
-def message(topic: str, log_time: int, publish_time: int, sequence: int, *data) -> Encoded:
+def message(topic: str, log_time: int, publish_time: int, *data, sequence: int = 0) -> Encoded:
     """The registered topic's message built from `data` (capture.recording.topics.TOPICS)."""
     return Encoded(topic, log_time, publish_time, T.TOPICS[topic].encode(*data), sequence)
 
@@ -40,11 +40,11 @@ def encode_depth(frame, t: int, log_time: int, gray: bool = False) -> list[Encod
     if depth is None:
         depth = T.range_mm(frame.xyz, frame.confidence)
     out = [
-        message(T.DEPTH, log_time, t, frame.index, depth, t),
-        message(T.CONFIDENCE, log_time, t, frame.index, frame.confidence, t),
+        message(T.DEPTH, log_time, t, depth, t, sequence=frame.index),
+        message(T.CONFIDENCE, log_time, t, frame.confidence, t, sequence=frame.index),
     ]
     if gray and frame.gray is not None:
-        out.append(message(T.GRAY, log_time, t, frame.index, frame.gray, t))
+        out.append(message(T.GRAY, log_time, t, frame.gray, t, sequence=frame.index))
     return out
 
 
@@ -78,18 +78,16 @@ def encode_processed(
 ) -> list[Encoded]:
     """A frame's preprocessing: cloud, classifier input, flag, and the orientation if known."""
     points = np.asarray(cloud, dtype=np.float32).reshape(-1, 3)
-    n = len(points)
-    points = thin_cloud(points, voxel_m, max_points)
+    kept = thin_cloud(points, voxel_m, max_points)
     oriented = quaternion is not None and bool(np.all(np.isfinite(quaternion)))
+    preprocess = (index, time_ns, flag, oriented, len(points), len(kept))
     out = [
-        message(T.CLOUD, log_time, time_ns, index, points, time_ns),
-        message(T.BINARY_IMAGE, log_time, time_ns, index, image, time_ns),
-        message(
-            T.PREPROCESS, log_time, time_ns, index, index, time_ns, flag, oriented, n, len(points)
-        ),
+        message(T.CLOUD, log_time, time_ns, kept, time_ns, sequence=index),
+        message(T.BINARY_IMAGE, log_time, time_ns, image, time_ns, sequence=index),
+        message(T.PREPROCESS, log_time, time_ns, *preprocess, sequence=index),
     ]
     if oriented:
-        out.append(message(T.TF, log_time, time_ns, index, quaternion, time_ns))
+        out.append(message(T.TF, log_time, time_ns, quaternion, time_ns, sequence=index))
     return out
 
 
@@ -97,28 +95,28 @@ def encode_inference(
     index: int, time_ns: int, log_time: int, probabilities, fused: dict | None
 ) -> list[Encoded]:
     """The CNN's output for frame `index`, and the fusion's (if any) produced with it."""
-    out = [message(T.CNN, log_time, time_ns, index, index, time_ns, probabilities)]
+    out = [message(T.CNN, log_time, time_ns, index, time_ns, probabilities, sequence=index)]
     if fused:
-        out.append(message(T.FUSED, log_time, time_ns, index, index, time_ns, fused))
+        out.append(message(T.FUSED, log_time, time_ns, index, time_ns, fused, sequence=index))
     return out
 
 
 def encode_features(index: int, time_ns: int, log_time: int, features: dict) -> list[Encoded]:
-    return [message(T.FEATURES, log_time, time_ns, index, index, time_ns, features)]
+    return [message(T.FEATURES, log_time, time_ns, index, time_ns, features, sequence=index)]
 
 
 def encode_truth(index: int, time_ns: int, log_time: int, truth: dict) -> list[Encoded]:
-    return [message(T.TRUTH, log_time, time_ns, index, index, time_ns, truth)]
+    return [message(T.TRUTH, log_time, time_ns, index, time_ns, truth, sequence=index)]
 
 
 def encode_imu(sample) -> list[Encoded]:
     """An ImuSample, published at its device-corrected time (its receipt when unknown)."""
     t = sample.time_ns if sample.time_ns is not None else sample.host_time_ns
-    return [message(T.IMU, sample.host_time_ns, t, sample.packet_counter or 0, sample)]
+    return [message(T.IMU, sample.host_time_ns, t, sample, sequence=sample.packet_counter or 0)]
 
 
 def encode_label(time_ns: int, mode: str, source: str) -> list[Encoded]:
-    return [message(T.LABELS, time_ns, time_ns, 0, time_ns, mode, source)]
+    return [message(T.LABELS, time_ns, time_ns, time_ns, mode, source)]
 
 
 def encode_event(event) -> list[Encoded]:

@@ -101,7 +101,7 @@ class QueuedEncodedFrame(QueuedItem):
     index: int
     time_ns: int
     log_time: int
-    messages: list
+    messages: list  # of capture.recording.encode.Encoded
 
 
 @dataclass(slots=True)

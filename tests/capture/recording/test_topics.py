@@ -106,7 +106,7 @@ def test_every_registered_topic_has_a_round_trip_case():
 def written(tmp_path_factory):
     """Each topic's message, built by the registry, written by a Recorder, read back."""
     path = tmp_path_factory.mktemp("topics") / "topics.mcap"
-    messages = [message(topic, T0 + 5, T0, 4, *data) for topic, (data, _) in CASES.items()]
+    messages = [message(topic, T0 + 5, T0, *data, sequence=4) for topic, (data, _) in CASES.items()]
     with Recorder(path, metadata={}) as rec:
         rec.write_encoded(4, T0, T0 + 5, messages)
     return path
