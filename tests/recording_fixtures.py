@@ -14,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from capture.recording.writer import Recorder, _TrackedFile
+from capture.recording.chunks import TrackedFile
+from capture.recording.writer import Recorder
 from devices.base import DeviceEvent
 from devices.frames import MODES, ImuSample
 from devices.simulator.synthetic import synthetic_frame
@@ -191,8 +192,8 @@ def write_trial(
 
 
 def disk_full_after(budget: int):
-    """A `_TrackedFile.write` that raises ENOSPC past `budget` bytes, as a full disk does."""
-    real = _TrackedFile.write
+    """A `TrackedFile.write` that raises ENOSPC past `budget` bytes, as a full disk does."""
+    real = TrackedFile.write
 
     def write(file, data):
         if file.position + len(data) > budget:

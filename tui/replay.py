@@ -538,10 +538,10 @@ def write_corrected(
 
 def _json_channel(writer, topic: str, by_topic: dict[str, int]) -> int:
     """A channel for `topic` in the new file when the original had none."""
-    spec = T.topic_spec(topic)
+    spec = T.TOPICS[topic]
     sid = writer.register_schema(spec.schema_name, spec.schema_encoding, spec.schema_data)
     by_topic[topic] = writer.register_channel(
-        topic, spec.message_encoding, sid, {"description": T.DESCRIPTIONS[topic]}
+        topic, spec.message_encoding, sid, {"description": spec.description}
     )
     return by_topic[topic]
 

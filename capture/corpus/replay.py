@@ -226,8 +226,8 @@ class _ReaderProcess:
 
 
 def _serve_prepared(conn, source: str, params) -> None:
+    from capture.recording.encode import encode_depth  # noqa: F401
     from capture.recording.reader import depth_frames  # noqa: F401  (imported while the host reads)
-    from capture.recording.writer import encode_depth  # noqa: F401
 
     try:
         imu_orientations = conn.recv()
@@ -248,7 +248,7 @@ def _encoded(frame: DepthFrame, q, pre):
     """What the recording needs of a frame that fusion does not change, encoded (in the
     reader process when replaying fast); the frame and its Preprocessed go on without
     their bulky arrays. The rays come with the source's attachments."""
-    from capture.recording.writer import encode_depth, encode_processed, encode_truth
+    from capture.recording.encode import encode_depth, encode_processed, encode_truth
 
     t, log_time = frame.device_time_ns, frame.host_time_ns
     messages = encode_depth(frame, t, log_time) + encode_processed(
@@ -357,7 +357,8 @@ def _head_start(source, params, imu_orientations, frames_in: _ReaderProcess):
 def _replay(
     source, rec, output, config, params, speed, classifier, progress, blocks, recorded_streams
 ) -> ReplayReport:
-    from capture.recording.writer import ZSTD_LEVEL_FAST, Recorder
+    from capture.recording.chunks import ZSTD_LEVEL_FAST
+    from capture.recording.writer import Recorder
     from inference import features  # noqa: F401  (imported now, not in the first frame's time)
     from inference.fusion import make_fusion
     from inference.model import load_classifier

@@ -1,12 +1,12 @@
 """The live session in Foxglove: a WebSocket server (Foxglove's own SDK) with the
 recording's topics, schemas and encoders.
 
-A session tap (Session.add_tap): the session hands it what it hands the recorder; a
-worker thread encodes with the recorder's own encoders and publishes, so a live view and
-a recording of the same moment are the same messages. Only topics a client subscribes to
-are encoded; depth, images and clouds go out at most `image_hz` times a second. The queue
-between the session and the worker is bounded: a slow client costs dropped live
-messages (counted), never a frame of the session.
+A session tap (a Sink, Session.add_tap): the session hands it what it hands the recorder;
+a worker thread encodes with the recorder's own encoders (capture.recording.encode) and
+publishes, so a live view and a recording of the same moment are the same messages. Only
+topics a client subscribes to are encoded; depth, images and clouds go out at most
+`image_hz` times a second. The queue between the session and the worker is bounded: a
+slow client costs dropped live messages (counted), never a frame of the session.
 
 The SDK's log lines (Python's `foxglove` loggers) quote what clients send: they pass
 through `ClientLog`, which escapes them and counts repeats (capture.labtools.safetext) before they
@@ -16,6 +16,7 @@ reach walkcap's log, the terminal or the UI's log file.
 from __future__ import annotations
 
 import collections
+import functools
 import logging
 import threading
 import time
@@ -23,7 +24,9 @@ from pathlib import Path
 
 from capture.errors import CaptureError
 from capture.labtools.safetext import Repeats, escape, kind_of
+from capture.recording import encode as E
 from capture.recording import topics as T
+from capture.recording.sink import Sink
 
 log = logging.getLogger(__name__)
 
@@ -81,7 +84,7 @@ class _Subscriptions:
         self.count[channel.topic] = max(0, self.count[channel.topic] - 1)
 
 
-class FoxgloveLive:
+class FoxgloveLive(Sink):
     """A Foxglove WebSocket server publishing the live session; `port=0` picks a free one."""
 
     def __init__(
@@ -91,11 +94,6 @@ class FoxgloveLive:
             import foxglove
         except ImportError as e:
             raise CaptureError(f"Foxglove live view needs foxglove-sdk: {e}") from None
-        from capture.recording.writer import encode_depth, encode_processed, encode_truth
-
-        self._encode_depth = encode_depth
-        self._encode_processed = encode_processed
-        self._encode_truth = encode_truth
         self.client_log = client_log()
         self._client_seen = self.client_log.repeats.total
         self._client_held = self.client_log.repeats.held_back
@@ -113,8 +111,7 @@ class FoxgloveLive:
             raise CaptureError(f"Foxglove live view: cannot listen on {host}:{port}: {e}") from None
         self.port = self.server.port
         self.channels = {}
-        for topic in T.TOPICS:
-            spec = T.topic_spec(topic)
+        for topic, spec in T.TOPICS.items():
             schema = foxglove.Schema(
                 name=spec.schema_name, encoding=spec.schema_encoding, data=spec.schema_data
             )
@@ -123,7 +120,7 @@ class FoxgloveLive:
                 schema=schema,
                 message_encoding=spec.message_encoding,
                 context=self._context,
-                metadata={"description": T.DESCRIPTIONS[topic]},
+                metadata={"description": spec.description},
             )
         self._min_image_s = 1.0 / image_hz if image_hz > 0 else 0.0
         self._next_image = 0.0
@@ -150,13 +147,14 @@ class FoxgloveLive:
         count = self._subscriptions.count
         return any(count[t] for t in topics)
 
-    def _put(self, item) -> None:
+    def _put(self, encode, *data) -> None:
+        """`encode(*data)` for the worker: the session's thread only queues the reference."""
         if len(self._queue) == self._queue.maxlen:
             self.dropped += 1
-        self._queue.append(item)
+        self._queue.append(functools.partial(encode, *data))
         self._ready.set()
 
-    # ---- the recorder's write_* calls -------------------------------------------------------
+    # ---- the session's data (Sink) ---------------------------------------------------------
 
     def write_frame(self, frame, time_ns: int | None = None) -> None:
         if not self._watched(T.DEPTH, T.CONFIDENCE, T.GRAY):
@@ -165,69 +163,45 @@ class FoxgloveLive:
         if now < self._next_image:
             return
         self._next_image = now + self._min_image_s
-        self._put(("frame", frame, time_ns))
+        t = frame.device_time_ns if time_ns is None else time_ns
+        self._put(E.encode_depth, frame, t, frame.host_time_ns)
 
-    def write_processed(self, index, time_ns, log_time_ns, cloud, image, quaternion, flag) -> None:
+    def write_processed(
+        self, frame_index, time_ns, log_time_ns, cloud, image, quaternion, flag
+    ) -> None:
         if not self._watched(T.CLOUD, T.BINARY_IMAGE, T.TF, T.PREPROCESS):
             return
         now = time.monotonic()
         if now < self._next_processed:
             return
         self._next_processed = now + self._min_image_s
-        self._put(("processed", index, time_ns, log_time_ns, cloud, image, quaternion, flag))
+        self._put(
+            E.encode_processed, frame_index, time_ns, log_time_ns, cloud, image, quaternion, flag
+        )
 
-    def write_inference(self, index, time_ns, log_time_ns, probabilities, fused) -> None:
+    def write_inference(self, frame_index, time_ns, log_time_ns, cnn_probs, fused) -> None:
         if self._watched(T.CNN, T.FUSED):
-            self._put(("inference", index, time_ns, log_time_ns, probabilities, fused))
+            self._put(E.encode_inference, frame_index, time_ns, log_time_ns, cnn_probs, fused)
 
-    def write_features(self, index, time_ns, features) -> None:
+    def write_features(self, frame_index, time_ns, features) -> None:
         if self._watched(T.FEATURES):
-            self._put(("json", T.FEATURES, time_ns, T.features_json(index, time_ns, features)))
+            self._put(E.encode_features, frame_index, time_ns, time_ns, features)
 
-    def write_truth(self, index, time_ns, truth) -> None:
+    def write_truth(self, frame_index, time_ns, truth) -> None:
         if self._watched(T.TRUTH):
-            self._put(("truth", index, time_ns, truth))
+            self._put(E.encode_truth, frame_index, time_ns, time_ns, truth)
 
     def write_imu(self, sample) -> None:
         if self._watched(T.IMU):
-            t = sample.time_ns if sample.time_ns is not None else sample.host_time_ns
-            self._put(("json", T.IMU, t, T.imu_json(sample)))
+            self._put(E.encode_imu, sample)
 
     def write_label(self, time_ns: int, mode: str, source: str) -> None:
-        self._put(("json", T.LABELS, time_ns, T.label_json(time_ns, mode, source)))
+        self._put(E.encode_label, time_ns, mode, source)
 
     def write_event(self, event) -> None:
-        entry = T.event_json(event)
-        self._put(("json", T.EVENTS, entry["time_ns"], entry))
-
-    def write_encoded(self, *_args) -> None:
-        pass
+        self._put(E.encode_event, event)
 
     # ---- the worker ------------------------------------------------------------------------
-
-    def _messages(self, item) -> list:
-        kind = item[0]
-        if kind == "json":
-            _, topic, t, entry = item
-            return [(topic, t, T.encode_json(entry))]
-        if kind == "frame":
-            _, frame, time_ns = item
-            t = frame.device_time_ns if time_ns is None else time_ns
-            return [(m[0], m[2], m[3]) for m in self._encode_depth(frame, t, frame.host_time_ns)]
-        if kind == "processed":
-            _, index, t, log_t, cloud, image, q, flag = item
-            messages = self._encode_processed(index, t, log_t, cloud, image, q, flag)
-            return [(m[0], m[2], m[3]) for m in messages]
-        if kind == "inference":
-            _, index, t, _log_t, probabilities, fused = item
-            out = [(T.CNN, t, T.encode_json(T.cnn_json(index, t, probabilities)))]
-            if fused:
-                out.append((T.FUSED, t, T.encode_json(T.fused_json(index, t, fused))))
-            return out
-        if kind == "truth":
-            _, index, t, truth = item
-            return [(m[0], m[2], m[3]) for m in self._encode_truth(index, t, t, truth)]
-        return []
 
     def _run(self) -> None:
         while not self._halt.is_set():
@@ -235,11 +209,11 @@ class FoxgloveLive:
                 self._ready.wait(0.2)
                 self._ready.clear()
                 continue
-            item = self._queue.popleft()
+            encode = self._queue.popleft()
             try:
-                for topic, t, data in self._messages(item):
+                for m in encode():
                     # Foxglove shows log time: the sample time on the session clock.
-                    self.channels[topic].log(data, log_time=int(t))
+                    self.channels[m.topic].log(m.data, log_time=int(m.publish_time))
                     self.published += 1
             except Exception as e:  # a bad item costs a live message, never the session
                 self.errors += 1

@@ -33,6 +33,7 @@ import numpy as np
 
 from capture.errors import CaptureError
 from capture.labtools.safetext import escape
+from capture.recording.sink import Sink
 from devices.base import DeviceEvent
 from devices.clock import now_ns
 from devices.frames import MODES
@@ -122,7 +123,7 @@ def source_id(kind: str, device_id: str = "") -> str:
     return f"walkcap-{socket.gethostname()}-{kind}-{ident}"
 
 
-class LslOutlets:
+class LslOutlets(Sink):
     """A session tap (Session.add_tap) publishing walkcap's streams as LSL outlets."""
 
     def __init__(
@@ -185,7 +186,7 @@ class LslOutlets:
             if self.errors == 1:
                 log.warning("LSL %s outlet: %s", stream, e)
 
-    # ---- the recorder's write_* calls that an outlet carries ------------------------------
+    # ---- the session's data that an outlet carries (Sink); the rest it ignores --------------
 
     def write_imu(self, sample) -> None:
         if sample.quaternion is None:
@@ -231,11 +232,6 @@ class LslOutlets:
             device, kind, message, t = event.device, event.kind, event.message, event.time_ns
         if device == "operator":  # markers and notes; device faults stay in the recording
             self._push("markers", self.markers, [f"{kind}: {message}"], t)
-
-    def write_frame(self, *_args, **_kw) -> None:
-        pass
-
-    write_processed = write_features = write_truth = write_encoded = write_frame
 
     def close(self) -> None:
         self.imu = self.terrain = self.markers = None

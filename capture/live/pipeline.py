@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from capture.recording.sink import Sink
 from devices.clock import now_ns
 from devices.frames import MODES, DepthFrame
 from devices.rotations import quat_multiply, quat_slerp
@@ -290,7 +291,7 @@ class Pipeline:
 
 
 def record_result(
-    recorder, frame: DepthFrame, r: FrameResult, decided_ns: int | None = None
+    recorder: Sink, frame: DepthFrame, r: FrameResult, decided_ns: int | None = None
 ) -> None:
     """Everything one frame produced, onto the recorder's topics (non-blocking writes).
 
@@ -306,7 +307,7 @@ def record_result(
         recorder.write_truth(r.index, r.time_ns, frame.truth)
 
 
-def record_decisions(recorder, r: FrameResult, decided_ns: int | None = None) -> None:
+def record_decisions(recorder: Sink, r: FrameResult, decided_ns: int | None = None) -> None:
     """The CNN, fused and terrain outputs of a frame (record_result without the sensor data);
     nothing for an undecided frame (its flag on /camera/preprocess says why)."""
     if not r.decided:

@@ -38,6 +38,7 @@ from capture.live.pipeline import (
     record_decisions,
 )
 from capture.recording import topics as T
+from capture.recording.sink import Sink
 from devices.base import DeviceEvent, DeviceState, DeviceStatus
 from devices.clock import now_ns
 from devices.frames import MODES, DepthFrame
@@ -346,7 +347,7 @@ class Session:
         self._events: collections.deque[DeviceEvent] = collections.deque(maxlen=200)
         self._latencies: collections.deque[float] = collections.deque(maxlen=2000)
         self._latency_sinks: list[Callable[[float], None]] = []
-        self._taps: tuple = ()  # live outputs beside the recorder (LSL, Foxglove)
+        self._taps: tuple[Sink, ...] = ()  # live outputs beside the recorder (LSL, Foxglove)
         self._sync_errors: collections.deque[float] = collections.deque(maxlen=5000)
         self._frames = 0
         self._stale_frames = 0
@@ -546,7 +547,7 @@ class Session:
         for out in self._outputs():
             out.write_event(event)
 
-    def _outputs(self) -> tuple:
+    def _outputs(self) -> tuple[Sink, ...]:
         """Where the session's data goes: the recorder (while recording), then the taps."""
         rec = self._recorder
         return self._taps if rec is None else (rec, *self._taps)
@@ -559,13 +560,12 @@ class Session:
         """The recorder of the trial being recorded, or None between trials."""
         return self._recorder
 
-    def add_tap(self, tap) -> None:
+    def add_tap(self, tap: Sink) -> None:
         """A live output beside the recorder: it gets the recorder's write_* calls (frames,
-        IMU samples, labels, events) whether or not a trial is recording. Each call must
-        return at once (queue, or a non-blocking send) and must not raise."""
+        IMU samples, labels, events) whether or not a trial is recording (see Sink)."""
         self._taps = (*self._taps, tap)
 
-    def remove_tap(self, tap) -> None:
+    def remove_tap(self, tap: Sink) -> None:
         self._taps = tuple(t for t in self._taps if t is not tap)
 
     # ---- per frame --------------------------------------------------------------------
@@ -574,7 +574,7 @@ class Session:
         """One frame, start to end: recorded, then classified (None when that fails)."""
         return self.classify_frame(frame, self.record_frame(frame))
 
-    def record_frame(self, frame: DepthFrame):
+    def record_frame(self, frame: DepthFrame) -> Sink | None:
         """The raw frame, its truth and an automatic label: written before any processing.
         Returns the recorder it went to (None between trials)."""
         t = frame.device_time_ns
@@ -592,7 +592,7 @@ class Session:
                 out.write_truth(frame.index, t, frame.truth)
         return rec
 
-    def classify_frame(self, frame: DepthFrame, recorder=None) -> FrameResult | None:
+    def classify_frame(self, frame: DepthFrame, recorder: Sink | None = None) -> FrameResult | None:
         """Preprocess, classify, fuse; the results recorded (into `recorder`, the one the
         raw frame went to, if it still records) and published. A failure (a classifier that
         raises or returns NaN) is one event for a run of failed frames."""

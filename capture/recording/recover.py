@@ -287,12 +287,12 @@ def _merge_journal(
         seen[topic].add(key)
         channel = by_topic.get(topic)
         if channel is None:
-            spec = T.topic_spec(topic)
+            spec = T.TOPICS[topic]
             schema = writer.register_schema(
                 spec.schema_name, spec.schema_encoding, spec.schema_data
             )
             channel = writer.register_channel(
-                topic, spec.message_encoding, schema, {"description": T.DESCRIPTIONS[topic]}
+                topic, spec.message_encoding, schema, {"description": spec.description}
             )
             by_topic[topic] = channel
         t = message["time_ns"]

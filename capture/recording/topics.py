@@ -1,9 +1,11 @@
 """The recording's topics: names, schemas, and pure functions between walkcap data and messages.
 
-Every topic of a walkcap MCAP file is listed in TOPICS with its encoding and schema. Images,
-clouds and transforms use Foxglove's protobuf schemas (they display in Foxglove as they are);
-everything else is JSON with a JSON Schema. Builders (`*_message`, `*_json`) turn walkcap
-data into messages; decoders (`*_from_message`) turn them back into numpy arrays.
+Every topic of a walkcap MCAP file is one `Topic` in the registry TOPICS: its name, schema,
+description and message builder; the writer, the live taps and the reader take them from
+there. Images, clouds and transforms use Foxglove's protobuf schemas (they display in
+Foxglove as they are); everything else is JSON with a JSON Schema. Builders (`*_image`,
+`*_message`, `*_json`) turn walkcap data into messages; decoders (`*_from_message`) turn
+them back into numpy arrays.
 
 Depth, losslessly at the sensor's precision and compactly:
 - /camera/depth is a foxglove.RawImage "16UC1": the radial distance along each pixel's ray
@@ -26,8 +28,10 @@ fields carry the publish time on the same clock.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -64,210 +68,6 @@ CAMERA_FRAME = "camera"  # royale axes: x right, y down, z forward
 WORLD_FRAME = "world"  # leveled: x forward, y left, z up
 RAYS_ATTACHMENT = "camera_rays.npy"
 CLOUD_QUANTUM_M = 1.0 / 1024.0
-
-_NUMBER_OR_NULL = {"type": ["number", "null"]}
-_INT = {"type": "integer"}
-_INT_OR_NULL = {"type": ["integer", "null"]}
-_MODE = {"type": "string", "enum": list(MODES)}
-_MODE_OR_EMPTY = {"type": "string", "enum": [*MODES, ""]}
-_MODE_OR_NULL = {"type": ["string", "null"], "enum": [*MODES, None]}
-_VEC3 = {"type": ["array", "null"], "items": _NUMBER_OR_NULL, "minItems": 3, "maxItems": 3}
-_QUAT = {"type": ["array", "null"], "items": _NUMBER_OR_NULL, "minItems": 4, "maxItems": 4}
-_PROBS = {"type": "array", "items": _NUMBER_OR_NULL, "minItems": len(MODES), "maxItems": len(MODES)}
-
-
-def _object(
-    title: str, description: str, properties: dict, required: list[str], extra: bool = False
-) -> dict:
-    return {
-        "$schema": "https://json-schema.org/draft/2020-12/schema",
-        "title": title,
-        "description": description,
-        "type": "object",
-        "properties": properties,
-        "required": required,
-        "additionalProperties": extra,
-    }
-
-
-JSON_SCHEMAS: dict[str, dict] = {
-    IMU: _object(
-        "walkcap.ImuSample",
-        "One IMU sample. Quaternion [w, x, y, z] sensor -> world; vectors in the sensor frame.",
-        {
-            "host_time_ns": _INT,
-            "time_ns": _INT_OR_NULL,
-            "packet_counter": _INT_OR_NULL,
-            "sample_time_fine": _INT_OR_NULL,
-            "quaternion": _QUAT,
-            "acceleration": _VEC3,
-            "rate_of_turn": _VEC3,
-            "status_word": _INT_OR_NULL,
-            "extra": {"type": "object"},
-        },
-        [
-            "host_time_ns",
-            "time_ns",
-            "packet_counter",
-            "quaternion",
-            "acceleration",
-            "rate_of_turn",
-            "status_word",
-        ],
-    ),
-    LABELS: _object(
-        "walkcap.Label",
-        "The operator's mode from time_ns on ('' = no mode, after undoing the first).",
-        {"time_ns": _INT, "mode": _MODE_OR_EMPTY, "source": {"type": "string"}},
-        ["time_ns", "mode", "source"],
-    ),
-    EVENTS: _object(
-        "walkcap.Event",
-        "A marker, note, device fault, gap or recorder drop.",
-        {
-            "time_ns": _INT,
-            "device": {"type": "string"},
-            "kind": {"type": "string"},
-            "message": {"type": "string"},
-            "details": {"type": "object"},
-        },
-        ["time_ns", "device", "kind", "message", "details"],
-    ),
-    PREPROCESS: _object(
-        "walkcap.Preprocess",
-        "How a frame became the classifier input: why the image is empty (flag), cloud size.",
-        {
-            "frame_index": _INT,
-            "time_ns": _INT,
-            "flag": {"type": "string"},
-            "oriented": {"type": "boolean"},
-            "cloud_points": _INT,
-            "cloud_points_recorded": _INT,
-        },
-        ["frame_index", "time_ns", "flag", "oriented", "cloud_points", "cloud_points_recorded"],
-    ),
-    CNN: _object(
-        "walkcap.CnnOutput",
-        "The CNN's softmax for one frame, in mode order " + ", ".join(MODES) + ".",
-        {"frame_index": _INT, "time_ns": _INT, "probabilities": _PROBS, "decision": _MODE},
-        ["frame_index", "time_ns", "probabilities", "decision"],
-    ),
-    FUSED: _object(
-        "walkcap.FusedOutput",
-        "HMM fusion output produced at source_frame_index; it refers to frame_index (and the "
-        "vote to voted_frame_index), earlier frames because of the smoothing window.",
-        {
-            "source_frame_index": _INT,
-            "time_ns": _INT,
-            "frame_index": _INT,
-            "decision": _MODE,
-            "posterior": _PROBS,
-            "voted": _MODE_OR_NULL,
-            "voted_frame_index": _INT_OR_NULL,
-        },
-        ["source_frame_index", "time_ns", "frame_index", "decision", "posterior"],
-        extra=True,
-    ),
-    FEATURES: _object(
-        "walkcap.TerrainFeatures",
-        "Terrain features of one frame (riser, tread, slope, distance ...), SI units.",
-        {"frame_index": _INT, "time_ns": _INT},
-        ["frame_index", "time_ns"],
-        extra=True,
-    ),
-    TRUTH: _object(
-        "walkcap.SimTruth",
-        "Simulator ground truth of one frame: the true mode and the camera pose (4x4, world).",
-        {
-            "frame_index": _INT,
-            "time_ns": _INT,
-            "mode": _MODE_OR_NULL,
-            "pose": {"type": ["array", "null"]},
-        },
-        ["frame_index", "time_ns", "mode"],
-        extra=True,
-    ),
-}
-
-PROTOBUF_TYPES: dict[str, type] = {
-    DEPTH: RawImage,
-    CONFIDENCE: RawImage,
-    GRAY: RawImage,
-    CLOUD: PointCloud,
-    BINARY_IMAGE: RawImage,
-    TF: FrameTransform,
-}
-
-DESCRIPTIONS: dict[str, str] = {
-    DEPTH: "foxglove.RawImage 16UC1: range along each pixel's ray, mm (0 = invalid)",
-    CONFIDENCE: "foxglove.RawImage mono8: royale depth confidence (0 = invalid)",
-    GRAY: "foxglove.RawImage 16UC1: amplitude (optional)",
-    CLOUD: "foxglove.PointCloud: leveled, cropped cloud, world frame, float32 m",
-    BINARY_IMAGE: "foxglove.RawImage mono8: the classifier input (255 = terrain)",
-    PREPROCESS: "JSON: preprocessing flag and cloud size per frame",
-    TF: "foxglove.FrameTransform world -> camera: camera orientation",
-    IMU: "JSON: every IMU sample",
-    LABELS: "JSON: operator mode changes",
-    EVENTS: "JSON: markers, notes, device faults, gaps, drops",
-    CNN: "JSON: CNN probabilities per frame",
-    FUSED: "JSON: fused posterior, decision and vote, with the frames they refer to",
-    FEATURES: "JSON: terrain features per frame",
-    TRUTH: "JSON: simulator truth (mock sessions)",
-}
-
-
-@dataclass(frozen=True)
-class TopicSpec:
-    topic: str
-    message_encoding: str  # "protobuf" | "json"
-    schema_name: str
-    schema_encoding: str  # "protobuf" | "jsonschema"
-    schema_data: bytes
-
-
-def topic_spec(topic: str) -> TopicSpec:
-    """Encoding and schema of a topic, as written into the file."""
-    if topic in PROTOBUF_TYPES:
-        from mcap_protobuf.schema import build_file_descriptor_set
-
-        cls = PROTOBUF_TYPES[topic]
-        return TopicSpec(
-            topic,
-            "protobuf",
-            cls.DESCRIPTOR.full_name,
-            "protobuf",
-            build_file_descriptor_set(cls).SerializeToString(),
-        )
-    return json_topic_spec(topic, JSON_SCHEMAS[topic])
-
-
-def json_topic_spec(topic: str, schema: dict) -> TopicSpec:
-    """A JSON topic's spec from its JSON Schema (its title names the schema)."""
-    return TopicSpec(
-        topic,
-        "json",
-        schema.get("title", topic),
-        "jsonschema",
-        json.dumps(schema, separators=(",", ":")).encode(),
-    )
-
-
-TOPICS: tuple[str, ...] = (
-    DEPTH,
-    CONFIDENCE,
-    GRAY,
-    CLOUD,
-    BINARY_IMAGE,
-    PREPROCESS,
-    TF,
-    IMU,
-    LABELS,
-    EVENTS,
-    CNN,
-    FUSED,
-    FEATURES,
-    TRUTH,
-)
 
 # ---- helpers ------------------------------------------------------------------------------
 
@@ -390,6 +190,24 @@ def binary_image_u8(image: np.ndarray) -> np.ndarray:
     if a.dtype == bool or (a.size and float(np.nanmax(a)) <= 1.0):
         return (np.nan_to_num(a.astype(np.float32)) * 255).round().astype(np.uint8)
     return np.clip(np.nan_to_num(a), 0, 255).astype(np.uint8)
+
+
+def depth_image(range_mm: np.ndarray, time_ns: int) -> RawImage:
+    """/camera/depth: range in whole millimetres (see range_mm)."""
+    return raw_image(range_mm, time_ns, "16UC1")
+
+
+def confidence_image(confidence: np.ndarray, time_ns: int) -> RawImage:
+    return raw_image(np.asarray(confidence, np.uint8), time_ns, "mono8")
+
+
+def gray_image(gray: np.ndarray, time_ns: int) -> RawImage:
+    return raw_image(np.asarray(gray).astype("<u2"), time_ns, "16UC1")
+
+
+def binary_image(image: np.ndarray, time_ns: int) -> RawImage:
+    """The classifier input, in no camera's frame."""
+    return raw_image(binary_image_u8(image), time_ns, "mono8", frame_id="")
 
 
 # ---- cloud and transform ------------------------------------------------------------------
@@ -531,3 +349,270 @@ def preprocess_json(
         "cloud_points": int(cloud_points),
         "cloud_points_recorded": int(cloud_points_recorded),
     }
+
+
+# ---- the registry -------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class Topic:
+    """One topic of a walkcap recording: all that the writer, the reader, the live taps and
+    the docs know of it. `schema` is a JSON Schema (dict) for JSON topics, a Foxglove
+    protobuf message class for the others; `build` turns walkcap data into its message."""
+
+    name: str
+    description: str  # one line, in the file's "recording" metadata and on live channels
+    schema: dict | type
+    build: Callable[..., Any] | None = None  # None: the message is given as it is
+    sensor: bool = False  # raw sensor data: its log times span the recording and its chunks
+
+    @property
+    def message_encoding(self) -> str:
+        return "json" if isinstance(self.schema, dict) else "protobuf"
+
+    @property
+    def schema_encoding(self) -> str:
+        return "jsonschema" if isinstance(self.schema, dict) else "protobuf"
+
+    @property
+    def schema_name(self) -> str:
+        if isinstance(self.schema, dict):
+            return self.schema.get("title", self.name)
+        return self.schema.DESCRIPTOR.full_name
+
+    @functools.cached_property
+    def schema_data(self) -> bytes:
+        """The schema as written into the file."""
+        if isinstance(self.schema, dict):
+            return json.dumps(self.schema, separators=(",", ":")).encode()
+        from mcap_protobuf.schema import build_file_descriptor_set
+
+        return build_file_descriptor_set(self.schema).SerializeToString()
+
+    def encode(self, *data: Any) -> bytes:
+        """The message's bytes: `build(*data)` serialised as the topic's encoding."""
+        message = self.build(*data) if self.build is not None else data[0]
+        if isinstance(self.schema, dict):
+            return encode_json(message)
+        return message.SerializeToString()
+
+
+_NUMBER_OR_NULL = {"type": ["number", "null"]}
+_INT = {"type": "integer"}
+_INT_OR_NULL = {"type": ["integer", "null"]}
+_MODE = {"type": "string", "enum": list(MODES)}
+_MODE_OR_EMPTY = {"type": "string", "enum": [*MODES, ""]}
+_MODE_OR_NULL = {"type": ["string", "null"], "enum": [*MODES, None]}
+_VEC3 = {"type": ["array", "null"], "items": _NUMBER_OR_NULL, "minItems": 3, "maxItems": 3}
+_QUAT = {"type": ["array", "null"], "items": _NUMBER_OR_NULL, "minItems": 4, "maxItems": 4}
+_PROBS = {"type": "array", "items": _NUMBER_OR_NULL, "minItems": len(MODES), "maxItems": len(MODES)}
+
+
+def _object(
+    title: str, description: str, properties: dict, required: list[str], extra: bool = False
+) -> dict:
+    return {
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": title,
+        "description": description,
+        "type": "object",
+        "properties": properties,
+        "required": required,
+        "additionalProperties": extra,
+    }
+
+
+def json_topic(name: str, schema: dict, description: str) -> Topic:
+    """A JSON topic beyond walkcap's own (another device's LSL stream): messages as given."""
+    return Topic(name, description, schema)
+
+
+# Every topic of a walkcap recording, in the order the file's metadata lists them.
+TOPICS: dict[str, Topic] = {
+    topic.name: topic
+    for topic in (
+        Topic(
+            DEPTH,
+            "foxglove.RawImage 16UC1: range along each pixel's ray, mm (0 = invalid)",
+            RawImage,
+            depth_image,
+            sensor=True,
+        ),
+        Topic(
+            CONFIDENCE,
+            "foxglove.RawImage mono8: royale depth confidence (0 = invalid)",
+            RawImage,
+            confidence_image,
+            sensor=True,
+        ),
+        Topic(
+            GRAY, "foxglove.RawImage 16UC1: amplitude (optional)", RawImage, gray_image, sensor=True
+        ),
+        Topic(
+            CLOUD,
+            "foxglove.PointCloud: leveled, cropped cloud, world frame, float32 m",
+            PointCloud,
+            cloud_message,
+        ),
+        Topic(
+            BINARY_IMAGE,
+            "foxglove.RawImage mono8: the classifier input (255 = terrain)",
+            RawImage,
+            binary_image,
+        ),
+        Topic(
+            PREPROCESS,
+            "JSON: preprocessing flag and cloud size per frame",
+            _object(
+                "walkcap.Preprocess",
+                "How a frame became the classifier input: why the image is empty (flag), "
+                "cloud size.",
+                {
+                    "frame_index": _INT,
+                    "time_ns": _INT,
+                    "flag": {"type": "string"},
+                    "oriented": {"type": "boolean"},
+                    "cloud_points": _INT,
+                    "cloud_points_recorded": _INT,
+                },
+                [
+                    "frame_index",
+                    "time_ns",
+                    "flag",
+                    "oriented",
+                    "cloud_points",
+                    "cloud_points_recorded",
+                ],
+            ),
+            preprocess_json,
+        ),
+        Topic(
+            TF,
+            "foxglove.FrameTransform world -> camera: camera orientation",
+            FrameTransform,
+            transform_message,
+        ),
+        Topic(
+            IMU,
+            "JSON: every IMU sample",
+            _object(
+                "walkcap.ImuSample",
+                "One IMU sample. Quaternion [w, x, y, z] sensor -> world; vectors in the "
+                "sensor frame.",
+                {
+                    "host_time_ns": _INT,
+                    "time_ns": _INT_OR_NULL,
+                    "packet_counter": _INT_OR_NULL,
+                    "sample_time_fine": _INT_OR_NULL,
+                    "quaternion": _QUAT,
+                    "acceleration": _VEC3,
+                    "rate_of_turn": _VEC3,
+                    "status_word": _INT_OR_NULL,
+                    "extra": {"type": "object"},
+                },
+                [
+                    "host_time_ns",
+                    "time_ns",
+                    "packet_counter",
+                    "quaternion",
+                    "acceleration",
+                    "rate_of_turn",
+                    "status_word",
+                ],
+            ),
+            imu_json,
+            sensor=True,
+        ),
+        Topic(
+            LABELS,
+            "JSON: operator mode changes",
+            _object(
+                "walkcap.Label",
+                "The operator's mode from time_ns on ('' = no mode, after undoing the first).",
+                {"time_ns": _INT, "mode": _MODE_OR_EMPTY, "source": {"type": "string"}},
+                ["time_ns", "mode", "source"],
+            ),
+            label_json,
+        ),
+        Topic(
+            EVENTS,
+            "JSON: markers, notes, device faults, gaps, drops",
+            _object(
+                "walkcap.Event",
+                "A marker, note, device fault, gap or recorder drop.",
+                {
+                    "time_ns": _INT,
+                    "device": {"type": "string"},
+                    "kind": {"type": "string"},
+                    "message": {"type": "string"},
+                    "details": {"type": "object"},
+                },
+                ["time_ns", "device", "kind", "message", "details"],
+            ),
+            event_json,
+        ),
+        Topic(
+            CNN,
+            "JSON: CNN probabilities per frame",
+            _object(
+                "walkcap.CnnOutput",
+                "The CNN's softmax for one frame, in mode order " + ", ".join(MODES) + ".",
+                {"frame_index": _INT, "time_ns": _INT, "probabilities": _PROBS, "decision": _MODE},
+                ["frame_index", "time_ns", "probabilities", "decision"],
+            ),
+            cnn_json,
+        ),
+        Topic(
+            FUSED,
+            "JSON: fused posterior, decision and vote, with the frames they refer to",
+            _object(
+                "walkcap.FusedOutput",
+                "HMM fusion output produced at source_frame_index; it refers to frame_index "
+                "(and the vote to voted_frame_index), earlier frames because of the smoothing "
+                "window.",
+                {
+                    "source_frame_index": _INT,
+                    "time_ns": _INT,
+                    "frame_index": _INT,
+                    "decision": _MODE,
+                    "posterior": _PROBS,
+                    "voted": _MODE_OR_NULL,
+                    "voted_frame_index": _INT_OR_NULL,
+                },
+                ["source_frame_index", "time_ns", "frame_index", "decision", "posterior"],
+                extra=True,
+            ),
+            fused_json,
+        ),
+        Topic(
+            FEATURES,
+            "JSON: terrain features per frame",
+            _object(
+                "walkcap.TerrainFeatures",
+                "Terrain features of one frame (riser, tread, slope, distance ...), SI units.",
+                {"frame_index": _INT, "time_ns": _INT},
+                ["frame_index", "time_ns"],
+                extra=True,
+            ),
+            features_json,
+        ),
+        Topic(
+            TRUTH,
+            "JSON: simulator truth (mock sessions)",
+            _object(
+                "walkcap.SimTruth",
+                "Simulator ground truth of one frame: the true mode and the camera pose "
+                "(4x4, world).",
+                {
+                    "frame_index": _INT,
+                    "time_ns": _INT,
+                    "mode": _MODE_OR_NULL,
+                    "pose": {"type": ["array", "null"]},
+                },
+                ["frame_index", "time_ns", "mode"],
+                extra=True,
+            ),
+            truth_json,
+        ),
+    )
+}

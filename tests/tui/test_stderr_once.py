@@ -23,9 +23,9 @@ FULL_DISK_RECORD = """
 import sys
 sys.path.insert(0, sys.argv[2])
 from tests.recording_fixtures import disk_full_after
-from capture.recording.writer import _TrackedFile
+from capture.recording.chunks import TrackedFile
 from tui import cli
-_TrackedFile.write = disk_full_after(400_000)
+TrackedFile.write = disk_full_after(400_000)
 sys.exit(cli.main(["record", "--duration", "4", "--fps", "15", "--out", sys.argv[1]]))
 """
 

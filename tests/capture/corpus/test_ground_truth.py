@@ -227,7 +227,7 @@ def _old_style_file(path):
         )
         channels = {}
         for topic in (T.CNN, T.LABELS):
-            spec = T.topic_spec(topic)
+            spec = T.TOPICS[topic]
             sid = w.register_schema(spec.schema_name, spec.schema_encoding, spec.schema_data)
             channels[topic] = w.register_channel(topic, spec.message_encoding, sid)
         for topic, t, data in [

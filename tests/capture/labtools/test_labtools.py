@@ -15,10 +15,12 @@ import pytest
 from capture.config import Config
 from capture.labtools.connections import LabTools, SessionController
 from capture.labtools.foxglove_live import LAYOUT, FoxgloveLive
+from capture.labtools.lsl import LslOutlets
 from capture.labtools.remote import MAX_CLIENTS, RemoteControl, TrialRequest, parse_filename
 from capture.live.session import Session, SubjectInfo
 from capture.recording import topics as T
 from capture.recording.reader import open_recording
+from capture.recording.sink import Sink
 from devices.base import DeviceEvent
 from devices.frames import ImuSample
 from devices.simulator.synthetic import synthetic_frame
@@ -161,7 +163,7 @@ def test_foxglove_server_publishes_every_topic_with_the_recordings_schemas():
     finally:
         fox.close()
     for topic in T.TOPICS:
-        spec = T.topic_spec(topic)
+        spec = T.TOPICS[topic]
         assert channels[topic]["schemaName"] == spec.schema_name  # the recording's schemas
         assert channels[topic]["encoding"] == spec.message_encoding
     assert set(got) == set(T.TOPICS) - {T.GRAY}
@@ -402,3 +404,10 @@ def test_a_flood_of_commands_closes_its_connection_with_one_event():
     finally:
         remote.close()
     assert [e.kind for e in events] == ["flood"]
+
+
+def test_the_live_taps_are_sinks():
+    """The session hands every tap every write (Sink); a tap overrides what it carries."""
+    assert issubclass(FoxgloveLive, Sink) and issubclass(LslOutlets, Sink)
+    assert LslOutlets.write_frame is Sink.write_frame  # an outlet carries no depth
+    assert FoxgloveLive.write_frame is not Sink.write_frame

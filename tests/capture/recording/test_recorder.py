@@ -18,12 +18,13 @@ from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap_protobuf.decoder import DecoderFactory
 
 from capture.errors import CaptureError
+from capture.recording import chunks as chunk_writer
 from capture.recording import topics as T
-from capture.recording import writer as recorder_module
+from capture.recording.chunks import TrackedFile
 from capture.recording.journal import read_journal
 from capture.recording.reader import depth_frames, open_recording
 from capture.recording.recover import recover
-from capture.recording.writer import Recorder, _TrackedFile
+from capture.recording.writer import Recorder
 from devices.frames import CameraGeometry
 from devices.simulator.synthetic import synthetic_frame
 from tests.recording_fixtures import (
@@ -181,7 +182,7 @@ def test_a_full_queue_drops_counts_and_records_but_never_blocks_or_loses_labels(
     tmp_path, monkeypatch
 ):
     path = tmp_path / "slow.mcap"
-    real = recorder_module.encode_depth
+    real = chunk_writer.encode_depth
     encoding, disk_free = threading.Event(), threading.Event()
 
     def stuck(*args):  # a disk or CPU that cannot keep up: the writer holds its first frame
@@ -189,7 +190,7 @@ def test_a_full_queue_drops_counts_and_records_but_never_blocks_or_loses_labels(
         disk_free.wait(10.0)
         return real(*args)
 
-    monkeypatch.setattr(recorder_module, "encode_depth", stuck)
+    monkeypatch.setattr(chunk_writer, "encode_depth", stuck)
     rec = Recorder(path, metadata={}, queue_size=4)
     rec.start()
     rec.write_frame(frame_at(0))
@@ -223,7 +224,7 @@ def test_a_full_queue_drops_counts_and_records_but_never_blocks_or_loses_labels(
 
 def test_a_writer_behind_sheds_derived_data_and_keeps_every_raw_item(tmp_path, monkeypatch):
     path = tmp_path / "behind.mcap"
-    real = recorder_module.encode_depth
+    real = chunk_writer.encode_depth
     encoding, disk_free = threading.Event(), threading.Event()
 
     def stuck(*args):  # the writer falls behind on its first frame
@@ -231,7 +232,7 @@ def test_a_writer_behind_sheds_derived_data_and_keeps_every_raw_item(tmp_path, m
         disk_free.wait(10.0)
         return real(*args)
 
-    monkeypatch.setattr(recorder_module, "encode_depth", stuck)
+    monkeypatch.setattr(chunk_writer, "encode_depth", stuck)
     rec = Recorder(path, metadata={}, queue_size=200)  # room for the raw items alone
     rec.start()
     rec.write_frame(frame_at(0))
@@ -274,7 +275,7 @@ def test_the_writer_thread_runs_at_the_priority_it_is_given(tmp_path):
 def test_a_backlog_of_imu_samples_finds_room_beside_the_frames(tmp_path, monkeypatch):
     """After a host stall the IMU's backlog comes at once: light items have their own room."""
     path = tmp_path / "burst.mcap"
-    real = recorder_module.encode_depth
+    real = chunk_writer.encode_depth
     encoding, disk_free = threading.Event(), threading.Event()
 
     def stuck(*args):
@@ -282,7 +283,7 @@ def test_a_backlog_of_imu_samples_finds_room_beside_the_frames(tmp_path, monkeyp
         disk_free.wait(10.0)
         return real(*args)
 
-    monkeypatch.setattr(recorder_module, "encode_depth", stuck)
+    monkeypatch.setattr(chunk_writer, "encode_depth", stuck)
     rec = Recorder(path, metadata={}, queue_size=16)
     rec.start()
     rec.write_frame(frame_at(0))
@@ -375,7 +376,7 @@ def test_each_recorder_compresses_at_its_own_level(tmp_path):
 
 def test_disk_full_stops_cleanly_with_a_clear_message_and_a_readable_file(tmp_path, monkeypatch):
     path = tmp_path / "full.mcap"
-    monkeypatch.setattr(_TrackedFile, "write", disk_full_after(1_500_000))
+    monkeypatch.setattr(TrackedFile, "write", disk_full_after(1_500_000))
     rec = write_recording(path, seconds=3.0, chunk_interval_s=0.2, close=False)
     deadline = time.monotonic() + 5
     while rec.stats().state == "recording" and time.monotonic() < deadline:
