@@ -37,6 +37,7 @@ from devices.base import (
 from devices.clock import now_ns
 from devices.errors import DeviceNotAvailable
 from devices.frames import CameraGeometry, DepthFrame
+from devices.watchdog import EventThrottle, SilenceWatch
 
 BACKENDS: dict[str, str] = {
     "mock": "devices.simulator.camera:MockCamera",
@@ -122,16 +123,15 @@ class Camera:
         self._errors = 0
         self._last_frame_ns = 0
         self._started_ns = 0
-        self._reported_drops = 0
-        self._drop_event_ns = 0
+        self._seen_drops = 0
+        self._drops = EventThrottle(self._report_drops)  # on the frames' clock
         self._stalled = False
         self._watch_lock = threading.RLock()  # the watchdog's and the producer's transitions
         self._watchdog: threading.Thread | None = None
         self._watch_stop = threading.Event()
         self._next_reopen_ns = 0
         self._lost_at_ns = 0
-        self._last_check_ns = 0
-        self._host_resumed_ns = 0  # the end of the last host stall (see _check)
+        self._silence = SilenceWatch(HOST_STALL_NS)  # the watchdog's checks (see _check)
         self.reopens = 0
         # After a reopen a device may number its frames from 0 again: they go on from here.
         self._last_index = -1
@@ -253,8 +253,7 @@ class Camera:
         self._check(t)
         state, message = self._state, self._message
         if state == OK:
-            since = max(self._last_frame_ns or self._started_ns, self._host_resumed_ns)
-            silent_s = (t - since) * 1e-9
+            silent_s = (t - self._silence.since(self._last_frame_ns or self._started_ns)) * 1e-9
             if silent_s > self._stall_after_s():
                 state, message = DEGRADED, f"no frame for {silent_s:.1f} s"
         with self._lock:
@@ -299,11 +298,9 @@ class Camera:
             # Checks run every 0.1 s: a longer pause is the host's own stall (stopped,
             # swapped, starved), not the camera's silence. The frames the camera kept
             # sending meanwhile are still on their way: silence counts from here.
-            if self._last_check_ns and t - self._last_check_ns > HOST_STALL_NS:
-                self._host_resumed_ns = t
-            self._last_check_ns = max(self._last_check_ns, t)
+            self._silence.check(t)
             if self._state == OK and self._running:
-                since = max(self._last_frame_ns or self._started_ns, self._host_resumed_ns)
+                since = self._silence.since(self._last_frame_ns or self._started_ns)
                 silent_s = (t - since) * 1e-9
                 if silent_s > self._stall_after_s() and not self._stalled:
                     self._stalled = True
@@ -344,15 +341,18 @@ class Camera:
             self._last_index = frame.index
         self._buffer.put(frame)
         dropped = self._buffer.dropped
-        if dropped > self._reported_drops and frame.host_time_ns - self._drop_event_ns > 1e9:
-            self._event(
-                "drop",
-                f"{dropped - self._reported_drops} frames dropped: the "
-                "consumer is slower than the camera",
-                dropped=dropped,
-            )
-            self._reported_drops = dropped
-            self._drop_event_ns = frame.host_time_ns
+        if dropped > self._seen_drops:  # reported at most once a second, with the count
+            new, self._seen_drops = dropped - self._seen_drops, dropped
+            self._drops.add("drop", new, frame.host_time_ns)
+        else:
+            self._drops.flush(frame.host_time_ns)
+
+    def _report_drops(self, kind: str, count: int, t: int) -> None:
+        self._event(
+            kind,
+            f"{count} frames dropped: the consumer is slower than the camera",
+            dropped=self._seen_drops,
+        )
 
     def _resumed(self, t: int) -> None:
         with self._watch_lock:
