@@ -73,7 +73,7 @@ def test_every_exported_column_is_documented(tmp_path):
     wanted |= {"model_hash", "model_path", "walkcap_version", "fusion_window"}
     assert not wanted - documented
     assert "decision_at_frame` is the frame whose arrival produced" in (
-        (ROOT / "README.md").read_text().replace("\n", " ")
+        (ROOT / "docs" / "recordings.md").read_text().replace("\n", " ")
     )
 
 
