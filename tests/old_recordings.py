@@ -16,9 +16,12 @@ from mcap.writer import Writer
 from capture.recording import topics as T
 
 
-def as_version_1(source: Path, target: Path, *, metadata: dict | None = None) -> Path:
+def as_version_1(
+    source: Path, target: Path, *, metadata: dict | None = None, version: str = "1"
+) -> Path:
     """`source` rewritten as version 1 wrote it into `target`; `metadata` records (plain
-    JSON values) are added, replacing those of the same name."""
+    JSON values) are added, replacing those of the same name. `version`: another version
+    named in the file instead (its content as version 1's)."""
     extra = {name: T.encode_metadata(values) for name, values in (metadata or {}).items()}
     with open(source, "rb") as f, open(target, "wb") as g:
         reader = make_reader(f)
@@ -29,7 +32,7 @@ def as_version_1(source: Path, target: Path, *, metadata: dict | None = None) ->
             if m.name == "derivation" or m.name in extra:
                 continue
             if m.name == "recording":
-                values["format_version"] = T.encode_metadata({"v": "1"})["v"]
+                values["format_version"] = T.encode_metadata({"v": version})["v"]
             w.add_metadata(m.name, values)
         for name, values in extra.items():
             w.add_metadata(name, values)

@@ -425,7 +425,7 @@ def read_trials(paths, reference: str = "terrain") -> list:
 
 def read_evaluation_trial(path, reference: str = "terrain", name: str | None = None):
     """One recording's evaluation trial (see read_trials), named `name` (default: the
-    path); one task of a corpus job (capture.corpus.cluster)."""
+    path); one task of a corpus job (capture.corpus.jobs)."""
     from inference.evaluation import trial_from_recording
 
     return trial_from_recording(str(name or path), read_trial(path), reference)
