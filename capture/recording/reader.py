@@ -367,7 +367,8 @@ def read_trial(path: str | os.PathLike) -> dict:
       define `labels`; metadata (typed); id; modes: MODES
     """
     rec = open_recording(path)
-    table, changes = frame_table(rec)
+    # frames with a CNN output only: their preprocessing records and features not read
+    table, changes = frame_table(rec, frame_topics=(T.CNN, T.FUSED, T.TF, T.TRUTH))
     frames = table.select(table.classified)
     return {
         "frame_index": frames.index,
@@ -395,14 +396,16 @@ def frame_table(
     rec: Recording,
     other_topics: Iterable[str] = (),
     take: Callable[[RecordedMessage], None] | None = None,
+    *,
+    frame_topics: Iterable[str] = FrameJoin.TOPICS,
 ) -> tuple[FrameTable, list[L.LabelChange]]:
     """The recording's per-frame table (capture.recording.frames) and its label changes in
     time order, in one pass over the file; `take` gets the messages of `other_topics`
-    read in the same pass."""
+    read in the same pass. `frame_topics`: the per-frame topics joined (default: all)."""
     join = FrameJoin()
     changes: list[L.LabelChange] = []
     others = set(other_topics)
-    wanted = [t for t in (*FrameJoin.TOPICS, T.LABELS, *others) if t in rec.topics]
+    wanted = [t for t in (*frame_topics, T.LABELS, *others) if t in rec.topics]
     for m in rec.messages(wanted):
         if join.add(m):
             continue
