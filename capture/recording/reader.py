@@ -34,7 +34,14 @@ from capture.errors import CaptureError
 from capture.recording import labels as L
 from capture.recording import topics as T
 from capture.recording import versions
-from capture.recording._mcap import ScanResult, check_magic, file_bytes, scan, summary_damage
+from capture.recording._mcap import (
+    Damage,
+    ScanResult,
+    check_magic,
+    file_bytes,
+    scan,
+    summary_damage,
+)
 from capture.recording.frames import FrameJoin, FrameTable
 from capture.recording.messages import Decoders, damage_is_an_error, iter_raw, log_times
 from devices.frames import MODES, CameraGeometry, DepthFrame, ImuSample
@@ -82,7 +89,7 @@ class Recording:
     raw_metadata_records: list[tuple[str, dict[str, str]]] = field(default_factory=list)
     # Damaged regions found while opening an unfinished file (a finished one is read
     # through its index: `capture.recording._mcap.check` reads and checks every chunk).
-    damaged: list = field(default_factory=list)  # capture.recording._mcap.Damage
+    damaged: list[Damage] = field(default_factory=list)
     format_version: str = T.FORMAT_VERSION  # the file's (capture.recording.versions)
 
     @property
