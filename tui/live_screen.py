@@ -20,7 +20,7 @@ from textual.screen import Screen
 from textual.widgets import Footer, Static
 
 from capture.live.session import Snapshot
-from capture.recording.reader import effective_changes
+from capture.recording.labels import effective_changes
 from capture.recording.writer import RecorderState
 from devices.clock import now_ns
 from devices.frames import MODE_NAMES, MODES

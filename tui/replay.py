@@ -7,8 +7,8 @@ so `walkcap replay FILE --tui` shows a recording in the same screens as a live s
 Label corrections never touch the original file: `save_corrections()` writes a new file,
 a message-for-message copy of the original (same schemas, channels, bytes, times) with the
 corrections added to /labels (source "correction") and to /events (markers), plus a
-"corrections" metadata record naming the original. Later changes win (capture.recording.reader
-labels_at), so a correction at time t applies from t until the next change.
+"corrections" metadata record naming the original (capture.recording.copy). Later changes
+win (capture.recording.labels), so a correction at time t applies from t until the next change.
 """
 
 from __future__ import annotations
@@ -18,7 +18,6 @@ import dataclasses
 import datetime as dt
 import logging
 import os
-import uuid
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -27,11 +26,15 @@ import numpy as np
 from capture.errors import CaptureError
 from capture.live.pipeline import FrameResult
 from capture.live.session import LabelChange, Snapshot, SubjectInfo, TimelineEntry
+from capture.recording import labels as L
 from capture.recording import topics as T
-from capture.recording.lineage import derivation
+from capture.recording.copy import copy_recording
+from capture.recording.frames import FrameTable
+from capture.recording.labels import CORRECTION
+from capture.recording.lineage import CORRECTED
+from capture.recording.reader import frame_table, open_recording
 from devices.base import DeviceEvent, DeviceState, DeviceStatus
 from devices.clock import now_ns
-from devices.files import check_replaceable
 from devices.frames import MODES
 from inference.preprocess import STALE_ORIENTATION
 
@@ -39,16 +42,12 @@ log = logging.getLogger(__name__)
 
 TIMELINE_S = 20.0
 PROFILE_POINTS = 600  # per frame kept for the profile plot (the display is ~100 dots wide)
-CORRECTION = "correction"  # capture.recording.reader.CORRECTION
-
-
-def _mode_index(mode) -> int:
-    return MODES.index(mode) if mode in MODES else -1
 
 
 @dataclasses.dataclass
 class _Frames:
-    """Everything shown per frame, as arrays in frame order (frames with a CNN output)."""
+    """Everything shown per frame, as arrays in frame order (frames with a CNN output,
+    and frames left undecided), from the per-frame table (capture.recording.frames)."""
 
     index: np.ndarray  # (N,) frame numbers
     time_ns: np.ndarray  # (N,) sample time
@@ -63,6 +62,39 @@ class _Frames:
     profiles: dict[int, np.ndarray]  # frame -> (M, 2) float16
     flags: dict[int, str]
     features: dict[int, dict]
+
+    @classmethod
+    def shown(cls, table: FrameTable, images: dict, profiles: dict) -> _Frames:
+        """The frames the screens show: classified ones, and undecided ones (stale)."""
+        stale = np.array([f == STALE_ORIENTATION for f in table.flag], dtype=bool)
+        t = table.select(table.classified | stale)
+        probs = t.probabilities
+        shown = np.full(len(t), -1, dtype=int)
+        last = -1
+        for k, made in enumerate(t.produced):  # what the big display showed at frame k
+            last = int(made) if made >= 0 else last
+            shown[k] = last
+        return cls(
+            index=t.index,
+            time_ns=t.time_ns,
+            host_ns=t.host_time_ns,
+            probabilities=probs,
+            cnn=np.array(
+                [int(np.nanargmax(p)) if np.isfinite(p).any() else -1 for p in probs], dtype=int
+            ),
+            fused=t.decision,
+            voted=t.voted,
+            fused_shown=shown,
+            truth=t.truth,
+            images=images,
+            profiles=profiles,
+            flags={int(i): f for i, f in zip(t.index, t.flag, strict=True)},
+            features={
+                int(i): {k: v for k, v in f.items() if not isinstance(v, (list, dict))}
+                for i, f in zip(t.index, t.features, strict=True)
+                if f
+            },
+        )
 
 
 class ReplaySource:
@@ -93,8 +125,6 @@ class ReplaySource:
 
     def start(self) -> None:
         """Read the recording into memory (images packed, profiles decimated)."""
-        from capture.recording.reader import open_recording
-
         rec = open_recording(self.path)
         self.metadata = rec.metadata
         self.frames = self._load(rec)
@@ -113,36 +143,11 @@ class ReplaySource:
         self.playing = self._play_on_start
 
     def _load(self, rec) -> _Frames:
-        cnn, fused, voted, produced, truth, undecided = {}, {}, {}, {}, {}, {}
-        images, profiles, flags, features = {}, {}, {}, {}
-        wanted = [
-            T.CNN,
-            T.FUSED,
-            T.TRUTH,
-            T.LABELS,
-            T.EVENTS,
-            T.BINARY_IMAGE,
-            T.CLOUD,
-            T.PREPROCESS,
-            T.FEATURES,
-        ]
-        for m in rec.messages(wanted):
+        images, profiles = {}, {}
+
+        def take(m) -> None:
             d = m.data
-            if m.topic == T.CNN:
-                cnn[int(d["frame_index"])] = (int(d["time_ns"]), m.log_time_ns, d["probabilities"])
-            elif m.topic == T.FUSED:
-                decision = _mode_index(d.get("decision"))
-                fused[int(d["frame_index"])] = decision
-                produced[int(d.get("source_frame_index", d["frame_index"]))] = decision
-                if d.get("voted") is not None and d.get("voted_frame_index") is not None:
-                    voted[int(d["voted_frame_index"])] = _mode_index(d["voted"])
-            elif m.topic == T.TRUTH:
-                truth[int(d["frame_index"])] = _mode_index(d.get("mode"))
-            elif m.topic == T.LABELS:
-                self.original_labels.append(
-                    (int(d["time_ns"]), d.get("mode", ""), d.get("source", ""))
-                )
-            elif m.topic == T.EVENTS:
+            if m.topic == T.EVENTS:
                 self.events.append(
                     DeviceEvent(
                         int(d["time_ns"]),
@@ -153,52 +158,16 @@ class ReplaySource:
                     )
                 )
             elif m.topic == T.BINARY_IMAGE:
-                images[m.sequence] = np.packbits(np.asarray(m.data) > 0)
+                images[m.sequence] = np.packbits(np.asarray(d) > 0)
             elif m.topic == T.CLOUD:
-                cloud = np.asarray(m.data)
+                cloud = np.asarray(d)
                 if len(cloud) > PROFILE_POINTS:
                     cloud = cloud[np.linspace(0, len(cloud) - 1, PROFILE_POINTS).astype(int)]
                 profiles[m.sequence] = cloud[:, [0, 2]].astype(np.float16)  # forward, height
-            elif m.topic == T.PREPROCESS:
-                flags[int(d["frame_index"])] = d.get("flag", "")
-                if d.get("flag") == STALE_ORIENTATION:  # a frame left without a decision
-                    undecided[int(d["frame_index"])] = (int(d["time_ns"]), m.log_time_ns, None)
-            elif m.topic == T.FEATURES:
-                features[int(d["frame_index"])] = {
-                    k: v
-                    for k, v in d.items()
-                    if k not in ("frame_index", "time_ns") and not isinstance(v, (list, dict))
-                }
-        self.original_labels.sort(key=lambda c: c[0])
+
+        table, self.original_labels = frame_table(rec, (T.EVENTS, T.BINARY_IMAGE, T.CLOUD), take)
         self.events.sort(key=lambda e: e.time_ns)
-        cnn = {**undecided, **cnn}  # stale frames are shown too, as undecided
-        index = np.array(sorted(cnn), dtype=np.int64)
-        probs = np.array(
-            [[np.nan if p is None else p for p in cnn[i][2] or [None] * len(MODES)] for i in index],
-            dtype=np.float64,
-        ).reshape(-1, len(MODES))
-        shown = np.full(len(index), -1, dtype=int)
-        last = -1
-        for k, i in enumerate(index):  # what the big display showed when frame i was processed
-            last = produced.get(int(i), last)
-            shown[k] = last
-        return _Frames(
-            index=index,
-            time_ns=np.array([cnn[i][0] for i in index], dtype=np.int64),
-            host_ns=np.array([cnn[i][1] for i in index], dtype=np.int64),
-            probabilities=probs,
-            cnn=np.array(
-                [int(np.nanargmax(p)) if np.isfinite(p).any() else -1 for p in probs], dtype=int
-            ),
-            fused=np.array([fused.get(int(i), -1) for i in index], dtype=int),
-            voted=np.array([voted.get(int(i), -1) for i in index], dtype=int),
-            fused_shown=shown,
-            truth=np.array([truth.get(int(i), -1) for i in index], dtype=int),
-            images=images,
-            profiles=profiles,
-            flags=flags,
-            features=features,
-        )
+        return _Frames.shown(table, images, profiles)
 
     def _device_status(self, rec, frames: int) -> tuple[DeviceStatus, DeviceStatus]:
         devices = self.metadata.get("devices", {})
@@ -263,17 +232,13 @@ class ReplaySource:
     # ---- labels -----------------------------------------------------------------------
 
     def label_changes(self) -> list[tuple[int, str, str]]:
-        """The reference: the original changes with their undos applied (capture.recording.reader
-        effective_changes), and the corrections, in time order (corrections last on ties)."""
-        from capture.recording.reader import effective_changes
-
+        """The reference: the original changes with their undos applied and the corrections
+        (capture.recording.labels), in time order (corrections last on ties)."""
         merged = self.original_labels + [(c.time_ns, c.mode, CORRECTION) for c in self.corrections]
-        return effective_changes(merged)
+        return L.effective_changes(merged)
 
     def _labels_at(self, times_ns: np.ndarray) -> np.ndarray:
-        from capture.recording.reader import labels_at
-
-        return labels_at(times_ns, self.label_changes())
+        return L.labels_at(times_ns, self.label_changes())
 
     @property
     def label(self) -> str | None:
@@ -434,116 +399,36 @@ def write_corrected(
     original: Path, target: Path, corrections: list[LabelChange], markers: list[DeviceEvent]
 ) -> Path:
     """Copy `original` message for message into `target` (never overwritten), adding the
-    corrections to /labels and the markers to /events.
-
-    A raw copy rather than capture.recording.writer.Recorder: the Recorder re-encodes (depth from
-    xyz with rays rebuilt from intrinsics, clouds decimated again) and drops what its
-    bounded queue cannot take; a copy keeps every recorded byte as it was.
-    """
-    from mcap.writer import CompressionType, Writer
-
-    from capture.recording.reader import _iter_raw, open_recording
-
-    original, target = Path(original), Path(target)
-    if target.resolve() == original.resolve():
-        raise CaptureError("the corrected file must be a new file: the original is never modified")
-    check_replaceable(target)
-    rec = open_recording(original)
-    tmp = target.with_name(f".{target.name}.partial")
-    try:
-        with open(tmp, "wb") as out:  # a leftover partial file of ours is replaced
-            writer = Writer(out, compression=CompressionType.ZSTD)
-            writer.start(profile="", library=rec.library or "walkcap")
-            # The copy is a new recording (its own id) derived from the original; values
-            # are written as JSON, whatever the original held.
-            copy_id = str(uuid.uuid4())
-            for name, values in rec.metadata_records:
-                if name == "recording":
-                    values = {**values, "id": copy_id, T.METADATA_VALUES_KEY: T.METADATA_VALUES}
-                if name != "derivation":
-                    writer.add_metadata(name, T.encode_metadata(values))
-            writer.add_metadata(
-                "derivation",
-                T.encode_metadata(
-                    derivation(rec, copy_id, "corrected", f"{len(corrections)} label correction(s)")
-                ),
-            )
-            writer.add_metadata(
+    corrections to /labels and the markers to /events (capture.recording.copy)."""
+    return copy_recording(
+        original,
+        target,
+        kind=CORRECTED,
+        how=f"{len(corrections)} label correction(s)",
+        labels=[T.label_json(c.time_ns, c.mode, CORRECTION) for c in corrections],
+        events=[T.event_json(e) for e in markers],
+        metadata=[
+            (
                 "corrections",
-                T.encode_metadata(
-                    {
-                        "source": original.name,
-                        "source_size": rec.size,
-                        "written": dt.datetime.now().isoformat(timespec="seconds"),
-                        "labels": [[c.time_ns, c.mode] for c in corrections],
-                        "markers": len(markers),
-                        "rule": "label changes apply from their time until the next; "
-                        f"corrections have source '{CORRECTION}'",
-                    }
-                ),
+                {
+                    "source": Path(original).name,
+                    "source_size": _size(Path(original)),
+                    "written": dt.datetime.now().isoformat(timespec="seconds"),
+                    "labels": [[c.time_ns, c.mode] for c in corrections],
+                    "markers": len(markers),
+                    "rule": "label changes apply from their time until the next; "
+                    f"corrections have source '{CORRECTION}'",
+                },
             )
-            t0 = rec.start_ns or 0
-            for name, data in rec.attachments.items():
-                media = (
-                    "application/x-npy"
-                    if name.endswith(".npy")
-                    else "application/json"
-                    if name.endswith(".json")
-                    else "application/octet-stream"
-                )
-                writer.add_attachment(t0, t0, name, media, data)
-            schemas: dict[int, int] = {}
-            channels: dict[int, int] = {}  # original channel id -> new id
-            by_topic: dict[str, int] = {}
-            for schema, channel, message in _iter_raw(original, rec.complete, None):
-                cid = channels.get(channel.id)
-                if cid is None:
-                    sid = 0
-                    if schema is not None:
-                        sid = schemas.get(schema.id) or writer.register_schema(
-                            schema.name, schema.encoding, schema.data
-                        )
-                        schemas[schema.id] = sid
-                    cid = writer.register_channel(
-                        channel.topic, channel.message_encoding, sid, dict(channel.metadata)
-                    )
-                    channels[channel.id] = cid
-                    by_topic.setdefault(channel.topic, cid)
-                writer.add_message(
-                    cid, message.log_time, message.data, message.publish_time, message.sequence
-                )
-            extra = [
-                (T.LABELS, c.time_ns, T.label_json(c.time_ns, c.mode, CORRECTION))
-                for c in corrections
-            ]
-            extra += [(T.EVENTS, e.time_ns, T.event_json(e)) for e in markers]
-            for topic, t, entry in sorted(extra, key=lambda x: x[1]):
-                cid = by_topic.get(topic) or _json_channel(writer, topic, by_topic)
-                writer.add_message(cid, t, T.encode_json(entry), t, 0)
-            writer.finish()
-            out.flush()
-            os.fsync(out.fileno())
-        os.link(tmp, target)  # fails if the target exists: never overwrite
-    except FileExistsError:
-        raise CaptureError(f"{target} exists: a recording is never overwritten") from None
-    except OSError as e:
-        raise CaptureError(f"cannot write {target}: {e.strerror or e}") from None
-    finally:
-        try:
-            tmp.unlink()
-        except OSError:
-            pass
-    return target
-
-
-def _json_channel(writer, topic: str, by_topic: dict[str, int]) -> int:
-    """A channel for `topic` in the new file when the original had none."""
-    spec = T.TOPICS[topic]
-    sid = writer.register_schema(spec.schema_name, spec.schema_encoding, spec.schema_data)
-    by_topic[topic] = writer.register_channel(
-        topic, spec.message_encoding, sid, {"description": spec.description}
+        ],
     )
-    return by_topic[topic]
+
+
+def _size(path: Path) -> int | None:
+    try:
+        return path.stat().st_size
+    except OSError:
+        return None  # copy_recording names what is wrong with it
 
 
 def run_tui(path: str | os.PathLike, config) -> int:

@@ -42,12 +42,13 @@ import numpy as np
 from capture.corpus import jobs
 from capture.corpus import selection as corpus_mod
 from capture.errors import CaptureError
-from capture.recording import reader
+from capture.recording import labels as L
 from capture.recording import topics as T
+from capture.recording.frames import FrameTable, mode_names
 from capture.recording.gaps import TOPICS as GAP_TOPICS
 from capture.recording.gaps import recording_loss
 from capture.recording.lineage import describe
-from capture.recording.reader import effective_changes, is_undo, open_recording
+from capture.recording.reader import frame_table, open_recording
 from devices.files import check_replaceable
 from devices.frames import MODES
 
@@ -87,61 +88,13 @@ def tables(path: str | os.PathLike) -> dict:
         "condition": condition,
         "trial": trial,
     }
+    imu, events = [], []
 
-    cnn: dict[int, dict] = {}
-    fused: dict[int, dict] = {}  # frame -> decision fields
-    posterior: dict[int, list] = {}
-    voted: dict[int, dict] = {}
-    features: dict[int, dict] = {}
-    pre: dict[int, dict] = {}
-    quats: dict[int, np.ndarray] = {}
-    truth: dict[int, str] = {}
-    imu, changes, events = [], [], []
-    wanted = [
-        T.CNN,
-        T.FUSED,
-        T.FEATURES,
-        T.PREPROCESS,
-        T.TF,
-        T.TRUTH,
-        T.LABELS,
-        T.EVENTS,
-        T.IMU,
-    ]
-    for m in rec.messages([w for w in wanted if w in rec.topics]):
-        d = m.data
-        if m.topic == T.IMU:
-            imu.append(d)
-        elif m.topic == T.CNN:
-            cnn[int(d["frame_index"])] = d
-        elif m.topic == T.FUSED:
-            made = int(d.get("source_frame_index", d["frame_index"]))
-            if d.get("decision") is not None:
-                fused[int(d["frame_index"])] = {"decision": d["decision"], "at": made}
-            if d.get("posterior") is not None:
-                posterior[int(d.get("posterior_frame_index", d["frame_index"]))] = d["posterior"]
-            if d.get("voted") is not None and d.get("voted_frame_index") is not None:
-                voted[int(d["voted_frame_index"])] = {"voted": d["voted"], "at": made}
-        elif m.topic == T.FEATURES:
-            features[int(d["frame_index"])] = d
-        elif m.topic == T.PREPROCESS:
-            pre[int(d["frame_index"])] = d
-        elif m.topic == T.TF:
-            quats[m.sequence] = np.asarray(d, dtype=float)
-        elif m.topic == T.TRUTH:
-            truth[int(d["frame_index"])] = d.get("mode") or ""
-        elif m.topic == T.LABELS:
-            changes.append((int(d["time_ns"]), d.get("mode", "") or "", d.get("source", "")))
-        elif m.topic == T.EVENTS:
-            events.append(d)
+    def take(m) -> None:
+        (imu if m.topic == T.IMU else events).append(m.data)
 
-    changes.sort(key=lambda c: c[0])
+    table, changes = frame_table(rec, (T.IMU, T.EVENTS), take)
     events.sort(key=lambda e: int(e.get("time_ns", 0)))  # in time order, as the rest
-    reference = effective_changes(changes)
-    index = np.array(sorted(set(cnn) | set(pre)), dtype=np.int64)
-    times = np.array(
-        [int((cnn.get(i) or pre.get(i))["time_ns"]) for i in index], dtype=np.int64
-    ).reshape(-1)
     imu_t = np.array(
         [int(s["time_ns"] if s.get("time_ns") is not None else s["host_time_ns"]) for s in imu],
         dtype=np.int64,
@@ -151,51 +104,58 @@ def tables(path: str | os.PathLike) -> dict:
     # time_s counts from the recording's start: its earliest time, receive or sample (an
     # IMU sample's time precedes its arrival), so that no row has a negative time
     t0 = min(
-        [int(a.min()) for a in (times, imu_t, label_t, event_t) if len(a)]
+        [int(a.min()) for a in (table.time_ns, imu_t, label_t, event_t) if len(a)]
         + ([rec.start_ns] if rec.start_ns is not None else []),
         default=0,
     )
+    n = len(table)
+    return {
+        "frames": _frame(pd, identity, _frame_columns(table, offset, t0), n),
+        "imu": _frame(pd, identity, _imu_columns(imu, imu_t, offset, t0), len(imu)),
+        "labels": _frame(pd, identity, _label_columns(changes, label_t, offset, t0), len(changes)),
+        "events": _frame(pd, identity, _event_columns(events, event_t, offset, t0), len(events)),
+        "trials": pd.DataFrame([_trial_row(rec, member, identity, table)]),
+    }
 
-    frames = {"frame_index": index, "time_ns": times}
-    frames.update(_clock(times, offset, t0))
-    frames["label"] = _modes_at(times, reference)
-    if T.TRUTH in rec.topics:
-        frames["truth"] = [truth.get(int(i), "") for i in index]
-        frames["terrain"] = frames["truth"]
-    elif any(c[2] == reader.CORRECTION for c in changes):
-        frames["terrain"] = frames["label"]
-    else:
-        frames["terrain"] = [""] * len(index)
-    frames["locomotion"] = _modes_at(times, [c for c in reference if c[2] != reader.CORRECTION])
-    probs = np.full((len(index), len(MODES)), np.nan)
-    post = np.full((len(index), len(MODES)), np.nan)
-    for k, i in enumerate(index):
-        if int(i) in cnn:
-            probs[k] = [np.nan if p is None else p for p in cnn[int(i)]["probabilities"]]
-        if int(i) in posterior:
-            post[k] = [np.nan if p is None else p for p in posterior[int(i)]]
+
+def _frame(pd, identity: dict, columns: dict, n: int):
+    df = pd.DataFrame(columns)
+    for k, v in reversed(list(identity.items())):
+        df.insert(0, k, pd.Series([v] * n, dtype=_identity_dtype(pd, k)))
+    return df
+
+
+def _frame_columns(table: FrameTable, offset: int | None, t0: int) -> dict:
+    """The frames table's columns from the per-frame table (capture.recording.frames)."""
+    frames = {"frame_index": table.index, "time_ns": table.time_ns}
+    frames.update(_clock(table.time_ns, offset, t0))
+    frames["label"] = mode_names(table.labels)
+    if table.has_truth:
+        frames["truth"] = mode_names(table.truth)
+    frames["terrain"] = (
+        mode_names(table.terrain) if table.terrain is not None else [""] * len(table)
+    )
+    frames["locomotion"] = mode_names(table.locomotion)
     for j, mode in enumerate(MODES):
-        frames[f"p_{mode}"] = probs[:, j]
-    frames["cnn_decision"] = [cnn[int(i)]["decision"] if int(i) in cnn else "" for i in index]
+        frames[f"p_{mode}"] = table.probabilities[:, j]
+    frames["cnn_decision"] = mode_names(table.cnn_decision)
     for j, mode in enumerate(MODES):
-        frames[f"posterior_{mode}"] = post[:, j]
-    frames["decision"] = [fused.get(int(i), {}).get("decision", "") for i in index]
-    frames["decision_at_frame"] = _ints([fused.get(int(i), {}).get("at") for i in index])
-    frames["voted"] = [voted.get(int(i), {}).get("voted", "") for i in index]
-    frames["voted_at_frame"] = _ints([voted.get(int(i), {}).get("at") for i in index])
+        frames[f"posterior_{mode}"] = table.posterior[:, j]
+    frames["decision"] = mode_names(table.decision)
+    frames["decision_at_frame"] = _frames_at(table.decision_at)
+    frames["voted"] = mode_names(table.voted)
+    frames["voted_at_frame"] = _frames_at(table.voted_at)
     for name in FEATURE_FIELDS:
-        values = [features.get(int(i), {}).get(name) for i in index]
-        frames[f"terrain_{name}"] = _column(values)
-    frames["preprocess_flag"] = [pre.get(int(i), {}).get("flag", "") or "" for i in index]
-    frames["oriented"] = [bool(pre.get(int(i), {}).get("oriented", False)) for i in index]
-    frames["cloud_points"] = _ints([pre.get(int(i), {}).get("cloud_points") for i in index])
-    q = np.full((len(index), 4), np.nan)
-    for k, i in enumerate(index):
-        if int(i) in quats:
-            q[k] = quats[int(i)]
+        frames[f"terrain_{name}"] = _column([f.get(name) for f in table.features])
+    frames["preprocess_flag"] = list(table.flag)
+    frames["oriented"] = [bool(x) for x in table.oriented]
+    frames["cloud_points"] = _ints(table.cloud_points)
     for j, name in enumerate(("qw", "qx", "qy", "qz")):
-        frames[name] = q[:, j]
+        frames[name] = table.quaternion[:, j]
+    return frames
 
+
+def _imu_columns(imu: list[dict], imu_t: np.ndarray, offset: int | None, t0: int) -> dict:
     imu_cols = {"time_ns": imu_t, "host_time_ns": _ints([s.get("host_time_ns") for s in imu])}
     imu_cols.update(_clock(imu_t, offset, t0))
     imu_cols["packet_counter"] = _ints([s.get("packet_counter") for s in imu])
@@ -213,24 +173,34 @@ def tables(path: str | os.PathLike) -> dict:
         for j, name in enumerate(names):
             imu_cols[name] = values[:, j]
     imu_cols["status_word"] = _ints([s.get("status_word") for s in imu])
+    return imu_cols
 
-    in_force = set(reference)
-    undone = _undone(changes)
+
+def _label_columns(changes: list, label_t: np.ndarray, offset: int | None, t0: int) -> dict:
+    in_force = set(L.effective_changes(changes))
+    undone = L.undone(changes)
     labels = {"time_ns": label_t}
     labels.update(_clock(label_t, offset, t0))
     labels["mode"] = [c[1] for c in changes]
     labels["source"] = [c[2] for c in changes]
-    labels["is_undo"] = [is_undo(c[2]) for c in changes]
+    labels["is_undo"] = [L.is_undo(c[2]) for c in changes]
     labels["undone"] = [k in undone for k in range(len(changes))]
     labels["in_reference"] = [c in in_force for c in changes]
+    return labels
 
+
+def _event_columns(events: list[dict], event_t: np.ndarray, offset: int | None, t0: int) -> dict:
     event_cols = {"time_ns": event_t}
     event_cols.update(_clock(event_t, offset, t0))
     event_cols["device"] = [str(e.get("device", "")) for e in events]
     event_cols["kind"] = [str(e.get("kind", "")) for e in events]
     event_cols["message"] = [str(e.get("message", "")) for e in events]
     event_cols["details"] = [_json_text(e.get("details") or {}) for e in events]
+    return event_cols
 
+
+def _trial_row(rec, member, identity: dict, table: FrameTable) -> dict:
+    offset = rec.unix_offset_ns
     trials = {**identity}
     trials.update(
         {
@@ -244,11 +214,9 @@ def tables(path: str | os.PathLike) -> dict:
             "start_unix_time_ns": rec.unix_time_ns(rec.start_ns),
             "end_unix_time_ns": rec.unix_time_ns(rec.end_ns),
             "duration_s": rec.duration_s,
-            "frames": len(index),
+            "frames": len(table),
             # frames left undecided: their IMU orientation was too old to level the cloud
-            "stale_orientation_frames": sum(
-                1 for d in pre.values() if d.get("flag") == "stale_orientation"
-            ),
+            "stale_orientation_frames": sum(1 for f in table.flag if f == "stale_orientation"),
             "unix_offset_ns": offset,
         }
     )
@@ -276,20 +244,7 @@ def tables(path: str | os.PathLike) -> dict:
         trials[f"{stream}_missing"] = loss.missing
         trials[f"{stream}_longest_gap_s"] = loss.longest_s
         trials[f"{stream}_late"] = len(loss.late)
-
-    def frame(columns: dict, n: int):
-        df = pd.DataFrame(columns)
-        for k, v in reversed(list(identity.items())):
-            df.insert(0, k, pd.Series([v] * n, dtype=_identity_dtype(pd, k)))
-        return df
-
-    return {
-        "frames": frame(frames, len(index)),
-        "imu": frame(imu_cols, len(imu)),
-        "labels": frame(labels, len(changes)),
-        "events": frame(event_cols, len(events)),
-        "trials": pd.DataFrame([trials]),
-    }
+    return trials
 
 
 def corpus_tables(
@@ -393,25 +348,9 @@ def _clock(times: np.ndarray, offset: int | None, t0: int) -> dict:
     }
 
 
-def _modes_at(times: np.ndarray, changes: list[tuple[int, str, str]]) -> list[str]:
-    from capture.recording.reader import labels_at
-
-    return [MODES[k] if k >= 0 else "" for k in labels_at(times, changes)]
-
-
-def _undone(changes: list[tuple[int, str, str]]) -> set[int]:
-    """Positions (in `changes`, time order) of the changes an undo took back."""
-    stack: list[int] = []
-    out: set[int] = set()
-    for k, (_, _, source) in enumerate(changes):
-        if source == "correction":
-            continue
-        if is_undo(source):
-            if stack:
-                out.add(stack.pop())
-        else:
-            stack.append(k)
-    return out
+def _frames_at(frames: np.ndarray):
+    """Frame numbers, -1 (none) as a gap."""
+    return _ints([int(k) if k >= 0 else None for k in frames])
 
 
 def _ints(values: list):

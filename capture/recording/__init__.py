@@ -3,17 +3,30 @@
 Public API: `Recorder` (writes a trial), `Sink` (what a session writes to: the recorder and the
 live taps), `TOPICS` / `Topic` (every topic's schema and message builder), `Encoded` (a message
 ready for the file), `open_recording` / `Recording` (reads one, damaged or not), `read_trial` /
-`read_trials` (the per-frame table), `check` and `recover` (damage and rebuilding), `describe` /
-`derivation` (a file's identity and lineage), `trial_conflict` (trial numbers), `FORMAT_VERSION`.
+`read_trials` (per-frame arrays for evaluation), `frame_table` / `FrameTable` (every per-frame
+topic joined by frame), `summary` (what a file holds, behind `walkcap info`), `check` and
+`recover` (damage and rebuilding), `copy_recording` (a copy with labels, events and metadata
+added), `describe` / `derivation` (a file's identity and lineage), `trial_conflict` (trial
+numbers), `FORMAT_VERSION` (capture.recording.versions: how files of an older version are
+read). The label rules: capture.recording.labels.
 """
 
 from capture.recording._mcap import NotMcapError, check
+from capture.recording.copy import copy_recording
 from capture.recording.encode import Encoded
+from capture.recording.frames import FrameTable
 from capture.recording.lineage import derivation, describe
 from capture.recording.naming import trial_conflict
-from capture.recording.reader import Recording, open_recording, read_trial, read_trials
+from capture.recording.reader import (
+    Recording,
+    frame_table,
+    open_recording,
+    read_trial,
+    read_trials,
+)
 from capture.recording.recover import recover
 from capture.recording.sink import Sink
+from capture.recording.summary import RecordingSummary, summary
 from capture.recording.topics import FORMAT_VERSION, TOPICS, Topic
 from capture.recording.writer import Recorder
 
@@ -21,17 +34,22 @@ __all__ = [
     "FORMAT_VERSION",
     "TOPICS",
     "Encoded",
+    "FrameTable",
     "NotMcapError",
     "Recorder",
     "Recording",
+    "RecordingSummary",
     "Sink",
     "Topic",
     "check",
+    "copy_recording",
     "derivation",
     "describe",
+    "frame_table",
     "open_recording",
     "read_trial",
     "read_trials",
     "recover",
+    "summary",
     "trial_conflict",
 ]

@@ -5,14 +5,12 @@ the trial (subject, condition, trial in "session"). A derived file (a replay, a 
 corrected labels, a recovered copy) has its own id and a "derivation" record naming its
 source (id and file name) and how it was made. Derived files sit beside their source
 with a name that says what they are (`.replay.mcap`, `_corrected.mcap`,
-`.recovered.mcap`); the metadata, not the name, decides. Files without derivation
-records are recognised by the records their writers left (software.replay_of,
-corrections, recovery) and by their names.
+`.recovered.mcap`); the metadata, not the name, decides. (Derived files of format
+version 1 get their "derivation" record from capture.recording.versions on reading.)
 """
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -20,12 +18,6 @@ from capture.recording.reader import Recording
 
 RECORDING, REPLAY, CORRECTED, RECOVERED = "recording", "replay", "corrected", "recovered"
 DERIVED_KINDS = (REPLAY, CORRECTED, RECOVERED)
-
-_DERIVED_NAMES = (
-    (re.compile(r"^(?P<source>.+)\.replay\d*\.mcap$"), REPLAY),
-    (re.compile(r"^(?P<source>.+)_corrected\d*\.mcap$"), CORRECTED),
-    (re.compile(r"^(?P<source>.+)\.recovered\d*\.mcap$"), RECOVERED),
-)
 
 
 def derivation(source: Recording, new_id: str, kind: str, how: str, **extra) -> dict:
@@ -66,7 +58,7 @@ class Member:
 
 
 def describe(rec: Recording) -> Member:
-    """The identity and lineage of an open recording (any age of file)."""
+    """The identity and lineage of an open recording."""
     meta = rec.metadata
     d = meta.get("derivation") or {}
     kind, source_id, source_name, how = RECORDING, "", "", ""
@@ -77,23 +69,7 @@ def describe(rec: Recording) -> Member:
             str(d.get("source_name") or ""),
             str(d.get("how") or ""),
         )
-    elif "corrections" in meta:
-        kind, source_name = CORRECTED, str(meta["corrections"].get("source") or "")
-        how = "label corrections"
-    elif "recovery" in meta:
-        kind, source_name = RECOVERED, str(meta["recovery"].get("source") or "")
-        how = "recovered"
-    elif meta.get("software", {}).get("replay_of"):
-        kind, source_name = REPLAY, str(meta["software"]["replay_of"])
-        how = f"replay with model {str(meta['software'].get('model_hash', ''))[:12] or '?'}"
-    else:
-        for pattern, named in _DERIVED_NAMES:
-            m = pattern.match(rec.path.name)
-            if m:
-                kind, source_name, how = named, m.group("source") + ".mcap", f"{named} (by name)"
-                break
-    # Only an original's "recording" id is its own: older derived files copy their source's.
-    own_id = rec.id if kind == RECORDING or d else "file:"
+    own_id = rec.id
     if own_id.startswith("file:"):  # no id in the file: its path stands in
         own_id = f"file:{rec.path.resolve()}"
     supersedes = meta.get("session", {}).get("supersedes") or []

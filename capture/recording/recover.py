@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import logging
 import os
+import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -29,7 +30,10 @@ from capture.recording._mcap import (
     scan,
     summary_of,
 )
+from capture.recording.copy import RecordingCopy
 from capture.recording.journal import check_journal, journal_path
+from capture.recording.lineage import RECOVERED, derivation
+from capture.recording.reader import open_recording
 from devices.files import check_replaceable
 
 log = logging.getLogger(__name__)
@@ -80,8 +84,6 @@ def recover(
 ) -> RecoveryReport:
     """Write every complete record of `path` into a new indexed MCAP file, with the labels
     and markers of the journal that the file lacks. The source is never modified."""
-    from mcap.writer import CompressionType, Writer
-
     source = Path(path)
     check_magic(source)
     if output is not None and not os.fspath(output):
@@ -99,10 +101,6 @@ def recover(
     entries = journal_read.entries
 
     result = ScanResult()
-    schema_ids: dict[int, int] = {}
-    channel_ids: dict[int, int] = {}
-    topics_by_channel: dict[int, str] = {}
-    counts: dict[str, int] = {}
     seen: dict[str, set] = {T.LABELS: set(), T.EVENTS: set()}
     first = last = None
     unknown_channel = 0
@@ -112,65 +110,44 @@ def recover(
             # A damaged chunk can hold the schema and channel records of later chunks: a
             # finished file's summary repeats them.
             summary = summary_of(f)
-            writer = Writer(g, chunk_size=4 * 1024 * 1024, compression=CompressionType.ZSTD)
-            started = False
+            copy = RecordingCopy(g)
             for record in scan(f, result):
                 if isinstance(record, Header):
-                    writer.start(profile=record.profile, library=record.library)
-                    started = True
+                    copy.start(profile=record.profile, library=record.library)
                     continue
-                if not started:
-                    writer.start()
-                    started = True
+                if not copy.started:
+                    copy.start()
                 if isinstance(record, Schema):
-                    if record.id not in schema_ids:
-                        schema_ids[record.id] = writer.register_schema(
-                            record.name, record.encoding, record.data
-                        )
+                    copy.schema(record)
                 elif isinstance(record, Channel):
-                    if record.id not in channel_ids:
-                        channel_ids[record.id] = writer.register_channel(
-                            record.topic,
-                            record.message_encoding,
-                            schema_ids.get(record.schema_id, 0),
-                            record.metadata,
-                        )
-                        topics_by_channel[record.id] = record.topic
+                    copy.channel(record)
                 elif isinstance(record, Message):
-                    channel = channel_ids.get(record.channel_id)
-                    if channel is None and summary is not None:
-                        channel = _register_from_summary(
-                            writer, summary, record.channel_id, schema_ids, channel_ids
-                        )
+                    if not copy.knows(record.channel_id) and summary is not None:
+                        channel = summary.channels.get(record.channel_id)
                         if channel is not None:
-                            topics_by_channel[record.channel_id] = summary.channels[
-                                record.channel_id
-                            ].topic
-                    if channel is None:
+                            copy.channel(channel, summary.schemas.get(channel.schema_id))
+                    if not copy.knows(record.channel_id):
                         unknown_channel += 1  # its channel record was lost: undecodable
                         continue
-                    topic = topics_by_channel[record.channel_id]
-                    writer.add_message(
-                        channel, record.log_time, record.data, record.publish_time, record.sequence
-                    )
-                    counts[topic] = counts.get(topic, 0) + 1
+                    copy.message(record)
+                    topic = copy.topics[record.channel_id]
                     if topic in seen:
                         seen[topic].add(_key(topic, record.data))
                     if topic not in (T.LABELS, T.EVENTS):
                         first = record.log_time if first is None else min(first, record.log_time)
                         last = record.log_time if last is None else max(last, record.log_time)
                 elif isinstance(record, Metadata):
-                    writer.add_metadata(record.name, record.metadata)
+                    copy.metadata(record.name, record.metadata)
                 elif isinstance(record, Attachment):
-                    writer.add_attachment(
+                    copy.attachment(
                         record.create_time,
                         record.log_time,
                         record.name,
                         record.media_type,
                         record.data,
                     )
-            if not started:
-                writer.start()
+            if not copy.started:
+                copy.start()
             if result.records == 0 and not entries:
                 g.close()
                 tmp.unlink()
@@ -178,10 +155,8 @@ def recover(
                     f"{source}: nothing to recover ({result.reason or 'no readable record'})"
                 )
             describe_damage(result.damaged, summary)
-            labels_added, events_added = _merge_journal(
-                writer, entries, seen, topics_by_channel, channel_ids, counts
-            )
-            writer.add_metadata(
+            labels_added, events_added = _merge_journal(copy, entries, seen)
+            copy.metadata(
                 "recovery",
                 {
                     "source": source.name,
@@ -197,8 +172,8 @@ def recover(
                     "events_added_from_journal": str(events_added),
                 },
             )
-            _add_derivation(writer, source, result)
-            writer.finish()
+            _add_derivation(copy, source, result)
+            copy.finish()
             g.flush()
             os.fsync(g.fileno())
         os.replace(tmp, out)
@@ -210,6 +185,7 @@ def recover(
                 f"{out}: not written ({why}); nothing of it is left, {source} is unchanged"
             ) from None
         raise
+    counts = copy.counts
     return RecoveryReport(
         source=str(source),
         output=str(out),
@@ -231,22 +207,6 @@ def recover(
     )
 
 
-def _register_from_summary(writer, summary, channel_id, schema_ids, channel_ids):
-    channel = summary.channels.get(channel_id)
-    if channel is None:
-        return None
-    schema = summary.schemas.get(channel.schema_id)
-    if schema is not None and schema.id not in schema_ids:
-        schema_ids[schema.id] = writer.register_schema(schema.name, schema.encoding, schema.data)
-    channel_ids[channel_id] = writer.register_channel(
-        channel.topic,
-        channel.message_encoding,
-        schema_ids.get(channel.schema_id, 0),
-        channel.metadata,
-    )
-    return channel_ids[channel_id]
-
-
 def _key(topic: str, data: bytes | dict) -> tuple:
     import json
 
@@ -257,15 +217,9 @@ def _key(topic: str, data: bytes | dict) -> tuple:
 
 
 def _merge_journal(
-    writer,
-    entries: list[dict],
-    seen: dict[str, set],
-    topics_by_channel: dict[int, str],
-    channel_ids: dict[int, int],
-    counts: dict[str, int],
+    copy: RecordingCopy, entries: list[dict], seen: dict[str, set]
 ) -> tuple[int, int]:
     """Add the journal's labels and markers that the file does not have."""
-    by_topic = {topics_by_channel[old]: new for old, new in channel_ids.items()}
     added = {T.LABELS: 0, T.EVENTS: 0}
     for entry in entries:
         kind = entry.get("type")
@@ -285,38 +239,20 @@ def _merge_journal(
         if key in seen[topic]:
             continue
         seen[topic].add(key)
-        channel = by_topic.get(topic)
-        if channel is None:
-            spec = T.TOPICS[topic]
-            schema = writer.register_schema(
-                spec.schema_name, spec.schema_encoding, spec.schema_data
-            )
-            channel = writer.register_channel(
-                topic, spec.message_encoding, schema, {"description": spec.description}
-            )
-            by_topic[topic] = channel
-        t = message["time_ns"]
-        writer.add_message(channel, t, T.encode_json(message), t, 0)
-        counts[topic] = counts.get(topic, 0) + 1
+        copy.add(topic, message)
         added[topic] += 1
     return added[T.LABELS], added[T.EVENTS]
 
 
-def _add_derivation(writer, source: Path, result: ScanResult) -> None:
+def _add_derivation(copy: RecordingCopy, source: Path, result: ScanResult) -> None:
     """The recovered copy's own identity and lineage (capture.corpus.selection)."""
-    import uuid
-
-    from capture.recording.lineage import RECOVERED, derivation
-    from capture.recording.reader import open_recording
-
-    try:
-        original = open_recording(source)
-    except CaptureError:
-        return  # its metadata is unreadable: the "recovery" record names the source
     how = f"recovered: {result.valid_end} of {result.size} bytes readable"
     if result.reason:
         how += f" ({result.reason})"
-    writer.add_metadata(
-        "derivation",
-        T.encode_metadata(derivation(original, str(uuid.uuid4()), RECOVERED, how)),
-    )
+    new_id = str(uuid.uuid4())
+    try:
+        record = derivation(open_recording(source), new_id, RECOVERED, how)
+    except CaptureError:  # its metadata is unreadable: the source is known by its name
+        record = {"id": new_id, "kind": RECOVERED, "source_id": "", "source_name": source.name}
+        record["how"] = how
+    copy.metadata("derivation", T.encode_metadata(record))

@@ -4,7 +4,6 @@ trials, typed metadata, clock time, export and `info --json`."""
 from __future__ import annotations
 
 import json
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -19,8 +18,10 @@ from capture.errors import CaptureError
 from capture.live.session import LabelChange
 from capture.recording import lineage, naming
 from capture.recording import topics as T
-from capture.recording.reader import effective_changes, open_recording, read_trial
+from capture.recording.labels import effective_changes
+from capture.recording.reader import open_recording, read_trial
 from capture.recording.recover import recover
+from tests.old_recordings import as_version_1
 from tests.recording_fixtures import T0, frame_time, write_trial
 from tui import cli
 from tui.replay import corrected_path, write_corrected
@@ -155,7 +156,10 @@ def test_old_derived_files_are_recognised_by_their_names_and_records(tmp_path):
     a = tmp_path / "S01_indoor_t01.mcap"
     write_trial(a, mistake_and_undo())
     old_replay = tmp_path / "S01_indoor_t01.replay.mcap"
-    write_trial(old_replay, mistake_and_undo(), metadata={"software": {"replay_of": a.name}})
+    new = tmp_path / "b.mcap"
+    write_trial(new, mistake_and_undo(), metadata={"software": {"replay_of": a.name}})
+    as_version_1(new, old_replay)  # format version 1: derived files had no "derivation"
+    new.unlink()
     chosen = corpus.select([tmp_path])
     assert chosen.files == [a]
     assert chosen.left_out[0][0] == old_replay
@@ -306,7 +310,7 @@ def test_export_cli_writes_parquet_that_pandas_reads_and_mat_that_scipy_reads(tm
 def test_export_lists_what_it_leaves_out(tmp_path, capsys):
     a = tmp_path / "S01_indoor_t01.mcap"
     write_trial(a, mistake_and_undo())
-    shutil.copy(a, tmp_path / "S01_indoor_t01.recovered.mcap")  # an old-style copy, by name
+    as_version_1(a, tmp_path / "S01_indoor_t01.recovered.mcap")  # a version 1 copy, by name
     t, chosen = corpus_tables([tmp_path])
     assert chosen.files == [a] and len(t["trials"]) == 1
     assert cli.main(["export", str(tmp_path), "-o", str(tmp_path / "o"), "--quiet"]) == 0

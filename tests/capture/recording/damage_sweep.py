@@ -201,7 +201,7 @@ def baseline(path: Path, cuts: set) -> Baseline:
 def chunk_messages(path: Path) -> list:
     from mcap.reader import make_reader
 
-    from capture.recording.reader import _chunk_messages
+    from capture.recording.messages import chunk_messages
 
     out = []
     with open(path, "rb") as f:
@@ -210,7 +210,7 @@ def chunk_messages(path: Path) -> list:
         for c in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
             got = collections.Counter(
                 _message_key(summary.channels[cid].topic, log, seq, data)
-                for cid, seq, log, _, data in _chunk_messages(
+                for cid, seq, log, _, data in chunk_messages(
                     f, c.chunk_start_offset, c.chunk_length, every
                 )
             )

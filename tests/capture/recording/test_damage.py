@@ -94,7 +94,7 @@ def test_an_unfinished_file_damaged_in_the_middle_keeps_the_chunks_after_it(reco
 
 def test_a_chunk_whose_crc_fails_after_decompression_is_damaged(recording, tmp_path):
     """A chunk stored without compression: only its CRC can tell the bytes changed."""
-    from capture.recording.reader import _chunk_messages
+    from capture.recording.messages import chunk_messages
 
     offset, length, _, _ = chunks(recording)[1]
     with open(recording, "rb") as f:
@@ -117,7 +117,7 @@ def test_a_chunk_whose_crc_fails_after_decompression_is_damaged(recording, tmp_p
     path = tmp_path / "plain.mcap"
     path.write_bytes(builder.end())
     with open(path, "rb") as f, pytest.raises(ValueError, match="CRC"):
-        list(_chunk_messages(f, 0, path.stat().st_size, {1, 2, 3, 4, 5}))
+        list(chunk_messages(f, 0, path.stat().st_size, {1, 2, 3, 4, 5}))
 
 
 def test_info_reports_damaged_chunks(recording, tmp_path, capsys):

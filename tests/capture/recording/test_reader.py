@@ -7,7 +7,8 @@ import pytest
 
 from capture.errors import CaptureError
 from capture.recording import topics as T
-from capture.recording.reader import depth_frames, find_gaps, labels_at, open_recording, read_trial
+from capture.recording.labels import labels_at
+from capture.recording.reader import depth_frames, find_gaps, open_recording, read_trial
 from capture.recording.writer import Recorder
 from devices.frames import MODES
 from tests.recording_fixtures import (
