@@ -60,11 +60,6 @@ class OrientationTrack:
                 self._quats.popleft()
             self._new.notify_all()
 
-    @property
-    def latest_ns(self) -> int | None:
-        with self._lock:
-            return self._times[-1] if self._times else None
-
     def wait_until(self, time_ns: int, timeout_s: float) -> bool:
         """Wait until a sample at or after `time_ns` arrived (so we interpolate, not hold)."""
         with self._new:

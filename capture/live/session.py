@@ -570,10 +570,6 @@ class Session:
 
     # ---- per frame --------------------------------------------------------------------
 
-    def process_frame(self, frame: DepthFrame) -> FrameResult | None:
-        """One frame, start to end: recorded, then classified (None when that fails)."""
-        return self.classify_frame(frame, self.record_frame(frame))
-
     def record_frame(self, frame: DepthFrame):
         """The raw frame, its truth and an automatic label: written before any processing.
         Returns the recorder it went to (None between trials)."""
