@@ -317,6 +317,46 @@ def record_decisions(recorder, r: FrameResult, decided_ns: int | None = None) ->
         recorder.write_features(r.index, r.time_ns, r.features)
 
 
+def build_pipeline(config, classifier, params=None) -> Pipeline:
+    """The pipeline `config` (capture.config.Config) describes, around `classifier`: its
+    preprocessing (`params` when worked out already) and a fresh fusion."""
+    from inference.fusion import make_fusion
+    from inference.preprocess import PreprocessParams
+
+    f = config.fusion
+    fusion = make_fusion(
+        f.method,
+        window=f.window,
+        vote_delay=f.vote_delay,
+        transition=np.asarray(f.transition),
+        stay=f.stay,
+        evidence=f.evidence,
+        hysteresis=f.hysteresis,
+    )
+    return Pipeline(params or PreprocessParams.from_config(config), classifier, fusion)
+
+
+def software_metadata(config, pipeline: Pipeline | None, **extra) -> dict:
+    """The "software" metadata record: which walkcap, model, fusion and preprocessing made a
+    recording's decisions (None: no pipeline built yet); `extra` entries added (scheduling,
+    what a replay replays)."""
+    from capture import __version__
+    from capture.recording.topics import jsonable
+
+    f = config.fusion
+    return {
+        "walkcap_version": __version__,
+        "model_path": config.model.path or "bundled",
+        "model_hash": model_hash(pipeline.classifier if pipeline else None),
+        "fusion_method": f.method,
+        "fusion_window": f.window,
+        "fusion_vote_delay": f.vote_delay,
+        "fusion_transition": jsonable(f.transition),
+        "preprocess": jsonable(pipeline.params.to_dict() if pipeline else {}),
+        **extra,
+    }
+
+
 def model_hash(classifier) -> str:
     """The weights' SHA-256 from the model's metadata: which model made these decisions."""
     return str((getattr(classifier, "metadata", None) or {}).get("weights_sha256", ""))

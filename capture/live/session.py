@@ -24,7 +24,6 @@ from pathlib import Path
 
 import numpy as np
 
-from capture import __version__
 from capture import config as config_mod
 from capture.errors import CaptureError, ConfigError
 from capture.live.alarms import AlarmState, TrialAlarms
@@ -34,8 +33,9 @@ from capture.live.pipeline import (
     FrameResult,
     OrientationTrack,
     Pipeline,
-    model_hash,
+    build_pipeline,
     record_decisions,
+    software_metadata,
 )
 from capture.recording import topics as T
 from devices.base import DeviceEvent, DeviceState, DeviceStatus
@@ -369,9 +369,7 @@ class Session:
 
     def start(self) -> None:
         """Load the model, open both devices and start the threads."""
-        from inference.fusion import make_fusion
         from inference.model import load_classifier
-        from inference.preprocess import PreprocessParams
 
         cfg = self.config
         if not 0 <= cfg.session.realtime_priority <= 99:
@@ -382,16 +380,7 @@ class Session:
         if self._classifier is None:
             self._classifier = load_classifier(cfg.model.path or None, threads=CNN_THREADS)
         self.model_metadata = dict(getattr(self._classifier, "metadata", {}) or {})
-        fusion = make_fusion(
-            cfg.fusion.method,
-            window=cfg.fusion.window,
-            vote_delay=cfg.fusion.vote_delay,
-            transition=np.asarray(cfg.fusion.transition),
-            stay=cfg.fusion.stay,
-            evidence=cfg.fusion.evidence,
-            hysteresis=cfg.fusion.hysteresis,
-        )
-        self.pipeline = Pipeline(PreprocessParams.from_config(cfg), self._classifier, fusion)
+        self.pipeline = build_pipeline(cfg, self._classifier)
         # First calls are slow (torch's lazy set-up, numpy caches, the recorder's schema
         # modules): pay for them before the camera runs, not in the first frames of a trial.
         try:
@@ -827,18 +816,12 @@ class Session:
         }
         if cfg.camera.backend == "mock":
             devices["simulator"] = T.jsonable(dataclasses.asdict(cfg.simulator))
-        software = {
-            "walkcap_version": __version__,
-            "model_path": cfg.model.path or "bundled",
-            "model_hash": model_hash(self._classifier),
-            "fusion_method": cfg.fusion.method,
-            "fusion_window": cfg.fusion.window,
-            "fusion_vote_delay": cfg.fusion.vote_delay,
-            "fusion_transition": T.jsonable(cfg.fusion.transition),
-            "preprocess": T.jsonable(self.pipeline.params.to_dict() if self.pipeline else {}),
-            "pipeline_priority": self.pipeline_priority,
-            "intake_priority": self.intake_scheduling,
-        }
+        software = software_metadata(
+            cfg,
+            self.pipeline,
+            pipeline_priority=self.pipeline_priority,
+            intake_priority=self.intake_scheduling,
+        )
         session = info.to_metadata()
         session["operator"] = cfg.session.operator
         return {"session": session, "devices": devices, "software": software}

@@ -178,6 +178,9 @@ def test_replay_reproduces_the_trial_into_a_new_file(recorded, tmp_path):
     assert len(b["frame_index"]) + len(again) == report.frames
     assert [c[:2] for c in a["label_changes"]] == [c[:2] for c in b["label_changes"]]
     assert report.speedup > 0
+    software = open_recording(report.output).metadata["software"]
+    assert software["replay_of"] == path.name and software["model_hash"] == "stand-in"
+    assert software["fusion_method"] == Config().fusion.method  # what decided the replay
     depth_a = [m.data for m in open_recording(path).messages(["/camera/depth"])]
     depth_b = [m.data for m in open_recording(report.output).messages(["/camera/depth"])]
     assert len(depth_a) == len(depth_b)
