@@ -10,8 +10,10 @@ from types import SimpleNamespace
 import numpy as np
 
 from capture.errors import CaptureError
+from capture.live.labels import LabelChange
 from capture.live.pipeline import FrameResult
-from capture.live.session import LabelChange, Snapshot, SubjectInfo, TimelineEntry
+from capture.live.session import Snapshot, SubjectInfo
+from capture.live.timeline import TimelineEntry
 from capture.recording.writer import RecorderState, RecorderStats
 from devices.base import DeviceEvent, DeviceState, DeviceStatus
 from devices.clock import now_ns

@@ -354,7 +354,7 @@ def test_fast_replay_prepares_frames_itself_until_its_reader_process_is_ready(re
 
 
 def test_switches_are_counted_over_the_last_minute():
-    from capture.live.session import SwitchCounter
+    from capture.live.timeline import SwitchCounter
 
     counter = SwitchCounter(60.0)
     s = 1_000_000_000
