@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import threading
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 
@@ -18,6 +17,7 @@ from capture.recording.writer import RecorderState, RecorderStats
 from devices.base import DeviceEvent, DeviceState, DeviceStatus
 from devices.clock import now_ns
 from devices.frames import MODES
+from inference.fusion import FusionOutput
 
 NOW_NS = 100_000_000_000  # the snapshot's clock: fixed, so screenshots are stable
 FPS = 15
@@ -127,12 +127,13 @@ class FakeSession:
             flag="",
             probabilities=np.array([0.05, 0.82, 0.03, 0.07, 0.03]),
             cnn_decision=1,
-            fused=SimpleNamespace(
-                frame_index=1298,
+            fused=FusionOutput(
+                frame=1298,
                 decision=1,
-                posterior=[0.02, 0.9, 0.02, 0.04, 0.02],
+                posterior_frame=1299,
+                probabilities=(0.02, 0.9, 0.02, 0.04, 0.02),
                 voted=1,
-                voted_frame_index=1297,
+                voted_frame=1297,
             ),
             features={
                 "kind": "stairs",

@@ -20,7 +20,6 @@ import logging
 import os
 import uuid
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 
@@ -35,6 +34,7 @@ from devices.base import DeviceEvent, DeviceState, DeviceStatus
 from devices.clock import now_ns
 from devices.files import check_replaceable
 from devices.frames import MODES
+from inference.fusion import FusionOutput
 from inference.preprocess import STALE_ORIENTATION
 
 log = logging.getLogger(__name__)
@@ -360,7 +360,8 @@ class ReplaySource:
             flag=f.flags.get(i, ""),
             probabilities=f.probabilities[k],
             cnn_decision=int(f.cnn[k]),
-            fused=SimpleNamespace(decision=shown) if shown >= 0 else None,
+            # the decision the display showed then (the frame it decided is not kept)
+            fused=FusionOutput(frame=None, decision=shown) if shown >= 0 else None,
             features=f.features.get(i, {}),
         )
         lo = int(np.searchsorted(f.time_ns, t - int(TIMELINE_S * 1e9), side="left"))

@@ -16,6 +16,7 @@ from devices.clock import now_ns
 from devices.frames import MODES, DepthFrame
 from devices.rotations import quat_multiply, quat_slerp
 from inference.errors import InferenceError
+from inference.fusion import FusionOutput
 
 # One torch thread for the per-frame CNN: the pipeline shares the cores with the devices and
 # the recorder, and torch's thread pool spinning against them costs far more than it gains.
@@ -146,7 +147,7 @@ class FrameResult:
     flag: str  # "" or why the image is empty
     probabilities: np.ndarray  # CNN softmax, 5
     cnn_decision: int
-    fused: object | None  # inference.fusion.FusionOutput: refers to an earlier frame
+    fused: FusionOutput | None  # refers to an earlier frame
     features: dict = field(default_factory=dict)
     done_ns: int = 0  # when the fused decision was ready
 
@@ -261,7 +262,9 @@ class Pipeline:
             done_ns=done_ns,
         )
 
-    def _push(self, frame_index: int, probs: np.ndarray, elevation_deg: float = float("nan")):
+    def _push(
+        self, frame_index: int, probs: np.ndarray, elevation_deg: float = float("nan")
+    ) -> FusionOutput | None:
         """Push to the fusion (with the camera's elevation for gait cues); its output with
         push numbers turned into frame indices."""
         self._frame_of_push[self._pushed] = frame_index

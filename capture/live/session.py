@@ -21,6 +21,7 @@ import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -46,6 +47,9 @@ from devices.clock import now_ns
 from devices.frames import DepthFrame
 from devices.scheduling import NORMAL_PRIORITY, realtime_priority
 from inference.errors import InferenceError
+
+if TYPE_CHECKING:  # the writer's imports take a second: Recorder is imported when it records
+    from capture.recording.writer import RecorderStats
 
 log = logging.getLogger(__name__)
 
@@ -109,7 +113,7 @@ class Snapshot:
     latest: FrameResult | None
     timeline: list[TimelineEntry]
     events: list[DeviceEvent]
-    recording: object | None  # capture.recording.writer.RecorderStats
+    recording: RecorderStats | None
     recording_started_ns: int | None
     frames: int
     latency_ms: dict
