@@ -93,6 +93,9 @@ class FakeSession:
         self.snapshots = 0
         self._label: str | None = "US"
         self._recording_path: Path | None = None
+        self.trial_notice = ""
+        self.trial: SubjectInfo | None = None
+        self.alarms = None
         self.recorder_state, self.recorder_message = RecorderState.RECORDING, ""
         self.camera = DeviceStatus(
             backend="mock",
@@ -207,6 +210,9 @@ class FakeSession:
         return RecorderStats(
             path=str(path), state=RecorderState.STOPPED, bytes_written=12_345_678, messages=4321
         )
+
+    def inject(self, device: str, fault: str, **kw) -> None:
+        raise CaptureError("faults can be injected into mock devices only")
 
     # ---- what the UI reads
     def snapshot(self) -> Snapshot:

@@ -87,6 +87,9 @@ class ReplaySource:
         self.metadata: dict = {}
         self.subject_info: SubjectInfo | None = None
         self.saved_path: Path | None = None
+        self.trial_notice = ""  # a replay records no trial
+        self.trial: SubjectInfo | None = None
+        self.alarms = None
         self._camera = self._imu = None
         self._changes_cache: tuple[list, np.ndarray] | None = None
         self._unsaved = False
@@ -224,7 +227,7 @@ class ReplaySource:
         )
         return camera, imu
 
-    def stop(self):
+    def stop(self) -> None:
         self.playing = False
         return None
 
@@ -323,11 +326,16 @@ class ReplaySource:
     def recording(self) -> bool:
         return False
 
-    def start_recording(self, info: SubjectInfo) -> Path:
+    def start_recording(
+        self, info: SubjectInfo, existing: str = "next", folder: str | Path | None = None
+    ) -> Path:
         raise CaptureError("a replay does not record: save the corrections to a new file instead")
 
-    def stop_recording(self):
+    def stop_recording(self) -> None:
         return None
+
+    def inject(self, device: str, fault: str, **kw) -> None:
+        raise CaptureError("a replay has no devices to inject faults into")
 
     def save_corrections(self, path: str | os.PathLike | None = None) -> Path:
         """Write the original with the corrections into a new file; returns its path."""

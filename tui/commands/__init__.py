@@ -163,7 +163,7 @@ def course_condition(args, config) -> str | None:
     """
     if config.camera.backend != "mock":
         return None
-    condition, course = getattr(args, "condition", None), getattr(args, "course", None)
+    condition, course = args.condition, args.course
     if condition is None:
         args.condition = config.simulator.course
         return None
