@@ -117,7 +117,7 @@ class Snapshot:
     recording_started_ns: int | None
     frames: int
     latency_ms: dict
-    switches_last_minute: int | None = None  # final fused decision changes in SWITCHES_S
+    switches_last_minute: int | None = None  # final fused decision changes (timeline.SWITCHES_S)
     walker_mode: str | None = None  # mock devices: the walker's locomotion mode, to key
     alarms: AlarmState | None = None  # gaps this trial, and what the operator must see now
     stale_frames: int = 0  # frames of this (or the last) trial left undecided: stale IMU
