@@ -5,17 +5,19 @@ from __future__ import annotations
 
 import threading
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 
 from capture.errors import CaptureError
+from capture.live.labels import LabelChange
 from capture.live.pipeline import FrameResult
-from capture.live.session import LabelChange, Snapshot, SubjectInfo, TimelineEntry
+from capture.live.session import Snapshot, SubjectInfo
+from capture.live.timeline import TimelineEntry
 from capture.recording.writer import RecorderState, RecorderStats
 from devices.base import DeviceEvent, DeviceState, DeviceStatus
 from devices.clock import now_ns
 from devices.frames import MODES
+from inference.fusion import FusionOutput
 
 NOW_NS = 100_000_000_000  # the snapshot's clock: fixed, so screenshots are stable
 FPS = 15
@@ -91,6 +93,9 @@ class FakeSession:
         self.snapshots = 0
         self._label: str | None = "US"
         self._recording_path: Path | None = None
+        self.trial_notice = ""
+        self.trial: SubjectInfo | None = None
+        self.alarms = None
         self.recorder_state, self.recorder_message = RecorderState.RECORDING, ""
         self.camera = DeviceStatus(
             backend="mock",
@@ -125,12 +130,13 @@ class FakeSession:
             flag="",
             probabilities=np.array([0.05, 0.82, 0.03, 0.07, 0.03]),
             cnn_decision=1,
-            fused=SimpleNamespace(
-                frame_index=1298,
+            fused=FusionOutput(
+                frame=1298,
                 decision=1,
-                posterior=[0.02, 0.9, 0.02, 0.04, 0.02],
+                posterior_frame=1299,
+                probabilities=(0.02, 0.9, 0.02, 0.04, 0.02),
                 voted=1,
-                voted_frame_index=1297,
+                voted_frame=1297,
             ),
             features={
                 "kind": "stairs",
@@ -204,6 +210,9 @@ class FakeSession:
         return RecorderStats(
             path=str(path), state=RecorderState.STOPPED, bytes_written=12_345_678, messages=4321
         )
+
+    def inject(self, device: str, fault: str, **kw) -> None:
+        raise CaptureError("faults can be injected into mock devices only")
 
     # ---- what the UI reads
     def snapshot(self) -> Snapshot:

@@ -23,12 +23,14 @@ from textual.reactive import reactive
 from textual.screen import ModalScreen
 
 from capture.config import Config
+from capture.live.preflight import CheckItem, PreflightReport
 from capture.live.session import SubjectInfo
-from capture.recording.writer import RecorderState
+from capture.recording.writer import RecorderState, RecorderStats
 from devices.frames import MODES
 from tui import messages
 from tui.live_screen import LiveScreen
 from tui.session_screen import SessionScreen, load_remembered, save_last_session
+from tui.source import Playback, Source
 from tui.widgets.notices import Notice
 from tui.widgets.quit_dialog import QuitDialog
 from tui.widgets.recording_panel import clock_text, human_bytes
@@ -36,7 +38,7 @@ from tui.widgets.recording_panel import clock_text, human_bytes
 log = logging.getLogger(__name__)
 
 
-def default_session_factory(config: Config):
+def default_session_factory(config: Config) -> Source:
     from capture.live.session import Session
 
     return Session(config)
@@ -53,7 +55,7 @@ def describe_error(e: BaseException) -> str:
     return f"{type(e).__name__}: {e}"
 
 
-def default_preflight(session):
+def default_preflight(session) -> PreflightReport:
     from capture.live import preflight
 
     return preflight.run(session)
@@ -122,14 +124,14 @@ class WalkcapApp(App):
     def __init__(
         self,
         config: Config | None = None,
-        session=None,
-        session_factory: Callable[[Config], object] | None = None,
+        session: Source | None = None,
+        session_factory: Callable[[Config], Source] | None = None,
         *,
         subject: SubjectInfo | None = None,
         ask_subject: bool = True,
         start_status: str = "starting devices…",
         drills: bool = False,
-        preflight: Callable[[object], object] | None = None,
+        preflight: Callable[[Source], PreflightReport] | None = None,
     ) -> None:
         """`session`: a ready-made source (tests pass a fake); otherwise `session_factory`
         (default: capture.live.session.Session) builds one from the configuration in a worker.
@@ -157,7 +159,7 @@ class WalkcapApp(App):
         self.drills = drills
         self._preflight = preflight or (default_preflight if session is None else None)
         self.preflight_state = "none"  # none | running | ok | failed
-        self.preflight_report = None
+        self.preflight_report: PreflightReport | None = None
         self.trials: list[TrialRecord] = []
         self.lab = None  # LSL, remote control, Foxglove: capture.labtools.connections.LabTools
         self.notices: list[Notice] = []  # this session's notices, oldest first
@@ -172,7 +174,7 @@ class WalkcapApp(App):
         return remembered.form_for(last.subject, last.condition, self.config.session.recordings)
 
     @property
-    def source(self):
+    def source(self) -> Source | None:
         """What the live screen reads and commands: the session, once it runs."""
         return self.session if self.ready else None
 
@@ -280,9 +282,9 @@ class WalkcapApp(App):
 
     def on_session_started(self, _: messages.SessionStarted) -> None:
         self.ready = True
-        info = getattr(self.session, "subject_info", None)  # a replay shows its recording's
-        if info is not None:
-            self.subject = info
+        replay = self.session
+        if isinstance(replay, Playback) and replay.subject_info is not None:
+            self.subject = replay.subject_info  # a replay shows its recording's form
         self._set_status("")
         if self._quitting:  # quit was asked while the devices were opening
             self.stop_session()
@@ -303,8 +305,6 @@ class WalkcapApp(App):
             report = self._preflight(self.session)
         except Exception as e:
             log.exception("pre-flight")
-            from capture.live.preflight import CheckItem, PreflightReport
-
             report = PreflightReport([CheckItem("check", False, "", describe_error(e))])
         self.post_message(messages.PreflightDone(report))
 
@@ -375,7 +375,7 @@ class WalkcapApp(App):
             return  # already stopping
         if self.session is not None and self.ready and self.session.recording:
             self.push_screen(QuitDialog(), lambda yes: self.stop_session() if yes else None)
-        elif self.ready and getattr(self.session, "unsaved", False):
+        elif self.ready and isinstance(self.session, Playback) and self.session.unsaved:
             self.push_screen(
                 QuitDialog(
                     "The label corrections are not saved (w saves them). Quit anyway?",
@@ -525,8 +525,8 @@ class WalkcapApp(App):
         self.recording_path = message.path
         self.bell()  # the operator watches the subject: a sound as well as the banner
         self.notify(f"recording {message.path.name}", timeout=4)
-        notice = getattr(self.session, "trial_notice", "")  # the trial existed: the next one
-        recorded = getattr(self.session, "trial", None)
+        notice = self.session.trial_notice  # the trial existed: the next one was recorded
+        recorded = self.session.trial
         if notice and recorded is not None:
             self.subject = dataclasses.replace(self.subject, trial=recorded.trial)
             self.notify(notice, severity="warning", timeout=10)
@@ -542,8 +542,8 @@ class WalkcapApp(App):
         self.subject = dataclasses.replace(self.subject, trial=self.subject.trial + 1)
         save_last_session(self.subject, operator=self.config.session.operator)
         stats = message.stats
-        name = Path(getattr(stats, "path", "") or message.path or "recording").name
-        if getattr(stats, "state", "") == RecorderState.FAILED:
+        name = Path((stats.path if stats else "") or message.path or "recording").name
+        if stats is not None and stats.state == RecorderState.FAILED:
             self.notify(
                 f"{name}: {stats.message} (what reached the disk is readable)",
                 title="recording failed",
@@ -551,8 +551,8 @@ class WalkcapApp(App):
                 timeout=30,
             )
         else:
-            size = getattr(stats, "bytes_written", None)
-            dropped = getattr(stats, "dropped", 0)
+            size = stats.bytes_written if stats else None
+            dropped = stats.dropped if stats else 0
             self.notify(
                 f"saved {name}"
                 + (f" ({human_bytes(size)})" if size else "")
@@ -562,21 +562,21 @@ class WalkcapApp(App):
             )
         self._refresh_live()
 
-    def _add_trial(self, stats, path) -> None:
+    def _add_trial(self, stats: RecorderStats | None, path: Path | None) -> None:
         if stats is None:
             return
-        alarms = getattr(self.session, "alarms", None)
-        failed = getattr(stats, "state", "") == RecorderState.FAILED
+        alarms = self.session.alarms
+        failed = stats.state == RecorderState.FAILED
         self.trials.append(
             TrialRecord(
                 trial=self.subject.trial,
-                path=str(Path(getattr(stats, "path", "") or path or "").resolve()),
-                duration_s=float(getattr(stats, "duration_s", 0.0) or 0.0),
-                size_bytes=int(getattr(stats, "bytes_written", 0) or 0),
-                labels=int(getattr(stats, "labels", 0) or 0),
-                gaps=dict(getattr(alarms, "trial_gaps", {}) or {}),
-                late=dict(getattr(alarms, "trial_late", {}) or {}),
-                failed=str(getattr(stats, "message", "")) if failed else "",
+                path=str(Path(stats.path or path or "").resolve()),
+                duration_s=float(stats.duration_s or 0.0),
+                size_bytes=int(stats.bytes_written or 0),
+                labels=int(stats.labels or 0),
+                gaps=dict(alarms.trial_gaps) if alarms is not None else {},
+                late=dict(alarms.trial_late) if alarms is not None else {},
+                failed=str(stats.message) if failed else "",
             )
         )
 
@@ -606,7 +606,7 @@ class WalkcapApp(App):
     # ---- replay: corrections into a new file ------------------------------------------
 
     def save_corrections(self) -> None:
-        if self.source is None or self._busy_recording:
+        if not isinstance(self.source, Playback) or self._busy_recording:
             return
         self._busy_recording = True
         self._set_status("writing the corrected file…")
@@ -615,7 +615,7 @@ class WalkcapApp(App):
     @work(thread=True, group="recording")
     def _save_corrections(self) -> None:
         try:
-            path = self.session.save_corrections()
+            path = self.session.save_corrections()  # a Playback: save_corrections() checked
         except Exception as e:
             log.exception("saving corrections")
             self.post_message(messages.RecordingFailed(describe_error(e)))

@@ -55,7 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"walkcap {__version__}")
     _add_common(parser, argparse.SUPPRESS)
-    parser.set_defaults(config=None, verbose=0)
+    parser.set_defaults(config=None, verbose=0, _parser=parser)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for name in COMMANDS:
         module = importlib.import_module(f"tui.commands.{name}")
@@ -96,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
             ["tui", *(argv if argv is not None else sys.argv[1:])]
         )
     if extra:
-        getattr(args, "_parser", parser).error(f"unrecognized arguments: {' '.join(extra)}")
+        args._parser.error(f"unrecognized arguments: {' '.join(extra)}")
     _log_to_stderr(args.command, args.verbose)
     try:
         from capture import config as config_mod

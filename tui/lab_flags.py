@@ -30,12 +30,12 @@ def add_arguments(parser) -> None:
 
 def apply(args, config) -> None:
     """The flags on top of the configuration file."""
-    if getattr(args, "lsl", False):
+    if args.lsl:
         config.lsl.enabled = True
-    for name in getattr(args, "lsl_record", None) or ():
+    for name in args.lsl_record or ():
         if name not in config.lsl.record:
             config.lsl.record.append(name)
-    if getattr(args, "remote_control", False):
+    if args.remote_control:
         config.lsl.remote_control = True
-    if getattr(args, "foxglove", False):
+    if args.foxglove:
         config.foxglove.enabled = True

@@ -67,7 +67,7 @@ def pipeline_rows(snap: Snapshot) -> list[tuple[str, str, str]]:
     if snap.latency_ms:
         p50, p99 = snap.latency_ms.get("p50", 0), snap.latency_ms.get("p99", 0)
         rows.append(("latency", f"median {p50:.0f}, p99 {p99:.0f} ms", ""))
-    stale = getattr(snap, "stale_frames", 0)
+    stale = snap.stale_frames
     if stale:  # frames left undecided: no IMU orientation fresh enough to level them
         rows.append(("stale", f"{stale} frames (old IMU)", "#f0a020"))
     return rows
@@ -139,6 +139,10 @@ class LiveScreen(Screen):
         # strip shows them as they stand, an undone change as if it never happened.
         self._label_changes: list[tuple[int, str, str]] = []
         self._effective: list[tuple[int, str, str]] = []
+        # what the banner, the alarm line and the trials panel show (redrawn when it changes)
+        self._banner_shown: tuple[str, str] | None = None
+        self._alarms_shown: str | None = None
+        self._trials_shown: str | None = None
 
     def compose(self) -> ComposeResult:
         yield TopBar(id="topbar")
@@ -177,7 +181,7 @@ class LiveScreen(Screen):
         self._w = {
             type(w): w for w in self.query("#main *, #timeline, #topbar") if hasattr(w, "present")
         }
-        notices = getattr(self.app, "notices", [])
+        notices = self.app.notices
         if notices:
             self.show_notice(notices[-1])
         self._timer = self.set_interval(1 / REFRESH_HZ, self.refresh_view)
@@ -196,7 +200,7 @@ class LiveScreen(Screen):
         if source is None:
             self._show_topbar()
             self._show_banner(None)
-            error = getattr(self.app, "start_error", None)
+            error = self.app.start_error
             if error:  # say why, and how to try again, where the devices would be
                 rows = [("", f"could not start: {error}", "bold #e04040"), ("", "c retries", "")]
                 self._w[DevicePanel].present(None, None, {}, None, rows)
@@ -219,9 +223,7 @@ class LiveScreen(Screen):
             latest.image if latest else None, latest.flag if latest else "", key
         )
         self._w[ProfilePlot].present(latest.profile if latest else None, key)
-        self._w[DecisionDisplay].present_switching(
-            getattr(snap, "switches_last_minute", None), getattr(snap, "walker_mode", None)
-        )
+        self._w[DecisionDisplay].present_switching(snap.switches_last_minute, snap.walker_mode)
         self._w[DecisionDisplay].present(
             self._fused,
             latest.cnn_decision if latest else None,
@@ -279,7 +281,7 @@ class LiveScreen(Screen):
         """Seconds into the trial; None when no trial records (the check's probe is none)."""
         if snap is None or snap.recording_started_ns is None:
             return None
-        if getattr(self.app, "preflight_state", "") == "running":
+        if self.app.preflight_state == "running":
             return None
         return (snap.time_ns - snap.recording_started_ns) * 1e-9
 
@@ -295,13 +297,13 @@ class LiveScreen(Screen):
             path = app.recording_path
             head = f" ● REC  trial {app.subject.trial}  {clock_text(elapsed)}  "
             cls = "-rec"
-            if getattr(snap.recording, "state", "") == RecorderState.FAILED:
+            if snap.recording is not None and snap.recording.state == RecorderState.FAILED:
                 head = f" ✖ REC FAILED  trial {app.subject.trial}  ({key} closes the file)  "
                 cls = "-failed"
             width = banner.size.width or app.size.width
             text = Text(head + banner_path(path.resolve() if path else None, width - len(head)))
         else:
-            state = getattr(app, "preflight_state", "none")
+            state = app.preflight_state
             if app.source is None:
                 text, cls = Text(" ○ devices not running"), "-idle"
             elif state == "running":
@@ -316,7 +318,7 @@ class LiveScreen(Screen):
                 ok = "pre-flight ok  " if state == "ok" else ""
                 text = Text(f" ○ not recording  {ok}{key}: record trial {app.subject.trial}")
                 cls = "-idle"
-        if (str(text), cls) != getattr(self, "_banner_shown", None):
+        if (str(text), cls) != self._banner_shown:
             self._banner_shown = (str(text), cls)
             banner.update(text)
             banner.set_classes(cls)
@@ -335,17 +337,17 @@ class LiveScreen(Screen):
                 "bold #ffffff on #b02020" if alarm.level == "error" else "bold #000000 on #f0a020"
             )
             line.append(f" {'ALARM' if alarm.level == 'error' else 'WARNING'} {alarm.text} ", style)
-        if str(line) != getattr(self, "_alarms_shown", None):
+        if str(line) != self._alarms_shown:
             self._alarms_shown = str(line)
             self.query_one("#alarms", Static).update(line)
 
     def _show_trials(self) -> None:
-        trials = getattr(self.app, "trials", [])
+        trials = self.app.trials
         lines = [t.line() for t in trials[-3:]]
         if len(trials) > 3:
             lines.insert(0, f"… {len(trials) - 3} earlier (all are listed on quit)")
         text = "\n".join(lines) if lines else "none yet (each trial's file is listed here)"
-        if text != getattr(self, "_trials_shown", None):
+        if text != self._trials_shown:
             self._trials_shown = text
             self.query_one("#trials", Static).update(Text(text, style="" if lines else "dim"))
 
@@ -356,14 +358,14 @@ class LiveScreen(Screen):
         key = key_label(app.config.keys.record)
         source = app.source
         if isinstance(source, Playback):  # a replay records nothing: it saves corrections
-            n = len(getattr(source, "corrections", []))
-            saved = getattr(source, "saved_path", None)
+            n = len(source.corrections)
+            saved = source.saved_path
             hint = (
                 f"w: save {n} correction{'s' if n != 1 else ''} to a new file"
                 if n
                 else "1-5: correct labels"
             )
-            if saved is not None and not getattr(source, "unsaved", False):
+            if saved is not None and not source.unsaved:
                 hint = f"saved {saved.name}"
             self._w[RecordingPanel].present(None, None, None, hint, snap.time_ns, idle="▶ replay")
             return
@@ -377,10 +379,10 @@ class LiveScreen(Screen):
             snap.time_ns,
             gaps=gaps,
         )
-        failed = getattr(snap.recording, "state", "") == RecorderState.FAILED
+        failed = snap.recording is not None and snap.recording.state == RecorderState.FAILED
         if failed and not self._failure_shown:
             self.notify(
-                f"{getattr(snap.recording, 'message', '')} — press {key} to close the file",
+                f"{snap.recording.message} — press {key} to close the file",
                 title="recording failed",
                 severity="error",
                 timeout=30,
@@ -418,7 +420,7 @@ class LiveScreen(Screen):
         source = app.source
         if isinstance(source, Playback):
             pos, duration = source.position()
-            bar.append(f"{getattr(source, 'path', Path('')).name}  ", style="bold")
+            bar.append(f"{source.path.name}  ", style="bold")
             bar.append(
                 f"{'▶' if source.playing else '⏸'} {clock_text(pos)} / {clock_text(duration)}  ",
                 style="bold",
@@ -440,13 +442,13 @@ class LiveScreen(Screen):
         if action in ("record", "session_form", "check"):
             return not replay
         if action == "drill":
-            return bool(getattr(self.app, "drills", False))
+            return self.app.drills
         return True
 
     def _source_or_warn(self):
         source = self.app.source
         if source is None:
-            error = getattr(self.app, "start_error", None)
+            error = self.app.start_error
             text = (
                 f"the devices did not start: {error} — c retries"
                 if error
@@ -461,7 +463,7 @@ class LiveScreen(Screen):
             return
         before = source.label
         change = source.set_label(mode)  # stamped inside, at this call: no waiting on the display
-        self._keyed(getattr(change, "time_ns", None), mode, "operator", before)
+        self._keyed(change.time_ns, mode, "operator", before)
         self._after_command()
 
     def action_undo(self) -> None:

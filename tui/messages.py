@@ -2,67 +2,66 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 from textual.message import Message
+
+from capture.live.preflight import PreflightReport
+from capture.recording.writer import RecorderStats
+from tui.widgets.notices import Notice
 
 
 class SessionStarted(Message):
     """The devices are open and the pipeline runs."""
 
 
+@dataclass
 class SessionFailed(Message):
-    """Opening the devices or loading the model failed; `error` is one line for the user."""
+    """Opening the devices or loading the model failed."""
 
-    def __init__(self, error: str) -> None:
-        super().__init__()
-        self.error = error
+    error: str  # one line for the user
 
 
+@dataclass
 class RecordingStarted(Message):
-    def __init__(self, path: Path) -> None:
-        super().__init__()
-        self.path = path
+    path: Path
 
 
+@dataclass
 class RecordingStopped(Message):
-    """`stats` is the recorder's final RecorderStats (None if nothing was recording)."""
-
-    def __init__(self, stats: object | None, path: Path | None) -> None:
-        super().__init__()
-        self.stats = stats
-        self.path = path
+    stats: RecorderStats | None  # the recorder's final figures (None: nothing was recording)
+    path: Path | None
 
 
+@dataclass
 class RecordingFailed(Message):
-    def __init__(self, error: str) -> None:
-        super().__init__()
-        self.error = error
+    error: str
 
 
 class SessionStopped(Message):
     """The session stopped (devices closed, any recording finalised): the app may exit."""
 
 
+@dataclass
 class CorrectionsSaved(Message):
-    def __init__(self, path: Path) -> None:
-        super().__init__()
-        self.path = path
+    path: Path
 
 
+@dataclass
 class PreflightDone(Message):
-    """The pre-flight check finished; `report` is a capture.live.preflight.PreflightReport."""
+    """The pre-flight check finished."""
 
-    def __init__(self, report: object) -> None:
-        super().__init__()
-        self.report = report
+    report: PreflightReport
 
 
+@dataclass
 class NoticePosted(Message):
-    """A notice for the operator (tui.widgets.notices.Notice), from any thread."""
+    """A notice for the operator, from any thread, with App.notify's arguments."""
 
-    def __init__(self, notice, title: str, message: str, severity: str, timeout, markup: bool):
-        super().__init__()
-        self.notice = notice
-        self.title, self.message, self.severity = title, message, severity
-        self.timeout, self.markup = timeout, markup
+    notice: Notice
+    title: str
+    message: str
+    severity: str
+    timeout: float | None
+    markup: bool

@@ -19,13 +19,14 @@ import datetime as dt
 import logging
 import os
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 
 from capture.errors import CaptureError
+from capture.live.labels import LabelChange
 from capture.live.pipeline import FrameResult
-from capture.live.session import LabelChange, Snapshot, SubjectInfo, TimelineEntry
+from capture.live.session import Snapshot, SubjectInfo
+from capture.live.timeline import TimelineEntry
 from capture.recording import labels as L
 from capture.recording import topics as T
 from capture.recording.copy import copy_recording
@@ -36,6 +37,7 @@ from capture.recording.reader import frame_table, open_recording
 from devices.base import DeviceEvent, DeviceState, DeviceStatus
 from devices.clock import now_ns
 from devices.frames import MODES
+from inference.fusion import FusionOutput
 from inference.preprocess import STALE_ORIENTATION
 
 log = logging.getLogger(__name__)
@@ -117,6 +119,9 @@ class ReplaySource:
         self.metadata: dict = {}
         self.subject_info: SubjectInfo | None = None
         self.saved_path: Path | None = None
+        self.trial_notice = ""  # a replay records no trial
+        self.trial: SubjectInfo | None = None
+        self.alarms = None
         self._camera = self._imu = None
         self._changes_cache: tuple[list, np.ndarray] | None = None
         self._unsaved = False
@@ -191,7 +196,7 @@ class ReplaySource:
         )
         return camera, imu
 
-    def stop(self):
+    def stop(self) -> None:
         self.playing = False
         return None
 
@@ -286,11 +291,16 @@ class ReplaySource:
     def recording(self) -> bool:
         return False
 
-    def start_recording(self, info: SubjectInfo) -> Path:
+    def start_recording(
+        self, info: SubjectInfo, existing: str = "next", folder: str | Path | None = None
+    ) -> Path:
         raise CaptureError("a replay does not record: save the corrections to a new file instead")
 
-    def stop_recording(self):
+    def stop_recording(self) -> None:
         return None
+
+    def inject(self, device: str, fault: str, **kw) -> None:
+        raise CaptureError("a replay has no devices to inject faults into")
 
     def save_corrections(self, path: str | os.PathLike | None = None) -> Path:
         """Write the original with the corrections into a new file; returns its path."""
@@ -323,7 +333,8 @@ class ReplaySource:
             flag=f.flags.get(i, ""),
             probabilities=f.probabilities[k],
             cnn_decision=int(f.cnn[k]),
-            fused=SimpleNamespace(decision=shown) if shown >= 0 else None,
+            # the decision the display showed then (the frame it decided is not kept)
+            fused=FusionOutput(frame=None, decision=shown) if shown >= 0 else None,
             features=f.features.get(i, {}),
         )
         lo = int(np.searchsorted(f.time_ns, t - int(TIMELINE_S * 1e9), side="left"))

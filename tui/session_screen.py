@@ -256,8 +256,7 @@ class SessionScreen(Screen[SubjectInfo | None]):
         return Input(max_length=500, **common)
 
     def _operator(self) -> str:
-        config = getattr(self.app, "config", None)
-        return config.session.operator if config is not None else ""
+        return self.app.config.session.operator
 
     def on_mount(self) -> None:
         self.watch(self.app, "status", self._show_status)
@@ -281,15 +280,11 @@ class SessionScreen(Screen[SubjectInfo | None]):
             return
         self.operator = str(self.query_one("#f-operator", Input).value).strip()
         save_last_session(info, operator=self.operator)
-        config = getattr(self.app, "config", None)
-        if config is not None:  # who runs the session goes into every recording
-            config.session.operator = self.operator
+        self.app.config.session.operator = self.operator  # written into every recording
         self.dismiss(info)
 
     def action_retry(self) -> None:
-        retry = getattr(self.app, "retry", None)
-        if retry is not None:
-            retry()
+        self.app.retry()
 
     def check_action(self, action: str, parameters: tuple) -> bool | None:
         return self.can_cancel if action == "cancel" else True
@@ -307,8 +302,7 @@ class SessionScreen(Screen[SubjectInfo | None]):
         key = (str(values["subject"]).strip(), str(values["condition"]).strip())
         if key == self._filled_for or not all(key):
             return
-        config = getattr(self.app, "config", None)
-        folder = config.session.recordings if config is not None else None
+        folder = self.app.config.session.recordings
         fresh = form_values(load_remembered().form_for(*key, folder))
         for name in (*SUBJECT_FIELDS, "trial"):
             widget = self.query_one(f"#f-{name}")

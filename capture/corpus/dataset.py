@@ -45,10 +45,6 @@ READERS: dict[str, Callable[[Path], LabeledSession]] = {
 }
 
 
-def register_reader(suffix: str, reader: Callable[[Path], LabeledSession]) -> None:
-    READERS[suffix.lower()] = reader
-
-
 def find_session_files(paths: list[str | os.PathLike]) -> list[Path]:
     """Files of sessions: the given files, and every known file in the given folders."""
     files: list[Path] = []

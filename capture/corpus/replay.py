@@ -35,9 +35,9 @@ from capture.errors import CaptureError
 from capture.live.pipeline import (
     CNN_THREADS,
     OrientationTrack,
-    Pipeline,
-    model_hash,
+    build_pipeline,
     record_decisions,
+    software_metadata,
 )
 from capture.recording import topics as T
 from capture.recording.lineage import REPLAY, derivation
@@ -360,21 +360,10 @@ def _replay(
     from capture.recording.chunks import ZSTD_LEVEL_FAST
     from capture.recording.writer import Recorder
     from inference import features  # noqa: F401  (imported now, not in the first frame's time)
-    from inference.fusion import make_fusion
     from inference.model import load_classifier
 
     classifier = classifier or load_classifier(config.model.path or None, threads=CNN_THREADS)
-    cfg = config.fusion
-    fusion = make_fusion(
-        cfg.method,
-        window=cfg.window,
-        vote_delay=cfg.vote_delay,
-        transition=np.asarray(cfg.transition),
-        stay=cfg.stay,
-        evidence=cfg.evidence,
-        hysteresis=cfg.hysteresis,
-    )
-    pipeline = Pipeline(params, classifier, fusion)
+    pipeline = build_pipeline(config, classifier, params)
 
     imu, labels, events = recorded_streams
 
@@ -383,18 +372,11 @@ def _replay(
         for name, values in rec.metadata.items()
         if name in ("session", "devices", "camera")
     }
-    software = dict(rec.metadata.get("software", {}))
-    software.update(
-        {
-            "replay_of": source.name,
-            "model_path": config.model.path or "bundled",
-            "model_hash": model_hash(classifier),
-            "fusion_window": cfg.window,
-            "fusion_vote_delay": cfg.vote_delay,
-            "fusion_transition": T.jsonable(cfg.transition),
-            "preprocess": T.jsonable(pipeline.params.to_dict()),
-        }
-    )
+    software = {
+        **rec.metadata.get("software", {}),
+        **software_metadata(config, pipeline),
+        "replay_of": source.name,
+    }
     metadata["software"] = software
     replay_id = str(uuid.uuid4())
     metadata["derivation"] = derivation(

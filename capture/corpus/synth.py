@@ -16,9 +16,13 @@ from pathlib import Path
 
 import numpy as np
 
-from capture import __version__
 from capture import config as config_mod
-from capture.live.pipeline import OrientationTrack, Pipeline, model_hash, record_result
+from capture.live.pipeline import (
+    OrientationTrack,
+    build_pipeline,
+    record_result,
+    software_metadata,
+)
 from capture.recording import topics as T
 from devices.clock import now_ns
 from devices.frames import ImuSample
@@ -78,23 +82,12 @@ def synth_recording(
     """Walk one simulated course into the recording at `path`; returns its RecorderStats."""
     from capture.recording.writer import Recorder
     from devices.simulator import Simulator
-    from inference.fusion import make_fusion
-    from inference.preprocess import PreprocessParams
 
     cfg = copy.deepcopy(config)
     cfg.simulator.course, cfg.simulator.seed = preset, seed
     simulator = Simulator.from_config(cfg.simulator, fps=cfg.camera.fps)
     rng = np.random.default_rng([seed, 4242])
-    fusion = make_fusion(
-        cfg.fusion.method,
-        window=cfg.fusion.window,
-        vote_delay=cfg.fusion.vote_delay,
-        transition=np.asarray(cfg.fusion.transition),
-        stay=cfg.fusion.stay,
-        evidence=cfg.fusion.evidence,
-        hysteresis=cfg.fusion.hysteresis,
-    )
-    pipeline = Pipeline(PreprocessParams.from_config(cfg), classifier, fusion)
+    pipeline = build_pipeline(cfg, classifier)
     metadata = {
         "session": {
             "subject": subject,
@@ -109,16 +102,7 @@ def synth_recording(
             "imu_rate_hz": cfg.imu.rate_hz,
             "simulator": T.jsonable(dataclasses.asdict(cfg.simulator)),
         },
-        "software": {
-            "walkcap_version": __version__,
-            "model_path": cfg.model.path or "bundled",
-            "model_hash": model_hash(classifier),
-            "fusion_method": cfg.fusion.method,
-            "fusion_window": cfg.fusion.window,
-            "fusion_vote_delay": cfg.fusion.vote_delay,
-            "fusion_transition": T.jsonable(cfg.fusion.transition),
-            "preprocess": T.jsonable(pipeline.params.to_dict()),
-        },
+        "software": software_metadata(cfg, pipeline),
     }
     recorder = Recorder(
         path,

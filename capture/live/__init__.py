@@ -2,7 +2,9 @@
 labels, alarms and preflight checks, and the recorder fed as it goes.
 
 Public API: `Session`, `Snapshot`, `SubjectInfo` (capture.live.session); `Pipeline`,
-`FrameResult` (capture.live.pipeline); `TrialAlarms` (capture.live.alarms); `preflight`
-checks (capture.live.preflight); `ReplayCamera` (capture.live.replay_camera). Import them from
-their modules: each pulls in only what it needs.
+`FrameResult`, `build_pipeline`, `software_metadata` (capture.live.pipeline); `open_devices`,
+`close_devices` (capture.live.devices); `LabelBook`, `LabelChange` (capture.live.labels);
+`FrameTimeline`, `TimelineEntry` (capture.live.timeline); `TrialAlarms` (capture.live.alarms);
+`preflight` checks (capture.live.preflight); `ReplayCamera` (capture.live.replay_camera).
+Import them from their modules: each pulls in only what it needs.
 """

@@ -13,8 +13,12 @@ import shutil
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from capture.recording.gaps import GAP_PERIODS, MODULUS, OWN_CLOCK, Gap, Late, LossCounter
+
+if TYPE_CHECKING:
+    from capture.recording.writer import RecorderStats
 
 DISK_MINUTES_LOW = 10.0  # free disk below this many minutes of recording: alarm
 QUEUE_FULL = 0.5  # the recorder's queue above this fraction: alarm
@@ -86,11 +90,12 @@ def disk_minutes(free_bytes: int, bytes_per_s: float | None) -> float | None:
     return free_bytes / bytes_per_s / 60 if bytes_per_s and bytes_per_s > 0 else None
 
 
-def recorder_alarms(stats: object | None) -> list[Alarm]:
+def recorder_alarms(stats: RecorderStats | None) -> list[Alarm]:
     """The writer's queue filling up (the disk is slower than the data)."""
-    depth = getattr(stats, "queue_depth", None)
-    size = getattr(stats, "queue_size", None)
-    if depth is None or not size or depth <= QUEUE_FULL * size:
+    if stats is None:
+        return []
+    depth, size = stats.queue_depth, stats.queue_size
+    if not size or depth <= QUEUE_FULL * size:
         return []
     level = "error" if depth >= 0.9 * size else "warning"
     return [Alarm(level, f"writer queue {100 * depth // size:.0f} % full: the disk falls behind")]
@@ -154,9 +159,9 @@ class TrialAlarms:
                 self._disk_free = None
         return self._disk_free
 
-    def state(self, now_ns: int, recorder_stats: object | None, events: list) -> AlarmState:
+    def state(self, now_ns: int, recorder_stats: RecorderStats | None, events: list) -> AlarmState:
         out = AlarmState()
-        rate = getattr(recorder_stats, "bytes_per_s", None)
+        rate = recorder_stats.bytes_per_s if recorder_stats is not None else None
         if rate:
             self.write_rate = float(rate)
         out.disk_free_bytes = self._disk(now_ns)

@@ -17,6 +17,7 @@ from devices.clock import now_ns
 from devices.frames import MODES, DepthFrame
 from devices.rotations import quat_multiply, quat_slerp
 from inference.errors import InferenceError
+from inference.fusion import FusionOutput
 
 # One torch thread for the per-frame CNN: the pipeline shares the cores with the devices and
 # the recorder, and torch's thread pool spinning against them costs far more than it gains.
@@ -60,11 +61,6 @@ class OrientationTrack:
                 self._times.popleft()
                 self._quats.popleft()
             self._new.notify_all()
-
-    @property
-    def latest_ns(self) -> int | None:
-        with self._lock:
-            return self._times[-1] if self._times else None
 
     def wait_until(self, time_ns: int, timeout_s: float) -> bool:
         """Wait until a sample at or after `time_ns` arrived (so we interpolate, not hold)."""
@@ -152,7 +148,7 @@ class FrameResult:
     flag: str  # "" or why the image is empty
     probabilities: np.ndarray  # CNN softmax, 5
     cnn_decision: int
-    fused: object | None  # inference.fusion.FusionOutput: refers to an earlier frame
+    fused: FusionOutput | None  # refers to an earlier frame
     features: dict = field(default_factory=dict)
     done_ns: int = 0  # when the fused decision was ready
 
@@ -267,7 +263,9 @@ class Pipeline:
             done_ns=done_ns,
         )
 
-    def _push(self, frame_index: int, probs: np.ndarray, elevation_deg: float = float("nan")):
+    def _push(
+        self, frame_index: int, probs: np.ndarray, elevation_deg: float = float("nan")
+    ) -> FusionOutput | None:
         """Push to the fusion (with the camera's elevation for gait cues); its output with
         push numbers turned into frame indices."""
         self._frame_of_push[self._pushed] = frame_index
@@ -321,6 +319,46 @@ def record_decisions(recorder: Sink, r: FrameResult, decided_ns: int | None = No
     )
     if r.features:
         recorder.write_features(r.index, r.time_ns, r.features)
+
+
+def build_pipeline(config, classifier, params=None) -> Pipeline:
+    """The pipeline `config` (capture.config.Config) describes, around `classifier`: its
+    preprocessing (`params` when worked out already) and a fresh fusion."""
+    from inference.fusion import make_fusion
+    from inference.preprocess import PreprocessParams
+
+    f = config.fusion
+    fusion = make_fusion(
+        f.method,
+        window=f.window,
+        vote_delay=f.vote_delay,
+        transition=np.asarray(f.transition),
+        stay=f.stay,
+        evidence=f.evidence,
+        hysteresis=f.hysteresis,
+    )
+    return Pipeline(params or PreprocessParams.from_config(config), classifier, fusion)
+
+
+def software_metadata(config, pipeline: Pipeline | None, **extra) -> dict:
+    """The "software" metadata record: which walkcap, model, fusion and preprocessing made a
+    recording's decisions (None: no pipeline built yet); `extra` entries added (scheduling,
+    what a replay replays)."""
+    from capture import __version__
+    from capture.recording.topics import jsonable
+
+    f = config.fusion
+    return {
+        "walkcap_version": __version__,
+        "model_path": config.model.path or "bundled",
+        "model_hash": model_hash(pipeline.classifier if pipeline else None),
+        "fusion_method": f.method,
+        "fusion_window": f.window,
+        "fusion_vote_delay": f.vote_delay,
+        "fusion_transition": jsonable(f.transition),
+        "preprocess": jsonable(pipeline.params.to_dict() if pipeline else {}),
+        **extra,
+    }
 
 
 def model_hash(classifier) -> str:

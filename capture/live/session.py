@@ -21,33 +21,39 @@ import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from capture import __version__
 from capture import config as config_mod
 from capture.errors import CaptureError, ConfigError
 from capture.live.alarms import AlarmState, TrialAlarms
+from capture.live.devices import close_devices, devices_metadata, open_devices, stream_periods
+from capture.live.handover import FrameInbox, Streak
+from capture.live.labels import LabelBook, LabelChange
 from capture.live.pipeline import (
     CNN_THREADS,
     IMU_LATE_S,
     FrameResult,
     OrientationTrack,
     Pipeline,
-    model_hash,
+    build_pipeline,
     record_decisions,
+    software_metadata,
 )
-from capture.recording import topics as T
+from capture.live.timeline import FrameTimeline, TimelineEntry
 from capture.recording.sink import Sink
 from devices.base import DeviceEvent, DeviceState, DeviceStatus
 from devices.clock import now_ns
-from devices.frames import MODES, DepthFrame
+from devices.frames import DepthFrame
 from devices.scheduling import NORMAL_PRIORITY, realtime_priority
 from inference.errors import InferenceError
 
+if TYPE_CHECKING:  # the writer's imports take a second: Recorder is imported when it records
+    from capture.recording.writer import RecorderStats
+
 log = logging.getLogger(__name__)
 
-TIMELINE_S = 20.0
 TRIAL_MAX = 99_999  # trial numbers name files (t01 ... t99999) and fit every integer field
 SWITCH_INTERVAL_S = 0.0005
 
@@ -96,48 +102,6 @@ class SubjectInfo:
 
 
 @dataclass
-class LabelChange:
-    time_ns: int
-    mode: str
-    source: str  # operator | undo | simulator
-
-
-@dataclass
-class TimelineEntry:
-    index: int
-    time_ns: int
-    label: str | None
-    cnn: int
-    fused: int | None = None  # filled in when the fused decision for this frame arrives
-    voted: int | None = None
-    truth: str | None = None
-
-
-SWITCHES_S = 60.0  # the live screen counts the fused decision's switches over this long
-
-
-class SwitchCounter:
-    """Changes of the final fused decision over the last `span_s` of frame time."""
-
-    def __init__(self, span_s: float) -> None:
-        self.span_ns = int(span_s * 1e9)
-        self._last: int | None = None
-        self._times: collections.deque[int] = collections.deque()
-
-    def add(self, time_ns: int, final: int | None) -> None:
-        """The final decision made at `time_ns` (None: none made then)."""
-        if final is not None:
-            if self._last is not None and final != self._last:
-                self._times.append(time_ns)
-            self._last = final
-        while self._times and self._times[0] < time_ns - self.span_ns:
-            self._times.popleft()
-
-    def count(self) -> int:
-        return len(self._times)
-
-
-@dataclass
 class Snapshot:
     """Everything the UI shows, copied out under the lock: the UI never touches threads."""
 
@@ -150,11 +114,11 @@ class Snapshot:
     latest: FrameResult | None
     timeline: list[TimelineEntry]
     events: list[DeviceEvent]
-    recording: object | None  # capture.recording.writer.RecorderStats
+    recording: RecorderStats | None
     recording_started_ns: int | None
     frames: int
     latency_ms: dict
-    switches_last_minute: int | None = None  # final fused decision changes in SWITCHES_S
+    switches_last_minute: int | None = None  # final fused decision changes (timeline.SWITCHES_S)
     walker_mode: str | None = None  # mock devices: the walker's locomotion mode, to key
     alarms: AlarmState | None = None  # gaps this trial, and what the operator must see now
     stale_frames: int = 0  # frames of this (or the last) trial left undecided: stale IMU
@@ -165,155 +129,6 @@ HOST_STALL_NS = 1_000_000_000  # the monitor (every 0.2 s) not run for this long
 # Threads carrying raw data in: the rig's reader, the IMU driver's and this session's
 # camera and IMU threads (the IMU's share one name).
 INTAKE_THREADS = ("walkcap-rig-reader", "walkcap-imu", "walkcap-camera")
-
-
-def stream_periods(config: config_mod.Config) -> dict[str, float]:
-    """The configured period of each sensor stream (what a gap is measured against)."""
-    return {"camera": 1.0 / config.camera.fps, "imu": 1.0 / config.imu.rate_hz}
-
-
-def open_devices(config: config_mod.Config, camera=None, imu=None):
-    """The configured camera and IMU, opened and configured, not yet started.
-
-    On a mock walk the IMU emulator feels the same thigh the camera rides on: both count
-    walk time from one instant, as a real sensor pair on one leg would. In real time (the
-    default) both run in a child process, the mock rig, as hardware runs outside the host.
-    """
-    from devices.camera import open_camera
-    from devices.imu import open_imu
-
-    sim = config.simulator
-    if (
-        camera is None
-        and imu is None
-        and config.camera.backend == "mock"
-        and config.imu.backend == "mock"
-        and sim.realtime
-        and sim.process
-    ):
-        return _open_rig(config)
-    if camera is None:
-        camera = open_camera(config.camera, config.simulator)
-    try:
-        camera.open()
-        if imu is None:
-            if hasattr(camera, "orientation_at"):
-                camera.start_time_ns = now_ns()
-                offset = {"s": 0.0}  # emulator start - camera start, known once it runs
-                imu = open_imu(
-                    config.imu, orientation_at=lambda t: camera.orientation_at(t + offset["s"])
-                )
-                emulator = getattr(imu, "emulator", None)
-                if emulator is not None and emulator.start_time_ns is not None:
-                    offset["s"] = (emulator.start_time_ns - camera.start_time_ns) * 1e-9
-            else:
-                imu = open_imu(config.imu)
-        imu.open()
-    except BaseException:
-        close_devices(imu, camera)
-        raise
-    return camera, imu
-
-
-def _open_rig(config: config_mod.Config):
-    from devices.simulator.rig import MockRig
-
-    rig = MockRig(config.camera, config.simulator, config.imu)
-    camera = imu = None
-    try:
-        camera, imu = rig.camera(), rig.imu()
-        camera.open()
-        imu.open()
-    except BaseException:
-        close_devices(imu, camera)
-        rig.close()
-        raise
-    return camera, imu
-
-
-def close_devices(*devices) -> None:
-    """Stop and close each device; one failing (a lost device) never keeps another open."""
-    for device in devices:
-        if device is None:
-            continue
-        for step in ("stop", "close"):
-            try:
-                getattr(device, step)()
-            except Exception as e:
-                log.warning("%s %s: %s", step, type(device).__name__, e)
-
-
-class _FrameInbox:
-    """The camera thread's hand-over to the pipeline thread: (frame, recorder) items, up to
-    `size` (a hiccup of the pipeline is caught up, as the camera's buffer did). Full in real
-    time, the oldest item goes unclassified (it is already recorded); `blocking`, the camera
-    thread waits for the pipeline instead."""
-
-    def __init__(self, size: int = 8) -> None:
-        self._items: collections.deque[tuple] = collections.deque()
-        self.size = max(1, size)
-        self._closed = False
-        self.blocking = False
-        self._cond = threading.Condition()
-
-    def put(self, item: tuple) -> tuple | None:
-        """Hand `item` over; the oldest one it pushed out, if any."""
-        with self._cond:
-            while self.blocking and len(self._items) >= self.size and not self._closed:
-                self._cond.wait(0.1)
-            dropped = self._items.popleft() if len(self._items) >= self.size else None
-            self._items.append(item)
-            self._cond.notify_all()
-            return dropped
-
-    def take(self, timeout_s: float) -> tuple | None:
-        with self._cond:
-            if not self._items and timeout_s > 0:
-                self._cond.wait(timeout_s)
-            item = self._items.popleft() if self._items else None
-            self._cond.notify_all()
-            return item
-
-    def close(self) -> None:
-        with self._cond:
-            self._closed = True
-            self._cond.notify_all()
-
-
-class _Streak:
-    """A run of frames that failed the same way, as two events: when it starts, and when
-    it ends (`settle` frames in a row go through again, or the trial stops) with how many
-    frames it cost. A flaky classifier is one run, not an event per frame."""
-
-    def __init__(self, device: str, kind: str, why: str, settle: int = 30) -> None:
-        self.device, self.kind, self.why = device, kind, why
-        self.settle = settle
-        self.count = 0
-        self.first = ""
-        self._good = 0
-        self._lock = threading.Lock()
-
-    def fail(self, t_ns: int, message: str) -> DeviceEvent | None:
-        with self._lock:
-            self._good = 0
-            self.count += 1
-            if self.count > 1:
-                return None
-            self.first = message
-        text = f"{message} ({self.why}; frames not classified from here on are counted)"
-        return DeviceEvent(t_ns, self.device, self.kind, text, {"count": 1})
-
-    def ok(self, t_ns: int, final: bool = False) -> DeviceEvent | None:
-        with self._lock:
-            n, first = self.count, self.first
-            if n == 0:
-                return None
-            self._good += 1
-            if self._good < self.settle and not final:
-                return None
-            self.count = self._good = 0
-        text = f"{n} frames not classified: {self.why} (first: {first})"
-        return DeviceEvent(t_ns, self.device, self.kind, text, {"count": n})
 
 
 class Session:
@@ -339,24 +154,16 @@ class Session:
         self._threads: list[threading.Thread] = []
         self._recorder = None
         self._recording_started_ns: int | None = None
-        self._label: str | None = None
-        self._label_history: list[LabelChange] = []
-        self._latest: FrameResult | None = None
-        self._timeline: collections.deque[TimelineEntry] = collections.deque()
-        self._by_index: dict[int, TimelineEntry] = {}
+        self.labels = LabelBook()
+        self.timeline = FrameTimeline()
         self._events: collections.deque[DeviceEvent] = collections.deque(maxlen=200)
-        self._latencies: collections.deque[float] = collections.deque(maxlen=2000)
-        self._latency_sinks: list[Callable[[float], None]] = []
         self._taps: tuple[Sink, ...] = ()  # live outputs beside the recorder (LSL, Foxglove)
         self._sync_errors: collections.deque[float] = collections.deque(maxlen=5000)
-        self._frames = 0
-        self._stale_frames = 0
         self._last_truth_mode: str | None = None
         self._walker_mode: str | None = None
-        self._switches = SwitchCounter(SWITCHES_S)
-        self._inbox = _FrameInbox()
-        self._failures = _Streak("pipeline", "error", "the pipeline failed on it")
-        self._behind = _Streak("pipeline", "behind", "the pipeline fell behind")
+        self._inbox = FrameInbox()
+        self._failures = Streak("pipeline", "error", "the pipeline failed on it")
+        self._behind = Streak("pipeline", "behind", "the pipeline fell behind")
         self.pipeline: Pipeline | None = None
         self.pipeline_priority = NORMAL_PRIORITY  # how the pipeline thread is scheduled
         self.intake_scheduling = NORMAL_PRIORITY  # how the intake threads and writer are
@@ -370,9 +177,7 @@ class Session:
 
     def start(self) -> None:
         """Load the model, open both devices and start the threads."""
-        from inference.fusion import make_fusion
         from inference.model import load_classifier
-        from inference.preprocess import PreprocessParams
 
         cfg = self.config
         if not 0 <= cfg.session.realtime_priority <= 99:
@@ -383,16 +188,7 @@ class Session:
         if self._classifier is None:
             self._classifier = load_classifier(cfg.model.path or None, threads=CNN_THREADS)
         self.model_metadata = dict(getattr(self._classifier, "metadata", {}) or {})
-        fusion = make_fusion(
-            cfg.fusion.method,
-            window=cfg.fusion.window,
-            vote_delay=cfg.fusion.vote_delay,
-            transition=np.asarray(cfg.fusion.transition),
-            stay=cfg.fusion.stay,
-            evidence=cfg.fusion.evidence,
-            hysteresis=cfg.fusion.hysteresis,
-        )
-        self.pipeline = Pipeline(PreprocessParams.from_config(cfg), self._classifier, fusion)
+        self.pipeline = build_pipeline(cfg, self._classifier)
         # First calls are slow (torch's lazy set-up, numpy caches, the recorder's schema
         # modules): pay for them before the camera runs, not in the first frames of a trial.
         try:
@@ -570,10 +366,6 @@ class Session:
 
     # ---- per frame --------------------------------------------------------------------
 
-    def process_frame(self, frame: DepthFrame) -> FrameResult | None:
-        """One frame, start to end: recorded, then classified (None when that fails)."""
-        return self.classify_frame(frame, self.record_frame(frame))
-
     def record_frame(self, frame: DepthFrame) -> Sink | None:
         """The raw frame, its truth and an automatic label: written before any processing.
         Returns the recorder it went to (None between trials)."""
@@ -636,7 +428,8 @@ class Session:
             )
             record_decisions(out, result)
         truth_mode = frame.truth.get("mode") if frame.truth else None
-        self._publish(result, truth_mode)
+        votes = getattr(self.pipeline.fusion, "votes", False)
+        self.timeline.publish(result, self.labels.label, truth_mode, votes)
         return result
 
     def _report(self, event: DeviceEvent | None, say: bool = False) -> None:
@@ -645,32 +438,6 @@ class Session:
                 log.warning("%s: %s", event.device, event.message)
             self._event(event)
 
-    def _publish(self, r: FrameResult, truth_mode: str | None) -> None:
-        entry = TimelineEntry(r.index, r.time_ns, self._label, r.cnn_decision, truth=truth_mode)
-        horizon = r.time_ns - int(TIMELINE_S * 1e9)
-        with self._lock:
-            self._latest = r
-            self._frames += 1
-            self._stale_frames += not r.decided
-            self._timeline.append(entry)
-            self._by_index[r.index] = entry
-            while self._timeline and self._timeline[0].time_ns < horizon:
-                self._by_index.pop(self._timeline.popleft().index, None)
-            fused = r.fused
-            if fused is not None:
-                e = self._by_index.get(fused.frame_index)
-                if e is not None:
-                    e.fused = fused.decision
-                if fused.voted is not None:
-                    e = self._by_index.get(fused.voted_frame_index)
-                    if e is not None:
-                        e.voted = fused.voted
-                votes = getattr(getattr(self.pipeline, "fusion", None), "votes", False)
-                self._switches.add(r.time_ns, fused.voted if votes else fused.decision)
-            self._latencies.append(r.latency_ms)
-            for sink in self._latency_sinks:
-                sink(r.latency_ms)
-
     def add_latency_sink(self, sink: Callable[[float], None]) -> None:
         """Call `sink(ms)` with every frame's pipeline latency, in frame order.
 
@@ -678,8 +445,7 @@ class Session:
         sees exactly the frames a snapshot counts. It must be quick and must not call back
         into the session.
         """
-        with self._lock:
-            self._latency_sinks.append(sink)
+        self.timeline.add_latency_sink(sink)
 
     @property
     def rig_pid(self) -> int | None:
@@ -693,27 +459,19 @@ class Session:
         self, mode: str, source: str = "operator", time_ns: int | None = None
     ) -> LabelChange:
         """The true mode from now on. Stamped here, at the key press, not at the next frame."""
-        if mode not in MODES:
-            raise CaptureError(f"unknown mode {mode!r} (one of {', '.join(MODES)})")
-        change = LabelChange(now_ns() if time_ns is None else time_ns, mode, source)
-        with self._lock:
-            self._label_history.append(change)
-            self._label = mode
+        change = self.labels.change(mode, source, now_ns() if time_ns is None else time_ns)
         for out in self._outputs():
             out.write_label(change.time_ns, mode, source)
         return change
 
     def undo_label(self) -> LabelChange | None:
         """Take back the last change: the mode before it applies again from now on."""
-        with self._lock:
-            if not self._label_history:
-                return None
-            undone = self._label_history.pop()
-            previous = self._label_history[-1].mode if self._label_history else None
-            self._label = previous
-        change = LabelChange(now_ns(), previous or "", "undo")
+        undo = self.labels.undo(now_ns())
+        if undo is None:
+            return None
+        change, undone = undo
         for out in self._outputs():
-            out.write_label(change.time_ns, previous or "", f"undo:{undone.mode}")
+            out.write_label(change.time_ns, change.mode, f"undo:{undone.mode}")
         return change
 
     def add_marker(self, note: str = "", time_ns: int | None = None) -> None:
@@ -741,7 +499,7 @@ class Session:
 
     @property
     def label(self) -> str | None:
-        return self._label
+        return self.labels.label
 
     @property
     def recording(self) -> bool:
@@ -785,13 +543,13 @@ class Session:
         recorder.start()
         self.alarms.recordings = folder
         self.alarms.new_trial()
-        with self._lock:
-            self._stale_frames = 0  # counted per trial, as the file counts them
+        self.timeline.new_trial()
         self._recorder = recorder
         self.trial = info
         self._recording_started_ns = now_ns()
-        if self._label is not None:  # the mode in force when the trial starts
-            recorder.write_label(self._recording_started_ns, self._label, "start")
+        label = self.labels.label
+        if label is not None:  # the mode in force when the trial starts
+            recorder.write_label(self._recording_started_ns, label, "start")
         return path
 
     def _free_trial(
@@ -816,33 +574,13 @@ class Session:
 
     def _metadata(self, info: SubjectInfo) -> dict[str, dict]:
         cfg = self.config
-        cam = self._camera.status() if self._camera else None
-        imu = self._imu.status() if self._imu else None
-        devices = {
-            "camera_backend": cfg.camera.backend,
-            "camera_fps": cfg.camera.fps,
-            "camera_use_case": cfg.camera.use_case,
-            "camera_details": T.jsonable(cam.details if cam else {}),
-            "imu_backend": cfg.imu.backend,
-            "imu_port": cfg.imu.port,
-            "imu_rate_hz": cfg.imu.rate_hz,
-            "imu_info": T.jsonable(getattr(self._imu, "info", {}) or {}),
-            "imu_details": T.jsonable(imu.details if imu else {}),
-        }
-        if cfg.camera.backend == "mock":
-            devices["simulator"] = T.jsonable(dataclasses.asdict(cfg.simulator))
-        software = {
-            "walkcap_version": __version__,
-            "model_path": cfg.model.path or "bundled",
-            "model_hash": model_hash(self._classifier),
-            "fusion_method": cfg.fusion.method,
-            "fusion_window": cfg.fusion.window,
-            "fusion_vote_delay": cfg.fusion.vote_delay,
-            "fusion_transition": T.jsonable(cfg.fusion.transition),
-            "preprocess": T.jsonable(self.pipeline.params.to_dict() if self.pipeline else {}),
-            "pipeline_priority": self.pipeline_priority,
-            "intake_priority": self.intake_scheduling,
-        }
+        devices = devices_metadata(cfg, self._camera, self._imu)
+        software = software_metadata(
+            cfg,
+            self.pipeline,
+            pipeline_priority=self.pipeline_priority,
+            intake_priority=self.intake_scheduling,
+        )
         session = info.to_metadata()
         session["operator"] = cfg.session.operator
         return {"session": session, "devices": devices, "software": software}
@@ -857,33 +595,27 @@ class Session:
 
     def snapshot(self) -> Snapshot:
         with self._lock:
-            latencies = np.asarray(self._latencies) if self._latencies else None
+            events = list(self._events)
             sync = np.asarray(self._sync_errors) if self._sync_errors else None
-            snap = Snapshot(
-                time_ns=now_ns(),
-                running=not self._stop.is_set(),
-                camera=None,
-                imu=None,
-                sync={},
-                label=self._label,
-                latest=self._latest,
-                timeline=list(self._timeline),  # entries only gain a late fused decision
-                switches_last_minute=self._switches.count(),
-                walker_mode=self._walker_mode,
-                events=list(self._events),
-                recording=None,
-                recording_started_ns=self._recording_started_ns,
-                frames=self._frames,
-                stale_frames=self._stale_frames,
-                latency_ms={}
-                if latencies is None
-                else {
-                    "p50": float(np.median(latencies)),
-                    "p99": float(np.percentile(latencies, 99)),
-                },
-            )
-        snap.camera = self._camera.status() if self._camera else None
-        snap.imu = self._imu.status() if self._imu else None
+        published = self.timeline.published()
+        snap = Snapshot(
+            time_ns=now_ns(),
+            running=not self._stop.is_set(),
+            camera=self._camera.status() if self._camera else None,
+            imu=self._imu.status() if self._imu else None,
+            sync={},
+            label=self.labels.label,
+            latest=published.latest,
+            timeline=published.timeline,
+            switches_last_minute=published.switches_last_minute,
+            walker_mode=self._walker_mode,
+            events=events,
+            recording=None,
+            recording_started_ns=self._recording_started_ns,
+            frames=published.frames,
+            stale_frames=published.stale_frames,
+            latency_ms=published.latency_ms,
+        )
         if sync is not None:
             snap.sync = {"p50_ms": float(np.median(sync)), "p99_ms": float(np.percentile(sync, 99))}
         rec = self._recorder

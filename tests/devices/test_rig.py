@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from capture.config import Config
-from capture.live.session import close_devices, open_devices
+from capture.live.devices import close_devices, open_devices
 from devices.errors import DeviceInitError
 from devices.simulator.rig import RigCamera, RigImu
 
@@ -98,7 +98,7 @@ def test_the_rig_ends_when_the_host_dies(tmp_path):
     script.write_text(
         "import sys, time\n"
         "from capture.config import Config\n"
-        "from capture.live.session import open_devices\n"
+        "from capture.live.devices import open_devices\n"
         "camera, imu = open_devices(Config())\n"
         "print(camera.rig._child.pid, flush=True)\n"
         "time.sleep(60)\n"
@@ -106,8 +106,7 @@ def test_the_rig_ends_when_the_host_dies(tmp_path):
     host = subprocess.Popen(
         [sys.executable, str(script)],
         stdout=subprocess.PIPE,
-        text=True,
-        env={**os.environ, "PYTHONPATH": os.getcwd()},
+        text=True,  # this checkout's code: conftest puts it on PYTHONPATH
     )
     try:
         child = int(host.stdout.readline())

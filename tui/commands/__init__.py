@@ -26,17 +26,78 @@ def count(minimum: int, maximum: int | None = None):
     return parse
 
 
-def seconds(text: str) -> float:
-    """An argparse type: a positive, finite number of seconds."""
+def positive(unit: str, *, zero: bool = False, maximum: float | None = None):
+    """An argparse type: a finite number of `unit` above 0 (at least 0 with `zero`; at most
+    `maximum`), else a one-line usage error."""
     import math
 
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected seconds, got {text!r}") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"must be a positive number of seconds, got {text}")
-    return value
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {unit}, got {text!r}") from None
+        low = value >= 0 if zero else value > 0
+        if math.isfinite(value) and low and (maximum is None or value <= maximum):
+            return value
+        if maximum is not None:
+            valid = f"expected {'0 <=' if zero else '0 <'} {unit} <= {maximum:g}"
+        elif zero:
+            valid = f"must be a number of {unit} >= 0"
+        else:
+            valid = f"must be a positive number of {unit}"
+        raise argparse.ArgumentTypeError(f"{valid}, got {text}")
+
+    return parse
+
+
+seconds = positive("seconds")
+
+
+_KINDS = {float: "a number", int: "an integer", str: "text"}
+
+
+def config_value(dotted: str, parse=float):
+    """An argparse type: a value for the configuration key `dotted` ("camera.fps"), held to
+    the configuration's own type and range check; out of range, a one-line usage error."""
+
+    def check(text: str):
+        from capture.config import Config, override
+        from capture.errors import ConfigError
+
+        try:
+            value = parse(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {_KINDS[parse]}, got {text!r}") from None
+        try:
+            override(Config(), dotted, value)
+        except ConfigError as e:
+            raise argparse.ArgumentTypeError(str(e)) from None
+        return value
+
+    return check
+
+
+def subject_value(field: str, parse=str):
+    """An argparse type: a value of the session form's `field`, held to the form's own check
+    (capture.live.session.SubjectInfo.validate); out of range, a one-line usage error."""
+
+    def check(text: str):
+        import dataclasses
+
+        from capture.errors import CaptureError
+        from capture.live.session import SubjectInfo
+
+        try:
+            value = parse(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {_KINDS[parse]}, got {text!r}") from None
+        try:
+            dataclasses.replace(SubjectInfo(), **{field: value}).validate()
+        except CaptureError as e:
+            raise argparse.ArgumentTypeError(str(e)) from None
+        return value
+
+    return check
 
 
 def folder(text: str) -> str:
@@ -72,11 +133,23 @@ def finish_recording(command: str, stats, path) -> int:
 def add_device_arguments(parser, camera_backends: str = "mock | royale") -> None:
     """The device and model flags `record` and `tui` share (they override the config file)."""
     g = parser.add_argument_group("devices")
-    g.add_argument("--camera", metavar="BACKEND", help=f"camera backend: {camera_backends}")
-    g.add_argument("--imu", metavar="BACKEND", help="IMU backend: mock | serial")
+    g.add_argument(
+        "--camera",
+        type=config_value("camera.backend", str),
+        metavar="BACKEND",
+        help=f"camera backend: {camera_backends}",
+    )
+    g.add_argument(
+        "--imu",
+        type=config_value("imu.backend", str),
+        metavar="BACKEND",
+        help="IMU backend: mock | serial",
+    )
     g.add_argument("--port", help="IMU serial port (backend serial)")
-    g.add_argument("--fps", type=float, help="camera frame rate")
-    g.add_argument("--imu-rate", type=int, metavar="HZ", help="IMU output rate")
+    g.add_argument("--fps", type=config_value("camera.fps"), help="camera frame rate")
+    g.add_argument(
+        "--imu-rate", type=config_value("imu.rate_hz", int), metavar="HZ", help="IMU output rate"
+    )
     g.add_argument(
         "-o",
         "--out",
@@ -93,8 +166,16 @@ def add_device_arguments(parser, camera_backends: str = "mock | royale") -> None
 def add_session_arguments(parser) -> None:
     """The session form's fields as flags (`record` and `tui` share them); unset: not given."""
     g = parser.add_argument_group("session metadata")
-    g.add_argument("--subject", help="pseudonymous subject id (default: S01)")
-    g.add_argument("--condition", help="e.g. indoor / outdoor (default: the mock course)")
+    g.add_argument(
+        "--subject",
+        type=subject_value("subject"),
+        help="pseudonymous subject id (default: S01)",
+    )
+    g.add_argument(
+        "--condition",
+        type=subject_value("condition"),
+        help="e.g. indoor / outdoor (default: the mock course)",
+    )
     g.add_argument(
         "--trial",
         type=count(1, TRIAL_MAX),
@@ -103,9 +184,21 @@ def add_session_arguments(parser) -> None:
         "recordings folder); `record` refuses one that exists unless --overwrite, the UI "
         "moves on to the next free number and says so",
     )
-    g.add_argument("--height", type=float, metavar="M", dest="height_m", help="height in metres")
-    g.add_argument("--weight", type=float, metavar="KG", dest="weight_kg", help="weight in kg")
-    g.add_argument("--age", type=int, help="age in years")
+    g.add_argument(
+        "--height",
+        type=subject_value("height_m", float),
+        metavar="M",
+        dest="height_m",
+        help="height in metres",
+    )
+    g.add_argument(
+        "--weight",
+        type=subject_value("weight_kg", float),
+        metavar="KG",
+        dest="weight_kg",
+        help="weight in kg",
+    )
+    g.add_argument("--age", type=subject_value("age", int), help="age in years")
     g.add_argument("--sex", choices=("female", "male", "other"), help="(default: not given)")
     g.add_argument("--amputee", action="store_true", default=None, help="the subject is an amputee")
     g.add_argument(
@@ -163,7 +256,7 @@ def course_condition(args, config) -> str | None:
     """
     if config.camera.backend != "mock":
         return None
-    condition, course = getattr(args, "condition", None), getattr(args, "course", None)
+    condition, course = args.condition, args.course
     if condition is None:
         args.condition = config.simulator.course
         return None

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import sys
 
-from tui.commands import bench_corpus
+from tui.commands import bench_corpus, positive, seconds
 
 HELP = "measure speed, latency and size on mock devices"
 
@@ -13,11 +13,11 @@ HELP = "measure speed, latency and size on mock devices"
 def add_arguments(parser) -> None:
     parser.add_argument("--json", action="store_true", help="machine-readable results")
     parser.add_argument(
-        "--seconds", type=float, default=15.0, help="length of each mock session run (default 15)"
+        "--seconds", type=seconds, default=15.0, help="length of each mock session run (default 15)"
     )
     parser.add_argument(
         "--soak",
-        type=float,
+        type=positive("minutes"),
         metavar="MINUTES",
         help="instead: a full mock session at 45 fps for MINUTES; "
         "memory and latency over time, drops",
@@ -33,10 +33,7 @@ def add_arguments(parser) -> None:
 
 def run(args, config) -> int:
     from capture import bench
-    from capture.errors import CaptureError
 
-    if args.seconds <= 0 or (args.soak is not None and args.soak <= 0):
-        raise CaptureError("durations must be positive")
     say = (lambda line: None) if args.json else (lambda line: print(f"… {line}", file=sys.stderr))
     if args.soak is not None:
         return _soak(bench, args.soak, args.json)

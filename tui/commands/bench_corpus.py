@@ -25,14 +25,18 @@ import tempfile
 import time
 from pathlib import Path
 
+from tui.commands import count
+
 
 def add_arguments(parser) -> None:
     parser.add_argument(
-        "--sessions", type=int, default=16, metavar="N", help="sessions (default 16)"
+        "--sessions", type=count(2), default=16, metavar="N", help="sessions (default 16)"
     )
-    parser.add_argument("--rounds", type=int, default=2, metavar="N", help="A/B rounds (default 2)")
     parser.add_argument(
-        "--frames", type=int, default=0, metavar="N", help="at most N frames a session"
+        "--rounds", type=count(1), default=2, metavar="N", help="A/B rounds (default 2)"
+    )
+    parser.add_argument(
+        "--frames", type=count(0), default=0, metavar="N", help="at most N frames a session"
     )
 
 
@@ -126,8 +130,6 @@ def run(args, config) -> int:
     from capture import bench
     from capture.errors import CaptureError
 
-    if args.sessions < 2 or args.rounds < 1:
-        raise CaptureError("--sessions must be at least 2 and --rounds at least 1")
     address, n = args.cluster, str(args.sessions)
     frames = ["--frames", str(args.frames)] if args.frames else []
     say = lambda line: print(f"… {line}", file=sys.stderr, flush=True)  # noqa: E731

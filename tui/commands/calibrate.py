@@ -47,7 +47,7 @@ def add_arguments(parser) -> None:
 
 
 def run(args, config) -> int:
-    from capture.live.session import close_devices
+    from capture.live.devices import close_devices
     from inference.calibration import CalibrationError, estimate_mounting
 
     if not args.seconds > 0:
@@ -132,7 +132,7 @@ def open_devices(config):
     """The configured camera and IMU, opened as a session opens them; a mock walker stands."""
     import copy
 
-    from capture.live.session import open_devices as open_session_devices
+    from capture.live.devices import open_devices as open_session_devices
 
     if config.camera.backend == "mock":
         config = copy.deepcopy(config)  # standing is for this run, never saved

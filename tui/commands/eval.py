@@ -17,7 +17,7 @@ import json
 import math
 from pathlib import Path
 
-from tui.commands import add_cluster_argument, count, eval_model
+from tui.commands import add_cluster_argument, count, eval_model, positive
 
 HELP = "evaluate classifiers and fusion on score files or recordings"
 
@@ -118,7 +118,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("files", nargs="+", metavar="FILE.csv", help="score files, one per trial")
     p.add_argument(
         "--fps",
-        type=float,
+        type=positive("HZ", maximum=1000),
         default=15.0,
         metavar="HZ",
         help="frames a second, for times (default: 15, the paper's camera)",
@@ -178,8 +178,6 @@ def run(args, config) -> int:
     params = ev.FusionParameters(window, vote_delay, transition, args.lag, *steady)
 
     if args.eval_command == "scores":
-        if not 0 < args.fps <= 1000:
-            raise InferenceError(f"--fps: expected 0 < HZ <= 1000, got {args.fps:g}")
         trials = [ev.read_scores(path, args.fps) for path in args.files]
     else:
         files = _recordings(args.files, args.replays)

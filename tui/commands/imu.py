@@ -8,9 +8,10 @@ import os
 import sys
 import time
 
-from tui.commands import count, seconds
+from tui.commands import config_value, count, seconds
 
 HELP = "IMU tools: list ports, device info, stream, emulate, decode captures"
+_BAUD = config_value("imu.baudrate", int)  # one of the Xsens baud rates
 
 # `decode` keys, in output order (each only when the message has it).
 DECODE_KEYS = (
@@ -45,7 +46,7 @@ def add_arguments(parser) -> None:
         description="Identify the device on PORT without changing its output configuration.",
     )
     p.add_argument("port", help="serial port, e.g. /dev/ttyUSB0")
-    p.add_argument("--baudrate", type=int, help="default: [imu] baudrate")
+    p.add_argument("--baudrate", type=_BAUD, help="default: [imu] baudrate")
 
     p = verbs.add_parser(
         "set-baud",
@@ -55,8 +56,8 @@ def add_arguments(parser) -> None:
         "set [imu] baudrate to the same value.",
     )
     p.add_argument("port", help="serial port, e.g. /dev/ttyUSB0")
-    p.add_argument("baud", type=int, help="the new baud rate, e.g. 460800 or 921600")
-    p.add_argument("--baudrate", type=int, help="its baud rate now (default: [imu] baudrate)")
+    p.add_argument("baud", type=_BAUD, help="the new baud rate, e.g. 460800 or 921600")
+    p.add_argument("--baudrate", type=_BAUD, help="its baud rate now (default: [imu] baudrate)")
 
     p = verbs.add_parser(
         "stream",
@@ -65,7 +66,7 @@ def add_arguments(parser) -> None:
         "PORT 'mock' streams from an emulator in this process.",
     )
     p.add_argument("port", help="serial port, or 'mock'")
-    p.add_argument("--baudrate", type=int, help="default: [imu] baudrate")
+    p.add_argument("--baudrate", type=_BAUD, help="default: [imu] baudrate")
     p.add_argument("--rate", type=count(1, 2000), help="output rate in Hz (default: [imu] rate_hz)")
     p.add_argument("--seconds", type=seconds, help="stop after this long (default: Ctrl-C)")
     p.add_argument("--interval", type=seconds, default=0.5, help="seconds between lines")
@@ -87,13 +88,21 @@ def add_arguments(parser) -> None:
         type=count(1, 2000),
         help="output rate at power-up in Hz (default: [imu] rate_hz)",
     )
-    p.add_argument("--drift-ppm", type=float, help="device clock drift (default: [imu] drift_ppm)")
-    p.add_argument("--jitter-ms", type=float, help="transmit jitter (default: [imu] jitter_ms)")
+    p.add_argument(
+        "--drift-ppm",
+        type=config_value("imu.drift_ppm"),
+        help="device clock drift (default: [imu] drift_ppm)",
+    )
+    p.add_argument(
+        "--jitter-ms",
+        type=config_value("imu.jitter_ms"),
+        help="transmit jitter (default: [imu] jitter_ms)",
+    )
     p.add_argument("--seed", type=int, default=0, help="seed of the emulated motion (default 0)")
     p.add_argument(
         "--model", help="the model it plays, e.g. MTi-3, MTi-630 (default: [imu] emulate)"
     )
-    p.add_argument("--baudrate", type=int, help="its baud rate (default: [imu] baudrate)")
+    p.add_argument("--baudrate", type=_BAUD, help="its baud rate (default: [imu] baudrate)")
     p.add_argument("--seconds", type=seconds, help="stop after this long (default: Ctrl-C)")
 
     p = verbs.add_parser(

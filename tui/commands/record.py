@@ -56,11 +56,11 @@ def status_line(elapsed_s: float, total_s: float | None, snap) -> str:
 
     rec = snap.recording
     total = f" / {clock_text(total_s)}" if total_s else ""
-    drops = (getattr(rec, "dropped", 0) or 0) + sum(
+    drops = (rec.dropped if rec is not None else 0) + sum(
         s.dropped for s in (snap.camera, snap.imu) if s is not None
     )
     gaps = snap.alarms.gaps if snap.alarms is not None else {}
-    size = human_bytes(getattr(rec, "bytes_written", 0) or 0)
+    size = human_bytes(rec.bytes_written if rec is not None else 0)
     line = (
         f"REC {clock_text(elapsed_s)}{total}  frames {snap.frames}  drops {drops}  "
         f"gaps camera {gaps.get('camera', 0)} IMU {gaps.get('imu', 0)}  size {size}"
@@ -144,7 +144,7 @@ def run(args, config) -> int:
     print(
         f"{stats.duration_s:.1f} s, {stats.messages} messages, "
         f"{stats.bytes_written / 1e6:.1f} MB, dropped {stats.dropped}, "
-        f"derived shed {getattr(stats, 'shed', 0)}, "
+        f"derived shed {stats.shed}, "
         f"gaps camera {gaps.get('camera', 0)} IMU {gaps.get('imu', 0)}, "
         f"late deliveries camera {late.get('camera', 0)} IMU {late.get('imu', 0)}"
         + (

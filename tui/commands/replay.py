@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import sys
 
-from tui.commands import add_cluster_argument, finish_recording
+from tui.commands import add_cluster_argument, finish_recording, positive
 
 HELP = "run the pipeline again on recordings into new recordings (or view one with --tui)"
 
@@ -15,7 +15,12 @@ def add_arguments(parser) -> None:
         "files", nargs="+", metavar="FILE", help="walkcap recordings (.mcap), one or more"
     )
     pace = parser.add_mutually_exclusive_group()
-    pace.add_argument("--speed", type=float, metavar="X", help="X times the recorded pace")
+    pace.add_argument(
+        "--speed",
+        type=positive("times the recorded pace"),
+        metavar="X",
+        help="X times the recorded pace",
+    )
     pace.add_argument("--fast", action="store_true", help="as fast as possible (default)")
     parser.add_argument("--model", metavar="PATH", help="classifier weights (default: bundled)")
     parser.add_argument(
@@ -46,8 +51,6 @@ def run(args, config) -> int:
         from tui.replay import run_tui
 
         return run_tui(args.files[0], config)
-    if args.speed is not None and args.speed <= 0:
-        raise CaptureError("--speed must be positive")
     if args.cluster and args.speed is not None:
         raise CaptureError("--cluster replays as fast as possible: leave out --speed")
     if args.model:

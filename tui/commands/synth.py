@@ -13,7 +13,7 @@ metadata) for `walkcap train`. Session i uses seed S + i; "both" alternates pres
 
 from __future__ import annotations
 
-from tui.commands import SEED_MAX, add_cluster_argument, count
+from tui.commands import SEED_MAX, add_cluster_argument, count, positive
 
 HELP = "write simulated sessions (training sets and recordings)"
 _positive = count(1)
@@ -59,7 +59,7 @@ def add_arguments(parser) -> None:
     add_cluster_argument(parser, "each session")
     parser.add_argument(
         "--imu-error-deg",
-        type=float,
+        type=positive("degrees", zero=True),
         default=None,
         metavar="DEG",
         help="IMU roll/pitch error, RMS, drifting slowly (default 1.0: the MTi 1-series)",
@@ -82,10 +82,6 @@ def run(args, config) -> int:
 
     settings = SynthSettings(max_frames=args.frames or 0, vary_walker=not args.fixed_walker)
     if args.imu_error_deg is not None:
-        if args.imu_error_deg < 0:
-            from capture.errors import CaptureError
-
-            raise CaptureError(f"--imu-error-deg must be >= 0, got {args.imu_error_deg:g}")
         error = replace(settings.imu_error, roll_pitch_deg=args.imu_error_deg)
         settings = replace(settings, imu_error=error)
     paths = synth_dataset(

@@ -156,7 +156,7 @@ class DevicePanel(Widget):
     ) -> None:
         rows = device_rows("camera", camera) + device_rows("imu", imu, sync)
         status = {"camera": camera, "imu": imu}.get(last_event.device) if last_event else None
-        said = last_event is not None and last_event.kind == getattr(status, "state", None)
+        said = status is not None and last_event.kind == status.state
         if last_event is not None and not said:  # a lost device's state says it already
             rows.append(event_row(last_event))
         rows += pipeline or []

@@ -38,7 +38,3 @@ def mode_text(mode: str | int | None, *, bold: bool = True) -> Text:
     if name is None:
         return Text("--", style="dim")
     return Text(name, style=f"{'bold ' if bold else ''}#000000 on {MODE_COLORS[name]}")
-
-
-def state_text(state: str) -> Text:
-    return Text(state, style=f"bold {STATE_COLORS.get(state, '#888888')}")

@@ -9,13 +9,8 @@ from rich.table import Table
 from rich.text import Text
 from textual.widget import Widget
 
-from capture.recording.writer import RecorderState
+from capture.recording.writer import RecorderState, RecorderStats
 from tui.widgets.pacing import Pacer
-
-
-def _stat(stats: object, name: str, default=None):
-    value = getattr(stats, name, None)
-    return default if value is None else value
 
 
 def human_bytes(n: float) -> str:
@@ -50,7 +45,7 @@ class ByteRate:
 
 
 def recording_rows(
-    stats: object | None,
+    stats: RecorderStats | None,
     elapsed_s: float | None,
     path: Path | None,
     next_trial: str = "",
@@ -58,23 +53,21 @@ def recording_rows(
     idle: str = "○ not recording",
     gaps: dict | None = None,
 ) -> list[tuple[str, str, str]]:
-    """(label, value, style) lines for the panel, formatted. `stats`: RecorderStats."""
+    """(label, value, style) lines for the panel, formatted (`stats` None: no figures yet)."""
     if elapsed_s is None:
         return [(idle, "", "bold")] + ([(next_trial, "", "dim")] if next_trial else [])
     rows = [("● REC", clock_text(elapsed_s), "bold")]
-    if _stat(stats, "state") == RecorderState.FAILED:
-        rows.append(
-            ("FAILED", _stat(stats, "message", "") or "the recording stopped", "bold #e04040")
-        )
-    file = path or _stat(stats, "path")
+    if stats is not None and stats.state == RecorderState.FAILED:
+        rows.append(("FAILED", stats.message or "the recording stopped", "bold #e04040"))
+    file = path or (stats.path if stats is not None else None)
     if file is not None:  # two lines at the name's last "_" rather than cut anywhere
         head, sep, tail = Path(file).name.rpartition("_")
         rows.append(("file", f"{head}{sep}\n{tail}" if sep else tail, ""))
-    size = _stat(stats, "bytes_written")
+    size = stats.bytes_written if stats is not None else None
     if size is not None:
         rows.append(("size", human_bytes(size), ""))
     rows.append(("write", f"{human_bytes(write_rate)}/s" if write_rate is not None else "—", ""))
-    depth, capacity = _stat(stats, "queue_depth"), _stat(stats, "queue_size")
+    depth, capacity = (stats.queue_depth, stats.queue_size) if stats is not None else (None, 0)
     if depth is not None:  # items waiting for the writer thread; full means lost data
         busy = bool(capacity) and depth > capacity / 2
         pct = f"{100 * depth / capacity:.0f} % full" if capacity else f"{depth} items"
@@ -82,7 +75,7 @@ def recording_rows(
     if gaps is not None:
         cam, imu = gaps.get("camera", 0), gaps.get("imu", 0)
         rows.append(("gaps", f"camera {cam}, IMU {imu}", "bold #f0a020" if cam or imu else ""))
-    dropped = _stat(stats, "dropped")
+    dropped = stats.dropped if stats is not None else None
     rows.append(("dropped", f"{dropped or 0} messages", "bold #e04040" if dropped else ""))
     return rows
 
@@ -100,7 +93,7 @@ class RecordingPanel(Widget):
 
     def present(
         self,
-        stats: object | None,
+        stats: RecorderStats | None,
         elapsed_s: float | None,
         path: Path | None,
         next_trial: str = "",
@@ -109,10 +102,10 @@ class RecordingPanel(Widget):
         gaps: dict | None = None,
     ) -> None:
         """`next_trial` describes what the record key would start (shown while idle)."""
-        size = _stat(stats, "bytes_written")
+        size = stats.bytes_written if stats is not None else None
         rate = self._rate.add(now_ns, size) if size is not None else None
-        if rate is None:
-            rate = _stat(stats, "bytes_per_s") or None
+        if rate is None and stats is not None:
+            rate = stats.bytes_per_s or None
         rows = recording_rows(stats, elapsed_s, path, next_trial, rate, idle, gaps)
         if rows == self._rows:
             return

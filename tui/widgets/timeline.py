@@ -107,7 +107,7 @@ class TimelineStrips(Widget):
 
     def _rows(self) -> list[tuple[str, str]]:
         rows = list(self.ROWS)
-        if any(getattr(e, "truth", None) for e in self._entries):
+        if any(e.truth for e in self._entries):
             rows.append(("sim", "truth"))
         return rows
 

@@ -15,7 +15,7 @@ from mcap.writer import Writer
 from capture.corpus import selection as corpus
 from capture.corpus.export import corpus_tables, matlab_name, tables, write
 from capture.errors import CaptureError
-from capture.live.session import LabelChange
+from capture.live.labels import LabelChange
 from capture.recording import lineage, naming
 from capture.recording import topics as T
 from capture.recording.labels import effective_changes

@@ -92,18 +92,13 @@ def test_dataset_files_round_trip_and_bad_files_are_one_line(tmp_path):
         read_sessions([tmp_path / "empty"])
 
 
-def test_recording_reader_hook_feeds_the_same_code_path(tmp_path):
+def test_recording_reader_feeds_the_same_code_path(tmp_path, monkeypatch):
     import capture.corpus.dataset as dataset
 
     session = _drawn_sessions(1)[0]
     (tmp_path / "a.mcap").write_bytes(b"")
-    old = dict(dataset.READERS)
-    try:
-        dataset.register_reader(".mcap", lambda p: session)
-        assert read_sessions([tmp_path])[0] is session
-    finally:
-        dataset.READERS.clear()
-        dataset.READERS.update(old)
+    monkeypatch.setitem(dataset.READERS, ".mcap", lambda p: session)
+    assert read_sessions([tmp_path])[0] is session
 
 
 def test_train_and_eval_model_commands(tmp_path, capsys, monkeypatch):

@@ -75,3 +75,26 @@ def test_past_the_newest_sample_the_rate_of_turn_carries_the_orientation_on():
     assert ahead == 10_000_000
     q, _ = track.at(1_000_000_000)  # far beyond: held, not flung on
     np.testing.assert_allclose(quat_to_euler(q), [0, 0.1, 0], atol=1e-9)
+
+
+def test_the_configured_pipeline_and_its_software_record():
+    from capture import __version__
+    from capture.config import Config
+    from capture.live.pipeline import build_pipeline, software_metadata
+    from inference.fusion import ForwardFilter
+
+    config = Config()
+    config.fusion.method = "forward"
+    config.preprocess.max_forward_m = 2.0
+
+    class Classifier:
+        metadata = {"weights_sha256": "cafe"}
+
+    pipeline = build_pipeline(config, Classifier())
+    assert isinstance(pipeline.fusion, ForwardFilter)
+    assert pipeline.params.max_forward_m == 2.0
+    software = software_metadata(config, pipeline, replay_of="a.mcap")
+    assert software["walkcap_version"] == __version__
+    assert software["model_hash"] == "cafe" and software["model_path"] == "bundled"
+    assert software["fusion_method"] == "forward" and software["replay_of"] == "a.mcap"
+    assert software["preprocess"]["max_forward_m"] == 2.0

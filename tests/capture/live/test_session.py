@@ -178,6 +178,9 @@ def test_replay_reproduces_the_trial_into_a_new_file(recorded, tmp_path):
     assert len(b["frame_index"]) + len(again) == report.frames
     assert [c[:2] for c in a["label_changes"]] == [c[:2] for c in b["label_changes"]]
     assert report.speedup > 0
+    software = open_recording(report.output).metadata["software"]
+    assert software["replay_of"] == path.name and software["model_hash"] == "stand-in"
+    assert software["fusion_method"] == Config().fusion.method  # what decided the replay
     depth_a = [m.data for m in open_recording(path).messages(["/camera/depth"])]
     depth_b = [m.data for m in open_recording(report.output).messages(["/camera/depth"])]
     assert len(depth_a) == len(depth_b)
@@ -351,7 +354,7 @@ def test_fast_replay_prepares_frames_itself_until_its_reader_process_is_ready(re
 
 
 def test_switches_are_counted_over_the_last_minute():
-    from capture.live.session import SwitchCounter
+    from capture.live.timeline import SwitchCounter
 
     counter = SwitchCounter(60.0)
     s = 1_000_000_000
