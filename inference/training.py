@@ -211,7 +211,7 @@ def augment_image(
 
 
 def group_metrics(labels: np.ndarray, predictions: np.ndarray) -> GroupMetrics:
-    from inference.evaluation import confusion_matrix
+    from inference.evaluation.metrics import confusion_matrix
 
     labels = np.asarray(labels)
     cm = confusion_matrix(np.asarray(predictions), labels)
@@ -296,7 +296,7 @@ def evaluate_sessions(
 ) -> dict[str, GroupMetrics]:
     """Per-frame quality, all frames and per preset ("all", "indoor", "outdoor", ...);
     with the error breakdown when every session carries the simulator's truth."""
-    from inference.evaluation import decisions_of
+    from inference.evaluation.metrics import decisions_of
 
     labels: dict[str, list[np.ndarray]] = {"all": []}
     preds: dict[str, list[np.ndarray]] = {"all": []}
@@ -337,7 +337,7 @@ def evaluate_sessions(
 
 def format_metrics(metrics: dict[str, GroupMetrics], title: str = "") -> str:
     """A readable report: accuracy per group, per class, and the confusion matrices."""
-    from inference.evaluation import mean_sd
+    from inference.evaluation.metrics import mean_sd
 
     lines = [title] if title else []
     for group, m in metrics.items():
@@ -456,7 +456,7 @@ def _validate(
     """Mean loss with the class weights the balanced sampling gives (frequency ** -power),
     accuracy and balanced accuracy. Distributed, each process takes every world.size-th
     frame and the sums are added up."""
-    from inference.evaluation import confusion_matrix
+    from inference.evaluation.metrics import confusion_matrix
 
     net.eval()
     if not len(labels):

@@ -78,23 +78,13 @@ def synth_recording(
     """Walk one simulated course into the recording at `path`; returns its RecorderStats."""
     from capture.recording.writer import Recorder
     from devices.simulator import Simulator
-    from inference.fusion import make_fusion
-    from inference.preprocess import PreprocessParams
+    from inference.preprocess import metadata as preprocess_metadata
 
     cfg = copy.deepcopy(config)
     cfg.simulator.course, cfg.simulator.seed = preset, seed
     simulator = Simulator.from_config(cfg.simulator, fps=cfg.camera.fps)
     rng = np.random.default_rng([seed, 4242])
-    fusion = make_fusion(
-        cfg.fusion.method,
-        window=cfg.fusion.window,
-        vote_delay=cfg.fusion.vote_delay,
-        transition=np.asarray(cfg.fusion.transition),
-        stay=cfg.fusion.stay,
-        evidence=cfg.fusion.evidence,
-        hysteresis=cfg.fusion.hysteresis,
-    )
-    pipeline = Pipeline(PreprocessParams.from_config(cfg), classifier, fusion)
+    pipeline = Pipeline(cfg.preprocess, classifier, cfg.fusion.make(), cfg.mounting)
     metadata = {
         "session": {
             "subject": subject,
@@ -117,7 +107,7 @@ def synth_recording(
             "fusion_window": cfg.fusion.window,
             "fusion_vote_delay": cfg.fusion.vote_delay,
             "fusion_transition": T.jsonable(cfg.fusion.transition),
-            "preprocess": T.jsonable(pipeline.params.to_dict()),
+            "preprocess": T.jsonable(preprocess_metadata(cfg.preprocess, cfg.mounting)),
         },
     }
     recorder = Recorder(

@@ -183,8 +183,13 @@ class FrameResult:
 class Pipeline:
     """Preprocess -> classify -> fuse -> features, one frame at a time."""
 
-    def __init__(self, params, classifier, fusion) -> None:
+    def __init__(self, params, classifier, fusion, mounting=None) -> None:
+        """params: an inference.config.PreprocessConfig; mounting: the camera on the IMU
+        (devices.config.MountingConfig; None: the nominal one)."""
+        from inference.preprocess import NOMINAL_MOUNTING
+
         self.params = params
+        self.mounting = mounting if mounting is not None else NOMINAL_MOUNTING
         self.classifier = classifier
         self.fusion = fusion
         # fusion counts pushes; decisions name camera frames: remember which is which
@@ -200,7 +205,9 @@ class Pipeline:
 
         if quaternion is None:
             quaternion = np.full(4, np.nan)
-        return preprocess(frame.xyz, frame.confidence, quaternion, self.params, orientation_age_ns)
+        return preprocess(
+            frame.xyz, frame.confidence, quaternion, self.params, orientation_age_ns, self.mounting
+        )
 
     def process(
         self,

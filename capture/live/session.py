@@ -369,9 +369,7 @@ class Session:
 
     def start(self) -> None:
         """Load the model, open both devices and start the threads."""
-        from inference.fusion import make_fusion
         from inference.model import load_classifier
-        from inference.preprocess import PreprocessParams
 
         cfg = self.config
         if not 0 <= cfg.session.realtime_priority <= 99:
@@ -382,16 +380,14 @@ class Session:
         if self._classifier is None:
             self._classifier = load_classifier(cfg.model.path or None, threads=CNN_THREADS)
         self.model_metadata = dict(getattr(self._classifier, "metadata", {}) or {})
-        fusion = make_fusion(
-            cfg.fusion.method,
-            window=cfg.fusion.window,
-            vote_delay=cfg.fusion.vote_delay,
-            transition=np.asarray(cfg.fusion.transition),
-            stay=cfg.fusion.stay,
-            evidence=cfg.fusion.evidence,
-            hysteresis=cfg.fusion.hysteresis,
+        fusion = cfg.fusion.make()
+        # copies: the session keeps the parameters it started with
+        self.pipeline = Pipeline(
+            dataclasses.replace(cfg.preprocess),
+            self._classifier,
+            fusion,
+            dataclasses.replace(cfg.mounting),
         )
-        self.pipeline = Pipeline(PreprocessParams.from_config(cfg), self._classifier, fusion)
         # First calls are slow (torch's lazy set-up, numpy caches, the recorder's schema
         # modules): pay for them before the camera runs, not in the first frames of a trial.
         try:
@@ -815,6 +811,8 @@ class Session:
         return rec.close() if rec is not None else None
 
     def _metadata(self, info: SubjectInfo) -> dict[str, dict]:
+        from inference.preprocess import metadata as preprocess_metadata
+
         cfg = self.config
         cam = self._camera.status() if self._camera else None
         imu = self._imu.status() if self._imu else None
@@ -839,7 +837,11 @@ class Session:
             "fusion_window": cfg.fusion.window,
             "fusion_vote_delay": cfg.fusion.vote_delay,
             "fusion_transition": T.jsonable(cfg.fusion.transition),
-            "preprocess": T.jsonable(self.pipeline.params.to_dict() if self.pipeline else {}),
+            "preprocess": T.jsonable(
+                preprocess_metadata(self.pipeline.params, self.pipeline.mounting)
+                if self.pipeline
+                else {}
+            ),
             "pipeline_priority": self.pipeline_priority,
             "intake_priority": self.intake_scheduling,
         }
