@@ -300,10 +300,10 @@ def documented(config: Config) -> str:
         "",
     ]
     for name, cls in sections():
-        section = getattr(config, name)
+        values = dataclasses.asdict(getattr(config, name))
         lines.append(f"[{name}]")
         for f in dataclasses.fields(cls):
-            value = dataclasses.asdict(section)[f.name]
+            value = values[f.name]
             default = _toml_value(defaults[name][f.name])
             if len(default) > 40:  # a matrix: `walkcap config --default` shows it in full
                 default = "printed by --default"

@@ -218,7 +218,7 @@ def _score_row(
 
 
 REFERENCES = ("terrain", "locomotion")
-# the names `eval --reference` took before the two references had names
+# the per-frame table's own names for the references (truth, labels) and auto are accepted too
 _REFERENCE_ALIASES = {"truth": "terrain", "labels": "locomotion", "auto": "terrain"}
 
 
