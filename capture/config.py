@@ -6,8 +6,9 @@ is a ConfigError naming the key (`camera.fps: expected a number, got "fast"`; `c
 = 0.0: expected a frame rate 0 < fps <= 45 (the pico flexx's modes)`), before any device
 opens. Ranges are each section's `problems()`.
 Each package owns its sections (devices.config, inference.config, the session's and the
-keys' here); `Config` composes them. A section extends by adding a field to its dataclass:
-the loader validates by type.
+keys' here); `Config` composes them. A section extends by adding a field made by
+`devices.config.key` (its default and its one line of doc): the loader validates it by type,
+`walkcap config` and docs/configuration.md (`reference()`) show its doc.
 """
 
 from __future__ import annotations
@@ -22,10 +23,16 @@ from pathlib import Path
 from typing import Any
 
 from capture.errors import ConfigError
-from devices.config import DOCS as DEVICE_DOCS
-from devices.config import CameraConfig, ImuConfig, MountingConfig, SimulatorConfig
+from devices.config import (
+    CameraConfig,
+    ImuConfig,
+    MountingConfig,
+    SimulatorConfig,
+    choices_of,
+    doc_of,
+    key,
+)
 from devices.files import check_replaceable
-from inference.config import DOCS as INFERENCE_DOCS
 from inference.config import FusionConfig, ModelConfig, PreprocessConfig
 
 DEFAULT_PATH = Path("walkcap.toml")
@@ -33,11 +40,17 @@ DEFAULT_PATH = Path("walkcap.toml")
 
 @dataclass
 class SessionConfig:
-    recordings: str = "recordings"  # output folder
-    operator: str = ""
-    # The pipeline thread's SCHED_FIFO priority (1-99; 0: normal scheduling), where the
-    # system allows it (root, CAP_SYS_NICE or an rtprio limit); otherwise it runs normally.
-    realtime_priority: int = 10
+    """Where the recordings go and how the session's pipeline thread runs."""
+
+    recordings: str = key(
+        "recordings", "folder the recordings are written to (created when missing)"
+    )
+    operator: str = key("", "who runs the session, written into every recording")
+    # SCHED_FIFO where the system allows it (root, CAP_SYS_NICE or an rtprio limit);
+    # otherwise the thread runs normally
+    realtime_priority: int = key(
+        10, "pipeline thread SCHED_FIFO priority 1-99 where allowed; 0: normal"
+    )
 
     def problems(self) -> list[tuple[str, str]]:
         out = [] if self.recordings else [("recordings", "a folder name")]
@@ -46,46 +59,58 @@ class SessionConfig:
         return out
 
 
+def _key_for(default: str, what: str):
+    return key(default, f"key for {what}")
+
+
 @dataclass
 class KeysConfig:
-    mode_lg: str = "1"
-    mode_us: str = "2"
-    mode_ds: str = "3"
-    mode_ur: str = "4"
-    mode_dr: str = "5"
-    undo: str = "u"
-    marker: str = "m"
-    record: str = "r"
-    freeze: str = "space"
-    help: str = "question_mark"
-    quit: str = "q"
+    """The live screen's keys, as Textual names them: 1, u, space, question_mark, ctrl+x."""
+
+    mode_lg: str = _key_for("1", "the true mode LG (level ground)")
+    mode_us: str = _key_for("2", "the true mode US (stairs up)")
+    mode_ds: str = _key_for("3", "the true mode DS (stairs down)")
+    mode_ur: str = _key_for("4", "the true mode UR (ramp up)")
+    mode_dr: str = _key_for("5", "the true mode DR (ramp down)")
+    undo: str = _key_for("u", "undoing the last label change")
+    marker: str = _key_for("m", "a marker with an optional note")
+    record: str = _key_for("r", "starting / stopping a trial")
+    freeze: str = _key_for("space", "freezing the display")
+    help: str = _key_for("question_mark", "the help screen")
+    quit: str = _key_for("q", "quitting (ctrl+q always quits too)")
 
 
 @dataclass
 class LslConfig:
     """Lab Streaming Layer: walkcap's streams out, other devices' streams into the recording."""
 
-    enabled: bool = False  # outlets: IMU, classifier and decisions, labels and markers
-    record: list[str] = field(default_factory=list)  # LSL stream names to record, e.g. ["EMG"]
-    # LabRecorder-compatible remote control (start, stop, filename) on localhost
-    remote_control: bool = False
-    remote_port: int = 22345  # LabRecorder's default
-    # a remote `filename {root:DIR}` outside the recordings folder: refused unless allowed
-    remote_any_root: bool = False
-    # when set, each remote-control connection's first line is `token <this>`
-    remote_token: str = ""
+    enabled: bool = key(False, "LSL outlets: walkcap IMU, walkcap Terrain, walkcap Markers")
+    record: list[str] = key(
+        doc='names of other devices\' LSL streams recorded into each trial, e.g. ["EMG"]',
+        factory=list,
+    )
+    remote_control: bool = key(False, "LabRecorder's start / stop / filename commands on 127.0.0.1")
+    remote_port: int = key(22345, "the remote control's TCP port (LabRecorder's)")
+    remote_any_root: bool = key(
+        False, "let a remote {root:DIR} name any folder, not only one in recordings"
+    )
+    remote_token: str = key(
+        "", "if set, a remote-control connection starts with the line `token <it>`"
+    )
 
 
 @dataclass
 class FoxgloveConfig:
     """A live Foxglove WebSocket server with the recording's topics and schemas."""
 
-    enabled: bool = False
-    host: str = "127.0.0.1"  # localhost only unless asked otherwise
-    port: int = 8765  # Foxglove's default
-    # depth, images and clouds at most this often (live view only): encoding them shares the
-    # pipeline's interpreter, and 5 a second keeps the live view within 1 ms of its latency
-    image_hz: float = 5.0
+    enabled: bool = key(False, "serve the live session's topics to Foxglove over a WebSocket")
+    host: str = key(
+        "127.0.0.1", "address the Foxglove server listens on (localhost only unless changed)"
+    )
+    port: int = key(8765, "the Foxglove server's port (Foxglove's default)")
+    # encoding them shares the pipeline's interpreter, and 5 a second keeps the live view
+    # within 1 ms of its latency
+    image_hz: float = key(5.0, "depth, images and clouds sent at most this often, per second")
 
 
 @dataclass
@@ -104,44 +129,10 @@ class Config:
     source: str = ""  # the file it was read from, empty for defaults
 
 
-_KEY_DOC = "key for {}"  # Textual key names: 1, u, space, question_mark, ctrl+x, ...
-# One line per key for `walkcap config`; the devices' and algorithms' come from their packages.
-DOCS: dict[type, dict[str, str]] = {
-    SessionConfig: {
-        "recordings": "folder the recordings are written to (created when missing)",
-        "operator": "who runs the session, written into every recording",
-        "realtime_priority": "pipeline thread SCHED_FIFO priority 1-99 where allowed; 0: normal",
-    },
-    KeysConfig: {
-        "mode_lg": _KEY_DOC.format("the true mode LG (level ground)"),
-        "mode_us": _KEY_DOC.format("the true mode US (stairs up)"),
-        "mode_ds": _KEY_DOC.format("the true mode DS (stairs down)"),
-        "mode_ur": _KEY_DOC.format("the true mode UR (ramp up)"),
-        "mode_dr": _KEY_DOC.format("the true mode DR (ramp down)"),
-        "undo": _KEY_DOC.format("undoing the last label change"),
-        "marker": _KEY_DOC.format("a marker with an optional note"),
-        "record": _KEY_DOC.format("starting / stopping a trial"),
-        "freeze": _KEY_DOC.format("freezing the display"),
-        "help": _KEY_DOC.format("the help screen"),
-        "quit": _KEY_DOC.format("quitting (ctrl+q always quits too)"),
-    },
-    LslConfig: {
-        "enabled": "LSL outlets: walkcap IMU, walkcap Terrain, walkcap Markers",
-        "record": "names of other devices' LSL streams recorded into each trial",
-        "remote_control": "LabRecorder's start / stop / filename commands on 127.0.0.1",
-        "remote_port": "the remote control's TCP port (LabRecorder's)",
-        "remote_any_root": "let a remote {root:DIR} name any folder, not only one in recordings",
-        "remote_token": "if set, a remote-control connection starts with the line `token <it>`",
-    },
-    FoxgloveConfig: {
-        "enabled": "serve the live session's topics to Foxglove over a WebSocket",
-        "host": "address the Foxglove server listens on (localhost only unless changed)",
-        "port": "the Foxglove server's port",
-        "image_hz": "depth, images and clouds sent at most this often, per second",
-    },
-    **DEVICE_DOCS,
-    **INFERENCE_DOCS,
-}
+def sections() -> list[tuple[str, type]]:
+    """Every section of the file, (name, dataclass), in the file's order."""
+    hints = typing.get_type_hints(Config)
+    return [(f.name, hints[f.name]) for f in dataclasses.fields(Config) if f.name != "source"]
 
 
 def _type_name(tp: Any) -> str:
@@ -185,12 +176,12 @@ def _build(cls: type, table: dict, prefix: str = "") -> Any:
     hints = typing.get_type_hints(cls)
     names = {f.name for f in dataclasses.fields(cls)}
     kwargs = {}
-    for key, value in table.items():
-        full = f"{prefix}.{key}" if prefix else key
-        if key not in names or key == "source":
+    for name, value in table.items():
+        full = f"{prefix}.{name}" if prefix else name
+        if name not in names or name == "source":
             known = ", ".join(sorted(n for n in names if n != "source"))
             raise ConfigError(f"unknown key {full!r} (known here: {known})")
-        kwargs[key] = _convert(value, hints[key], full)
+        kwargs[name] = _convert(value, hints[name], full)
     built = cls(**kwargs)
     check_range(built, prefix)
     return built
@@ -308,22 +299,78 @@ def documented(config: Config) -> str:
         "# [keys] take Textual key names: 1, u, space, question_mark, ctrl+x, ...",
         "",
     ]
-    for f in dataclasses.fields(Config):
-        if f.name == "source":
-            continue
-        section = getattr(config, f.name)
-        docs = DOCS.get(type(section), {})
-        lines.append(f"[{f.name}]")
-        for key, value in dataclasses.asdict(section).items():
-            default = _toml_value(defaults[f.name][key])
+    for name, cls in sections():
+        values = dataclasses.asdict(getattr(config, name))
+        lines.append(f"[{name}]")
+        for f in dataclasses.fields(cls):
+            value = values[f.name]
+            default = _toml_value(defaults[name][f.name])
             if len(default) > 40:  # a matrix: `walkcap config --default` shows it in full
                 default = "printed by --default"
-            lines.append(f"# {docs.get(key, key)} [default: {default}]")
+            lines.append(f"# {_described(f)} [default: {default}]")
             if value and isinstance(value, list) and isinstance(value[0], list):
                 rows = [f"    {_toml_value(row)}," for row in value]
-                lines += [f"{key} = [", *rows, "]"]
+                lines += [f"{f.name} = [", *rows, "]"]
             else:
-                lines.append(f"{key} = {_toml_value(value)}")
+                lines.append(f"{f.name} = {_toml_value(value)}")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def _described(f: dataclasses.Field) -> str:
+    """A key's doc, and the names it takes when they come from a registry or a set."""
+    choices = choices_of(f)
+    doc = doc_of(f) or f.name
+    return doc if choices is None else f"{doc} (one of: {' | '.join(choices)})"
+
+
+REFERENCE_COMMAND = "walkcap config --markdown > docs/configuration.md"
+
+
+def reference() -> str:
+    """docs/configuration.md: every section and key with its default, what it does and,
+    for a name out of a registry, the names registered. Made from the sections' fields;
+    `walkcap config --markdown` prints it."""
+    defaults = to_dict(Config())
+    lines = [
+        "# Configuration reference",
+        "",
+        f"<!-- generated by `{REFERENCE_COMMAND}`; edit the dataclass fields, not this file -->",
+        "",
+        "walkcap reads one TOML file: `--config PATH`, else `$WALKCAP_CONFIG`, else "
+        "`./walkcap.toml` when it exists, else the defaults below. Keys left out take their "
+        "default; an unknown key, a value of the wrong type or out of its range stops walkcap "
+        "with one line naming the key, before any device opens. Command-line flags override "
+        "the file.",
+        "",
+        "`walkcap config` prints the effective configuration as TOML with these comments; "
+        "`walkcap config --default` prints the defaults.",
+        "",
+    ]
+    for name, cls in sections():
+        about = " ".join((cls.__doc__ or "").split())
+        lines += [
+            f"## [{name}]",
+            "",
+            about,
+            "",
+            "| key | default | what it does |",
+            "|---|---|---|",
+        ]
+        matrices = []
+        for f in dataclasses.fields(cls):
+            value = defaults[name][f.name]
+            what = _described(f).replace("|", "\\|")
+            if value and isinstance(value, list) and isinstance(value[0], list):
+                matrices.append((f.name, value))
+                shown = "below"
+            else:
+                shown = f"`{_toml_value(value)}`"
+            lines.append(f"| `{f.name}` | {shown} | {what} |")
+        for key_name, rows in matrices:
+            lines += ["", f"Default `{key_name}`:", "", "```toml", f"{key_name} = ["]
+            lines += [f"    {_toml_value(row)}," for row in rows]
+            lines += ["]", "```"]
         lines.append("")
     return "\n".join(lines)
 

@@ -52,7 +52,7 @@ def walking_stay(fps: float = 15.0, dwell_s: float = TERRAIN_DWELL_S) -> float:
 STEADY_STAY = round(walking_stay(), 3)  # 0.987 at 15 fps
 
 # "steady+gait": on the same 12 simulated recordings, 63 % of the terrain changes (settled,
-# inference.transitions) came while the camera pitched down faster than 0.75 standard
+# inference.evaluation.transitions) came while the camera pitched down faster than 0.75 standard
 # deviations of its frame-to-frame pitch change, in 30 % of the frames; so a change is
 # 0.63 / 0.30 = 2.1 times likelier than average in that phase and 0.37 / 0.70 = 0.53 times
 # outside it. The CNN's errors start at any phase (35 % in it).

@@ -19,7 +19,9 @@ Column 0 and the last row are always empty (the one-cell margin of the authors' 
 
 Degenerate input never raises: the result has an empty image and `flag` says why.
 
-Two implementations of steps 1-3, chosen by `PreprocessParams.backend`: "numpy" (the
+The parameters are `inference.config.PreprocessConfig` (the [preprocess] section) and the
+camera's mounting on the IMU, `devices.config.MountingConfig` ([mounting]).
+Two implementations of steps 1-3, chosen by `PreprocessConfig.backend`: "numpy" (the
 default: per-pixel dot products, isolated-cell removal on the sagittal grid) and "open3d"
 (tensor point cloud transform, crop and radius outlier removal). `bench_preprocess()`
 measures both; numpy wins by a wide margin on a frame of 224 x 171 points.
@@ -34,8 +36,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from devices.config import MountingConfig
 from devices.rotations import mounting_matrix, quat_to_matrix
-from inference.errors import InferenceError
+from inference.config import PreprocessConfig
 
 log = logging.getLogger(__name__)
 
@@ -50,60 +53,19 @@ STALE_ORIENTATION = "stale_orientation"
 NAN_INPUT = "nan_input"
 BAD_INPUT = "bad_input"
 
-BACKENDS = ("numpy", "open3d")
+BACKENDS = ("numpy", "open3d")  # PreprocessConfig.backend
+NOMINAL_MOUNTING = MountingConfig()
 
 
-@dataclass(frozen=True)
-class PreprocessParams:
-    corridor_width_m: float = 0.1  # across the walking direction (authors: 0.1 m)
-    min_forward_m: float = 0.0
-    # 2.5 m, not 1.5: a thigh camera at peak flexion or above a descent sees its nearest
-    # corridor point 1-2 m ahead; a 1.5 m crop leaves 7-9 % of frames empty or a few cm
-    # long (a third of the classifier's errors). The image is still 1 m from the nearest.
-    max_forward_m: float = 2.5
-    min_height_m: float = -2.0  # height band kept, relative to the camera
-    max_height_m: float = 1.0
-    grid_size: int = 100  # image is grid_size x grid_size
-    cell_m: float = 0.01
-    min_confidence: int = 1  # pixels below are invalid (royale: 0 = invalid)
-    mounting_roll_deg: float = 0.0  # camera -> IMU, devices.rotations.mounting_matrix
-    mounting_pitch_deg: float = 35.0
-    mounting_yaw_deg: float = 0.0
-    # Outlier removal: a point stays when its neighbourhood holds at least
-    # outlier_min_points points (itself included). numpy: the 3 x 3 sagittal cells of
-    # outlier_cell_m around it; open3d: a sphere of radius 1.5 * outlier_cell_m.
-    outlier_min_points: int = 4  # 0 or 1 disables it
-    outlier_cell_m: float = 0.01
-    max_elevation_deg: float = 30.0  # optical axis above the horizon by more: looking_up
-    max_orientation_age_ms: float = 50.0  # orientation older than this: stale_orientation
-    min_points: int = 10  # fewer corridor points than this: empty_corridor
-    backend: str = "numpy"  # numpy | open3d
-
-    def __post_init__(self) -> None:
-        problems = []
-        if self.backend not in BACKENDS:
-            problems.append(f"backend: expected one of {', '.join(BACKENDS)}, got {self.backend!r}")
-        if self.grid_size < 2 or self.cell_m <= 0 or self.outlier_cell_m <= 0:
-            problems.append("grid_size, cell_m and outlier_cell_m must be positive")
-        if self.corridor_width_m <= 0 or self.max_forward_m <= self.min_forward_m:
-            problems.append("the corridor must have a width and a length")
-        if problems:
-            raise InferenceError("preprocess." + "; ".join(problems))
-
-    @classmethod
-    def from_config(cls, config) -> PreprocessParams:
-        """From a capture.config.Config (its [preprocess] and [mounting] sections)."""
-        pre, mount = config.preprocess, config.mounting
-        kwargs = {
-            f.name: getattr(pre, f.name) for f in dataclasses.fields(cls) if hasattr(pre, f.name)
-        }
-        kwargs["mounting_roll_deg"] = float(mount.roll_deg)
-        kwargs["mounting_pitch_deg"] = float(mount.pitch_deg)
-        kwargs["mounting_yaw_deg"] = float(getattr(mount, "yaw_deg", 0.0))
-        return cls(**kwargs)
-
-    def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
+def metadata(params: PreprocessConfig, mounting: MountingConfig) -> dict:
+    """The preprocessing as recordings and models keep it: every parameter, and the
+    mounting's angles as mounting_roll_deg, mounting_pitch_deg, mounting_yaw_deg."""
+    out: dict = {}
+    for name, value in dataclasses.asdict(params).items():
+        if name == "outlier_min_points":
+            out |= {f"mounting_{k}": float(v) for k, v in dataclasses.asdict(mounting).items()}
+        out[name] = value
+    return out
 
 
 @dataclass
@@ -126,7 +88,7 @@ class Preprocessed:
 
 
 def empty(
-    params: PreprocessParams, flag: str, elevation_deg: float = float("nan"), **details
+    params: PreprocessConfig, flag: str, elevation_deg: float = float("nan"), **details
 ) -> Preprocessed:
     return Preprocessed(
         image=np.zeros((params.grid_size, params.grid_size), np.uint8),
@@ -143,7 +105,9 @@ def _mounting(roll_deg: float, pitch_deg: float, yaw_deg: float) -> np.ndarray:
     return mounting_matrix(roll_deg, pitch_deg, yaw_deg)
 
 
-def leveling_matrix(quaternion: np.ndarray, params: PreprocessParams) -> np.ndarray | None:
+def leveling_matrix(
+    quaternion: np.ndarray, mounting: MountingConfig = NOMINAL_MOUNTING
+) -> np.ndarray | None:
     """Camera -> leveled frame (x forward along the camera's heading, y left, z up).
 
     None when the quaternion is not a rotation (NaN, zero, far from unit length).
@@ -155,7 +119,7 @@ def leveling_matrix(quaternion: np.ndarray, params: PreprocessParams) -> np.ndar
     if not 0.5 < norm < 2.0:  # a real orientation filter never drifts this far
         return None
     cam_to_world = quat_to_matrix(q / norm) @ _mounting(
-        params.mounting_roll_deg, params.mounting_pitch_deg, params.mounting_yaw_deg
+        float(mounting.roll_deg), float(mounting.pitch_deg), float(mounting.yaw_deg)
     )
     axis = cam_to_world[:, 2]  # the optical axis in the world
     if np.hypot(axis[0], axis[1]) < 0.2:
@@ -171,14 +135,16 @@ def preprocess(
     xyz: np.ndarray,
     confidence: np.ndarray,
     quaternion: np.ndarray,
-    params: PreprocessParams,
+    params: PreprocessConfig,
     orientation_age_ns: int = 0,
+    mounting: MountingConfig = NOMINAL_MOUNTING,
 ) -> Preprocessed:
     """Level, crop, clean and rasterise one depth frame (see the module docstring).
 
     xyz: (H, W, 3) metres, camera frame; confidence: (H, W), 0 = invalid;
     quaternion: [w, x, y, z] IMU -> world at the frame's time; orientation_age_ns: how far
-    the quaternion is from the IMU sample it comes from (capture.live.pipeline.OrientationTrack).
+    the quaternion is from the IMU sample it comes from (capture.live.pipeline.OrientationTrack);
+    mounting: the camera's orientation on the IMU.
     """
     xyz = np.asarray(xyz)
     confidence = np.asarray(confidence)
@@ -186,7 +152,7 @@ def preprocess(
         return empty(params, BAD_INPUT, shape=list(xyz.shape))
     if orientation_age_ns > params.max_orientation_age_ms * 1e6:
         return empty(params, STALE_ORIENTATION, age_ms=orientation_age_ns * 1e-6)
-    level = leveling_matrix(quaternion, params)
+    level = leveling_matrix(quaternion, mounting)
     if level is None:
         return empty(params, BAD_ORIENTATION)
     elevation = float(np.degrees(np.arcsin(np.clip(level[2, 2], -1.0, 1.0))))
@@ -221,10 +187,14 @@ def preprocess(
 
 
 def preprocess_frame(
-    frame, quaternion: np.ndarray, params: PreprocessParams, orientation_age_ns: int = 0
+    frame,
+    quaternion: np.ndarray,
+    params: PreprocessConfig,
+    orientation_age_ns: int = 0,
+    mounting: MountingConfig = NOMINAL_MOUNTING,
 ) -> Preprocessed:
     """preprocess() on a devices.frames.DepthFrame."""
-    return preprocess(frame.xyz, frame.confidence, quaternion, params, orientation_age_ns)
+    return preprocess(frame.xyz, frame.confidence, quaternion, params, orientation_age_ns, mounting)
 
 
 def rasterise(
@@ -250,7 +220,7 @@ def rasterise(
 
 
 def _corridor_numpy(
-    xyz: np.ndarray, confidence: np.ndarray, level: np.ndarray, params: PreprocessParams
+    xyz: np.ndarray, confidence: np.ndarray, level: np.ndarray, params: PreprocessConfig
 ) -> np.ndarray:
     flat = xyz.reshape(-1, 3)
     rows = level.astype(np.float32)
@@ -292,7 +262,7 @@ def _dense_cells(x: np.ndarray, z: np.ndarray, cell_m: float, min_points: int) -
 
 
 def _corridor_open3d(
-    xyz: np.ndarray, confidence: np.ndarray, level: np.ndarray, params: PreprocessParams
+    xyz: np.ndarray, confidence: np.ndarray, level: np.ndarray, params: PreprocessConfig
 ) -> np.ndarray:
     import open3d as o3d
 

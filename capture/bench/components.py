@@ -24,12 +24,13 @@ from devices.rotations import mounting_matrix, quat_from_euler, quat_to_matrix
 from devices.simulator import Simulator, make_course
 from devices.simulator.synthetic import corridor_cloud, synthetic_frame
 from devices.xbus import MID, XbusParser, build, encode_mtdata2
+from inference.config import PreprocessConfig
 from inference.errors import InferenceError
 from inference.fusion import HmmFusion, make_fusion, paper_step
 from inference.fusion_design import N_MODES, PAPER_TRANSITION
 from inference.model import INPUT_SIZE, Classifier, TerrainCNN, load_classifier, occupied_patches
 from inference.preprocess import BACKENDS as PREPROCESS_BACKENDS
-from inference.preprocess import PreprocessParams, preprocess
+from inference.preprocess import preprocess
 
 
 def bench_parse_rate(seconds: float = 2.0) -> float:
@@ -117,8 +118,8 @@ def bench_preprocess(frames: int = 200) -> dict:
     height, width = data[0][1].shape
     result: dict = {"frames": frames, "resolution": f"{width}x{height}"}
     for backend in PREPROCESS_BACKENDS:
-        for suffix, outliers in (("", PreprocessParams.outlier_min_points), ("_no_outliers", 0)):
-            params = PreprocessParams(backend=backend, outlier_min_points=outliers)
+        for suffix, outliers in (("", PreprocessConfig.outlier_min_points), ("_no_outliers", 0)):
+            params = PreprocessConfig(backend=backend, outlier_min_points=outliers)
             preprocess(*data[0], params)  # warm-up (imports, caches)
             times, corridor = [], []
             for i in range(frames):

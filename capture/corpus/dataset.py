@@ -21,13 +21,15 @@ import numpy as np
 from capture.corpus import jobs
 from capture.errors import CaptureError
 from capture.recording.reader import labeled_session
-from devices.config import SimulatorConfig
+from devices.config import MountingConfig, SimulatorConfig
 from devices.frames import MODES
 from devices.orientation_error import OrientationError, OrientationErrorModel
 from devices.simulator import Simulator, make_course
+from inference.config import PreprocessConfig
 from inference.dataset import LabeledSession, read_session, write_session
 from inference.errors import InferenceError
-from inference.preprocess import PreprocessParams, preprocess_frame
+from inference.preprocess import metadata as preprocess_metadata
+from inference.preprocess import preprocess_frame
 
 
 def _read_recording(path: Path) -> LabeledSession:
@@ -143,15 +145,17 @@ def render_synth_session(
     settings: SynthSettings = SynthSettings(),
     simulator_config=None,
     progress: Callable[[int], None] | None = None,
+    mounting=None,
 ) -> tuple[LabeledSession, dict]:
     """Walk one simulated course and preprocess every frame as the live pipeline does.
 
     The IMU orientation is the simulator's thigh orientation with the attitude filter's
     slowly drifting error; the preprocessing uses the mounting the operator would have
-    calibrated (true tilt plus a small error). Returns the session and extra per-frame
+    calibrated (true tilt plus a small error; roll and yaw those of `mounting`, a
+    MountingConfig). `params`: a PreprocessConfig. Returns the session and extra per-frame
     arrays (time_ns, locomotion_modes, errors) for `write_session`.
     """
-    params = params or PreprocessParams()
+    params = params or PreprocessConfig()
     simulator_config = simulator_config or SimulatorConfig()
     rng = np.random.default_rng([seed, 7919])
     walker = _walker(rng, settings.vary_walker, simulator_config)
@@ -161,7 +165,7 @@ def render_synth_session(
         raise InferenceError(str(e)) from None
     sim = Simulator(course, seed=seed, fps=settings.fps, **walker)
     mounting_pitch = walker["camera_tilt_deg"] + float(rng.normal(0.0, settings.mounting_error_deg))
-    params = replace(params, mounting_pitch_deg=mounting_pitch)
+    mounting = replace(mounting or MountingConfig(), pitch_deg=mounting_pitch)
     imu_error = OrientationError(settings.imu_error, rng)
 
     n = int(sim.duration_s * settings.fps)
@@ -176,7 +180,7 @@ def render_synth_session(
         frame = sim.render(t, k)
         truth = frame.truth
         q = imu_error.apply(np.asarray(truth["thigh_quaternion"], dtype=np.float64), t)
-        pre = preprocess_frame(frame, q, params)
+        pre = preprocess_frame(frame, q, params, mounting=mounting)
         images[k] = pre.image
         labels[k] = MODES.index(truth["mode"])
         flags.append(pre.flag)
@@ -188,7 +192,7 @@ def render_synth_session(
     meta = {
         "seed": seed,
         "fps": settings.fps,
-        "preprocess": params.to_dict(),
+        "preprocess": preprocess_metadata(params, mounting),
         "walker": walker,
         "imu_error": dataclasses.asdict(settings.imu_error),
         "mounting_error_deg": settings.mounting_error_deg,
@@ -220,6 +224,7 @@ def synth_dataset(
     workers: int = 1,
     show_progress: bool = True,
     cluster: str | None = None,
+    mounting=None,
 ) -> list[Path]:
     """Render `count` sessions into `out` (one .npz each) with a progress bar over sessions:
     `workers` processes, or `cluster` (a Ray cluster's address or "local"), one task a
@@ -233,7 +238,7 @@ def synth_dataset(
         jobs.Task(
             path.name,
             _synth_job,
-            (p, s, params, settings, simulator_config, jobs.task_path(where, path)),
+            (p, s, params, mounting, settings, simulator_config, jobs.task_path(where, path)),
         )
         for path, (p, s) in zip(paths, plan)
     ]
@@ -247,7 +252,9 @@ def synth_dataset(
     return paths
 
 
-def _synth_job(preset, seed, params, settings, simulator_config, path) -> tuple[str, int]:
-    session, extra = render_synth_session(preset, seed, params, settings, simulator_config)
+def _synth_job(preset, seed, params, mounting, settings, simulator_config, path) -> tuple[str, int]:
+    session, extra = render_synth_session(
+        preset, seed, params, settings, simulator_config, mounting=mounting
+    )
     write_session(path, session, extra["time_ns"], extra["extra"])
     return path, len(session)

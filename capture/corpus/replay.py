@@ -105,10 +105,11 @@ def orientations(imu: list[ImuSample]) -> tuple[np.ndarray, np.ndarray, np.ndarr
 
 
 def prepared_frames(
-    source: str | Path, params, imu_orientations=None, skip: int = 0
+    source: str | Path, params, mounting, imu_orientations=None, skip: int = 0
 ) -> Iterator[tuple[DepthFrame, np.ndarray | None, object]]:
     """(frame, orientation, Preprocessed) for every recorded frame, in order, after the
-    first `skip`. `imu_orientations`: orientations() of the recording's IMU, if already read."""
+    first `skip`, preprocessed with `params` (a PreprocessConfig) and the camera's
+    `mounting`. `imu_orientations`: orientations() of the recording's IMU, if already read."""
     from capture.recording.reader import depth_frames, open_recording
     from inference.preprocess import preprocess
 
@@ -126,7 +127,7 @@ def prepared_frames(
             i += 1
         q, age_ns = track.at(t)
         level = q if q is not None else np.full(4, np.nan)
-        yield frame, q, preprocess(frame.xyz, frame.confidence, level, params, age_ns)
+        yield frame, q, preprocess(frame.xyz, frame.confidence, level, params, age_ns, mounting)
 
 
 class _ReaderProcess:
@@ -139,10 +140,10 @@ class _ReaderProcess:
 
     AHEAD = 64  # frames received and not yet taken (~10 MB)
 
-    def __init__(self, source: Path, params) -> None:
+    def __init__(self, source: Path, params, mounting) -> None:
         from devices.child import Child
 
-        self._child = Child("capture.corpus.replay:_serve_prepared", str(source), params)
+        self._child = Child("capture.corpus.replay:_serve_prepared", str(source), params, mounting)
         self._received: queue.Queue = queue.Queue(maxsize=self.AHEAD)
         self._closed = threading.Event()
         self.ready = threading.Event()  # set at the child's first message
@@ -225,7 +226,7 @@ class _ReaderProcess:
         self._child.end(timeout_s=2.0)
 
 
-def _serve_prepared(conn, source: str, params) -> None:
+def _serve_prepared(conn, source: str, params, mounting) -> None:
     from capture.recording.encode import encode_depth  # noqa: F401
     from capture.recording.reader import depth_frames  # noqa: F401  (imported while the host reads)
 
@@ -233,7 +234,7 @@ def _serve_prepared(conn, source: str, params) -> None:
         imu_orientations = conn.recv()
         conn.send(("ready",))
         skip = conn.recv()
-        for frame, q, pre in prepared_frames(source, params, imu_orientations, skip):
+        for frame, q, pre in prepared_frames(source, params, mounting, imu_orientations, skip):
             conn.send(("frame", _encoded(frame, q, pre)))
         conn.send(("end",))
     except (BrokenPipeError, ConnectionResetError, EOFError):
@@ -277,7 +278,6 @@ def replay(
     a reader process unless `reader_process` is False); else paced at `speed` x the
     recorded rate."""
     from capture.recording.reader import open_recording
-    from inference.preprocess import PreprocessParams
 
     source = Path(source)
     rec = open_recording(source)
@@ -286,20 +286,21 @@ def replay(
     output = Path(output) if output else default_output(source)
     if output.resolve() == source.resolve():
         raise CaptureError("the replay must go to a new file; the original is never modified")
-    params = PreprocessParams.from_config(config)
+    # copies: the replay keeps the parameters it started with
+    params, mounting = dataclasses.replace(config.preprocess), dataclasses.replace(config.mounting)
     fast = not speed
     # the reader process starts first: its imports overlap with reading the IMU here
-    frames_in = _ReaderProcess(source, params) if fast and reader_process else None
+    frames_in = _ReaderProcess(source, params, mounting) if fast and reader_process else None
     try:
         imu, labels, events = recorded(rec)
         imu_orientations = orientations(imu)
         if frames_in is not None:
             frames_in.start(imu_orientations)
-            blocks = _head_start(source, params, imu_orientations, frames_in)
+            blocks = _head_start(source, params, mounting, imu_orientations, frames_in)
         else:  # one by one, in this process
             blocks = (
                 [_encoded(frame, q, pre)]
-                for frame, q, pre in prepared_frames(source, params, imu_orientations)
+                for frame, q, pre in prepared_frames(source, params, mounting, imu_orientations)
             )
         if fast:
             blocks = _fixed_batches(blocks, BATCH)
@@ -309,6 +310,7 @@ def replay(
             output,
             config,
             params,
+            mounting,
             speed,
             classifier,
             progress,
@@ -334,14 +336,14 @@ def _fixed_batches(blocks, size: int):
         yield batch
 
 
-def _head_start(source, params, imu_orientations, frames_in: _ReaderProcess):
+def _head_start(source, params, mounting, imu_orientations, frames_in: _ReaderProcess):
     """Blocks of frames: prepared here, one at a time, until the reader process is ready
     (a Python with numpy, mcap and protobuf: 0.16-0.22 s after replay() begins; waiting
     for it would cost ~0.1 s, an eighth of a 15 s recording's replay at 20x); then the
     reader's batches, from the next frame on."""
     done = 0
     if not frames_in.ready.is_set():
-        own = prepared_frames(source, params, imu_orientations)
+        own = prepared_frames(source, params, mounting, imu_orientations)
         try:
             for frame, q, pre in own:
                 yield [_encoded(frame, q, pre)]
@@ -355,7 +357,17 @@ def _head_start(source, params, imu_orientations, frames_in: _ReaderProcess):
 
 
 def _replay(
-    source, rec, output, config, params, speed, classifier, progress, blocks, recorded_streams
+    source,
+    rec,
+    output,
+    config,
+    params,
+    mounting,
+    speed,
+    classifier,
+    progress,
+    blocks,
+    recorded_streams,
 ) -> ReplayReport:
     from capture.recording.chunks import ZSTD_LEVEL_FAST
     from capture.recording.writer import Recorder
@@ -363,7 +375,7 @@ def _replay(
     from inference.model import load_classifier
 
     classifier = classifier or load_classifier(config.model.path or None, threads=CNN_THREADS)
-    pipeline = build_pipeline(config, classifier, params)
+    pipeline = build_pipeline(config, classifier, params, mounting)
 
     imu, labels, events = recorded_streams
 

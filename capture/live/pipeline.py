@@ -180,8 +180,13 @@ class FrameResult:
 class Pipeline:
     """Preprocess -> classify -> fuse -> features, one frame at a time."""
 
-    def __init__(self, params, classifier, fusion) -> None:
+    def __init__(self, params, classifier, fusion, mounting=None) -> None:
+        """params: an inference.config.PreprocessConfig; mounting: the camera on the IMU
+        (devices.config.MountingConfig; None: the nominal one)."""
+        from inference.preprocess import NOMINAL_MOUNTING
+
         self.params = params
+        self.mounting = mounting if mounting is not None else NOMINAL_MOUNTING
         self.classifier = classifier
         self.fusion = fusion
         # fusion counts pushes; decisions name camera frames: remember which is which
@@ -197,7 +202,9 @@ class Pipeline:
 
         if quaternion is None:
             quaternion = np.full(4, np.nan)
-        return preprocess(frame.xyz, frame.confidence, quaternion, self.params, orientation_age_ns)
+        return preprocess(
+            frame.xyz, frame.confidence, quaternion, self.params, orientation_age_ns, self.mounting
+        )
 
     def process(
         self,
@@ -321,23 +328,16 @@ def record_decisions(recorder: Sink, r: FrameResult, decided_ns: int | None = No
         recorder.write_features(r.index, r.time_ns, r.features)
 
 
-def build_pipeline(config, classifier, params=None) -> Pipeline:
+def build_pipeline(config, classifier, params=None, mounting=None) -> Pipeline:
     """The pipeline `config` (capture.config.Config) describes, around `classifier`: its
-    preprocessing (`params` when worked out already) and a fresh fusion."""
-    from inference.fusion import make_fusion
-    from inference.preprocess import PreprocessParams
-
-    f = config.fusion
-    fusion = make_fusion(
-        f.method,
-        window=f.window,
-        vote_delay=f.vote_delay,
-        transition=np.asarray(f.transition),
-        stay=f.stay,
-        evidence=f.evidence,
-        hysteresis=f.hysteresis,
+    preprocessing and mounting (`params`, `mounting` when worked out already) and a fresh
+    fusion. Copies: the pipeline keeps the parameters it started with."""
+    return Pipeline(
+        dataclasses.replace(params if params is not None else config.preprocess),
+        classifier,
+        config.fusion.make(),
+        dataclasses.replace(mounting if mounting is not None else config.mounting),
     )
-    return Pipeline(params or PreprocessParams.from_config(config), classifier, fusion)
 
 
 def software_metadata(config, pipeline: Pipeline | None, **extra) -> dict:
@@ -346,8 +346,10 @@ def software_metadata(config, pipeline: Pipeline | None, **extra) -> dict:
     what a replay replays)."""
     from capture import __version__
     from capture.recording.topics import jsonable
+    from inference.preprocess import metadata as preprocess_metadata
 
     f = config.fusion
+    preprocess = preprocess_metadata(pipeline.params, pipeline.mounting) if pipeline else {}
     return {
         "walkcap_version": __version__,
         "model_path": config.model.path or "bundled",
@@ -356,7 +358,7 @@ def software_metadata(config, pipeline: Pipeline | None, **extra) -> dict:
         "fusion_window": f.window,
         "fusion_vote_delay": f.vote_delay,
         "fusion_transition": jsonable(f.transition),
-        "preprocess": jsonable(pipeline.params.to_dict() if pipeline else {}),
+        "preprocess": jsonable(preprocess),
         **extra,
     }
 

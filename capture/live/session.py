@@ -573,6 +573,7 @@ class Session:
         return rec.close() if rec is not None else None
 
     def _metadata(self, info: SubjectInfo) -> dict[str, dict]:
+
         cfg = self.config
         devices = devices_metadata(cfg, self._camera, self._imu)
         software = software_metadata(

@@ -1,7 +1,14 @@
+import dataclasses
+from pathlib import Path
+
 import pytest
 
 from capture import config as cfg
 from capture.errors import ConfigError
+from devices import camera, imu
+from inference import fusion
+
+REFERENCE = Path(__file__).resolve().parents[2] / "docs" / "configuration.md"
 
 
 def test_defaults_run_out_of_the_box():
@@ -72,4 +79,56 @@ def test_fusion_hysteresis_is_read_and_checked(tmp_path):
     assert c.fusion.method == "steady+hysteresis" and c.fusion.hysteresis == 0.9
     p.write_text("[fusion]\nhysteresis = 1.0\n")
     with pytest.raises(ConfigError, match="0 <= hysteresis < 1"):
+        cfg.load(p)
+
+
+def test_the_configuration_reference_is_the_generated_one():
+    assert REFERENCE.read_text() == cfg.reference(), (
+        f"docs/configuration.md is not the configuration's fields: `{cfg.REFERENCE_COMMAND}`"
+    )
+
+
+def test_the_reference_shows_every_key_with_its_doc_and_default():
+    text = cfg.reference()
+    for name, section in cfg.sections():
+        assert f"## [{name}]" in text
+        for key in dataclasses.fields(section):
+            assert f"| `{key.name}` |" in text and key.metadata["doc"], f"{name}.{key.name}"
+    assert "| `fps` | `15.0` | frame rate" in text
+
+
+@pytest.mark.parametrize(
+    "section, key, registry",
+    [("camera", "backend", camera.BACKENDS), ("imu", "backend", imu.BACKENDS)],
+)
+def test_backend_names_come_from_the_registries(monkeypatch, section, key, registry):
+    monkeypatch.setitem(registry, "lab-built", registry[next(iter(registry))])
+    assert getattr(cfg.from_dict({section: {key: "lab-built"}}), section).backend == "lab-built"
+    assert "lab-built" in cfg.reference() and "lab-built" in cfg.documented(cfg.Config())
+    with pytest.raises(ConfigError, match=f"{section}.{key} = 'nope': expected one of .*lab-built"):
+        cfg.from_dict({section: {key: "nope"}})
+
+
+def test_fusion_methods_come_from_the_registry(monkeypatch):
+    monkeypatch.setattr(fusion, "METHODS", (*fusion.METHODS, "lab-built"))
+    assert cfg.from_dict({"fusion": {"method": "lab-built"}}).fusion.method == "lab-built"
+    assert "lab-built" in cfg.reference()
+    with pytest.raises(ConfigError, match="fusion.method = 'kalman': expected one of cnn"):
+        cfg.from_dict({"fusion": {"method": "kalman"}})
+
+
+def test_fusion_config_makes_every_method_with_its_parameters():
+    c = cfg.from_dict({"fusion": {"window": 3, "vote_delay": 2, "lag": 4, "hysteresis": 0.9}})
+    assert c.fusion.make().method == "hmm+voting" and c.fusion.delay_frames() == 3
+    assert c.fusion.delay_frames("fixed-lag") == 4 and c.fusion.delay_frames("cnn+voting") == 2
+    assert c.fusion.make("steady+hysteresis").hysteresis == 0.9
+
+
+def test_preprocess_keys_are_checked(tmp_path):
+    p = tmp_path / "c.toml"
+    p.write_text("[preprocess]\nmin_height_m = 2.0\nmax_height_m = 1.0\n")
+    with pytest.raises(ConfigError, match="preprocess.max_height_m = 1.0"):
+        cfg.load(p)
+    p.write_text("[preprocess]\nbackend = 'gpu'\n")
+    with pytest.raises(ConfigError, match="preprocess.backend = 'gpu': expected one of numpy"):
         cfg.load(p)

@@ -238,10 +238,14 @@ def test_stairs_show_treads_one_riser_apart(indoor):
 
 
 def _image(frame, tilt_deg: float = 35.0):
-    from inference.preprocess import PreprocessParams, preprocess_frame
+    from devices.config import MountingConfig
+    from inference.config import PreprocessConfig
+    from inference.preprocess import preprocess_frame
 
-    params = PreprocessParams(mounting_pitch_deg=tilt_deg)
-    return preprocess_frame(frame, np.array(frame.truth["thigh_quaternion"]), params)
+    q = np.array(frame.truth["thigh_quaternion"])
+    return preprocess_frame(
+        frame, q, PreprocessConfig(), mounting=MountingConfig(pitch_deg=tilt_deg)
+    )
 
 
 def test_truth_is_what_the_classifiers_image_shows(indoor):

@@ -4,8 +4,10 @@ import re
 import numpy as np
 import pytest
 
+from devices.config import MountingConfig
 from inference.calibration import CalibrationResult, estimate_mounting, floor_plane
-from inference.preprocess import PreprocessParams, preprocess
+from inference.config import PreprocessConfig
+from inference.preprocess import preprocess
 from tests import terrain_raycast as tr
 
 TRUE_MOUNTING = (2.0, 38.5, 0.0)  # the camera sits 2 deg rolled, 3.5 deg lower than set
@@ -46,8 +48,8 @@ def test_recovers_a_known_pitch_and_roll_offset():
     q = tr.thigh_quaternion(-10, 2, 0)
     x, c = tr.render(tr.level(), q, mounting=TRUE_MOUNTING)
     for mounting, flat in (((0.0, 35.0), False), ((result.roll_deg, result.pitch_deg), True)):
-        params = PreprocessParams(mounting_roll_deg=mounting[0], mounting_pitch_deg=mounting[1])
-        z = preprocess(x, c, q, params).cloud[:, 2]
+        fitted = MountingConfig(roll_deg=mounting[0], pitch_deg=mounting[1])
+        z = preprocess(x, c, q, PreprocessConfig(), mounting=fitted).cloud[:, 2]
         assert (np.ptp(z) < 0.01) == flat
 
 

@@ -7,9 +7,12 @@ import pytest
 from scipy import stats
 
 from inference import evaluation as ev
+from inference.config import FusionConfig
 from inference.errors import InferenceError
+from inference.evaluation import metrics
 from inference.fusion import METHODS, make_fusion
 from inference.fusion_design import PAPER_TRANSITION
+from tests.scored_trials import synthetic_trial
 
 HEADER = "LG,US,DS,UR,DR,label\n"
 
@@ -33,7 +36,7 @@ def live_final(fusion, probabilities):
 def trials():
     conditions = ["indoor", "indoor", "outdoor", "outdoor", "indoor", "outdoor"]
     return [
-        ev.synthetic_trial(
+        synthetic_trial(
             i,
             accuracy=0.88,
             path=f"t{i}.mcap",
@@ -51,31 +54,31 @@ SCORE_METHODS = [m for m in METHODS if m != "steady+gait"]  # gait needs a recor
 
 @pytest.mark.parametrize("method", SCORE_METHODS)
 def test_offline_decisions_are_the_live_ones(method, trials):
-    params = ev.FusionParameters(window=4, vote_delay=2, lag=2)
+    params = FusionConfig(window=4, vote_delay=2, lag=2)
     e = trials[0].probabilities
-    offline = ev.run_offline(params.make(method), e)
+    offline = metrics.run_offline(params.make(method), e)
     np.testing.assert_array_equal(offline.final, live_final(params.make(method), e))
     assert np.all(offline.final >= 0)
 
 
 def test_vote_offline_is_the_streaming_vote(trials):
     e = trials[1].probabilities
-    hmm = ev.run_offline(make_fusion("hmm"), e)
+    hmm = metrics.run_offline(make_fusion("hmm"), e)
     for lv in (0, 1, 3):
-        voted = ev.run_offline(make_fusion("hmm+voting", vote_delay=lv), e)
-        np.testing.assert_array_equal(ev.vote_offline(hmm.decisions, lv), voted.final)
+        voted = metrics.run_offline(make_fusion("hmm+voting", vote_delay=lv), e)
+        np.testing.assert_array_equal(metrics.vote_offline(hmm.decisions, lv), voted.final)
 
 
 def test_accuracy_counts_only_frames_with_a_reference():
-    assert ev.accuracy(np.array([0, 1, 2, 3]), np.array([0, 1, -1, 0])) == pytest.approx(2 / 3)
+    assert metrics.accuracy(np.array([0, 1, 2, 3]), np.array([0, 1, -1, 0])) == pytest.approx(2 / 3)
     with pytest.raises(InferenceError, match="no frame"):
-        ev.accuracy(np.array([0]), np.array([-1]))
+        metrics.accuracy(np.array([0]), np.array([-1]))
 
 
 def test_evaluate_trial_reports_each_method(trials):
-    result = ev.evaluate_trial(trials[0], ev.PAPER_METHODS)
+    result = metrics.evaluate_trial(trials[0], ev.PAPER_METHODS)
     for m in ev.PAPER_METHODS:
-        assert result.accuracy[m] == ev.accuracy(result.runs[m].final, trials[0].reference)
+        assert result.accuracy[m] == metrics.accuracy(result.runs[m].final, trials[0].reference)
     cnn = np.mean(np.argmax(trials[0].probabilities, axis=1) == trials[0].reference)
     assert result.accuracy["cnn"] == pytest.approx(cnn)
     assert result.accuracy["hmm"] > result.accuracy["cnn"]
@@ -99,9 +102,9 @@ def test_mean_sd_and_paired_t_tests_match_scipy(trials):
     results = ev.evaluate(trials, ev.PAPER_METHODS)
     x = [r.accuracy["hmm"] for r in results]
     y = [r.accuracy["cnn+voting"] for r in results]
-    mean, sd = ev.mean_sd(x)
+    mean, sd = metrics.mean_sd(x)
     assert mean == pytest.approx(np.mean(x)) and sd == pytest.approx(np.std(x, ddof=1))
-    tests = {(t.a, t.b): t for t in ev.paired_t_tests(results, ev.PAPER_METHODS)}
+    tests = {(t.a, t.b): t for t in metrics.paired_t_tests(results, ev.PAPER_METHODS)}
     assert len(tests) == 6
     ref = stats.ttest_rel(y, x)
     assert tests[("cnn+voting", "hmm")].t == pytest.approx(ref.statistic)
@@ -110,19 +113,19 @@ def test_mean_sd_and_paired_t_tests_match_scipy(trials):
 
 
 def test_paired_t_test_of_identical_methods_and_single_trials(trials):
-    results = ev.evaluate(trials[:2], ["cnn", "cnn+voting"], ev.FusionParameters(vote_delay=0))
-    (same,) = ev.paired_t_tests(results, ["cnn", "cnn+voting"])
+    results = ev.evaluate(trials[:2], ["cnn", "cnn+voting"], FusionConfig(vote_delay=0))
+    (same,) = metrics.paired_t_tests(results, ["cnn", "cnn+voting"])
     assert same.p == 1.0 and np.isnan(same.t)
-    (single,) = ev.paired_t_tests(results[:1], ["cnn", "cnn+voting"])
+    (single,) = metrics.paired_t_tests(results[:1], ["cnn", "cnn+voting"])
     assert np.isnan(single.p)
-    assert np.isnan(ev.mean_sd([0.5])[1])
+    assert np.isnan(metrics.mean_sd([0.5])[1])
 
 
 def test_confusion_matrix_counts_reference_rows_and_decided_columns(trials):
-    c = ev.confusion_matrix(np.array([0, 1, 1, 4, 2]), np.array([0, 1, 2, 4, -1]))
+    c = metrics.confusion_matrix(np.array([0, 1, 1, 4, 2]), np.array([0, 1, 2, 4, -1]))
     assert c.sum() == 4 and c[0, 0] == 1 and c[1, 1] == 1 and c[2, 1] == 1 and c[4, 4] == 1
     results = ev.evaluate(trials, ["hmm"])
-    pooled = ev.pooled_confusion(results, "hmm")
+    pooled = metrics.pooled_confusion(results, "hmm")
     assert pooled.sum() == sum(len(t.reference) for t in trials)
     correct = sum(r.accuracy["hmm"] * len(r.trial.reference) for r in results)
     assert np.trace(pooled) == pytest.approx(correct)
@@ -130,11 +133,11 @@ def test_confusion_matrix_counts_reference_rows_and_decided_columns(trials):
 
 def test_delay_sweep_aligns_methods_on_delayed_frames(trials):
     methods = SCORE_METHODS
-    sweep = ev.delay_sweep(trials[:2], methods, 3, ev.FusionParameters(lag=1))
+    sweep = ev.delay_sweep(trials[:2], methods, 3, FusionConfig(lag=1))
     assert sweep.delays == [0, 1, 2, 3]
     a = sweep.accuracy
     for i, trial in enumerate(trials[:2]):
-        base = ev.evaluate_trial(trial, ["cnn", "hmm", "forward"])
+        base = metrics.evaluate_trial(trial, ["cnn", "hmm", "forward"])
         assert np.all(a["cnn"][i] == base.accuracy["cnn"])
         assert np.isnan(a["hmm"][i, 0]) and np.all(a["hmm"][i, 1:] == base.accuracy["hmm"])
         assert np.isnan(a["hmm+voting"][i, 0])
@@ -142,19 +145,19 @@ def test_delay_sweep_aligns_methods_on_delayed_frames(trials):
         assert a["cnn+voting"][i, 0] == base.accuracy["cnn"]
         assert a["fixed-lag"][i, 0] == pytest.approx(base.accuracy["forward"])
         for d in (2, 3):  # each point is the method configured for that delay
-            p = ev.FusionParameters(vote_delay=d, lag=d)
+            p = FusionConfig(vote_delay=d, lag=d)
             assert (
                 a["cnn+voting"][i, d]
-                == ev.evaluate_trial(trial, ["cnn+voting"], p).accuracy["cnn+voting"]
+                == metrics.evaluate_trial(trial, ["cnn+voting"], p).accuracy["cnn+voting"]
             )
             assert (
                 a["fixed-lag"][i, d]
-                == ev.evaluate_trial(trial, ["fixed-lag"], p).accuracy["fixed-lag"]
+                == metrics.evaluate_trial(trial, ["fixed-lag"], p).accuracy["fixed-lag"]
             )
-            p = ev.FusionParameters(vote_delay=d - 1)
+            p = FusionConfig(vote_delay=d - 1)
             assert (
                 a["hmm+voting"][i, d]
-                == ev.evaluate_trial(trial, ["hmm+voting"], p).accuracy["hmm+voting"]
+                == metrics.evaluate_trial(trial, ["hmm+voting"], p).accuracy["hmm+voting"]
             )
 
 
@@ -167,7 +170,7 @@ def test_leave_one_out_transitions_exclude_the_trial_itself(trials):
 
 
 def test_report_shape(trials):
-    params = ev.FusionParameters()
+    params = FusionConfig()
     results = ev.evaluate(trials, ev.PAPER_METHODS)
     sweep = ev.delay_sweep(trials, ev.PAPER_METHODS, 2)
     data = ev.report(results, ev.PAPER_METHODS, params, sweep, grouped=True)
@@ -306,12 +309,12 @@ def test_write_plots_writes_the_papers_figures(tmp_path, trials):
 
 
 def test_paper_transition_is_the_default():
-    np.testing.assert_array_equal(ev.FusionParameters().transition, PAPER_TRANSITION)
+    np.testing.assert_array_equal(FusionConfig().transition, PAPER_TRANSITION)
 
 
 def test_a_gait_method_needs_the_cameras_elevation(trials):
     with pytest.raises(InferenceError, match="t0.mcap: steady.gait needs the camera"):
-        ev.evaluate_trial(trials[0], ["steady+gait"])
+        metrics.evaluate_trial(trials[0], ["steady+gait"])
     n = len(trials[0].reference)
     trial = ev.Trial("t", trials[0].probabilities, trials[0].reference, elevation_deg=[-30.0] * n)
-    assert ev.evaluate_trial(trial, ["steady+gait"]).accuracy["steady+gait"] > 0.5
+    assert metrics.evaluate_trial(trial, ["steady+gait"]).accuracy["steady+gait"] > 0.5

@@ -1,11 +1,12 @@
 import numpy as np
 import pytest
 
+from inference.config import PreprocessConfig
 from inference.features import TerrainFeatures, terrain_features
-from inference.preprocess import PreprocessParams, preprocess
+from inference.preprocess import preprocess
 from tests import terrain_raycast as tr
 
-PARAMS = PreprocessParams()
+PARAMS = PreprocessConfig()
 
 
 def poses(count: int, seed: int, pitch_deg: tuple[float, float]):

@@ -15,6 +15,7 @@ from matplotlib.text import Text  # noqa: E402
 
 import inference.evaluation as ev  # noqa: E402
 from devices.frames import MODE_COLORS, MODES  # noqa: E402
+from tests.scored_trials import synthetic_trial  # noqa: E402
 from tui.widgets import modes as tui_modes  # noqa: E402
 
 FPS = 15.0
@@ -23,7 +24,7 @@ METHODS = list(ev.PAPER_METHODS)
 
 def trial_with_gap(seed: int, subject: str = "S01", condition: str = "indoor", trial: int = 1):
     """A trial at 15 fps whose middle 2 s never arrived (a stall, an unplugged IMU)."""
-    t = ev.synthetic_trial(
+    t = synthetic_trial(
         seed=seed,
         accuracy=0.96,
         metadata={"subject": subject, "condition": condition, "trial": trial},

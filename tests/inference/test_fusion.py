@@ -5,7 +5,7 @@ import pytest
 
 from inference.config import FusionConfig
 from inference.errors import InferenceError
-from inference.evaluation import accuracy, run_offline, synthetic_trial
+from inference.evaluation.metrics import accuracy, run_offline
 from inference.fusion import (
     METHODS,
     FixedLagSmoother,
@@ -25,6 +25,7 @@ from inference.fusion_design import (
     walking_stay,
 )
 from tests.inference.paper_reference import paper_viterbi
+from tests.scored_trials import synthetic_trial
 
 T = PAPER_TRANSITION
 
@@ -447,8 +448,8 @@ def test_the_pipeline_gives_a_gait_fusion_the_cameras_elevation():
     from capture.live.pipeline import Pipeline
     from devices.rotations import quat_from_euler
     from devices.simulator.synthetic import synthetic_frame
+    from inference.config import PreprocessConfig
     from inference.fusion import GaitSteadyFusion
-    from inference.preprocess import PreprocessParams
 
     class Spy(GaitSteadyFusion):
         def push(self, probabilities, elevation_deg=None):
@@ -460,7 +461,7 @@ def test_the_pipeline_gives_a_gait_fusion_the_cameras_elevation():
             return np.array([0.6, 0.1, 0.1, 0.1, 0.1])
 
     seen: list = []
-    pipeline = Pipeline(PreprocessParams(), Classifier(), Spy())
+    pipeline = Pipeline(PreprocessConfig(), Classifier(), Spy())
     for k in (0, 11, 22):  # thigh swing 20 degrees at ~1 Hz (synthetic_frame's)
         q = quat_from_euler(0.0, np.radians(20.0) * np.sin(2 * np.pi * k / 45.0), 0.0)
         pipeline.process(synthetic_frame(k, 1_000_000 * k), q)

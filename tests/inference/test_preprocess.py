@@ -5,18 +5,20 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from devices.config import MountingConfig
 from devices.frames import DepthFrame
+from inference.config import PreprocessConfig
 from inference.preprocess import (
     Preprocessed,
-    PreprocessParams,
     leveling_matrix,
+    metadata,
     preprocess,
     preprocess_frame,
     rasterise,
 )
 from tests import terrain_raycast as tr
 
-PARAMS = PreprocessParams()
+PARAMS = PreprocessConfig()
 POSES = [(-20, 0, 0), (-10, 3, 40), (0, -4, -120), (10, 2, 170), (-5, 5, 75)]
 BACKENDS = ["numpy", "open3d"]
 
@@ -30,7 +32,7 @@ def iou(a: np.ndarray, b: np.ndarray) -> float:
 def test_level_ground_is_flat_at_camera_height(pose, backend):
     q = tr.thigh_quaternion(*pose)
     xyz, conf = tr.render(tr.level(), q, height_m=0.5, noise_m=0.005, seed=1)
-    out = preprocess(xyz, conf, q, PreprocessParams(backend=backend))
+    out = preprocess(xyz, conf, q, PreprocessConfig(backend=backend))
     assert out.ok, out.flag
     z = out.cloud[:, 2]
     assert abs(np.median(z) + 0.5) < 0.003
@@ -44,7 +46,7 @@ def test_level_ground_is_flat_at_camera_height(pose, backend):
 def test_leveling_uses_the_mounting():
     q = tr.thigh_quaternion(-5, 0, 0)
     xyz, conf = tr.render(tr.level(), q, mounting=(0.0, 35.0, 0.0))
-    wrong = preprocess(xyz, conf, q, PreprocessParams(mounting_pitch_deg=30.0))
+    wrong = preprocess(xyz, conf, q, PARAMS, mounting=MountingConfig(pitch_deg=30.0))
     x, z = wrong.cloud[:, 0], wrong.cloud[:, 2]
     slope = np.degrees(np.arctan(np.polyfit(x, z, 1)[0]))
     # Leveled with 5 degrees too little tilt, the floor seems to rise 5 degrees ahead.
@@ -150,8 +152,8 @@ def test_heading_does_not_matter(terrain):
 def test_backends_agree(terrain):
     q = tr.thigh_quaternion(0, 2, 10)
     xyz, conf = tr.render(terrain, q, noise_m=0.005)
-    a = preprocess(xyz, conf, q, PreprocessParams(backend="numpy"))
-    b = preprocess(xyz, conf, q, PreprocessParams(backend="open3d"))
+    a = preprocess(xyz, conf, q, PreprocessConfig(backend="numpy"))
+    b = preprocess(xyz, conf, q, PreprocessConfig(backend="open3d"))
     assert a.ok and b.ok
     assert iou(a.image, b.image) > 0.85
     # compared in the image's 1 m: beyond it, at 2-2.5 m, points are sparse and the 3-D
@@ -174,12 +176,12 @@ def test_isolated_points_are_removed_before_the_shift(backend):
     xyz, conf = tr.render(tr.level(), q)
     # One flying pixel 30 cm under the floor, 0.8 m ahead in the corridor (camera frame:
     # the inverse of the leveling).
-    stray = leveling_matrix(q, PARAMS).T @ np.array([0.8, 0.0, -0.85])
+    stray = leveling_matrix(q).T @ np.array([0.8, 0.0, -0.85])
     xyz, conf = with_stray_points(xyz, conf, [stray])
-    kept = preprocess(xyz, conf, q, PreprocessParams(backend=backend))
+    kept = preprocess(xyz, conf, q, PreprocessConfig(backend=backend))
     assert kept.cloud[:, 2].min() > -0.56
     assert set(np.nonzero(kept.image)[0]) == {98}
-    raw = preprocess(xyz, conf, q, PreprocessParams(backend=backend, outlier_min_points=0))
+    raw = preprocess(xyz, conf, q, PreprocessConfig(backend=backend, outlier_min_points=0))
     assert raw.cloud[:, 2].min() < -0.84  # without removal it would shift the image
     rows = np.nonzero(raw.image)[0]
     assert (rows == 98).sum() == 1  # the ground is lifted, only the stray point is left
@@ -191,7 +193,7 @@ def test_low_confidence_pixels_are_ignored():
     conf = conf.copy()
     conf[:, :] = 3
     conf[100:] = 200  # only the lower image rows are trusted
-    near = preprocess(xyz, conf, q, PreprocessParams(min_confidence=100))
+    near = preprocess(xyz, conf, q, PreprocessConfig(min_confidence=100))
     full = preprocess(xyz, conf, q, PARAMS)
     assert 0 < len(near.cloud) < len(full.cloud)
     assert near.cloud[:, 0].max() < full.cloud[:, 0].max() - 0.2  # lower rows = nearer
@@ -206,7 +208,7 @@ def assert_empty(out: Preprocessed, flag: str):
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_degenerate_input_gives_an_empty_image_and_a_reason(backend):
-    params = PreprocessParams(backend=backend)
+    params = PreprocessConfig(backend=backend)
     q = tr.thigh_quaternion(-10, 0, 0)
     xyz, conf = tr.render(tr.level(), q)
     assert_empty(preprocess(xyz, np.zeros_like(conf), q, params), "no_valid_points")
@@ -246,29 +248,20 @@ def test_never_raises(seed, special, fraction):
     conf = rng.integers(0, 3, (17, 23)).astype(np.uint8)
     q = rng.normal(size=4)
     for backend in BACKENDS:
-        out = preprocess(xyz, conf, q, PreprocessParams(backend=backend, min_points=1))
+        out = preprocess(xyz, conf, q, PreprocessConfig(backend=backend, min_points=1))
         assert out.image.shape == (100, 100) and out.image.dtype == np.uint8
         assert np.all(np.isfinite(out.cloud))
         assert out.ok == (out.image.sum() > 0)
 
 
-def test_params_from_config_and_to_dict():
-    from capture.config import Config
-
-    config = Config()
-    config.mounting.pitch_deg = 41.5
-    config.mounting.roll_deg = -2.0
-    config.preprocess.corridor_width_m = 0.2
-    params = PreprocessParams.from_config(config)
-    assert params.mounting_pitch_deg == 41.5 and params.mounting_roll_deg == -2.0
-    assert params.corridor_width_m == 0.2 and params.grid_size == 100
-    data = params.to_dict()
+def test_metadata_holds_every_parameter_and_the_mounting():
+    params = PreprocessConfig(corridor_width_m=0.2, backend="open3d")
+    data = metadata(params, MountingConfig(roll_deg=-2.0, pitch_deg=41.5))
     json.dumps(data)  # goes into recording and model metadata as is
-    assert PreprocessParams(**data) == params
-    config.preprocess.backend = "open3d"
-    config.preprocess.outlier_min_points = 0
-    params = PreprocessParams.from_config(config)
-    assert params.backend == "open3d" and params.outlier_min_points == 0
+    assert data["mounting_pitch_deg"] == 41.5 and data["mounting_roll_deg"] == -2.0
+    assert data["mounting_yaw_deg"] == 0.0
+    mounting = {"mounting_roll_deg", "mounting_pitch_deg", "mounting_yaw_deg"}
+    assert PreprocessConfig(**{k: v for k, v in data.items() if k not in mounting}) == params
 
 
 @pytest.mark.parametrize(
@@ -281,11 +274,9 @@ def test_params_from_config_and_to_dict():
         {"max_forward_m": -1.0},
     ],
 )
-def test_bad_params_are_a_user_error(bad):
-    from inference.errors import InferenceError
-
-    with pytest.raises(InferenceError, match="preprocess"):
-        PreprocessParams(**bad)
+def test_bad_params_are_named(bad):
+    (key,) = bad
+    assert key in [name for name, _ in PreprocessConfig(**bad).problems()]
 
 
 def test_preprocess_frame_and_grid_size():
@@ -299,7 +290,7 @@ def test_preprocess_frame_and_grid_size():
         confidence=conf,
         gray=np.zeros(conf.shape, np.uint16),
     )
-    out = preprocess_frame(frame, q, PreprocessParams(grid_size=64, cell_m=0.02))
+    out = preprocess_frame(frame, q, PreprocessConfig(grid_size=64, cell_m=0.02))
     assert out.ok and out.image.shape == (64, 64)
 
 

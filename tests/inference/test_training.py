@@ -15,17 +15,17 @@ from inference.dataset import LabeledSession
 from inference.errors import InferenceError
 from inference.model import Classifier
 from inference.training import (
-    BREAKDOWN_GROUPS,
     TrainSettings,
-    _epoch_indices,
     augment_image,
     evaluate_sessions,
     format_metrics,
-    frame_groups,
     group_metrics,
     split_by_session,
     train,
 )
+from inference.training import loop as training_loop
+from inference.training.data import batches, epoch_indices
+from inference.training.metrics import BREAKDOWN_GROUPS, frame_groups
 from tests.drawn_sessions import draw_profile, drawn_session, drawn_sessions
 
 
@@ -54,10 +54,10 @@ def test_split_refuses_too_few_or_duplicate_sessions():
 
 def test_balanced_sampling_draws_classes_evenly():
     labels = np.array([0] * 900 + [1] * 50 + [2] * 25 + [3] * 15 + [4] * 10)
-    idx = _epoch_indices(labels, 10_000, True, np.random.default_rng(0))
+    idx = epoch_indices(labels, 10_000, True, np.random.default_rng(0))
     share = np.bincount(labels[idx], minlength=5) / len(idx)
     assert np.all(np.abs(share - 0.2) < 0.03)
-    plain = _epoch_indices(labels, 1000, False, np.random.default_rng(0))
+    plain = epoch_indices(labels, 1000, False, np.random.default_rng(0))
     assert sorted(plain) == list(range(1000))
 
 
@@ -76,8 +76,6 @@ def test_augmentation_keeps_a_plausible_binary_profile():
 
 
 def test_a_mirrored_ascent_is_trained_as_the_descent_of_its_shape():
-    from inference.training import _batches
-
     rng = np.random.default_rng(3)
     up = draw_profile("US", rng)
     down = augment_image(up, rng, tilt_deg=0.0, scale=0.0, dropout=0.0, mirror=True)
@@ -90,9 +88,9 @@ def test_a_mirrored_ascent_is_trained_as_the_descent_of_its_shape():
     images = np.stack([draw_profile(m, rng) for m in modes])
     labels = np.array([MODES.index(m) for m in modes])
     order = np.arange(len(modes))
-    ((_, mirrored),) = _batches(images, labels, order, 8, 0.0, np.random.default_rng(0), 1.0)
+    ((_, mirrored),) = batches(images, labels, order, 8, 0.0, np.random.default_rng(0), 1.0)
     assert [MODES[i] for i in mirrored] == ["LG", "DS", "DS", "DR", "DR"]
-    ((_, plain),) = _batches(images, labels, order, 8, 1.0, np.random.default_rng(0), 0.0)
+    ((_, plain),) = batches(images, labels, order, 8, 1.0, np.random.default_rng(0), 0.0)
     assert plain.tolist() == labels.tolist()
 
 
@@ -165,11 +163,11 @@ def test_training_learns_drawn_profiles_and_reports_unseen_sessions():
 
 
 def test_early_stopping_restores_the_best_epoch(monkeypatch):
-    import inference.training as training
-
     losses = iter([1.0, 0.5, 0.7, 0.8, 0.9, 1.0])
     monkeypatch.setattr(
-        training, "_validate", lambda net, x, y, device, power, world=None: (next(losses), 0.5, 0.5)
+        training_loop,
+        "_validate",
+        lambda net, x, y, device, power, world=None: (next(losses), 0.5, 0.5),
     )
     result = train(
         drawn_sessions(6, 2),
@@ -180,16 +178,14 @@ def test_early_stopping_restores_the_best_epoch(monkeypatch):
 
 
 def test_unbalanced_frames_are_balanced_in_training(monkeypatch):
-    import inference.training as training
-
     seen = []
-    real = training._batches
+    real = training_loop.batches
 
     def spy(images, labels, order, *a, **kw):
         seen.extend(labels[order])
         return real(images, labels, order, *a, **kw)
 
-    monkeypatch.setattr(training, "_batches", spy)
+    monkeypatch.setattr(training_loop, "batches", spy)
     counts = {"LG": 40, "US": 4, "DS": 4, "UR": 4, "DR": 4}
     sessions = [drawn_session(f"s{i}", "indoor", i, counts=counts) for i in range(4)]
     shares = []

@@ -1,9 +1,9 @@
-"""Transition metrics on hand-made sequences with known answers (inference.transitions)."""
+"""Transition metrics on hand-made sequences with known answers."""
 
 import numpy as np
 import pytest
 
-from inference.transitions import (
+from inference.evaluation.transitions import (
     Change,
     decision_switches,
     settled_changes,

@@ -10,6 +10,7 @@ import pytest
 from devices.frames import MODES
 from inference import evaluation as ev
 from inference.fusion import make_fusion
+from tests.scored_trials import synthetic_trial
 from tui import cli
 from tui.commands import eval_model
 
@@ -24,7 +25,7 @@ def write_scores(path, trial):
 
 @pytest.fixture
 def score_files(tmp_path):
-    return [write_scores(tmp_path / f"s{i}.csv", ev.synthetic_trial(i)) for i in range(3)]
+    return [write_scores(tmp_path / f"s{i}.csv", synthetic_trial(i)) for i in range(3)]
 
 
 def run(capsys, *argv):

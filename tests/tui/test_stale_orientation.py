@@ -18,8 +18,9 @@ from capture.recording import topics as T
 from capture.recording.reader import open_recording, read_trial
 from devices.frames import DepthFrame
 from devices.simulator.synthetic import synthetic_frame
+from inference.config import PreprocessConfig
 from inference.fusion import make_fusion
-from inference.preprocess import STALE_ORIENTATION, PreprocessParams, preprocess
+from inference.preprocess import STALE_ORIENTATION, preprocess
 from tests.tui.test_tui_app import rendered
 from tests.tui.test_tui_live_session import StubClassifier, _short_idle_wait, wait_for
 from tests.tui.test_tui_replay import FakeClock
@@ -56,18 +57,18 @@ def level_frame(index: int, time_ns: int) -> DepthFrame:
 
 def test_an_orientation_older_than_the_bound_gives_no_image():
     frame = synthetic_frame(0, 0)
-    params = PreprocessParams()
+    params = PreprocessConfig()
     fresh = preprocess(frame.xyz, frame.confidence, LEVEL, params, orientation_age_ns=10_000_000)
     stale = preprocess(frame.xyz, frame.confidence, LEVEL, params, orientation_age_ns=60_000_000)
     assert stale.flag == STALE_ORIENTATION and not stale.image.any()
     assert fresh.flag != STALE_ORIENTATION
-    bound = PreprocessParams(max_orientation_age_ms=100.0)
+    bound = PreprocessConfig(max_orientation_age_ms=100.0)
     assert preprocess(frame.xyz, frame.confidence, LEVEL, bound, 60_000_000).flag == fresh.flag
 
 
 def test_a_stale_frame_is_not_classified_and_the_fusion_holds():
     fusion = CountingFusion()
-    pipeline = Pipeline(PreprocessParams(), StubClassifier(), fusion)
+    pipeline = Pipeline(PreprocessConfig(), StubClassifier(), fusion)
     track = OrientationTrack()
     for k in range(10):  # 100 Hz, then silence: the IMU unplugged at 90 ms
         track.add(k * 10_000_000, LEVEL)
@@ -85,7 +86,7 @@ def test_the_bound_is_configurable_and_checked(tmp_path):
     path = tmp_path / "lab.toml"
     path.write_text("[preprocess]\nmax_orientation_age_ms = 80.0\n")
     config = load(str(path))
-    assert PreprocessParams.from_config(config).max_orientation_age_ms == 80.0
+    assert config.preprocess.max_orientation_age_ms == 80.0
     path.write_text("[preprocess]\nmax_orientation_age_ms = 0.0\n")
     with pytest.raises(ConfigError, match="max_orientation_age_ms"):
         load(str(path))

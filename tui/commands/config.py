@@ -11,11 +11,19 @@ def add_arguments(parser) -> None:
         action="store_true",
         help="print the defaults, ignoring any configuration file",
     )
+    parser.add_argument(
+        "--markdown",
+        action="store_true",
+        help="print the configuration reference (docs/configuration.md) in Markdown",
+    )
 
 
 def run(args, config) -> int:
     from capture import config as config_mod
 
+    if args.markdown:
+        print(config_mod.reference(), end="")
+        return 0
     if args.default:
         config = config_mod.Config()
     elif config.source:

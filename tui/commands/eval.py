@@ -67,9 +67,8 @@ def _common_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--lag",
         type=count(0),
-        default=1,
         metavar="N",
-        help="lag of the fixed-lag smoother (default: 1)",
+        help="lag of the fixed-lag smoother in frames (default: [fusion] lag, 1)",
     )
     p.add_argument(
         "--transition",
@@ -159,6 +158,8 @@ def run(args, config) -> int:
     if args.eval_command == "model":
         return eval_model.run(args, config)
 
+    from dataclasses import replace
+
     from inference import evaluation as ev
     from inference.errors import InferenceError
     from inference.fusion_design import PAPER_TRANSITION, validate_transition
@@ -174,8 +175,13 @@ def run(args, config) -> int:
         if args.transition == "paper"
         else validate_transition(config.fusion.transition, "fusion.transition")
     )
-    steady = config.fusion.stay, config.fusion.evidence, config.fusion.hysteresis
-    params = ev.FusionParameters(window, vote_delay, transition, args.lag, *steady)
+    params = replace(
+        config.fusion,
+        window=window,
+        vote_delay=vote_delay,
+        transition=transition,
+        lag=args.lag if args.lag is not None else config.fusion.lag,
+    )
 
     if args.eval_command == "scores":
         trials = [ev.read_scores(path, args.fps) for path in args.files]
@@ -184,10 +190,7 @@ def run(args, config) -> int:
         trials = _trials(files, args.reference, args.cluster)
     per_trial = params
     if args.transition == "estimated":
-        per_trial = [
-            ev.FusionParameters(window, vote_delay, t, args.lag, *steady)
-            for t in ev.leave_one_out_transitions(trials)
-        ]
+        per_trial = [replace(params, transition=t) for t in ev.leave_one_out_transitions(trials)]
 
     if args.methods is None:
         default = RECORDING_METHODS if args.eval_command == "recordings" else DEFAULT_METHODS

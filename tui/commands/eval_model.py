@@ -73,7 +73,6 @@ def run(args, config) -> int:
 
     from capture.corpus.dataset import SynthSettings, read_sessions
     from inference.model import load_classifier
-    from inference.preprocess import PreprocessParams
     from inference.training import evaluate_sessions, format_metrics
 
     classifier = load_classifier(
@@ -89,7 +88,6 @@ def run(args, config) -> int:
 
         from capture.corpus.dataset import render_synth_session, session_plan
 
-        params = PreprocessParams.from_config(config)
         settings = SynthSettings(max_frames=args.frames or 0)
         sessions = []
         for preset, seed in tqdm(
@@ -99,7 +97,14 @@ def run(args, config) -> int:
             disable=args.json,
         ):
             sessions.append(
-                render_synth_session(preset, seed, params, settings, config.simulator)[0]
+                render_synth_session(
+                    preset,
+                    seed,
+                    config.preprocess,
+                    settings,
+                    config.simulator,
+                    mounting=config.mounting,
+                )[0]
             )
         where = f"{len(sessions)} new synthetic sessions (seeds {args.seed}..)"
     seen = set(classifier.metadata.get("data", {}).get("sessions_seen_in_training", []))

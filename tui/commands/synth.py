@@ -78,7 +78,6 @@ def run(args, config) -> int:
     from dataclasses import replace
 
     from capture.corpus.dataset import SynthSettings, synth_dataset
-    from inference.preprocess import PreprocessParams
 
     settings = SynthSettings(max_frames=args.frames or 0, vary_walker=not args.fixed_walker)
     if args.imu_error_deg is not None:
@@ -89,7 +88,8 @@ def run(args, config) -> int:
         args.sessions,
         args.preset,
         args.seed,
-        params=PreprocessParams.from_config(config),
+        params=config.preprocess,
+        mounting=config.mounting,
         settings=settings,
         simulator_config=config.simulator,
         workers=args.workers,

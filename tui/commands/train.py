@@ -169,7 +169,7 @@ def add_arguments(parser) -> None:
 def run(args, config) -> int:
     from capture.corpus.dataset import read_sessions, select_session_files
     from inference.model import file_sha256
-    from inference.preprocess import PreprocessParams
+    from inference.preprocess import metadata as preprocess_metadata
     from inference.training import (
         TrainSettings,
         format_metrics,
@@ -216,7 +216,9 @@ def run(args, config) -> int:
         n_sessions, frames, what = len(sessions), sum(len(s) for s in sessions), "frames"
     if not args.json:
         print(f"{n_sessions} sessions, {frames} {what} from {', '.join(args.data)}")
-    preprocess = _preprocess_params(sessions) or PreprocessParams.from_config(config).to_dict()
+    preprocess = _preprocess_params(sessions) or preprocess_metadata(
+        config.preprocess, config.mounting
+    )
     if not args.cluster:
         result = train(sessions, settings, show_progress=not quiet)
     path = save_result(result, args.out, settings, preprocess, [str(f) for f in files])

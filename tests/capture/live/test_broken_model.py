@@ -15,7 +15,7 @@ from capture.live.session import Session, SubjectInfo
 from capture.recording import topics as T
 from capture.recording.reader import open_recording
 from inference.errors import InferenceError
-from inference.evaluation import run_offline
+from inference.evaluation.metrics import run_offline
 from inference.fusion import make_fusion
 from inference.model import BUNDLED_PATH, TerrainCNN, load_classifier, read_metadata, save_model
 from inference.training import group_metrics
@@ -50,7 +50,7 @@ def test_commands_refuse_it_with_one_line(nan_model, capsys, argv):
 
 
 def test_evaluation_never_scores_nan_as_right():
-    from inference.evaluation import decisions_of
+    from inference.evaluation.metrics import decisions_of
 
     p = np.full((6, 5), 0.05)
     p[:, 0] = 0.8

@@ -321,10 +321,10 @@ def test_fast_replay_prepares_frames_itself_until_its_reader_process_is_ready(re
     """The frames done here while the reader starts, then the reader's from the next on:
     each frame once, in order, the same as the reader would have made them."""
     import capture.corpus.replay as R
-    from inference.preprocess import PreprocessParams
 
     path, _, _, _ = recorded
-    params = PreprocessParams.from_config(Config())
+    config = Config()
+    params, mounting = config.preprocess, config.mounting
     imu = R.orientations(R.recorded(open_recording(path))[0])
 
     class Reader:  # stands in for the reader process
@@ -335,21 +335,21 @@ def test_fast_replay_prepares_frames_itself_until_its_reader_process_is_ready(re
             self.skip = skip
 
         def batches(self, size):
-            for frame, q, pre in R.prepared_frames(path, params, imu, self.skip):
+            for frame, q, pre in R.prepared_frames(path, params, mounting, imu, self.skip):
                 yield [R._encoded(frame, q, pre)]
 
     reader = Reader()
     frames = []
-    for block in R._head_start(path, params, imu, reader):
+    for block in R._head_start(path, params, mounting, imu, reader):
         frames += [frame.index for frame, _, _, _ in block]
         if len(frames) == 3:
             reader.ready.set()  # the reader process says it is ready
-    every = [frame.index for frame, _, _ in R.prepared_frames(path, params, imu)]
+    every = [frame.index for frame, _, _ in R.prepared_frames(path, params, mounting, imu)]
     assert reader.skip == 3
     assert frames == every and len(every) > 30
-    skipped = R.prepared_frames(path, params, imu, skip=5)
+    skipped = R.prepared_frames(path, params, mounting, imu, skip=5)
     first, q, _ = next(skipped)
-    _, q5, _ = list(R.prepared_frames(path, params, imu))[5]
+    _, q5, _ = list(R.prepared_frames(path, params, mounting, imu))[5]
     assert first.index == every[5] and np.array_equal(q, q5)
 
 

@@ -1,0 +1,372 @@
+"""Running the fusion methods over trials and scoring them the way the paper does:
+per-frame accuracy per trial, mean +- SD across trials, paired t-tests, accuracy and
+spurious switches against delay, confusion matrices.
+
+Decisions always come from the streaming objects of `inference.fusion`, pushed frame by
+frame and flushed at the end (`run_offline`): offline results are the live ones.
+Accuracy is the fraction of frames whose final decision equals the reference, over the
+frames that have a reference (-1 = none); the mean over trials is the mean of the trials'
+accuracies, as in the paper (not pooled over frames); SD uses n-1. Accuracy is scored
+against the trial's `reference` (`terrain` unless asked otherwise); the transition
+metrics (`inference.evaluation.transitions`) against each reference the trial has.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from inference.config import FusionConfig
+from inference.errors import InferenceError
+from inference.evaluation import transitions as tr
+from inference.evaluation.trials import FusionRun, Trial, TrialResult
+from inference.fusion import FixedLagSmoother, Fusion, Voter
+from inference.fusion_design import N_MODES, estimate_transition
+
+PAPER_METHODS = ("cnn", "cnn+voting", "hmm", "hmm+voting")
+TITLES = {
+    "cnn": "CNN",
+    "cnn+voting": "CNN + voting",
+    "hmm": "HMM",
+    "hmm+voting": "HMM + voting",
+    "forward": "forward filter",
+    "fixed-lag": "fixed-lag smoother",
+    "steady": "steady",
+    "steady+gait": "steady + gait",
+    "steady+hysteresis": "steady + hysteresis",
+}
+
+
+@dataclass
+class PairedTest:
+    a: str
+    b: str
+    n: int
+    t: float  # NaN when undefined (fewer than 2 trials, identical results)
+    p: float
+
+
+@dataclass
+class DelaySweep:
+    """Accuracy and spurious switches per trial against the number of delayed frames (NaN:
+    not reachable). Spurious switches are counted against the trials' scored reference."""
+
+    delays: list[int]
+    accuracy: dict[str, np.ndarray]  # method -> (trials, delays)
+    spurious: dict[str, np.ndarray] = field(default_factory=dict)  # method -> (trials, delays)
+    minutes: np.ndarray | None = None  # (trials,) each trial's duration
+
+    def spurious_per_min(self, method: str, rows=None) -> np.ndarray:
+        """Pooled over the trials (`rows`: some of them): spurious switches / minutes."""
+        counts = self.spurious[method] if rows is None else self.spurious[method][rows]
+        minutes = self.minutes if rows is None else self.minutes[rows]
+        with np.errstate(all="ignore"):
+            return np.array(
+                [
+                    np.nan if np.isnan(c).any() else c.sum() / minutes.sum()
+                    for c in np.atleast_2d(counts).T
+                ]
+            )
+
+
+# ---------------------------------------------------------------------------------------
+# running methods
+
+
+def decisions_of(probabilities: np.ndarray) -> np.ndarray:
+    """The argmax of each row; -1 (never right) for a row that is not finite."""
+    p = np.asarray(probabilities, dtype=float).reshape(len(probabilities), -1)
+    out = np.argmax(np.nan_to_num(p, nan=-np.inf), axis=1)
+    out[~np.all(np.isfinite(p), axis=1)] = -1
+    return out
+
+
+def run_offline(
+    fusion: Fusion, probabilities: np.ndarray, elevation_deg: np.ndarray | None = None
+) -> FusionRun:
+    """Push every frame through a fresh streaming object, then flush: the live decisions.
+
+    A frame whose probabilities are not finite (a broken classifier) is pushed as uniform,
+    carrying no evidence, and left undecided (-1): it is never scored as right. A method
+    with gait cues (`uses_gait`) gets each frame's camera elevation, `elevation_deg`."""
+    e = np.array(probabilities, dtype=float)
+    unusable = ~np.all(np.isfinite(e), axis=1) if e.ndim == 2 else np.zeros(len(e), bool)
+    e[unusable] = 1.0 / N_MODES
+    n = len(e)
+    decisions = np.full(n, -1)
+    voted = np.full(n, -1)
+    posteriors = np.full((n, N_MODES), np.nan)
+    fusion.reset()
+
+    def collect(out) -> None:
+        if out is None:
+            return
+        if out.frame is not None:
+            decisions[out.frame] = out.decision
+        if out.posterior_frame is not None:
+            posteriors[out.posterior_frame] = out.probabilities
+        if out.voted_frame is not None:
+            voted[out.voted_frame] = out.voted
+
+    if getattr(fusion, "uses_gait", False):
+        if elevation_deg is None:
+            raise InferenceError(
+                f"{fusion.method} needs the camera's orientation at each frame (recordings)"
+            )
+        for row, elevation in zip(e, np.asarray(elevation_deg, dtype=float).tolist()):
+            collect(fusion.push(row, elevation))
+    else:
+        for row in e:
+            collect(fusion.push(row))
+    for out in fusion.flush():
+        collect(out)
+    final = voted if fusion.votes else decisions
+    if np.any(final < 0):  # every frame must be decided once flushed
+        raise AssertionError(f"{fusion.method}: frames without a decision")
+    decisions[unusable] = -1
+    if fusion.votes:
+        final[unusable] = -1
+    return FusionRun(fusion.method, decisions, final, posteriors)
+
+
+def vote_offline(decisions: np.ndarray, vote_delay: int) -> np.ndarray:
+    """The streaming Voter over a decision sequence (pushed, then flushed)."""
+    voter = Voter(vote_delay)
+    votes = np.full(len(decisions), -1)
+    for frame, decision in enumerate(decisions.tolist()):
+        vote = voter.push(frame, decision)
+        if vote is not None:
+            votes[vote[0]] = vote[1]
+    for frame, vote in voter.flush():
+        votes[frame] = vote
+    return votes
+
+
+def accuracy(decisions: np.ndarray, reference: np.ndarray) -> float:
+    """Fraction of frames with a reference whose decision equals it."""
+    reference = np.asarray(reference)
+    labeled = reference >= 0
+    if not labeled.any():
+        raise InferenceError("no frame has a reference mode")
+    return float(np.mean(np.asarray(decisions)[labeled] == reference[labeled]))
+
+
+def _per_trial(params: FusionConfig | Sequence[FusionConfig] | None, n: int):
+    """One parameter set per trial: the same for every trial, or one each."""
+    if params is None:
+        params = FusionConfig()
+    if isinstance(params, FusionConfig):
+        return [params] * n
+    if len(params) != n:
+        raise ValueError("one FusionConfig per trial")
+    return list(params)
+
+
+def evaluate_trial(
+    trial: Trial,
+    methods: Sequence[str] = PAPER_METHODS,
+    params: FusionConfig | None = None,
+) -> TrialResult:
+    if not (trial.reference >= 0).any():
+        raise InferenceError(f"{trial.path}: no frame has a reference mode")
+    params = params or FusionConfig()
+    try:
+        runs = {
+            m: run_offline(params.make(m), trial.probabilities, trial.elevation_deg)
+            for m in methods
+        }
+    except InferenceError as e:
+        raise InferenceError(f"{trial.path}: {e}") from None
+    return TrialResult(
+        trial,
+        {m: accuracy(r.final, trial.reference) for m, r in runs.items()},
+        runs,
+        {m: trial_transitions(trial, r.final, params.delay_frames(m)) for m, r in runs.items()},
+    )
+
+
+def trial_transitions(
+    trial: Trial, final: np.ndarray, delay_frames: int
+) -> dict[str, tr.TransitionStats]:
+    """A decision sequence's switches against each of the trial's references."""
+    return {
+        name: tr.transition_stats(final, ref, trial.times_s, name=name, delay_frames=delay_frames)
+        for name, ref in trial.references().items()
+    }
+
+
+def pooled_transitions(
+    results: Sequence[TrialResult], method: str
+) -> dict[str, tr.TransitionStats]:
+    """Per reference, the trials' switches pooled (counts and minutes summed); a reference
+    only some trials have is pooled over those."""
+    names: dict[str, list[tr.TransitionStats]] = {}
+    for r in results:
+        for name, stats in r.transitions.get(method, {}).items():
+            names.setdefault(name, []).append(stats)
+    return {name: tr.pooled(stats) for name, stats in names.items()}
+
+
+def evaluate(
+    trials: Sequence[Trial],
+    methods: Sequence[str] = PAPER_METHODS,
+    params: FusionConfig | Sequence[FusionConfig] | None = None,
+) -> list[TrialResult]:
+    return [evaluate_trial(t, methods, p) for t, p in zip(trials, _per_trial(params, len(trials)))]
+
+
+def leave_one_out_transitions(trials: Sequence[Trial], smoothing: float = 1.0) -> list[np.ndarray]:
+    """Per trial, the transition matrix counted from the other trials' references
+    (from the trial itself when it is the only one)."""
+    refs = [t.reference for t in trials]
+    if len(refs) == 1:
+        return [estimate_transition(refs, smoothing)]
+    return [estimate_transition(refs[:i] + refs[i + 1 :], smoothing) for i in range(len(refs))]
+
+
+# ---------------------------------------------------------------------------------------
+# statistics
+
+
+def mean_sd(values: Sequence[float]) -> tuple[float, float]:
+    """Mean and sample SD (n-1; NaN for one value)."""
+    v = np.asarray(values, dtype=float)
+    if v.size == 0:
+        return math.nan, math.nan
+    return float(v.mean()), float(v.std(ddof=1)) if v.size > 1 else math.nan
+
+
+def summarize(results: Sequence[TrialResult], methods: Sequence[str]) -> dict[str, dict]:
+    """{"mean": {method: ...}, "sd": {method: ...}} across trials."""
+    out: dict[str, dict] = {"mean": {}, "sd": {}}
+    for m in methods:
+        out["mean"][m], out["sd"][m] = mean_sd([r.accuracy[m] for r in results])
+    return out
+
+
+def paired_t_tests(results: Sequence[TrialResult], methods: Sequence[str]) -> list[PairedTest]:
+    """Paired t-test between every two methods over the same trials (scipy.stats.ttest_rel)."""
+    from scipy import stats
+
+    tests = []
+    for i, a in enumerate(methods):
+        for b in methods[i + 1 :]:
+            x = np.array([r.accuracy[a] for r in results])
+            y = np.array([r.accuracy[b] for r in results])
+            t = p = math.nan
+            if len(x) >= 2 and np.any(x != y):
+                with np.errstate(all="ignore"):
+                    res = stats.ttest_rel(x, y)
+                t, p = float(res.statistic), float(res.pvalue)
+            elif len(x) >= 2:
+                p = 1.0  # identical results: no difference at all
+            tests.append(PairedTest(a, b, len(x), t, p))
+    return tests
+
+
+def group_results(results: Sequence[TrialResult]) -> dict[tuple[str, str], list[TrialResult]]:
+    """Trials grouped by (condition, subject), in first-seen order."""
+    groups: dict[tuple[str, str], list[TrialResult]] = {}
+    for r in results:
+        groups.setdefault((r.trial.condition, r.trial.subject), []).append(r)
+    return groups
+
+
+def by_condition(results: Sequence[TrialResult]) -> dict[str, list[TrialResult]]:
+    groups: dict[str, list[TrialResult]] = {}
+    for r in results:
+        groups.setdefault(r.trial.condition, []).append(r)
+    return groups
+
+
+def confusion_matrix(decisions: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """Counts: rows the reference mode, columns the decided mode (frames with a reference
+    and a decision; an undecided frame, -1, is in no column)."""
+    reference = np.asarray(reference)
+    decisions = np.asarray(decisions)
+    used = (reference >= 0) & (decisions >= 0)
+    counts = np.zeros((N_MODES, N_MODES), dtype=int)
+    np.add.at(counts, (reference[used], decisions[used]), 1)
+    return counts
+
+
+def pooled_confusion(results: Sequence[TrialResult], method: str) -> np.ndarray:
+    return sum(
+        (confusion_matrix(r.runs[method].final, r.trial.reference) for r in results),
+        np.zeros((N_MODES, N_MODES), dtype=int),
+    )
+
+
+def delay_sweep(
+    trials: Sequence[Trial],
+    methods: Sequence[str],
+    max_delay: int,
+    params: FusionConfig | Sequence[FusionConfig] | None = None,
+) -> DelaySweep:
+    """Accuracy against the number of delayed frames D = 0..max_delay (the paper's trade-off).
+
+    cnn+voting: l_v = D; hmm+voting: l_v = D-1 (the HMM adds one frame); fixed-lag: lag = D.
+    Methods without a delay parameter (cnn, forward: 0; hmm: 1) keep their accuracy for
+    every D at or above their own delay; NaN below it. Beside accuracy, the spurious
+    switches (inference.evaluation.transitions) against the same reference.
+    """
+    delays = list(range(max_delay + 1))
+    acc = {m: np.full((len(trials), len(delays)), np.nan) for m in methods}
+    spurious = {m: np.full((len(trials), len(delays)), np.nan) for m in methods}
+    minutes = np.zeros(len(trials))
+    for i, (trial, p) in enumerate(zip(trials, _per_trial(params, len(trials)))):
+        ref = trial.reference
+        t = tr.frame_times(len(ref), trial.times_s)
+        minutes[i] = tr.duration_minutes(t)
+
+        def score(m, d, final, own_delay, i=i, ref=ref, t=t, name=trial.reference_name) -> None:
+            acc[m][i, d] = accuracy(final, ref)
+            stats = tr.transition_stats(final, ref, t, name=name, delay_frames=own_delay)
+            spurious[m][i, d] = stats.spurious
+
+        stages: dict[str, FusionRun] = {}
+
+        def stage(method: str, stages=stages, p=p, trial=trial) -> FusionRun:
+            if method not in stages:
+                stages[method] = run_offline(
+                    p.make(method), trial.probabilities, trial.elevation_deg
+                )
+            return stages[method]
+
+        for m in methods:
+            if m == "cnn+voting":
+                for d in delays:
+                    score(m, d, vote_offline(stage("cnn").decisions, d), d)
+            elif m == "hmm+voting":
+                for d in delays[1:]:
+                    score(m, d, vote_offline(stage("hmm").decisions, d - 1), d)
+            elif m == "fixed-lag":
+                for d in delays:
+                    score(
+                        m,
+                        d,
+                        run_offline(FixedLagSmoother(p.transition, d), trial.probabilities).final,
+                        d,
+                    )
+            else:  # no delay parameter: the same decisions at every delay from their own
+                own = p.delay_frames(m)
+                if own <= max_delay:
+                    score(m, own, stage(m).final, own)
+                    acc[m][i, own:] = acc[m][i, own]
+                    spurious[m][i, own:] = spurious[m][i, own]
+    return DelaySweep(delays, acc, spurious, minutes)
+
+
+def column_mean(a: np.ndarray) -> np.ndarray:
+    """The mean of each column (a delay of a sweep); NaN where a trial has none."""
+    return np.array([np.mean(c) if not np.isnan(c).any() else np.nan for c in a.T])
+
+
+def column_sd(a: np.ndarray) -> np.ndarray:
+    """The sample SD of each column; NaN where a trial has none or there is one trial."""
+    return np.array(
+        [np.std(c, ddof=1) if len(c) > 1 and not np.isnan(c).any() else np.nan for c in a.T]
+    )

@@ -1,0 +1,133 @@
+"""The evaluation as data: the JSON that `walkcap eval --json` prints and the text table
+is made from. Accuracies as fractions, null where undefined."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from inference.config import FusionConfig
+from inference.evaluation import transitions as tr
+from inference.evaluation.metrics import (
+    DelaySweep,
+    PairedTest,
+    by_condition,
+    column_mean,
+    column_sd,
+    group_results,
+    paired_t_tests,
+    pooled_transitions,
+    summarize,
+)
+from inference.evaluation.trials import TrialResult
+
+
+def _num(x: float) -> float | None:
+    return None if x is None or not math.isfinite(x) else float(x)
+
+
+def _nums(d: dict) -> dict:
+    return {k: _num(v) for k, v in d.items()}
+
+
+def _tests_json(tests: Sequence[PairedTest]) -> list[dict]:
+    return [{"a": t.a, "b": t.b, "n": t.n, "t": _num(t.t), "p": _num(t.p)} for t in tests]
+
+
+def report(
+    results: Sequence[TrialResult],
+    methods: Sequence[str],
+    params: FusionConfig,
+    sweep: DelaySweep | None = None,
+    grouped: bool = False,
+) -> dict:
+    """{"files": [...], "mean", "sd", "delay_frames", "parameters", ...}; accuracies as
+    fractions, null where undefined. grouped adds "groups" (subject x condition) and
+    "conditions" (with their own paired t-tests)."""
+    files = []
+    for r in results:
+        entry: dict[str, Any] = {"path": r.trial.path, "frames": len(r.trial.reference)}
+        labeled = int((r.trial.reference >= 0).sum())
+        if labeled != entry["frames"]:
+            entry["labeled_frames"] = labeled
+        if grouped:
+            entry["subject"] = r.trial.subject
+            entry["condition"] = r.trial.condition
+        entry["accuracy"] = _nums(r.accuracy)
+        entry["references"] = list(r.trial.references())
+        entry["transitions"] = {
+            m: {name: tr.summary(st) for name, st in r.transitions.get(m, {}).items()}
+            for m in methods
+        }
+        files.append(entry)
+    summary = summarize(results, methods)
+    scored = sorted({r.trial.reference_name for r in results})
+    out: dict[str, Any] = {
+        "files": files,
+        "accuracy_reference": scored[0] if len(scored) == 1 else scored,
+        "mean": _nums(summary["mean"]),
+        "sd": _nums(summary["sd"]),
+        "transitions": _transitions_json(results, methods),
+        "delay_frames": {m: params.delay_frames(m) for m in methods},
+        "parameters": {
+            "window": params.window,
+            "vote_delay": params.vote_delay,
+            **({"lag": params.lag} if "fixed-lag" in methods else {}),
+            **(
+                {"stay": params.stay, "evidence": params.evidence}
+                if any(m.startswith("steady") for m in methods)
+                else {}
+            ),
+            **({"hysteresis": params.hysteresis} if "steady+hysteresis" in methods else {}),
+        },
+    }
+    if len(results) >= 2:
+        out["paired_t_tests"] = _tests_json(paired_t_tests(results, methods))
+    if grouped:
+        out["groups"] = []
+        for (condition, subject), rs in group_results(results).items():
+            s = summarize(rs, methods)
+            out["groups"].append(
+                {
+                    "condition": condition,
+                    "subject": subject,
+                    "trials": len(rs),
+                    "mean": _nums(s["mean"]),
+                    "sd": _nums(s["sd"]),
+                }
+            )
+        out["conditions"] = []
+        for condition, rs in by_condition(results).items():
+            s = summarize(rs, methods)
+            out["conditions"].append(
+                {
+                    "condition": condition,
+                    "trials": len(rs),
+                    "mean": _nums(s["mean"]),
+                    "sd": _nums(s["sd"]),
+                    "paired_t_tests": _tests_json(paired_t_tests(rs, methods)),
+                    "transitions": _transitions_json(rs, methods),
+                }
+            )
+    if sweep is not None:
+        with np.errstate(all="ignore"):
+            out["sweep"] = {
+                "delays": sweep.delays,
+                "mean": {m: [_num(x) for x in column_mean(a)] for m, a in sweep.accuracy.items()},
+                "sd": {m: [_num(x) for x in column_sd(a)] for m, a in sweep.accuracy.items()},
+                "spurious_per_min": {
+                    m: [_num(x) for x in sweep.spurious_per_min(m)] for m in sweep.spurious
+                },
+            }
+    return out
+
+
+def _transitions_json(results: Sequence[TrialResult], methods: Sequence[str]) -> dict:
+    """method -> reference -> the pooled transition figures (inference.evaluation.transitions)."""
+    return {
+        m: {name: tr.summary(st) for name, st in pooled_transitions(results, m).items()}
+        for m in methods
+    }

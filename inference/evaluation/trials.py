@@ -1,0 +1,279 @@
+"""What is evaluated: a trial (CNN probabilities per frame and its references), one
+method's run over it, and the trial's result; read from score CSVs (`read_scores`) or from
+what `capture.recording.reader.read_trial` returns for a recording (`trial_from_recording`).
+
+Two references: `terrain`, what each image shows (the paper's: labelled offline from the
+images, or the simulator's per-image truth), and `locomotion`, the subject's mode keyed live,
+which changes about a second after the terrain ahead does.
+"""
+
+from __future__ import annotations
+
+import csv
+import logging
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from devices.frames import MODES
+from inference.errors import InferenceError
+from inference.evaluation import transitions as tr
+from inference.fusion_design import N_MODES, mode_indices
+
+log = logging.getLogger(__name__)
+
+SCORE_HEADER = (*MODES, "label")  # label: the terrain each image shows
+SCORE_HEADER_LOCOMOTION = (*SCORE_HEADER, "locomotion")  # + the mode keyed live
+SUM_TOLERANCE = 0.01  # score rows must sum to 1 within this (they are often rounded)
+
+
+class ScoreFileError(InferenceError):
+    """A score CSV is malformed; the message names the file and line."""
+
+
+@dataclass
+class Trial:
+    """One sequence to evaluate: CNN probabilities per frame and the true mode per frame."""
+
+    path: str
+    probabilities: np.ndarray  # (N, 5), index order MODES
+    reference: Any  # (N,) mode names or indices; None / "" / -1: no reference
+    metadata: dict = field(default_factory=dict)  # "subject", "condition", ...
+    times_s: np.ndarray | None = None  # (N,) seconds since the first frame; None: unknown
+    reference_name: str = "terrain"  # what `reference` is: "terrain" or "locomotion"
+    locomotion: Any = None  # (N,) the subject's mode keyed live, when `reference` is terrain
+    elevation_deg: np.ndarray | None = None  # (N,) camera above the horizon: gait cues
+
+    def __post_init__(self) -> None:
+        self.probabilities = np.asarray(self.probabilities, dtype=float)
+        if self.times_s is not None:
+            self.times_s = np.asarray(self.times_s, dtype=float)
+        if self.probabilities.ndim != 2 or self.probabilities.shape[1] != N_MODES:
+            raise InferenceError(
+                f"{self.path}: expected probabilities of shape (N, 5), "
+                f"got {self.probabilities.shape}"
+            )
+        try:
+            self.reference = mode_indices(self.reference)
+        except InferenceError as e:
+            raise InferenceError(f"{self.path}: {e}") from None
+        if len(self.reference) != len(self.probabilities):
+            raise InferenceError(
+                f"{self.path}: {len(self.probabilities)} frames but "
+                f"{len(self.reference)} reference labels"
+            )
+        if self.locomotion is not None:
+            self.locomotion = mode_indices(self.locomotion)
+            if len(self.locomotion) != len(self.probabilities):
+                raise InferenceError(
+                    f"{self.path}: {len(self.probabilities)} frames but "
+                    f"{len(self.locomotion)} locomotion labels"
+                )
+            if not (self.locomotion >= 0).any():
+                self.locomotion = None
+        if self.elevation_deg is not None:
+            self.elevation_deg = np.asarray(self.elevation_deg, dtype=float)
+            if len(self.elevation_deg) != len(self.probabilities):
+                raise InferenceError(
+                    f"{self.path}: {len(self.probabilities)} frames but "
+                    f"{len(self.elevation_deg)} camera elevations"
+                )
+
+    def references(self) -> dict[str, np.ndarray]:
+        """Every reference the trial has, by name (the scored one first)."""
+        out = {self.reference_name: self.reference}
+        if self.locomotion is not None and self.reference_name != "locomotion":
+            out["locomotion"] = self.locomotion
+        return out
+
+    @property
+    def subject(self) -> str:
+        return str(self.metadata.get("subject") or Path(self.path).stem)
+
+    @property
+    def condition(self) -> str:
+        return str(self.metadata.get("condition") or "")
+
+    @property
+    def title(self) -> str:
+        """The trial as a reader names it: subject, condition, trial number."""
+        subject, trial = self.metadata.get("subject"), self.metadata.get("trial")
+        if not subject:
+            return Path(self.path).stem
+        parts = [f"subject {subject}"]
+        if self.condition:
+            parts.append(self.condition)
+        if trial not in (None, ""):
+            parts.append(f"trial {trial}")
+        return ", ".join(parts)
+
+
+@dataclass
+class FusionRun:
+    """One method over one sequence; -1 / NaN where a frame got nothing."""
+
+    method: str
+    decisions: np.ndarray  # (N,) first stage: argmax, smooth state, filter, smoother
+    final: np.ndarray  # (N,) the method's decision (the vote for methods with voting)
+    posteriors: np.ndarray  # (N, 5) per frame; NaN where none (HMM: frame 0)
+
+
+@dataclass
+class TrialResult:
+    trial: Trial
+    accuracy: dict[str, float]
+    runs: dict[str, FusionRun]
+    # method -> reference name -> its switches against that reference
+    transitions: dict[str, dict[str, tr.TransitionStats]] = field(default_factory=dict)
+
+
+# ---------------------------------------------------------------------------------------
+# inputs
+
+
+def read_scores(path: str | Path, fps: float = tr.PAPER_FPS) -> Trial:
+    """A score CSV: header LG,US,DS,UR,DR,label, one row per frame in capture order, frames
+    `fps` a second. `label` is the terrain reference; an optional last column `locomotion`
+    (header LG,US,DS,UR,DR,label,locomotion) the locomotion reference.
+
+    Every problem is a ScoreFileError naming the file and line (1 = the header).
+    """
+    path = str(path)
+    expected = ",".join(SCORE_HEADER)
+    probabilities: list[list[float]] = []
+    labels: list[int] = []
+    locomotion: list[int] = []
+    header_fields = SCORE_HEADER
+    with open(path, newline="", encoding="utf-8-sig") as f:
+        rows = csv.reader(f)
+        try:
+            header = next(rows, None)
+            if header is None or not any(h.strip() for h in header):
+                raise ScoreFileError(
+                    f"{path}: empty file (expected the header {expected} and one row per frame)"
+                )
+            header_fields = tuple(h.strip() for h in header)
+            if header_fields not in (SCORE_HEADER, SCORE_HEADER_LOCOMOTION):
+                raise ScoreFileError(
+                    f"{path}:1: expected the header {expected} (optionally ,locomotion), "
+                    f"got {','.join(header)}"
+                )
+            for row in rows:
+                line = rows.line_num
+                if not row or not any(c.strip() for c in row):
+                    continue  # blank lines (often one at the end)
+                probabilities.append(_score_row(path, line, row, header_fields))
+                for column, into in zip(row[N_MODES:], (labels, locomotion)):
+                    label = column.strip()
+                    if label not in MODES:
+                        name = "label" if into is labels else "locomotion"
+                        raise ScoreFileError(
+                            f"{path}:{line}: unknown {name} {label!r} "
+                            f"(expected one of {', '.join(MODES)})"
+                        )
+                    into.append(MODES.index(label))
+        except csv.Error as e:
+            raise ScoreFileError(f"{path}:{rows.line_num}: not valid CSV: {e}") from None
+        except UnicodeDecodeError:
+            raise ScoreFileError(f"{path}: not a text file (expected CSV)") from None
+    if not probabilities:
+        raise ScoreFileError(f"{path}: no frames after the header")
+    n = len(probabilities)
+    return Trial(
+        path,
+        np.array(probabilities),
+        np.array(labels),
+        times_s=np.arange(n) / fps,
+        locomotion=np.array(locomotion) if locomotion else None,
+    )
+
+
+def _score_row(
+    path: str, line: int, row: list[str], header: tuple[str, ...] = SCORE_HEADER
+) -> list[float]:
+    if len(row) != len(header):
+        raise ScoreFileError(
+            f"{path}:{line}: expected {len(header)} fields ({','.join(header)}), got {len(row)}"
+        )
+    values = []
+    for name, text in zip(MODES, row):
+        try:
+            v = float(text)
+        except ValueError:
+            raise ScoreFileError(f"{path}:{line}: {name}: not a number: {text.strip()!r}") from None
+        if not math.isfinite(v):
+            raise ScoreFileError(f"{path}:{line}: {name}: not a finite number: {text.strip()}")
+        if v < 0:
+            raise ScoreFileError(f"{path}:{line}: {name}: negative probability {v:g}")
+        values.append(v)
+    total = sum(values)
+    if abs(total - 1.0) > SUM_TOLERANCE:
+        raise ScoreFileError(
+            f"{path}:{line}: probabilities sum to {total:.4g}, expected 1 (within {SUM_TOLERANCE})"
+        )
+    return values
+
+
+REFERENCES = ("terrain", "locomotion")
+# the per-frame table's own names for the references (truth, labels) and auto are accepted too
+_REFERENCE_ALIASES = {"truth": "terrain", "labels": "locomotion", "auto": "terrain"}
+
+
+def trial_from_recording(path: str, data: Any, reference: str = "terrain") -> Trial:
+    """A Trial from what `capture.recording.reader.read_trial` returns for one recording.
+
+    data: a mapping (or object) with "probabilities" (N, 5), "terrain" (N modes each image
+    shows, or None; a flat dict may give "truth" instead), "locomotion" (N modes keyed live,
+    -1/None before the first key; or "labels"), "time_ns" and "metadata" (capture's
+    {"session": {...}}, or a flat dict). reference: what accuracy is scored against,
+    "terrain" or "locomotion"; the other one, when present, serves the transition metrics.
+    Frames without a finite CNN output are left out.
+    """
+
+    def get(key: str):
+        return data.get(key) if isinstance(data, dict) else getattr(data, key, None)
+
+    def has(key: str) -> bool:
+        return key in data if isinstance(data, dict) else hasattr(data, key)
+
+    reference = _REFERENCE_ALIASES.get(reference, reference)
+    if reference not in REFERENCES:
+        raise InferenceError(f"unknown reference {reference!r} (known: {', '.join(REFERENCES)})")
+    terrain = get("terrain") if has("terrain") else get("truth")
+    locomotion = get("locomotion") if has("locomotion") else get("labels")
+
+    def usable(seq) -> bool:
+        return seq is not None and bool((mode_indices(seq) >= 0).any())
+
+    if reference == "terrain" and not usable(terrain):
+        raise InferenceError(
+            f"{path}: no terrain reference (what the images show) to score accuracy against: "
+            "label the images in `walkcap replay FILE --tui`, or score against the live keys "
+            "with --reference locomotion"
+        )
+    if reference == "locomotion" and not usable(locomotion):
+        raise InferenceError(f"{path}: no locomotion labels (keyed live) to compare with")
+    chosen = mode_indices(terrain if reference == "terrain" else locomotion)
+    second = mode_indices(locomotion) if reference == "terrain" and usable(locomotion) else None
+    metadata = dict(get("metadata") or {})
+    metadata = {**metadata, **(metadata.get("session") or {})}  # capture nests the form
+    probabilities = np.asarray(get("probabilities"), dtype=float)
+    times = get("time_ns")
+    times_s = None
+    if times is not None and len(times) == len(chosen) and len(times):
+        t = np.asarray(times, dtype=np.int64)
+        times_s = (t - t[0]) * 1e-9
+    elevation = get("camera_elevation_deg")
+    if elevation is not None:
+        elevation = np.asarray(elevation, dtype=float)
+    finite = np.isfinite(probabilities).all(axis=1) if probabilities.ndim == 2 else None
+    if finite is not None and not finite.all():
+        log.warning("%s: %d frame(s) without a CNN output left out", path, (~finite).sum())
+        probabilities, chosen = probabilities[finite], chosen[finite]
+        second = second[finite] if second is not None else None
+        times_s = times_s[finite] if times_s is not None else None
+        elevation = elevation[finite] if elevation is not None else None
+    return Trial(str(path), probabilities, chosen, metadata, times_s, reference, second, elevation)
