@@ -108,8 +108,8 @@ class FoxgloveConfig:
         "127.0.0.1", "address the Foxglove server listens on (localhost only unless changed)"
     )
     port: int = key(8765, "the Foxglove server's port (Foxglove's default)")
-    # encoding them shares the pipeline's interpreter, and 5 a second keeps the live view
-    # within 1 ms of its latency
+    # encoding them shares the pipeline's interpreter: a few a second keep the live view
+    # off the pipeline's latency (`walkcap bench`)
     image_hz: float = key(5.0, "depth, images and clouds sent at most this often, per second")
 
 

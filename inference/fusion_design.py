@@ -21,7 +21,8 @@ N_MODES = len(MODES)
 
 
 # The authors' transition matrix (rows: from, columns: to; LG, US, DS, UR, DR), as in
-# ../shared/paper/README.md; the configuration's default.
+# Zhang et al., "Sequential Decision Fusion for Environmental Classification in Assistive
+# Walking", IEEE TNSRE 2019; the configuration's default.
 PAPER_TRANSITION = np.array(
     [
         [0.80, 0.05, 0.05, 0.05, 0.05],

@@ -1,6 +1,6 @@
 """From a depth frame and the IMU orientation to the classifier's 100 x 100 binary image.
 
-The authors' pipeline (Zhang et al. 2019, ../shared/notes/preprocessing.md):
+The authors' pipeline (Zhang et al., IEEE TNSRE 2019):
 1. level the cloud with the IMU: camera -> IMU (mounting) -> world, then drop the heading
    so that x is the horizontal direction the camera looks at (x forward, y left, z up,
    origin at the camera);

@@ -1,6 +1,6 @@
 """Textbook images: the five terrains as the authors' recipe draws them, a check of the model.
 
-The recipe (Zhang et al. 2019, ../shared/notes/preprocessing.md): level ground is a plane
+The recipe (Zhang et al., IEEE TNSRE 2019): level ground is a plane
 with +-1 cm noise; ramps are planes at 15 +- 5 degrees up or down; stairs are four treads
 with risers of 0.15 +- 0.05 m and treads of 0.33 +- 0.05 m, the first riser 0.2 m ahead.
 Each surface is sampled every 2 mm along the sagittal profile (x forward, z up), every

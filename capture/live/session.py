@@ -200,11 +200,12 @@ class Session:
 
         # The pipeline thread gives the GIL up hundreds of times a frame (numpy, torch) and
         # each time may wait a whole switch interval behind the IMU's or the recorder's
-        # Python code to get it back: at the default 5 ms that is p99 latencies of 20-70 ms
-        # at 45 fps for 4 ms of work. A 0.5 ms interval bounds that wait (process-wide).
+        # Python code to get it back: at the default 5 ms that puts several frames' worth
+        # of wait on the p99 latency of a few ms of work. A 0.5 ms interval bounds that wait
+        # (process-wide).
         sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
-        # A full garbage collection walks every object of torch, Open3D and the UI: 50-100 ms
-        # with every thread stopped, a few times a minute (dropped frames, the p99). Objects
+        # A full garbage collection walks every object of torch, Open3D and the UI: tens of
+        # ms with every thread stopped, a few times a minute (dropped frames, the p99). Objects
         # alive now live for the session: freeze them out of the collector's walks (until
         # stop()).
         gc.collect()

@@ -49,11 +49,11 @@ from devices.clock import now_ns
 
 log = logging.getLogger(__name__)
 
-# The live recording's size goal, 2.5 MB/s at 45 fps: zstandard's default level 3 writes the
-# mock walk at 2.54 MB/s, level 5 at 2.47 MB/s, for 1.6 times the compression time (89 ms
-# for a second of 45 fps data), which the writer thread absorbs without adding latency.
+# The live recording's size goal, 2.5 MB/s at 45 fps: on the mock walk zstandard's level 5
+# meets it where the default level 3 does not, for more compression time, which the writer
+# thread absorbs without adding latency (`walkcap bench` measures both).
 ZSTD_LEVEL = 5
-ZSTD_LEVEL_FAST = 1  # replay: a fifth larger than level 5 in a seventh of the time (13 ms)
+ZSTD_LEVEL_FAST = 1  # replay: somewhat larger files than level 5, several times faster
 
 
 class _ZstdAtLevel(threading.local):

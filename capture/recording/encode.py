@@ -52,9 +52,9 @@ def thin_cloud(cloud, voxel_m: float = CLOUD_VOXEL_M, max_points: int = CLOUD_MA
     """The cloud as recorded: one point per voxel, at most `max_points` (decimated evenly)."""
     points = np.asarray(cloud, dtype=np.float32).reshape(-1, 3)
     if voxel_m > 0 and len(points):
-        # One point per 2 cm voxel: steps, ramps and curbs stay plain in Foxglove at a
-        # quarter of the bytes (0.12 MB/s at 45 fps, a 1 cm voxel 0.27: the difference
-        # between meeting the 2.5 MB/s budget or not). The cloud is derived data (depth,
+        # One point per 2 cm voxel: steps, ramps and curbs stay plain in Foxglove at about
+        # a quarter of a 1 cm voxel's bytes, the difference between meeting the 2.5 MB/s
+        # budget at 45 fps or not (`walkcap bench`). The cloud is derived data (depth,
         # /tf and the preprocessing parameters rebuild it); the depth is kept exactly.
         cells = np.floor(points / voxel_m).astype(np.int64) + (1 << 20)
         key = (cells[:, 0] << 42) | (cells[:, 1] << 21) | cells[:, 2]  # one int per voxel

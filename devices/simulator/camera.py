@@ -34,8 +34,8 @@ from devices.simulator.simulator import Simulator
 log = logging.getLogger(__name__)
 
 # A frame rendered late (the host busy a moment) is still sent, stamped with its own time,
-# and the renderer catches up (5 ms a frame against 22 ms at 45 fps); only this far behind
-# are frames skipped, as a camera's own buffer would overflow.
+# and the renderer catches up (a frame renders in a fraction of the frame period); only
+# this far behind are frames skipped, as a camera's own buffer would overflow.
 CATCH_UP_FRAMES = 3
 
 

@@ -2,8 +2,7 @@
 
 `TerrainScene` builds the course's triangle mesh and Open3D's RaycastingScene once and
 casts one ray per pixel (camera rays precomputed once). The ToF model (`ToFSensor`), after
-the pico flexx datasheet and the royale pipeline's defaults (../shared/notes; sources in
-ToFParams):
+the pico flexx datasheet and the royale pipeline's defaults (sources in ToFParams):
 - depth noise by use case and distance: the datasheet gives <= 1 % of the distance at
   5 fps (MODE_9_5FPS_2000, 0.5-4 m) and <= 2 % at 45 fps (MODE_5_45FPS_500, 0.1-1 m); the
   use cases between scale with their integration time (raw frames x exposure) as the two

@@ -3,7 +3,8 @@ output configuration and the link budget.
 
 Pure functions and one small stateful parser, no I/O: the IMU driver, the emulator, the
 `walkcap imu decode` command and the tests all use this package. Facts from
-../shared/notes/xbus.md; error and baud-rate codes as in Xsens' public drivers.
+Xsens' MT Low-Level Communication Protocol; error and baud-rate codes as in Xsens' public
+drivers.
 
     frames.py         ids, error and baud-rate codes, frames, XbusParser
     mtdata2.py        the measurement payload: outputs, decode_mtdata2, encode_mtdata2
