@@ -24,7 +24,7 @@ from textual.screen import ModalScreen
 
 from capture.config import Config
 from capture.live.preflight import CheckItem, PreflightReport
-from capture.live.session import SubjectInfo
+from capture.live.trials import SubjectInfo
 from capture.recording.writer import RecorderState, RecorderStats
 from devices.frames import MODES
 from tui import messages

@@ -25,8 +25,9 @@ import numpy as np
 from capture.errors import CaptureError
 from capture.live.labels import LabelChange
 from capture.live.pipeline import FrameResult
-from capture.live.session import Snapshot, SubjectInfo
+from capture.live.session import Snapshot
 from capture.live.timeline import TimelineEntry
+from capture.live.trials import SubjectInfo
 from capture.recording import labels as L
 from capture.recording import topics as T
 from capture.recording.copy import copy_recording

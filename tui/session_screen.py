@@ -23,7 +23,7 @@ from textual.suggester import SuggestFromList
 from textual.widgets import Button, Checkbox, Footer, Input, Label, Select, Static
 
 from capture.errors import CaptureError
-from capture.live.session import SubjectInfo
+from capture.live.trials import SubjectInfo
 from devices.files import check_replaceable
 from tui.subject import SUBJECT_FIELDS
 

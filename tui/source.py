@@ -11,7 +11,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 from capture.live.labels import LabelChange
-from capture.live.session import Snapshot, SubjectInfo
+from capture.live.session import Snapshot
+from capture.live.trials import SubjectInfo
 
 if TYPE_CHECKING:
     from capture.live.alarms import TrialAlarms

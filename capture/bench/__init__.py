@@ -190,7 +190,8 @@ def session_run(
     `lab_tools`: with LSL outlets pulled by an inlet and a Foxglove server whose client
     subscribes to every topic, as a lab running both would.
     """
-    from capture.live.session import Session, SubjectInfo
+    from capture.live.session import Session
+    from capture.live.trials import SubjectInfo
 
     cfg = Config()
     cfg.camera.fps = fps

@@ -62,7 +62,7 @@ def remote_folder(recordings: str | Path, root: str, any_root: bool = False) -> 
 def checked_request(config, request):
     """A remote `filename`'s TrialRequest as a trial takes it (root resolved and confined,
     subject, condition and trial as the form checks them), or CaptureError."""
-    from capture.live.session import SubjectInfo
+    from capture.live.trials import SubjectInfo
 
     if request.root:
         request.root = str(

@@ -197,7 +197,7 @@ def disk_item(folder: Path, rate: float | None) -> CheckItem:
 
 def probe_write_rate(session, folder: Path, seconds: float, sleep=time.sleep) -> float | None:
     """Bytes per second of a short probe trial in a hidden folder, deleted afterwards."""
-    from capture.live.session import SubjectInfo
+    from capture.live.trials import SubjectInfo
     from capture.recording.writer import RecorderState
 
     probe_dir = Path(tempfile.mkdtemp(dir=folder, prefix=".walkcap-check-"))

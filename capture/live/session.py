@@ -10,12 +10,8 @@ waits on the UI or the disk: the UI pulls `snapshot()` at its own pace and sends
 from __future__ import annotations
 
 import collections
-import dataclasses
-import datetime as dt
 import gc
-import json
 import logging
-import re
 import sys
 import threading
 from collections.abc import Callable
@@ -42,6 +38,12 @@ from capture.live.pipeline import (
     software_metadata,
 )
 from capture.live.timeline import FrameTimeline, TimelineEntry
+from capture.live.trials import (
+    SubjectInfo,
+    trial_attachments,
+    trial_file,
+    trial_metadata,
+)
 from capture.recording.sink import Sink
 from devices.base import DeviceEvent, DeviceState, DeviceStatus
 from devices.clock import now_ns
@@ -54,51 +56,7 @@ if TYPE_CHECKING:  # the writer's imports take a second: Recorder is imported wh
 
 log = logging.getLogger(__name__)
 
-TRIAL_MAX = 99_999  # trial numbers name files (t01 ... t99999) and fit every integer field
 SWITCH_INTERVAL_S = 0.0005
-
-
-@dataclass
-class SubjectInfo:
-    """The session form: the paper's subject tables plus condition and trial."""
-
-    subject: str = "S01"  # pseudonymous id, never a name
-    height_m: float | None = None
-    weight_kg: float | None = None
-    age: int | None = None
-    sex: str = ""  # female | male | other | ""
-    amputee: bool = False
-    side: str = ""  # left | right (amputees)
-    residual_limb_cm: float | None = None
-    condition: str = "indoor"  # indoor | outdoor | free text
-    trial: int = 1
-    notes: str = ""
-
-    def validate(self) -> None:
-        if not re.fullmatch(r"[A-Za-z0-9_-]{1,32}", self.subject):
-            raise CaptureError(
-                "subject id: 1-32 letters, digits, '-' or '_' (pseudonymous, no names)"
-            )
-        if self.height_m is not None and not 0.5 <= self.height_m <= 2.5:
-            raise CaptureError("height: expected metres between 0.5 and 2.5")
-        if self.weight_kg is not None and not 20 <= self.weight_kg <= 300:
-            raise CaptureError("weight: expected kilograms between 20 and 300")
-        if self.age is not None and not 1 <= self.age <= 120:
-            raise CaptureError("age: expected years between 1 and 120")
-        if self.sex not in ("", "female", "male", "other"):
-            raise CaptureError("sex: female, male, other or empty")
-        if self.side not in ("", "left", "right"):
-            raise CaptureError("side: left, right or empty")
-        if self.amputee and not self.side:
-            raise CaptureError("side: required for an amputee (left or right)")
-        if not re.fullmatch(r"[A-Za-z0-9_-]{1,32}", self.condition):
-            raise CaptureError("condition: 1-32 letters, digits, '-' or '_' (e.g. indoor)")
-        if not 1 <= self.trial <= TRIAL_MAX:
-            raise CaptureError(f"trial: a number from 1 to {TRIAL_MAX}")
-
-    def to_metadata(self) -> dict:
-        """The form as the "session" metadata record: typed values (None: not given)."""
-        return dataclasses.asdict(self)
 
 
 @dataclass
@@ -509,61 +467,44 @@ class Session:
     def start_recording(
         self, info: SubjectInfo, existing: str = "next", folder: str | Path | None = None
     ) -> Path:
-        """One MCAP file per trial, named from subject, condition, trial and time.
-
-        A trial that has files in the folder already is never recorded twice by accident
-        (capture.recording.naming.trial_conflict): `existing` "next" records the next free trial
-        number instead (and says so in `trial_notice`), "error" refuses, "overwrite"
-        records it again, the new file superseding the earlier ones (kept on disk;
-        corpora leave them out). `folder` is this trial's only (a remote `filename`'s root);
-        by default the configured recordings folder."""
+        """One MCAP file per trial (capture.live.trials.trial_file: named from the form and
+        the time; `existing` "next", "error" or "overwrite" for a trial with files already,
+        and `trial_notice` says when the trial number changed). `folder` is this trial's
+        only (a remote `filename`'s root); by default the configured recordings folder."""
         from capture.recording.writer import Recorder
 
         info.validate()
         if self._recorder is not None:
             raise CaptureError("already recording")
-        folder = Path(self.config.session.recordings if folder is None else folder)
-        try:
-            folder.mkdir(parents=True, exist_ok=True)
-        except OSError as e:
-            raise CaptureError(
-                f"cannot create the recordings folder {folder}: {e.strerror}"
-            ) from None
-        info, supersedes = self._free_trial(folder, info, existing)
-        stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-        path = folder / f"{info.subject}_{info.condition}_t{info.trial:02d}_{stamp}.mcap"
-        metadata = self._metadata(info)
-        if supersedes:
-            metadata["session"]["supersedes"] = supersedes
+        self.trial_notice = ""
+        target = trial_file(
+            Path(self.config.session.recordings if folder is None else folder), info, existing
+        )
+        self.trial_notice = target.notice
+        software = software_metadata(
+            self.config,
+            self.pipeline,
+            pipeline_priority=self.pipeline_priority,
+            intake_priority=self.intake_scheduling,
+        )
+        devices = devices_metadata(self.config, self._camera, self._imu)
         recorder = Recorder(
-            path,
-            metadata=metadata,
-            attachments=self._attachments(),
+            target.path,
+            metadata=trial_metadata(self.config, target, devices, software),
+            attachments=trial_attachments(self.config, self.model_metadata),
             priority=self.intake_priority,
         )
         recorder.start()
-        self.alarms.recordings = folder
+        self.alarms.recordings = target.path.parent  # the trial's folder
         self.alarms.new_trial()
         self.timeline.new_trial()
         self._recorder = recorder
-        self.trial = info
+        self.trial = target.info
         self._recording_started_ns = now_ns()
         label = self.labels.label
         if label is not None:  # the mode in force when the trial starts
             recorder.write_label(self._recording_started_ns, label, "start")
-        return path
-
-    def _free_trial(
-        self, folder: Path, info: SubjectInfo, existing: str
-    ) -> tuple[SubjectInfo, list[str]]:
-        from capture.recording.naming import trial_conflict
-
-        self.trial_notice = ""
-        trial, supersedes, notice = trial_conflict(
-            folder, info.subject, info.condition, info.trial, existing
-        )
-        self.trial_notice = notice
-        return dataclasses.replace(info, trial=trial), supersedes
+        return target.path
 
     def stop_recording(self):
         for streak in (self._failures, self._behind):  # a run still going: its count
@@ -572,26 +513,6 @@ class Session:
         self._recording_started_ns = None
         self.alarms.end_trial()
         return rec.close() if rec is not None else None
-
-    def _metadata(self, info: SubjectInfo) -> dict[str, dict]:
-
-        cfg = self.config
-        devices = devices_metadata(cfg, self._camera, self._imu)
-        software = software_metadata(
-            cfg,
-            self.pipeline,
-            pipeline_priority=self.pipeline_priority,
-            intake_priority=self.intake_scheduling,
-        )
-        session = info.to_metadata()
-        session["operator"] = cfg.session.operator
-        return {"session": session, "devices": devices, "software": software}
-
-    def _attachments(self) -> dict[str, bytes]:
-        return {
-            "walkcap.toml": config_mod.dumps(self.config).encode(),
-            "model.json": json.dumps(self.model_metadata, indent=2, default=str).encode(),
-        }
 
     # ---- what the UI reads ------------------------------------------------------------
 

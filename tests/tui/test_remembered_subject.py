@@ -5,7 +5,7 @@ remembered across restarts."""
 import json
 
 from capture.config import Config
-from capture.live.session import SubjectInfo
+from capture.live.trials import SubjectInfo
 from tests.tui.test_tui_app import SIZE, wait_for
 from tests.tui_fake_session import FakeSession
 from tui.app import WalkcapApp

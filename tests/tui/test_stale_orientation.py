@@ -13,7 +13,8 @@ from capture.corpus import export
 from capture.corpus.replay import replay
 from capture.live.pipeline import OrientationTrack, Pipeline
 from capture.live.preflight import CheckItem, PreflightReport
-from capture.live.session import Session, SubjectInfo
+from capture.live.session import Session
+from capture.live.trials import SubjectInfo
 from capture.recording import topics as T
 from capture.recording.reader import open_recording, read_trial
 from devices.frames import DepthFrame

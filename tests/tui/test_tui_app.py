@@ -5,7 +5,7 @@ import threading
 from pathlib import Path
 
 from capture.config import Config
-from capture.live.session import SubjectInfo
+from capture.live.trials import SubjectInfo
 from devices.base import DeviceEvent
 from devices.clock import now_ns
 from tests.tui_fake_session import FakeSession

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from capture.config import Config
-from capture.live.session import Session, SubjectInfo
+from capture.live.session import Session
+from capture.live.trials import SubjectInfo
 from capture.recording.gaps import recording_loss
 from capture.recording.reader import open_recording, read_trial
 from tui.app import WalkcapApp

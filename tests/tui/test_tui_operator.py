@@ -4,7 +4,7 @@ retry in place, the REC banner, alarms, the trials of this session, the form's k
 from capture.config import Config
 from capture.live.alarms import Alarm, AlarmState
 from capture.live.preflight import CheckItem, PreflightReport
-from capture.live.session import SubjectInfo
+from capture.live.trials import SubjectInfo
 from devices.errors import DeviceError
 from tests.tui.test_tui_app import SIZE, open_live, rendered, wait_for
 from tests.tui_fake_session import FakeSession

@@ -8,8 +8,8 @@ import pytest
 
 from capture.config import Config
 from capture.live.labels import LabelChange
-from capture.live.session import SubjectInfo
 from capture.live.timeline import TimelineEntry
+from capture.live.trials import SubjectInfo
 from devices.base import DeviceEvent, DeviceState, DeviceStatus
 from tests.tui.test_tui_app import screen_text, wait_for
 from tests.tui_fake_session import NOW_NS, FakeSession

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from capture.config import Config
-from capture.live.session import SubjectInfo
+from capture.live.trials import SubjectInfo
 from capture.recording.reader import open_recording, read_trial
 from capture.recording.writer import Recorder
 from devices.base import DeviceEvent

@@ -5,7 +5,7 @@ Update after an intended change: pytest tests/tui/test_tui_snapshots.py --snapsh
 from textual.widgets import Input
 
 from capture.config import Config
-from capture.live.session import SubjectInfo
+from capture.live.trials import SubjectInfo
 from tests.tui_fake_session import FakeSession
 from tui.app import WalkcapApp
 from tui.live_screen import LiveScreen

@@ -7,8 +7,8 @@ import pytest
 
 from capture.config import Config
 from capture.errors import CaptureError
-from capture.live.session import SubjectInfo
 from capture.live.timeline import TimelineEntry
+from capture.live.trials import SubjectInfo
 from tui.app import keymap
 from tui.session_screen import (
     form_values,

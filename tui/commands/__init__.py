@@ -4,7 +4,7 @@ import argparse
 
 from tui.subject import SUBJECT_FIELDS
 
-# capture.live.session.TRIAL_MAX and devices.config.SEED_MAX, not imported: `--help` stays instant
+# capture.live.trials.TRIAL_MAX and devices.config.SEED_MAX, not imported: `--help` stays instant
 TRIAL_MAX = 99_999
 SEED_MAX = 2**32 - 1
 
@@ -79,13 +79,13 @@ def config_value(dotted: str, parse=float):
 
 def subject_value(field: str, parse=str):
     """An argparse type: a value of the session form's `field`, held to the form's own check
-    (capture.live.session.SubjectInfo.validate); out of range, a one-line usage error."""
+    (capture.live.trials.SubjectInfo.validate); out of range, a one-line usage error."""
 
     def check(text: str):
         import dataclasses
 
         from capture.errors import CaptureError
-        from capture.live.session import SubjectInfo
+        from capture.live.trials import SubjectInfo
 
         try:
             value = parse(text)

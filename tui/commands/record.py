@@ -71,7 +71,8 @@ def status_line(elapsed_s: float, total_s: float | None, snap) -> str:
 
 def run(args, config) -> int:
     from capture.labtools.connections import LabTools, SessionController
-    from capture.live.session import Session, SubjectInfo
+    from capture.live.session import Session
+    from capture.live.trials import SubjectInfo
     from capture.recording.naming import trial_conflict
     from capture.recording.writer import RecorderState
 

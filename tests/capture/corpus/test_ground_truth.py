@@ -356,7 +356,8 @@ def test_the_replay_screen_shows_the_reference_with_the_undo_applied(tmp_path):
 
 def test_a_session_records_the_next_free_trial_and_says_so(tmp_path):
     from capture.config import Config
-    from capture.live.session import Session, SubjectInfo
+    from capture.live.session import Session
+    from capture.live.trials import SubjectInfo
 
     write_trial(tmp_path / "S01_indoor_t01_x.mcap", [])
     config = Config()

@@ -7,7 +7,7 @@ import re
 from pathlib import Path
 
 from capture.corpus import export
-from capture.live.session import SubjectInfo
+from capture.live.trials import SubjectInfo
 from devices.base import DeviceEvent
 from tests.recording_fixtures import T0, frame_time, write_recording, write_trial
 from tui.cli import main

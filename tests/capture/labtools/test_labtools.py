@@ -17,7 +17,8 @@ from capture.labtools.connections import LabTools, SessionController
 from capture.labtools.foxglove_live import LAYOUT, FoxgloveLive
 from capture.labtools.lsl import LslOutlets
 from capture.labtools.remote import MAX_CLIENTS, RemoteControl, TrialRequest, parse_filename
-from capture.live.session import Session, SubjectInfo
+from capture.live.session import Session
+from capture.live.trials import SubjectInfo
 from capture.recording import topics as T
 from capture.recording.reader import open_recording
 from capture.recording.sink import Sink

@@ -11,7 +11,8 @@ import pytest
 import torch
 
 from capture.config import Config
-from capture.live.session import Session, SubjectInfo
+from capture.live.session import Session
+from capture.live.trials import SubjectInfo
 from capture.recording import topics as T
 from capture.recording.reader import open_recording
 from inference.errors import InferenceError

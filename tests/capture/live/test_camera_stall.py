@@ -7,7 +7,7 @@ import time
 
 import numpy as np
 
-from capture.live.session import SubjectInfo
+from capture.live.trials import SubjectInfo
 from devices.clock import now_ns
 from devices.config import CameraConfig
 from tests.capture.live.test_faults import events_of, session_in, wait_for

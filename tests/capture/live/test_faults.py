@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from capture.config import Config
-from capture.live.session import Session, SubjectInfo
+from capture.live.session import Session
+from capture.live.trials import SubjectInfo
 from capture.recording.journal import check_journal
 from capture.recording.reader import open_recording, read_trial
 from tests.capture.live.test_session import StandInClassifier

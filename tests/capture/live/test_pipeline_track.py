@@ -1,11 +1,8 @@
 import threading
 
 import numpy as np
-import pytest
 
-from capture.errors import CaptureError
 from capture.live.pipeline import OrientationTrack
-from capture.live.session import SubjectInfo
 from devices.rotations import quat_from_euler, quat_to_euler
 
 
@@ -41,29 +38,6 @@ def test_wait_until_returns_when_a_later_sample_arrives():
     threading.Timer(0.05, lambda: track.add(2000, quat_from_euler(0, 0, 0))).start()
     assert track.wait_until(1000, 60.0)  # returns once the sample came (a bound only)
     assert not track.wait_until(5000, 0.01)
-
-
-@pytest.mark.parametrize(
-    "field, value",
-    [
-        ("subject", "Jane Doe"),
-        ("height_m", 3.0),
-        ("sex", "x"),
-        ("side", "up"),
-        ("trial", 0),
-        ("condition", "in door"),
-    ],
-)
-def test_subject_info_validation_names_the_field(field, value):
-    info = SubjectInfo(**{field: value})
-    with pytest.raises(CaptureError, match=field.split("_")[0]):
-        info.validate()
-
-
-def test_amputee_needs_a_side():
-    with pytest.raises(CaptureError, match="side"):
-        SubjectInfo(amputee=True).validate()
-    SubjectInfo(amputee=True, side="left", residual_limb_cm=30).validate()
 
 
 def test_past_the_newest_sample_the_rate_of_turn_carries_the_orientation_on():

@@ -14,7 +14,8 @@ import pytest
 from capture.config import Config
 from capture.corpus.replay import replay
 from capture.errors import CaptureError, ConfigError
-from capture.live.session import INTAKE_THREADS, Session, SubjectInfo
+from capture.live.session import INTAKE_THREADS, Session
+from capture.live.trials import SubjectInfo
 from capture.recording import topics as T
 from capture.recording.reader import open_recording, read_trial
 from devices.frames import MODES
