@@ -8,46 +8,12 @@ import time
 import numpy as np
 import pytest
 
-from devices.camera import BACKENDS, Camera, camera_class, open_camera
+from devices.camera import BACKENDS, camera_class, open_camera
 from devices.clock import now_ns
 from devices.config import CameraConfig, SimulatorConfig
 from devices.errors import DeviceNotAvailable
-from devices.frames import DepthFrame
 from devices.simulator import MockCamera, Simulator, make_course
-
-
-def blank_frame(index: int) -> DepthFrame:
-    return DepthFrame(
-        index,
-        now_ns(),
-        now_ns(),
-        np.zeros((2, 2, 3), np.float32),
-        np.zeros((2, 2), np.uint8),
-        np.zeros((2, 2), np.uint16),
-    )
-
-
-class ScriptedCamera(Camera):
-    """A backend whose producer is the test: it records the hooks called."""
-
-    backend = "scripted"
-
-    def __init__(self, config=None, **kw):
-        super().__init__(config, **kw)
-        self.calls = []
-
-    def _open(self):
-        self.calls.append("open")
-
-    def _start(self):
-        self.calls.append("start")
-
-    def _stop(self):
-        self.calls.append("stop")
-
-    def _close(self):
-        self.calls.append("close")
-
+from tests.devices.scripted_camera import ScriptedCamera, blank_frame
 
 # ---- base class ----------------------------------------------------------------------------
 

@@ -13,30 +13,11 @@ import time
 import numpy as np
 import pytest
 
-from capture.config import Config
-from capture.live.session import Session, SubjectInfo
+from capture.live.session import SubjectInfo
 from capture.recording.journal import check_journal
 from capture.recording.reader import open_recording, read_trial
-from tests.capture.live.test_session import StandInClassifier
-
-
-def wait_for(predicate, timeout=5.0, step=0.05):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(step)
-    return False
-
-
-def session_in(tmp_path) -> Session:
-    c = Config()
-    c.session.recordings = str(tmp_path)
-    return Session(c, classifier=StandInClassifier())
-
-
-def events_of(path) -> list[dict]:
-    return [m.data for m in open_recording(path).messages(["/events"])]
+from tests.capture.live.sessions import events_of, session_in
+from tests.waiting import wait_for
 
 
 def test_imu_unplug_and_replug_during_a_recording(tmp_path):
@@ -47,15 +28,13 @@ def test_imu_unplug_and_replug_during_a_recording(tmp_path):
         session.set_label("LG")
         time.sleep(1.0)
         session._imu.inject("disconnect")
-        assert wait_for(lambda: session.snapshot().imu.state == "lost", 1.5), (
-            "unplug not seen in 1 s"
-        )
+        wait_for(lambda: session.snapshot().imu.state == "lost", 1.5, what="the unplug seen")
         frames_while_lost = session.snapshot().frames
         session.set_label("US")  # the operator keeps labelling
         time.sleep(0.8)
         assert session.snapshot().frames > frames_while_lost  # the camera keeps recording
         session._imu.inject("reconnect")
-        assert wait_for(lambda: session.snapshot().imu.state == "ok", 5.0), "no reconnect"
+        wait_for(lambda: session.snapshot().imu.state == "ok", 5.0, what="the reconnect")
         time.sleep(0.5)
     finally:
         stats = session.stop()
@@ -93,9 +72,9 @@ def test_camera_stall_is_reported_and_the_imu_keeps_recording(tmp_path):
         path = session.start_recording(SubjectInfo())
         time.sleep(0.5)
         session._camera.inject("stall", seconds=2.0)
-        assert wait_for(lambda: session.snapshot().camera.state == "degraded", 2.0)
+        wait_for(lambda: session.snapshot().camera.state == "degraded", 2.0)
         time.sleep(1.8)
-        assert wait_for(lambda: session.snapshot().camera.state == "ok", 3.0)
+        wait_for(lambda: session.snapshot().camera.state == "ok", 3.0)
     finally:
         session.stop()
     assert "stall" in [e["kind"] for e in events_of(path)]
@@ -124,7 +103,7 @@ def test_disk_full_stops_the_recording_cleanly_and_keeps_it_readable(small_disk)
     try:
         path = session.start_recording(SubjectInfo())
         session.set_label("LG")
-        assert wait_for(lambda: session.snapshot().recording.state == "failed", 30.0)
+        wait_for(lambda: session.snapshot().recording.state == "failed", 30.0)
         snap = session.snapshot()
         assert snap.running  # devices and pipeline go on; only the file stopped
     finally:
@@ -249,7 +228,7 @@ def test_kill_9_while_recording_then_recover_loses_at_most_a_second_and_no_label
                 return 0
 
         # Depth on disk: a bounded wait on the file, not on a clock.
-        assert wait_for(lambda: on_disk() >= 30, 300, 0.5)
+        wait_for(lambda: on_disk() >= 30, 300, 0.5)
         proc.send_signal(signal.SIGSTOP)  # what is on disk now is what the kill leaves
         seen = on_disk()
     finally:

@@ -19,18 +19,7 @@ from capture.recording import topics as T
 from capture.recording.reader import open_recording, read_trial
 from devices.frames import MODES
 from devices.scheduling import realtime_priority
-
-
-class StandInClassifier:
-    """Scores from the image's column profile: deterministic, cheap, image-dependent."""
-
-    metadata = {"weights_sha256": "stand-in"}
-
-    def predict(self, image):
-        cols = image.any(axis=0).sum()
-        p = np.full(5, 0.05)
-        p[int(cols) % 5] = 0.8
-        return p
+from tests.capture.live.sessions import StandInClassifier
 
 
 def config(tmp_path, fps=15.0) -> Config:
