@@ -18,7 +18,7 @@ from devices.xbus import MID
 from tests.devices.imu_streams import collect, collect_n, kinds
 from tests.waiting import wait_for
 
-pytestmark = pytest.mark.timeout(60)
+pytestmark = [pytest.mark.timeout(60), pytest.mark.realtime]
 
 
 # ----------------------------------------------------------------------------- configuration
@@ -189,6 +189,7 @@ def test_ned_output_is_turned_into_the_same_enu_orientation(mock_imu):
         assert len(s.extra["euler"]) == 3
 
 
+@pytest.mark.slow
 def test_drift_and_jitter_mapped_within_half_a_millisecond(mock_imu):
     imu = mock_imu(rate_hz=100, drift_ppm=50.0, jitter_ms=2.0, seed=1)
     imu.start()
@@ -330,6 +331,7 @@ def test_open_imu_mock_from_a_config():
         imu.close()
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(300)
 def test_a_host_stall_loses_no_sample_the_port_kept(mock_imu):
     """The reader stands still 3 s (the host stalled) while the IMU streams into the port's

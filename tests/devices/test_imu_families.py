@@ -16,7 +16,7 @@ from devices.imu import EmulatedImu, XbusImu
 from devices.imu_emulator import ImuEmulator
 from devices.xbus import MID
 
-pytestmark = pytest.mark.timeout(60)
+pytestmark = [pytest.mark.timeout(60), pytest.mark.realtime]
 
 PROFILES = ["MTi-1", "MTi-3", "MTi-630"]
 

@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import pytest
+
 from devices import xbus
 from tests.devices.imu_streams import collect, kinds
+
+pytestmark = pytest.mark.realtime
 
 
 def test_a_checksum_valid_frame_with_a_repeated_output_never_drops_the_imu(mock_imu):

@@ -19,6 +19,8 @@ from devices.errors import DeviceInitError
 from devices.simulator.rig import RigCamera, RigImu
 from tests.waiting import wait_for
 
+pytestmark = pytest.mark.realtime
+
 
 def alive(pid: int) -> bool:
     try:
@@ -85,6 +87,7 @@ def test_the_rig_ends_with_its_devices(rig_devices):
     assert process.poll() is not None
 
 
+@pytest.mark.subprocess
 def test_the_rig_ends_when_the_host_dies(tmp_path):
     script = tmp_path / "host.py"
     script.write_text(

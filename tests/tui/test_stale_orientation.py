@@ -90,6 +90,8 @@ def test_the_bound_is_configurable_and_checked(tmp_path):
         load(str(path))
 
 
+@pytest.mark.realtime
+@pytest.mark.slow
 async def test_the_tui_unplug_drill_flags_the_frames_everywhere(tmp_path, busy_pilot, capsys):
     config = Config()
     config.session.recordings = str(tmp_path / "recordings")

@@ -16,6 +16,8 @@ from tui.live_screen import LiveScreen
 pytestmark = pytest.mark.timeout(30)
 
 
+@pytest.mark.realtime
+@pytest.mark.slow
 async def test_real_session_on_mock_devices(tmp_path, busy_pilot):
     config = Config()
     config.session.recordings = str(tmp_path / "recordings")

@@ -45,6 +45,7 @@ def _send(sock: socket.socket, line: str) -> bytes:
     return sock.recv(16)
 
 
+@pytest.mark.realtime
 def test_remote_commands_start_and_stop_a_recording(tmp_path):
     cfg = Config()
     cfg.session.recordings = str(tmp_path / "unused")
@@ -266,6 +267,7 @@ def _remote_events(session) -> list[DeviceEvent]:
     return [e for e in session.snapshot().events if e.device == "remote"]
 
 
+@pytest.mark.realtime
 def test_a_remote_root_is_the_remote_trials_only_and_bad_commands_are_one_event_each(
     tmp_path, capfd
 ):

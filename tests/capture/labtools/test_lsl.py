@@ -243,6 +243,7 @@ while True:
 """
 
 
+@pytest.mark.subprocess
 def test_a_stream_whose_outlet_hangs_is_replaced_by_its_successor(tmp_path):
     import signal
     import subprocess

@@ -6,6 +6,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
+import pytest
 
 from capture.live.session import SubjectInfo
 from devices.clock import now_ns
@@ -76,6 +77,7 @@ def test_a_reopen_that_fails_is_retried():
         cam.close()
 
 
+@pytest.mark.realtime
 def test_a_stall_in_a_session_is_lost_reopened_and_back(tmp_path):
     session = session_in(tmp_path)
     session.config.camera.lost_after_s = 1.0

@@ -20,6 +20,7 @@ from tests.capture.live.sessions import events_of, session_in
 from tests.waiting import wait_for
 
 
+@pytest.mark.realtime
 def test_imu_unplug_and_replug_during_a_recording(tmp_path):
     session = session_in(tmp_path)
     session.start()
@@ -47,6 +48,7 @@ def test_imu_unplug_and_replug_during_a_recording(tmp_path):
     assert np.max(np.diff(imu_times)) > 0.5e9  # the gap is in the file, samples on both sides
 
 
+@pytest.mark.realtime
 def test_corrupted_serial_bytes_are_counted_and_capture_goes_on(tmp_path):
     session = session_in(tmp_path)
     session.start()
@@ -65,6 +67,7 @@ def test_corrupted_serial_bytes_are_counted_and_capture_goes_on(tmp_path):
     assert rec.topics["/imu"].count > 100  # ~1.5 s at 100 Hz, a handful lost at most
 
 
+@pytest.mark.realtime
 def test_camera_stall_is_reported_and_the_imu_keeps_recording(tmp_path):
     session = session_in(tmp_path)
     session.start()
@@ -97,6 +100,7 @@ def small_disk(tmp_path):
     subprocess.run(["umount", "-l", str(mount)], capture_output=True)
 
 
+@pytest.mark.realtime
 def test_disk_full_stops_the_recording_cleanly_and_keeps_it_readable(small_disk):
     session = session_in(small_disk)
     session.start()
@@ -153,12 +157,14 @@ def garbage_and_cut(tmp_path_factory):
 @pytest.mark.parametrize(
     "command", [["info"], ["replay", "--fast"], ["eval", "recordings"], ["recover"]]
 )
+@pytest.mark.subprocess
 def test_garbage_files_are_one_clear_line(garbage_and_cut, command):
     _, _, garbage, _ = garbage_and_cut
     line = one_clear_line(run_cli(*command, str(garbage)))
     assert "garbage.mcap" in line
 
 
+@pytest.mark.subprocess
 @pytest.mark.parametrize("command", [["info"], ["eval", "recordings", "--reference", "terrain"]])
 def test_cut_files_are_read_up_to_the_cut(garbage_and_cut, command):
     _, cut, _, _ = garbage_and_cut
@@ -167,6 +173,7 @@ def test_cut_files_are_read_up_to_the_cut(garbage_and_cut, command):
     assert "Traceback" not in out.stderr
 
 
+@pytest.mark.subprocess
 @pytest.mark.parametrize("command", [["info"], ["eval", "recordings", "--reference", "terrain"]])
 def test_corrupted_bytes_inside_a_file_never_give_a_traceback(garbage_and_cut, command):
     _, _, _, flipped = garbage_and_cut
@@ -192,6 +199,9 @@ def _chunk_spans_ns(path) -> list[int]:
     return spans
 
 
+@pytest.mark.realtime
+@pytest.mark.slow
+@pytest.mark.subprocess
 def test_kill_9_while_recording_then_recover_loses_at_most_a_second_and_no_label(tmp_path):
     """A real `walkcap record` process killed with SIGKILL, as a power loss would.
 
@@ -253,6 +263,7 @@ def test_kill_9_while_recording_then_recover_loses_at_most_a_second_and_no_label
         assert label in labels
 
 
+@pytest.mark.subprocess
 def test_a_bad_model_file_is_one_clear_line(tmp_path):
     bad = tmp_path / "broken.pt"
     bad.write_bytes(b"not a torch file at all")
@@ -262,6 +273,7 @@ def test_a_bad_model_file_is_one_clear_line(tmp_path):
     assert "broken.pt" in line
 
 
+@pytest.mark.subprocess
 def test_a_bad_configuration_stops_record_before_any_device_opens(tmp_path):
     cfg = tmp_path / "c.toml"
     cfg.write_text("[imu]\nrate_hz = 'fast'\n")
