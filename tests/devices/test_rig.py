@@ -101,8 +101,7 @@ def test_the_rig_ends_when_the_host_dies(tmp_path):
     host = subprocess.Popen(
         [sys.executable, str(script)],
         stdout=subprocess.PIPE,
-        text=True,
-        env={**os.environ, "PYTHONPATH": os.getcwd()},
+        text=True,  # PYTHONPATH (conftest): this checkout's walkcap, not an installed one
     )
     try:
         child = int(host.stdout.readline())

@@ -64,6 +64,7 @@ def test_the_first_error_ends_the_job_as_raised(where):
     assert said == [1, 2]
 
 
+@pytest.mark.slow  # two spawned processes import walkcap and load the model: ~8 s of CPU
 @pytest.mark.subprocess
 def test_synth_recordings_with_workers_are_the_recordings_of_one_process(tmp_path, capsys):
     args = ["synth", "--format", "recording", "--sessions", "2", "--frames", "3"]
