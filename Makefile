@@ -7,13 +7,17 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 TORCH := torch==2.13.0
 
-.PHONY: run test lint install system-deps bytecode clean
+.PHONY: run test test-fast lint install system-deps bytecode clean
 
 run: install
 	$(BIN)/walkcap tui
 
 test: install lint
 	$(BIN)/python -m pytest -q
+
+# The suite without its slow and cluster tests (markers in pyproject.toml), for each step.
+test-fast: install lint
+	$(BIN)/python -m pytest -q -m "not slow and not cluster"
 
 # Style and the one-way imports (devices -> inference -> capture -> tui), as CI runs them.
 lint: install

@@ -7,6 +7,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from capture.corpus import export
 from tests.recording_fixtures import write_recording
 from tui.cli import main
@@ -36,6 +38,8 @@ def test_recover_writes_the_file_the_docs_name(tmp_path):
     assert sorted(p.name for p in tmp_path.glob("*.mcap")) == sorted({path.name, named.name})
 
 
+@pytest.mark.slow
+@pytest.mark.subprocess
 def test_usage_errors_and_user_errors_exit_as_the_readme_says(tmp_path):
     text = flat(README)
     usage = re.search(r"A usage error \(.*?\) prints one line on stderr and exits (\d)", text)

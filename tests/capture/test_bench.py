@@ -2,6 +2,7 @@
 memory it measures."""
 
 import numpy as np
+import pytest
 
 from capture import bench
 
@@ -45,6 +46,8 @@ def test_rss_growth_ignores_the_first_minute_and_needs_samples():
     assert np.isnan(bench.rss_growth_mib_per_min([(0.0, 1.0), (10.0, 2.0)])[0])
 
 
+@pytest.mark.realtime
+@pytest.mark.slow
 def test_a_session_run_records_one_latency_per_frame(tmp_path):
     samples = []
     run = bench.session_run(
@@ -62,6 +65,8 @@ def test_a_session_run_records_one_latency_per_frame(tmp_path):
     assert len(run.rss_mib) == len(samples)
 
 
+@pytest.mark.realtime
+@pytest.mark.slow
 def test_soak_prints_strict_json_with_its_summary(capsys):
     import json
 

@@ -8,46 +8,12 @@ import time
 import numpy as np
 import pytest
 
-from devices.camera import BACKENDS, Camera, camera_class, open_camera
+from devices.camera import BACKENDS, camera_class, open_camera
 from devices.clock import now_ns
 from devices.config import CameraConfig, SimulatorConfig
 from devices.errors import DeviceNotAvailable
-from devices.frames import DepthFrame
 from devices.simulator import MockCamera, Simulator, make_course
-
-
-def blank_frame(index: int) -> DepthFrame:
-    return DepthFrame(
-        index,
-        now_ns(),
-        now_ns(),
-        np.zeros((2, 2, 3), np.float32),
-        np.zeros((2, 2), np.uint8),
-        np.zeros((2, 2), np.uint16),
-    )
-
-
-class ScriptedCamera(Camera):
-    """A backend whose producer is the test: it records the hooks called."""
-
-    backend = "scripted"
-
-    def __init__(self, config=None, **kw):
-        super().__init__(config, **kw)
-        self.calls = []
-
-    def _open(self):
-        self.calls.append("open")
-
-    def _start(self):
-        self.calls.append("start")
-
-    def _stop(self):
-        self.calls.append("stop")
-
-    def _close(self):
-        self.calls.append("close")
-
+from tests.devices.scripted_camera import ScriptedCamera, blank_frame
 
 # ---- base class ----------------------------------------------------------------------------
 
@@ -122,6 +88,7 @@ def test_registry_names_the_three_backends():
     assert camera_class("mock") is MockCamera
 
 
+@pytest.mark.subprocess
 def test_devices_alone_register_only_their_own_backends():
     code = "import devices.camera as c; print(sorted(c.BACKENDS))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
@@ -139,6 +106,7 @@ def test_a_backend_module_that_cannot_be_imported_is_reported(monkeypatch):
         open_camera(CameraConfig(backend="broken"))
 
 
+@pytest.mark.subprocess
 def test_backends_are_imported_only_when_chosen():
     code = (
         "import sys, devices.camera, capture; "
@@ -177,6 +145,7 @@ def test_bad_simulator_configuration_names_the_key():
         open_camera(CameraConfig(backend="mock"), SimulatorConfig(course="beach"))
 
 
+@pytest.mark.realtime
 def test_mock_runs_to_the_end_of_the_course_then_stops(short_sim):
     cam = MockCamera(CameraConfig(fps=15, buffer_frames=2), simulator=short_sim, realtime=False)
     with cam:
@@ -190,6 +159,7 @@ def test_mock_runs_to_the_end_of_the_course_then_stops(short_sim):
     assert not cam.running
 
 
+@pytest.mark.realtime
 def test_mock_frames_share_the_time_base_of_the_imu_orientation(short_sim):
     cam = MockCamera(CameraConfig(fps=15), simulator=short_sim, realtime=False)
     with cam:
@@ -204,6 +174,7 @@ def test_mock_frames_share_the_time_base_of_the_imu_orientation(short_sim):
         assert f.host_time_ns >= start
 
 
+@pytest.mark.realtime
 def test_mock_keeps_a_start_time_chosen_before_start(short_sim):
     cam = MockCamera(simulator=short_sim, realtime=False)
     chosen = now_ns() - int(1e6)
@@ -230,6 +201,7 @@ class SteppedClock:
         return len(self.sleeps) == self._sleeps_until_stop  # True: stopped meanwhile
 
 
+@pytest.mark.realtime
 def test_mock_sends_frame_k_at_k_periods_on_its_clock(short_sim):
     clock = SteppedClock(sleeps_until_stop=7)  # stopped while waiting for frame 7
     cam = MockCamera(
@@ -247,6 +219,7 @@ def test_mock_sends_frame_k_at_k_periods_on_its_clock(short_sim):
     np.testing.assert_allclose(clock.sleeps, 0.05)  # one period before each frame after 0
 
 
+@pytest.mark.realtime
 def test_the_watchdog_measures_silence_on_the_cameras_own_clock(short_sim):
     """A camera on an injected clock is judged on it: the real clock running on while the
     camera's stands still (a test, a loaded machine) is no silence of the camera."""
@@ -263,6 +236,7 @@ def test_the_watchdog_measures_silence_on_the_cameras_own_clock(short_sim):
     assert not {"stall", "lost"} & {e.kind for e in cam.poll_events()}
 
 
+@pytest.mark.realtime
 def test_a_mock_too_slow_for_its_rate_skips_to_the_current_frame_counted(short_sim, monkeypatch):
     clock = SteppedClock()
     render = short_sim.render
@@ -293,6 +267,7 @@ def test_a_mock_too_slow_for_its_rate_skips_to_the_current_frame_counted(short_s
     assert cam.status().errors == 4 * len(sent) and clock.sleeps == []
 
 
+@pytest.mark.realtime
 def test_mock_loops_when_asked(short_sim):
     cam = MockCamera(
         CameraConfig(fps=15, buffer_frames=2), simulator=short_sim, realtime=False, loop=True

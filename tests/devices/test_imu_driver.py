@@ -11,58 +11,14 @@ import serial
 
 from devices import xbus
 from devices.errors import DeviceInitError, DeviceNotAvailable
-from devices.imu import EmulatedImu, XbusImu, open_imu
+from devices.imu import XbusImu, open_imu
 from devices.imu.emulator import ImuEmulator, gait_orientation
 from devices.rotations import quat_to_matrix
 from devices.xbus import MID
+from tests.devices.imu_streams import collect, collect_n, kinds
+from tests.waiting import wait_for
 
-pytestmark = pytest.mark.timeout(60)
-
-
-def collect(imu, seconds: float) -> list:
-    samples, deadline = [], time.monotonic() + seconds
-    while time.monotonic() < deadline:
-        s = imu.recv(0.1)
-        if s is not None:
-            samples.append(s)
-    return samples
-
-
-def collect_n(imu, n: int, timeout: float = 120.0) -> list:
-    """n samples, waiting at most `timeout` s for them (a bound, never the measure)."""
-    samples, deadline = [], time.monotonic() + timeout
-    while len(samples) < n and time.monotonic() < deadline:
-        s = imu.recv(0.1)
-        if s is not None:
-            samples.append(s)
-    return samples
-
-
-def wait_for(predicate, timeout: float) -> float:
-    """Seconds until predicate() held; fails after timeout."""
-    start = time.monotonic()
-    while not predicate():
-        assert time.monotonic() - start < timeout, "timed out"
-        time.sleep(0.01)
-    return time.monotonic() - start
-
-
-def kinds(events) -> list[str]:
-    return [e.kind for e in events]
-
-
-@pytest.fixture
-def mock_imu():
-    imus = []
-
-    def make(**kw):
-        imu = EmulatedImu(**kw)
-        imus.append(imu)
-        return imu
-
-    yield make
-    for imu in imus:
-        imu.close()
+pytestmark = [pytest.mark.timeout(60), pytest.mark.realtime]
 
 
 # ----------------------------------------------------------------------------- configuration
@@ -233,6 +189,7 @@ def test_ned_output_is_turned_into_the_same_enu_orientation(mock_imu):
         assert len(s.extra["euler"]) == 3
 
 
+@pytest.mark.slow
 def test_drift_and_jitter_mapped_within_half_a_millisecond(mock_imu):
     imu = mock_imu(rate_hz=100, drift_ppm=50.0, jitter_ms=2.0, seed=1)
     imu.start()
@@ -374,6 +331,7 @@ def test_open_imu_mock_from_a_config():
         imu.close()
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(300)
 def test_a_host_stall_loses_no_sample_the_port_kept(mock_imu):
     """The reader stands still 3 s (the host stalled) while the IMU streams into the port's

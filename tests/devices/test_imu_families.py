@@ -17,7 +17,7 @@ from devices.imu import family as imu_family
 from devices.imu.emulator import ImuEmulator
 from devices.xbus import MID
 
-pytestmark = pytest.mark.timeout(60)
+pytestmark = [pytest.mark.timeout(60), pytest.mark.realtime]
 
 PROFILES = ["MTi-1", "MTi-3", "MTi-630"]
 

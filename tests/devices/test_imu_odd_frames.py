@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import pytest
+
 from devices import xbus
-from tests.devices.test_imu_driver import collect, kinds, mock_imu  # noqa: F401  (the fixture)
+from tests.devices.imu_streams import collect, kinds
+
+pytestmark = pytest.mark.realtime
 
 
-def test_a_checksum_valid_frame_with_a_repeated_output_never_drops_the_imu(mock_imu):  # noqa: F811
+def test_a_checksum_valid_frame_with_a_repeated_output_never_drops_the_imu(mock_imu):
     """Two quaternions in 16.32 fixed point, then temperature in 16.32 and in float32: the
     payload is decoded once per output, the stream goes on and the IMU is never lost."""
     quaternion = xbus.encode_packet("quaternion", (1.0, 0.0, 0.0, 0.0), xbus.FP1632)

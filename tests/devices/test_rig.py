@@ -17,15 +17,9 @@ from capture.config import Config
 from capture.live.devices import close_devices, open_devices
 from devices.errors import DeviceInitError
 from devices.simulator.rig import RigCamera, RigImu
+from tests.waiting import wait_for
 
-
-def wait_for(predicate, timeout=5.0):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.05)
-    return False
+pytestmark = pytest.mark.realtime
 
 
 def alive(pid: int) -> bool:
@@ -51,7 +45,7 @@ def test_the_rigs_threads_run_at_real_time_priority_where_permitted(rig_devices)
     """Below the session's pipeline thread, above everything else: as hardware would."""
     camera, imu = rig_devices
     camera.start()
-    assert wait_for(lambda: camera.recv(0.2) is not None)
+    wait_for(lambda: camera.recv(0.2) is not None)
     pid = camera.rig._child.pid
     policies = {os.sched_getscheduler(int(tid)) for tid in os.listdir(f"/proc/{pid}/task")}
     said = camera.rig.details["scheduling"]
@@ -93,6 +87,7 @@ def test_the_rig_ends_with_its_devices(rig_devices):
     assert process.poll() is not None
 
 
+@pytest.mark.subprocess
 def test_the_rig_ends_when_the_host_dies(tmp_path):
     script = tmp_path / "host.py"
     script.write_text(
@@ -106,14 +101,14 @@ def test_the_rig_ends_when_the_host_dies(tmp_path):
     host = subprocess.Popen(
         [sys.executable, str(script)],
         stdout=subprocess.PIPE,
-        text=True,  # this checkout's code: conftest puts it on PYTHONPATH
+        text=True,  # PYTHONPATH (conftest): this checkout's walkcap, not an installed one
     )
     try:
         child = int(host.stdout.readline())
         assert alive(child)
         host.send_signal(signal.SIGKILL)
         host.wait()
-        assert wait_for(lambda: not alive(child), 5.0), "the rig outlived its host"
+        wait_for(lambda: not alive(child), 5.0, what="the rig's end with its host")
     finally:
         host.kill()
 
@@ -130,9 +125,9 @@ def test_faults_cross_to_the_rig(rig_devices):
     assert camera.recv(1.0) is None  # nothing while stalled
     assert camera.recv(2.0) is not None  # and frames again after
     imu.inject("disconnect")
-    assert wait_for(lambda: imu.status().state == "lost", 2.0)
+    wait_for(lambda: imu.status().state == "lost", 2.0)
     imu.inject("reconnect")
-    assert wait_for(lambda: imu.status().state == "ok", 5.0)
+    wait_for(lambda: imu.status().state == "ok", 5.0)
     with pytest.raises(DeviceInitError, match="unknown camera fault"):
         camera.inject("melt")
 

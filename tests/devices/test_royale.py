@@ -569,6 +569,7 @@ def test_the_fastest_frame_path_of_each_generation(generation):
     assert frame_path(data) == {"3": "points", "4": "npoints", "5": "npoints"}[sdk.generation]
 
 
+@pytest.mark.realtime
 def test_unplug_is_reported_and_the_camera_reopened(generation):
     roypy = generation(frames=100_000)
     roypy.frame_s = 0.01
@@ -600,6 +601,7 @@ def test_unplug_is_reported_and_the_camera_reopened(generation):
     assert len(roypy.devices) == 2  # opened again
 
 
+@pytest.mark.realtime
 def test_an_event_listener_that_cannot_be_made_is_a_warning_not_a_failed_start(monkeypatch):
     """A binding whose only event listener is the abstract IEventListener: the camera
     starts, says so once, and watches isConnected() instead."""
@@ -658,6 +660,7 @@ def test_a_roypy_without_numpy_streams_a_point_at_a_time_and_says_so(monkeypatch
     assert f"frames via {path}" in device_item("camera", status).summary
 
 
+@pytest.mark.realtime
 def test_frames_are_copied_out_of_the_sdk_buffer(roypy):
     cam = open_camera(royale())
     try:
@@ -692,6 +695,7 @@ def test_five_channel_points_of_royale5(monkeypatch):
     assert f.gray[5, 5] == 301 and f.confidence[5, 5] == 200
 
 
+@pytest.mark.realtime
 def test_a_slow_consumer_costs_counted_frames_not_a_blocked_sdk(monkeypatch):
     sdk = make_roypy(frames=30)
     install(monkeypatch, sdk)
@@ -727,6 +731,7 @@ def test_a_use_case_the_camera_refuses_is_an_init_error(roypy):
 # ---- a recording ---------------------------------------------------------------------------
 
 
+@pytest.mark.realtime
 def test_plays_an_rrf_recording_through_the_sdk(generation, tmp_path, monkeypatch):
     """4.x/5.x: asReplay, loop(False), frameCount; 3.x has none: the frames stopping ends
     the playback."""
@@ -774,6 +779,7 @@ def test_device_timestamps_as_int_or_chrono_duration_or_arrival_time():
     assert device_time_us(types.SimpleNamespace(timeStamp=object())) is None
 
 
+@pytest.mark.realtime
 def test_without_events_or_is_connected_a_second_of_silence_is_a_lost_camera(monkeypatch):
     monkeypatch.delattr(FakeDevice, "isConnected")
     roypy = make_roypy(generation="4", frames=100_000)

@@ -27,7 +27,7 @@ from devices.imu import family as imu_family
 from devices.imu.emulator import PORT_NAME_MAX, ImuEmulator
 from devices.xbus import MID
 
-pytestmark = pytest.mark.timeout(120)
+pytestmark = [pytest.mark.timeout(120), pytest.mark.realtime]
 
 # One model of every family the emulator plays.
 FAMILIES = ["MTi-1", "MTi-3", "MTi-20", "MTi-300", "MTi-320", "MTi-630"]
@@ -282,6 +282,7 @@ def test_the_port_path_fits_the_32_bytes_xsens_tools_keep_even_under_a_long_tmpd
         imu.close()
 
 
+@pytest.mark.subprocess
 def test_walkcap_imu_emulate_prints_a_short_port_path(tmp_path):
     long_tmp = tmp_path / ("t" * 60)
     long_tmp.mkdir()

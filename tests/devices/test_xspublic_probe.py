@@ -130,6 +130,8 @@ def first_line(proc: subprocess.Popen, timeout: float) -> str:
     return data.split(b"\n")[0].decode().strip()
 
 
+@pytest.mark.realtime
+@pytest.mark.subprocess
 @pytest.mark.parametrize("model", ["MTi-1", "MTi-3", "MTi-630"])
 def test_xsens_library_opens_configures_and_streams_from_the_emulator(probe, model, tmp_path):
     log = tmp_path / "emulate.log"

@@ -285,6 +285,7 @@ def test_recordings_through_the_reader(monkeypatch, trials):
 # --- figures -----------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_write_plots_writes_the_papers_figures(tmp_path, trials):
     methods = list(ev.PAPER_METHODS)
     results = ev.evaluate(trials, methods)

@@ -245,6 +245,7 @@ def test_mismatched_file_is_one_clear_error(tmp_path):
     assert "does not match" in _one_line(e)
 
 
+@pytest.mark.slow
 def test_bench_cnn_reports_its_figures():
     from capture.bench.components import bench_cnn
 

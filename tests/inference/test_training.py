@@ -137,6 +137,7 @@ def test_training_is_deterministic_for_a_seed():
     assert set(a.test_metrics) >= {"all"}
 
 
+@pytest.mark.slow
 def test_training_learns_drawn_profiles_and_reports_unseen_sessions():
     sessions = drawn_sessions(6, per_class=12)
     settings = TrainSettings(
@@ -331,6 +332,7 @@ print(held - resident_mb())
 """
 
 
+@pytest.mark.subprocess
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's allocator")
 def test_a_training_process_keeps_the_memory_of_its_last_batch():
     def released_mb(mode: str) -> float:

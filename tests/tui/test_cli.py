@@ -22,6 +22,7 @@ def walkcap(*args: str) -> subprocess.CompletedProcess:
     )
 
 
+@pytest.mark.subprocess
 def test_help_lists_every_subcommand():
     out = walkcap("--help")
     assert out.returncode == 0
@@ -37,6 +38,7 @@ def test_every_subcommand_has_help(name, capsys):
     assert "usage: walkcap " + name in capsys.readouterr().out
 
 
+@pytest.mark.subprocess
 def test_unknown_flag_is_one_line_without_traceback():
     out = walkcap("record", "--no-such-flag")
     assert out.returncode == 2
@@ -45,6 +47,7 @@ def test_unknown_flag_is_one_line_without_traceback():
     assert "--no-such-flag" in out.stderr
 
 
+@pytest.mark.subprocess
 def test_bad_config_is_one_line_naming_the_key(tmp_path):
     cfg = tmp_path / "bad.toml"
     cfg.write_text("[camera]\nfps = 'fast'\n")
@@ -75,6 +78,7 @@ def test_internal_errors_go_to_a_crash_log(monkeypatch, capsys, tmp_path):
     assert "ZeroDivisionError" in (tmp_path / ".cache" / "walkcap" / "crash.log").read_text()
 
 
+@pytest.mark.subprocess
 def test_a_closed_pipe_is_not_an_error(tmp_path):
     """`walkcap info FILE | head -1`: the reader leaves early; no error message."""
     from tests.recording_fixtures import write_recording

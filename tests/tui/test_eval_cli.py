@@ -135,6 +135,7 @@ def test_scores_sweep_methods_and_estimated_transition(capsys, score_files, tmp_
     assert header.split() == ["method", "0", "1", "2", "3", "4", "5", "6"]
 
 
+@pytest.mark.subprocess
 def test_bad_score_file_is_one_line_naming_file_and_line(tmp_path):
     bad = tmp_path / "bad.csv"
     bad.write_text("LG,US,DS,UR,DR,label\n0.2,0.2,0.2,0.2,0.2,LG\n0.2,0.2,nan,0.2,0.2,LG\n")
@@ -188,6 +189,7 @@ def fake_reader(tmp_path):
     return paths
 
 
+@pytest.mark.slow
 def test_recordings_grouped_with_sweep_and_plots(capsys, fake_reader, tmp_path):
     # live keys only: no terrain reference, so frame accuracy is refused unless asked for
     code, _, err = run(capsys, "eval", "recordings", *fake_reader)

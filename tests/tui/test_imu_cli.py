@@ -138,6 +138,7 @@ def test_decode_missing_file_is_one_line(capsys):
     assert "nowhere.bin" in err and len(err.strip().splitlines()) == 1
 
 
+@pytest.mark.realtime
 def test_info_against_the_emulator(capsys):
     with ImuEmulator() as emulator:
         assert cli.main(["imu", "info", emulator.port]) == 0
@@ -148,6 +149,7 @@ def test_info_against_the_emulator(capsys):
     assert "link budget   100 messages/s x 73 bytes = 73.0 kbit/s of 115.2 kbit/s" in out
 
 
+@pytest.mark.realtime
 def test_info_of_an_imu_only_model_says_leveling_needs_orientation(capsys):
     with ImuEmulator(model="MTi-1") as emulator:
         assert cli.main(["imu", "info", emulator.port]) == 0
@@ -156,6 +158,7 @@ def test_info_of_an_imu_only_model_says_leveling_needs_orientation(capsys):
     assert "leveling needs a VRU or AHRS" in out
 
 
+@pytest.mark.realtime
 def test_set_baud_then_the_device_answers_at_the_new_rate(capsys):
     with ImuEmulator(model="MTi-630") as emulator:
         assert cli.main(["imu", "set-baud", emulator.port, "460800"]) == 0
@@ -189,6 +192,9 @@ def test_stream_mock_with_a_raw_capture_that_decodes(tmp_path, capsys):
     assert summary["messages"] > 50 and summary["checksum_errors"] == 0
 
 
+@pytest.mark.realtime
+@pytest.mark.slow
+@pytest.mark.subprocess
 def test_emulate_prints_its_port_and_list_runs():
     out = subprocess.run(
         [sys.executable, "-m", "tui.cli", "imu", "emulate", "--seconds", "0.3"],

@@ -55,6 +55,7 @@ def test_info_on_garbage_is_one_clear_line(tmp_path, capsys, content):
     assert ("empty" if not content else "not an MCAP recording") in out.err
 
 
+@pytest.mark.subprocess
 def test_info_on_a_missing_file_is_one_clear_line(tmp_path):
     out = subprocess.run(
         [sys.executable, "-m", "tui.cli", "info", str(tmp_path / "x.mcap")],

@@ -6,8 +6,9 @@ import json
 
 from capture.config import Config
 from capture.live.trials import SubjectInfo
-from tests.tui.test_tui_app import SIZE, wait_for
+from tests.tui.screens import SIZE
 from tests.tui_fake_session import FakeSession
+from tests.waiting import wait_for_app
 from tui.app import WalkcapApp
 from tui.cli import build_parser
 from tui.commands import apply_device_flags
@@ -90,18 +91,18 @@ async def test_the_form_confirms_and_remembers_the_operator_across_a_restart():
     save_last_session(S07)
     app = WalkcapApp(Config(), session=FakeSession())
     async with app.run_test(size=SIZE) as pilot:
-        await wait_for(pilot, lambda: isinstance(app.screen, SessionScreen))
+        await wait_for_app(pilot, lambda: isinstance(app.screen, SessionScreen))
         app.screen.query_one("#f-operator").value = "RA1"
         await pilot.press("ctrl+s")
-        await wait_for(pilot, lambda: not isinstance(app.screen, SessionScreen))
+        await wait_for_app(pilot, lambda: not isinstance(app.screen, SessionScreen))
     assert json.loads(last_session_path().read_text())["operator"] == "RA1"
     config = Config()  # a restart: the form and every recording name the operator again
     app = WalkcapApp(config, session=FakeSession())
     async with app.run_test(size=SIZE) as pilot:
-        await wait_for(pilot, lambda: isinstance(app.screen, SessionScreen))
+        await wait_for_app(pilot, lambda: isinstance(app.screen, SessionScreen))
         assert app.screen.query_one("#f-operator").value == "RA1"
         await pilot.press("ctrl+s")
-        await wait_for(pilot, lambda: not isinstance(app.screen, SessionScreen))
+        await wait_for_app(pilot, lambda: not isinstance(app.screen, SessionScreen))
     assert config.session.operator == "RA1"
 
 
@@ -111,7 +112,7 @@ async def test_typing_another_subject_in_the_form_swaps_the_subject_fields(tmp_p
     touch(tmp_path / "recordings", "S03_outdoor_t01_x.mcap")
     app = WalkcapApp(Config(), session=FakeSession())
     async with app.run_test(size=SIZE) as pilot:
-        await wait_for(pilot, lambda: isinstance(app.screen, SessionScreen))
+        await wait_for_app(pilot, lambda: isinstance(app.screen, SessionScreen))
         form = app.screen
         assert form.values()["height_m"] == "1.82" and form.values()["trial"] == "6"
         form.query_one("#f-weight_kg").value = "79"  # the operator's own edit stays
@@ -126,6 +127,6 @@ async def test_typing_another_subject_in_the_form_swaps_the_subject_fields(tmp_p
         values = form.values()
         assert values["height_m"] == "1.64" and values["trial"] == "2"
         await pilot.press("ctrl+s")
-        await wait_for(pilot, lambda: not isinstance(app.screen, SessionScreen))
+        await wait_for_app(pilot, lambda: not isinstance(app.screen, SessionScreen))
     assert app.subject.subject == "S03" and app.subject.height_m == 1.64
     assert app.subject.side == "" and app.subject.trial == 2

@@ -22,9 +22,8 @@ from devices.simulator.synthetic import synthetic_frame
 from inference.config import PreprocessConfig
 from inference.fusion import make_fusion
 from inference.preprocess import STALE_ORIENTATION, preprocess
-from tests.tui.test_tui_app import rendered
-from tests.tui.test_tui_live_session import StubClassifier, _short_idle_wait, wait_for
-from tests.tui.test_tui_replay import FakeClock
+from tests.tui.screens import FakeClock, StubClassifier, rendered
+from tests.waiting import wait_for_app
 from tui.app import WalkcapApp
 from tui.cli import main
 from tui.live_screen import LiveScreen
@@ -93,9 +92,9 @@ def test_the_bound_is_configurable_and_checked(tmp_path):
         load(str(path))
 
 
-async def test_the_tui_unplug_drill_flags_the_frames_everywhere(tmp_path, monkeypatch, capsys):
-    monkeypatch.setattr("textual.app.wait_for_idle", _short_idle_wait)
-    monkeypatch.setattr("textual.pilot.wait_for_idle", _short_idle_wait)
+@pytest.mark.realtime
+@pytest.mark.slow
+async def test_the_tui_unplug_drill_flags_the_frames_everywhere(tmp_path, busy_pilot, capsys):
     config = Config()
     config.session.recordings = str(tmp_path / "recordings")
     sessions = []
@@ -114,12 +113,12 @@ async def test_the_tui_unplug_drill_flags_the_frames_everywhere(tmp_path, monkey
     )
     seen_unknown = []
     async with app.run_test(size=(120, 40)) as pilot:
-        await wait_for(pilot, lambda: app.ready, 15)
+        await wait_for_app(pilot, lambda: app.ready, 15)
         session = sessions[0]
-        await wait_for(pilot, lambda: session.snapshot().frames >= 5, 10)
+        await wait_for_app(pilot, lambda: session.snapshot().frames >= 5, 10)
         await pilot.press("1", "r")
-        await wait_for(pilot, lambda: app.recording_path is not None, 5)
-        await wait_for(pilot, lambda: session.snapshot().frames >= 20, 10)
+        await wait_for_app(pilot, lambda: app.recording_path is not None, 5)
+        await wait_for_app(pilot, lambda: session.snapshot().frames >= 20, 10)
         await pilot.press("ctrl+u")  # drill: the IMU unplugged for 2 s
         live = app.screen
         assert isinstance(live, LiveScreen)
@@ -131,17 +130,17 @@ async def test_the_tui_unplug_drill_flags_the_frames_everywhere(tmp_path, monkey
                 seen_unknown.append(text)
             return bool(seen_unknown)
 
-        await wait_for(pilot, unknown_shown, 10)
-        await wait_for(pilot, lambda: session.snapshot().stale_frames >= 15, 10)
+        await wait_for_app(pilot, unknown_shown, 10)
+        await wait_for_app(pilot, lambda: session.snapshot().stale_frames >= 15, 10)
         panel = live.query_one("#devices")
-        await wait_for(pilot, lambda: "frames (old IMU)" in rendered(panel), 5)
-        await wait_for(pilot, lambda: session.alarms.counters["imu"].longest_s > 1.5, 10)
-        await wait_for(pilot, lambda: session.snapshot().latest.decided, 10)  # IMU back
+        await wait_for_app(pilot, lambda: "frames (old IMU)" in rendered(panel), 5)
+        await wait_for_app(pilot, lambda: session.alarms.counters["imu"].longest_s > 1.5, 10)
+        await wait_for_app(pilot, lambda: session.snapshot().latest.decided, 10)  # IMU back
         await pilot.press("r")
-        await wait_for(pilot, lambda: app.recording_path is None and not session.recording, 5)
+        await wait_for_app(pilot, lambda: app.recording_path is None and not session.recording, 5)
         on_screen = session.snapshot().stale_frames
         await pilot.press("q")
-        await wait_for(pilot, lambda: not app.is_running, 5)
+        await wait_for_app(pilot, lambda: not app.is_running, 5)
     assert "unknown: IMU orientation stale" in seen_unknown[0]
     (path,) = (tmp_path / "recordings").glob("S09_*.mcap")
     rec = open_recording(path)

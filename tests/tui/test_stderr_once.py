@@ -30,6 +30,7 @@ sys.exit(cli.main(["record", "--duration", "4", "--fps", "15", "--out", sys.argv
 """
 
 
+@pytest.mark.subprocess
 def test_a_full_disk_is_said_once(tmp_path):
     """In a process of its own: the command's logging as a user gets it."""
     out = subprocess.run(

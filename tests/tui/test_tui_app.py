@@ -8,7 +8,9 @@ from capture.config import Config
 from capture.live.trials import SubjectInfo
 from devices.base import DeviceEvent
 from devices.clock import now_ns
+from tests.tui.screens import SIZE, open_live, rendered, screen_text
 from tests.tui_fake_session import FakeSession
+from tests.waiting import wait_for_app
 from tui.app import WalkcapApp
 from tui.live_screen import REFRESH_HZ, LiveScreen
 from tui.session_screen import SessionScreen, last_session_path, save_last_session
@@ -16,39 +18,6 @@ from tui.widgets.device_panel import DevicePanel
 from tui.widgets.help_screen import HelpScreen
 from tui.widgets.marker_dialog import MarkerDialog
 from tui.widgets.quit_dialog import QuitDialog
-
-SIZE = (120, 40)
-
-
-async def wait_for(pilot, condition, timeout=3.0):
-    for _ in range(int(timeout / 0.02)):
-        if condition():
-            return
-        await pilot.pause(0.02)
-    assert condition(), "timed out"
-
-
-async def open_live(pilot):
-    """Confirm the session form (remembered values) and wait for the devices."""
-    app = pilot.app
-    await wait_for(pilot, lambda: isinstance(app.screen, SessionScreen))
-    await pilot.press("enter")
-    await wait_for(pilot, lambda: isinstance(app.screen, LiveScreen) and app.ready)
-    return app.screen
-
-
-def screen_text(app) -> str:
-    """The screen as the terminal shows it, as plain text."""
-    return "\n".join(strip.text for strip in app.screen._compositor.render_strips())
-
-
-def rendered(widget) -> str:
-    """What a widget shows, as plain text."""
-    from rich.console import Console
-
-    console = Console(width=200, record=True, file=open("/dev/null", "w"))
-    console.print(widget.render())
-    return console.export_text()
 
 
 async def test_form_remembers_validates_and_leads_to_the_live_screen():
@@ -58,7 +27,7 @@ async def test_form_remembers_validates_and_leads_to_the_live_screen():
     fake = FakeSession()
     app = WalkcapApp(Config(), session=fake)
     async with app.run_test(size=SIZE) as pilot:
-        await wait_for(pilot, lambda: isinstance(app.screen, SessionScreen))
+        await wait_for_app(pilot, lambda: isinstance(app.screen, SessionScreen))
         form = app.screen
         values = form.values()
         assert values["subject"] == "A03" and values["trial"] == "5" and values["side"] == "right"
@@ -68,7 +37,7 @@ async def test_form_remembers_validates_and_leads_to_the_live_screen():
         assert "height" in str(form.query_one("#form-error").render())
         form.query_one("#f-height_m").value = "1.7"
         await pilot.press("enter")
-        await wait_for(pilot, lambda: isinstance(app.screen, LiveScreen))
+        await wait_for_app(pilot, lambda: isinstance(app.screen, LiveScreen))
         assert app.subject.height_m == 1.7 and app.subject.subject == "A03"
     assert json.loads(last_session_path().read_text())["height_m"] == 1.7
 
@@ -87,7 +56,7 @@ async def test_starting_devices_is_shown_and_a_start_error_is_a_message_not_a_cr
         assert "starting devices" in app.status
         assert "starting devices" in screen_text(app)
         gate.set()
-        await wait_for(pilot, lambda: app.start_error is not None)
+        await wait_for_app(pilot, lambda: app.start_error is not None)
         assert "royale SDK not found" in app.status and app.status_is_error
         await pilot.pause()
         assert "royale SDK not found" in screen_text(app)
@@ -107,7 +76,7 @@ async def test_the_factory_builds_the_session_in_a_worker():
     config = Config()
     app = WalkcapApp(config, session_factory=factory, ask_subject=False)
     async with app.run_test(size=SIZE) as pilot:
-        await wait_for(pilot, lambda: app.ready)
+        await wait_for_app(pilot, lambda: app.ready)
         assert built == [config] and app.session.started.is_set()
 
 
@@ -171,19 +140,19 @@ async def test_record_key_starts_and_stops_a_trial_and_the_trial_advances():
     async with app.run_test(size=SIZE) as pilot:
         live = await open_live(pilot)
         await pilot.press("r")
-        await wait_for(pilot, lambda: app.recording_path is not None)
+        await wait_for_app(pilot, lambda: app.recording_path is not None)
         assert fake.recording and fake.recordings_started[0].subject == "S02"
         assert fake.recordings_started[0].trial == 1
-        await wait_for(pilot, lambda: "REC" in rendered(live.query_one("#recording")))
+        await wait_for_app(pilot, lambda: "REC" in rendered(live.query_one("#recording")))
         assert "S02_indoor_t01.mcap" in rendered(live.query_one("#banner"))
         await pilot.press("s")  # no form while recording
         assert isinstance(app.screen, LiveScreen)
         await pilot.press("r")
-        await wait_for(pilot, lambda: not fake.recording and app.subject.trial == 2)
+        await wait_for_app(pilot, lambda: not fake.recording and app.subject.trial == 2)
         assert fake.recordings_stopped == 1
         assert json.loads(last_session_path().read_text())["trial"] == 2
         await pilot.press("r")
-        await wait_for(pilot, lambda: fake.recording)
+        await wait_for_app(pilot, lambda: fake.recording)
         assert fake.recordings_started[1].trial == 2
 
 
@@ -198,13 +167,13 @@ async def test_a_remote_root_is_the_remote_trials_folder_only():
     async with app.run_test(size=SIZE) as pilot:
         await open_live(pilot)
         app.remote_start(TrialRequest(root="/data/study", subject="P07"))
-        await wait_for(pilot, lambda: app.recording_path is not None)
+        await wait_for_app(pilot, lambda: app.recording_path is not None)
         assert app.recording_path.parent == Path("/data/study")
         assert config.session.recordings == operators  # the operator's folder stays
         app.remote_stop()
-        await wait_for(pilot, lambda: not fake.recording and app.recording_path is None)
+        await wait_for_app(pilot, lambda: not fake.recording and app.recording_path is None)
         await pilot.press("r")  # the operator's own next trial
-        await wait_for(pilot, lambda: fake.recording)
+        await wait_for_app(pilot, lambda: fake.recording)
         assert app.recording_path.parent == fake.recordings
 
 
@@ -221,7 +190,7 @@ async def test_session_form_from_the_live_screen():
         await pilot.press("s")
         app.screen.query_one("#f-trial").value = "9"
         await pilot.press("ctrl+s")
-        await wait_for(pilot, lambda: isinstance(app.screen, LiveScreen))
+        await wait_for_app(pilot, lambda: isinstance(app.screen, LiveScreen))
         assert app.subject.trial == 9
 
 
@@ -257,7 +226,7 @@ async def test_the_view_pulls_one_snapshot_per_tick_of_a_20_hz_timer(monkeypatch
     fake = FakeSession()
     app = WalkcapApp(Config(), session=fake, ask_subject=False)
     async with app.run_test(size=SIZE) as pilot:
-        await wait_for(pilot, lambda: app.ready and isinstance(app.screen, LiveScreen))
+        await wait_for_app(pilot, lambda: app.ready and isinstance(app.screen, LiveScreen))
         live = app.screen
         assert REFRESH_HZ == 20 and timers == [1 / REFRESH_HZ]
         start = fake.snapshots
@@ -290,7 +259,7 @@ async def test_quit_when_not_recording_stops_the_session():
     async with app.run_test(size=SIZE) as pilot:
         await open_live(pilot)
         await pilot.press("q")
-        await wait_for(pilot, lambda: fake.stopped == 1)
+        await wait_for_app(pilot, lambda: fake.stopped == 1)
     assert app.return_code == 0
 
 
@@ -300,14 +269,14 @@ async def test_quit_while_recording_asks_and_a_yes_finalises_the_file():
     async with app.run_test(size=SIZE) as pilot:
         await open_live(pilot)
         await pilot.press("r")
-        await wait_for(pilot, lambda: fake.recording)
+        await wait_for_app(pilot, lambda: fake.recording)
         await pilot.press("q")
         assert isinstance(app.screen, QuitDialog)
         await pilot.press("n")
         assert isinstance(app.screen, LiveScreen) and fake.recording and fake.stopped == 0
         await pilot.press("q")
         await pilot.press("y")
-        await wait_for(pilot, lambda: fake.stopped == 1)
+        await wait_for_app(pilot, lambda: fake.stopped == 1)
         await pilot.pause(0.1)
     assert fake.recordings_stopped == 1 and not fake.recording
     assert app.return_code == 0
@@ -319,7 +288,7 @@ async def test_a_device_fault_shows_at_once_and_the_rest_goes_on():
     async with app.run_test(size=SIZE) as pilot:
         live = await open_live(pilot)
         await pilot.press("r")
-        await wait_for(pilot, lambda: fake.recording)
+        await wait_for_app(pilot, lambda: fake.recording)
         fake.imu.state, fake.imu.message = "lost", "no data for 0.5 s (unplugged?)"
         fake.events.append(DeviceEvent(now_ns(), "imu", "lost", "no data for 0.5 s (unplugged?)"))
         await pilot.pause(0.2)  # a few refresh periods

@@ -2,9 +2,6 @@
 on a pty): devices start in the background, labels and a trial reach the MCAP file.
 A stand-in classifier keeps it fast (the CNN has its own tests)."""
 
-import asyncio
-
-import numpy as np
 import pytest
 
 from capture.config import Config
@@ -12,38 +9,17 @@ from capture.live.session import Session
 from capture.live.trials import SubjectInfo
 from capture.recording.gaps import recording_loss
 from capture.recording.reader import open_recording, read_trial
+from tests.tui.screens import StubClassifier
+from tests.waiting import wait_for_app
 from tui.app import WalkcapApp
 from tui.live_screen import LiveScreen
 
 pytestmark = pytest.mark.timeout(30)
 
 
-class StubClassifier:
-    metadata = {"hash": "stub"}
-
-    def predict(self, image: np.ndarray) -> np.ndarray:
-        p = np.full(5, 0.05)
-        p[int(image.sum()) % 5] = 0.8
-        return p
-
-
-async def wait_for(pilot, condition, timeout):
-    for _ in range(int(timeout / 0.05)):
-        if condition():
-            return
-        await pilot.pause(0.05)
-    assert condition(), "timed out"
-
-
-async def _short_idle_wait(min_sleep: float = 0, max_sleep: float = 1) -> None:
-    await asyncio.sleep(0.02)
-
-
-async def test_real_session_on_mock_devices(tmp_path, monkeypatch):
-    # Pilot waits after each key until the process is idle (at most 1 s twice); with the
-    # capture threads busy in this process it never is: wait briefly instead.
-    monkeypatch.setattr("textual.app.wait_for_idle", _short_idle_wait)
-    monkeypatch.setattr("textual.pilot.wait_for_idle", _short_idle_wait)
+@pytest.mark.realtime
+@pytest.mark.slow
+async def test_real_session_on_mock_devices(tmp_path, busy_pilot):
     config = Config()
     config.session.recordings = str(tmp_path / "recordings")
     sessions = []
@@ -60,16 +36,16 @@ async def test_real_session_on_mock_devices(tmp_path, monkeypatch):
         drills=True,
     )
     async with app.run_test(size=(120, 40)) as pilot:
-        await wait_for(pilot, lambda: app.ready, 15)
+        await wait_for_app(pilot, lambda: app.ready, 15)
         session = sessions[0]
-        await wait_for(pilot, lambda: session.snapshot().frames >= 5, 5)
+        await wait_for_app(pilot, lambda: session.snapshot().frames >= 5, 5)
         # the pre-flight check (a probe trial, deleted) passes before a trial can record
-        await wait_for(pilot, lambda: app.preflight_state == "ok", 15)
+        await wait_for_app(pilot, lambda: app.preflight_state == "ok", 15)
         assert not list((tmp_path / "recordings").iterdir())
         await pilot.press("2")
         assert session.label == "US"
         await pilot.press("r")
-        await wait_for(pilot, lambda: app.recording_path is not None, 5)
+        await wait_for_app(pilot, lambda: app.recording_path is not None, 5)
         await pilot.pause(1.2)
         await pilot.press("4")
         await pilot.pause(0.3)
@@ -78,13 +54,13 @@ async def test_real_session_on_mock_devices(tmp_path, monkeypatch):
         assert "● REC" in str(live.query_one("#banner").render())
         await pilot.press("ctrl+u")  # drill: the IMU unplugged for 2 s, in the middle of a trial
         alarms = live.query_one("#alarms")
-        await wait_for(pilot, lambda: "ALARM IMU: no data" in str(alarms.render()), 2)
-        await wait_for(pilot, lambda: session.alarms.counters["imu"].longest_s > 1.5, 6)
+        await wait_for_app(pilot, lambda: "ALARM IMU: no data" in str(alarms.render()), 2)
+        await wait_for_app(pilot, lambda: session.alarms.counters["imu"].longest_s > 1.5, 6)
         await pilot.pause(0.5)
         await pilot.press("r")
-        await wait_for(pilot, lambda: app.recording_path is None and not session.recording, 5)
+        await wait_for_app(pilot, lambda: app.recording_path is None and not session.recording, 5)
         await pilot.press("q")
-        await wait_for(pilot, lambda: not app.is_running, 5)
+        await wait_for_app(pilot, lambda: not app.is_running, 5)
     files = list((tmp_path / "recordings").glob("S09_indoor_t01_*.mcap"))
     assert len(files) == 1
     trial = read_trial(files[0])

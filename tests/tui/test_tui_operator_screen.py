@@ -11,8 +11,9 @@ from capture.live.labels import LabelChange
 from capture.live.timeline import TimelineEntry
 from capture.live.trials import SubjectInfo
 from devices.base import DeviceEvent, DeviceState, DeviceStatus
-from tests.tui.test_tui_app import screen_text, wait_for
+from tests.tui.screens import screen_text
 from tests.tui_fake_session import NOW_NS, FakeSession
+from tests.waiting import wait_for_app
 from tui.app import WalkcapApp
 from tui.live_screen import LiveScreen
 from tui.session_screen import SessionScreen
@@ -24,7 +25,9 @@ from tui.widgets.quit_dialog import QuitDialog
 
 async def _live(pilot):
     app = pilot.app
-    await wait_for(pilot, lambda: app.ready and isinstance(app.screen, LiveScreen), timeout=30)
+    await wait_for_app(
+        pilot, lambda: app.ready and isinstance(app.screen, LiveScreen), timeout_s=30
+    )
     for _ in range(600):
         await pilot.pause(0.05)
         if app.screen.settled():
@@ -41,7 +44,7 @@ async def test_notices_never_cover_the_strips_or_the_decision():
         before = screen_text(app).splitlines()
         app.notify("saved S01_indoor_t01.mcap (12.3 MB)", timeout=10)
         app.notify("IMU unplugged; retrying /dev/ttyUSB0", severity="error", timeout=10)
-        await wait_for(pilot, lambda: "IMU unplugged" in screen_text(app), timeout=30)
+        await wait_for_app(pilot, lambda: "IMU unplugged" in screen_text(app), timeout_s=30)
         await pilot.pause(0.1)
         after = screen_text(app).splitlines()
         notice_rows = [i for i, line in enumerate(after) if "IMU unplugged" in line]
@@ -92,22 +95,22 @@ async def test_the_true_strip_shows_the_labels_as_they_stand_after_an_undo():
     async with app.run_test(size=(120, 40)) as pilot:
         await _live(pilot)
         frames = len(fake.timeline)
-        await wait_for(pilot, lambda: len(fake.timeline) > frames + 20, timeout=30)
+        await wait_for_app(pilot, lambda: len(fake.timeline) > frames + 20, timeout_s=30)
         await pilot.press("3")
         frames = len(fake.timeline)
-        await wait_for(pilot, lambda: len(fake.timeline) > frames + 40, timeout=30)
-        await wait_for(pilot, lambda: "DS" in _row(app, "true"), timeout=30)
+        await wait_for_app(pilot, lambda: len(fake.timeline) > frames + 40, timeout_s=30)
+        await wait_for_app(pilot, lambda: "DS" in _row(app, "true"), timeout_s=30)
         await pilot.press("u")
         assert fake.label == "US"
         frames = len(fake.timeline)
-        await wait_for(pilot, lambda: len(fake.timeline) > frames + 20, timeout=30)
+        await wait_for_app(pilot, lambda: len(fake.timeline) > frames + 20, timeout_s=30)
         await pilot.pause(0.1)
         true = _row(app, "true")
         assert "US" in true and "DS" not in true  # as in the file, export and replay
         await pilot.press("3")  # a new change shows again from its own time
         frames = len(fake.timeline)
-        await wait_for(pilot, lambda: len(fake.timeline) > frames + 20, timeout=30)
-        await wait_for(pilot, lambda: "DS" in _row(app, "true"), timeout=30)
+        await wait_for_app(pilot, lambda: len(fake.timeline) > frames + 20, timeout_s=30)
+        await wait_for_app(pilot, lambda: "DS" in _row(app, "true"), timeout_s=30)
 
 
 async def test_mode_keys_label_while_a_dialog_is_open_during_a_trial():
@@ -116,7 +119,7 @@ async def test_mode_keys_label_while_a_dialog_is_open_during_a_trial():
     async with app.run_test(size=(120, 40)) as pilot:
         await _live(pilot)
         await pilot.press("r")
-        await wait_for(pilot, lambda: fake.recording, timeout=30)
+        await wait_for_app(pilot, lambda: fake.recording, timeout_s=30)
         await pilot.press("question_mark")
         assert isinstance(app.screen, HelpScreen)
         await pilot.press("3")
@@ -132,7 +135,7 @@ async def test_mode_keys_label_while_a_dialog_is_open_during_a_trial():
         await pilot.press("5", "n")
         assert [c.mode for c in fake.labels] == ["DS", "UR", "DR"] and fake.recording
         await pilot.press("r")
-        await wait_for(pilot, lambda: not fake.recording, timeout=30)
+        await wait_for_app(pilot, lambda: not fake.recording, timeout_s=30)
         await pilot.press("s")  # the form's fields still take digits
         assert isinstance(app.screen, SessionScreen)
         app.screen.query_one("#f-trial").value = ""
@@ -218,7 +221,7 @@ def test_a_catch_up_burst_after_a_gap_is_no_faster_rate(monkeypatch):
 async def test_the_amputee_box_reads_yes_or_no_without_colour():
     app = WalkcapApp(Config(), session=FakeSession())
     async with app.run_test(size=(120, 40)) as pilot:
-        await wait_for(pilot, lambda: isinstance(app.screen, SessionScreen), timeout=30)
+        await wait_for_app(pilot, lambda: isinstance(app.screen, SessionScreen), timeout_s=30)
         box = app.screen.query_one("#f-amputee")
         await pilot.pause(0.1)
         row = next(line for line in screen_text(app).splitlines() if "Amputee" in line)
@@ -259,7 +262,7 @@ async def test_the_log_holds_what_happened_with_times(tmp_path):
         async with app.run_test(size=(120, 40)) as pilot:
             await _live(pilot)
             await pilot.press("r")
-            await wait_for(pilot, lambda: app.recording_path is not None, timeout=30)
+            await wait_for_app(pilot, lambda: app.recording_path is not None, timeout_s=30)
             t = now_ns()
             fake.events += [
                 DeviceEvent(t, "imu", "lost", "IMU lost (no data for 0.6 s); retrying /dev/x"),
@@ -267,10 +270,10 @@ async def test_the_log_holds_what_happened_with_times(tmp_path):
                 DeviceEvent(t + 2, "imu", "gap", "IMU: 2 packets missing"),
                 DeviceEvent(t + 3, "imu", "reconnected", "IMU back after a gap of 2.01 s"),
             ]
-            await wait_for(pilot, lambda: "IMU back" in screen_text(app), timeout=30)
+            await wait_for_app(pilot, lambda: "IMU back" in screen_text(app), timeout_s=30)
             await pilot.press("r")
-            await wait_for(pilot, lambda: len(app.trials) == 1, timeout=30)
-            await wait_for(pilot, lambda: "saved" in screen_text(app), timeout=30)
+            await wait_for_app(pilot, lambda: len(app.trials) == 1, timeout_s=30)
+            await wait_for_app(pilot, lambda: "saved" in screen_text(app), timeout_s=30)
     lines = path.read_text().splitlines()
     for said in (
         "recording S01_indoor_t01.mcap",

@@ -12,6 +12,7 @@ from capture.recording.reader import open_recording, read_trial
 from capture.recording.writer import Recorder
 from devices.base import DeviceEvent
 from devices.frames import MODES
+from tests.tui.screens import FakeClock
 from tui.app import WalkcapApp
 from tui.live_screen import LiveScreen
 from tui.replay import ReplaySource, corrected_path, write_corrected
@@ -20,14 +21,6 @@ from tui.widgets.quit_dialog import QuitDialog
 FPS = 15
 N = 60  # 4 s
 T0 = 5_000_000_000
-
-
-class FakeClock:
-    def __init__(self) -> None:
-        self.t = 0
-
-    def __call__(self) -> int:
-        return self.t
 
 
 def frame_time(i: int) -> int:

@@ -33,6 +33,7 @@ def test_report_gives_both_speedups_and_the_cores_the_default_path_uses():
     assert "on 1.30 cores" in text
 
 
+@pytest.mark.subprocess
 @pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="no CPU affinity here")
 def test_the_one_core_baseline_runs_on_one_core():
     code = "import os; print(len(os.sched_getaffinity(0)))"

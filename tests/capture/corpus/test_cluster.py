@@ -13,6 +13,8 @@ import pytest
 
 ray = pytest.importorskip("ray")
 
+pytestmark = [pytest.mark.cluster, pytest.mark.slow]
+
 from capture.corpus import cluster, jobs  # noqa: E402
 from tests.recording_fixtures import decoded_messages  # noqa: E402
 from tui.cli import main  # noqa: E402
@@ -268,6 +270,7 @@ def _walkcap_at(address: str, out: Path, **env: str | None) -> tuple[int, str, f
     return done.returncode, done.stderr, time.monotonic() - t
 
 
+@pytest.mark.subprocess
 def test_a_running_cluster_is_joined_by_its_address(running_head, tmp_path):
     address, home = running_head
     rc, err, _ = _walkcap_at(address, tmp_path / "out", HOME=str(home), RAY_AUTH_MODE="token")
@@ -275,6 +278,7 @@ def test_a_running_cluster_is_joined_by_its_address(running_head, tmp_path):
     assert len(list((tmp_path / "out").glob("*.npz"))) == 2
 
 
+@pytest.mark.subprocess
 def test_a_cluster_that_wants_a_token_is_one_line_soon(running_head, tmp_path):
     address, _ = running_head
     elsewhere = tmp_path / "home"  # a machine without the cluster's token

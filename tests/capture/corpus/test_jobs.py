@@ -12,6 +12,9 @@ from capture.errors import CaptureError
 from tests.recording_fixtures import decoded_messages
 from tui.cli import main
 
+# a pool of processes spawns Python processes that import walkcap
+WHERE = [jobs.LOCAL, pytest.param(jobs.Processes(2), marks=pytest.mark.subprocess)]
+
 
 def _square_with_pid(x: int) -> tuple[int, int]:
     return x * x, os.getpid()
@@ -38,7 +41,7 @@ def test_task_paths_are_absolute_only_on_a_cluster(tmp_path):
     assert jobs.task_path(jobs.Cluster("local"), "a/b.mcap") == str(tmp_path / "a" / "b.mcap")
 
 
-@pytest.mark.parametrize("where", [jobs.LOCAL, jobs.Processes(2)], ids=["local", "processes"])
+@pytest.mark.parametrize("where", WHERE, ids=["local", "processes"])
 def test_results_come_in_task_order(where):
     tasks = [jobs.Task(f"t{i}", _square_with_pid, (i,)) for i in range(5)]
     said = []
@@ -52,7 +55,7 @@ def test_results_come_in_task_order(where):
         assert pids == {os.getpid()}
 
 
-@pytest.mark.parametrize("where", [jobs.LOCAL, jobs.Processes(2)], ids=["local", "processes"])
+@pytest.mark.parametrize("where", WHERE, ids=["local", "processes"])
 def test_the_first_error_ends_the_job_as_raised(where):
     said = []
     tasks = [jobs.Task(f"t{i}", _refuse_three, (i,)) for i in range(1, 6)]
@@ -61,6 +64,8 @@ def test_the_first_error_ends_the_job_as_raised(where):
     assert said == [1, 2]
 
 
+@pytest.mark.slow  # two spawned processes import walkcap and load the model: ~8 s of CPU
+@pytest.mark.subprocess
 def test_synth_recordings_with_workers_are_the_recordings_of_one_process(tmp_path, capsys):
     args = ["synth", "--format", "recording", "--sessions", "2", "--frames", "3"]
     assert main([*args, "--out", str(tmp_path / "one")]) == 0

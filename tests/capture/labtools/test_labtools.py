@@ -25,6 +25,7 @@ from capture.recording.sink import Sink
 from devices.base import DeviceEvent
 from devices.frames import ImuSample
 from devices.simulator.synthetic import synthetic_frame
+from tests.waiting import wait_for
 
 
 def test_filename_options_map_onto_the_trial():
@@ -47,6 +48,7 @@ def _send(sock: socket.socket, line: str) -> bytes:
     return sock.recv(16)
 
 
+@pytest.mark.realtime
 def test_remote_commands_start_and_stop_a_recording(tmp_path):
     cfg = Config()
     cfg.session.recordings = str(tmp_path / "unused")
@@ -187,14 +189,6 @@ def test_the_shipped_layout_names_only_walkcaps_topics():
 # ---- remote control facing a misbehaving local program ------------------------------------
 
 
-def _wait_for(condition, timeout_s: float = 20.0) -> None:
-    """A condition, waited for with a generous bound (never a timing claim)."""
-    deadline = time.monotonic() + timeout_s
-    while not condition():
-        assert time.monotonic() < deadline, "condition not reached"
-        time.sleep(0.02)
-
-
 class _Controller:
     def __init__(self) -> None:
         self.started: list[TrialRequest] = []
@@ -218,7 +212,7 @@ def test_an_over_long_line_closes_its_connection_with_one_event():
             except (ConnectionResetError, BrokenPipeError):
                 closed = True
             assert closed
-        _wait_for(lambda: events)
+        wait_for(lambda: events)
         with socket.create_connection(("127.0.0.1", remote.port), timeout=20) as sock:
             assert _send(sock, "update") == b"OK"  # the next client is served as ever
     finally:
@@ -248,7 +242,7 @@ def test_idle_connections_beyond_a_small_bound_are_refused_politely_by_one_threa
         for sock in idle:
             sock.close()
         idle.clear()
-        _wait_for(lambda: remote.connections == 0)
+        wait_for(lambda: remote.connections == 0)
         with socket.create_connection(("127.0.0.1", remote.port), timeout=20) as sock:
             assert _send(sock, "update") == b"OK"  # room again once they are gone
     finally:
@@ -276,6 +270,7 @@ def _remote_events(session) -> list[DeviceEvent]:
     return [e for e in session.snapshot().events if e.device == "remote"]
 
 
+@pytest.mark.realtime
 def test_a_remote_root_is_the_remote_trials_only_and_bad_commands_are_one_event_each(
     tmp_path, capfd
 ):
@@ -293,12 +288,12 @@ def test_a_remote_root_is_the_remote_trials_only_and_bad_commands_are_one_event_
             ]
             for line in bad:
                 assert _send(sock, line) == b"OK"  # answered as LabRecorder answers
-            _wait_for(lambda: len(_remote_events(session)) == len(bad))
+            wait_for(lambda: len(_remote_events(session)) == len(bad))
             assert {e.kind for e in _remote_events(session)} == {"refused"}
             line = "filename {root:study} {participant:P07} {task:stairs} {run:2}"
             assert _send(sock, line) == b"OK"
             assert _send(sock, "start") == b"OK"
-            _wait_for(lambda: session.snapshot().frames >= 10)
+            wait_for(lambda: session.snapshot().frames >= 10)
             assert _send(sock, "stop") == b"OK"
         assert cfg.session.recordings == str(recordings)  # the operator's folder as it was
         local = session.start_recording(SubjectInfo(subject="OP1"))
@@ -398,7 +393,7 @@ def test_a_flood_of_commands_closes_its_connection_with_one_event():
             except (ConnectionResetError, BrokenPipeError):
                 answers = b""
         assert len(answers) < 2 * 100_000  # closed long before the last
-        _wait_for(lambda: events)
+        wait_for(lambda: events)
         assert COMMAND_BURST <= len(remote.log) < 100_000
         with socket.create_connection(("127.0.0.1", remote.port), timeout=20) as sock:
             assert _send(sock, "update") == b"OK"  # the next client is served as ever

@@ -11,6 +11,7 @@ from capture.recording.reader import open_recording
 from capture.recording.writer import Recorder
 from devices.clock import now_ns
 from devices.frames import MODES, ImuSample
+from tests.waiting import wait_for
 
 pylsl = pytest.importorskip("pylsl")
 
@@ -168,13 +169,6 @@ def test_a_stream_that_disappears_is_an_event_and_is_looked_for_again():
 # ---- what a stream sent, as it sent it -----------------------------------------------------
 
 
-def _wait_for(condition, timeout_s: float = 30.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not condition():
-        assert time.monotonic() < deadline, "condition not reached"
-        time.sleep(0.02)
-
-
 def _outlet(name: str, channels: int, fmt, source: str, labels=()):
     info = pylsl.StreamInfo(name, "Test", channels, 0.0, fmt, source)
     if labels:
@@ -210,8 +204,8 @@ def test_every_channel_and_type_is_recorded_as_sent(tmp_path):
         outlets[names[2]].push_sample([1.5, 2.5, 3.5], 1e11)  # a time beyond the clock
         outlets[names[3]].push_sample([1.0], now)
         outlets[names[4]].push_sample([2.0, 3.0], now)
-        _wait_for(lambda: inlets.received[names[2]] == 2)
-        _wait_for(lambda: all(inlets.received[n] >= 1 for n in names))
+        wait_for(lambda: inlets.received[names[2]] == 2)
+        wait_for(lambda: all(inlets.received[n] >= 1 for n in names))
     finally:
         inlets.stop()
         rec.close()
@@ -249,6 +243,7 @@ while True:
 """
 
 
+@pytest.mark.subprocess
 def test_a_stream_whose_outlet_hangs_is_replaced_by_its_successor(tmp_path):
     import signal
     import subprocess
@@ -268,12 +263,12 @@ def test_a_stream_whose_outlet_hangs_is_replaced_by_its_successor(tmp_path):
     inlets.start()
     try:
         assert old.stdout.readline() == "sent\n"
-        _wait_for(lambda: inlets.received[name] == 1)
+        wait_for(lambda: inlets.received[name] == 1)
         old.send_signal(signal.SIGSTOP)  # hangs: its connection stays open, silent
         new = _outlet(name, 1, pylsl.cf_float32, "b")  # the device's software, restarted
         assert new.wait_for_consumers(30)
         new.push_sample([2.0])
-        _wait_for(lambda: inlets.received[name] == 2)
+        wait_for(lambda: inlets.received[name] == 2)
     finally:
         old.kill()
         old.wait()

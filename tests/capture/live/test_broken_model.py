@@ -107,6 +107,7 @@ def record(tmp_path, classifier, seconds=2.0):
     return open_recording(path), stats, session.snapshot()
 
 
+@pytest.mark.realtime
 @pytest.mark.parametrize("broken", [_nan, _raises, _late], ids=["nan", "raises", "late"])
 def test_a_broken_classifier_never_costs_a_raw_frame_or_a_label(tmp_path, broken):
     rec, stats, snap = record(tmp_path, _Classifier(broken))

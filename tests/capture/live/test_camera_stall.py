@@ -6,12 +6,14 @@ from __future__ import annotations
 import time
 
 import numpy as np
+import pytest
 
 from capture.live.trials import SubjectInfo
 from devices.clock import now_ns
 from devices.config import CameraConfig
-from tests.capture.live.test_faults import events_of, session_in, wait_for
-from tests.devices.test_camera import ScriptedCamera, blank_frame
+from tests.capture.live.sessions import events_of, session_in
+from tests.devices.scripted_camera import ScriptedCamera, blank_frame
+from tests.waiting import wait_for
 
 
 def test_frames_after_a_stall_are_an_event_with_the_gap():
@@ -75,6 +77,7 @@ def test_a_reopen_that_fails_is_retried():
         cam.close()
 
 
+@pytest.mark.realtime
 def test_a_stall_in_a_session_is_lost_reopened_and_back(tmp_path):
     session = session_in(tmp_path)
     session.config.camera.lost_after_s = 1.0
@@ -83,8 +86,8 @@ def test_a_stall_in_a_session_is_lost_reopened_and_back(tmp_path):
         path = session.start_recording(SubjectInfo())
         time.sleep(0.5)
         session._camera.inject("stall", seconds=2.5)
-        assert wait_for(lambda: session.snapshot().camera.state == "lost", 3.0)
-        assert wait_for(lambda: session.snapshot().camera.state == "ok", 5.0)
+        wait_for(lambda: session.snapshot().camera.state == "lost", 3.0)
+        wait_for(lambda: session.snapshot().camera.state == "ok", 5.0)
         time.sleep(0.5)
     finally:
         session.stop()

@@ -13,33 +13,14 @@ import time
 import numpy as np
 import pytest
 
-from capture.config import Config
-from capture.live.session import Session
 from capture.live.trials import SubjectInfo
 from capture.recording.journal import check_journal
 from capture.recording.reader import open_recording, read_trial
-from tests.capture.live.test_session import StandInClassifier
+from tests.capture.live.sessions import events_of, session_in
+from tests.waiting import wait_for
 
 
-def wait_for(predicate, timeout=5.0, step=0.05):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(step)
-    return False
-
-
-def session_in(tmp_path) -> Session:
-    c = Config()
-    c.session.recordings = str(tmp_path)
-    return Session(c, classifier=StandInClassifier())
-
-
-def events_of(path) -> list[dict]:
-    return [m.data for m in open_recording(path).messages(["/events"])]
-
-
+@pytest.mark.realtime
 def test_imu_unplug_and_replug_during_a_recording(tmp_path):
     session = session_in(tmp_path)
     session.start()
@@ -48,15 +29,13 @@ def test_imu_unplug_and_replug_during_a_recording(tmp_path):
         session.set_label("LG")
         time.sleep(1.0)
         session._imu.inject("disconnect")
-        assert wait_for(lambda: session.snapshot().imu.state == "lost", 1.5), (
-            "unplug not seen in 1 s"
-        )
+        wait_for(lambda: session.snapshot().imu.state == "lost", 1.5, what="the unplug seen")
         frames_while_lost = session.snapshot().frames
         session.set_label("US")  # the operator keeps labelling
         time.sleep(0.8)
         assert session.snapshot().frames > frames_while_lost  # the camera keeps recording
         session._imu.inject("reconnect")
-        assert wait_for(lambda: session.snapshot().imu.state == "ok", 5.0), "no reconnect"
+        wait_for(lambda: session.snapshot().imu.state == "ok", 5.0, what="the reconnect")
         time.sleep(0.5)
     finally:
         stats = session.stop()
@@ -69,6 +48,7 @@ def test_imu_unplug_and_replug_during_a_recording(tmp_path):
     assert np.max(np.diff(imu_times)) > 0.5e9  # the gap is in the file, samples on both sides
 
 
+@pytest.mark.realtime
 def test_corrupted_serial_bytes_are_counted_and_capture_goes_on(tmp_path):
     session = session_in(tmp_path)
     session.start()
@@ -87,6 +67,7 @@ def test_corrupted_serial_bytes_are_counted_and_capture_goes_on(tmp_path):
     assert rec.topics["/imu"].count > 100  # ~1.5 s at 100 Hz, a handful lost at most
 
 
+@pytest.mark.realtime
 def test_camera_stall_is_reported_and_the_imu_keeps_recording(tmp_path):
     session = session_in(tmp_path)
     session.start()
@@ -94,9 +75,9 @@ def test_camera_stall_is_reported_and_the_imu_keeps_recording(tmp_path):
         path = session.start_recording(SubjectInfo())
         time.sleep(0.5)
         session._camera.inject("stall", seconds=2.0)
-        assert wait_for(lambda: session.snapshot().camera.state == "degraded", 2.0)
+        wait_for(lambda: session.snapshot().camera.state == "degraded", 2.0)
         time.sleep(1.8)
-        assert wait_for(lambda: session.snapshot().camera.state == "ok", 3.0)
+        wait_for(lambda: session.snapshot().camera.state == "ok", 3.0)
     finally:
         session.stop()
     assert "stall" in [e["kind"] for e in events_of(path)]
@@ -119,13 +100,14 @@ def small_disk(tmp_path):
     subprocess.run(["umount", "-l", str(mount)], capture_output=True)
 
 
+@pytest.mark.realtime
 def test_disk_full_stops_the_recording_cleanly_and_keeps_it_readable(small_disk):
     session = session_in(small_disk)
     session.start()
     try:
         path = session.start_recording(SubjectInfo())
         session.set_label("LG")
-        assert wait_for(lambda: session.snapshot().recording.state == "failed", 30.0)
+        wait_for(lambda: session.snapshot().recording.state == "failed", 30.0)
         snap = session.snapshot()
         assert snap.running  # devices and pipeline go on; only the file stopped
     finally:
@@ -175,12 +157,14 @@ def garbage_and_cut(tmp_path_factory):
 @pytest.mark.parametrize(
     "command", [["info"], ["replay", "--fast"], ["eval", "recordings"], ["recover"]]
 )
+@pytest.mark.subprocess
 def test_garbage_files_are_one_clear_line(garbage_and_cut, command):
     _, _, garbage, _ = garbage_and_cut
     line = one_clear_line(run_cli(*command, str(garbage)))
     assert "garbage.mcap" in line
 
 
+@pytest.mark.subprocess
 @pytest.mark.parametrize("command", [["info"], ["eval", "recordings", "--reference", "terrain"]])
 def test_cut_files_are_read_up_to_the_cut(garbage_and_cut, command):
     _, cut, _, _ = garbage_and_cut
@@ -189,6 +173,7 @@ def test_cut_files_are_read_up_to_the_cut(garbage_and_cut, command):
     assert "Traceback" not in out.stderr
 
 
+@pytest.mark.subprocess
 @pytest.mark.parametrize("command", [["info"], ["eval", "recordings", "--reference", "terrain"]])
 def test_corrupted_bytes_inside_a_file_never_give_a_traceback(garbage_and_cut, command):
     _, _, _, flipped = garbage_and_cut
@@ -214,6 +199,9 @@ def _chunk_spans_ns(path) -> list[int]:
     return spans
 
 
+@pytest.mark.realtime
+@pytest.mark.slow
+@pytest.mark.subprocess
 def test_kill_9_while_recording_then_recover_loses_at_most_a_second_and_no_label(tmp_path):
     """A real `walkcap record` process killed with SIGKILL, as a power loss would.
 
@@ -250,7 +238,7 @@ def test_kill_9_while_recording_then_recover_loses_at_most_a_second_and_no_label
                 return 0
 
         # Depth on disk: a bounded wait on the file, not on a clock.
-        assert wait_for(lambda: on_disk() >= 30, 300, 0.5)
+        wait_for(lambda: on_disk() >= 30, 300, 0.5)
         proc.send_signal(signal.SIGSTOP)  # what is on disk now is what the kill leaves
         seen = on_disk()
     finally:
@@ -275,6 +263,7 @@ def test_kill_9_while_recording_then_recover_loses_at_most_a_second_and_no_label
         assert label in labels
 
 
+@pytest.mark.subprocess
 def test_a_bad_model_file_is_one_clear_line(tmp_path):
     bad = tmp_path / "broken.pt"
     bad.write_bytes(b"not a torch file at all")
@@ -284,6 +273,7 @@ def test_a_bad_model_file_is_one_clear_line(tmp_path):
     assert "broken.pt" in line
 
 
+@pytest.mark.subprocess
 def test_a_bad_configuration_stops_record_before_any_device_opens(tmp_path):
     cfg = tmp_path / "c.toml"
     cfg.write_text("[imu]\nrate_hz = 'fast'\n")

@@ -20,18 +20,7 @@ from capture.recording import topics as T
 from capture.recording.reader import open_recording, read_trial
 from devices.frames import MODES
 from devices.scheduling import realtime_priority
-
-
-class StandInClassifier:
-    """Scores from the image's column profile: deterministic, cheap, image-dependent."""
-
-    metadata = {"weights_sha256": "stand-in"}
-
-    def predict(self, image):
-        cols = image.any(axis=0).sum()
-        p = np.full(5, 0.05)
-        p[int(cols) % 5] = 0.8
-        return p
+from tests.capture.live.sessions import StandInClassifier
 
 
 def config(tmp_path, fps=15.0) -> Config:
@@ -70,6 +59,7 @@ def recorded(tmp_path_factory):
     return path, stats, snap, session.pipeline_priority
 
 
+@pytest.mark.realtime
 def test_recording_is_named_from_the_session_and_complete(recorded):
     path, stats, _, priority = recorded
     assert path.name.startswith("S07_indoor_t03_") and path.suffix == ".mcap"
@@ -94,6 +84,7 @@ def test_recording_is_named_from_the_session_and_complete(recorded):
     assert "walkcap.toml" in rec.attachments
 
 
+@pytest.mark.realtime
 def test_raw_data_threads_and_the_writer_run_above_the_pipeline(recorded):
     path = recorded[0]
     said, priorities = _INTAKE["seen"]
@@ -105,6 +96,7 @@ def test_raw_data_threads_and_the_writer_run_above_the_pipeline(recorded):
     assert set(priorities.values()) == {11}
 
 
+@pytest.mark.realtime
 def test_rates_match_the_configuration(recorded):
     path, _, snap, _ = recorded
     rec = open_recording(path)
@@ -122,6 +114,7 @@ def test_rates_match_the_configuration(recorded):
     assert snap.camera.state == "ok" and snap.imu.state == "ok"
 
 
+@pytest.mark.realtime
 def test_labels_markers_and_undo_are_recorded(recorded):
     path, _, _, _ = recorded
     trial = read_trial(path)
@@ -132,6 +125,7 @@ def test_labels_markers_and_undo_are_recorded(recorded):
     assert any(e["kind"] == "marker" and e["message"] == "subject paused" for e in events)
 
 
+@pytest.mark.realtime
 def test_fused_decisions_refer_to_earlier_frames(recorded):
     path, _, _, _ = recorded
     fused = [m.data for m in open_recording(path).messages(["/inference/fused"])]
@@ -146,12 +140,14 @@ def test_fused_decisions_refer_to_earlier_frames(recorded):
         assert f["decision"] in MODES
 
 
+@pytest.mark.realtime
 def test_imu_is_aligned_with_frames_on_the_session_clock(recorded):
     _, _, snap, _ = recorded
     # the emulator knows when it really sampled: the mapped times are close to that
     assert snap.sync and snap.sync["p50_ms"] < 1.0
 
 
+@pytest.mark.realtime
 def test_replay_reproduces_the_trial_into_a_new_file(recorded, tmp_path):
     path, _, _, _ = recorded
     before = path.read_bytes()
@@ -189,6 +185,7 @@ def test_replay_reproduces_the_trial_into_a_new_file(recorded, tmp_path):
         np.testing.assert_array_equal(x, y)  # the recorded millimetres, not a re-encoding
 
 
+@pytest.mark.realtime
 def test_a_fast_replay_stopped_by_an_error_ends_its_reader(recorded, tmp_path, monkeypatch):
     """The reader process is still sending when this side fails: it ends at once, and
     what was recorded up to there stays readable."""
@@ -221,6 +218,7 @@ def test_a_fast_replay_stopped_by_an_error_ends_its_reader(recorded, tmp_path, m
     assert open_recording(tmp_path / "cut.mcap").topics["/camera/depth"].count >= 1
 
 
+@pytest.mark.realtime
 def test_replay_refuses_to_overwrite_its_source(recorded):
     path, _, _, _ = recorded
     with pytest.raises(CaptureError, match="new file"):
@@ -267,6 +265,7 @@ def test_unknown_label_is_refused():
         session.set_label("XX")
 
 
+@pytest.mark.realtime
 def test_fast_replay_in_two_processes_matches_a_paced_one(recorded, tmp_path):
     """The reader process and batched classification change nothing but the speed."""
     path, _, _, _ = recorded
@@ -318,6 +317,7 @@ def test_the_reader_process_hands_over_what_has_come_without_waiting_for_a_full_
         next(batches)
 
 
+@pytest.mark.realtime
 def test_fast_replay_prepares_frames_itself_until_its_reader_process_is_ready(recorded):
     """The frames done here while the reader starts, then the reader's from the next on:
     each frame once, in order, the same as the reader would have made them."""
@@ -366,6 +366,7 @@ def test_switches_are_counted_over_the_last_minute():
     assert counter.count() == 1  # those at 2 s and 5 s are more than a minute old
 
 
+@pytest.mark.realtime
 def test_the_snapshot_carries_switches_and_the_walkers_mode_to_key(recorded):
     path, _, snap, _ = recorded
     assert snap.walker_mode in MODES and isinstance(snap.switches_last_minute, int)

@@ -47,6 +47,7 @@ def one_line(err: str) -> str:
     return lines[0]
 
 
+@pytest.mark.subprocess
 def test_recover_leaves_no_partial_file_and_names_the_output(recording, tmp_path):
     out = tmp_path / "out.mcap"
     done = walkcap_with_a_full_disk(["recover", str(recording), "-o", str(out)], 200_000, tmp_path)
@@ -56,6 +57,7 @@ def test_recover_leaves_no_partial_file_and_names_the_output(recording, tmp_path
     assert sorted(p.name for p in tmp_path.iterdir() if p.is_file()) == []
 
 
+@pytest.mark.subprocess
 @pytest.mark.parametrize("fmt", ["csv", "mat"])
 def test_export_leaves_no_truncated_table(recording, tmp_path, fmt):
     out = tmp_path / "tables"

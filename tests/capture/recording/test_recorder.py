@@ -327,6 +327,7 @@ def sensor_spans_per_chunk(path) -> list[int]:
     return spans
 
 
+@pytest.mark.realtime
 def test_chunks_close_every_second_of_data_and_by_the_wall_clock(tmp_path):
     path = tmp_path / "chunks.mcap"
     write_recording(path, seconds=3.5)

@@ -160,6 +160,8 @@ RECORD_UNTIL_KILLED = textwrap.dedent("""
 """)
 
 
+@pytest.mark.realtime
+@pytest.mark.subprocess
 def test_kill_9_while_recording_loses_at_most_a_second_and_no_label(tmp_path):
     path = tmp_path / "killed.mcap"
     proc = subprocess.Popen(

@@ -1,0 +1,54 @@
+"""Helpers for driving the terminal UI in tests: the terminal size, the way to the live
+screen, what a screen or widget shows as text, and stand-ins for the classifier and clock."""
+
+import numpy as np
+
+from tests.waiting import wait_for_app
+from tui.live_screen import LiveScreen
+from tui.session_screen import SessionScreen
+
+SIZE = (120, 40)
+
+
+async def open_live(pilot):
+    """Confirm the session form (remembered values) and wait for the devices."""
+    app = pilot.app
+    await wait_for_app(pilot, lambda: isinstance(app.screen, SessionScreen))
+    await pilot.press("enter")
+    await wait_for_app(pilot, lambda: isinstance(app.screen, LiveScreen) and app.ready)
+    return app.screen
+
+
+def screen_text(app) -> str:
+    """The screen as the terminal shows it, as plain text."""
+    return "\n".join(strip.text for strip in app.screen._compositor.render_strips())
+
+
+def rendered(widget) -> str:
+    """What a widget shows, as plain text."""
+    from rich.console import Console
+
+    console = Console(width=200, record=True, file=open("/dev/null", "w"))
+    console.print(widget.render())
+    return console.export_text()
+
+
+class StubClassifier:
+    """Scores from the image's sum: deterministic, cheap, image-dependent."""
+
+    metadata = {"hash": "stub"}
+
+    def predict(self, image: np.ndarray) -> np.ndarray:
+        p = np.full(5, 0.05)
+        p[int(image.sum()) % 5] = 0.8
+        return p
+
+
+class FakeClock:
+    """A clock the test sets (ns): a replay plays only as the test moves it."""
+
+    def __init__(self) -> None:
+        self.t = 0
+
+    def __call__(self) -> int:
+        return self.t
