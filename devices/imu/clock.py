@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import collections
 import logging
+import threading
 from dataclasses import dataclass
 
 log = logging.getLogger(__name__)
@@ -68,12 +69,15 @@ class DeviceClock:
         self.min_span_ns = int(min_span_s * 1e9)
         self.resets = 0  # fits forgotten because the device clock jumped or restarted
         self._excused_until = 0  # samples taken before this host time: a stall's backlog
+        # The reader thread updates the fit while status() reads it from another thread.
+        self._lock = threading.RLock()
         self._clear()
 
     def reset(self) -> None:
         """Forget the fit (a device that restarted its clock)."""
-        self.resets += 1
-        self._clear()
+        with self._lock:
+            self.resets += 1
+            self._clear()
 
     def _clear(self) -> None:
         self._last_raw: int | None = None
@@ -101,6 +105,10 @@ class DeviceClock:
 
     def update(self, raw_ticks: int, host_ns: int) -> int:
         """Add a sample taken at raw_ticks and received at host_ns; its mapped time."""
+        with self._lock:
+            return self._update(raw_ticks, host_ns)
+
+    def _update(self, raw_ticks: int, host_ns: int) -> int:
         ticks = self._unwrap(raw_ticks)
         if ticks is None:
             log.info(
@@ -121,7 +129,7 @@ class DeviceClock:
         if self._buckets and (residual < -self.jump_ns or self._too_late(residual)):
             log.info("device clock jumped (residual %.1f ms): refitting", residual * 1e-6)
             self.reset()
-            return self.update(raw_ticks, host_ns)
+            return self._update(raw_ticks, host_ns)
         self._x = x
         self._add_point(x, y)
         self._residual += 0.05 * (max(0.0, y - (self._a + self._b * x)) - self._residual)
@@ -131,7 +139,8 @@ class DeviceClock:
         """The host stalled until `until_host_ns`: samples the fit places before then arrive
         late by the host's doing, not a restarted device clock, and say nothing of the
         transport delay."""
-        self._excused_until = max(self._excused_until, until_host_ns)
+        with self._lock:
+            self._excused_until = max(self._excused_until, until_host_ns)
 
     def _too_late(self, residual: float) -> bool:
         self._late = self._late + 1 if residual > self.max_delay_ns else 0
@@ -198,6 +207,10 @@ class DeviceClock:
         return scatter * (12.0 / len(buckets)) ** 0.5 / span * 1e6
 
     def state(self) -> ClockState:
+        with self._lock:
+            return self._state()
+
+    def _state(self) -> ClockState:
         span = (self._buckets[-1][1] - self._buckets[0][1]) if self._buckets else 0
         return ClockState(
             offset_ms=self.offset_ns * 1e-6 if self.ready else 0.0,
