@@ -9,11 +9,11 @@ from pathlib import Path
 import numpy as np
 
 from capture.errors import CaptureError
-from capture.live.labels import LabelChange
 from capture.live.pipeline import FrameResult
 from capture.live.session import Snapshot
 from capture.live.timeline import TimelineEntry
 from capture.live.trials import SubjectInfo
+from capture.recording.labels import LabelChange
 from capture.recording.writer import RecorderState, RecorderStats
 from devices.base import DeviceEvent, DeviceState, DeviceStatus
 from devices.clock import now_ns

@@ -23,7 +23,6 @@ from pathlib import Path
 import numpy as np
 
 from capture.errors import CaptureError
-from capture.live.labels import LabelChange
 from capture.live.pipeline import FrameResult
 from capture.live.session import Snapshot
 from capture.live.timeline import TimelineEntry
@@ -32,7 +31,7 @@ from capture.recording import labels as L
 from capture.recording import topics as T
 from capture.recording.copy import copy_recording
 from capture.recording.frames import FrameTable
-from capture.recording.labels import CORRECTION
+from capture.recording.labels import CORRECTION, LabelChange
 from capture.recording.lineage import CORRECTED
 from capture.recording.reader import frame_table, open_recording
 from devices.base import DeviceEvent, DeviceState, DeviceStatus

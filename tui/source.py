@@ -10,9 +10,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
-from capture.live.labels import LabelChange
 from capture.live.session import Snapshot
 from capture.live.trials import SubjectInfo
+from capture.recording.labels import LabelChange
 
 if TYPE_CHECKING:
     from capture.live.alarms import TrialAlarms

@@ -3,17 +3,10 @@
 from __future__ import annotations
 
 import threading
-from dataclasses import dataclass
 
 from capture.errors import CaptureError
+from capture.recording.labels import UNDO, LabelChange
 from devices.frames import MODES
-
-
-@dataclass
-class LabelChange:
-    time_ns: int
-    mode: str
-    source: str  # operator | undo | simulator
 
 
 class LabelBook:
@@ -45,4 +38,4 @@ class LabelBook:
             undone = self._history.pop()
             previous = self._history[-1].mode if self._history else None
             self.label = previous
-        return LabelChange(time_ns, previous or "", "undo"), undone
+        return LabelChange(time_ns, previous or "", UNDO), undone

@@ -26,7 +26,7 @@ from capture.errors import CaptureError, ConfigError
 from capture.live.alarms import AlarmState, TrialAlarms
 from capture.live.devices import close_devices, devices_metadata, open_devices, stream_periods
 from capture.live.handover import FrameInbox, Streak
-from capture.live.labels import LabelBook, LabelChange
+from capture.live.labels import LabelBook
 from capture.live.pipeline import (
     CNN_THREADS,
     IMU_LATE_S,
@@ -44,6 +44,7 @@ from capture.live.trials import (
     trial_file,
     trial_metadata,
 )
+from capture.recording.labels import UNDO, LabelChange
 from capture.recording.sink import Sink
 from devices.base import DeviceEvent, DeviceState, DeviceStatus
 from devices.clock import now_ns
@@ -430,7 +431,7 @@ class Session:
             return None
         change, undone = undo
         for out in self._outputs():
-            out.write_label(change.time_ns, change.mode, f"undo:{undone.mode}")
+            out.write_label(change.time_ns, change.mode, f"{UNDO}:{undone.mode}")
         return change
 
     def add_marker(self, note: str = "", time_ns: int | None = None) -> None:

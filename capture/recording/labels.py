@@ -14,6 +14,7 @@ corrections, else none).
 from __future__ import annotations
 
 from collections.abc import Iterable
+from typing import NamedTuple
 
 import numpy as np
 
@@ -22,7 +23,14 @@ from devices.frames import MODES
 UNDO = "undo"  # a label whose source is "undo" or "undo:MODE" takes back a change
 CORRECTION = "correction"  # labels added in the replay UI (tui.replay), over the originals
 
-LabelChange = tuple[int, str, str]  # (time_ns, mode, source)
+
+class LabelChange(NamedTuple):
+    """One change of a mode reference: `mode` from `time_ns` on. The live label book, the
+    replay screen's corrections and the reader all speak in these."""
+
+    time_ns: int
+    mode: str  # "" for an undo that leaves no mode in force
+    source: str  # operator | simulator | undo | undo:MODE | correction
 
 
 def mode_index(mode: str | None) -> int:
@@ -35,7 +43,7 @@ def is_undo(source: str) -> bool:
 
 def change_from_message(d: dict) -> LabelChange:
     """A decoded /labels message as a change."""
-    return int(d["time_ns"]), d.get("mode", "") or "", d.get("source", "")
+    return LabelChange(int(d["time_ns"]), d.get("mode", "") or "", d.get("source", ""))
 
 
 def in_time_order(changes: Iterable[LabelChange]) -> list[LabelChange]:

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from capture.config import Config
-from capture.live.labels import LabelChange
 from capture.live.timeline import TimelineEntry
 from capture.live.trials import SubjectInfo
+from capture.recording.labels import LabelChange
 from devices.base import DeviceEvent, DeviceState, DeviceStatus
 from tests.tui.screens import screen_text
 from tests.tui_fake_session import NOW_NS, FakeSession

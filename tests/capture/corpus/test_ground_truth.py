@@ -15,10 +15,9 @@ from mcap.writer import Writer
 from capture.corpus import selection as corpus
 from capture.corpus.export import corpus_tables, matlab_name, tables, write
 from capture.errors import CaptureError
-from capture.live.labels import LabelChange
 from capture.recording import lineage, naming
 from capture.recording import topics as T
-from capture.recording.labels import effective_changes
+from capture.recording.labels import LabelChange, effective_changes
 from capture.recording.reader import open_recording, read_trial
 from capture.recording.recover import recover
 from tests.old_recordings import as_version_1
