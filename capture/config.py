@@ -95,7 +95,9 @@ class LslConfig:
         False, "let a remote {root:DIR} name any folder, not only one in recordings"
     )
     remote_token: str = key(
-        "", "if set, a remote-control connection starts with the line `token <it>`"
+        "",
+        "if set, a remote-control connection starts with the line `token <it>`",
+        secret=True,
     )
 
 
@@ -277,12 +279,20 @@ def _toml_value(value: Any) -> str:
     raise TypeError(value)
 
 
-def dumps(config: Config) -> str:
-    """The configuration as TOML (every key, so a saved file documents itself)."""
+def dumps(config: Config, secrets: bool = True) -> str:
+    """The configuration as TOML (every key, so a saved file documents itself). Without
+    `secrets` (the copy a recording carries), a secret key that is set reads as empty, with
+    a comment saying it was set."""
     lines = []
+    fields = {name: {f.name: f for f in dataclasses.fields(cls)} for name, cls in sections()}
     for section, table in to_dict(config).items():
         lines.append(f"[{section}]")
-        lines += [f"{k} = {_toml_value(v)}" for k, v in table.items()]
+        for k, v in table.items():
+            f = fields.get(section, {}).get(k)
+            if not secrets and v and f is not None and f.metadata.get("secret"):
+                lines.append(f'{k} = ""  # set, not kept in recordings')
+            else:
+                lines.append(f"{k} = {_toml_value(v)}")
         lines.append("")
     return "\n".join(lines)
 

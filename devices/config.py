@@ -29,12 +29,17 @@ def key(
     *,
     factory: Any = dataclasses.MISSING,
     choices: str | tuple[str, ...] | None = None,
+    secret: bool = False,
 ) -> Any:
     """A configuration key: a dataclass field with its one-line `doc` and, for a key that
-    names one of a set, its `choices` (names, or "module:NAME" of a registry)."""
+    names one of a set, its `choices` (names, or "module:NAME" of a registry). A `secret`
+    key (a password, a token) stays out of the copies of the configuration that recordings
+    carry."""
     metadata: dict[str, Any] = {"doc": doc}
     if choices is not None:
         metadata["choices"] = choices
+    if secret:
+        metadata["secret"] = True
     return dataclasses.field(default=default, default_factory=factory, metadata=metadata)
 
 

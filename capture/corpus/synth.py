@@ -108,7 +108,7 @@ def synth_recording(
         path,
         metadata=metadata,
         blocking=True,
-        attachments={"walkcap.toml": config_mod.dumps(cfg).encode()},
+        attachments={"walkcap.toml": config_mod.dumps(cfg, secrets=False).encode()},
     )
     recorder.start()
     t0 = now_ns()

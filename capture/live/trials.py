@@ -107,6 +107,6 @@ def trial_metadata(
 def trial_attachments(config: config_mod.Config, model_metadata: dict) -> dict[str, bytes]:
     """The configuration and the model's metadata, attached to every trial's file."""
     return {
-        "walkcap.toml": config_mod.dumps(config).encode(),
+        "walkcap.toml": config_mod.dumps(config, secrets=False).encode(),
         "model.json": json.dumps(model_metadata, indent=2, default=str).encode(),
     }

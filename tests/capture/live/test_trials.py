@@ -44,3 +44,18 @@ def test_a_trial_with_a_file_already_records_under_the_next_number(tmp_path):
     assert meta["devices"] == {"camera_backend": "mock"} and meta["software"]["model_hash"] == "x"
     with pytest.raises(CaptureError, match="cannot create the recordings folder"):
         trial_file(tmp_path / "S01_indoor_t03_20260101-100000.mcap", SubjectInfo(), "next")
+
+
+def test_a_recording_keeps_the_configuration_but_not_its_secrets():
+    import tomllib
+
+    from capture.config import dumps
+    from capture.live.trials import trial_attachments
+
+    config = Config()
+    config.lsl.remote_token = "s3cret-t0ken"
+    attached = trial_attachments(config, {})["walkcap.toml"].decode()
+    assert "s3cret-t0ken" not in attached
+    assert 'remote_token = ""  # set, not kept in recordings' in attached
+    assert tomllib.loads(attached)["lsl"]["remote_token"] == ""
+    assert "s3cret-t0ken" in dumps(config)  # the operator's own saved file keeps it
