@@ -249,7 +249,7 @@ class Pipeline:
                 raise InferenceError(f"the classifier's output is not finite: {probs.tolist()}")
             cnn = int(np.argmax(probs))
             fused = self._push(frame.index, probs, pre.elevation_deg)
-            done_ns = now_ns()  # the decision is out; features are for display and recording
+            done_ns = now_ns()  # the decision is out; features: display, recording, geometry cue
             hint = MODES[
                 fused.decision if fused is not None and fused.decision is not None else cnn
             ]
