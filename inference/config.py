@@ -14,6 +14,8 @@ from dataclasses import dataclass
 from devices.config import Problems, choice_problems, key, number_in
 from inference.fusion import Fusion, make_fusion
 from inference.fusion_design import (  # the authors' matrix and the designs, defined once
+    GEOMETRY_EVIDENCE,
+    GEOMETRY_HYSTERESIS,
     HYSTERESIS,
     N_MODES,
     PAPER_TRANSITION,
@@ -139,6 +141,16 @@ class FusionConfig:
         "steady+hysteresis: the posterior level ground needs before the decision leaves "
         "stairs or a ramp for it (0.8: 4 to 1 against the others)",
     )
+    geometry_hysteresis: float = key(
+        GEOMETRY_HYSTERESIS,
+        "steady+geometry: the posterior level ground needs, the terrain features included, "
+        "before the decision leaves stairs or a ramp for it (0.6)",
+    )
+    geometry_evidence: float = key(
+        GEOMETRY_EVIDENCE,
+        "steady+geometry: each frame's terrain-feature likelihood to this power (their "
+        "misreads come in runs of 5.6 frames)",
+    )
 
     def make(self, method: str | None = None) -> Fusion:
         """A fresh streaming object of `method` (default: this configuration's)."""
@@ -151,6 +163,8 @@ class FusionConfig:
             self.stay,
             self.evidence,
             self.hysteresis,
+            self.geometry_hysteresis,
+            self.geometry_evidence,
         )
 
     def delay_frames(self, method: str | None = None) -> int:
@@ -164,6 +178,10 @@ class FusionConfig:
             out.append(("evidence", "0 < evidence <= 1"))
         if not number_in(self.hysteresis, 0.0, 1.0) or self.hysteresis >= 1.0:
             out.append(("hysteresis", "0 <= hysteresis < 1"))
+        if not number_in(self.geometry_hysteresis, 0.0, 1.0) or self.geometry_hysteresis >= 1.0:
+            out.append(("geometry_hysteresis", "0 <= geometry_hysteresis < 1"))
+        if not number_in(self.geometry_evidence, 0.0, 1.0, low_open=True):
+            out.append(("geometry_evidence", "0 < geometry_evidence <= 1"))
         if not 1 <= self.window <= 1000:
             out.append(("window", "1 to 1000 frames"))
         if not 0 <= self.vote_delay <= 1000:

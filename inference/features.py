@@ -28,6 +28,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from devices.frames import MODES
+
 ANGLE_BIN_DEG = 0.4  # polyline resolution (about 7 mm at 1 m)
 MIN_BIN_POINTS = 2
 BREAK_GAP_M = 0.08  # a range jump larger than this between neighbouring bins: occlusion
@@ -129,6 +131,23 @@ def terrain_features(profile: np.ndarray, mode_hint: str | None = None) -> Terra
         for s in segments
     ]
     return result
+
+
+# The mode each kind of terrain shows: the geometry cue of fusion "steady+geometry".
+_SHOWN = {
+    ("level", ""): "LG",
+    ("stairs", "up"): "US",
+    ("stairs", "down"): "DS",
+    ("ramp", "up"): "UR",
+    ("ramp", "down"): "DR",
+}
+
+
+def shown_mode(kind: str | None, direction: str | None = "") -> int:
+    """The mode a frame's features show (`kind`, `direction` of TerrainFeatures or of a
+    recorded /terrain/features message), as an index into MODES; -1 when unknown."""
+    mode = _SHOWN.get((kind or "", "" if kind == "level" else direction or ""))
+    return -1 if mode is None else MODES.index(mode)
 
 
 def _polyline_runs(bins: np.ndarray, rng: np.ndarray) -> list[np.ndarray]:

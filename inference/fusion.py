@@ -25,6 +25,10 @@ Methods (`make_fusion`), with the number of frames each decision waits for:
   leaves stairs or a ramp for level ground only when level ground's posterior reaches
   HYSTERESIS, so a short run of middling misreads (level ground read on a ramp) does not
   switch; every other switch is steady's (`HysteresisFusion`).
+- "steady+geometry": steady+hysteresis whose filter also observes each frame's terrain
+  features (the mode their geometry shows, after the frame's push: `see_geometry`), so a
+  riser or a slope still in view holds stairs or a ramp against a run of level-ground
+  misreads (`GeometryFusion`; delay 1).
 The standard HMMs use the CNN output as a scaled emission likelihood, as the paper does.
 
 At the ends of a sequence (documented choices, the paper does not say):
@@ -51,6 +55,9 @@ from inference.fusion_design import (
     GAIT_LEAVE,
     GAIT_PHASE_SD,
     GAIT_RATE_FRAMES,
+    GEOMETRY_EVIDENCE,
+    GEOMETRY_HYSTERESIS,
+    GEOMETRY_SHOWN,
     HYSTERESIS,
     N_MODES,
     PAPER_TRANSITION,
@@ -70,6 +77,7 @@ METHODS = (
     "steady",
     "steady+gait",
     "steady+hysteresis",
+    "steady+geometry",
 )
 
 _INF = float("inf")
@@ -606,6 +614,52 @@ class HysteresisFusion(SteadyFusion):
         return [self._hold(out) for out in super().flush()]
 
 
+class GeometryFusion(HysteresisFusion):
+    """ "steady+geometry": steady+hysteresis with the terrain features as a second
+    observation of each frame (delay 1 frame).
+
+    After each push, `see_geometry(mode)` gives the mode the frame's features show (index
+    into MODES, -1: unknown; inference.features.shown_mode): the filter of that frame is
+    multiplied by GEOMETRY_SHOWN's column for it, raised to `geometry_evidence`. The frame
+    is decided at the next push, so its decision weighs both its CNN output and its
+    geometry; the live pipeline computes the features after the push because they take
+    the decision as a hint. A frame without `see_geometry` counts as unknown geometry never
+    seen (no update). The switch margin is `hysteresis` (GEOMETRY_HYSTERESIS).
+    """
+
+    uses_geometry = True
+
+    def __init__(
+        self,
+        stay: float = STEADY_STAY,
+        evidence: float = STEADY_EVIDENCE,
+        hysteresis: float = GEOMETRY_HYSTERESIS,
+        geometry_evidence: float = GEOMETRY_EVIDENCE,
+    ):
+        if not 0.0 < geometry_evidence <= 1.0:
+            raise InferenceError(
+                f"steady+geometry: geometry evidence must be in (0, 1], got {geometry_evidence}"
+            )
+        super().__init__(stay, evidence, hysteresis)
+        self.method = "steady+geometry"
+        self.geometry_evidence = float(geometry_evidence)
+        # per shown mode (the last: unknown), the likelihood of each terrain
+        self._shown = tuple(
+            tuple(GEOMETRY_SHOWN[mode][g] ** self.geometry_evidence for mode in range(N_MODES))
+            for g in range(N_MODES + 1)
+        )
+
+    def see_geometry(self, mode: int) -> None:
+        """The mode the newest pushed frame's terrain features show (-1: unknown)."""
+        a = self._alpha
+        if a is None or self._flushed:
+            return
+        w = self._shown[mode if 0 <= mode < N_MODES else N_MODES]
+        q = (a[0] * w[0], a[1] * w[1], a[2] * w[2], a[3] * w[3], a[4] * w[4])
+        z = q[0] + q[1] + q[2] + q[3] + q[4]
+        self._alpha = (q[0] / z, q[1] / z, q[2] / z, q[3] / z, q[4] / z)
+
+
 def make_fusion(
     method: str,
     window: int = 5,
@@ -615,9 +669,12 @@ def make_fusion(
     stay: float = STEADY_STAY,
     evidence: float = STEADY_EVIDENCE,
     hysteresis: float = HYSTERESIS,
+    geometry_hysteresis: float = GEOMETRY_HYSTERESIS,
+    geometry_evidence: float = GEOMETRY_EVIDENCE,
 ) -> Fusion:
     """A fresh streaming fusion object; `lag` is used by "fixed-lag" only, `stay` and
-    `evidence` by the "steady" methods only, `hysteresis` by "steady+hysteresis" only."""
+    `evidence` by the "steady" methods only, `hysteresis` by "steady+hysteresis" only,
+    `geometry_*` by "steady+geometry" only."""
     if int(vote_delay) != vote_delay or vote_delay < 0:
         raise InferenceError(f"vote delay l_v must be an integer >= 0, got {vote_delay}")
     if method == "cnn":
@@ -638,19 +695,6 @@ def make_fusion(
         return GaitSteadyFusion(stay, evidence)
     if method == "steady+hysteresis":
         return HysteresisFusion(stay, evidence, hysteresis)
+    if method == "steady+geometry":
+        return GeometryFusion(stay, evidence, geometry_hysteresis, geometry_evidence)
     raise InferenceError(f"unknown fusion method {method!r} (known: {', '.join(METHODS)})")
-
-
-# ---------------------------------------------------------------------------------------
-# the straightforward transcription: the benchmark's baseline and the tests' reference
-
-
-def paper_step(
-    smooth_window: np.ndarray, emission: np.ndarray, transition: np.ndarray, window: int
-) -> tuple[int, np.ndarray]:
-    """One iteration of Algorithm 1 in numpy: (s_opt(t-1), p(s_t))."""
-    pbar = smooth_window.sum(axis=0) / window
-    phat_last = pbar * (transition @ emission)
-    s_opt = int(np.argmax(phat_last))
-    phat = pbar[s_opt] * transition[s_opt] * emission
-    return s_opt, phat / phat.sum()

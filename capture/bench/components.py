@@ -26,8 +26,8 @@ from devices.simulator.synthetic import corridor_cloud, synthetic_frame
 from devices.xbus import MID, XbusParser, build, encode_mtdata2
 from inference.config import PreprocessConfig
 from inference.errors import InferenceError
-from inference.fusion import HmmFusion, make_fusion, paper_step
-from inference.fusion_design import N_MODES, PAPER_TRANSITION
+from inference.fusion import HmmFusion, make_fusion
+from inference.fusion_design import N_MODES, PAPER_TRANSITION, paper_step
 from inference.model import INPUT_SIZE, Classifier, TerrainCNN, load_classifier, occupied_patches
 from inference.preprocess import BACKENDS as PREPROCESS_BACKENDS
 from inference.preprocess import preprocess
@@ -228,6 +228,13 @@ def bench_method_update(method: str, updates: int = 20000, seed: int = 0) -> flo
         for k, row in enumerate(frames):
             start = clock()
             fusion.push(row, elevation[k])
+            times.append(clock() - start)
+    elif getattr(fusion, "uses_geometry", False):  # the push and the frame's geometry
+        shown = rng.integers(-1, N_MODES, size=len(frames)).tolist()
+        for k, row in enumerate(frames):
+            start = clock()
+            fusion.push(row)
+            fusion.see_geometry(shown[k])
             times.append(clock() - start)
     else:
         for row in frames:

@@ -222,7 +222,7 @@ class Pipeline:
         A frame whose orientation is stale gets no decision: the CNN does not see it and
         the fusion holds (it is not fed), so nothing is decided on a wrongly levelled cloud.
         """
-        from inference.features import terrain_features
+        from inference.features import shown_mode, terrain_features
         from inference.preprocess import STALE_ORIENTATION
 
         if quaternion is None:
@@ -249,11 +249,13 @@ class Pipeline:
                 raise InferenceError(f"the classifier's output is not finite: {probs.tolist()}")
             cnn = int(np.argmax(probs))
             fused = self._push(frame.index, probs, pre.elevation_deg)
-            done_ns = now_ns()  # the decision is out; features are for display and recording
+            done_ns = now_ns()  # the decision is out; features: display, recording, geometry cue
             hint = MODES[
                 fused.decision if fused is not None and fused.decision is not None else cnn
             ]
             feats = terrain_features(pre.profile, hint) if pre.ok else None
+            if getattr(self.fusion, "uses_geometry", False):  # decides this frame next push
+                self.fusion.see_geometry(shown_mode(feats.kind, feats.direction) if feats else -1)
         return FrameResult(
             index=frame.index,
             time_ns=frame.device_time_ns if time_ns is None else time_ns,

@@ -24,6 +24,7 @@ import numpy as np
 from capture.recording import labels as L
 from capture.recording import topics as T
 from devices.frames import MODES
+from inference.features import shown_mode
 
 NONE = -1  # no mode, no frame
 
@@ -79,6 +80,13 @@ class FrameTable:
         the gait cue of fusion "steady+gait"."""
         x, y = self.quaternion[:, 1], self.quaternion[:, 2]
         return np.degrees(np.arcsin(np.clip(1 - 2 * (x * x + y * y), -1.0, 1.0)))
+
+    @property
+    def geometry(self) -> np.ndarray:
+        """The mode each frame's terrain features show (inference.features.shown_mode), -1
+        where unknown or not recorded: the cue of fusion "steady+geometry"."""
+        shown = [shown_mode(f.get("kind"), f.get("direction")) for f in self.features]
+        return np.array(shown, dtype=int).reshape(-1)
 
 
 def mode_names(modes: np.ndarray) -> list[str]:

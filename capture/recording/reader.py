@@ -369,13 +369,15 @@ def read_trial(path: str | os.PathLike) -> dict:
       live keys (`labels`), else None; terrain_source: "simulator", "offline labels" or None
     - camera_elevation_deg (N,): the camera's optical axis above the horizon (/tf), NaN
       where the frame had no orientation: the gait cue of fusion "steady+gait"
+    - geometry (N,): the mode the frame's terrain features show (/terrain/features,
+      inference.features.shown_mode), -1 where unknown: the cue of "steady+geometry"
     - label_changes: every recorded change [(time_ns, mode, source)] in time order, undos
       and what they undid included (the audit trail); reference_changes: the ones that
       define `labels`; metadata (typed); id; modes: MODES
     """
     rec = open_recording(path)
-    # frames with a CNN output only: their preprocessing records and features not read
-    table, changes = frame_table(rec, frame_topics=(T.CNN, T.FUSED, T.TF, T.TRUTH))
+    # frames with a CNN output only: their preprocessing records not read
+    table, changes = frame_table(rec, frame_topics=(T.CNN, T.FUSED, T.TF, T.TRUTH, T.FEATURES))
     frames = table.select(table.classified)
     return {
         "frame_index": frames.index,
@@ -391,6 +393,7 @@ def read_trial(path: str | os.PathLike) -> dict:
         "terrain": frames.terrain,
         "terrain_source": frames.terrain_source,
         "camera_elevation_deg": frames.camera_elevation_deg,
+        "geometry": frames.geometry,
         "label_changes": changes,
         "reference_changes": L.effective_changes(changes),
         "metadata": rec.metadata,

@@ -37,6 +37,7 @@ TITLES = {
     "steady": "steady",
     "steady+gait": "steady + gait",
     "steady+hysteresis": "steady + hysteresis",
+    "steady+geometry": "steady + geometry",
 }
 
 
@@ -85,13 +86,18 @@ def decisions_of(probabilities: np.ndarray) -> np.ndarray:
 
 
 def run_offline(
-    fusion: Fusion, probabilities: np.ndarray, elevation_deg: np.ndarray | None = None
+    fusion: Fusion,
+    probabilities: np.ndarray,
+    elevation_deg: np.ndarray | None = None,
+    geometry: np.ndarray | None = None,
 ) -> FusionRun:
     """Push every frame through a fresh streaming object, then flush: the live decisions.
 
     A frame whose probabilities are not finite (a broken classifier) is pushed as uniform,
     carrying no evidence, and left undecided (-1): it is never scored as right. A method
-    with gait cues (`uses_gait`) gets each frame's camera elevation, `elevation_deg`."""
+    with gait cues (`uses_gait`) gets each frame's camera elevation, `elevation_deg`; one
+    with the geometry cue (`uses_geometry`) sees each frame's `geometry` after its push, as
+    the live pipeline shows it the frame's terrain features."""
     e = np.array(probabilities, dtype=float)
     unusable = ~np.all(np.isfinite(e), axis=1) if e.ndim == 2 else np.zeros(len(e), bool)
     e[unusable] = 1.0 / N_MODES
@@ -118,6 +124,14 @@ def run_offline(
             )
         for row, elevation in zip(e, np.asarray(elevation_deg, dtype=float).tolist()):
             collect(fusion.push(row, elevation))
+    elif getattr(fusion, "uses_geometry", False):
+        if geometry is None:
+            raise InferenceError(
+                f"{fusion.method} needs the terrain features of each frame (recordings)"
+            )
+        for row, shown in zip(e, np.asarray(geometry, dtype=int).tolist()):
+            collect(fusion.push(row))
+            fusion.see_geometry(shown)
     else:
         for row in e:
             collect(fusion.push(row))
@@ -175,7 +189,7 @@ def evaluate_trial(
     params = params or FusionConfig()
     try:
         runs = {
-            m: run_offline(params.make(m), trial.probabilities, trial.elevation_deg)
+            m: run_offline(params.make(m), trial.probabilities, trial.elevation_deg, trial.geometry)
             for m in methods
         }
     except InferenceError as e:
@@ -332,7 +346,7 @@ def delay_sweep(
         def stage(method: str, stages=stages, p=p, trial=trial) -> FusionRun:
             if method not in stages:
                 stages[method] = run_offline(
-                    p.make(method), trial.probabilities, trial.elevation_deg
+                    p.make(method), trial.probabilities, trial.elevation_deg, trial.geometry
                 )
             return stages[method]
 

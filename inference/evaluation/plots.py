@@ -108,6 +108,14 @@ METHOD_STYLES |= {
         "marker": "p",
         "linestyle": (0, (6, 2)),
     },
+    "steady+geometry": {
+        "color": "#1a1a1a",
+        "hatch": "oo",
+        "hatchcolor": "#ffffff",
+        "line": "#000000",
+        "marker": "*",
+        "linestyle": (0, (2, 1)),
+    },
 }
 _SPARE_STYLES = (
     {

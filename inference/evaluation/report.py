@@ -82,6 +82,14 @@ def report(
                 else {}
             ),
             **({"hysteresis": params.hysteresis} if "steady+hysteresis" in methods else {}),
+            **(
+                {
+                    "geometry_hysteresis": params.geometry_hysteresis,
+                    "geometry_evidence": params.geometry_evidence,
+                }
+                if "steady+geometry" in methods
+                else {}
+            ),
         },
     }
     if len(results) >= 2:

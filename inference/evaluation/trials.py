@@ -46,6 +46,7 @@ class Trial:
     reference_name: str = "terrain"  # what `reference` is: "terrain" or "locomotion"
     locomotion: Any = None  # (N,) the subject's mode keyed live, when `reference` is terrain
     elevation_deg: np.ndarray | None = None  # (N,) camera above the horizon: gait cues
+    geometry: np.ndarray | None = None  # (N,) the mode the terrain features show, -1: unknown
 
     def __post_init__(self) -> None:
         self.probabilities = np.asarray(self.probabilities, dtype=float)
@@ -80,6 +81,13 @@ class Trial:
                 raise InferenceError(
                     f"{self.path}: {len(self.probabilities)} frames but "
                     f"{len(self.elevation_deg)} camera elevations"
+                )
+        if self.geometry is not None:
+            self.geometry = np.asarray(self.geometry, dtype=int)
+            if len(self.geometry) != len(self.probabilities):
+                raise InferenceError(
+                    f"{self.path}: {len(self.probabilities)} frames but "
+                    f"{len(self.geometry)} terrain geometries"
                 )
 
     def references(self) -> dict[str, np.ndarray]:
@@ -269,6 +277,9 @@ def trial_from_recording(path: str, data: Any, reference: str = "terrain") -> Tr
     elevation = get("camera_elevation_deg")
     if elevation is not None:
         elevation = np.asarray(elevation, dtype=float)
+    geometry = get("geometry")
+    if geometry is not None:
+        geometry = np.asarray(geometry, dtype=int)
     finite = np.isfinite(probabilities).all(axis=1) if probabilities.ndim == 2 else None
     if finite is not None and not finite.all():
         log.warning("%s: %d frame(s) without a CNN output left out", path, (~finite).sum())
@@ -276,4 +287,7 @@ def trial_from_recording(path: str, data: Any, reference: str = "terrain") -> Tr
         second = second[finite] if second is not None else None
         times_s = times_s[finite] if times_s is not None else None
         elevation = elevation[finite] if elevation is not None else None
-    return Trial(str(path), probabilities, chosen, metadata, times_s, reference, second, elevation)
+        geometry = geometry[finite] if geometry is not None else None
+    return Trial(
+        str(path), probabilities, chosen, metadata, times_s, reference, second, elevation, geometry
+    )

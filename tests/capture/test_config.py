@@ -82,6 +82,29 @@ def test_fusion_hysteresis_is_read_and_checked(tmp_path):
         cfg.load(p)
 
 
+def test_fusion_geometry_keys_are_read_and_checked(tmp_path):
+    p = tmp_path / "c.toml"
+    text = (
+        "[fusion]\nmethod = 'steady+geometry'\ngeometry_hysteresis = 0.7\ngeometry_evidence = 0.3\n"
+    )
+    p.write_text(text)
+    c = cfg.load(p)
+    assert c.fusion.method == "steady+geometry"
+    assert (c.fusion.geometry_hysteresis, c.fusion.geometry_evidence) == (0.7, 0.3)
+    fusion = c.fusion.make()  # the live session's, with both keys
+    assert (fusion.method, fusion.hysteresis, fusion.geometry_evidence) == (
+        c.fusion.method,
+        0.7,
+        0.3,
+    )
+    p.write_text("[fusion]\ngeometry_hysteresis = 1.5\n")
+    with pytest.raises(ConfigError, match="0 <= geometry_hysteresis < 1"):
+        cfg.load(p)
+    p.write_text("[fusion]\ngeometry_evidence = 0\n")
+    with pytest.raises(ConfigError, match="0 < geometry_evidence <= 1"):
+        cfg.load(p)
+
+
 def test_the_configuration_reference_is_the_generated_one():
     assert REFERENCE.read_text() == cfg.reference(), (
         f"docs/configuration.md is not the configuration's fields: `{cfg.REFERENCE_COMMAND}`"

@@ -3,8 +3,7 @@ against (inference.fusion.HmmFusion)."""
 
 import numpy as np
 
-from inference.fusion import paper_step
-from inference.fusion_design import PAPER_TRANSITION
+from inference.fusion_design import PAPER_TRANSITION, paper_step
 
 
 def paper_viterbi(

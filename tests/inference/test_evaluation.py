@@ -49,7 +49,8 @@ def trials():
 # --- running methods ---------------------------------------------------------------------
 
 
-SCORE_METHODS = [m for m in METHODS if m != "steady+gait"]  # gait needs a recording's cue
+# gait and geometry need a recording's cues
+SCORE_METHODS = [m for m in METHODS if m not in ("steady+gait", "steady+geometry")]
 
 
 @pytest.mark.parametrize("method", SCORE_METHODS)
@@ -319,3 +320,15 @@ def test_a_gait_method_needs_the_cameras_elevation(trials):
     n = len(trials[0].reference)
     trial = ev.Trial("t", trials[0].probabilities, trials[0].reference, elevation_deg=[-30.0] * n)
     assert metrics.evaluate_trial(trial, ["steady+gait"]).accuracy["steady+gait"] > 0.5
+
+
+def test_a_geometry_method_needs_the_terrain_features(trials):
+    with pytest.raises(InferenceError, match="t0.mcap: steady.geometry needs the terrain"):
+        metrics.evaluate_trial(trials[0], ["steady+geometry"])
+    t0 = trials[0]
+    trial = ev.Trial("t", t0.probabilities, t0.reference, geometry=t0.reference)
+    result = metrics.evaluate_trial(trial, ["steady", "steady+geometry"])
+    # features that show the terrain itself can only help
+    assert result.accuracy["steady+geometry"] >= result.accuracy["steady"]
+    with pytest.raises(InferenceError, match="frames but 3 terrain geometries"):
+        ev.Trial("t", t0.probabilities, t0.reference, geometry=[0, 1, 2])

@@ -323,6 +323,7 @@ def test_make_fusion_knows_every_method_and_its_delay():
         "steady": 1,
         "steady+gait": 1,
         "steady+hysteresis": 1,
+        "steady+geometry": 1,
     }
     with pytest.raises(InferenceError, match="unknown fusion method"):
         make_fusion("kalman")
@@ -386,6 +387,7 @@ def test_bench_times_the_steady_update():
 
     assert bench_method_update("steady", updates=200) > 0
     assert bench_method_update("steady+hysteresis", updates=200) > 0
+    assert bench_method_update("steady+geometry", updates=200) > 0
 
 
 def gait_reference(e, elevation, stay=0.987, evidence=0.75):
@@ -523,3 +525,118 @@ def test_steady_hysteresis_margin_is_checked_and_configured():
         HysteresisFusion(hysteresis=1.0)
     assert make_fusion("steady+hysteresis", hysteresis=0.9).hysteresis == 0.9
     assert HysteresisFusion().hysteresis == 0.8  # 4 to 1 against the other modes
+
+
+# --- steady+geometry ---------------------------------------------------------------------
+
+
+def geometry_reference(e, shown, margin, weight, stay=0.987, evidence=0.75):
+    """steady+geometry by its definition, in numpy: the steady HMM whose every frame is also
+    observed by its geometry (GEOMETRY_SHOWN's column, to `weight`), the fixed-lag-1
+    smoother's posterior, and the switch margin of steady+hysteresis."""
+    from inference.fusion_design import GEOMETRY_SHOWN
+
+    likelihood = np.array(GEOMETRY_SHOWN).T ** weight  # [shown mode or 5: unknown] -> row
+    t = steady_transition(stay)
+    e = np.asarray(e) ** evidence
+    alpha = []
+    for k, row in enumerate(e):
+        a = row if k == 0 else (alpha[-1] @ t) * row
+        a = a * likelihood[shown[k] if shown[k] >= 0 else 5]
+        alpha.append(a / a.sum())
+    posteriors = [alpha[k] * (t @ e[k + 1]) for k in range(len(e) - 1)] + [alpha[-1]]
+    return hysteresis_reference(np.array([g / g.sum() for g in posteriors]), margin)
+
+
+def stream_geometry(fusion, probabilities, shown):
+    """Live use: push each frame, then show it its geometry; flush; decisions by frame."""
+    decisions = np.full(len(probabilities), -1)
+    outputs = []
+    for row, mode in zip(probabilities, shown):
+        outputs.append(fusion.push(row))
+        fusion.see_geometry(int(mode))
+    for out in [*outputs, *fusion.flush()]:
+        if out is not None:
+            decisions[out.frame] = out.decision
+    return decisions
+
+
+@pytest.mark.parametrize("margin, weight", [(0.6, 0.18), (0.0, 1.0), (0.8, 0.5)])
+def test_steady_geometry_is_the_steady_hmm_observing_the_geometry_too(margin, weight):
+    from inference.fusion import GeometryFusion
+
+    rng = np.random.default_rng(12)
+    e = random_probabilities(rng, 200, concentration=0.3)
+    shown = rng.integers(-1, 5, size=200)
+    fusion = GeometryFusion(hysteresis=margin, geometry_evidence=weight)
+    decisions = stream_geometry(fusion, e, shown)
+    np.testing.assert_array_equal(decisions, geometry_reference(e, shown, margin, weight))
+    assert fusion.method == "steady+geometry" and fusion.delay_frames == 1
+    fusion.reset()
+    assert np.array_equal(stream_geometry(fusion, e, shown), decisions)
+
+
+def stairs_then_level(misread: float = 0.7, run: int = 3):
+    """Up stairs at 0.8 with `run` frames read as level ground at `misread` from frame 30,
+    more stairs, then level ground at 0.95 from frame 64."""
+
+    def scores(mode: int, p: float) -> list[float]:
+        return [p if j == mode else (1 - p) / 4 for j in range(5)]
+
+    return np.array([scores(1, 0.8)] * 30 + [scores(0, misread)] * run
+                    + [scores(1, 0.8)] * (34 - run) + [scores(0, 0.95)] * 30)  # fmt: skip
+
+
+def test_steady_geometry_holds_stairs_while_a_riser_is_in_view():
+    """Three frames of level ground read at 0.7 on up stairs (the middling misreads of the
+    design recordings): steady switches to level ground and back; steady+geometry does too
+    when the features show level ground in those frames, and holds the stairs when they
+    show the riser still in view. At the real change, with the features showing level
+    ground, it switches on the frame steady does."""
+    frames = stairs_then_level()
+    us, lg = 1, 0
+    riser_in_view = [us] * 64 + [lg] * 30
+    level_in_view = [us] * 30 + [lg] * 3 + [us] * 31 + [lg] * 30
+    steady = run_offline(SteadyFusion(), frames).final
+    agreeing = stream_geometry(make_fusion("steady+geometry"), frames, level_in_view)
+    held = stream_geometry(make_fusion("steady+geometry"), frames, riser_in_view)
+    assert lg in set(steady[30:34]) and lg in set(agreeing[30:34])
+    assert set(held[:64]) == {us} and np.count_nonzero(np.diff(held)) == 1
+    assert np.argmax(held[40:] == lg) == np.argmax(steady[40:] == lg) == 64 - 40
+
+
+def test_steady_geometry_follows_a_real_change_the_features_still_misread():
+    """Outdoors, level ground often shows as stairs or a ramp (uneven ground, curbs): a
+    real change from up stairs to level ground read at 0.95 is followed within one frame of
+    steady even while the features still show stairs."""
+    frames = stairs_then_level(run=0)
+    still_stairs = [1] * 94
+    held = stream_geometry(make_fusion("steady+geometry"), frames, still_stairs)
+    steady = run_offline(SteadyFusion(), frames).final
+    assert np.argmax(held == 0) - np.argmax(steady == 0) <= 1
+    assert set(held[70:]) == {0}
+
+
+def test_steady_geometry_parameters_are_checked_and_configured():
+    from inference.fusion import GeometryFusion
+    from inference.fusion_design import GEOMETRY_EVIDENCE, GEOMETRY_HYSTERESIS, GEOMETRY_SHOWN
+
+    with pytest.raises(InferenceError, match="geometry evidence"):
+        GeometryFusion(geometry_evidence=0.0)
+    with pytest.raises(InferenceError, match="margin"):
+        GeometryFusion(hysteresis=1.0)
+    fusion = make_fusion("steady+geometry", geometry_hysteresis=0.7, geometry_evidence=0.3)
+    assert (fusion.hysteresis, fusion.geometry_evidence) == (0.7, 0.3)
+    assert (GEOMETRY_HYSTERESIS, GEOMETRY_EVIDENCE) == (0.6, 0.18)
+    assert np.allclose(np.sum(GEOMETRY_SHOWN, axis=1), 1.0, atol=2e-3)
+    # each terrain shows as itself more often than any other shows as it, but stairs down
+    assert all(GEOMETRY_SHOWN[m][m] == max(r[m] for r in GEOMETRY_SHOWN) for m in (0, 1, 3, 4))
+
+
+def test_shown_mode_names_the_terrain_the_features_show():
+    from inference.features import shown_mode
+
+    assert shown_mode("level", "up") == 0
+    assert [shown_mode("stairs", d) for d in ("up", "down")] == [1, 2]
+    assert [shown_mode("ramp", d) for d in ("up", "down")] == [3, 4]
+    assert shown_mode("unknown", "") == shown_mode(None) == shown_mode("ramp", "") == -1

@@ -1,0 +1,31 @@
+"""The pipeline's frame: what the fusion is shown besides the CNN's output."""
+
+import numpy as np
+
+from capture.live.pipeline import Pipeline
+from devices.rotations import quat_from_euler
+from devices.simulator.synthetic import synthetic_frame
+from inference.config import PreprocessConfig
+from inference.features import shown_mode
+from inference.fusion import GeometryFusion
+
+
+def test_the_pipeline_shows_a_geometry_fusion_each_frames_features():
+
+    class Spy(GeometryFusion):
+        def see_geometry(self, mode):
+            seen.append(mode)
+            super().see_geometry(mode)
+
+    class Classifier:
+        def predict(self, image):
+            return np.array([0.6, 0.1, 0.1, 0.1, 0.1])
+
+    seen: list = []
+    pipeline = Pipeline(PreprocessConfig(), Classifier(), Spy())
+    results = []
+    for k in (0, 11, 22):  # a thigh swinging (synthetic_frame's)
+        q = quat_from_euler(0.0, np.radians(20.0) * np.sin(2 * np.pi * k / 45.0), 0.0)
+        results.append(pipeline.process(synthetic_frame(k, 1_000_000 * k), q))
+    shown = [shown_mode(r.features.get("kind"), r.features.get("direction")) for r in results]
+    assert seen == shown and -1 not in seen  # each frame's features, after its push
