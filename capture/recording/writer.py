@@ -153,6 +153,7 @@ class Recorder(Sink):
         self._state = RecorderState.IDLE
         self._message = ""
         self._accepting = False
+        self._closing = False  # close() began: what comes now is after the trial's end
         self._lock = threading.Lock()
         self._dropped: collections.Counter = collections.Counter()
         self._reported_drops: collections.Counter = collections.Counter()
@@ -250,6 +251,7 @@ class Recorder(Sink):
 
     def close(self) -> RecorderStats:
         """Write what is queued, finalise the file (summary and index), return the stats."""
+        self._closing = True
         self._accepting = False
         thread = self._thread
         if thread is not None:
@@ -335,7 +337,9 @@ class Recorder(Sink):
                     return
             except queue.Full:
                 pass
-        if self._state in (RecorderState.RECORDING, RecorderState.FAILED):
+        # Lost from the trial: a full queue or a failed file. An item that arrives once the
+        # trial is closing (the last frame's results, the streams going on) is after its end.
+        if self._state in (RecorderState.RECORDING, RecorderState.FAILED) and not self._closing:
             with self._lock:
                 self._dropped[item.kind] += 1
 

@@ -460,3 +460,23 @@ def test_clouds_are_thinned_to_one_point_per_2_cm_voxel(tmp_path):
     cells = np.floor(msg.data / 0.02).astype(int)
     # one point per voxel (storage rounds to 1/1024 m, so a few land in a neighbour)
     assert len(np.unique(cells, axis=0)) >= 0.9 * len(cells)
+
+
+def test_what_arrives_while_the_trial_closes_is_after_its_end_not_dropped(tmp_path):
+    """The operator stops a trial while the last frame's results are on their way: they
+    come after the trial's end, and the file does not report the recorder as behind."""
+    path = tmp_path / "closing.mcap"
+    rec = Recorder(path, metadata={})
+    rec.start()
+    rec.write_imu(imu_sample(0))
+    finish = rec._chunks.finish
+
+    def finish_while_results_arrive(end):
+        rec.write_imu(imu_sample(1))  # the file is being finished, the recorder still open
+        return finish(end)
+
+    rec._chunks.finish = finish_while_results_arrive
+    stats = rec.close()
+    assert stats.dropped == 0
+    assert not [e for e in decode_all(path).get(T.EVENTS, []) if e["kind"] == "drop"]
+    assert len(decode_all(path)[T.IMU]) == 1
