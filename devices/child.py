@@ -33,7 +33,7 @@ class Child:
         if quiet is None:  # a child's stderr would garble a terminal UI
             quiet = not os.environ.get("WALKCAP_DEBUG")
         # A child is one worker beside this process: one BLAS thread. OpenBLAS otherwise
-        # starts a thread per core at import (~0.1 s more CPU).
+        # starts a thread per core at import (CPU spent for nothing).
         env = {"OPENBLAS_NUM_THREADS": "1", **os.environ}
         self.process = subprocess.Popen(
             [sys.executable, "-c", code],

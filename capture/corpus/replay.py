@@ -338,9 +338,9 @@ def _fixed_batches(blocks, size: int):
 
 def _head_start(source, params, mounting, imu_orientations, frames_in: _ReaderProcess):
     """Blocks of frames: prepared here, one at a time, until the reader process is ready
-    (a Python with numpy, mcap and protobuf: 0.16-0.22 s after replay() begins; waiting
-    for it would cost ~0.1 s, an eighth of a 15 s recording's replay at 20x); then the
-    reader's batches, from the next frame on."""
+    (a Python that imports numpy, mcap and protobuf first: waiting for it would cost a
+    noticeable part of a short recording's replay); then the reader's batches, from the
+    next frame on."""
     done = 0
     if not frames_in.ready.is_set():
         own = prepared_frames(source, params, mounting, imu_orientations)

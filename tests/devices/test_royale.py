@@ -681,7 +681,6 @@ def test_frames_are_copied_out_of_the_sdk_buffer(roypy):
     mapped = np.array([f.device_time_ns for f in frames]) - np.array(device.stamps_us) * 1000
     assert np.all(np.diff(mapped) <= 0)
     assert all(f.host_time_ns >= f.device_time_ns for f in frames)
-    assert len(device.callback_s) >= 5  # every onNewData returned (it copies, never waits)
     assert not device.capturing.is_set()  # stopCapture was called
 
 

@@ -52,3 +52,24 @@ class FakeClock:
 
     def __call__(self) -> int:
         return self.t
+
+
+def drill_app(config, sessions: list, **extra):
+    """The TUI on real mock-device sessions (a stub classifier), subject S09 with drills on;
+    each session it opens is appended to `sessions`."""
+    from capture.live.session import Session
+    from capture.live.trials import SubjectInfo
+    from tui.app import WalkcapApp
+
+    def factory(cfg):
+        sessions.append(Session(cfg, classifier=StubClassifier()))
+        return sessions[-1]
+
+    return WalkcapApp(
+        config,
+        session_factory=factory,
+        subject=SubjectInfo(subject="S09"),
+        ask_subject=False,
+        drills=True,
+        **extra,
+    )

@@ -13,8 +13,6 @@ from capture.corpus import export
 from capture.corpus.replay import replay
 from capture.live.pipeline import OrientationTrack, Pipeline
 from capture.live.preflight import CheckItem, PreflightReport
-from capture.live.session import Session
-from capture.live.trials import SubjectInfo
 from capture.recording import topics as T
 from capture.recording.reader import open_recording, read_trial
 from devices.frames import DepthFrame
@@ -22,9 +20,8 @@ from devices.simulator.synthetic import synthetic_frame
 from inference.config import PreprocessConfig
 from inference.fusion import make_fusion
 from inference.preprocess import STALE_ORIENTATION, preprocess
-from tests.tui.screens import FakeClock, StubClassifier, rendered
+from tests.tui.screens import FakeClock, StubClassifier, drill_app, rendered
 from tests.waiting import wait_for_app
-from tui.app import WalkcapApp
 from tui.cli import main
 from tui.live_screen import LiveScreen
 from tui.replay import ReplaySource
@@ -98,17 +95,9 @@ async def test_the_tui_unplug_drill_flags_the_frames_everywhere(tmp_path, busy_p
     config = Config()
     config.session.recordings = str(tmp_path / "recordings")
     sessions = []
-
-    def factory(cfg):
-        sessions.append(Session(cfg, classifier=StubClassifier()))
-        return sessions[-1]
-
-    app = WalkcapApp(
+    app = drill_app(
         config,
-        session_factory=factory,
-        subject=SubjectInfo(subject="S09"),
-        ask_subject=False,
-        drills=True,
+        sessions,
         preflight=lambda session: PreflightReport([CheckItem("disk", True, "ok", "")]),
     )
     seen_unknown = []

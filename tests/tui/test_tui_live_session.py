@@ -5,13 +5,10 @@ A stand-in classifier keeps it fast (the CNN has its own tests)."""
 import pytest
 
 from capture.config import Config
-from capture.live.session import Session
-from capture.live.trials import SubjectInfo
 from capture.recording.gaps import recording_loss
 from capture.recording.reader import open_recording, read_trial
-from tests.tui.screens import StubClassifier
+from tests.tui.screens import drill_app
 from tests.waiting import wait_for_app
-from tui.app import WalkcapApp
 from tui.live_screen import LiveScreen
 
 pytestmark = pytest.mark.timeout(30)
@@ -23,18 +20,7 @@ async def test_real_session_on_mock_devices(tmp_path, busy_pilot):
     config = Config()
     config.session.recordings = str(tmp_path / "recordings")
     sessions = []
-
-    def factory(cfg):
-        sessions.append(Session(cfg, classifier=StubClassifier()))
-        return sessions[-1]
-
-    app = WalkcapApp(
-        config,
-        session_factory=factory,
-        subject=SubjectInfo(subject="S09"),
-        ask_subject=False,
-        drills=True,
-    )
+    app = drill_app(config, sessions)
     async with app.run_test(size=(120, 40)) as pilot:
         await wait_for_app(pilot, lambda: app.ready, 15)
         session = sessions[0]
