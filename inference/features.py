@@ -46,6 +46,9 @@ TREAD_MIN_M = 0.10
 TREAD_MAX_M = 0.80
 MAX_HIDDEN_M = 0.6  # longest occluded stretch between two treads going down
 MIN_POINTS = 30
+# Where the classifier's terrain is judged: about a step ahead of the camera (the images are
+# labelled with the terrain they show there; the simulator's truth looks 0.6-1.1 m ahead).
+AHEAD_M = 1.0
 
 
 @dataclass
@@ -56,6 +59,7 @@ class TerrainFeatures:
     tread_m: float | None = None  # stairs: step depth, when two stair edges are seen
     direction: str = ""  # "up" | "down" for ramps and stairs
     steps: int = 0  # risers seen
+    ahead_slope_deg: float | None = None  # the fitted ground AHEAD_M ahead, positive uphill
     inlier_fraction: float = 0.0  # profile points explained by the fitted segments
     residual_m: float | None = None  # RMS distance of those points to their segments
     segments: list = field(default_factory=list)  # [(x0, z0, x1, z1, angle_deg), ...]
@@ -124,6 +128,7 @@ def terrain_features(profile: np.ndarray, mode_hint: str | None = None) -> Terra
         or _level(segments)
         or TerrainFeatures()
     )
+    result.ahead_slope_deg = _slope_at(segments, AHEAD_M)
     result.inlier_fraction = inlier_fraction
     result.residual_m = residual
     result.segments = [
@@ -148,6 +153,29 @@ def shown_mode(kind: str | None, direction: str | None = "") -> int:
     recorded /terrain/features message), as an index into MODES; -1 when unknown."""
     mode = _SHOWN.get((kind or "", "" if kind == "level" else direction or ""))
     return -1 if mode is None else MODES.index(mode)
+
+
+def ground_ahead(slope_deg: float | None) -> int:
+    """The mode the ground AHEAD_M ahead shows by its slope (`ahead_slope_deg` of
+    TerrainFeatures or of a recorded /terrain/features message), as an index into MODES:
+    a ramp up or down beyond FLAT_MAX_DEG, else level ground; -1 when not seen. The cue of
+    fusion "steady+slope"."""
+    if slope_deg is None or not math.isfinite(slope_deg):
+        return -1
+    if slope_deg > FLAT_MAX_DEG:
+        return MODES.index("UR")
+    if slope_deg < -FLAT_MAX_DEG:
+        return MODES.index("DR")
+    return MODES.index("LG")
+
+
+def _slope_at(segments: list[_Segment], x_m: float) -> float | None:
+    """The angle of the fitted segment over forward distance `x_m`, None where no segment
+    covers it (a gap, an occlusion, the profile ends before)."""
+    for s in segments:
+        if min(s.start[0], s.end[0]) <= x_m <= max(s.start[0], s.end[0]):
+            return float(s.angle_deg)
+    return None
 
 
 def _polyline_runs(bins: np.ndarray, rng: np.ndarray) -> list[np.ndarray]:

@@ -29,6 +29,10 @@ Methods (`make_fusion`), with the number of frames each decision waits for:
   features (the mode their geometry shows, after the frame's push: `see_geometry`), so a
   riser or a slope still in view holds stairs or a ramp against a run of level-ground
   misreads (`GeometryFusion`; delay 1).
+- "steady+slope": steady, except that it leaves a ramp for level ground only at
+  steady+hysteresis's margin and once the ground about a step ahead (the terrain
+  features' slope there, `see_geometry`) has stopped sloping the ramp's way
+  (`SlopeFusion`; delay 1).
 The standard HMMs use the CNN output as a scaled emission likelihood, as the paper does.
 
 At the ends of a sequence (documented choices, the paper does not say):
@@ -68,6 +72,7 @@ from inference.fusion_steady import (
     GaitSteadyFusion,
     GeometryFusion,
     HysteresisFusion,
+    SlopeFusion,
     SteadyFusion,
 )
 
@@ -83,6 +88,7 @@ __all__ = [
     "GeometryFusion",
     "HmmFusion",
     "HysteresisFusion",
+    "SlopeFusion",
     "SteadyFusion",
     "Voter",
     "make_fusion",
@@ -99,6 +105,7 @@ METHODS = (
     "steady+gait",
     "steady+hysteresis",
     "steady+geometry",
+    "steady+slope",
 )
 
 
@@ -333,7 +340,8 @@ def make_fusion(
     geometry_evidence: float = GEOMETRY_EVIDENCE,
 ) -> Fusion:
     """A fresh streaming fusion object; `lag` is used by "fixed-lag" only, `stay` and
-    `evidence` by the "steady" methods only, `hysteresis` by "steady+hysteresis" only,
+    `evidence` by the "steady" methods only, `hysteresis` by "steady+hysteresis" and
+    "steady+slope" only,
     `geometry_*` by "steady+geometry" only."""
     if int(vote_delay) != vote_delay or vote_delay < 0:
         raise InferenceError(f"vote delay l_v must be an integer >= 0, got {vote_delay}")
@@ -357,4 +365,6 @@ def make_fusion(
         return HysteresisFusion(stay, evidence, hysteresis)
     if method == "steady+geometry":
         return GeometryFusion(stay, evidence, geometry_hysteresis, geometry_evidence)
+    if method == "steady+slope":
+        return SlopeFusion(stay, evidence, hysteresis)
     raise InferenceError(f"unknown fusion method {method!r} (known: {', '.join(METHODS)})")

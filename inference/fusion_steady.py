@@ -5,7 +5,9 @@ Their design is in inference.fusion_design."""
 from __future__ import annotations
 
 import math
+from collections import deque
 
+from devices.frames import MODES
 from inference.errors import InferenceError
 from inference.fusion_base import FusionOutput, Stream, probability_row
 from inference.fusion_design import (
@@ -17,6 +19,7 @@ from inference.fusion_design import (
     GEOMETRY_SHOWN,
     HYSTERESIS,
     N_MODES,
+    SLOPE_HOLD_FRAMES,
     STEADY_EVIDENCE,
     STEADY_STAY,
     steady_transition,
@@ -176,10 +179,14 @@ class HysteresisFusion(SteadyFusion):
     def _hold(self, out: FusionOutput) -> FusionOutput:
         g, d = out.probabilities, out.decision
         held = self._held
-        if held < 0 or d != 0 or held == 0 or g[d] >= self.hysteresis:  # 0: level ground
+        if held < 0 or d != 0 or held == 0 or self._may_leave(held, g[d]):  # 0: level ground
             held = self._held = d
         out.decision = held
         return out
+
+    def _may_leave(self, held: int, level_posterior: float) -> bool:
+        """Whether the decision leaves stairs or a ramp, `held`, for level ground."""
+        return level_posterior >= self.hysteresis
 
     def push(self, probabilities) -> FusionOutput | None:
         out = self._update(probabilities, self._rows)
@@ -224,8 +231,9 @@ class GeometryFusion(HysteresisFusion):
             for g in range(N_MODES + 1)
         )
 
-    def see_geometry(self, mode: int) -> None:
-        """The mode the newest pushed frame's terrain features show (-1: unknown)."""
+    def see_geometry(self, mode: int, ahead: int = -1) -> None:
+        """The mode the newest pushed frame's terrain features show (-1: unknown); `ahead`
+        (the ground ahead's mode, steady+slope's cue) is not used."""
         a = self._alpha
         if a is None or self._flushed:
             return
@@ -233,3 +241,49 @@ class GeometryFusion(HysteresisFusion):
         q = (a[0] * w[0], a[1] * w[1], a[2] * w[2], a[3] * w[3], a[4] * w[4])
         z = q[0] + q[1] + q[2] + q[3] + q[4]
         self._alpha = (q[0] / z, q[1] / z, q[2] / z, q[3] / z, q[4] / z)
+
+
+class SlopeFusion(HysteresisFusion):
+    """ "steady+slope": steady, holding a ramp while the ground ahead still slopes its way
+    (delay 1 frame).
+
+    After each push, `see_geometry(mode, ahead)` gives the mode the ground AHEAD_M ahead
+    shows by its slope (index into MODES, -1: not seen; inference.features.ground_ahead;
+    `mode`, the features' own reading, is not used). The decision leaves a ramp up or down
+    for level ground only when level ground's posterior reaches `hysteresis` (as in
+    steady+hysteresis) and the ground ahead has not shown that ramp in any of the last
+    SLOPE_HOLD_FRAMES frames up to the decided one. Every other switch, leaving stairs
+    included, is steady's.
+    """
+
+    uses_geometry = True
+    _RAMPS = (MODES.index("UR"), MODES.index("DR"))
+
+    def __init__(
+        self,
+        stay: float = STEADY_STAY,
+        evidence: float = STEADY_EVIDENCE,
+        hysteresis: float = HYSTERESIS,
+        hold_frames: int = SLOPE_HOLD_FRAMES,
+    ):
+        if int(hold_frames) != hold_frames or hold_frames < 1:
+            raise InferenceError(f"steady+slope: hold frames must be >= 1, got {hold_frames}")
+        super().__init__(stay, evidence, hysteresis)
+        self.method = "steady+slope"
+        self.hold_frames = int(hold_frames)
+        self._ahead: deque[int] = deque(maxlen=self.hold_frames)
+
+    def _reset_state(self) -> None:
+        super()._reset_state()
+        self._ahead.clear()
+
+    def see_geometry(self, mode: int, ahead: int = -1) -> None:
+        """The newest pushed frame's terrain: what its features show (`mode`, not used)
+        and the mode the ground ahead shows by its slope (`ahead`, -1: not seen)."""
+        if not self._flushed:
+            self._ahead.append(ahead)
+
+    def _may_leave(self, held: int, level_posterior: float) -> bool:
+        if held not in self._RAMPS:
+            return True
+        return level_posterior >= self.hysteresis and held not in self._ahead

@@ -397,6 +397,8 @@ def run_all(seconds: float = 15.0, progress=print) -> list[Result]:
     results.append(Result("fusion_update_steady_gait", gait_us, "us", 20.0, "lower"))
     geometry_us = bench_method_update("steady+geometry", 20000)
     results.append(Result("fusion_update_steady_geometry", geometry_us, "us", 20.0, "lower"))
+    slope_us = bench_method_update("steady+slope", 20000)
+    results.append(Result("fusion_update_steady_slope", slope_us, "us", 20.0, "lower"))
     results.append(
         Result(
             "fusion_speedup_vs_paper_loop",

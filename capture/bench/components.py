@@ -231,10 +231,11 @@ def bench_method_update(method: str, updates: int = 20000, seed: int = 0) -> flo
             times.append(clock() - start)
     elif getattr(fusion, "uses_geometry", False):  # the push and the frame's geometry
         shown = rng.integers(-1, N_MODES, size=len(frames)).tolist()
+        ahead = rng.integers(-1, N_MODES, size=len(frames)).tolist()
         for k, row in enumerate(frames):
             start = clock()
             fusion.push(row)
-            fusion.see_geometry(shown[k])
+            fusion.see_geometry(shown[k], ahead[k])
             times.append(clock() - start)
     else:
         for row in frames:

@@ -222,7 +222,7 @@ class Pipeline:
         A frame whose orientation is stale gets no decision: the CNN does not see it and
         the fusion holds (it is not fed), so nothing is decided on a wrongly levelled cloud.
         """
-        from inference.features import shown_mode, terrain_features
+        from inference.features import ground_ahead, shown_mode, terrain_features
         from inference.preprocess import STALE_ORIENTATION
 
         if quaternion is None:
@@ -255,7 +255,12 @@ class Pipeline:
             ]
             feats = terrain_features(pre.profile, hint) if pre.ok else None
             if getattr(self.fusion, "uses_geometry", False):  # decides this frame next push
-                self.fusion.see_geometry(shown_mode(feats.kind, feats.direction) if feats else -1)
+                if feats is None:
+                    self.fusion.see_geometry(-1, -1)
+                else:
+                    self.fusion.see_geometry(
+                        shown_mode(feats.kind, feats.direction), ground_ahead(feats.ahead_slope_deg)
+                    )
         return FrameResult(
             index=frame.index,
             time_ns=frame.device_time_ns if time_ns is None else time_ns,

@@ -24,7 +24,7 @@ import numpy as np
 from capture.recording import labels as L
 from capture.recording import topics as T
 from devices.frames import MODES
-from inference.features import shown_mode
+from inference.features import ground_ahead, shown_mode
 
 NONE = -1  # no mode, no frame
 
@@ -87,6 +87,14 @@ class FrameTable:
         where unknown or not recorded: the cue of fusion "steady+geometry"."""
         shown = [shown_mode(f.get("kind"), f.get("direction")) for f in self.features]
         return np.array(shown, dtype=int).reshape(-1)
+
+    @property
+    def ground_ahead(self) -> np.ndarray:
+        """The mode the ground ahead of each frame shows by its slope
+        (inference.features.ground_ahead), -1 where not seen or not recorded: the cue of
+        fusion "steady+slope"."""
+        ahead = [ground_ahead(f.get("ahead_slope_deg")) for f in self.features]
+        return np.array(ahead, dtype=int).reshape(-1)
 
 
 def mode_names(modes: np.ndarray) -> list[str]:

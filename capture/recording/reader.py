@@ -371,6 +371,8 @@ def read_trial(path: str | os.PathLike) -> dict:
       where the frame had no orientation: the gait cue of fusion "steady+gait"
     - geometry (N,): the mode the frame's terrain features show (/terrain/features,
       inference.features.shown_mode), -1 where unknown: the cue of "steady+geometry"
+    - ground_ahead (N,): the mode the ground ahead shows by its slope (/terrain/features,
+      inference.features.ground_ahead), -1 where not seen: the cue of "steady+slope"
     - label_changes: every recorded change [(time_ns, mode, source)] in time order, undos
       and what they undid included (the audit trail); reference_changes: the ones that
       define `labels`; metadata (typed); id; modes: MODES
@@ -394,6 +396,7 @@ def read_trial(path: str | os.PathLike) -> dict:
         "terrain_source": frames.terrain_source,
         "camera_elevation_deg": frames.camera_elevation_deg,
         "geometry": frames.geometry,
+        "ground_ahead": frames.ground_ahead,
         "label_changes": changes,
         "reference_changes": L.effective_changes(changes),
         "metadata": rec.metadata,

@@ -38,6 +38,7 @@ TITLES = {
     "steady+gait": "steady + gait",
     "steady+hysteresis": "steady + hysteresis",
     "steady+geometry": "steady + geometry",
+    "steady+slope": "steady + slope",
 }
 
 
@@ -90,14 +91,16 @@ def run_offline(
     probabilities: np.ndarray,
     elevation_deg: np.ndarray | None = None,
     geometry: np.ndarray | None = None,
+    ground_ahead: np.ndarray | None = None,
 ) -> FusionRun:
     """Push every frame through a fresh streaming object, then flush: the live decisions.
 
     A frame whose probabilities are not finite (a broken classifier) is pushed as uniform,
     carrying no evidence, and left undecided (-1): it is never scored as right. A method
     with gait cues (`uses_gait`) gets each frame's camera elevation, `elevation_deg`; one
-    with the geometry cue (`uses_geometry`) sees each frame's `geometry` after its push, as
-    the live pipeline shows it the frame's terrain features."""
+    with the geometry cue (`uses_geometry`) sees each frame's `geometry` and `ground_ahead`
+    (-1 where not given) after its push, as the live pipeline shows it the frame's terrain
+    features."""
     e = np.array(probabilities, dtype=float)
     unusable = ~np.all(np.isfinite(e), axis=1) if e.ndim == 2 else np.zeros(len(e), bool)
     e[unusable] = 1.0 / N_MODES
@@ -129,9 +132,11 @@ def run_offline(
             raise InferenceError(
                 f"{fusion.method} needs the terrain features of each frame (recordings)"
             )
-        for row, shown in zip(e, np.asarray(geometry, dtype=int).tolist()):
+        shown = np.asarray(geometry, dtype=int).tolist()
+        ahead = [-1] * n if ground_ahead is None else np.asarray(ground_ahead, dtype=int).tolist()
+        for row, mode, slope_mode in zip(e, shown, ahead):
             collect(fusion.push(row))
-            fusion.see_geometry(shown)
+            fusion.see_geometry(mode, slope_mode)
     else:
         for row in e:
             collect(fusion.push(row))
@@ -189,7 +194,13 @@ def evaluate_trial(
     params = params or FusionConfig()
     try:
         runs = {
-            m: run_offline(params.make(m), trial.probabilities, trial.elevation_deg, trial.geometry)
+            m: run_offline(
+                params.make(m),
+                trial.probabilities,
+                trial.elevation_deg,
+                trial.geometry,
+                trial.ground_ahead,
+            )
             for m in methods
         }
     except InferenceError as e:
@@ -346,7 +357,11 @@ def delay_sweep(
         def stage(method: str, stages=stages, p=p, trial=trial) -> FusionRun:
             if method not in stages:
                 stages[method] = run_offline(
-                    p.make(method), trial.probabilities, trial.elevation_deg, trial.geometry
+                    p.make(method),
+                    trial.probabilities,
+                    trial.elevation_deg,
+                    trial.geometry,
+                    trial.ground_ahead,
                 )
             return stages[method]
 

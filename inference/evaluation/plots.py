@@ -116,6 +116,13 @@ METHOD_STYLES |= {
         "marker": "*",
         "linestyle": (0, (2, 1)),
     },
+    "steady+slope": {
+        "color": "#000000",
+        "hatch": "",
+        "line": "#000000",
+        "marker": "P",
+        "linestyle": "-",
+    },
 }
 _SPARE_STYLES = (
     {

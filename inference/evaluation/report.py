@@ -81,7 +81,11 @@ def report(
                 if any(m.startswith("steady") for m in methods)
                 else {}
             ),
-            **({"hysteresis": params.hysteresis} if "steady+hysteresis" in methods else {}),
+            **(
+                {"hysteresis": params.hysteresis}
+                if {"steady+hysteresis", "steady+slope"} & set(methods)
+                else {}
+            ),
             **(
                 {
                     "geometry_hysteresis": params.geometry_hysteresis,

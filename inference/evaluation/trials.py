@@ -47,6 +47,7 @@ class Trial:
     locomotion: Any = None  # (N,) the subject's mode keyed live, when `reference` is terrain
     elevation_deg: np.ndarray | None = None  # (N,) camera above the horizon: gait cues
     geometry: np.ndarray | None = None  # (N,) the mode the terrain features show, -1: unknown
+    ground_ahead: np.ndarray | None = None  # (N,) the mode the ground ahead slopes as, -1: unknown
 
     def __post_init__(self) -> None:
         self.probabilities = np.asarray(self.probabilities, dtype=float)
@@ -82,13 +83,16 @@ class Trial:
                     f"{self.path}: {len(self.probabilities)} frames but "
                     f"{len(self.elevation_deg)} camera elevations"
                 )
-        if self.geometry is not None:
-            self.geometry = np.asarray(self.geometry, dtype=int)
-            if len(self.geometry) != len(self.probabilities):
-                raise InferenceError(
-                    f"{self.path}: {len(self.probabilities)} frames but "
-                    f"{len(self.geometry)} terrain geometries"
-                )
+        for name in ("geometry", "ground_ahead"):
+            cue = getattr(self, name)
+            if cue is not None:
+                cue = np.asarray(cue, dtype=int)
+                setattr(self, name, cue)
+                if len(cue) != len(self.probabilities):
+                    raise InferenceError(
+                        f"{self.path}: {len(self.probabilities)} frames but "
+                        f"{len(cue)} terrain geometries"
+                    )
 
     def references(self) -> dict[str, np.ndarray]:
         """Every reference the trial has, by name (the scored one first)."""
@@ -277,9 +281,11 @@ def trial_from_recording(path: str, data: Any, reference: str = "terrain") -> Tr
     elevation = get("camera_elevation_deg")
     if elevation is not None:
         elevation = np.asarray(elevation, dtype=float)
-    geometry = get("geometry")
+    geometry, ahead = get("geometry"), get("ground_ahead")
     if geometry is not None:
         geometry = np.asarray(geometry, dtype=int)
+    if ahead is not None:
+        ahead = np.asarray(ahead, dtype=int)
     finite = np.isfinite(probabilities).all(axis=1) if probabilities.ndim == 2 else None
     if finite is not None and not finite.all():
         log.warning("%s: %d frame(s) without a CNN output left out", path, (~finite).sum())
@@ -288,6 +294,16 @@ def trial_from_recording(path: str, data: Any, reference: str = "terrain") -> Tr
         times_s = times_s[finite] if times_s is not None else None
         elevation = elevation[finite] if elevation is not None else None
         geometry = geometry[finite] if geometry is not None else None
+        ahead = ahead[finite] if ahead is not None else None
     return Trial(
-        str(path), probabilities, chosen, metadata, times_s, reference, second, elevation, geometry
+        str(path),
+        probabilities,
+        chosen,
+        metadata,
+        times_s,
+        reference,
+        second,
+        elevation,
+        geometry,
+        ahead,
     )

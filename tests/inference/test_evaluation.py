@@ -50,7 +50,14 @@ def trials():
 
 
 # gait and geometry need a recording's cues
-SCORE_METHODS = [m for m in METHODS if m not in ("steady+gait", "steady+geometry")]
+SCORE_METHODS = [
+    m
+    for m in METHODS
+    if not (
+        getattr(make_fusion(m), "uses_gait", False)
+        or getattr(make_fusion(m), "uses_geometry", False)
+    )
+]
 
 
 @pytest.mark.parametrize("method", SCORE_METHODS)

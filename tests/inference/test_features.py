@@ -143,3 +143,28 @@ def test_degenerate_profiles_are_unknown(profile):
     f = terrain_features(profile)
     assert isinstance(f, TerrainFeatures) and f.kind == "unknown"
     assert f.slope_deg is None and f.riser_m is None and f.tread_m is None
+
+
+def test_the_ground_ahead_is_the_slope_a_step_ahead_not_the_terrain_in_view():
+    """On a ramp, the ground a step ahead slopes as the ramp; on level ground with a ramp up
+    farther ahead the features show the ramp, the ground ahead stays level (the cue of
+    steady+slope: a landing shows the next ramp only beyond it)."""
+    from inference.features import AHEAD_M, ground_ahead
+
+    on_ramp = features_over_poses(tr.ramp(-12.0), seed=7)
+    ahead = [ground_ahead(f.ahead_slope_deg) for f in on_ramp]
+    assert ahead.count(4) >= 0.8 * len(on_ramp) >= 5  # DR
+    assert all(abs(f.ahead_slope_deg + 12.0) < 1.0 for f in on_ramp if f.ahead_slope_deg)
+    before_ramp = features_over_poses(tr.ramp(12.0, start_m=AHEAD_M + 0.8), seed=8)
+    assert sum(f.kind == "ramp" and f.direction == "up" for f in before_ramp) >= 4
+    assert [ground_ahead(f.ahead_slope_deg) for f in before_ramp] == [0] * len(before_ramp)
+
+
+@pytest.mark.parametrize(
+    "slope, mode",
+    [(None, -1), (float("nan"), -1), (0.0, 0), (2.9, 0), (-2.9, 0), (3.5, 3), (-3.5, 4)],
+)
+def test_ground_ahead_names_the_mode_its_slope_shows(slope, mode):
+    from inference.features import ground_ahead
+
+    assert ground_ahead(slope) == mode

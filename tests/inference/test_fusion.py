@@ -324,6 +324,7 @@ def test_make_fusion_knows_every_method_and_its_delay():
         "steady+gait": 1,
         "steady+hysteresis": 1,
         "steady+geometry": 1,
+        "steady+slope": 1,
     }
     with pytest.raises(InferenceError, match="unknown fusion method"):
         make_fusion("kalman")
@@ -640,3 +641,93 @@ def test_shown_mode_names_the_terrain_the_features_show():
     assert [shown_mode("stairs", d) for d in ("up", "down")] == [1, 2]
     assert [shown_mode("ramp", d) for d in ("up", "down")] == [3, 4]
     assert shown_mode("unknown", "") == shown_mode(None) == shown_mode("ramp", "") == -1
+
+
+# --- steady+slope ------------------------------------------------------------------------
+
+
+def stream_slope(fusion, probabilities, ahead):
+    """Live use: push each frame, then show it its ground ahead; flush; decisions by frame."""
+    decisions = np.full(len(probabilities), -1)
+    outputs = []
+    for row, mode in zip(probabilities, ahead):
+        outputs.append(fusion.push(row))
+        fusion.see_geometry(-1, int(mode))
+    for out in [*outputs, *fusion.flush()]:
+        if out is not None:
+            decisions[out.frame] = out.decision
+    return decisions
+
+
+def ramp_then_level(misread: float = 0.97, run: int = 6):
+    """Down a ramp at 0.8 with `run` frames read as level ground at `misread` from frame 30
+    (the confident runs outdoors), more ramp, then level ground at 0.95 from frame 64."""
+    dr, lg = 4, 0
+
+    def scores(mode: int, p: float) -> list[float]:
+        return [p if j == mode else (1 - p) / 4 for j in range(5)]
+
+    return np.array([scores(dr, 0.8)] * 30 + [scores(lg, misread)] * run
+                    + [scores(dr, 0.8)] * (34 - run) + [scores(lg, 0.95)] * 30)  # fmt: skip
+
+
+def test_steady_slope_holds_a_ramp_while_the_ground_ahead_still_slopes():
+    """Six frames read as level ground at 0.97 on a ramp down: steady+hysteresis switches to
+    level ground and back; steady+slope holds the ramp while the ground ahead slopes down,
+    then follows the real change once the ground ahead has shown level ground for two
+    frames (SLOPE_HOLD_FRAMES)."""
+    frames = ramp_then_level()
+    dr, lg = 4, 0
+    ahead = [dr] * 65 + [lg] * 29  # the ground levels out a frame after the image changes
+    hysteresis = run_offline(make_fusion("steady+hysteresis"), frames).final
+    held = stream_slope(make_fusion("steady+slope"), frames, ahead)
+    assert lg in set(hysteresis[30:36]) and np.count_nonzero(np.diff(hysteresis)) == 3
+    assert set(held[:65]) == {dr} and np.count_nonzero(np.diff(held)) == 1
+    assert np.argmax(hysteresis[40:] == lg) + 40 == 64
+    assert np.argmax(held == lg) == 66
+
+
+def slope_reference(posteriors: np.ndarray, ahead, margin: float = 0.8, hold: int = 2):
+    """steady+slope by its definition: steady's decision (the posterior's argmax), except
+    that a move from a ramp (3, 4) to level ground (0) needs level ground's posterior at the
+    margin and the ramp not shown ahead in the last `hold` frames up to the decided one."""
+    out, held = [], -1
+    for k, g in enumerate(posteriors):
+        best = int(np.argmax(g))
+        if held in (3, 4) and best == 0:
+            recent = list(ahead[max(0, k - hold + 1) : k + 1])
+            if g[0] < margin or held in recent:
+                best = held
+        held = best
+        out.append(held)
+    return np.array(out)
+
+
+@pytest.mark.parametrize("seed", [5, 6])
+def test_steady_slope_is_steady_holding_ramps_by_the_ground_ahead(seed):
+    """Random scores and random ground ahead: every decision is the definition's; with the
+    ground ahead never showing a ramp, ramps are left at steady+hysteresis's margin and
+    stairs as steady leaves them."""
+    rng = np.random.default_rng(seed)
+    e = random_probabilities(rng, 400, concentration=0.3)
+    _, _, posteriors = stream(SteadyFusion(), e)
+    for ahead in (rng.integers(-1, 5, size=400), np.full(400, 4), np.zeros(400, int)):
+        decisions = stream_slope(make_fusion("steady+slope"), e, ahead)
+        np.testing.assert_array_equal(decisions, slope_reference(posteriors, ahead))
+    steady = stream(SteadyFusion(), e)[0]
+    level_ahead = stream_slope(make_fusion("steady+slope"), e, np.zeros(400, int))
+    hysteresis = run_offline(make_fusion("steady+hysteresis"), e).final
+    on_ramps = np.isin(hysteresis, (3, 4)) | np.isin(steady, (3, 4))
+    assert (level_ahead != steady).any() and (level_ahead != hysteresis).any()
+    np.testing.assert_array_equal(level_ahead[on_ramps], hysteresis[on_ramps])
+
+
+def test_steady_slope_parameters_are_checked_and_configured():
+    from inference.fusion import SlopeFusion
+    from inference.fusion_design import SLOPE_HOLD_FRAMES
+
+    with pytest.raises(InferenceError, match="hold frames"):
+        SlopeFusion(hold_frames=0)
+    fusion = make_fusion("steady+slope", hysteresis=0.7)
+    assert (fusion.hysteresis, fusion.hold_frames, SLOPE_HOLD_FRAMES) == (0.7, 2, 2)
+    assert fusion.uses_geometry and fusion.delay_frames == 1

@@ -22,7 +22,7 @@ from tui.commands import add_cluster_argument, count, eval_model, positive
 HELP = "evaluate classifiers and fusion on score files or recordings"
 
 DEFAULT_METHODS = "cnn,cnn+voting,hmm,hmm+voting,steady,steady+hysteresis"
-RECORDING_METHODS = DEFAULT_METHODS + ",steady+gait,steady+geometry"  # recordings carry cues
+RECORDING_METHODS = DEFAULT_METHODS + ",steady+gait,steady+geometry,steady+slope"  # with cues
 SWEEP_DEFAULT = 6  # frames; the paper's trade-off figure reaches 6
 SWEEP_MAX = 100  # frames: several seconds of delay, beyond any use for a prosthesis
 
@@ -57,12 +57,14 @@ def _common_arguments(p: argparse.ArgumentParser) -> None:
         type=_methods,
         default=None,
         metavar="LIST",
-        help=f"comma-separated methods (default: {DEFAULT_METHODS}, and steady+gait and "
-        "steady+geometry for recordings; steady switches once per terrain change, with "
+        help=f"comma-separated methods (default: {DEFAULT_METHODS}, and steady+gait, "
+        "steady+geometry and steady+slope for recordings; steady switches once per terrain "
+        "change, with "
         "[fusion] stay and evidence; steady+hysteresis leaves stairs or a ramp for level "
         "ground only at [fusion] hysteresis posterior; "
         "steady+gait adds the gait phase from the camera's pitch; steady+geometry the "
-        "terrain features, with [fusion] geometry_hysteresis and geometry_evidence; also "
+        "terrain features, with [fusion] geometry_hysteresis and geometry_evidence; "
+        "steady+slope holds a ramp while the ground ahead still slopes its way; also "
         "forward, fixed-lag: standard HMM filter and smoother)",
     )
     p.add_argument(

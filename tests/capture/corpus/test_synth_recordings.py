@@ -66,9 +66,9 @@ def test_recordings_are_training_sessions(synth_folder):
 
 
 def test_each_frame_carries_the_geometry_its_terrain_features_show(synth_folder):
-    """The cue of fusion "steady+geometry" offline: /terrain/features as the live pipeline
-    recorded them, one mode (or -1) per decided frame."""
-    from inference.features import shown_mode
+    """The cues of fusions "steady+geometry" and "steady+slope" offline: /terrain/features
+    as the live pipeline recorded them, one mode (or -1) per decided frame."""
+    from inference.features import ground_ahead, shown_mode
 
     for f in sorted(synth_folder.glob("*.mcap")):
         trial = read_trial(f)
@@ -80,6 +80,11 @@ def test_each_frame_carries_the_geometry_its_terrain_features_show(synth_folder)
         ]
         assert trial["geometry"].tolist() == expected
         assert (trial["geometry"] >= 0).any()
+        ahead = [
+            ground_ahead(features[i].get("ahead_slope_deg")) if i in features else -1
+            for i in trial["frame_index"].tolist()
+        ]
+        assert trial["ground_ahead"].tolist() == ahead and (trial["ground_ahead"] >= 0).any()
 
 
 def test_frames_before_the_first_operator_label_are_unlabelled(tmp_path):
@@ -95,23 +100,26 @@ def test_frames_before_the_first_operator_label_are_unlabelled(tmp_path):
     assert np.all(session.labels[~unlabelled[: len(session.labels)]] >= 0)
 
 
-def test_steady_geometry_decides_offline_as_it_decided_live(tmp_path):
-    """A recording made with [fusion] method = "steady+geometry": the fusion run offline on
-    the recorded CNN outputs and terrain features repeats every live decision and posterior
-    (so the live pipeline showed the fusion each frame's features, as eval does)."""
+@pytest.mark.parametrize("method", ["steady+geometry", "steady+slope"])
+def test_a_geometry_fusion_decides_offline_as_it_decided_live(tmp_path, method):
+    """A recording made with [fusion] method = "steady+geometry" (or "steady+slope"): the
+    fusion run offline on the recorded CNN outputs and terrain features repeats every live
+    decision and posterior (so the live pipeline showed the fusion each frame's features,
+    as eval does)."""
     from inference.evaluation.metrics import run_offline
     from inference.fusion import make_fusion
 
     config = tmp_path / "walkcap.toml"
-    config.write_text('[fusion]\nmethod = "steady+geometry"\n')
+    config.write_text(f'[fusion]\nmethod = "{method}"\n')
     out = tmp_path / "synth"
     args = ["--config", str(config), "synth", "--format", "recording", "--out", str(out)]
     args += ["--sessions", "1", "--preset", "outdoor", "--seed", "78", "--frames", "60"]
     assert cli.main(args) == 0
     (path,) = out.glob("*.mcap")
     trial = read_trial(path)
-    fusion = make_fusion("steady+geometry")
-    offline = run_offline(fusion, trial["probabilities"], None, trial["geometry"])
+    fusion = make_fusion(method)
+    cues = trial["geometry"], trial["ground_ahead"]
+    offline = run_offline(fusion, trial["probabilities"], None, *cues)
     live = trial["decisions"]
     assert (live >= 0).sum() == len(live) - 1  # the last frame waits for a next one
     np.testing.assert_array_equal(offline.final[live >= 0], live[live >= 0])
@@ -121,5 +129,6 @@ def test_steady_geometry_decides_offline_as_it_decided_live(tmp_path):
         for m in open_recording(path).messages(["/inference/fused"])
     }
     assert len(posteriors) == len(live) - 1 and (trial["geometry"] >= 0).mean() > 0.5
+    assert (trial["ground_ahead"] >= 0).mean() > 0.5
     for k, posterior in posteriors.items():
         np.testing.assert_allclose(offline.posteriors[k], posterior, rtol=1e-9)

@@ -6,22 +6,24 @@ from capture.live.pipeline import Pipeline
 from devices.rotations import quat_from_euler
 from devices.simulator.synthetic import synthetic_frame
 from inference.config import PreprocessConfig
-from inference.features import shown_mode
+from inference.features import ground_ahead, shown_mode
 from inference.fusion import GeometryFusion
 
 
 def test_the_pipeline_shows_a_geometry_fusion_each_frames_features():
 
     class Spy(GeometryFusion):
-        def see_geometry(self, mode):
+        def see_geometry(self, mode, ahead=-1):
             seen.append(mode)
-            super().see_geometry(mode)
+            ahead_seen.append(ahead)
+            super().see_geometry(mode, ahead)
 
     class Classifier:
         def predict(self, image):
             return np.array([0.6, 0.1, 0.1, 0.1, 0.1])
 
     seen: list = []
+    ahead_seen: list = []
     pipeline = Pipeline(PreprocessConfig(), Classifier(), Spy())
     results = []
     for k in (0, 11, 22):  # a thigh swinging (synthetic_frame's)
@@ -29,3 +31,5 @@ def test_the_pipeline_shows_a_geometry_fusion_each_frames_features():
         results.append(pipeline.process(synthetic_frame(k, 1_000_000 * k), q))
     shown = [shown_mode(r.features.get("kind"), r.features.get("direction")) for r in results]
     assert seen == shown and -1 not in seen  # each frame's features, after its push
+    ahead = [ground_ahead(r.features.get("ahead_slope_deg")) for r in results]
+    assert ahead_seen == ahead and set(ahead) != {-1}  # and the ground ahead, seen or not
