@@ -30,8 +30,8 @@ Methods (`make_fusion`), with the number of frames each decision waits for:
   riser or a slope still in view holds stairs or a ramp against a run of level-ground
   misreads (`GeometryFusion`; delay 1).
 - "steady+slope": steady, except that it leaves a ramp for level ground only at
-  steady+hysteresis's margin and once the ground about a step ahead (the terrain
-  features' slope there, `see_geometry`) has stopped sloping the ramp's way
+  steady+hysteresis's margin, and a ramp down only once the ground about a step ahead
+  (the terrain features' slope there, `see_geometry`) has stopped sloping down
   (`SlopeFusion`; delay 1).
 The standard HMMs use the CNN output as a scaled emission likelihood, as the paper does.
 

@@ -244,20 +244,21 @@ class GeometryFusion(HysteresisFusion):
 
 
 class SlopeFusion(HysteresisFusion):
-    """ "steady+slope": steady, holding a ramp while the ground ahead still slopes its way
-    (delay 1 frame).
+    """ "steady+slope": steady, holding a ramp down while the ground ahead still slopes
+    down (delay 1 frame).
 
     After each push, `see_geometry(mode, ahead)` gives the mode the ground AHEAD_M ahead
     shows by its slope (index into MODES, -1: not seen; inference.features.ground_ahead;
-    `mode`, the features' own reading, is not used). The decision leaves a ramp up or down
-    for level ground only when level ground's posterior reaches `hysteresis` (as in
-    steady+hysteresis) and the ground ahead has not shown that ramp in any of the last
-    SLOPE_HOLD_FRAMES frames up to the decided one. Every other switch, leaving stairs
-    included, is steady's.
+    `mode`, the features' own reading, is not used). The decision leaves a ramp for level
+    ground only when level ground's posterior reaches `hysteresis` (as in
+    steady+hysteresis), and a ramp down only once the ground ahead has not shown a ramp
+    down in any of the last SLOPE_HOLD_FRAMES frames up to the decided one. Every other
+    switch, leaving stairs included, is steady's.
     """
 
     uses_geometry = True
     _RAMPS = (MODES.index("UR"), MODES.index("DR"))
+    _HELD = MODES.index("DR")  # held by the ground ahead
 
     def __init__(
         self,
@@ -286,4 +287,6 @@ class SlopeFusion(HysteresisFusion):
     def _may_leave(self, held: int, level_posterior: float) -> bool:
         if held not in self._RAMPS:
             return True
-        return level_posterior >= self.hysteresis and held not in self._ahead
+        if held == self._HELD and held in self._ahead:
+            return False
+        return level_posterior >= self.hysteresis

@@ -690,13 +690,14 @@ def test_steady_slope_holds_a_ramp_while_the_ground_ahead_still_slopes():
 def slope_reference(posteriors: np.ndarray, ahead, margin: float = 0.8, hold: int = 2):
     """steady+slope by its definition: steady's decision (the posterior's argmax), except
     that a move from a ramp (3, 4) to level ground (0) needs level ground's posterior at the
-    margin and the ramp not shown ahead in the last `hold` frames up to the decided one."""
+    margin, and from a ramp down (4) also no ramp down shown ahead in the last `hold` frames
+    up to the decided one."""
     out, held = [], -1
     for k, g in enumerate(posteriors):
         best = int(np.argmax(g))
         if held in (3, 4) and best == 0:
             recent = list(ahead[max(0, k - hold + 1) : k + 1])
-            if g[0] < margin or held in recent:
+            if g[0] < margin or (held == 4 and 4 in recent):
                 best = held
         held = best
         out.append(held)
@@ -706,16 +707,16 @@ def slope_reference(posteriors: np.ndarray, ahead, margin: float = 0.8, hold: in
 @pytest.mark.parametrize("seed", [5, 6])
 def test_steady_slope_is_steady_holding_ramps_by_the_ground_ahead(seed):
     """Random scores and random ground ahead: every decision is the definition's; with the
-    ground ahead never showing a ramp, ramps are left at steady+hysteresis's margin and
+    ground ahead never showing a ramp down, ramps are left at steady+hysteresis's margin and
     stairs as steady leaves them."""
     rng = np.random.default_rng(seed)
     e = random_probabilities(rng, 400, concentration=0.3)
     _, _, posteriors = stream(SteadyFusion(), e)
-    for ahead in (rng.integers(-1, 5, size=400), np.full(400, 4), np.zeros(400, int)):
+    for ahead in (rng.integers(-1, 5, size=400), np.full(400, 4), np.full(400, 3)):
         decisions = stream_slope(make_fusion("steady+slope"), e, ahead)
         np.testing.assert_array_equal(decisions, slope_reference(posteriors, ahead))
     steady = stream(SteadyFusion(), e)[0]
-    level_ahead = stream_slope(make_fusion("steady+slope"), e, np.zeros(400, int))
+    level_ahead = stream_slope(make_fusion("steady+slope"), e, np.full(400, 3))  # up: no hold
     hysteresis = run_offline(make_fusion("steady+hysteresis"), e).final
     on_ramps = np.isin(hysteresis, (3, 4)) | np.isin(steady, (3, 4))
     assert (level_ahead != steady).any() and (level_ahead != hysteresis).any()
