@@ -674,7 +674,7 @@ def ramp_then_level(misread: float = 0.97, run: int = 6):
 def test_steady_slope_holds_a_ramp_while_the_ground_ahead_still_slopes():
     """Six frames read as level ground at 0.97 on a ramp down: steady+hysteresis switches to
     level ground and back; steady+slope holds the ramp while the ground ahead slopes down,
-    then follows the real change once the ground ahead has shown level ground for two
+    then follows the real change once the ground ahead has shown level ground for three
     frames (SLOPE_HOLD_FRAMES)."""
     frames = ramp_then_level()
     dr, lg = 4, 0
@@ -684,10 +684,10 @@ def test_steady_slope_holds_a_ramp_while_the_ground_ahead_still_slopes():
     assert lg in set(hysteresis[30:36]) and np.count_nonzero(np.diff(hysteresis)) == 3
     assert set(held[:65]) == {dr} and np.count_nonzero(np.diff(held)) == 1
     assert np.argmax(hysteresis[40:] == lg) + 40 == 64
-    assert np.argmax(held == lg) == 66
+    assert np.argmax(held == lg) == 67
 
 
-def slope_reference(posteriors: np.ndarray, ahead, margin: float = 0.8, hold: int = 2):
+def slope_reference(posteriors: np.ndarray, ahead, margin: float = 0.8, hold: int = 3):
     """steady+slope by its definition: steady's decision (the posterior's argmax), except
     that a move from a ramp (3, 4) to level ground (0) needs level ground's posterior at the
     margin, and from a ramp down (4) also no ramp down shown ahead in the last `hold` frames
@@ -730,5 +730,5 @@ def test_steady_slope_parameters_are_checked_and_configured():
     with pytest.raises(InferenceError, match="hold frames"):
         SlopeFusion(hold_frames=0)
     fusion = make_fusion("steady+slope", hysteresis=0.7)
-    assert (fusion.hysteresis, fusion.hold_frames, SLOPE_HOLD_FRAMES) == (0.7, 2, 2)
+    assert (fusion.hysteresis, fusion.hold_frames, SLOPE_HOLD_FRAMES) == (0.7, 3, 3)
     assert fusion.uses_geometry and fusion.delay_frames == 1
