@@ -121,7 +121,7 @@ GEOMETRY_HYSTERESIS = 0.6
 # removed no spurious switch on the design recordings). Designed on 72 simulated recordings
 # (`walkcap synth --format recording --sessions 12 --seed 900000`, `--sessions 12 --preset
 # outdoor --seed 910000`, `--sessions 24 --preset outdoor --seed 920000` and `--sessions 24
-# --preset indoor --seed 940000`; 0.75 or 1.0 m ahead, 3 or 5 degrees, 1-3 frames, margins
+# --preset indoor --seed 940000`; 0.75 or 1.0 m ahead, 3 or 5 degrees, 1-10 frames, margins
 # 0-0.9, which ramps and stairs are held): outdoors 6 and 9 spurious switches against
 # Algorithm 1's 24 and 33, at 96.65 and 97.01 against 95.78 and 96.04 % accuracy; indoors
 # 97.90 and 97.68 against 97.51 and 97.28 %.
