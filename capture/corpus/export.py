@@ -57,6 +57,7 @@ FORMATS = ("parquet", "csv", "mat")
 FEATURE_FIELDS = (
     "kind",
     "slope_deg",
+    "ahead_slope_deg",
     "riser_m",
     "tread_m",
     "direction",

@@ -117,11 +117,11 @@ METHOD_STYLES |= {
         "linestyle": (0, (2, 1)),
     },
     "steady+slope": {
-        "color": "#000000",
-        "hatch": "",
+        "color": "#ffffff",
+        "hatch": "\\\\\\\\",
         "line": "#000000",
-        "marker": "P",
-        "linestyle": "-",
+        "marker": "<",
+        "linestyle": (0, (4, 1, 1, 1, 1, 1)),
     },
 }
 _SPARE_STYLES = (
