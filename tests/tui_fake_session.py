@@ -84,6 +84,7 @@ class FakeSession:
         self.start_error = start_error
         self.start_gate = start_gate  # start() waits for it, like devices being opened
         self.recordings = recordings or Path("recordings")
+        self.fusion_method = "hmm+voting"  # the live default
         self.started = threading.Event()
         self.stopped = 0
         self.labels: list[LabelChange] = []
@@ -245,4 +246,5 @@ class FakeSession:
             recording_started_ns=started,
             frames=1300,
             latency_ms={"p50": 11.8, "p99": 21.3},
+            fusion_method=self.fusion_method,
         )

@@ -24,6 +24,7 @@ from capture.recording.labels import effective_changes
 from capture.recording.writer import RecorderState
 from devices.clock import now_ns
 from devices.frames import MODE_NAMES, MODES
+from inference.evaluation.metrics import TITLES
 from tui.source import Playback
 from tui.widgets.binary_image import BinaryImage
 from tui.widgets.decision import DecisionDisplay
@@ -170,7 +171,7 @@ class LiveScreen(Screen):
             "recording": "recording",
             "image": "image",
             "profile": "profile",
-            "decision": "fused decision (HMM)",
+            "decision": "fused decision",
             "probabilities": "CNN probabilities",
             "features": "terrain geometry",
             "timeline": "last 20 s",
@@ -213,6 +214,11 @@ class LiveScreen(Screen):
         self.present(snap)
 
     def present(self, snap: Snapshot) -> None:
+        if snap.fusion_method:  # the live session's method, or the one a replay recorded
+            title = f"fused: {TITLES.get(snap.fusion_method, snap.fusion_method)}"
+            panel = self.query_one("#decision")
+            if panel.border_title != title:
+                panel.border_title = title
         self.refreshes += 1
         self._snapshot = snap
         latest = snap.latest

@@ -370,6 +370,7 @@ class ReplaySource:
             frames=k + 1,
             latency_ms={},
             stale_frames=int(self._stale_upto[k]),
+            fusion_method=str(self.metadata.get("software", {}).get("fusion_method") or ""),
         )
 
 

@@ -81,6 +81,7 @@ class Snapshot:
     walker_mode: str | None = None  # mock devices: the walker's locomotion mode, to key
     alarms: AlarmState | None = None  # gaps this trial, and what the operator must see now
     stale_frames: int = 0  # frames of this (or the last) trial left undecided: stale IMU
+    fusion_method: str = ""  # the method behind the fused decisions ("": not known)
 
 
 HOST_STALL_NS = 1_000_000_000  # the monitor (every 0.2 s) not run for this long: a host stall
@@ -539,6 +540,7 @@ class Session:
             frames=published.frames,
             stale_frames=published.stale_frames,
             latency_ms=published.latency_ms,
+            fusion_method=self.pipeline.fusion.method if self.pipeline else "",
         )
         if sync is not None:
             snap.sync = {"p50_ms": float(np.median(sync)), "p99_ms": float(np.percentile(sync, 99))}

@@ -89,6 +89,17 @@ def _row(app, name: str) -> str:
     return next(line for line in screen_text(app).splitlines() if f"│ {name} " in line)
 
 
+async def test_the_decision_panel_names_the_fusion_method_it_shows():
+    """The live session's configured method (or a replay's recorded one), not always HMM."""
+    fake = FakeSession()
+    fake.fusion_method = "steady+slope"
+    app = WalkcapApp(Config(), session=fake, ask_subject=False)
+    async with app.run_test(size=(160, 48)) as pilot:
+        await _live(pilot)
+        text = screen_text(app)
+        assert "fused: steady + slope" in text and "(HMM)" not in text
+
+
 async def test_the_true_strip_shows_the_labels_as_they_stand_after_an_undo():
     fake = LabelledFrames()
     app = WalkcapApp(Config(), session=fake, ask_subject=False)
