@@ -64,7 +64,7 @@ def _common_arguments(p: argparse.ArgumentParser) -> None:
         "ground only at [fusion] hysteresis posterior; "
         "steady+gait adds the gait phase from the camera's pitch; steady+geometry the "
         "terrain features, with [fusion] geometry_hysteresis and geometry_evidence; "
-        "steady+slope holds a ramp while the ground ahead still slopes its way; also "
+        "steady+slope holds a ramp down while the ground ahead still slopes down; also "
         "forward, fixed-lag: standard HMM filter and smoother)",
     )
     p.add_argument(
