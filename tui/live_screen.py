@@ -134,6 +134,7 @@ class LiveScreen(Screen):
         self.refreshes = 0  # views drawn from a snapshot (tests check freeze with it)
         self._snapshot: Snapshot | None = None
         self._fused: int | None = None
+        self._fusion_method = ""  # the one the decision panel's title names
         self._last_event_ns: int | None = None
         self._failure_shown = False
         # The label changes keyed here, undos included (time_ns, mode, source): the true
@@ -214,11 +215,12 @@ class LiveScreen(Screen):
         self.present(snap)
 
     def present(self, snap: Snapshot) -> None:
-        if snap.fusion_method:  # the live session's method, or the one a replay recorded
-            title = f"fused: {TITLES.get(snap.fusion_method, snap.fusion_method)}"
-            panel = self.query_one("#decision")
-            if panel.border_title != title:
-                panel.border_title = title
+        if snap.fusion_method != self._fusion_method:  # the session's, or a replay's recorded
+            self._fusion_method = snap.fusion_method
+            method = TITLES.get(snap.fusion_method, snap.fusion_method)
+            self.query_one("#decision").border_title = (
+                f"fused: {method}" if method else "fused decision"
+            )
         self.refreshes += 1
         self._snapshot = snap
         latest = snap.latest

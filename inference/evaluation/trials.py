@@ -83,15 +83,14 @@ class Trial:
                     f"{self.path}: {len(self.probabilities)} frames but "
                     f"{len(self.elevation_deg)} camera elevations"
                 )
-        for name in ("geometry", "ground_ahead"):
+        for name, what in (("geometry", "terrain geometries"), ("ground_ahead", "grounds ahead")):
             cue = getattr(self, name)
             if cue is not None:
                 cue = np.asarray(cue, dtype=int)
                 setattr(self, name, cue)
                 if len(cue) != len(self.probabilities):
                     raise InferenceError(
-                        f"{self.path}: {len(self.probabilities)} frames but "
-                        f"{len(cue)} terrain geometries"
+                        f"{self.path}: {len(self.probabilities)} frames but {len(cue)} {what}"
                     )
 
     def references(self) -> dict[str, np.ndarray]:
