@@ -314,6 +314,19 @@ class WalkcapApp(App):
         report = message.report
         self.preflight_report = report
         self.preflight_state = "ok" if report.ok else "failed"
+        for item in report.items:  # the recordings inside a git checkout, say
+            if item.name == "output folder" and item.warning:
+                self.notify(
+                    f"{item.name}: {item.warning}",
+                    severity="warning",
+                    timeout=15,
+                    short=(
+                        "the recordings folder is inside a git checkout: git clean -xfd "
+                        "deletes it (walkcap check says more)"
+                        if "git_work_tree" in item.details
+                        else ""
+                    ),
+                )
         if report.ok:
             self._set_status("")
         else:
