@@ -194,12 +194,14 @@ class WalkcapApp(App):
         severity="information",
         timeout: float | None = None,
         markup: bool = True,
+        short: str = "",
     ) -> None:
         """A notice goes to the live screen's notice line, never over its panels (a toast
         would hide the newest seconds of the strips); only the session form, which has no
-        notice line, shows it as a toast as well. Thread-safe, as App.notify is."""
+        notice line, shows it as a toast as well. `short`: the same in fewer words, for a
+        line too narrow for the whole (the log has the whole). Thread-safe, as App.notify is."""
         text = f"{title}: {message}" if title else str(message)
-        notice = Notice(" ".join(text.split()), str(severity))
+        notice = Notice(" ".join(text.split()), str(severity), short=" ".join(short.split()))
         level = {"error": logging.ERROR, "warning": logging.WARNING}.get(severity, logging.INFO)
         log.log(level, "notice: %s", notice.text)  # tui.log: what the operator was told
         self.post_message(messages.NoticePosted(notice, title, message, severity, timeout, markup))
@@ -312,6 +314,19 @@ class WalkcapApp(App):
         report = message.report
         self.preflight_report = report
         self.preflight_state = "ok" if report.ok else "failed"
+        for item in report.items:  # the recordings inside a git checkout, say
+            if item.name == "output folder" and item.warning:
+                self.notify(
+                    f"{item.name}: {item.warning}",
+                    severity="warning",
+                    timeout=15,
+                    short=(
+                        "the recordings folder is inside a git checkout: git clean -xfd "
+                        "deletes it (walkcap check says more)"
+                        if "git_work_tree" in item.details
+                        else ""
+                    ),
+                )
         if report.ok:
             self._set_status("")
         else:
@@ -549,6 +564,7 @@ class WalkcapApp(App):
                 title="recording failed",
                 severity="error",
                 timeout=30,
+                short=f"recording failed: {name}: {stats.message}",
             )
         else:
             size = stats.bytes_written if stats else None
@@ -629,6 +645,7 @@ class WalkcapApp(App):
             f"saved {message.path.name}: its labels are the terrain reference, the live keys "
             "its locomotion reference (the original is unchanged)",
             timeout=8,
+            short=f"saved {message.path.name} (the original is unchanged)",
         )
 
     def _refresh_live(self) -> None:

@@ -472,7 +472,23 @@ class LiveScreen(Screen):
         before = source.label
         change = source.set_label(mode)  # stamped inside, at this call: no waiting on the display
         self._keyed(change.time_ns, mode, "operator", before)
+        if isinstance(source, Playback):
+            pos = source.position()[0]
+            self._correction_notice(
+                source,
+                f"correction: {MODE_NAMES[mode]} ({mode}) from {pos:.1f} s on",
+                f"{mode} from {pos:.1f} s",
+            )
         self._after_command()
+
+    def _correction_notice(self, source: Playback, what: str, brief: str) -> None:
+        """Each replay correction said at once, and that it is not saved yet."""
+        n = len(source.corrections)
+        self.app.notify(
+            f"{what}; {n} correction(s) not saved yet: w writes them to a new file",
+            timeout=4,
+            short=f"{brief}; {n} unsaved (w saves)",
+        )
 
     def action_undo(self) -> None:
         source = self._source_or_warn()
@@ -483,6 +499,9 @@ class LiveScreen(Screen):
             self.notify("no label to undo", timeout=2)
         else:
             self._keyed(change.time_ns, change.mode, "undo", None)
+            if isinstance(source, Playback):
+                text = f"the last correction ({change.mode}) taken back"
+                self._correction_notice(source, text, f"{change.mode} taken back")
         self._after_command()
 
     def action_marker(self) -> None:

@@ -256,11 +256,13 @@ class ReplaySource:
     def set_label(
         self, mode: str, source: str = CORRECTION, time_ns: int | None = None
     ) -> LabelChange:
-        """The true mode from the replay position on (until the next change)."""
+        """The true mode from the frame on screen on (until the next change): the frame the
+        operator looks at is the first one relabelled, so the strip shows it at once."""
         if mode not in MODES:
             raise CaptureError(f"unknown mode {mode!r} (one of {', '.join(MODES)})")
         if time_ns is None:
-            _, time_ns = self._cursor()
+            k, t = self._cursor()
+            time_ns = min(t, int(self.frames.time_ns[k])) if len(self.frames.time_ns) else t
         change = LabelChange(int(time_ns), mode, CORRECTION)
         self.corrections.append(change)
         self._unsaved = True

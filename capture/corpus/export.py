@@ -54,6 +54,27 @@ from devices.frames import MODES
 
 TABLES = ("frames", "imu", "labels", "events", "trials")
 FORMATS = ("parquet", "csv", "mat")
+# The trials table's session and software columns, the same in every corpus whatever its
+# files' metadata holds: field -> pandas dtype (missing: NA, or "" for text).
+SESSION_COLUMNS = {
+    "height_m": "float64",
+    "weight_kg": "float64",
+    "age": "Int64",
+    "sex": "object",
+    "amputee": "boolean",
+    "side": "object",
+    "residual_limb_cm": "float64",
+    "notes": "object",
+    "operator": "object",
+    "supersedes": "object",
+}
+SOFTWARE_COLUMNS = {
+    "model_hash": "object",
+    "model_path": "object",
+    "walkcap_version": "object",
+    "fusion_window": "Int64",
+    "fusion_vote_delay": "Int64",
+}
 FEATURE_FIELDS = (
     "kind",
     "slope_deg",
@@ -115,8 +136,40 @@ def tables(path: str | os.PathLike) -> dict:
         "imu": _frame(pd, identity, _imu_columns(imu, imu_t, offset, t0), len(imu)),
         "labels": _frame(pd, identity, _label_columns(changes, label_t, offset, t0), len(changes)),
         "events": _frame(pd, identity, _event_columns(events, event_t, offset, t0), len(events)),
-        "trials": pd.DataFrame([_trial_row(rec, member, identity, table)]),
+        "trials": _trials_frame(pd, _trial_row(rec, member, identity, table)),
     }
+
+
+def _trials_frame(pd, row: dict):
+    """One file's trials row with its fixed columns typed, so that every file's row (and
+    so every corpus's table) has the same columns and dtypes."""
+    df = pd.DataFrame([row])
+    typed = {f"session_{k}": t for k, t in SESSION_COLUMNS.items()} | SOFTWARE_COLUMNS
+    for stream in GAP_TOPICS.values():
+        typed |= {f"{stream}_{k}": "Int64" for k in ("gaps", "missing", "late")}
+        typed[f"{stream}_longest_gap_s"] = "float64"
+    for column, dtype in typed.items():
+        df[column] = pd.array([_typed(row[column], dtype)], dtype=dtype)
+    return df
+
+
+def _typed(value, dtype: str):
+    """A metadata value as the column's type; None when absent or not of that type (a
+    damaged or foreign file's metadata never breaks the table)."""
+    if value is None or value == "":
+        return "" if dtype == "object" else None
+    try:
+        if dtype == "float64":
+            return float(value)
+        if dtype == "Int64":
+            return None if isinstance(value, bool) else int(value)
+        if dtype == "boolean":
+            return value if isinstance(value, bool) else None
+    except (TypeError, ValueError):
+        return None
+    if isinstance(value, list):  # supersedes: the ids, space-separated
+        return " ".join(str(v) for v in value)
+    return _json_text(value) if isinstance(value, dict) else str(value)
 
 
 def _frame(pd, identity: dict, columns: dict, n: int):
@@ -221,30 +274,23 @@ def _trial_row(rec, member, identity: dict, table: FrameTable) -> dict:
             "unix_offset_ns": offset,
         }
     )
+    # a fixed set of columns whatever the metadata holds (SESSION_COLUMNS; absent: NA)
     session = rec.metadata.get("session", {})
-    for key, value in session.items():
-        if key not in ("subject", "condition", "trial"):
-            trials[f"session_{key}"] = (
-                value if not isinstance(value, (list, dict)) else (_json_text(value))
-            )
+    for key in SESSION_COLUMNS:
+        trials[f"session_{key}"] = session.get(key)
     software = rec.metadata.get("software", {})
-    for key in (
-        "model_hash",
-        "model_path",
-        "walkcap_version",
-        "fusion_window",
-        "fusion_vote_delay",
-    ):
-        if key in software:
-            trials[key] = software[key]
+    for key in SOFTWARE_COLUMNS:
+        trials[key] = software.get(key)
 
     # loss by the one definition of the live alarms and `walkcap info` (capture.recording.gaps)
-    for topic, loss in recording_loss(rec).items():
-        stream = GAP_TOPICS[topic]
-        trials[f"{stream}_gaps"] = len(loss.gaps)
-        trials[f"{stream}_missing"] = loss.missing
-        trials[f"{stream}_longest_gap_s"] = loss.longest_s
-        trials[f"{stream}_late"] = len(loss.late)
+    # (a stream the file does not hold: NA in its columns, which are always there)
+    losses = recording_loss(rec)
+    for topic, stream in GAP_TOPICS.items():
+        loss = losses.get(topic)
+        trials[f"{stream}_gaps"] = None if loss is None else len(loss.gaps)
+        trials[f"{stream}_missing"] = None if loss is None else loss.missing
+        trials[f"{stream}_longest_gap_s"] = None if loss is None else loss.longest_s
+        trials[f"{stream}_late"] = None if loss is None else len(loss.late)
     return trials
 
 
@@ -388,14 +434,16 @@ def matlab_name(name: str) -> str:
 
 def _mat_struct(df) -> dict:
     """A DataFrame as a MATLAB struct of columns: integers as int64 (double, gaps NaN,
-    where a value is missing), other numbers as double, booleans as logical, text as
-    cell arrays of char."""
+    where a value is missing), other numbers as double, booleans as logical (a flag that
+    may be unknown as double: 1, 0, NaN), text as cell arrays of char."""
     from pandas.api.types import is_bool_dtype, is_integer_dtype, is_numeric_dtype
 
     out = {}
     for column in df.columns:
         s = df[column]
-        if is_bool_dtype(s.dtype):
+        if isinstance(s.dtype, _pd().BooleanDtype):  # a flag that may be unknown: 1, 0 or NaN
+            values = s.astype("float64").to_numpy(na_value=np.nan)
+        elif is_bool_dtype(s.dtype):
             values = s.to_numpy(dtype=bool)
         elif is_integer_dtype(s.dtype) and not s.isna().any():
             values = s.to_numpy(dtype=np.int64)  # ns times need all 64 bits

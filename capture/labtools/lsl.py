@@ -15,16 +15,21 @@ chunk, times mapped onto the session clock with LSL's time correction (the offse
 uncertainty go into every message). A stream that disappears is an event and a gap;
 walkcap looks for it again at once and carries on.
 
-liblsl logs to stderr, where the terminal UI draws: it is told to log errors only.
+liblsl logs to stderr, where the terminal UI draws, and its lines quote what the network
+says (stream names, hosts): walkcap tells it to log warnings and errors to a file of its
+own instead, `~/.cache/walkcap/liblsl.log`, and nothing to the terminal.
 """
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import hashlib
 import logging
+import os
 import re
 import socket
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -81,12 +86,47 @@ def pylsl():
                 import pylsl as module
             except (ImportError, OSError, RuntimeError) as e:
                 raise CaptureError(f"LSL is not available: {e} (pip install pylsl)") from None
-            try:
-                module.set_config_content("[log]\nlevel = -2\n")
-            except Exception:  # already initialised: its own settings stand
-                pass
+            quiet_liblsl(module, liblsl_log_path())
             _lsl = module
     return _lsl
+
+
+LIBLSL_LOG_LEVEL = -1  # liblsl's warnings and errors (loguru: -2 errors, 0 info)
+
+
+def liblsl_log_path() -> str:
+    return os.path.join(os.path.expanduser("~"), ".cache", "walkcap", "liblsl.log")
+
+
+def quiet_liblsl(module, path: str, level: int = LIBLSL_LOG_LEVEL) -> None:
+    """liblsl's log into `path`, none of it on the terminal. liblsl turns its stderr off
+    only once its file is open, and says so on stderr first: that one line goes into the
+    file too, fd 2 pointed there for the instant liblsl reads its configuration."""
+    try:
+        os.makedirs(os.path.dirname(path), exist_ok=True)
+        module.set_config_content(f"[log]\nlevel = {level}\nfile = {path}\n")
+    except Exception:  # already initialised, or no folder: errors only, as before
+        with contextlib.suppress(Exception):
+            module.set_config_content("[log]\nlevel = -2\n")
+        return
+    with contextlib.suppress(OSError), _stderr_into(path):
+        module.protocol_version()  # liblsl reads its configuration now
+
+
+@contextlib.contextmanager
+def _stderr_into(path: str):
+    """fd 2 appended to `path` for the duration (Python's and C's stderr alike)."""
+    with contextlib.suppress(Exception):
+        sys.stderr.flush()
+    saved = os.dup(2)
+    target = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o600)
+    try:
+        os.dup2(target, 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(target)
 
 
 def lsl_offset_s() -> float:

@@ -20,8 +20,14 @@ capture.labtools.safetext.Repeats). Client text is escaped before it is logged o
 event (capture.labtools.safetext.escape). With a `token`, a connection's first line must be
 `token <it>`; any other first line closes the connection with one event.
 
-One thread serves every client (a selector loop), at most `MAX_CLIENTS` at a time: one
-more is told so in one line and closed, and reaching the limit is one event. A connection
+One thread serves every client (a selector loop). A connection takes one of the
+`MAX_CLIENTS` slots only once it is trusted: with its first line, which with a token must
+be `token <it>`. Until then it waits outside the slots, at most `AUTH_TIMEOUT_S` (then it
+is closed, one event) and at most `MAX_PENDING` of them (one more closes the oldest), so
+a program that opens connections and never speaks cannot keep the lab's LabRecorder out.
+A trusted connection beyond the slots is told so in one line and closed; reaching the
+limit is one event naming who holds the slots (capture.labtools.peers), and each slot
+taken and given back is a log line naming its holder. A connection
 that sends more than COMMAND_BURST commands at once (COMMANDS_PER_S a second on) is
 closed with one event. A command line
 is at most `MAX_LINE` bytes (LabRecorder's commands are short): a client that sends more
@@ -45,6 +51,7 @@ from dataclasses import dataclass, field
 from typing import Protocol
 
 from capture.errors import CaptureError
+from capture.labtools import peers
 from capture.labtools.safetext import Repeats, escape
 from devices.base import DeviceEvent
 from devices.clock import now_ns
@@ -55,6 +62,10 @@ DEFAULT_PORT = 22345
 MAX_LINE = 4096  # bytes of one command line, newline included
 MAX_CLIENTS = 8  # an experiment script holds one; a few more for tools beside it
 BUSY = b"busy: walkcap takes %d remote-control connections at a time\n" % MAX_CLIENTS
+# Connections not yet trusted: LabRecorder's clients speak at once, so a few seconds and a
+# few dozen are plenty; the oldest gives way to a new one, so none of them blocks a client.
+AUTH_TIMEOUT_S = 5.0
+MAX_PENDING = 32
 # Commands of one connection: a script sends a few a trial; a flood of short lines would
 # hold the interpreter the pipeline shares, so beyond these the connection is closed.
 COMMAND_BURST = 100
@@ -115,18 +126,22 @@ class RemoteControl:
         on_event: Callable[[DeviceEvent], None] | None = None,
         check: Callable[[TrialRequest], TrialRequest] | None = None,
         token: str = "",
+        auth_timeout_s: float = AUTH_TIMEOUT_S,
     ):
         self.controller = controller
         self._on_event = on_event
         self._check = check  # a `filename`'s request as the session takes it, or CaptureError
         self._token = token.encode()
+        self._auth_timeout_s = auth_timeout_s
         self.request = TrialRequest()
         # (command, what happened), newest last; a flood of commands keeps the newest
         self.log: deque[tuple[str, str]] = deque(maxlen=LOG_ENTRIES)
         self.saved: list[str] = []  # the files remote trials were saved to
         self._lock = threading.Lock()
         self._halt = threading.Event()
-        self.refused = 0  # connections turned away: MAX_CLIENTS were open
+        self.refused = 0  # trusted connections turned away: every slot was taken
+        self.timed_out = 0  # connections closed before their first line came in time
+        self.evicted = 0  # waiting connections closed to make room for a new one
         self._repeats = Repeats(burst=EVENT_BURST)
         try:
             self._server = socket.create_server((host, port), backlog=128)
@@ -144,8 +159,17 @@ class RemoteControl:
 
     @property
     def connections(self) -> int:
-        """Clients connected now."""
+        """Clients connected now, in a slot or waiting for their first line."""
         return len(self._clients)
+
+    @property
+    def slots_taken(self) -> int:
+        """Clients in a slot: trusted, commands obeyed."""
+        return sum(1 for c in list(self._clients.values()) if c.slot)
+
+    def holders(self) -> list[str]:
+        """Who holds the slots, one description each (address, user, process)."""
+        return [c.who() for c in list(self._clients.values()) if c.slot]
 
     def start(self) -> RemoteControl:
         self._thread.start()
@@ -208,12 +232,17 @@ class RemoteControl:
             return "accepted"
         raise CaptureError("unknown command")
 
-    def _event(self, kind: str, message: str, details: dict | None = None) -> None:
+    def _event(
+        self, kind: str, message: str | Callable[[], str], details: dict | None = None
+    ) -> None:
         """One event and log line; a kind that repeats is counted, and shown at the first
-        EVENT_BURST and then at each power of ten with its count."""
+        EVENT_BURST and then at each power of ten with its count. A callable message is
+        made only when shown (it may look up who a peer is)."""
         show, n = self._repeats.check(kind)
         if not show:
             return
+        if callable(message):
+            message = message()
         details = dict(details or {})
         if n > self._repeats.burst:
             message = f"{message} ({n} like it so far)"
@@ -228,7 +257,7 @@ class RemoteControl:
         selector.register(self._wake, selectors.EVENT_READ)
         try:
             while not self._halt.is_set():
-                for key, _ in selector.select():
+                for key, _ in selector.select(self._expire(selector)):
                     if key.fileobj is self._server:
                         self._accept(selector)
                     elif key.fileobj is not self._wake:
@@ -248,26 +277,69 @@ class RemoteControl:
                 return
             except OSError:  # the client gave up before it was accepted
                 return
-            if len(self._clients) >= MAX_CLIENTS:
-                self.refused += 1
-                with conn:
-                    try:
-                        conn.setblocking(False)
-                        conn.send(BUSY)
-                    except OSError:
-                        pass
-                if not self._full:  # once each time the limit is reached
-                    self._full = True
-                    self._event(
-                        "busy",
-                        f"{MAX_CLIENTS} connections open: further ones refused",
-                        {"limit": MAX_CLIENTS},
-                    )
-                continue
             conn.setblocking(False)
-            client = _Client(conn, trusted=not self._token)
+            waiting = [c for c in self._clients.values() if not c.slot]
+            if len(waiting) >= MAX_PENDING:  # the oldest silent one gives way
+                self.evicted += 1
+                oldest = min(waiting, key=lambda c: c.since)
+                self._event(
+                    "evicted",
+                    lambda oldest=oldest: (
+                        f"{MAX_PENDING} connections waiting for their first line: "
+                        f"the oldest closed ({oldest.who()})"
+                    ),
+                    {"limit": MAX_PENDING},
+                )
+                self._drop(selector, oldest)
+            client = _Client(conn, trusted=not self._token, now=time.monotonic())
             self._clients[conn] = client
             selector.register(conn, selectors.EVENT_READ, client)
+
+    def _expire(self, selector: selectors.BaseSelector) -> float | None:
+        """Close the connections whose first line is overdue; seconds to the next due."""
+        now = time.monotonic()
+        due = None
+        for client in list(self._clients.values()):
+            if client.slot:
+                continue
+            left = client.since + self._auth_timeout_s - now
+            if left <= 0:
+                self.timed_out += 1
+                self._event(
+                    "timeout",
+                    lambda client=client: (
+                        f"a connection silent for {self._auth_timeout_s:g} s "
+                        f"before its first line: closed ({client.who()})"
+                    ),
+                    {"timeout_s": self._auth_timeout_s},
+                )
+                self._drop(selector, client)
+            else:
+                due = left if due is None else min(due, left)
+        return due
+
+    def _take_slot(self, selector: selectors.BaseSelector, client: _Client) -> bool:
+        """A slot for a trusted client, or the busy line and the connection closed."""
+        taken = self.slots_taken
+        if taken >= MAX_CLIENTS:
+            self.refused += 1
+            try:
+                client.conn.send(BUSY)
+            except OSError:
+                pass
+            if not self._full:  # once each time the limit is reached
+                self._full = True
+                self._event(
+                    "busy",
+                    f"all {MAX_CLIENTS} slots taken, further connections refused; "
+                    f"held by {', '.join(self.holders())}",
+                    {"limit": MAX_CLIENTS, "holders": self.holders()},
+                )
+            self._drop(selector, client)
+            return False
+        client.slot = True
+        log.info("remote control: slot %d of %d taken by %s", taken + 1, MAX_CLIENTS, client.who())
+        return True
 
     def _trust(self, line: bytes) -> bool:
         """Whether `line` is `token <the token>` (compared in constant time)."""
@@ -275,13 +347,14 @@ class RemoteControl:
         return word == b"token" and hmac.compare_digest(given.strip(), self._token)
 
     def _drop(self, selector: selectors.BaseSelector, client: _Client) -> None:
-        self._clients.pop(client.conn, None)
+        if self._clients.pop(client.conn, None) is not None and client.slot:
+            log.info("remote control: slot given back by %s", client.who())
         try:
             selector.unregister(client.conn)
         except (KeyError, ValueError):
             pass
         client.conn.close()
-        if len(self._clients) < MAX_CLIENTS:
+        if self.slots_taken < MAX_CLIENTS:
             self._full = False
 
     def _read(self, selector: selectors.BaseSelector, client: _Client) -> None:
@@ -312,11 +385,18 @@ class RemoteControl:
                 return
             if not client.trusted:
                 if not self._trust(line):
-                    self._event("unauthorized", "a connection without the token: closed")
+                    self._event(
+                        "unauthorized",
+                        lambda: f"a connection without the token: closed ({client.who()})",
+                    )
                     self._drop(selector, client)
                     return
                 client.trusted = True
+                if not self._take_slot(selector, client):
+                    return
             else:
+                if not client.slot and not self._take_slot(selector, client):
+                    return
                 self.handle(line.decode("utf-8", "replace"))
             try:  # LabRecorder answers every line so
                 sent = client.conn.send(b"OK")
@@ -337,14 +417,26 @@ class RemoteControl:
 class _Client:
     """One connection and the part of a line it has sent so far."""
 
-    __slots__ = ("buffer", "conn", "credit", "credit_at", "trusted")
+    __slots__ = (
+        "address", "buffer", "conn", "credit", "credit_at", "described", "since", "slot", "trusted"
+    )  # fmt: skip
 
-    def __init__(self, conn: socket.socket, trusted: bool) -> None:
+    def __init__(self, conn: socket.socket, trusted: bool, now: float) -> None:
         self.conn = conn
         self.buffer = bytearray()
         self.trusted = trusted  # no token asked for, or it was given
+        self.slot = False  # holds one of the MAX_CLIENTS slots (trusted, has spoken)
+        self.since = now  # accepted at (monotonic s): its first line is due by the timeout
+        self.address = peers.peer_address(conn)
+        self.described = ""
         self.credit = float(COMMAND_BURST)  # commands it may send now (a token bucket)
-        self.credit_at = time.monotonic()
+        self.credit_at = now
+
+    def who(self) -> str:
+        """Its address, user and process (looked up once, when first asked)."""
+        if not self.described:
+            self.described = peers.describe(self.address)
+        return self.described
 
     def allow(self, now: float) -> bool:
         """Whether one more command is within COMMAND_BURST and COMMANDS_PER_S."""

@@ -168,7 +168,28 @@ def folder_item(folder: Path) -> CheckItem:
             else f"not writable: {e.strerror or e}"
         )
         return CheckItem("output folder", False, str(folder.resolve()), reason)
-    return CheckItem("output folder", True, f"{folder.resolve()} writable")
+    checkout = git_work_tree(folder)
+    warning = (
+        f"inside the git work tree {checkout}: `git clean -xfd` there deletes the recordings "
+        "without asking; keep them on a data disk: walkcap config --set "
+        "session.recordings=/path/to/data (or --out DIR)"
+        if checkout is not None
+        else ""
+    )
+    details = {"git_work_tree": str(checkout)} if checkout is not None else {}
+    return CheckItem(
+        "output folder", True, f"{folder.resolve()} writable", warning=warning, details=details
+    )
+
+
+def git_work_tree(folder: Path) -> Path | None:
+    """The git work tree `folder` lies in (a `.git` folder or worktree file above it), if
+    any: a `git clean -xfd` there deletes whatever the folder holds, ignored or not."""
+    here = folder.resolve()
+    for candidate in (here, *here.parents):
+        if (candidate / ".git").exists():
+            return candidate
+    return None
 
 
 def _existing(folder: Path) -> Path:

@@ -1,6 +1,6 @@
 """Running the fusion methods over trials and scoring them the way the paper does:
-per-frame accuracy per trial, mean +- SD across trials, paired t-tests, accuracy and
-spurious switches against delay, confusion matrices.
+per-frame accuracy per trial, mean +- SD across trials, paired t-tests (Holm-corrected,
+with Cohen's d_z), accuracy and spurious switches against delay, confusion matrices.
 
 Decisions always come from the streaming objects of `inference.fusion`, pushed frame by
 frame and flushed at the end (`run_offline`): offline results are the live ones.
@@ -42,13 +42,38 @@ TITLES = {
 }
 
 
+# A paired t-test on fewer trials than this is reported as too few, not tested: with 2-4
+# pairs the p-value rests on a variance estimated from 1-3 degrees of freedom.
+MIN_TRIALS_FOR_TEST = 5
+
+
 @dataclass
 class PairedTest:
+    """One pair of methods over the same trials: a - b. NaN where undefined (identical
+    results: t and d_z NaN, p 1; a constant non-zero difference: no variance to test)."""
+
     a: str
     b: str
     n: int
-    t: float  # NaN when undefined (fewer than 2 trials, identical results)
+    t: float
     p: float
+    p_holm: float = math.nan  # p adjusted by Holm over every pair of the same family
+    d_z: float = math.nan  # Cohen's d_z: mean difference / SD of the differences
+    mean_difference: float = math.nan  # accuracy of a minus accuracy of b, mean over trials
+
+
+@dataclass
+class PairedTests:
+    """Every pair of methods over one set of trials, Holm-corrected as one family; empty
+    `tests` when there are fewer than `min_trials` trials."""
+
+    trials: int
+    min_trials: int
+    tests: list[PairedTest]
+
+    @property
+    def too_few(self) -> bool:
+        return self.trials < self.min_trials
 
 
 @dataclass
@@ -272,24 +297,59 @@ def summarize(results: Sequence[TrialResult], methods: Sequence[str]) -> dict[st
     return out
 
 
-def paired_t_tests(results: Sequence[TrialResult], methods: Sequence[str]) -> list[PairedTest]:
-    """Paired t-test between every two methods over the same trials (scipy.stats.ttest_rel)."""
+def paired_t_test(x: Sequence[float], y: Sequence[float], a: str = "", b: str = "") -> PairedTest:
+    """The paired t-test of x - y (as scipy.stats.ttest_rel), its d_z and mean difference.
+    Computed from the differences directly: scipy warns of catastrophic cancellation when
+    they are nearly constant, and the answer there is the one below."""
     from scipy import stats
 
+    d = np.asarray(x, dtype=float) - np.asarray(y, dtype=float)
+    n = len(d)
+    if n < 2:
+        return PairedTest(a, b, n, math.nan, math.nan)
+    mean = float(d.mean())
+    sd = float(d.std(ddof=1))
+    if not np.any(d != 0):
+        return PairedTest(a, b, n, math.nan, 1.0, d_z=math.nan, mean_difference=0.0)
+    if sd <= 1e-12 * abs(mean):  # a constant difference: no variance to test against
+        return PairedTest(a, b, n, math.nan, math.nan, mean_difference=mean)
+    t = mean / (sd / math.sqrt(n))
+    p = float(2 * stats.t.sf(abs(t), n - 1))
+    return PairedTest(a, b, n, t, p, d_z=mean / sd, mean_difference=mean)
+
+
+def holm(pvalues: Sequence[float]) -> list[float]:
+    """Holm's step-down adjustment of a family of p-values (NaN ones are not counted)."""
+    p = np.asarray(pvalues, dtype=float)
+    out = np.full(len(p), np.nan)
+    idx = [i for i in np.argsort(p, kind="stable") if math.isfinite(p[i])]
+    m = len(idx)
+    running = 0.0
+    for rank, i in enumerate(idx):
+        running = max(running, min(1.0, (m - rank) * p[i]))
+        out[i] = running
+    return [float(v) for v in out]
+
+
+def paired_t_tests(
+    results: Sequence[TrialResult],
+    methods: Sequence[str],
+    min_trials: int = MIN_TRIALS_FOR_TEST,
+) -> PairedTests:
+    """Paired t-tests between every two methods over the same trials, Holm-corrected
+    together; none below `min_trials` trials."""
+    n = len(results)
+    if n < min_trials:
+        return PairedTests(n, min_trials, [])
     tests = []
     for i, a in enumerate(methods):
         for b in methods[i + 1 :]:
-            x = np.array([r.accuracy[a] for r in results])
-            y = np.array([r.accuracy[b] for r in results])
-            t = p = math.nan
-            if len(x) >= 2 and np.any(x != y):
-                with np.errstate(all="ignore"):
-                    res = stats.ttest_rel(x, y)
-                t, p = float(res.statistic), float(res.pvalue)
-            elif len(x) >= 2:
-                p = 1.0  # identical results: no difference at all
-            tests.append(PairedTest(a, b, len(x), t, p))
-    return tests
+            x = [r.accuracy[a] for r in results]
+            y = [r.accuracy[b] for r in results]
+            tests.append(paired_t_test(x, y, a, b))
+    for test, adjusted in zip(tests, holm([t.p for t in tests])):
+        test.p_holm = adjusted
+    return PairedTests(n, min_trials, tests)
 
 
 def group_results(results: Sequence[TrialResult]) -> dict[tuple[str, str], list[TrialResult]]:

@@ -13,7 +13,7 @@ from inference.config import FusionConfig
 from inference.evaluation import transitions as tr
 from inference.evaluation.metrics import (
     DelaySweep,
-    PairedTest,
+    PairedTests,
     by_condition,
     column_mean,
     column_sd,
@@ -33,8 +33,26 @@ def _nums(d: dict) -> dict:
     return {k: _num(v) for k, v in d.items()}
 
 
-def _tests_json(tests: Sequence[PairedTest]) -> list[dict]:
-    return [{"a": t.a, "b": t.b, "n": t.n, "t": _num(t.t), "p": _num(t.p)} for t in tests]
+def _tests_json(tests: PairedTests) -> dict:
+    return {
+        "trials": tests.trials,
+        "min_trials": tests.min_trials,
+        "too_few": tests.too_few,
+        "correction": "holm",
+        "tests": [
+            {
+                "a": t.a,
+                "b": t.b,
+                "n": t.n,
+                "mean_difference": _num(t.mean_difference),
+                "t": _num(t.t),
+                "p": _num(t.p),
+                "p_holm": _num(t.p_holm),
+                "d_z": _num(t.d_z),
+            }
+            for t in tests.tests
+        ],
+    }
 
 
 def report(
@@ -96,8 +114,7 @@ def report(
             ),
         },
     }
-    if len(results) >= 2:
-        out["paired_t_tests"] = _tests_json(paired_t_tests(results, methods))
+    out["paired_t_tests"] = _tests_json(paired_t_tests(results, methods))
     if grouped:
         out["groups"] = []
         for (condition, subject), rs in group_results(results).items():

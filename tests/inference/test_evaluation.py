@@ -112,19 +112,46 @@ def test_mean_sd_and_paired_t_tests_match_scipy(trials):
     y = [r.accuracy["cnn+voting"] for r in results]
     mean, sd = metrics.mean_sd(x)
     assert mean == pytest.approx(np.mean(x)) and sd == pytest.approx(np.std(x, ddof=1))
-    tests = {(t.a, t.b): t for t in metrics.paired_t_tests(results, ev.PAPER_METHODS)}
+    family = metrics.paired_t_tests(results, ev.PAPER_METHODS)
+    assert family.trials == len(trials) and not family.too_few
+    tests = {(t.a, t.b): t for t in family.tests}
     assert len(tests) == 6
     ref = stats.ttest_rel(y, x)
-    assert tests[("cnn+voting", "hmm")].t == pytest.approx(ref.statistic)
-    assert tests[("cnn+voting", "hmm")].p == pytest.approx(ref.pvalue)
+    test = tests[("cnn+voting", "hmm")]
+    assert test.t == pytest.approx(ref.statistic)
+    assert test.p == pytest.approx(ref.pvalue)
+    d = np.subtract(y, x)
+    assert test.d_z == pytest.approx(d.mean() / d.std(ddof=1))
+    assert test.mean_difference == pytest.approx(d.mean())
+    assert test.p_holm >= test.p
     assert tests[("cnn", "hmm")].n == len(trials)
 
 
-def test_paired_t_test_of_identical_methods_and_single_trials(trials):
-    results = ev.evaluate(trials[:2], ["cnn", "cnn+voting"], FusionConfig(vote_delay=0))
-    (same,) = metrics.paired_t_tests(results, ["cnn", "cnn+voting"])
-    assert same.p == 1.0 and np.isnan(same.t)
-    (single,) = metrics.paired_t_tests(results[:1], ["cnn", "cnn+voting"])
+def test_holm_adjusts_a_family_step_down():
+    adjusted = metrics.holm([0.01, 0.04, 0.03, 0.005, float("nan")])
+    assert adjusted[:4] == pytest.approx([0.03, 0.06, 0.06, 0.02])
+    assert np.isnan(adjusted[4])
+    assert metrics.holm([0.6, 0.9]) == pytest.approx([1.0, 1.0])  # capped at 1
+
+
+def test_no_paired_t_test_on_too_few_trials(trials):
+    results = ev.evaluate(trials, ["cnn", "hmm"])
+    few = metrics.paired_t_tests(results[: metrics.MIN_TRIALS_FOR_TEST - 1], ["cnn", "hmm"])
+    assert few.too_few and few.tests == []
+    enough = metrics.paired_t_tests(results[: metrics.MIN_TRIALS_FOR_TEST], ["cnn", "hmm"])
+    assert not enough.too_few and len(enough.tests) == 1
+
+
+@pytest.mark.filterwarnings("error")
+def test_paired_t_test_of_identical_and_constant_differences():
+    same = metrics.paired_t_test([0.5, 0.6, 0.7], [0.5, 0.6, 0.7])
+    assert same.p == 1.0 and np.isnan(same.t) and same.mean_difference == 0
+    # nearly constant differences: scipy warns of catastrophic cancellation; no test here
+    x = np.array([0.91, 0.93, 0.95, 0.97, 0.99])
+    constant = metrics.paired_t_test(x, x - 0.1)
+    assert np.isnan(constant.t) and np.isnan(constant.p)
+    assert constant.mean_difference == pytest.approx(0.1)
+    single = metrics.paired_t_test([0.5], [0.4])
     assert np.isnan(single.p)
     assert np.isnan(metrics.mean_sd([0.5])[1])
 
@@ -196,7 +223,11 @@ def test_report_shape(trials):
     assert [c["condition"] for c in data["conditions"]] == ["indoor", "outdoor"]
     assert data["sweep"]["mean"]["hmm"][0] is None
     assert data["sweep"]["mean"]["hmm"][1] == pytest.approx(data["mean"]["hmm"])
-    assert len(data["paired_t_tests"]) == 6
+    assert len(data["paired_t_tests"]["tests"]) == 6
+    assert data["paired_t_tests"]["correction"] == "holm"
+    assert {"p_holm", "d_z", "mean_difference"} <= set(data["paired_t_tests"]["tests"][0])
+    # three trials per condition: too few to test within one
+    assert all(c["paired_t_tests"]["too_few"] for c in data["conditions"])
 
 
 # --- score files -------------------------------------------------------------------------

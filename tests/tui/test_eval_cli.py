@@ -67,6 +67,25 @@ def test_scores_table(capsys, score_files):
         assert word in out
 
 
+@pytest.mark.filterwarnings("error")
+def test_scores_on_too_few_trials_say_so_and_test_nothing(capsys, score_files):
+    code, out, err = run(capsys, "eval", "scores", *score_files[:2])
+    assert code == 0, err
+    assert "paired t-tests: n=2 trial(s): too few for a test (need >= 5)" in out
+    assert "t = " not in out and "p = " not in out
+    code, out, _ = run(capsys, "eval", "scores", *score_files[:2], "--json")
+    tests = json.loads(out)["paired_t_tests"]
+    assert tests["too_few"] and tests["tests"] == [] and tests["trials"] == 2
+
+
+def test_scores_tests_are_holm_corrected_with_effect_sizes(capsys, tmp_path):
+    files = [write_scores(tmp_path / f"s{i}.csv", synthetic_trial(i)) for i in range(5)]
+    code, out, err = run(capsys, "eval", "scores", *files, "--methods", "cnn,hmm,hmm+voting")
+    assert code == 0, err
+    assert "paired t-tests over 5 trials (p Holm-corrected over 3 comparisons" in out
+    assert out.count("p_Holm = ") == 3 and out.count("d_z = ") == 3
+
+
 def test_scores_json_equals_live_decisions(capsys, score_files):
     code, out, _ = run(
         capsys, "eval", "scores", *score_files, "--window", "4", "--vote-delay", "2", "--json"

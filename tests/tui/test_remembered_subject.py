@@ -6,12 +6,15 @@ import json
 
 from capture.config import Config
 from capture.live.trials import SubjectInfo
+from capture.recording.reader import open_recording
 from tests.tui.screens import SIZE
 from tests.tui_fake_session import FakeSession
 from tests.waiting import wait_for_app
+from tui import cli
 from tui.app import WalkcapApp
 from tui.cli import build_parser
 from tui.commands import apply_device_flags
+from tui.commands.record import remembered_operator
 from tui.commands.tui import starting_form
 from tui.session_screen import SessionScreen, last_session_path, save_last_session
 
@@ -130,3 +133,17 @@ async def test_typing_another_subject_in_the_form_swaps_the_subject_fields(tmp_p
         await wait_for_app(pilot, lambda: not isinstance(app.screen, SessionScreen))
     assert app.subject.subject == "S03" and app.subject.height_m == 1.64
     assert app.subject.side == "" and app.subject.trial == 2
+
+
+def test_record_takes_the_remembered_operator_unless_one_is_given(tmp_path, capsys):
+    save_last_session(SubjectInfo(subject="S07"), operator="RA7")
+    out = tmp_path / "rec"
+    code = cli.main(["record", "--fast", "--duration", "0.5", "--out", str(out), "--trial", "1"])
+    assert code == 0, capsys.readouterr().err
+    assert "operator RA7" in capsys.readouterr().err
+    (path,) = out.glob("*.mcap")
+    assert open_recording(path).metadata["session"]["operator"] == "RA7"
+    args = build_parser().parse_args(["record", "--operator", "RA2"])
+    config = Config()
+    apply_device_flags(args, config)
+    assert remembered_operator(args, config) == "RA2"  # the flag over what is remembered

@@ -197,3 +197,44 @@ def test_replay_screen_snapshot(recording, snap_compare):
 
     app = WalkcapApp(Config(), session=source, ask_subject=False, start_status="loading…")
     assert snap_compare(app, terminal_size=(120, 40), run_before=at_stairs)
+
+
+@pytest.mark.parametrize("width", [120, 80])
+async def test_each_replay_correction_shows_at_once_and_notices_fit(recording, width):
+    from tui.widgets.decision import DecisionDisplay
+    from tui.widgets.notices import NoticeLine
+    from tui.widgets.timeline import TimelineStrips
+
+    source = ReplaySource(recording, clock=FakeClock(), play=False)
+    app = WalkcapApp(Config(), session=source, ask_subject=False, start_status="loading…")
+    async with app.run_test(size=(width, 40)) as pilot:
+        for _ in range(3000):  # a bound, not a measure
+            if app.ready:
+                break
+            await pilot.pause(0.02)
+        live = app.screen
+        source.seek(2.03)  # between frames 30 and 31, paused: nothing moves on its own
+        live.refresh_view()
+        strips, notices = live.query_one(TimelineStrips), live.query_one(NoticeLine)
+        assert strips._entries[-1].index == 30 and strips._entries[-1].label == "LG"
+        await pilot.press("2")
+        # the frame on screen is relabelled: the true strip and the decision panel say so
+        assert strips._entries[-1].label == "US"
+        assert live.query_one(DecisionDisplay)._content[2] == "US"
+        await pilot.pause()
+        shown = notices.render().plain
+        assert "US" in shown and "from 2.0 s" in shown and "1 " in shown and "…" not in shown
+        assert len(shown) <= width
+        await pilot.press("u")
+        await pilot.pause()
+        assert strips._entries[-1].label == "LG" and "taken back" in notices.render().plain
+        await pilot.press("2")
+        await pilot.press("w")
+        for _ in range(3000):
+            if source.saved_path is not None and not source.unsaved:
+                break
+            await pilot.pause(0.02)
+        await pilot.pause()
+        shown = notices.render().plain
+        assert source.saved_path.name in shown and "…" not in shown, shown
+        assert shown.rstrip().endswith("unchanged)") and len(shown) <= width

@@ -76,3 +76,19 @@ def test_help_screen(snap_compare):
     assert snap_compare(
         app, terminal_size=(120, 40), run_before=_until_live, press=["question_mark"]
     )
+
+
+def test_live_screen_recording_80x24(snap_compare):
+    fake = FakeSession()
+    fake.start_recording(SubjectInfo(subject="S03", trial=4))
+    app = WalkcapApp(
+        Config(), session=fake, subject=SubjectInfo(subject="S03", trial=4), ask_subject=False
+    )
+    assert snap_compare(app, terminal_size=(80, 24), run_before=_until_live)
+
+
+def test_help_screen_80x24(snap_compare):
+    app = WalkcapApp(Config(), session=FakeSession(), ask_subject=False)
+    assert snap_compare(
+        app, terminal_size=(80, 24), run_before=_until_live, press=["question_mark"]
+    )

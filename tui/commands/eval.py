@@ -287,18 +287,7 @@ def format_report(data: dict, methods: list[str]) -> str:
 
     out += _format_transitions(data, methods)
 
-    tests = data.get("paired_t_tests")
-    if tests:
-        out += ["", f"paired t-tests over {tests[0]['n']} trials:"]
-        rows = [
-            [
-                f"{_title(t['a'])} vs {_title(t['b'])}",
-                "t =       -" if t["t"] is None else f"t = {t['t']:7.3f}",
-                "p = -" if t["p"] is None else f"p = {t['p']:.3g}",
-            ]
-            for t in tests
-        ]
-        out += ["  " + line for line in _table(["", "", ""], rows, left=3)[1:]]
+    out += _format_tests(data.get("paired_t_tests"))
 
     sweep = data.get("sweep")
     if sweep:
@@ -315,6 +304,37 @@ def format_report(data: dict, methods: list[str]) -> str:
             f"wrote {len(data['plots'])} figure file(s) (PDF and PNG) to {', '.join(folders)}",
         ]
     return "\n".join(out)
+
+
+def _format_tests(tests: dict | None) -> list[str]:
+    """The paired t-tests, or why there are none."""
+    if not tests:
+        return []
+    n = tests["trials"]
+    if tests["too_few"]:
+        return [
+            "",
+            f"paired t-tests: n={n} trial(s): too few for a test (need >= {tests['min_trials']})",
+        ]
+    if not tests["tests"]:
+        return []
+    out = [
+        "",
+        f"paired t-tests over {n} trials (p Holm-corrected over {len(tests['tests'])} "
+        "comparisons; diff: mean difference in points, d_z: diff / SD of the differences):",
+    ]
+    rows = [
+        [
+            f"{_title(t['a'])} vs {_title(t['b'])}",
+            f"diff {_pct(t['mean_difference'])}",
+            "t =       -" if t["t"] is None else f"t = {t['t']:7.3f}",
+            "p = -" if t["p"] is None else f"p = {t['p']:.3g}",
+            "p_Holm = -" if t["p_holm"] is None else f"p_Holm = {t['p_holm']:.3g}",
+            "d_z = -" if t["d_z"] is None else f"d_z = {t['d_z']:.2f}",
+        ]
+        for t in tests["tests"]
+    ]
+    return out + ["  " + line for line in _table([""] * 6, rows, left=6)[1:]]
 
 
 def _num(x: float | None, digits: int = 0) -> str:

@@ -69,6 +69,18 @@ def status_line(elapsed_s: float, total_s: float | None, snap) -> str:
     return line + (f"  ! {alarms[0].text}" if alarms else "")
 
 
+def remembered_operator(args, config) -> str:
+    """The operator of the trials, as `tui` has it: `--operator`, else the one the session
+    form remembers (~/.config/walkcap/last_session.json), else `[session] operator`."""
+    from tui.session_screen import load_remembered
+
+    if args.operator is None:
+        remembered = load_remembered().operator
+        if remembered:
+            config.session.operator = remembered
+    return config.session.operator
+
+
 def run(args, config) -> int:
     from capture.labtools.connections import LabTools, SessionController
     from capture.live.session import Session
@@ -78,6 +90,9 @@ def run(args, config) -> int:
 
     apply_device_flags(args, config)
     lab_flags.apply(args, config)
+    operator = remembered_operator(args, config)
+    if operator:
+        print(f"operator {operator}", file=sys.stderr)
     warning = course_condition(args, config)
     if warning:
         print(f"walkcap record: warning: {warning}", file=sys.stderr)

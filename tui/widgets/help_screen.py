@@ -6,7 +6,7 @@ from rich.table import Table
 from rich.text import Text
 from textual.app import ComposeResult
 from textual.binding import Binding
-from textual.containers import Vertical
+from textual.containers import VerticalScroll
 from textual.keys import key_to_character
 from textual.screen import ModalScreen
 from textual.widgets import Static
@@ -49,12 +49,20 @@ def key_label(key: str) -> str:
 class HelpScreen(ModalScreen[None]):
     DEFAULT_CSS = """
     HelpScreen { align: center middle; }
-    HelpScreen > Vertical {
+    HelpScreen > VerticalScroll {
         width: 100; max-width: 95%; height: auto; max-height: 95%;
         border: round $accent; padding: 0 1; background: $surface;
+        border-subtitle-color: $text-muted;
     }
     """
-    BINDINGS = [Binding("escape,q,question_mark", "close", "Close")]
+    # a small terminal scrolls the help (the keys first); its frame says how to leave
+    BINDINGS = [
+        Binding("escape,q,question_mark", "close", "Close"),
+        Binding("down,j", "scroll(1)", "scroll", show=False),
+        Binding("up,k", "scroll(-1)", "scroll", show=False),
+        Binding("pagedown", "scroll(10)", "scroll", show=False),
+        Binding("pageup", "scroll(-10)", "scroll", show=False),
+    ]
 
     def __init__(self, keys: list[tuple[str, str]]) -> None:
         """`keys`: (key, what it does), in the order to show."""
@@ -67,13 +75,18 @@ class HelpScreen(ModalScreen[None]):
         table.add_column()
         for key, what in self.keys:
             table.add_row(key_label(key), what)
-        with Vertical():
+        with VerticalScroll() as box:
+            box.border_subtitle = "escape closes · ↑↓ scroll"
             yield Static(Text("walkcap keys", style="bold"))
             yield Static(table, id="help-keys")
             yield Static(Text("\n" + ABOUT, style="dim"))
             yield Static(
                 Text("\nescape closes; the mode keys label while this is open", style="dim italic")
             )
+
+    def action_scroll(self, lines: int) -> None:
+        box = self.query_one(VerticalScroll)
+        box.scroll_to(y=box.scroll_y + lines, animate=False)
 
     def action_close(self) -> None:
         self.dismiss(None)

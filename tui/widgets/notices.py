@@ -24,6 +24,7 @@ class Notice:
     text: str
     severity: str = "information"  # information | warning | error
     clock: str = field(default_factory=lambda: time.strftime("%H:%M:%S"))
+    short: str = ""  # the same in fewer words, shown where `text` does not fit the line
 
 
 class NoticeLine(Widget):
@@ -52,6 +53,16 @@ class NoticeLine(Widget):
         if notice is None:
             line.append(" no notices", style="dim")
             return line
-        line.append(f" {notice.clock} ", style="dim")
-        line.append(notice.text, style=_STYLES.get(notice.severity, ""))
+        stamp = f" {notice.clock} "
+        line.append(stamp, style="dim")
+        style = _STYLES.get(notice.severity, "")
+        line.append(fit(notice, self.size.width - len(stamp)), style=style)
         return line
+
+
+def fit(notice: Notice, room: int) -> str:
+    """The notice's words for `room` columns: the whole text, else its short form, else
+    the short form cut with an ellipsis (the log has the whole text)."""
+    if len(notice.text) <= room or not notice.short:
+        return notice.text
+    return notice.short

@@ -80,6 +80,31 @@ def recording_rows(
     return rows
 
 
+def compact_text(rows: list[tuple[str, str, str]], width: int, height: int) -> Text:
+    """The panel's rows run together into `height` lines of `width`: the first row (REC and
+    the time, or what the record key starts), then what is wrong (a styled row: failed,
+    queue filling, gaps, drops), then the rest; the file name is the banner's."""
+    first, rest = rows[:1], [r for r in rows[1:] if r[0] != "file"]
+    ordered = first + [r for r in rest if r[2]] + [r for r in rest if not r[2]]
+    text, line, used = Text(no_wrap=True, overflow="ellipsis"), 0, 0
+    for i, (label, value, style) in enumerate(ordered):
+        piece = f"{label} {value}".strip() if i else f"{label} {value}".strip()
+        sep = " · " if used else ""
+        if used and used + len(sep) + len(piece) > width:
+            if line + 1 >= height:
+                break
+            text.append("\n")
+            line, used, sep = line + 1, 0, ""
+        if i == 0:
+            color = "#e04040" if label.startswith("●") else ""
+            text.append(piece, style=f"bold {color}")
+        else:
+            text.append(sep + piece, style=style)
+            piece = sep + piece
+        used += len(piece)
+    return text
+
+
 class RecordingPanel(Widget):
     DEFAULT_CSS = """
     RecordingPanel { height: 1fr; }
@@ -116,7 +141,10 @@ class RecordingPanel(Widget):
             self._rows = rows
             self.refresh()  # fixed height: no relayout (it would redraw the whole screen)
 
-    def render(self) -> Table:
+    def render(self) -> Table | Text:
+        lines = sum(1 + value.count("\n") for _, value, _ in self._rows)
+        if 0 < self.size.height < lines:  # a short terminal: the same, in fewer lines
+            return compact_text(self._rows, self.size.width, self.size.height)
         table = Table.grid(padding=(0, 1))
         table.add_column(style="dim", no_wrap=True, min_width=5)
         table.add_column(overflow="fold")  # the file name wraps, never cut

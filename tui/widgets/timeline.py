@@ -94,6 +94,7 @@ class TimelineStrips(Widget):
             now_ns // max(1, column_ns),
             len(entries),
             tuple((e.index, e.label, e.cnn, e.fused, e.truth) for e in last),
+            hash(tuple(e.label for e in entries)),  # a correction relabels earlier frames too
             width,
         )
         if key == self._key:
