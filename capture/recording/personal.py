@@ -276,6 +276,15 @@ class ShareRules:
             raise RulesError("; ".join(problems))
         return self
 
+    @classmethod
+    def from_config(cls, section, **changes) -> ShareRules:
+        """The rules of a `[share]` section (capture.config.ShareConfig: the same names),
+        with `changes` on top (a None change: not given)."""
+        from dataclasses import fields
+
+        values = {f.name: getattr(section, f.name) for f in fields(cls) if hasattr(section, f.name)}
+        return cls(**values).with_changes(**changes)
+
     def with_changes(self, **changes) -> ShareRules:
         return replace(self, **{k: v for k, v in changes.items() if v is not None})
 

@@ -84,3 +84,15 @@ async def test_the_form_refuses_a_name_and_warns_of_a_personal_note():
         error = form.query_one("#form-error")
         await wait_for_app(pilot, lambda: "subject_pattern" in rendered(error))
         assert isinstance(app.screen, SessionScreen)  # not started
+
+
+def test_replay_refuses_a_recording_whose_subject_is_a_name(capsys, tmp_path):
+    from capture.recording.writer import Recorder
+
+    path = tmp_path / "Anna_Schmidt_indoor_t01.mcap"
+    with Recorder(path, metadata={"session": {"subject": "Anna_Schmidt", "trial": 1}}):
+        pass
+    code = cli.main(["replay", str(path), "-o", str(tmp_path / "out.mcap")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 1 and len(err) == 1 and "'Anna_Schmidt'" in err[0] and SUBJECT_PATTERN in err[0]
+    assert not (tmp_path / "out.mcap").exists()

@@ -76,18 +76,17 @@ def rules_from(args, config):
             raise CaptureError(f"--secret-file {args.secret_file}: {e.strerror}") from None
         if not secret:
             raise CaptureError(f"--secret-file {args.secret_file}: the file is empty")
-    rules = ShareRules(
-        notes=args.notes or section.notes,
-        operator=args.operator or section.operator,
-        markers=args.markers or section.markers,
-        replacement=section.replacement,
-        body=args.body or section.body,
-        sex=args.sex or section.sex,
-        amputation=args.amputation or section.amputation,
-        dates=args.dates or section.dates,
+    rules = ShareRules.from_config(
+        section,
+        notes=args.notes,
+        operator=args.operator,
+        markers=args.markers,
+        body=args.body,
+        sex=args.sex,
+        amputation=args.amputation,
+        dates=args.dates,
         secret=secret,
         shift_days=args.shift_days,
-        max_shift_days=section.max_shift_days,
     )
     try:
         return rules.check()

@@ -217,3 +217,16 @@ def test_rules_are_checked_and_nothing_is_overwritten(lab, shared, tmp_path):
         share([lab], shared[0], RULES)
     with pytest.raises(CaptureError, match="folder of their own"):
         share([lab], lab, RULES)
+
+
+def test_a_superseded_recording_is_not_shared(tmp_path):
+    lab = tmp_path / "lab"
+    lab.mkdir()
+    first = write(lab, "S02", 1)
+    again = lab / "S02_indoor_t01_20261123-091500.mcap"
+    session = {"subject": "S02", "condition": "indoor", "trial": 1, "notes": NOTES}
+    session["supersedes"] = [open_recording(first).id]
+    with Recorder(again, metadata={"session": session}) as rec:
+        rec.write_label(frame_time(0), "US", "operator")
+    (copy,), corpus = share([lab], tmp_path / "out", RULES)
+    assert copy.source == again and [p for p, _ in corpus.left_out] == [first]

@@ -163,3 +163,18 @@ def test_the_docs_list_the_same_fields():
 
     docs = (Path(__file__).parents[3] / "docs" / "recordings.md").read_text()
     assert P.fields_markdown() in docs
+
+
+def test_rules_come_from_the_share_section_with_changes_on_top():
+    from capture.config import Config
+
+    section = Config().share
+    section.body, section.secret = "coarsen", "s"
+    rules = ShareRules.from_config(section, notes="replace", dates=None)
+    assert (rules.body, rules.notes, rules.dates, rules.secret) == (
+        "coarsen",
+        "replace",
+        "subject",
+        "s",
+    )
+    assert ShareRules.from_config(Config().share) == ShareRules()
