@@ -492,15 +492,28 @@ def reduce_metadata(name: str, values: dict, rules: ShareRules, offset_ns: int) 
     return Reduced(name, out, removed)
 
 
-_OPERATOR_LINE = re.compile(r'^(\s*operator\s*=\s*)(".*?(?<!\\)"|\'.*?\')(.*)$', re.M)
+_OPERATOR_LINE = re.compile(r"^(\s*operator\s*=\s*)(\"(?:[^\"\\]|\\.)*\"|'[^']*')(.*)$")
+_SECTION_LINE = re.compile(r"^\s*\[\s*([A-Za-z0-9_.-]+)\s*\]")
 
 
 def reduce_config_text(text: str, rules: ShareRules) -> str:
-    """The walkcap.toml attachment with [session] operator following `rules.operator`."""
+    """The walkcap.toml attachment with [session] operator following `rules.operator`
+    (other sections' keys of the same name untouched)."""
     if rules.operator == KEEP:
         return text
     new = "" if rules.operator == DROP else rules.replacement.replace('"', "'")
-    return _OPERATOR_LINE.sub(lambda m: f'{m.group(1)}"{new}"{m.group(3)}', text)
+    section, out = "", []
+    for line in text.splitlines(keepends=True):
+        header = _SECTION_LINE.match(line)
+        if header:
+            section = header.group(1)
+        elif section == "session":
+            m = _OPERATOR_LINE.match(line.rstrip("\r\n"))
+            if m:
+                ending = line[len(line.rstrip("\r\n")) :]
+                line = f'{m.group(1)}"{new}"{m.group(3)}{ending}'
+        out.append(line)
+    return "".join(out)
 
 
 def unix_day(unix_ns: int) -> str:

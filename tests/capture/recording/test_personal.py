@@ -152,9 +152,14 @@ def test_marker_text_is_replaced_and_other_events_kept():
 
 
 def test_the_attached_configuration_loses_the_operator():
-    text = '[session]\nrecordings = "recordings"\noperator = "Jane Doe"\n'
+    text = (
+        '[session]\nrecordings = "recordings"\noperator = "Jane Doe"\n[share]\noperator = "drop"\n'
+    )
     out = P.reduce_config_text(text, ShareRules(secret="s"))
     assert "Jane" not in out and 'operator = ""' in out and 'recordings = "recordings"' in out
+    assert '[share]\noperator = "drop"' in out  # another section's key of the same name
+    replaced = P.reduce_config_text(text, ShareRules(operator="replace", secret="s"))
+    assert 'operator = "[removed]"' in replaced
     assert P.reduce_config_text(text, ShareRules(operator="keep", secret="s")) == text
 
 
