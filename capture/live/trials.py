@@ -25,10 +25,10 @@ def check_pseudonym(subject: str, pattern: str = SUBJECT_PATTERN) -> None:
         fits = re.fullmatch(pattern, subject) is not None
     except re.error:
         fits = False
-    if not fits:
+    if not fits:  # the id is not repeated: it may be a name, and errors reach logs
         raise CaptureError(
-            f"subject id {subject!r} does not fit the study's pattern {pattern} "
-            "([session] subject_pattern): a pseudonymous code such as S01, never a name"
+            f"subject id: the study's pattern is {pattern} ([session] subject_pattern): "
+            "a pseudonymous code such as S01, never a name"
         )
 
 
