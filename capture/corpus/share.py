@@ -23,6 +23,7 @@ from pathlib import Path
 
 import orjson
 
+from capture.corpus.selection import Corpus, select
 from capture.errors import CaptureError
 from capture.recording import topics as T
 from capture.recording.copy import RecordingCopy, _media_type
@@ -183,11 +184,9 @@ def _new_id() -> str:
 
 def share(
     paths: Iterable[str | os.PathLike], out: str | os.PathLike, rules: ShareRules
-) -> tuple[list[Shared], object]:
+) -> tuple[list[Shared], Corpus]:
     """Shared copies in `out` of one file per trial of `paths`; (copies, the corpus: what was
     left out and why). The rules are checked before anything is written."""
-    from capture.corpus.selection import select
-
     rules.check()
     out = Path(out)
     corpus = select(paths)
