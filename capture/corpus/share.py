@@ -188,15 +188,19 @@ def share(
     """Shared copies in `out` of one file per trial of `paths`; (copies, the corpus: what was
     left out and why). The rules are checked before anything is written."""
     rules.check()
-    out = Path(out)
+    out, paths = Path(out), [Path(p) for p in paths]
+    # a shared copy among the lab's recordings would be read as one more of them: not beside
+    # a file given, nor anywhere in a folder given
+    target = out.resolve()
+    beside = {p.resolve().parent for p in paths if p.is_file()}
+    inside = {p.resolve() for p in paths if p.is_dir()}
+    if target in beside or any(target == d or d in target.parents for d in inside):
+        raise CaptureError(
+            f"{out}: inside the recordings given; shared copies go into a folder of their own"
+        )
     corpus = select(paths)
     if not corpus.chosen:
         raise corpus.nothing_left("share")
-    sources = {m.path.resolve().parent for m in corpus.chosen}
-    if out.resolve() in sources:
-        raise CaptureError(
-            f"{out}: a folder the recordings are in; shared copies go into a folder of their own"
-        )
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:

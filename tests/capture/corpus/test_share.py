@@ -215,8 +215,10 @@ def test_rules_are_checked_and_nothing_is_overwritten(lab, shared, tmp_path):
     assert not (tmp_path / "x").exists()
     with pytest.raises(CaptureError, match="exists"):
         share([lab], shared[0], RULES)
-    with pytest.raises(CaptureError, match="folder of their own"):
-        share([lab], lab, RULES)
+    for inside in (lab, lab / "shared"):
+        with pytest.raises(CaptureError, match="folder of their own"):
+            share([lab], inside, RULES)
+    assert not (lab / "shared").exists()
 
 
 def test_a_superseded_recording_is_not_shared(tmp_path):
