@@ -120,8 +120,8 @@ PERSONAL_FIELDS: tuple[PersonalField, ...] = (
     PersonalField(
         "session.notes",
         FREE_TEXT,
-        "the form's Notes: free text about the trial",
-        ("metadata session", "walkcap info", "export trials", "last_session.json"),
+        "the form's Notes: free text about the trial (never remembered between sessions)",
+        ("metadata session, in derived files too", "walkcap info", "export trials"),
         "the lab running the study",
         "dropped",
     ),
@@ -160,7 +160,7 @@ PERSONAL_FIELDS: tuple[PersonalField, ...] = (
     PersonalField(
         "file names",
         TIME,
-        "the date and time a trial started (<subject>_<condition>_t<NN>_<YYYYmmdd-HHMMSS>)",
+        "the date and time a trial started (`<subject>_<condition>_t<NN>_<YYYYmmdd-HHMMSS>`)",
         (
             "the recording's and journal's names",
             "metadata recording.journal, derivation.source_name, software.replay_of, "
@@ -168,7 +168,7 @@ PERSONAL_FIELDS: tuple[PersonalField, ...] = (
             "export: every table's file column",
         ),
         "the lab (finding a session's files)",
-        "<subject>_<condition>_t<NN>.mcap, no time",
+        "`<subject>_<condition>_t<NN>.mcap`, no time",
     ),
     PersonalField(
         "recording.unix_offset_ns",
