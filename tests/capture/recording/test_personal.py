@@ -183,3 +183,13 @@ def test_rules_come_from_the_share_section_with_changes_on_top():
         "s",
     )
     assert ShareRules.from_config(Config().share) == ShareRules()
+
+
+def test_the_study_secret_never_goes_into_a_recording():
+    from capture.config import Config
+    from capture.live.trials import trial_attachments
+
+    config = Config()
+    config.share.secret = "the study's own secret"
+    toml = trial_attachments(config, {})["walkcap.toml"].decode()
+    assert "the study's own secret" not in toml and "[share]" in toml
