@@ -118,3 +118,10 @@ def test_a_remote_filename_with_a_name_is_refused_and_the_name_not_logged(caplog
     assert "Anna" not in caplog.text and "Anna" not in repr(events)
     remote.handle("filename {participant:P07} {task:indoor}")
     assert len(events) == 1  # a pseudonym is taken
+
+
+def test_record_warns_of_notes_that_look_personal(capsys, tmp_path):
+    args = ["record", "--subject", "Anna_Schmidt", "--notes", "Dr Meier", "--out", str(tmp_path)]
+    assert cli.main(args) != 0  # refused for the id; the note is warned of first
+    err = capsys.readouterr().err
+    assert "--notes look like they hold a name" in err and "Meier" not in err

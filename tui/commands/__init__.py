@@ -211,7 +211,11 @@ def add_session_arguments(parser) -> None:
         dest="residual_limb_cm",
         help="residual limb length in cm",
     )
-    g.add_argument("--notes", help="free text kept with the recording")
+    g.add_argument(
+        "--notes",
+        help="free text about the trial, kept with the recording: never names, dates of "
+        "birth or places",
+    )
 
 
 SESSION_FLAGS = ("subject", "condition", "trial", *SUBJECT_FIELDS)

@@ -71,7 +71,15 @@ def status_line(elapsed_s: float, total_s: float | None, snap) -> str:
 
 def run(args, config) -> int:
     from capture.live.trials import SubjectInfo
+    from capture.recording.personal import note_warnings
 
+    found = note_warnings(args.notes or "")
+    if found:
+        print(
+            f"walkcap record: warning: --notes look like they hold {' and '.join(found)}: "
+            "they go into the recording; keep people out of them",
+            file=sys.stderr,
+        )
     # the subject id first: a name is refused before the session's libraries load
     subject_from_flags(
         args, SubjectInfo(condition=args.condition or "session"), config.session.subject_pattern
