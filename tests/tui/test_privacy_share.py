@@ -164,3 +164,12 @@ async def test_a_marker_note_stays_out_of_the_log(caplog):
         await wait_for_app(pilot, lambda: any("marker" in n.text for n in app.notices))
     assert any("Anna fell" in n.text for n in app.notices)  # the operator sees it
     assert "Anna" not in caplog.text and "marker (with a note)" in caplog.text
+
+
+def test_the_ui_log_is_its_owners_only(tmp_path):
+    from tui.logfile import logging_to_file
+
+    path = tmp_path / "cache" / "tui.log"
+    with logging_to_file(str(path)):
+        logging.getLogger("walkcap.test").info("trial saved: S04")
+    assert stat.S_IMODE(os.stat(path).st_mode) == 0o600
