@@ -22,6 +22,8 @@ COMMANDS = (
     "replay",
     "info",
     "export",
+    "share",
+    "forget",
     "recover",
     "eval",
     "train",
@@ -185,7 +187,7 @@ def _write_crash_log() -> str:
     path = os.path.join(os.path.expanduser("~"), ".cache", "walkcap", "crash.log")
     try:
         os.makedirs(os.path.dirname(path), exist_ok=True)
-        with open(path, "a") as f:
+        with open(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o600), "a") as f:
             f.write(traceback.format_exc() + "\n")
     except OSError:
         return "(no crash log could be written)"

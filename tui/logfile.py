@@ -20,6 +20,7 @@ def logging_to_file(path: str):
     try:
         os.makedirs(os.path.dirname(path), exist_ok=True)
         handler: logging.Handler = logging.FileHandler(path)
+        os.chmod(path, 0o600)  # it names subjects (by id): its owner's to read
     except OSError:
         handler = logging.NullHandler()
     handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))

@@ -74,7 +74,7 @@ def synth_recording(
     *,
     preset: str,
     seed: int,
-    subject: str = "SIM",
+    subject: str = "SIM01",  # a simulated subject, an id of the default subject_pattern
     trial: int = 1,
     max_frames: int = 0,
     progress=None,

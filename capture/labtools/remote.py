@@ -57,6 +57,7 @@ from devices.base import DeviceEvent
 from devices.clock import now_ns
 
 log = logging.getLogger(__name__)
+_PARTICIPANT = re.compile(r"\{participant:[^}]*\}")
 
 DEFAULT_PORT = 22345
 MAX_LINE = 4096  # bytes of one command line, newline included
@@ -202,7 +203,9 @@ class RemoteControl:
                 result, refused = f"refused: {type(e).__name__}: {e}", True
             if result.startswith("saved "):
                 self.saved.append(result.removeprefix("saved "))
-        shown = escape(command, 80)  # the client's text, fit for a terminal
+        # the client's text, fit for a terminal; a refused command's participant may be a
+        # name: it stays out of the log and the recording's events
+        shown = escape(_PARTICIPANT.sub("{participant:…}", command) if refused else command, 80)
         log.info("remote control: %s -> %s", shown, escape(result))
         self.log.append((command, result))
         if refused:

@@ -76,6 +76,7 @@ def test_internal_errors_go_to_a_crash_log(monkeypatch, capsys, tmp_path):
     err = capsys.readouterr().err
     assert "internal error" in err and "Traceback" not in err
     assert "ZeroDivisionError" in (tmp_path / ".cache" / "walkcap" / "crash.log").read_text()
+    assert os.stat(tmp_path / ".cache" / "walkcap" / "crash.log").st_mode & 0o777 == 0o600
 
 
 @pytest.mark.subprocess

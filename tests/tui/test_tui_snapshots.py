@@ -45,7 +45,6 @@ def test_session_form(snap_compare):
             residual_limb_cm=31.0,
             condition="indoor",
             trial=2,
-            notes="socket checked",
         )
     )
     app = WalkcapApp(Config(), session=FakeSession())

@@ -72,19 +72,32 @@ def status_line(elapsed_s: float, total_s: float | None, snap) -> str:
 def remembered_operator(args, config) -> str:
     """The operator of the trials, as `tui` has it: `--operator`, else the one the session
     form remembers (~/.config/walkcap/last_session.json), else `[session] operator`."""
-    from tui.session_screen import load_remembered
+    from tui.remembered import load_remembered
 
     if args.operator is None:
-        remembered = load_remembered().operator
+        remembered = load_remembered(days=config.session.remember_days).operator
         if remembered:
             config.session.operator = remembered
     return config.session.operator
 
 
 def run(args, config) -> int:
+    from capture.live.trials import SubjectInfo
+    from capture.recording.personal import note_warnings
+
+    found = note_warnings(args.notes or "")
+    if found:
+        print(
+            f"walkcap record: warning: --notes look like they hold {' and '.join(found)}: "
+            "they go into the recording; keep people out of them",
+            file=sys.stderr,
+        )
+    # the subject id first: a name is refused before the session's libraries load
+    subject_from_flags(
+        args, SubjectInfo(condition=args.condition or "session"), config.session.subject_pattern
+    )
     from capture.labtools.connections import LabTools, SessionController
     from capture.live.session import Session
-    from capture.live.trials import SubjectInfo
     from capture.recording.naming import trial_conflict
     from capture.recording.writer import RecorderState
 
@@ -100,7 +113,9 @@ def run(args, config) -> int:
         config.simulator.realtime = False
     if args.duration and config.camera.backend == "mock":
         config.simulator.loop = True  # the walk goes on for as long as asked, as in the UI
-    info = subject_from_flags(args, SubjectInfo(condition=args.condition or "session"))
+    info = subject_from_flags(
+        args, SubjectInfo(condition=args.condition or "session"), config.session.subject_pattern
+    )
     existing = _on_existing(args)
     # Checked before the devices open: a refused trial costs no set-up time.
     trial_conflict(config.session.recordings, info.subject, info.condition, info.trial, existing)
@@ -113,7 +128,8 @@ def run(args, config) -> int:
     remote = config.lsl.remote_control
     try:
         session.start()
-        lab = LabTools(session, config, SessionController(session, info)).start()
+        controller = SessionController(session, info, config.session.subject_pattern)
+        lab = LabTools(session, config, controller).start()
         for line in lab.describe():
             print(line, file=sys.stderr)
         for problem in lab.problems:

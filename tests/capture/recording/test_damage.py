@@ -139,12 +139,17 @@ def test_info_reports_damaged_chunks(recording, tmp_path, capsys):
         ["eval", "recordings", "--reference", "terrain"],
         ["train", "--epochs", "1", "--data"],
         ["export", "--format", "csv"],
+        ["share", "--shift-days", "-1"],
     ],
 )
 def test_every_reader_stops_at_damage_with_one_line_naming_it(recording, tmp_path, capsys, command):
     offset, _, _, _ = chunks(recording)[2]
     bad = flipped(recording, tmp_path, offset + 100)
-    extra = {"train": ["--out", str(tmp_path / "m.pt")], "export": ["-o", str(tmp_path / "t")]}
+    extra = {
+        "train": ["--out", str(tmp_path / "m.pt")],
+        "export": ["-o", str(tmp_path / "t")],
+        "share": ["-o", str(tmp_path / "s")],
+    }
     extra = extra.get(command[0], [])
     assert cli.main([*command, str(bad), *extra]) == 1
     line = one_line(capsys.readouterr().err)
