@@ -7,8 +7,9 @@ ready for the file), `open_recording` / `Recording` (reads one, damaged or not),
 topic joined by frame), `summary` (what a file holds, behind `walkcap info`), `check` and
 `recover` (damage and rebuilding), `copy_recording` (a copy with labels, events and metadata
 added), `describe` / `derivation` (a file's identity and lineage), `trial_conflict` (trial
-numbers), `FORMAT_VERSION` (capture.recording.versions: how files of an older version are
-read). The label rules: capture.recording.labels.
+numbers), `PERSONAL_FIELDS` / `ShareRules` (capture.recording.personal: what is personal and
+how a copy made for sharing reduces it), `FORMAT_VERSION` (capture.recording.versions: how
+files of an older version are read). The label rules: capture.recording.labels.
 """
 
 from capture.recording._mcap import NotMcapError, check
@@ -17,6 +18,7 @@ from capture.recording.encode import Encoded
 from capture.recording.frames import FrameTable
 from capture.recording.lineage import derivation, describe
 from capture.recording.naming import trial_conflict
+from capture.recording.personal import PERSONAL_FIELDS, PersonalField, ShareRules
 from capture.recording.reader import (
     Recording,
     frame_table,
@@ -35,10 +37,13 @@ __all__ = [
     "TOPICS",
     "Encoded",
     "FrameTable",
+    "PERSONAL_FIELDS",
     "NotMcapError",
+    "PersonalField",
     "Recorder",
     "Recording",
     "RecordingSummary",
+    "ShareRules",
     "Sink",
     "Topic",
     "check",
