@@ -269,17 +269,19 @@ def _write_trial(root: Path, t: Trial, study, share: personal.ShareRules | None)
     _text(Path(f"{prefix}_channels.tsv"), BT.channels_tsv(study.imu_placement))
     _json(Path(f"{prefix}_channels.json"), BT.channels_json())
     end = rec.end_ns
+    # time zero: the first IMU sample (the motion file's first row); without one, the start
+    zero = motion.first_ns if motion.first_ns is not None else rec.start_ns
     events = tables["events"]
     if share is not None:  # marker notes by the rules; the marker's time stays
         kept = [personal.reduce_event(e, share) for e in events.to_dict("records")]
         events["message"] = [e.get("message", "") for e in kept]
-    rows = BT.events_rows(tables, motion.first_ns, end)
+    rows = BT.events_rows(tables, zero, end)
     header = "\t".join(BT.EVENT_COLUMNS)
     _text(folder / f"{t.stem}_events.tsv", "\n".join([header, *rows]) + "\n")
     _json(folder / f"{t.stem}_events.json", BT.events_json())
     # the derivative: walkcap's per-frame results on the motion file's time
     deriv = root / "derivatives" / "walkcap" / f"sub-{t.subject}" / "motion"
-    head, frame_rows = BT.frames_rows(tables["frames"], motion.first_ns)
+    head, frame_rows = BT.frames_rows(tables["frames"], zero)
     # one row per camera frame, as BIDS events: an onset and the frame's results
     frames_text = "\n".join(["\t".join(head), *frame_rows]) + "\n"
     _text(deriv / f"{t.stem}_events.tsv", frames_text)
@@ -294,7 +296,7 @@ def _write_trial(root: Path, t: Trial, study, share: personal.ShareRules | None)
         if journal.is_file():
             _copy(journal, source / journal.name)
         source_file = f"sourcedata/sub-{t.subject}/{t.path.name}"
-    first_unix = rec.unix_time_ns(motion.first_ns) if motion.first_ns is not None else None
+    first_unix = rec.unix_time_ns(zero) if zero is not None else None
     if share is not None:
         first_unix = personal.shift_unix_ns(first_unix, personal.date_offset_ns(share, t.subject))
     return {
