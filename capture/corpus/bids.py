@@ -45,6 +45,16 @@ BIDS_VERSION = "1.10.0"
 HED_VERSION = "8.3.0"  # no HED tags are written; the schema a later annotation uses
 LABEL = re.compile(r"^[A-Za-z0-9]+$")
 LABEL_RULE = "BIDS labels are letters and digits only (A-Z, a-z, 0-9)"
+# the [study] keys BIDS recommends (the validator warns without them)
+RECOMMENDED_STUDY_KEYS = (
+    "name",
+    "authors",
+    "license",
+    "institution_name",
+    "institution_address",
+    "institution_department",
+    "instructions",
+)
 
 # participants.tsv: column, the session form's field, its description (units, levels)
 PARTICIPANT_COLUMNS = (

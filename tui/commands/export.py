@@ -167,6 +167,13 @@ def _bids(args, config) -> int:
     )
     for line in result.corpus.report_lines():
         print(line, file=sys.stderr)
+    unset = [k for k in bids.RECOMMENDED_STUDY_KEYS if not getattr(study, k)]
+    if unset:
+        print(
+            f"note: [study] {', '.join(unset)} not set: BIDS recommends them, the validator "
+            "warns without them (flags: --author, --license, --study-name)",
+            file=sys.stderr,
+        )
     if args.json:
         print(
             json.dumps(
