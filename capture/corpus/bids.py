@@ -252,6 +252,9 @@ def export(
                 continue
             _remove_trial(root, t, existing or {})
         row = _write_trial(root, t, study, share)
+        if row is None:
+            result.skipped.append((t, "no IMU samples: nothing for a motion file"))
+            continue
         scans[t.motion] = row
         _write_scans(scans_path, scans)
         result.written.append(t)
@@ -265,13 +268,15 @@ def export(
     return result
 
 
-def _write_trial(root: Path, t: Trial, study, share: personal.ShareRules | None) -> dict:
-    """One trial's files; its scans.tsv row."""
+def _write_trial(root: Path, t: Trial, study, share: personal.ShareRules | None) -> dict | None:
+    """One trial's files; its scans.tsv row (None: no IMU samples, nothing written)."""
     rec = open_recording(t.path)
     meta = rec.metadata
     tables = export_mod.tables(t.path)
     rate = BT._rate(meta.get("devices", {}))
     motion = BT.motion_file(tables["imu"], rate)
+    if not motion.rows:
+        return None
     folder = root / f"sub-{t.subject}" / "motion"
     prefix = folder / t.motion_stem
     _text(Path(f"{prefix}_motion.tsv"), "\n".join(motion.rows) + ("\n" if motion.rows else ""))

@@ -18,7 +18,7 @@ from capture.corpus import bids
 from capture.errors import CaptureError
 from capture.recording.journal import journal_path
 from capture.recording.reader import open_recording
-from tests.recording_fixtures import frame_time, write_trial
+from tests.recording_fixtures import T0, frame_time, imu_sample, write_trial
 from tui.cli import main
 
 STUDY = """[study]
@@ -144,14 +144,20 @@ def test_two_subjects_become_a_dataset_the_validator_accepts(tmp_path, capsys):
 # ---- fast: synthetic trials ------------------------------------------------------------
 
 
-def trial(path: Path, subject="S01", condition="indoor", number=1, **body) -> Path:
+def trial(path: Path, subject="S01", condition="indoor", number=1, **session) -> Path:
+    """A small trial: label changes with an undo, IMU samples at 100 Hz from T0."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    write_trial(
+    rec = write_trial(
         path,
         [(frame_time(1), "LG", "operator"), (frame_time(30), "US", "operator"),
          (frame_time(31), "LG", "undo:LG"), (frame_time(50), "DS", "operator")],
-        session={"subject": subject, "condition": condition, "trial": number, **body},
+        session={"subject": subject, "condition": condition, "trial": number, **session},
+        metadata={"devices": {"imu_rate_hz": 100}},
+        close=False,
     )  # fmt: skip
+    for k in range(150):
+        rec.write_imu(imu_sample(k))
+    rec.close()
     return path
 
 
@@ -184,15 +190,13 @@ def test_the_events_keep_the_audit_trail_and_onsets_on_the_motion_files_time(tmp
     kinds = [(r["trial_type"], r["mode"]) for r in rows]
     assert kinds == [("mode", "LG"), ("mode_undone", "US"), ("undo", "LG"), ("mode", "DS")]
     onsets = [float(r["onset"]) for r in rows]
-    assert onsets == sorted(onsets)
-    # no IMU here: time zero is the recording's start; LG lasts until DS, the next change
-    # in force
+    # time zero is the first IMU sample (T0); LG lasts until DS, the next change in force
+    assert onsets == pytest.approx([(frame_time(k) - T0) * 1e-9 for k in (1, 30, 31, 50)])
     assert float(rows[0]["duration"]) == pytest.approx(onsets[3] - onsets[0], abs=1e-9)
 
 
 def test_missing_samples_are_na_rows_and_every_recorded_sample_a_row(tmp_path):
     from capture.recording.writer import Recorder
-    from tests.recording_fixtures import imu_sample
 
     path = tmp_path / "gap.mcap"
     meta = {
@@ -244,3 +248,19 @@ def test_overwrite_replaces_a_trial_and_deidentify_shifts_dates(tmp_path):
     day = dt.timedelta(days=10)
     assert dt.datetime.fromisoformat(real) - dt.datetime.fromisoformat(moved) == day
     assert not (shared / "sourcedata").exists()  # the originals hold the real dates
+
+
+def test_a_superseded_trial_is_left_out_and_a_refusal_is_one_line(tmp_path, capsys):
+    first = trial(tmp_path / "rec" / "S01_indoor_t01_a.mcap")
+    again = tmp_path / "rec" / "S01_indoor_t01_b.mcap"
+    trial(again, supersedes=[open_recording(first).id])
+    ds = tmp_path / "ds"
+    assert main(["export", str(tmp_path / "rec"), "--format", "bids", "-o", str(ds)]) == 0
+    err = capsys.readouterr().err
+    assert f"{first}: superseded by {again.name}" in err
+    sources = sorted(p.name for p in (ds / "sourcedata/sub-S01").glob("*.mcap"))
+    assert sources == [again.name]
+    trial(tmp_path / "bad" / "x.mcap", subject="S01", condition="in-door")
+    assert main(["export", str(tmp_path / "bad"), "--format", "bids", "-o", str(ds)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "condition 'in-door'" in err and "Traceback" not in err
