@@ -461,7 +461,8 @@ def readme(study, deidentified: bool) -> str:
 
 Assistive-walking data recorded with walkcap: a pmd pico flexx time-of-flight camera and
 an Xsens MTi IMU on the {study.imu_placement}. Each trial is one walk over a course of level
-ground, stairs and ramps; the operator keys the locomotion mode live.
+ground, stairs and ramps; the operator keys the locomotion mode live. Trials from
+walkcap's simulated devices say so in their motion.json (ManufacturersModelName).
 
 ## Modes
 

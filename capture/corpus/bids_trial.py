@@ -187,8 +187,8 @@ def motion_json(meta: dict, study, condition: str, motion: MotionFile) -> dict:
         model += " (walkcap's emulated MTi)"
     out = {
         "TaskName": condition,
-        "TaskDescription": f"walking the {condition} course: level ground, stairs and ramps "
-        "up and down, the operator keying the locomotion mode as it changes",
+        "TaskDescription": "walking over level ground, stairs and ramps up and down "
+        f"(condition {condition}), the operator keying the locomotion mode as it changes",
         "Instructions": study.instructions or None,
         "SamplingFrequency": rate if rate else NA,
         "SamplingFrequencyEffective": effective,
@@ -286,7 +286,7 @@ def events_rows(tables: dict, first_ns: int | None, end_ns: int | None) -> list:
                     text(source),
                     _bool(ref),
                     _bool(undone),
-                    "operator",
+                    "simulator" if source == "simulator" else "operator",
                     "label",
                     NA,
                 ],
