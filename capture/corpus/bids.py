@@ -321,6 +321,7 @@ def _write_trial(root: Path, t: Trial, study, share: personal.ShareRules | None)
         "source_file": source_file,
         "imu_samples": str(motion.samples),
         "imu_missing": str(motion.missing),
+        "complete": "true" if rec.complete else "false",
     }
 
 
@@ -354,6 +355,7 @@ SCANS_COLUMNS = (
     "source_file",
     "imu_samples",
     "imu_missing",
+    "complete",
 )
 SCANS_JSON = {
     "acq_time": {"Description": "the first IMU sample's time, UTC (the motion file's time zero)"},
@@ -361,6 +363,11 @@ SCANS_JSON = {
     "source_file": {"Description": "the original walkcap recording (MCAP) under sourcedata/"},
     "imu_samples": {"Description": "rows of the motion file from recorded IMU samples"},
     "imu_missing": {"Description": "n/a rows: samples the IMU produced and the file lacks"},
+    "complete": {
+        "Description": "the recording was finalised; false: cut off (a crash), exported as "
+        "far as it is readable",
+        "Levels": {"true": "finalised", "false": "cut off"},
+    },
 }
 
 

@@ -234,6 +234,14 @@ def test_overwrite_replaces_a_trial_and_deidentify_shifts_dates(tmp_path):
     assert not again.written and len(again.skipped) == 1
     replaced = bids.export([a], ds, StudyConfig(), overwrite=True)
     assert [t.stem for t in replaced.written] == ["sub-S01_task-indoor_run-1"]
+    b = trial(tmp_path / "b" / "S01_indoor_t01_other.mcap")  # the same trial, another file
+    other = bids.export([b], ds, StudyConfig())
+    ((_, why),) = other.skipped
+    assert f"from another recording ({open_recording(a).id})" in why and "--overwrite" in why
+    bids.export([b], ds, StudyConfig(), overwrite=True)
+    assert [p.name for p in (ds / "sourcedata/sub-S01").glob("*.mcap")] == [b.name]
+    scans = (ds / "sub-S01/sub-S01_scans.tsv").read_text().splitlines()
+    assert len(scans) == 2 and open_recording(b).id in scans[1]
 
     from capture.recording.personal import ShareRules
 
