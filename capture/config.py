@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import re
 import tomllib
 import types
 import typing
@@ -28,6 +29,7 @@ from devices.config import (
     ImuConfig,
     MountingConfig,
     SimulatorConfig,
+    choice_problems,
     choices_of,
     doc_of,
     key,
@@ -46,6 +48,16 @@ class SessionConfig:
         "recordings", "folder the recordings are written to (created when missing)"
     )
     operator: str = key("", "who runs the session, written into every recording")
+    subject_pattern: str = key(
+        "^[A-Z]{1,4}[0-9]{1,4}$",
+        "subject ids the form, `record` and `replay` accept (a regular expression the whole "
+        "id must match): pseudonymous codes such as S01, never names",
+    )
+    remember_days: int = key(
+        90,
+        "days the form remembers a subject's body data after their last session "
+        "(~/.config/walkcap/last_session.json); 0: not at all",
+    )
     # SCHED_FIFO where the system allows it (root, CAP_SYS_NICE or an rtprio limit);
     # otherwise the thread runs normally
     realtime_priority: int = key(
@@ -56,6 +68,12 @@ class SessionConfig:
         out = [] if self.recordings else [("recordings", "a folder name")]
         if not 0 <= self.realtime_priority <= 99:
             out.append(("realtime_priority", "0 (normal scheduling) to 99"))
+        if self.remember_days < 0:
+            out.append(("remember_days", "0 (remember nothing) or more days"))
+        try:
+            re.compile(self.subject_pattern)
+        except re.error as e:
+            out.append(("subject_pattern", f"a regular expression ({e})"))
         return out
 
 
@@ -115,6 +133,55 @@ class FoxgloveConfig:
     image_hz: float = key(5.0, "depth, images and clouds sent at most this often, per second")
 
 
+_TEXT = ("drop", "replace", "keep")
+
+
+@dataclass
+class ShareConfig:
+    """What copies made for sharing keep of the personal fields (`walkcap share`, and the
+    BIDS export): the list is in docs/recordings.md#personal-data."""
+
+    notes: str = key(
+        "drop", "the form's Notes: drop, replace (by `replacement`) or keep", choices=_TEXT
+    )
+    operator: str = key(
+        "drop", "the operator: drop, replace (by `replacement`) or keep", choices=_TEXT
+    )
+    markers: str = key(
+        "replace",
+        "a marker's typed note: replace (the text 'marker'), drop (empty) or keep; its time stays",
+        choices=_TEXT,
+    )
+    replacement: str = key("[removed]", "what `replace` puts in the notes and the operator")
+    body: str = key(
+        "keep",
+        "age, height, weight, residual limb: keep, coarsen (age in 5-year bands, 90 and over "
+        "as 90; height to 0.05 m; weight to 5 kg; limb to 5 cm) or drop",
+        choices=("keep", "coarsen", "drop"),
+    )
+    sex: str = key("keep", "the subject's sex: keep or drop", choices=("keep", "drop"))
+    amputation: str = key("keep", "amputee and side: keep or drop", choices=("keep", "drop"))
+    dates: str = key(
+        "subject",
+        "dates moved back by whole days: one offset per subject, one for the study, or keep "
+        "(the real dates)",
+        choices=("subject", "study", "keep"),
+    )
+    secret: str = key(
+        "",
+        "the study's secret the date offsets derive from (the same secret, the same offsets "
+        "in every run); kept with the study's key list, never in what is shared",
+        secret=True,
+    )
+    max_shift_days: int = key(3650, "derived offsets move dates back by 1 to this many days")
+
+    def problems(self) -> list[tuple[str, str]]:
+        out = choice_problems(self)
+        if self.max_shift_days < 1:
+            out.append(("max_shift_days", "at least 1"))
+        return out
+
+
 @dataclass
 class StudyConfig:
     """The study a BIDS dataset describes (`walkcap export --format bids`)."""
@@ -155,6 +222,7 @@ class Config:
     keys: KeysConfig = field(default_factory=KeysConfig)
     lsl: LslConfig = field(default_factory=LslConfig)
     foxglove: FoxgloveConfig = field(default_factory=FoxgloveConfig)
+    share: ShareConfig = field(default_factory=ShareConfig)
     study: StudyConfig = field(default_factory=StudyConfig)
     source: str = ""  # the file it was read from, empty for defaults
 

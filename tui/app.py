@@ -167,7 +167,7 @@ class WalkcapApp(App):
     def _remembered_subject(self) -> SubjectInfo:
         """The form confirmed last, its next free trial in the recordings folder; the
         remembered operator unless one is configured."""
-        remembered = load_remembered()
+        remembered = load_remembered(days=self.config.session.remember_days)
         if not self.config.session.operator:
             self.config.session.operator = remembered.operator
         last = remembered.last
@@ -194,14 +194,17 @@ class WalkcapApp(App):
         severity="information",
         timeout: float | None = None,
         markup: bool = True,
+        logged: str | None = None,
     ) -> None:
         """A notice goes to the live screen's notice line, never over its panels (a toast
         would hide the newest seconds of the strips); only the session form, which has no
-        notice line, shows it as a toast as well. Thread-safe, as App.notify is."""
+        notice line, shows it as a toast as well. Thread-safe, as App.notify is. `logged`:
+        what tui.log gets instead of the text (the operator's own words stay out of it)."""
         text = f"{title}: {message}" if title else str(message)
         notice = Notice(" ".join(text.split()), str(severity))
         level = {"error": logging.ERROR, "warning": logging.WARNING}.get(severity, logging.INFO)
-        log.log(level, "notice: %s", notice.text)  # tui.log: what the operator was told
+        # tui.log: what the operator was told
+        log.log(level, "notice: %s", notice.text if logged is None else logged)
         self.post_message(messages.NoticePosted(notice, title, message, severity, timeout, markup))
 
     def on_notice_posted(self, event: messages.NoticePosted) -> None:
@@ -264,7 +267,7 @@ class WalkcapApp(App):
         if source is None or source.recording or self._busy_recording:
             return
         try:
-            self.subject = trial_info(self.subject, request)
+            self.subject = trial_info(self.subject, request, self.config.session.subject_pattern)
         except CaptureError as e:
             self.notify(f"remote start refused: {e}", severity="error", timeout=10)
             return
@@ -540,7 +543,11 @@ class WalkcapApp(App):
         self.recording_path = None
         # the next trial of the same subject: advance and remember, even if the app dies now
         self.subject = dataclasses.replace(self.subject, trial=self.subject.trial + 1)
-        save_last_session(self.subject, operator=self.config.session.operator)
+        save_last_session(
+            self.subject,
+            operator=self.config.session.operator,
+            days=self.config.session.remember_days,
+        )
         stats = message.stats
         name = Path((stats.path if stats else "") or message.path or "recording").name
         if stats is not None and stats.state == RecorderState.FAILED:

@@ -22,6 +22,8 @@ COMMANDS = (
     "replay",
     "info",
     "export",
+    "share",
+    "forget",
     "recover",
     "eval",
     "train",

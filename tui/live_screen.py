@@ -496,7 +496,12 @@ class LiveScreen(Screen):
             if note is None:
                 return
             source.add_marker(note, time_ns=pressed_ns)
-            self.notify(f"marker{': ' + note if note else ''}", timeout=3)
+            # the note is the operator's free text: on screen, not in tui.log
+            self.app.notify(
+                f"marker{': ' + note if note else ''}",
+                timeout=3,
+                logged="marker" + (" (with a note)" if note else ""),
+            )
 
         self.app.push_screen(MarkerDialog(*self._mode_keys()), place)
 

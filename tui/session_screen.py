@@ -1,19 +1,15 @@
 """The session form: who walks, under which condition, which trial; validated, remembered.
 
-The last values confirmed are kept in ~/.config/walkcap/last_session.json so that the next
-session (or a restart after a crash) opens with them, with the operator. The subject's own
-fields (body data, notes) are remembered per subject id: another subject never inherits
-them. The trial is the next free number for the subject and condition in the recordings
-folder.
+The last form confirmed and each subject's body data are remembered (tui.remembered) so that
+the next session (or a restart after a crash) opens with them, with the operator; another
+subject never inherits them, and notes are never kept. The trial is the next free number for
+the subject and condition in the recordings folder. Notes that look like they name a person,
+a date of birth or a place are warned of under the field.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import json
 import logging
-import os
-from pathlib import Path
 
 from textual.app import ComposeResult
 from textual.binding import Binding
@@ -24,7 +20,14 @@ from textual.widgets import Button, Checkbox, Footer, Input, Label, Select, Stat
 
 from capture.errors import CaptureError
 from capture.live.trials import SubjectInfo
-from devices.files import check_replaceable
+from capture.recording.personal import NOTES_HELP, note_warnings
+from tui.remembered import (  # noqa: F401  (the form's memory, named here too)
+    Remembered,
+    last_session_path,
+    load_last_session,
+    load_remembered,
+    save_last_session,
+)
 from tui.subject import SUBJECT_FIELDS
 
 log = logging.getLogger(__name__)
@@ -46,99 +49,11 @@ FIELDS = {
 }
 
 
-def last_session_path() -> Path:
-    return Path(os.path.expanduser("~")) / ".config" / "walkcap" / "last_session.json"
-
-
-@dataclasses.dataclass
-class Remembered:
-    """last_session.json: the form confirmed last, the operator, each subject's own fields."""
-
-    last: SubjectInfo = dataclasses.field(default_factory=SubjectInfo)
-    operator: str = ""
-    subjects: dict[str, dict] = dataclasses.field(default_factory=dict)
-
-    def subject_fields(self, subject: str) -> dict:
-        """`subject`'s own remembered fields; empty ones for a subject not seen before."""
-        blank = SubjectInfo()
-        fields = {k: getattr(blank, k) for k in SUBJECT_FIELDS}
-        if subject == self.last.subject:
-            return {k: getattr(self.last, k) for k in SUBJECT_FIELDS}
-        fields.update(self.subjects.get(subject, {}))
-        return fields
-
-    def form_for(
-        self, subject: str, condition: str, folder: str | os.PathLike | None
-    ) -> SubjectInfo:
-        """The form for `subject` and `condition`: that subject's own fields and the next
-        free trial in `folder` (from the remembered trial when the subject and condition
-        are the ones confirmed last, else from 1)."""
-        from capture.recording.naming import next_free_trial, trial_files
-
-        same = subject == self.last.subject and condition == self.last.condition
-        start = self.last.trial if same else 1
-        taken = trial_files(folder, subject, condition) if folder is not None else {}
-        return dataclasses.replace(
-            self.last,
-            subject=subject,
-            condition=condition,
-            trial=next_free_trial(taken, start),
-            **self.subject_fields(subject),
-        )
-
-
-def load_remembered(path: Path | None = None) -> Remembered:
-    """What was confirmed last time; defaults when there is none or it is unreadable."""
-    path = path or last_session_path()
-    try:
-        data = json.loads(path.read_text())
-        known = {f.name for f in dataclasses.fields(SubjectInfo)}
-        info = SubjectInfo(**{k: v for k, v in data.items() if k in known})
-        info.validate()
-    except FileNotFoundError:
-        return Remembered()
-    except (OSError, ValueError, TypeError, AttributeError, CaptureError) as e:
-        log.warning("ignoring %s: %s", path, e)
-        return Remembered()
-    operator = data.get("operator")
-    subjects = {}
-    for subject, fields in (data.get("subjects") or {}).items():
-        if isinstance(fields, dict):
-            subjects[str(subject)] = {k: v for k, v in fields.items() if k in SUBJECT_FIELDS}
-    return Remembered(info, operator if isinstance(operator, str) else "", subjects)
-
-
-def load_last_session(path: Path | None = None) -> SubjectInfo:
-    """The form confirmed last time; defaults when there is none or it is unreadable."""
-    return load_remembered(path).last
-
-
-def save_last_session(
-    info: SubjectInfo, path: Path | None = None, *, operator: str | None = None
-) -> None:
-    """Remember `info` (and its subject's own fields) and the operator (None: keep the
-    remembered one)."""
-    path = path or last_session_path()
-    remembered = load_remembered(path)
-    subjects = dict(remembered.subjects)
-    subjects[info.subject] = {k: getattr(info, k) for k in SUBJECT_FIELDS}
-    data = dataclasses.asdict(info)
-    data["operator"] = remembered.operator if operator is None else operator
-    data["subjects"] = subjects
-    try:
-        check_replaceable(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(".tmp")
-        tmp.write_text(json.dumps(data, indent=2))
-        os.replace(tmp, path)
-    except OSError as e:  # losing the remembered form must never stop a session
-        log.warning("cannot save %s: %s", path, e)
-
-
-def info_from_form(values: dict[str, object]) -> SubjectInfo:
+def info_from_form(values: dict[str, object], pattern: str | None = None) -> SubjectInfo:
     """Form values (text, or bool for the checkbox) -> a validated SubjectInfo.
 
-    Raises CaptureError naming the field when a value is not a number or out of range.
+    Raises CaptureError naming the field when a value is not a number or out of range, or
+    when the subject id does not fit `pattern` ([session] subject_pattern).
     """
     kwargs: dict[str, object] = {}
     for name, (label, kind) in FIELDS.items():
@@ -162,7 +77,7 @@ def info_from_form(values: dict[str, object]) -> SubjectInfo:
         else:
             kwargs[name] = text
     info = SubjectInfo(**kwargs)
-    info.validate()
+    info.validate(pattern)
     return info
 
 
@@ -227,6 +142,8 @@ class SessionScreen(Screen[SubjectInfo | None]):
                     max_length=64,
                     select_on_focus=False,
                 )
+            yield Static(NOTES_HELP, id="notes-help")
+            yield Static(self._notes_warning(values["notes"]), id="notes-warning")
             yield Static("", id="form-error")
             yield Static("", id="device-status")
             with Horizontal(id="form-buttons"):
@@ -255,6 +172,18 @@ class SessionScreen(Screen[SubjectInfo | None]):
             return Input(type="number", **common)
         return Input(max_length=500, **common)
 
+    @staticmethod
+    def _notes_warning(text: str) -> str:
+        """One line when the notes look like they hold a name, a date of birth or a place
+        (capture.recording.personal.note_warnings)."""
+        found = note_warnings(text)
+        if not found:
+            return ""
+        return (
+            f"[b yellow]Notes look like they hold {' and '.join(found)}: "
+            "they go into every recording; keep people out of them[/]"
+        )
+
     def _operator(self) -> str:
         return self.app.config.session.operator
 
@@ -274,12 +203,12 @@ class SessionScreen(Screen[SubjectInfo | None]):
 
     def action_confirm(self) -> None:
         try:
-            info = info_from_form(self.values())
+            info = info_from_form(self.values(), self.app.config.session.subject_pattern)
         except CaptureError as e:
             self.query_one("#form-error", Static).update(f"[b red]{e}[/]")
             return
         self.operator = str(self.query_one("#f-operator", Input).value).strip()
-        save_last_session(info, operator=self.operator)
+        save_last_session(info, operator=self.operator, days=self.app.config.session.remember_days)
         self.app.config.session.operator = self.operator  # written into every recording
         self.dismiss(info)
 
@@ -295,7 +224,12 @@ class SessionScreen(Screen[SubjectInfo | None]):
 
     def on_input_changed(self, event: Input.Changed) -> None:
         """Another subject or condition: that subject's own fields (empty for a new one) and
-        its next free trial, in every field the operator has not typed into."""
+        its next free trial, in every field the operator has not typed into. Notes that look
+        personal: a warning under them."""
+        if event.input.id == "f-notes":
+            warning = self._notes_warning(str(event.value))
+            self.query_one("#notes-warning", Static).update(warning)
+            return
         if event.input.id not in ("f-subject", "f-condition"):
             return
         values = self.values()
@@ -303,7 +237,8 @@ class SessionScreen(Screen[SubjectInfo | None]):
         if key == self._filled_for or not all(key):
             return
         folder = self.app.config.session.recordings
-        fresh = form_values(load_remembered().form_for(*key, folder))
+        days = self.app.config.session.remember_days
+        fresh = form_values(load_remembered(days=days).form_for(*key, folder))
         for name in (*SUBJECT_FIELDS, "trial"):
             widget = self.query_one(f"#f-{name}")
             if widget.value == self._filled[name]:

@@ -21,7 +21,7 @@ from pathlib import Path
 from capture.errors import CaptureError
 from capture.recording.lineage import (
     CORRECTED,
-    RECORDING,
+    ORIGINAL_KINDS,
     RECOVERED,
     REPLAY,
     Member,
@@ -104,7 +104,7 @@ def select(
         by_name.setdefault(m.path.name, []).append(m)
 
     def source_of(m: Member) -> Member | None:
-        if m.kind == RECORDING:
+        if m.kind in ORIGINAL_KINDS:
             return None
         if m.source_id and m.source_id in by_id:
             return by_id[m.source_id]
@@ -121,7 +121,7 @@ def select(
                 break
             seen.add(s.id)
             m = s
-        if m.kind == RECORDING:
+        if m.kind in ORIGINAL_KINDS:
             return m.id, m
         return f"missing:{m.source_id or m.source_name}", None  # its source is not here
 

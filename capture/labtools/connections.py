@@ -23,14 +23,15 @@ log = logging.getLogger(__name__)
 class SessionController:
     """What remote control's start and stop do in a headless session."""
 
-    def __init__(self, session, info) -> None:
+    def __init__(self, session, info, pattern: str | None = None) -> None:
         self.session = session
         self.info = info  # the SubjectInfo the next trial starts from
+        self.pattern = pattern  # [session] subject_pattern
 
     def remote_start(self, request) -> str:
         if self.session.recording:
             return "already recording"
-        info = trial_info(self.info, request)
+        info = trial_info(self.info, request, self.pattern)
         # the remote trial's folder is its own: the configured one stays the operator's
         path = self.session.start_recording(dataclasses.replace(info), folder=request.root or None)
         self.info = info
@@ -68,12 +69,13 @@ def checked_request(config, request):
         request.root = str(
             remote_folder(config.session.recordings, request.root, config.lsl.remote_any_root)
         )
-    trial_info(SubjectInfo(), request)
+    trial_info(SubjectInfo(), request, config.session.subject_pattern)
     return request
 
 
-def trial_info(info, request):
-    """The SubjectInfo a remote `filename` asked for, on top of the current one."""
+def trial_info(info, request, pattern: str | None = None):
+    """The SubjectInfo a remote `filename` asked for, on top of the current one; a subject
+    it names fits `pattern` ([session] subject_pattern)."""
     changes = {}
     if request.subject:
         changes["subject"] = request.subject
@@ -85,7 +87,7 @@ def trial_info(info, request):
         extra = " ".join(f"{k}={v}" for k, v in sorted(request.notes.items()))
         changes["notes"] = f"{info.notes} {extra}".strip()
     new = dataclasses.replace(info, **changes)
-    new.validate()
+    new.validate(pattern if request.subject else None)
     return new
 
 

@@ -14,6 +14,22 @@ from capture import config as config_mod
 from capture.errors import CaptureError
 
 TRIAL_MAX = 99_999  # trial numbers name files (t01 ... t99999) and fit every integer field
+# The default of [session] subject_pattern: a code of letters then digits (S01, P07, OP1).
+SUBJECT_PATTERN = config_mod.SessionConfig.subject_pattern
+
+
+def check_pseudonym(subject: str, pattern: str = SUBJECT_PATTERN) -> None:
+    """CaptureError, in one line naming the pattern, when `subject` is no id of the study's
+    pattern ([session] subject_pattern): a name in the id field goes into every file name."""
+    try:
+        fits = re.fullmatch(pattern, subject) is not None
+    except re.error:
+        fits = False
+    if not fits:
+        raise CaptureError(
+            f"subject id {subject!r} does not fit the study's pattern {pattern} "
+            "([session] subject_pattern): a pseudonymous code such as S01, never a name"
+        )
 
 
 @dataclass
@@ -32,7 +48,9 @@ class SubjectInfo:
     trial: int = 1
     notes: str = ""
 
-    def validate(self) -> None:
+    def validate(self, pattern: str | None = None) -> None:
+        """CaptureError naming the first field out of range; `pattern`: the subject id must
+        also fit it (check_pseudonym), as every id an operator types must."""
         if not re.fullmatch(r"[A-Za-z0-9_-]{1,32}", self.subject):
             raise CaptureError(
                 "subject id: 1-32 letters, digits, '-' or '_' (pseudonymous, no names)"
@@ -53,6 +71,8 @@ class SubjectInfo:
             raise CaptureError("condition: 1-32 letters, digits, '-' or '_' (e.g. indoor)")
         if not 1 <= self.trial <= TRIAL_MAX:
             raise CaptureError(f"trial: a number from 1 to {TRIAL_MAX}")
+        if pattern is not None:
+            check_pseudonym(self.subject, pattern)
 
     def to_metadata(self) -> dict:
         """The form as the "session" metadata record: typed values (None: not given)."""

@@ -18,6 +18,10 @@ from capture.recording.reader import Recording
 
 RECORDING, REPLAY, CORRECTED, RECOVERED = "recording", "replay", "corrected", "recovered"
 DERIVED_KINDS = (REPLAY, CORRECTED, RECOVERED)
+# A copy made for sharing (capture.corpus.share) stands for its trial on its own: its
+# source stays with the lab, so among shared copies it is the trial's original.
+SHARED = "shared"
+ORIGINAL_KINDS = (RECORDING, SHARED)
 
 
 def derivation(source: Recording, new_id: str, kind: str, how: str, **extra) -> dict:
@@ -42,7 +46,7 @@ class Member:
 
     path: Path
     id: str
-    kind: str  # recording | replay | corrected | recovered
+    kind: str  # recording | replay | corrected | recovered | shared
     trial: tuple[str, str, int | None]
     complete: bool
     source_id: str = ""
@@ -62,7 +66,7 @@ def describe(rec: Recording) -> Member:
     meta = rec.metadata
     d = meta.get("derivation") or {}
     kind, source_id, source_name, how = RECORDING, "", "", ""
-    if d.get("kind") in DERIVED_KINDS:
+    if d.get("kind") in (*DERIVED_KINDS, SHARED):
         kind = d["kind"]
         source_id, source_name, how = (
             str(d.get("source_id") or ""),

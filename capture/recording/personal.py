@@ -20,6 +20,8 @@ import math
 import re
 from dataclasses import dataclass, field, replace
 
+from capture.errors import CaptureError
+
 # What a field is (the kind decides which rule applies to it).
 IDENTIFIER, BODY, HEALTH, FREE_TEXT, PERSON, TIME = (
     "identifier",
@@ -147,6 +149,15 @@ PERSONAL_FIELDS: tuple[PersonalField, ...] = (
         "replaced by 'marker' (the time is kept)",
     ),
     PersonalField(
+        "/lsl/NAME",
+        FREE_TEXT,
+        "other programs' streams recorded into the trial ([lsl] record): marker streams may "
+        "carry text",
+        ("/lsl/NAME", "export"),
+        "the analysis of those devices",
+        "kept as recorded (another program's data: record only what may be shared)",
+    ),
+    PersonalField(
         "file names",
         TIME,
         "the date and time a trial started (<subject>_<condition>_t<NN>_<YYYYmmdd-HHMMSS>)",
@@ -216,8 +227,8 @@ _FILE_TIME = re.compile(r"_\d{8}-\d{6}(?=[._]|$)")
 _ISO_DATETIME = re.compile(r"^\d{4}-\d{2}-\d{2}T\d{2}:\d{2}(:\d{2}(\.\d+)?)?([+-]\d{2}:?\d{2}|Z)?$")
 
 
-class RulesError(ValueError):
-    """Rules that cannot be applied (a shift with no secret, an unknown rule)."""
+class RulesError(CaptureError, ValueError):
+    """Rules that cannot be applied (a shift with no secret, an unknown rule): one line."""
 
 
 @dataclass(frozen=True)
@@ -502,3 +513,40 @@ def fields_markdown() -> str:
             f"| `{f.name}` | {f.kind} | {f.what} | {stored} | {f.needed_by} | {f.shared} |"
         )
     return "\n".join(lines) + "\n"
+
+
+# ---- notes ---------------------------------------------------------------------------------
+
+NOTES_HELP = (
+    "Notes: about the trial (shoes, prosthesis, socket, weather, what went wrong); "
+    "never names, dates of birth or places: notes go into every file"
+)
+_CAP = r"[A-ZÄÖÜ][a-zäöüß]+(?:-[A-ZÄÖÜ][a-zäöüß]+)?"
+_TITLES = r"(?:Mr|Mrs|Ms|Miss|Dr|Prof|Herr|Frau|Hr|Fr)\.?"
+_NAME = re.compile(rf"\b{_CAP}\s+{_CAP}\b|\b{_TITLES}\s+{_CAP}\b")
+_DATE = re.compile(
+    r"\b\d{1,2}[./-]\d{1,2}[./-](?:\d{2}|\d{4})\b|\b(?:19|20)\d{2}-\d{1,2}-\d{1,2}\b"
+    r"|\b(?:born|dob|d\.o\.b|geb|geboren|birthday)\b",
+    re.IGNORECASE,
+)
+_PLACE = re.compile(
+    r"\b(?i:from|in|at|lives|aus)\s+(?i:the\s+)?" + _CAP + r"\b"
+    r"|(?i:\b\w*(?:klinik|clinic|hospital|krankenhaus|ward|street|straße|strasse|road|avenue)\b)"
+    r"|\b\d{5}\b"
+)
+
+
+def note_warnings(text: str) -> list[str]:
+    """What in a note looks personal: a name (two capitalised words in a row, or a title
+    and a capitalised word), a date of birth (a date, or words such as "born"), a place
+    ("from" or "in" and a capitalised word, words such as clinic, ward or street, a postal
+    code). A heuristic that errs towards warning: it catches the common cases, not every
+    one, and it never changes the note."""
+    found = []
+    if _NAME.search(text or ""):
+        found.append("a name")
+    if _DATE.search(text or ""):
+        found.append("a date of birth")
+    if _PLACE.search(text or ""):
+        found.append("a place")
+    return found

@@ -39,7 +39,7 @@ async def test_form_remembers_validates_and_leads_to_the_live_screen():
         await pilot.press("enter")
         await wait_for_app(pilot, lambda: isinstance(app.screen, LiveScreen))
         assert app.subject.height_m == 1.7 and app.subject.subject == "A03"
-    assert json.loads(last_session_path().read_text())["height_m"] == 1.7
+    assert json.loads(last_session_path().read_text())["subjects"]["A03"]["height_m"] == 1.7
 
 
 async def test_starting_devices_is_shown_and_a_start_error_is_a_message_not_a_crash():

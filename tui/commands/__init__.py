@@ -238,13 +238,14 @@ def apply_device_flags(args, config) -> None:
             override(config, key, value, flag="--" + flag.replace("_", "-"))
 
 
-def subject_from_flags(args, base):
-    """`base` (a SubjectInfo) with the session flags given on top, validated."""
+def subject_from_flags(args, base, pattern: str | None = None):
+    """`base` (a SubjectInfo) with the session flags given on top, validated; `pattern`: the
+    subject id must fit it ([session] subject_pattern)."""
     import dataclasses
 
     given = {k: getattr(args, k) for k in SESSION_FLAGS if getattr(args, k, None) is not None}
     info = dataclasses.replace(base, **given)
-    info.validate()
+    info.validate(pattern)
     return info
 
 

@@ -70,9 +70,14 @@ def status_line(elapsed_s: float, total_s: float | None, snap) -> str:
 
 
 def run(args, config) -> int:
+    from capture.live.trials import SubjectInfo
+
+    # the subject id first: a name is refused before the session's libraries load
+    subject_from_flags(
+        args, SubjectInfo(condition=args.condition or "session"), config.session.subject_pattern
+    )
     from capture.labtools.connections import LabTools, SessionController
     from capture.live.session import Session
-    from capture.live.trials import SubjectInfo
     from capture.recording.naming import trial_conflict
     from capture.recording.writer import RecorderState
 
@@ -85,7 +90,9 @@ def run(args, config) -> int:
         config.simulator.realtime = False
     if args.duration and config.camera.backend == "mock":
         config.simulator.loop = True  # the walk goes on for as long as asked, as in the UI
-    info = subject_from_flags(args, SubjectInfo(condition=args.condition or "session"))
+    info = subject_from_flags(
+        args, SubjectInfo(condition=args.condition or "session"), config.session.subject_pattern
+    )
     existing = _on_existing(args)
     # Checked before the devices open: a refused trial costs no set-up time.
     trial_conflict(config.session.recordings, info.subject, info.condition, info.trial, existing)
@@ -98,7 +105,8 @@ def run(args, config) -> int:
     remote = config.lsl.remote_control
     try:
         session.start()
-        lab = LabTools(session, config, SessionController(session, info)).start()
+        controller = SessionController(session, info, config.session.subject_pattern)
+        lab = LabTools(session, config, controller).start()
         for line in lab.describe():
             print(line, file=sys.stderr)
         for problem in lab.problems:

@@ -45,6 +45,8 @@ def run(args, config) -> int:
     from capture.errors import CaptureError
 
     several = len(args.files) > 1
+    for f in args.files:
+        _check_subject(f, config.session.subject_pattern)
     if args.tui:
         if several:
             raise CaptureError("--tui shows one recording: give one FILE")
@@ -62,6 +64,25 @@ def run(args, config) -> int:
     for source, output in zip(args.files, outputs):
         status = max(status, _replay_one(args, config, source, output))
     return status
+
+
+def _check_subject(path: str, pattern: str) -> None:
+    """A replay carries its source's subject id into a new file: the id fits the study's
+    pattern, or the replay is refused before anything runs (an unreadable file is left to the
+    replay to report)."""
+    from capture.errors import CaptureError
+    from capture.live.trials import check_pseudonym
+    from capture.recording import open_recording
+
+    try:
+        subject = open_recording(path).trial[0]
+    except (CaptureError, OSError):
+        return
+    if subject:
+        try:
+            check_pseudonym(str(subject), pattern)
+        except CaptureError as e:
+            raise CaptureError(f"{path}: {e}") from None
 
 
 def _outputs(files: list[str], out: str | None) -> list[str | None]:

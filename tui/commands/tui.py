@@ -28,7 +28,7 @@ def starting_form(args, config):
     from tui.commands import subject_from_flags
     from tui.session_screen import load_remembered
 
-    remembered = load_remembered()
+    remembered = load_remembered(days=config.session.remember_days)
     if args.operator is None and remembered.operator:
         config.session.operator = remembered.operator
     base = remembered.form_for(
@@ -36,7 +36,10 @@ def starting_form(args, config):
         args.condition or remembered.last.condition,
         config.session.recordings,
     )
-    return subject_from_flags(args, base)
+    # an id given on the command line fits the study's pattern; a remembered one is checked
+    # when the form is confirmed
+    pattern = config.session.subject_pattern if args.subject else None
+    return subject_from_flags(args, base, pattern)
 
 
 def run(args, config) -> int:
