@@ -288,7 +288,10 @@ def _write_trial(root: Path, t: Trial, study, share: personal.ShareRules | None)
     zero = motion.first_ns if motion.first_ns is not None else rec.start_ns
     events = tables["events"]
     if share is not None:  # marker notes by the rules; the marker's time stays
-        kept = [personal.reduce_event(e, share) for e in events.to_dict("records")]
+        kept = [
+            personal.reduce_event({"device": d, "message": m}, share)
+            for d, m in zip(events["device"], events["message"], strict=True)
+        ]
         events["message"] = [e.get("message", "") for e in kept]
     rows = BT.events_rows(tables, zero, end)
     header = "\t".join(BT.EVENT_COLUMNS)

@@ -68,15 +68,20 @@ def add_arguments(parser) -> None:
     bids.add_argument(
         "--deidentify",
         action="store_true",
-        help="by the share rules (capture.recording.personal): dates shifted by whole days, "
-        "marker notes replaced, the originals left out of sourcedata/",
+        help="by the [share] rules (walkcap share's): dates moved by whole days, marker "
+        "notes and body data as the rules say, the originals left out of sourcedata/",
     )
     bids.add_argument(
         "--shift-days",
         type=int,
         metavar="N",
-        help="with --deidentify: move every date by N days (default: an offset per subject "
-        "derived from the study's secret, [share] secret)",
+        help="with --deidentify: move every date by N days (negative: back) instead of the "
+        "offsets derived from the study's secret",
+    )
+    bids.add_argument(
+        "--secret-file",
+        metavar="PATH",
+        help="with --deidentify: a file holding the study's secret (default: [share] secret)",
     )
     add_cluster_argument(parser, "the reading of each recording")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -98,6 +103,8 @@ def run(args, config) -> int:
             ("--study-name", args.study_name),
             ("--author", args.author),
             ("--license", args.license),
+            ("--shift-days", args.shift_days is not None),
+            ("--secret-file", args.secret_file),
         )
         if on
     ]
@@ -137,6 +144,7 @@ def run(args, config) -> int:
 
 
 def _bids(args, config) -> int:
+    import argparse
     import dataclasses
     import json
 
@@ -155,13 +163,18 @@ def _bids(args, config) -> int:
         study.license = args.license
     share = None
     if args.deidentify:
-        from capture.recording.personal import ShareRules
+        from tui.commands import share as share_command
 
-        # the study's secret, where the configuration has a [share] section
-        secret = str(getattr(getattr(config, "share", None), "secret", "") or "")
-        share = ShareRules(secret=secret, shift_days=args.shift_days)
-    elif args.shift_days is not None:
-        raise CaptureError("--shift-days goes with --deidentify")
+        # the [share] section as `walkcap share` reads it, with no rule flag on top
+        given = argparse.Namespace(
+            **dict.fromkeys(("notes", "operator", "markers", "body", "sex", "amputation")),
+            dates=None,
+            shift_days=args.shift_days,
+            secret_file=args.secret_file,
+        )
+        share = share_command.rules_from(given, config)
+    elif args.shift_days is not None or args.secret_file:
+        raise CaptureError("--shift-days and --secret-file go with --deidentify")
     result = bids.export(
         args.files, args.out, study, overwrite=args.overwrite, replays=args.replays, share=share
     )

@@ -248,7 +248,7 @@ def test_overwrite_replaces_a_trial_and_deidentify_shifts_dates(tmp_path):
     with pytest.raises(CaptureError, match="written with the real dates"):
         bids.export([a], ds, StudyConfig(), share=ShareRules(shift_days=-10))
     shared = tmp_path / "shared"
-    bids.export([a], shared, StudyConfig(), share=ShareRules(shift_days=-10))
+    bids.export([b], shared, StudyConfig(), share=ShareRules(shift_days=-10))
     real = (ds / "sub-S01/sub-S01_scans.tsv").read_text().splitlines()[1].split("\t")[1]
     moved = (shared / "sub-S01/sub-S01_scans.tsv").read_text().splitlines()[1].split("\t")[1]
     import datetime as dt
@@ -272,3 +272,32 @@ def test_a_superseded_trial_is_left_out_and_a_refusal_is_one_line(tmp_path, caps
     assert main(["export", str(tmp_path / "bad"), "--format", "bids", "-o", str(ds)]) == 1
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "condition 'in-door'" in err and "Traceback" not in err
+
+
+def test_deidentify_takes_the_share_sections_rules(tmp_path, capsys):
+    (tmp_path / "rec").mkdir()
+    rec = write_trial(
+        tmp_path / "rec" / "S01_indoor_t01.mcap",
+        [(frame_time(1), "LG", "operator")],
+        session={"subject": "S01", "condition": "indoor", "trial": 1, "age": 43},
+        metadata={"devices": {"imu_rate_hz": 100}},
+        close=False,
+    )
+    for k in range(20):
+        rec.write_imu(imu_sample(k))
+    rec.write_event(
+        {"time_ns": frame_time(3), "device": "operator", "kind": "marker", "message": "Anna fell"}
+    )
+    rec.close()
+    config = tmp_path / "walkcap.toml"
+    config.write_text('[share]\nbody = "coarsen"\nsecret = "the study\'s secret"\n')
+    ds = tmp_path / "ds"
+    argv = ["export", "--config", str(config), str(tmp_path / "rec"), "--format", "bids"]
+    assert main([*argv, "-o", str(ds), "--deidentify"]) == 0
+    people = (ds / "participants.tsv").read_text().splitlines()
+    assert people[1].split("\t")[2] == "40"  # age in 5-year bands
+    events = (ds / "sub-S01/motion/sub-S01_task-indoor_run-1_events.tsv").read_text()
+    assert "Anna" not in events and "\tmarker\tmarker" in events
+    description = json.loads((ds / "dataset_description.json").read_text())
+    assert description["walkcap"]["deidentified"] is True
+    assert not (ds / "sourcedata").exists()
