@@ -292,7 +292,8 @@ def _write_trial(root: Path, t: Trial, study, share: personal.ShareRules | None)
             personal.reduce_event({"device": d, "message": m}, share)
             for d, m in zip(events["device"], events["message"], strict=True)
         ]
-        events["message"] = [e.get("message", "") for e in kept]
+        # file names in device events carry the trial's start time
+        events["message"] = [personal.strip_file_time(e.get("message", "")) for e in kept]
     rows = BT.events_rows(tables, zero, end)
     header = "\t".join(BT.EVENT_COLUMNS)
     _text(folder / f"{t.stem}_events.tsv", "\n".join([header, *rows]) + "\n")

@@ -301,3 +301,16 @@ def test_deidentify_takes_the_share_sections_rules(tmp_path, capsys):
     description = json.loads((ds / "dataset_description.json").read_text())
     assert description["walkcap"]["deidentified"] is True
     assert not (ds / "sourcedata").exists()
+
+
+def test_the_docs_pandas_code_loads_the_dataset_back():
+    text = (Path(__file__).resolve().parents[3] / "docs" / "export.md").read_text()
+    code = text.split("**Loading it back**", 1)[1].split("```python\n", 1)[1].split("```")[0]
+    trial(Path("rec") / "S01_indoor_t01.mcap")  # the tests run in their own folder
+    bids.export(["rec"], "dataset", StudyConfig())
+    names: dict = {}
+    exec(code, names)
+    assert len(names["imu"]) == 150 and list(names["imu"].columns)[0] == "latency"
+    assert names["modes"]["mode"].tolist() == ["LG", "DS"]
+    assert names["people"]["participant_id"].tolist() == ["sub-S01"]
+    assert len(names["frames"]) == 90
