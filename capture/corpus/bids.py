@@ -237,27 +237,8 @@ def export(
 
     result = Result(corpus=corpus)
     root.mkdir(parents=True, exist_ok=True)
-    for t in trials:
-        scans_path = root / f"sub-{t.subject}" / f"sub-{t.subject}_scans.tsv"
-        scans = _read_tsv(scans_path, "filename")
-        existing = scans.get(t.motion)
-        if existing is not None or (root / f"sub-{t.subject}" / t.motion).exists():
-            if not overwrite:
-                was = (existing or {}).get("walkcap_recording_id", "")
-                now = metas[t.path].get("recording", {}).get("id", "")
-                why = "already in the dataset"
-                if was and now and was != now:
-                    why += f" from another recording ({was}); --overwrite replaces it"
-                result.skipped.append((t, why))
-                continue
-            _remove_trial(root, t, existing or {})
-        row = _write_trial(root, t, study, share)
-        if row is None:
-            result.skipped.append((t, "no IMU samples: nothing for a motion file"))
-            continue
-        scans[t.motion] = row
-        _write_scans(scans_path, scans)
-        result.written.append(t)
+    # the dataset's own files first: a dataset cut short by a full disk is still one, each
+    # participant listed before their trials
     for sub, (values, _) in body.items():
         stored = people.get(f"sub-{sub}", {})
         merged = {k: v if v != BT.NA else stored.get(k, BT.NA) for k, v in values.items()}
@@ -265,6 +246,27 @@ def export(
         people[f"sub-{sub}"].update(merged)
     _write_participants(root, people)
     _write_descriptions(root, study, metas, share)
+    for t in trials:
+        scans_path = root / f"sub-{t.subject}" / f"sub-{t.subject}_scans.tsv"
+        scans = _read_tsv(scans_path, "filename")
+        existing = scans.get(t.motion)  # its row is written last: the trial is whole
+        if existing is not None and not overwrite:
+            was = existing.get("walkcap_recording_id", "")
+            now = metas[t.path].get("recording", {}).get("id", "")
+            why = "already in the dataset"
+            if was and now and was != now:
+                why += f" from another recording ({was}); --overwrite replaces it"
+            result.skipped.append((t, why))
+            continue
+        # the old trial (--overwrite), or what an interrupted export left of it
+        _remove_trial(root, t, existing or {})
+        row = _write_trial(root, t, study, share)
+        if row is None:
+            result.skipped.append((t, "no IMU samples: nothing for a motion file"))
+            continue
+        scans[t.motion] = row
+        _write_scans(scans_path, scans)
+        result.written.append(t)
     return result
 
 
@@ -337,7 +339,7 @@ def _remove_trial(root: Path, t: Trial, row: dict) -> None:
     ):
         for stem in (t.stem, t.motion_stem):
             for f in folder.glob(f"{stem}_*"):
-                f.unlink()
+                f.unlink(missing_ok=True)
     source = row.get("source_file", "")
     if source and source != BT.NA and ".." not in source:
         for f in (root / source, journal_path(root / source)):

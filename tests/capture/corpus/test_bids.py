@@ -232,6 +232,14 @@ def test_overwrite_replaces_a_trial_and_deidentify_shifts_dates(tmp_path):
     bids.export([a], ds, StudyConfig())
     again = bids.export([a], ds, StudyConfig())
     assert not again.written and len(again.skipped) == 1
+    # an export cut short (no scans row yet) leaves files that the next export replaces
+    scans = ds / "sub-S01/sub-S01_scans.tsv"
+    whole = scans.read_text()
+    scans.write_text(whole.splitlines()[0] + "\n")
+    assert [t.stem for t in bids.export([a], ds, StudyConfig()).written] == [
+        "sub-S01_task-indoor_run-1"
+    ]
+    assert scans.read_text() == whole
     replaced = bids.export([a], ds, StudyConfig(), overwrite=True)
     assert [t.stem for t in replaced.written] == ["sub-S01_task-indoor_run-1"]
     b = trial(tmp_path / "b" / "S01_indoor_t01_other.mcap")  # the same trial, another file
