@@ -275,7 +275,7 @@ def _write_trial(root: Path, t: Trial, study, share: personal.ShareRules | None)
     rec = open_recording(t.path)
     meta = rec.metadata
     tables = export_mod.tables(t.path)
-    rate = BT._rate(meta.get("devices", {}))
+    rate = BT.configured_rate(meta.get("devices", {}))
     motion = BT.motion_file(tables["imu"], rate)
     if not motion.rows:
         return None

@@ -76,6 +76,7 @@ class MotionFile:
     missing: int  # n/a rows: samples the device produced and the file lacks
     first_ns: int | None  # the first sample's time, session clock (the file's time zero)
     duration_s: float
+    rate_hz: float | None = None  # nominal: the configured rate, else the median interval's
 
 
 def _number(v) -> str:
@@ -124,8 +125,11 @@ def motion_file(imu, rate_hz: float | None) -> MotionFile:
     in file order), with an n/a row for each sample the device produced and the file lacks."""
     n = len(imu)
     if n == 0:
-        return MotionFile([], 0, 0, None, 0.0)
+        return MotionFile([], 0, 0, None, 0.0, rate_hz)
     times = [int(t) for t in imu["time_ns"]]
+    if not rate_hz and n > 1:  # a file without its configured rate: its median interval
+        median = float(np.median(np.diff(np.array(times, dtype=np.int64))))
+        rate_hz = round(1e9 / median, 3) if median > 0 else None
     counters = [_value(c) for c in imu["packet_counter"]]
     columns = [imu[c].tolist() if c is not None else None for *_, c in CHANNELS]
     period = 1.0 / rate_hz if rate_hz else 0.0
@@ -148,7 +152,7 @@ def motion_file(imu, rate_hz: float | None) -> MotionFile:
         cells = [seconds(times[k] - first)]
         cells += [_number(_value(col[k])) for col in columns[1:]]
         rows.append("\t".join(cells))
-    return MotionFile(rows, n, missing, first, (times[-1] - first) * 1e-9)
+    return MotionFile(rows, n, missing, first, (times[-1] - first) * 1e-9, rate_hz)
 
 
 def channels_tsv(placement: str) -> str:
@@ -177,7 +181,7 @@ def motion_json(meta: dict, study, condition: str, motion: MotionFile) -> dict:
     devices = meta.get("devices", {})
     info = devices.get("imu_info") or devices.get("imu_details") or {}
     software = meta.get("software", {})
-    rate = _rate(devices)
+    rate = motion.rate_hz
     counts = Counter(c[2] for c in CHANNELS)
     rows = motion.samples + motion.missing
     effective = (rows - 1) / motion.duration_s if rows > 1 and motion.duration_s > 0 else NA
@@ -222,7 +226,8 @@ def motion_json(meta: dict, study, condition: str, motion: MotionFile) -> dict:
     return {k: v for k, v in out.items() if v is not None}
 
 
-def _rate(devices: dict) -> float | None:
+def configured_rate(devices: dict) -> float | None:
+    """The IMU's output rate the recording was made with ([imu] rate_hz), if it says."""
     try:
         rate = float(devices.get("imu_rate_hz"))
     except (TypeError, ValueError):

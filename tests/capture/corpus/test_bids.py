@@ -322,3 +322,15 @@ def test_the_docs_pandas_code_loads_the_dataset_back():
     assert names["modes"]["mode"].tolist() == ["LG", "DS"]
     assert names["people"]["participant_id"].tolist() == ["sub-S01"]
     assert len(names["frames"]) == 90
+
+
+def test_a_file_without_its_configured_rate_gets_the_median_interval(tmp_path):
+    path = tmp_path / "old.mcap"
+    rec = write_trial(path, [], session={"subject": "S01", "condition": "indoor", "trial": 1},
+                      close=False)  # fmt: skip
+    for k in range(30):
+        rec.write_imu(imu_sample(k))
+    rec.close()
+    bids.export([path], tmp_path / "ds", StudyConfig())
+    sidecar = tmp_path / "ds/sub-S01/motion/sub-S01_task-indoor_tracksys-imu_run-1_motion.json"
+    assert json.loads(sidecar.read_text())["SamplingFrequency"] == 100.0
