@@ -190,10 +190,15 @@ def export(
             share.check()
         except personal.RulesError as e:
             raise CaptureError(f"--deidentify: {e}") from None
-    corpus = selection.select(paths, replays=replays)
+    root = Path(out)
+    # the dataset's own copies under sourcedata/ are not recordings to export again
+    inside = root.resolve()
+    files = [f for f in selection.recording_files(paths) if inside not in f.resolve().parents]
+    if not files:
+        raise CaptureError(f"nothing to export: no recordings outside {root}")
+    corpus = selection.select(files, replays=replays)
     if not corpus.chosen:
         raise corpus.nothing_left("nothing to export")
-    root = Path(out)
     if root.exists() and not root.is_dir():
         raise CaptureError(f"{root} is a file, not a folder")
     if root.is_dir() and any(root.iterdir()) and not (root / "dataset_description.json").exists():

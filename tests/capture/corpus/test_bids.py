@@ -334,3 +334,12 @@ def test_a_file_without_its_configured_rate_gets_the_median_interval(tmp_path):
     bids.export([path], tmp_path / "ds", StudyConfig())
     sidecar = tmp_path / "ds/sub-S01/motion/sub-S01_task-indoor_tracksys-imu_run-1_motion.json"
     assert json.loads(sidecar.read_text())["SamplingFrequency"] == 100.0
+
+
+def test_a_dataset_inside_the_recordings_folder_is_not_read_as_recordings(tmp_path):
+    trial(tmp_path / "rec" / "S01_indoor_t01.mcap")
+    ds = tmp_path / "rec" / "dataset"
+    bids.export([tmp_path / "rec"], ds, StudyConfig())
+    again = bids.export([tmp_path / "rec"], ds, StudyConfig())
+    assert [p.name for p in again.corpus.files] == ["S01_indoor_t01.mcap"]
+    assert not again.corpus.left_out and len(again.skipped) == 1
