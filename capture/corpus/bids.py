@@ -101,6 +101,7 @@ class Trial:
     subject: str
     task: str
     run: int
+    original: Path | None = None  # a derived file's (corrected, recovered) original
 
     @property
     def stem(self) -> str:
@@ -214,6 +215,10 @@ def export(
             )
         )
     trials = [trial_of(m.path, m.trial) for m in corpus.chosen]
+    for t, m in zip(trials, corpus.chosen, strict=True):
+        original = m.path.parent / m.source_name if m.source_name else None
+        if original is not None and original.is_file() and original != m.path:
+            t.original = original
     seen: dict[tuple, Path] = {}
     for t in trials:
         key = (t.subject, t.task, t.run)
@@ -314,14 +319,18 @@ def _write_trial(root: Path, t: Trial, study, share: personal.ShareRules | None)
     _json(deriv / f"{t.stem}_events.json", BT.frames_json(meta))
     # the original, byte for byte, and its journal (not when de-identifying: they hold the
     # real dates and the notes)
-    source_file = BT.NA
+    # (a corrected or recovered copy: its original too)
+    source_file = original_file = BT.NA
     if share is None:
         source = root / "sourcedata" / f"sub-{t.subject}"
-        _copy(t.path, source / t.path.name)
-        journal = journal_path(t.path)
-        if journal.is_file():
-            _copy(journal, source / journal.name)
+        for path in filter(None, (t.path, t.original)):
+            _copy(path, source / path.name)
+            journal = journal_path(path)
+            if journal.is_file():
+                _copy(journal, source / journal.name)
         source_file = f"sourcedata/sub-{t.subject}/{t.path.name}"
+        if t.original is not None:
+            original_file = f"sourcedata/sub-{t.subject}/{t.original.name}"
     first_unix = rec.unix_time_ns(zero) if zero is not None else None
     if share is not None:
         first_unix = personal.shift_unix_ns(first_unix, personal.date_offset_ns(share, t.subject))
@@ -330,6 +339,7 @@ def _write_trial(root: Path, t: Trial, study, share: personal.ShareRules | None)
         "acq_time": _acq_time(first_unix),
         "walkcap_recording_id": meta.get("recording", {}).get("id", BT.NA),
         "source_file": source_file,
+        "original_file": original_file,
         "imu_samples": str(motion.samples),
         "imu_missing": str(motion.missing),
         "complete": "true" if rec.complete else "false",
@@ -345,10 +355,11 @@ def _remove_trial(root: Path, t: Trial, row: dict) -> None:
         for stem in (t.stem, t.motion_stem):
             for f in folder.glob(f"{stem}_*"):
                 f.unlink(missing_ok=True)
-    source = row.get("source_file", "")
-    if source and source != BT.NA and ".." not in source:
-        for f in (root / source, journal_path(root / source)):
-            f.unlink(missing_ok=True)
+    for column in ("source_file", "original_file"):
+        source = row.get(column, "")
+        if source and source != BT.NA and ".." not in source:
+            for f in (root / source, journal_path(root / source)):
+                f.unlink(missing_ok=True)
 
 
 def _acq_time(unix_ns: int | None) -> str:
@@ -364,6 +375,7 @@ SCANS_COLUMNS = (
     "acq_time",
     "walkcap_recording_id",
     "source_file",
+    "original_file",
     "imu_samples",
     "imu_missing",
     "complete",
@@ -371,7 +383,11 @@ SCANS_COLUMNS = (
 SCANS_JSON = {
     "acq_time": {"Description": "the first IMU sample's time, UTC (the motion file's time zero)"},
     "walkcap_recording_id": {"Description": "the walkcap recording's unique id"},
-    "source_file": {"Description": "the original walkcap recording (MCAP) under sourcedata/"},
+    "source_file": {"Description": "the walkcap recording (MCAP) exported, under sourcedata/"},
+    "original_file": {
+        "Description": "when source_file is a corrected or recovered copy: the recording it "
+        "was made from, under sourcedata/"
+    },
     "imu_samples": {"Description": "rows of the motion file from recorded IMU samples"},
     "imu_missing": {"Description": "n/a rows: samples the IMU produced and the file lacks"},
     "complete": {

@@ -343,3 +343,21 @@ def test_a_dataset_inside_the_recordings_folder_is_not_read_as_recordings(tmp_pa
     again = bids.export([tmp_path / "rec"], ds, StudyConfig())
     assert [p.name for p in again.corpus.files] == ["S01_indoor_t01.mcap"]
     assert not again.corpus.left_out and len(again.skipped) == 1
+
+
+def test_a_corrected_copy_stands_for_its_trial_with_its_original_beside_it(tmp_path):
+    from capture.recording.copy import copy_recording
+
+    original = trial(tmp_path / "rec" / "S01_indoor_t01.mcap")
+    corrected = tmp_path / "rec" / "S01_indoor_t01_corrected.mcap"
+    fix = {"time_ns": frame_time(60), "mode": "UR", "source": "correction"}
+    copy_recording(original, corrected, kind="corrected", how="test", labels=[fix])
+    ds = tmp_path / "ds"
+    result = bids.export([tmp_path / "rec"], ds, StudyConfig())
+    assert [t.path for t in result.written] == [corrected]
+    for path in (original, corrected):
+        assert (ds / "sourcedata/sub-S01" / path.name).read_bytes() == path.read_bytes()
+    events = (ds / "sub-S01/motion/sub-S01_task-indoor_run-1_events.tsv").read_text()
+    assert "\tUR\tcorrection\t" in events
+    row = (ds / "sub-S01/sub-S01_scans.tsv").read_text().splitlines()[1]
+    assert f"sourcedata/sub-S01/{original.name}" in row.split("\t")
