@@ -183,6 +183,33 @@ class ShareConfig:
 
 
 @dataclass
+class StudyConfig:
+    """The study a BIDS dataset describes (`walkcap export --format bids`)."""
+
+    name: str = key("", "the dataset's name (dataset_description.json Name)")
+    authors: list[str] = key(
+        doc='the dataset\'s authors, one name a string, e.g. ["A. Author", "B. Author"]',
+        factory=list,
+    )
+    license: str = key("", "the data's license, an SPDX name, e.g. CC0-1.0 or CC-BY-4.0")
+    institution_name: str = key("", "the institution that recorded the data")
+    institution_address: str = key("", "the institution's address")
+    institution_department: str = key("", "the department that recorded the data")
+    instructions: str = key("", "what the participants were told to do, as they were told")
+    imu_placement: str = key(
+        "thigh", "where the IMU sits on the body (BIDS motion `placement`), e.g. left thigh"
+    )
+
+    def problems(self) -> list[tuple[str, str]]:
+        out = []
+        if not self.imu_placement.strip():
+            out.append(("imu_placement", "a body part, e.g. thigh"))
+        if any(not a.strip() for a in self.authors):
+            out.append(("authors", "names, none empty"))
+        return out
+
+
+@dataclass
 class Config:
     session: SessionConfig = field(default_factory=SessionConfig)
     camera: CameraConfig = field(default_factory=CameraConfig)
@@ -196,6 +223,7 @@ class Config:
     lsl: LslConfig = field(default_factory=LslConfig)
     foxglove: FoxgloveConfig = field(default_factory=FoxgloveConfig)
     share: ShareConfig = field(default_factory=ShareConfig)
+    study: StudyConfig = field(default_factory=StudyConfig)
     source: str = ""  # the file it was read from, empty for defaults
 
 
