@@ -8,6 +8,7 @@ exported later into the same folder keeps the dataset valid."""
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 from pathlib import Path
 
@@ -39,6 +40,9 @@ def _validator() -> list[str]:
         import bids_validator_deno
         from deno import find_deno_bin
     except ModuleNotFoundError:
+        # CI installs the dev dependencies: there the judge is never skipped
+        if os.environ.get("CI"):
+            raise
         pytest.skip("bids-validator-deno (a dev dependency) is not installed")
     bundle = Path(bids_validator_deno.__file__).with_name("bids-validator.js")
     return [str(find_deno_bin()), "run", "--no-prompt", "--allow-read", "--allow-env", str(bundle)]
