@@ -42,6 +42,8 @@ MERGE_RSS_RATIO, MERGE_MIN_KEPT = 1.3, 0.95
 SPLIT_TOL_M = 0.015  # split-and-merge tolerance
 FIT_TRIM_M = 0.025  # points farther than this from a segment's line are not its own
 FLAT_MAX_DEG = 3.0  # a segment this close to horizontal is flat (a tread, level ground)
+FLAT_SE = 2.0  # ...or closer than this many standard errors of its angle (angle_se_deg)
+NOISE_CELL_POINTS = 9  # the range noise is correlated over about 3 x 3 pixels
 FLAT_SHORT_RISE_M = 0.015  # ...or a short one that rises less than this end to end
 FLAT_SHORT_MAX_DEG = 12.0
 RAMP_MAX_DEG = 35.0
@@ -97,9 +99,19 @@ class _Segment:
         return float(np.hypot(*(self.end - self.start)))
 
     @property
+    def angle_se_deg(self) -> float:
+        """Standard error of angle_deg: the residuals over the spread of its points along
+        the line, with one independent point per NOISE_CELL_POINTS (correlated noise)."""
+        independent = max(len(self.points) / NOISE_CELL_POINTS, 2.0)
+        spread = max(self.length, 1e-6) * math.sqrt(independent / 12.0)
+        return math.degrees(self.rms_m / spread)
+
+    @property
     def flat(self) -> bool:
+        """Horizontal, or not measurably sloped: a far stretch whose angle the noise
+        leaves uncertain by degrees is no evidence of a ramp."""
         rise = abs(float(self.end[1] - self.start[1]))
-        return abs(self.angle_deg) <= FLAT_MAX_DEG or (
+        return abs(self.angle_deg) <= FLAT_MAX_DEG + FLAT_SE * self.angle_se_deg or (
             rise <= FLAT_SHORT_RISE_M and abs(self.angle_deg) <= FLAT_SHORT_MAX_DEG
         )
 

@@ -32,6 +32,12 @@ TREAD_M = (0.25, 0.38)
 # One trial of the paper: three level-ground segments, one of each other mode.
 PAPER_TRIAL = ("LG", "US", "UR", "LG", "DR", "DS", "LG")
 ASCENTS, DESCENTS = ("US", "UR"), ("DS", "DR")
+# Uneven ground outdoors: 1 cm RMS of height in waves 1-3 m long. A walkway is level
+# ground while its running slope stays within 1:20 (2.9 deg; steeper is a ramp: ADA 2010
+# Standards 403.3, 405.2): over 0.3 m these waves exceed it in about 5 % of places, over
+# 1 m in 1 %.
+BUMP_RMS_M = 0.010
+BUMP_WAVELENGTH_M = (1.0, 3.0)
 
 
 @dataclass(frozen=True)
@@ -219,9 +225,9 @@ def make_course(
             bare.segments,
             preset,
             seed,
-            bump_m=0.012,
+            bump_m=BUMP_RMS_M,
             boxes=tuple(_clutter(bare, rng)),
-            bump_waves=tuple(_bump_waves(rng, 0.012)),
+            bump_waves=tuple(_bump_waves(rng, BUMP_RMS_M)),
         )
     return Course(bare.segments, preset, seed, boxes=tuple(_walls(bare, rng)))
 
@@ -232,10 +238,10 @@ def _turns(before: str, after: str) -> bool:
 
 
 def _bump_waves(rng: np.random.Generator, amplitude: float):
-    """Six plane waves of 0.5-2 m wavelength whose sum has an RMS of `amplitude`."""
+    """Six plane waves of BUMP_WAVELENGTH_M whose sum has an RMS of `amplitude`."""
     n = 6
     for _ in range(n):
-        k = 2 * np.pi / rng.uniform(0.5, 2.0)
+        k = 2 * np.pi / rng.uniform(*BUMP_WAVELENGTH_M)
         angle = rng.uniform(0, np.pi)
         yield (
             float(k * np.cos(angle)),
