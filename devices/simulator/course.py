@@ -10,7 +10,7 @@ floor they lead to, one tread deep. The default course is one trial of the paper
 level-ground segments and one each of up stairs, up ramp, down ramp, down stairs
 (LG US UR LG DR DS LG: ascents meet ascents, descents meet descents, as the paper's
 transition matrix suggests). Where a custom order turns from going up to going down (or
-back), a short level landing is inserted as its own LG segment: it is level ground.
+back), a level landing (LANDING_M) is inserted as its own LG segment: it is level ground.
 Presets: "indoor" and "outdoor", randomised by a seed: risers 0.10-0.20 m, treads
 0.25-0.38 m (the authors' stairs, risers 0.15 +- 0.05 m and treads 0.33 +- 0.05 m, lie
 inside), ramps 5-15 degrees; outdoors also curbs (one-step height changes inside
@@ -37,6 +37,9 @@ ASCENTS, DESCENTS = ("US", "UR"), ("DS", "DR")
 # Standards 403.3, 405.2): over 0.3 m these waves exceed it in about 5 % of places, over
 # 1 m in 1 %.
 BUMP_RMS_M = 0.010
+# A landing where going up turns into going down: at least 60 in (1.525 m) long, as a ramp
+# landing must be (ADA 2010 Standards 405.7.3).
+LANDING_M = (1.525, 2.0)
 BUMP_WAVELENGTH_M = (1.0, 3.0)
 
 
@@ -209,7 +212,7 @@ def make_course(
     steps = (3, 7) if outdoor else (4, 6)
     for i, mode in enumerate(modes):
         if i > 0 and _turns(modes[i - 1], mode):
-            segments.append(Segment("LG", x, z, float(rng.uniform(1.0, 1.5))))
+            segments.append(Segment("LG", x, z, float(rng.uniform(*LANDING_M))))
             x = segments[-1].x1
         if mode == "LG":
             seg = _level(x, z, rng, outdoor)
