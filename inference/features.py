@@ -111,8 +111,11 @@ class _Segment:
         """Horizontal, or not measurably sloped: a far stretch whose angle the noise
         leaves uncertain by degrees is no evidence of a ramp."""
         rise = abs(float(self.end[1] - self.start[1]))
-        return abs(self.angle_deg) <= FLAT_MAX_DEG + FLAT_SE * self.angle_se_deg or (
-            rise <= FLAT_SHORT_RISE_M and abs(self.angle_deg) <= FLAT_SHORT_MAX_DEG
+        if abs(self.angle_deg) <= FLAT_MAX_DEG:
+            return True
+        return abs(self.angle_deg) <= FLAT_SHORT_MAX_DEG and (
+            rise <= FLAT_SHORT_RISE_M
+            or abs(self.angle_deg) <= FLAT_MAX_DEG + FLAT_SE * self.angle_se_deg
         )
 
     @functools.cached_property
