@@ -64,3 +64,22 @@ def test_every_imu_sample_of_a_walk_is_physical(preset, seed):
     # the emulator's central difference over the whole walk, every 5 ms
     t = np.arange(0.0, simulator.duration_s, 0.005)
     assert body_rates(simulator.thigh_quaternion, t).max() < MAX_RATE_RAD_S
+
+
+def test_a_camera_stopped_mid_walk_eases_the_thigh_back_to_standing():
+    """The mock rig's IMU across a stop of the camera mid-walk and a new start: no jump."""
+    from devices.simulator.rig import StandingBlend
+
+    simulator = Simulator(make_course("indoor", 0), seed=0, events=[])
+    blend = StandingBlend(simulator.thigh_quaternion)
+    stop, restart = 7.3, 9.0  # IMU seconds; the walk began at 0
+
+    def thigh(t: float) -> np.ndarray:
+        return blend(t, t if t < stop else (t - restart if t >= restart else None))
+
+    rates = body_rates(thigh, np.arange(stop - 0.2, restart + 0.2, 0.0025))  # in time order
+    assert rates.max() < MAX_RATE_RAD_S, f"{rates.max():.1f} rad/s"
+    blend = StandingBlend(simulator.thigh_quaternion)
+    for t in np.arange(stop - 0.2, stop + StandingBlend.EASE_S + 0.1, 0.01):
+        q = thigh(t)
+    assert abs(np.dot(q, simulator.thigh_quaternion(0.0))) > 0.9999  # standing again
