@@ -45,7 +45,7 @@ def level_ground_slopes(preset: str) -> np.ndarray:
 
 
 OUTDOOR_OPEN = (
-    "outdoors 23 % of level-ground frames fit beyond 3 deg (median -0.4): two in three of "
+    "outdoors 22 % of level-ground frames fit beyond 3 deg (median -0.4): two in three of "
     "them have stairs or a ramp within the features' 2.5 m (the ramp rule reports it), the "
     "rest the IMU's drifting error (1 deg RMS a session, no calibration in synth) and noise"
 )
