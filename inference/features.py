@@ -10,7 +10,8 @@ profile is cut into thin angle bins, each reduced to its median range (this is t
 filter; the noise of a time-of-flight camera is along the ray), giving an ordered
 polyline from near to far. Range jumps (occlusions: the nosing of a step going down)
 break it; split-and-merge cuts it into straight segments; each segment is refit on its
-raw points (total least squares, trimmed). Then:
+raw points by least squares along the rays (trimmed), where the camera's noise lies: a
+perpendicular fit would tilt far level ground down. Then:
 - stairs: consecutive horizontal segments (treads) whose levels differ by a riser height,
   all in the same direction; riser = median level difference; tread depth = median
   distance between consecutive stair edges (up: the riser's position; down: the far end
@@ -33,9 +34,16 @@ from devices.frames import MODES
 ANGLE_BIN_DEG = 0.4  # polyline resolution (about 7 mm at 1 m)
 MIN_BIN_POINTS = 2
 BREAK_GAP_M = 0.08  # a range jump larger than this between neighbouring bins: occlusion
+JUMP_RATIO, JUMP_WINDOW = 3.0, 3  # ...and this many times the steps 3 either side
+# Neighbouring segments merge when one line leaves at most this times their two lines'
+# squared residuals (the noise is correlated over ~3 x 3 pixels: fewer independent points
+# than an F test would count) and keeps this share of their points.
+MERGE_RSS_RATIO, MERGE_MIN_KEPT = 1.3, 0.95
 SPLIT_TOL_M = 0.015  # split-and-merge tolerance
 FIT_TRIM_M = 0.025  # points farther than this from a segment's line are not its own
 FLAT_MAX_DEG = 3.0  # a segment this close to horizontal is flat (a tread, level ground)
+FLAT_SE = 2.0  # ...or closer than this many standard errors of its angle (angle_se_deg)
+NOISE_CELL_POINTS = 9  # the range noise is correlated over about 3 x 3 pixels
 FLAT_SHORT_RISE_M = 0.015  # ...or a short one that rises less than this end to end
 FLAT_SHORT_MAX_DEG = 12.0
 RAMP_MAX_DEG = 35.0
@@ -46,6 +54,10 @@ TREAD_MIN_M = 0.10
 TREAD_MAX_M = 0.80
 MAX_HIDDEN_M = 0.6  # longest occluded stretch between two treads going down
 MIN_POINTS = 30
+# The preprocessing's forward cut (PreprocessConfig.max_forward_m's default), and how near
+# it a point marks its ray as cut (the range noise along x at 2.5 m is about 5 cm).
+MAX_FORWARD_M = 2.5
+CUT_MARGIN_M = 0.08
 # Where the classifier's terrain is judged: about a step ahead of the camera (the images are
 # labelled with the terrain they show there; the simulator's truth looks 0.6-1.1 m ahead).
 AHEAD_M = 1.0
@@ -74,16 +86,36 @@ class _Segment:
     angle_deg: float  # of the travel direction near -> far: +90 riser up, 0 flat
     centre: np.ndarray
     rms_m: float
+    first: int = 0  # the slice of the sorted profile it was fitted on
+    stop: int = 0
+
+    @property
+    def rss(self) -> float:
+        """Sum of its points' squared distances to the line."""
+        return self.rms_m**2 * len(self.points)
 
     @property
     def length(self) -> float:
         return float(np.hypot(*(self.end - self.start)))
 
     @property
+    def angle_se_deg(self) -> float:
+        """Standard error of angle_deg: the residuals over the spread of its points along
+        the line, with one independent point per NOISE_CELL_POINTS (correlated noise)."""
+        independent = max(len(self.points) / NOISE_CELL_POINTS, 2.0)
+        spread = max(self.length, 1e-6) * math.sqrt(independent / 12.0)
+        return math.degrees(self.rms_m / spread)
+
+    @property
     def flat(self) -> bool:
+        """Horizontal, or not measurably sloped: a far stretch whose angle the noise
+        leaves uncertain by degrees is no evidence of a ramp."""
         rise = abs(float(self.end[1] - self.start[1]))
-        return abs(self.angle_deg) <= FLAT_MAX_DEG or (
-            rise <= FLAT_SHORT_RISE_M and abs(self.angle_deg) <= FLAT_SHORT_MAX_DEG
+        if abs(self.angle_deg) <= FLAT_MAX_DEG:
+            return True
+        return abs(self.angle_deg) <= FLAT_SHORT_MAX_DEG and (
+            rise <= FLAT_SHORT_RISE_M
+            or abs(self.angle_deg) <= FLAT_MAX_DEG + FLAT_SE * self.angle_se_deg
         )
 
     @functools.cached_property
@@ -91,11 +123,14 @@ class _Segment:
         return float(np.median(self.points[:, 1]))
 
 
-def terrain_features(profile: np.ndarray, mode_hint: str | None = None) -> TerrainFeatures:
+def terrain_features(
+    profile: np.ndarray, mode_hint: str | None = None, max_forward_m: float = MAX_FORWARD_M
+) -> TerrainFeatures:
     """Features of the leveled profile ((M, 2): forward x, height z, camera at the origin).
 
     mode_hint: the fused decision ("LG", "US", "DS", "UR", "DR") or None; it only relaxes
-    the evidence needed for the matching kind.
+    the evidence needed for the matching kind. max_forward_m: where the preprocessing cut
+    the profile (PreprocessConfig.max_forward_m).
     """
     pts = np.asarray(profile, dtype=np.float64).reshape(-1, 2)
     x, z = pts[:, 0], pts[:, 1]
@@ -103,10 +138,18 @@ def terrain_features(profile: np.ndarray, mode_hint: str | None = None) -> Terra
     x, z = x[keep], z[keep]
     if len(x) < MIN_POINTS:
         return TerrainFeatures()
-    # Sorted by angle bin, then by range within the bin (ranges < 100 m): the polyline's
-    # medians are the middle of each bin, and a segment's own points are one slice.
     rng = np.sqrt(x * x + z * z)
     bins = np.floor(np.arctan2(z, x) * (1.0 / np.radians(ANGLE_BIN_DEG))).astype(np.int64)
+    # A ray the forward cut crosses kept only its nearer points (the range noise runs along
+    # the ray): its median is too near, too high on far level ground. Such rays go whole.
+    cut = x > max_forward_m - CUT_MARGIN_M
+    if cut.any():
+        keep = ~np.isin(bins, np.unique(bins[cut]))
+        x, z, rng, bins = x[keep], z[keep], rng[keep], bins[keep]
+        if len(x) < MIN_POINTS:
+            return TerrainFeatures()
+    # Sorted by angle bin, then by range within the bin (ranges < 100 m): the polyline's
+    # medians are the middle of each bin, and a segment's own points are one slice.
     order = np.argsort(bins * 128.0 + np.minimum(rng, 100.0), kind="stable")
     pts = np.column_stack((x[order], z[order]))
     bins, rng = bins[order], rng[order]
@@ -189,7 +232,7 @@ def _polyline_runs(bins: np.ndarray, rng: np.ndarray) -> list[np.ndarray]:
     counts = np.diff(starts, append=len(bins))
     keep = counts >= MIN_BIN_POINTS
     starts, counts = starts[keep], counts[keep]
-    median_rng = rng[starts + counts // 2]
+    median_rng = 0.5 * (rng[starts + (counts - 1) // 2] + rng[starts + counts // 2])
     own = bins[starts]
     centre = (own + 0.5) * width
     vertices = np.stack(
@@ -198,8 +241,24 @@ def _polyline_runs(bins: np.ndarray, rng: np.ndarray) -> list[np.ndarray]:
     if len(vertices) < 2:
         return []
     step = np.hypot(*np.diff(vertices[:, :2], axis=0).T)
-    cuts = np.flatnonzero((step > BREAK_GAP_M) | (np.diff(own) > 3)) + 1
+    cuts = np.flatnonzero(_jumps(step) | (np.diff(own) > 3)) + 1
     return [run for run in np.split(vertices, cuts) if len(run) >= 3]
+
+
+def _jumps(step: np.ndarray) -> np.ndarray:
+    """Steps between neighbouring vertices that break the polyline: longer than
+    BREAK_GAP_M and JUMP_RATIO times the steps around them. Far level ground seen at a
+    grazing angle has vertices BREAK_GAP_M apart by itself, and its range noise makes
+    every other step long; a cut there would end each run on a near vertex (high) and
+    start the next on a far one (low), and so tilt every far run up."""
+    long = step > BREAK_GAP_M
+    if not long.any():
+        return long
+    n = JUMP_WINDOW
+    padded = np.pad(step, n, mode="edge")
+    windows = np.lib.stride_tricks.sliding_window_view(padded, 2 * n + 1)
+    around = np.median(np.delete(windows, n, axis=1), axis=1)
+    return long & (step > JUMP_RATIO * around)
 
 
 def _split(vertices: np.ndarray, lo: int, hi: int, out: list[tuple[int, int]]) -> None:
@@ -221,7 +280,7 @@ def _split(vertices: np.ndarray, lo: int, hi: int, out: list[tuple[int, int]]) -
 def _fit_segments(run: np.ndarray, pts: np.ndarray, bins: np.ndarray) -> list[_Segment]:
     pieces: list[tuple[int, int]] = []
     _split(run, 0, len(run) - 1, pieces)
-    segments = []
+    fitted: list[tuple[int, int, _Segment]] = []  # (first vertex, last vertex, segment)
     for lo, hi in pieces:
         if hi - lo < 2:  # two vertices say nothing about a surface
             continue
@@ -229,28 +288,59 @@ def _fit_segments(run: np.ndarray, pts: np.ndarray, bins: np.ndarray) -> list[_S
         first, stop = np.searchsorted(bins, (run[lo, 2], run[hi, 3]))
         seg = _fit_line(pts, int(first), int(stop))
         if seg is not None:
-            segments.append(seg)
-    return segments
+            fitted.append((lo, hi, seg))
+    return [seg for _, _, seg in _merge(fitted, pts)]
+
+
+def _merge(fitted: list[tuple[int, int, _Segment]], pts: np.ndarray):
+    """The merge of split-and-merge: neighbours (sharing a corner vertex) one line explains
+    about as well as two become one, the best pair first. The split's tolerance is a
+    distance, and the range noise grows with distance: far level ground splits into short
+    pieces whose angles scatter by degrees, each long enough to pass for a ramp."""
+    cache: dict[tuple[int, int], _Segment | None] = {}
+    while len(fitted) > 1:
+        best, best_ratio = -1, MERGE_RSS_RATIO
+        for i in range(len(fitted) - 1):
+            (_, hi_a, a), (lo_b, _, b) = fitted[i], fitted[i + 1]
+            if hi_a != lo_b:
+                continue
+            key = (a.first, b.stop)
+            if key not in cache:
+                cache[key] = _fit_line(pts, a.first, b.stop)
+            m = cache[key]
+            if m is None or len(m.points) < MERGE_MIN_KEPT * (len(a.points) + len(b.points)):
+                continue
+            ratio = m.rss / max(a.rss + b.rss, 1e-12)
+            if ratio <= best_ratio:
+                best, best_ratio = i, ratio
+        if best < 0:
+            break
+        (lo, _, _), (_, hi, _) = fitted[best], fitted[best + 1]
+        merged = cache[(fitted[best][2].first, fitted[best + 1][2].stop)]
+        fitted[best : best + 2] = [(lo, hi, merged)]
+    return fitted
 
 
 def _fit_line(pts: np.ndarray, first: int, stop: int) -> _Segment | None:
-    """Total least squares line through pts[first:stop], refit once without the points
-    beyond FIT_TRIM_M."""
+    """The line through pts[first:stop] by least squares along the camera's rays, refit
+    once without the points beyond FIT_TRIM_M of it."""
     points, index = pts[first:stop], np.arange(first, stop)
     for _ in range(2):
         if len(points) < 5:
             return None
         centre = points.sum(axis=0) / len(points)  # = mean(axis=0), without its overhead
-        centred = points - centre
-        direction, normal = _principal_axes(centred)
-        dist = centred @ normal
+        normal, offset = _ray_line(points, centre)
+        direction = np.array([-normal[1], normal[0]])
+        dist = points @ normal - offset
         inside = np.abs(dist) <= FIT_TRIM_M
         if inside.all():
             break
-        points, index, centred = points[inside], index[inside], centred[inside]
+        points, index = points[inside], index[inside]
     if not len(points):
         return None
-    along = centred @ direction
+    centre = points.sum(axis=0) / len(points)
+    centre = centre - (centre @ normal - offset) * normal  # onto the line
+    along = (points - centre) @ direction
     start, end = centre + along.min() * direction, centre + along.max() * direction
     # Travel direction from near to far: farther along the elevation angle.
     if np.arctan2(start[1], start[0]) > np.arctan2(end[1], end[0]):
@@ -265,7 +355,39 @@ def _fit_line(pts: np.ndarray, first: int, stop: int) -> _Segment | None:
         angle_deg=angle,
         centre=centre,
         rms_m=float(np.sqrt(np.mean(dist[inside] ** 2))),
+        first=first,
+        stop=stop,
     )
+
+
+def _ray_line(points: np.ndarray, centre: np.ndarray) -> tuple[np.ndarray, float]:
+    """Unit normal n and offset d of the line n . p = d through `points`, fitted where a
+    time-of-flight camera errs: along each point's ray from the camera (the origin), by a
+    share of the distance.
+
+    A point at elevation angle a and range r lies on the line when 1 / r = A cos a +
+    B sin a, with (A, B) = n / d: linear in (A, B), and the angle carries no noise. Least
+    squares on 1 / r weighted by r^2 (its sigma is that of r / r^2, and the sensor's sigma
+    of r grows with r) finds the line the rays measure. A perpendicular fit (total least
+    squares) is biased here instead: on a stretch short against its noise the points
+    spread along the rays, and the fit turns towards them (far level ground fits as
+    sloping down). A line through the camera is no surface it sees; when the angles span
+    too little to tell, the perpendicular fit stands in.
+    """
+    x, z = points[:, 0], points[:, 1]
+    # The normal equations with u = (cos a, sin a) = p / r and weight r^2: sum r^2 u u^T
+    # = sum p p^T and sum r^2 u / r = sum p, so (A, B) solves (sum p p^T) (A, B) = sum p.
+    sxx, sxz, szz = float(x @ x), float(x @ z), float(z @ z)
+    bx, bz = float(x.sum()), float(z.sum())
+    det = sxx * szz - sxz * sxz
+    if det > 1e-9 * (sxx + szz) ** 2:
+        a = (szz * bx - sxz * bz) / det
+        b = (sxx * bz - sxz * bx) / det
+        norm = math.hypot(a, b)
+        if norm > 0 and 1.0 / norm > 0.01:  # a line 1 cm or more from the camera
+            return np.array([a, b]) / norm, 1.0 / norm
+    _, normal = _principal_axes(points - centre)
+    return normal, float(centre @ normal)
 
 
 def _principal_axes(centred: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -253,7 +253,9 @@ class Pipeline:
             hint = MODES[
                 fused.decision if fused is not None and fused.decision is not None else cnn
             ]
-            feats = terrain_features(pre.profile, hint) if pre.ok else None
+            feats = (
+                terrain_features(pre.profile, hint, self.params.max_forward_m) if pre.ok else None
+            )
             if getattr(self.fusion, "uses_geometry", False):  # decides this frame next push
                 if feats is None:
                     self.fusion.see_geometry(-1, -1)

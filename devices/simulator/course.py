@@ -10,7 +10,7 @@ floor they lead to, one tread deep. The default course is one trial of the paper
 level-ground segments and one each of up stairs, up ramp, down ramp, down stairs
 (LG US UR LG DR DS LG: ascents meet ascents, descents meet descents, as the paper's
 transition matrix suggests). Where a custom order turns from going up to going down (or
-back), a short level landing is inserted as its own LG segment: it is level ground.
+back), a level landing (LANDING_M) is inserted as its own LG segment: it is level ground.
 Presets: "indoor" and "outdoor", randomised by a seed: risers 0.10-0.20 m, treads
 0.25-0.38 m (the authors' stairs, risers 0.15 +- 0.05 m and treads 0.33 +- 0.05 m, lie
 inside), ramps 5-15 degrees; outdoors also curbs (one-step height changes inside
@@ -32,6 +32,15 @@ TREAD_M = (0.25, 0.38)
 # One trial of the paper: three level-ground segments, one of each other mode.
 PAPER_TRIAL = ("LG", "US", "UR", "LG", "DR", "DS", "LG")
 ASCENTS, DESCENTS = ("US", "UR"), ("DS", "DR")
+# Uneven ground outdoors: 1 cm RMS of height in waves 1-3 m long. A walkway is level
+# ground while its running slope stays within 1:20 (2.9 deg; steeper is a ramp: ADA 2010
+# Standards 403.3, 405.2): over 0.3 m these waves exceed it in about 5 % of places, over
+# 1 m in 1 %.
+BUMP_RMS_M = 0.010
+# A landing where going up turns into going down: at least 60 in (1.525 m) long, as a ramp
+# landing must be (ADA 2010 Standards 405.7.3).
+LANDING_M = (1.525, 2.0)
+BUMP_WAVELENGTH_M = (1.0, 3.0)
 
 
 @dataclass(frozen=True)
@@ -203,7 +212,7 @@ def make_course(
     steps = (3, 7) if outdoor else (4, 6)
     for i, mode in enumerate(modes):
         if i > 0 and _turns(modes[i - 1], mode):
-            segments.append(Segment("LG", x, z, float(rng.uniform(1.0, 1.5))))
+            segments.append(Segment("LG", x, z, float(rng.uniform(*LANDING_M))))
             x = segments[-1].x1
         if mode == "LG":
             seg = _level(x, z, rng, outdoor)
@@ -219,9 +228,9 @@ def make_course(
             bare.segments,
             preset,
             seed,
-            bump_m=0.012,
+            bump_m=BUMP_RMS_M,
             boxes=tuple(_clutter(bare, rng)),
-            bump_waves=tuple(_bump_waves(rng, 0.012)),
+            bump_waves=tuple(_bump_waves(rng, BUMP_RMS_M)),
         )
     return Course(bare.segments, preset, seed, boxes=tuple(_walls(bare, rng)))
 
@@ -232,10 +241,10 @@ def _turns(before: str, after: str) -> bool:
 
 
 def _bump_waves(rng: np.random.Generator, amplitude: float):
-    """Six plane waves of 0.5-2 m wavelength whose sum has an RMS of `amplitude`."""
+    """Six plane waves of BUMP_WAVELENGTH_M whose sum has an RMS of `amplitude`."""
     n = 6
     for _ in range(n):
-        k = 2 * np.pi / rng.uniform(0.5, 2.0)
+        k = 2 * np.pi / rng.uniform(*BUMP_WAVELENGTH_M)
         angle = rng.uniform(0, np.pi)
         yield (
             float(k * np.cos(angle)),

@@ -34,6 +34,7 @@ from devices.clock import now_ns
 from devices.errors import DeviceInitError
 from devices.frames import DepthFrame
 from devices.imu import XbusImu
+from devices.rotations import quat_slerp
 from devices.scheduling import realtime_priority
 
 log = logging.getLogger(__name__)
@@ -308,6 +309,35 @@ class RigImu(XbusImu):
 # ---- the child process ---------------------------------------------------------------------
 
 
+class StandingBlend:
+    """The thigh the IMU feels across the camera's stops: walking, the walk's pose; stopped,
+    an ease over EASE_S from where the walk left the thigh to the standing pose at the
+    start, where a new walk begins. A jump would be a rate of turn of tens of rad/s in the
+    emulator's +-2 ms difference."""
+
+    EASE_S = 0.5
+
+    def __init__(self, orientation_at) -> None:
+        self._at = orientation_at  # walk time (s) -> [w, x, y, z]
+        self._last: tuple[float, np.ndarray] | None = None  # (IMU time, pose) walking
+        self._left: tuple[float, np.ndarray] | None = None  # where the walk stopped
+
+    def __call__(self, t_s: float, walk_s: float | None) -> np.ndarray:
+        """The orientation at IMU time t_s: walk time walk_s, or None while stopped."""
+        if walk_s is not None:
+            q = np.asarray(self._at(walk_s), dtype=np.float64)
+            self._last, self._left = (t_s, q), None
+            return q
+        stand = np.asarray(self._at(0.0), dtype=np.float64)
+        if self._last is None:
+            return stand
+        if self._left is None:
+            self._left = self._last
+        t0, q0 = self._left
+        u = min(max((t_s - t0) / self.EASE_S, 0.0), 1.0)
+        return quat_slerp(q0, stand, u * u * (3.0 - 2.0 * u))
+
+
 def _serve(conn, camera_config, simulator_config, imu_config) -> None:
     """The rig's main: build the walk, camera and IMU emulator; answer requests; stream."""
     logging.basicConfig(level=logging.WARNING)
@@ -331,12 +361,14 @@ def _serve(conn, camera_config, simulator_config, imu_config) -> None:
         camera.watchdog = False  # the host's camera watches the frames that reach it
         camera.open()
 
+        blend = StandingBlend(camera.orientation_at)
+
         def thigh(t_s: float) -> np.ndarray:
             # the subject stands at the start until the camera starts, then walks
             start = camera.start_time_ns
             if start is None:
-                return camera.orientation_at(0.0)
-            return camera.orientation_at(max(0.0, (emulator.start_time_ns - start) * 1e-9 + t_s))
+                return blend(t_s, None)
+            return blend(t_s, max(0.0, (emulator.start_time_ns - start) * 1e-9 + t_s))
 
         emulator = ImuEmulator(
             rate_hz=imu_config.rate_hz,

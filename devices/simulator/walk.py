@@ -133,15 +133,25 @@ class Walk:
         params = np.array([GAIT[m] for m in course.modes])[course.segment_index(x)]
         speed = speed_mps * smooth(params[:, 0], 0.6)
         stride_hz = cadence_spm / 120.0 * smooth(params[:, 1], 0.6)
-        self._x = x
-        self._t = np.concatenate([[0.0], np.cumsum(GRID_M / speed[:-1])])
-        self._phase = np.concatenate(
-            [[0.0], np.cumsum(2 * np.pi * stride_hz[:-1] * GRID_M / speed[:-1])]
-        )
+        t = np.concatenate([[0.0], np.cumsum(GRID_M / speed[:-1])])
+        phase = np.concatenate([[0.0], np.cumsum(2 * np.pi * stride_hz[:-1] * GRID_M / speed[:-1])])
+        # The walk ends where a stride ends, as it began: the thigh's last pose is its first
+        # (a looping course or a camera started again begins the walk anew, and the IMU
+        # would feel any jump between the two as a rate of turn of tens of rad/s).
+        strides = max(1.0, np.floor(phase[-1] / (2 * np.pi)))
+        end = min(len(x), int(np.searchsorted(phase, strides * 2 * np.pi)) + 1)
+        x, t, phase, params = x[:end], t[:end], phase[:end], params[:end]
+        self.end_x = float(x[-1])
+        self._x, self._t, self._phase = x, t, phase
         self._flex_mean = np.radians(smooth(params[:, 2], 0.6)) + self.mean_offset
         self._flex_amp = np.radians(smooth(params[:, 3], 0.6)) * self.amp_scale
         self._ground = smooth(course.height_at(x), 0.6)
         self.duration_s = float(self._t[-1])
+        # the heading's slow wander, whole cycles over the walk for the same reason
+        self.wander = [
+            (self.duration_s / max(1.0, round(self.duration_s / period)), offset)
+            for period, offset in self.wander
+        ]
         if events is None:
             events = self._schedule_errors(rng, error_rate)
         self.events = tuple(sorted(events, key=lambda e: e.t0))

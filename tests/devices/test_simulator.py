@@ -81,7 +81,7 @@ def test_turning_from_up_to_down_inserts_a_level_landing():
     course = make_course("indoor", 1, modes=["LG", "US", "DS", "UR", "LG"])
     assert course.modes == ("LG", "US", "LG", "DS", "LG", "UR", "LG")
     landing = course.segments[2]
-    assert 1.0 <= landing.length_m <= 1.5
+    assert 1.525 <= landing.length_m <= 2.0  # ADA 2010 405.7.3: 60 in at least
 
 
 def test_stair_heights_step_by_one_riser_per_tread():
@@ -189,7 +189,7 @@ def test_camera_pose_is_the_thigh_composed_with_the_mounting(indoor):
 def test_leveled_level_ground_lies_one_camera_height_below(indoor):
     """What the capture pipeline does with the configured mounting must level the cloud."""
     checked = 0
-    for t in list(clean_times(indoor, "LG"))[::9]:
+    for t in list(clean_times(indoor, "LG"))[::7]:
         f = indoor.render(t)
         pose = np.array(f.truth["camera_pose"])
         under = indoor.course.segment_index(pose[0, 3])
