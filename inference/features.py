@@ -22,6 +22,7 @@ raw points (total least squares, trimmed). Then:
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from dataclasses import dataclass, field
@@ -91,18 +92,32 @@ class _Segment:
         return float(np.median(self.points[:, 1]))
 
 
-def terrain_features(profile: np.ndarray, mode_hint: str | None = None) -> TerrainFeatures:
-    """Features of the leveled profile ((M, 2): forward x, height z, camera at the origin).
+@dataclass
+class ProfileFit:
+    """The straight segments fitted to a profile: the costly part of terrain_features, and
+    independent of the mode hint (replay fits its profiles in its reader process)."""
 
-    mode_hint: the fused decision ("LG", "US", "DS", "UR", "DR") or None; it only relaxes
-    the evidence needed for the matching kind.
-    """
+    segments: list[_Segment]
+    inlier_fraction: float  # profile points explained by the segments
+    residual_m: float  # RMS distance of those points to their segments
+
+    def slim(self) -> ProfileFit:
+        """The same fit without the segments' point indices (features_of does not use
+        them): less to send to another process."""
+        none = np.zeros(0, np.int64)
+        segments = [dataclasses.replace(s, index=none) for s in self.segments]
+        return ProfileFit(segments, self.inlier_fraction, self.residual_m)
+
+
+def fit_profile(profile: np.ndarray) -> ProfileFit | None:
+    """The segments of the leveled profile ((M, 2): forward x, height z, camera at the
+    origin); None when too few points or no segment."""
     pts = np.asarray(profile, dtype=np.float64).reshape(-1, 2)
     x, z = pts[:, 0], pts[:, 1]
     keep = (x > 0) & (x < np.inf) & np.isfinite(z)  # per column: all(axis=1) costs more
     x, z = x[keep], z[keep]
     if len(x) < MIN_POINTS:
-        return TerrainFeatures()
+        return None
     # Sorted by angle bin, then by range within the bin (ranges < 100 m): the polyline's
     # medians are the middle of each bin, and a segment's own points are one slice.
     rng = np.sqrt(x * x + z * z)
@@ -112,16 +127,32 @@ def terrain_features(profile: np.ndarray, mode_hint: str | None = None) -> Terra
     bins, rng = bins[order], rng[order]
     segments = [s for run in _polyline_runs(bins, rng) for s in _fit_segments(run, pts, bins)]
     if not segments:
-        return TerrainFeatures()
+        return None
     explained = np.zeros(len(pts), bool)
     for s in segments:
         explained[s.index] = True
-    inlier_fraction = float(explained.mean())
     residual = float(
         np.sqrt(
             sum(s.rms_m**2 * len(s.points) for s in segments) / sum(len(s.points) for s in segments)
         )
     )
+    return ProfileFit(segments, float(explained.mean()), residual)
+
+
+def terrain_features(profile: np.ndarray, mode_hint: str | None = None) -> TerrainFeatures:
+    """Features of the leveled profile ((M, 2): forward x, height z, camera at the origin).
+
+    mode_hint: the fused decision ("LG", "US", "DS", "UR", "DR") or None; it only relaxes
+    the evidence needed for the matching kind.
+    """
+    return features_of(fit_profile(profile), mode_hint)
+
+
+def features_of(fit: ProfileFit | None, mode_hint: str | None = None) -> TerrainFeatures:
+    """terrain_features() from the profile's fit_profile()."""
+    if fit is None:
+        return TerrainFeatures()
+    segments = fit.segments
     result = (
         _stairs(segments, mode_hint)
         or _ramp(segments, mode_hint)
@@ -129,8 +160,8 @@ def terrain_features(profile: np.ndarray, mode_hint: str | None = None) -> Terra
         or TerrainFeatures()
     )
     result.ahead_slope_deg = _slope_at(segments, AHEAD_M)
-    result.inlier_fraction = inlier_fraction
-    result.residual_m = residual
+    result.inlier_fraction = fit.inlier_fraction
+    result.residual_m = fit.residual_m
     result.segments = [
         (float(s.start[0]), float(s.start[1]), float(s.end[0]), float(s.end[1]), float(s.angle_deg))
         for s in segments

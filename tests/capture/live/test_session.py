@@ -326,7 +326,7 @@ def test_fast_replay_prepares_frames_itself_until_its_reader_process_is_ready(re
     path, _, _, _ = recorded
     config = Config()
     params, mounting = config.preprocess, config.mounting
-    imu = R.orientations(R.recorded(open_recording(path))[0])
+    imu = R.recorded_compact(open_recording(path))[0].orientations
 
     class Reader:  # stands in for the reader process
         ready = threading.Event()
@@ -342,7 +342,7 @@ def test_fast_replay_prepares_frames_itself_until_its_reader_process_is_ready(re
     reader = Reader()
     frames = []
     for block in R._head_start(path, params, mounting, imu, reader):
-        frames += [frame.index for frame, _, _, _ in block]
+        frames += [frame.index for frame, *_ in block]
         if len(frames) == 3:
             reader.ready.set()  # the reader process says it is ready
     every = [frame.index for frame, _, _ in R.prepared_frames(path, params, mounting, imu)]
