@@ -22,7 +22,7 @@ raw points (total least squares, trimmed). Then:
 
 from __future__ import annotations
 
-import dataclasses
+import copy
 import functools
 import math
 from dataclasses import dataclass, field
@@ -91,6 +91,33 @@ class _Segment:
     def level(self) -> float:
         return float(np.median(self.points[:, 1]))
 
+    # Where along x its points lie (the stairs' edges and gaps): cached, so that a slim
+    # copy without the points (ProfileFit.slim) still has them.
+    @functools.cached_property
+    def x_median(self) -> float:
+        return float(np.median(self.points[:, 0]))
+
+    @functools.cached_property
+    def x_p2(self) -> float:
+        return float(np.percentile(self.points[:, 0], 2))
+
+    @functools.cached_property
+    def x_p98(self) -> float:
+        return float(np.percentile(self.points[:, 0], 98))
+
+    def without_points(self) -> _Segment:
+        """A copy that keeps what features_of uses of the points, not the points: a few
+        hundred bytes to send to another process instead of kilobytes."""
+        for name in ("level", "x_median", "x_p2", "x_p98"):
+            getattr(self, name)  # cached in the instance, copied with it
+        slim = copy.copy(self)
+        slim.points, slim.index = _NO_POINTS, _NO_INDEX
+        return slim
+
+
+_NO_POINTS = np.zeros((0, 2))
+_NO_INDEX = np.zeros(0, np.int64)
+
 
 @dataclass
 class ProfileFit:
@@ -102,10 +129,9 @@ class ProfileFit:
     residual_m: float  # RMS distance of those points to their segments
 
     def slim(self) -> ProfileFit:
-        """The same fit without the segments' point indices (features_of does not use
-        them): less to send to another process."""
-        none = np.zeros(0, np.int64)
-        segments = [dataclasses.replace(s, index=none) for s in self.segments]
+        """The same fit without the segments' points (_Segment.without_points): what
+        features_of needs, small to send to another process."""
+        segments = [s.without_points() for s in self.segments]
         return ProfileFit(segments, self.inlier_fraction, self.residual_m)
 
 
@@ -318,7 +344,7 @@ def _stairs(segments: list[_Segment], hint: str | None) -> TerrainFeatures | Non
         rise = b.level - a.level
         if not RISER_MIN_M <= abs(rise) <= RISER_MAX_M:
             continue
-        gap = float(np.percentile(b.points[:, 0], 2) - np.percentile(a.points[:, 0], 98))
+        gap = b.x_p2 - a.x_p98
         if rise > 0 and gap <= 0.05:
             up_rises.append(rise)
         elif rise < 0 and -0.02 <= gap <= MAX_HIDDEN_M:  # the lower tread is half hidden
@@ -340,7 +366,7 @@ def _stairs(segments: list[_Segment], hint: str | None) -> TerrainFeatures | Non
         rises = up_rises or [r for r in (_complete_riser(segments, i) for i in risers) if r]
         if not rises and len(risers) < 2:
             return None
-        edges = [float(np.median(segments[i].points[:, 0])) for i in risers]
+        edges = [segments[i].x_median for i in risers]
         tops = [float(segments[i].end[1]) for i in risers]
         bottoms = [float(segments[i].start[1]) for i in risers]
         depths = [
@@ -377,8 +403,8 @@ def _nosing(upper: _Segment, lower: _Segment) -> float:
     origin), and the first sample there lies beyond. The mean of both cancels most of
     the sampling bias.
     """
-    last = float(np.percentile(upper.points[:, 0], 98))
-    first = float(np.percentile(lower.points[:, 0], 2))
+    last = upper.x_p98
+    first = lower.x_p2
     if upper.level < -0.02 and lower.level < upper.level:
         return 0.5 * (last + first * upper.level / lower.level)
     return last
