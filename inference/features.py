@@ -91,8 +91,7 @@ class _Segment:
     def level(self) -> float:
         return float(np.median(self.points[:, 1]))
 
-    # Where along x its points lie (the stairs' edges and gaps): cached, so that a slim
-    # copy without the points (ProfileFit.slim) still has them.
+    # Where along x its points lie (the stairs' edges and gaps).
     @functools.cached_property
     def x_median(self) -> float:
         return float(np.median(self.points[:, 0]))
@@ -105,13 +104,19 @@ class _Segment:
     def x_p98(self) -> float:
         return float(np.percentile(self.points[:, 0], 98))
 
+    @property
+    def riser(self) -> bool:
+        """Steep and of a riser's height: a stair edge when going up."""
+        return self.angle_deg > 60 and 0.02 <= self.length <= RISER_MAX_M + 0.05
+
     def without_points(self) -> _Segment:
-        """A copy that keeps what features_of uses of the points, not the points: a few
-        hundred bytes to send to another process instead of kilobytes."""
-        for name in ("level", "x_median", "x_p2", "x_p98"):
-            getattr(self, name)  # cached in the instance, copied with it
+        """A copy without the point indices, and without the points unless features_of
+        may use them (the level and extent of a flat segment, a riser's position): much
+        less to send to another process, and nothing computed that might not be used."""
         slim = copy.copy(self)
-        slim.points, slim.index = _NO_POINTS, _NO_INDEX
+        slim.index = _NO_INDEX
+        if not (self.flat or self.riser):
+            slim.points = _NO_POINTS
         return slim
 
 
@@ -129,8 +134,8 @@ class ProfileFit:
     residual_m: float  # RMS distance of those points to their segments
 
     def slim(self) -> ProfileFit:
-        """The same fit without the segments' points (_Segment.without_points): what
-        features_of needs, small to send to another process."""
+        """The same fit with its segments _Segment.without_points(): what features_of
+        needs, small to send to another process."""
         segments = [s.without_points() for s in self.segments]
         return ProfileFit(segments, self.inlier_fraction, self.residual_m)
 
@@ -350,11 +355,7 @@ def _stairs(segments: list[_Segment], hint: str | None) -> TerrainFeatures | Non
         elif rise < 0 and -0.02 <= gap <= MAX_HIDDEN_M:  # the lower tread is half hidden
             down_steps.append((-rise, i, j))
     # Going up, the risers face the camera: each is a stair edge.
-    risers = [
-        i
-        for i, s in enumerate(segments)
-        if s.angle_deg > 60 and 0.02 <= s.length <= RISER_MAX_M + 0.05
-    ]
+    risers = [i for i, s in enumerate(segments) if s.riser]
     up_evidence, down_evidence = len(up_rises) + len(risers), len(down_steps)
     if hint == "US" and up_evidence or not down_evidence:
         going_up = True
