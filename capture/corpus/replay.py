@@ -7,9 +7,10 @@ original file is only read.
 As fast as possible (`speed=None`), the work is split over two processes, since one
 Python process cannot use a second core: a reader process decodes the frames, levels and
 preprocesses them, fits their profiles' segments (the costly part of the terrain
-features) and encodes their sensor data (depth, confidence, truth); this one classifies
-them in batches, fuses, finishes the terrain features, encodes the preprocessing (cloud,
-image, orientation) and records. The IMU is read in one pass and kept in compact
+features) and encodes what the new recording keeps of them (depth, cloud, image,
+orientation, truth); this one classifies them in batches, fuses, finishes the terrain
+features and records (its main thread shares the interpreter with the threads that
+receive the frames and write the file). The IMU is read in one pass and kept in compact
 columns. While the reader process starts, this one prepares the first frames itself. The
 frames are classified in batches of BATCH from the first frame on, whatever the reader
 process has sent so far: the CNN's float results depend on the batch's size, and fixed
@@ -347,42 +348,32 @@ def _serve_prepared(conn, source: str, params, mounting) -> None:
 
 
 def _encoded(frame: DepthFrame, q, pre):
-    """What the recording needs of a frame's sensor data, encoded (depth, confidence,
-    truth: the bulk of its bytes), and the segments fitted to its profile (the costly part
-    of the terrain features, whatever the fused decision): the reader process's share when
-    replaying fast. The frame goes on without its arrays, its Preprocessed without the
-    profile the fit replaces; the cloud and image are encoded by _processed() with the
-    decisions (which balances the two processes' work). The rays come with the source's
-    attachments."""
-    from capture.recording.encode import encode_depth, encode_truth
+    """What the recording needs of a frame that fusion does not change, encoded, and the
+    segments fitted to its profile (the costly part of the terrain features, whatever the
+    fused decision): in the reader process when replaying fast. The frame and its
+    Preprocessed go on without their bulky arrays (the profile too, once fitted). The rays
+    come with the source's attachments."""
+    from capture.recording.encode import encode_depth, encode_processed, encode_truth
     from inference.features import fit_profile
 
     t, log_time = frame.device_time_ns, frame.host_time_ns
-    sensor = encode_depth(frame, t, log_time)
-    truth = encode_truth(frame.index, t, log_time, frame.truth) if frame.truth else []
+    messages = encode_depth(frame, t, log_time) + encode_processed(
+        frame.index, t, log_time, pre.cloud, pre.image, q, pre.flag
+    )
+    if frame.truth:
+        messages += encode_truth(frame.index, t, log_time, frame.truth)
     none = np.zeros((0, 0), np.uint8)
     slim = dataclasses.replace(
         frame, xyz=np.zeros((0, 0, 3), np.float32), confidence=none, gray=none, range_mm=None
     )
     fit = fit_profile(pre.profile) if pre.ok else None
-    # the fit is what the features need of the profile (and of its points, not which ones)
-    if fit is not None:
-        pre = dataclasses.replace(pre, profile=np.zeros((0, 2), np.float32))
-    return slim, q, pre, (sensor, truth), fit and fit.slim()
-
-
-def _processed(frame: DepthFrame, q, pre, encoded) -> list:
-    """The frame's messages in the order the live recorder writes them: depth and
-    confidence, its preprocessing (cloud, image, flag, orientation), its truth."""
-    from capture.recording.encode import encode_processed
-
-    sensor, truth = encoded
-    t, log_time = frame.device_time_ns, frame.host_time_ns
-    return (
-        sensor
-        + encode_processed(frame.index, t, log_time, pre.cloud, pre.image, q, pre.flag)
-        + truth
+    # the fit is what the features need of the profile
+    pre = dataclasses.replace(
+        pre,
+        cloud=np.zeros((0, 3), np.float32),
+        profile=pre.profile if fit is None else np.zeros((0, 2), np.float32),
     )
+    return slim, q, pre, messages, fit and fit.slim()
 
 
 def replay(
@@ -561,8 +552,7 @@ def _replay(
                 result = pipeline.process(
                     frame, q, t, prepared=pre, probabilities=p, profile_fit=fit
                 )
-                messages = _processed(frame, q, pre, encoded)
-                recorder.write_encoded(frame.index, t, frame.host_time_ns, messages)
+                recorder.write_encoded(frame.index, t, frame.host_time_ns, encoded)
                 record_decisions(recorder, result, frame.host_time_ns)
                 frames += 1
                 if progress is not None:
