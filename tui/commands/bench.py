@@ -75,7 +75,7 @@ def _replay(files: list[str], as_json: bool, say) -> int:
     for f in files:
         say(f"replay of {f}, 3 runs")
         run = replay_trial(f)
-        minutes = f"{run.frames} frames, {run.recorded_s / 60:.1f} min"
+        minutes = f"{run.frames} frames, {run.recorded_s:.0f} s recorded"
         results += [
             Result("replay_speedup", run.speedup, "x", 20, "higher", minutes),
             Result("replay_wall", float(np.median(run.wall_s)), "s", None, "lower"),
