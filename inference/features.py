@@ -22,7 +22,6 @@ raw points (total least squares, trimmed). Then:
 
 from __future__ import annotations
 
-import copy
 import functools
 import math
 from dataclasses import dataclass, field
@@ -91,64 +90,19 @@ class _Segment:
     def level(self) -> float:
         return float(np.median(self.points[:, 1]))
 
-    # Where along x its points lie (the stairs' edges and gaps).
-    @functools.cached_property
-    def x_median(self) -> float:
-        return float(np.median(self.points[:, 0]))
 
-    @functools.cached_property
-    def x_p2(self) -> float:
-        return float(np.percentile(self.points[:, 0], 2))
+def terrain_features(profile: np.ndarray, mode_hint: str | None = None) -> TerrainFeatures:
+    """Features of the leveled profile ((M, 2): forward x, height z, camera at the origin).
 
-    @functools.cached_property
-    def x_p98(self) -> float:
-        return float(np.percentile(self.points[:, 0], 98))
-
-    @property
-    def riser(self) -> bool:
-        """Steep and of a riser's height: a stair edge when going up."""
-        return self.angle_deg > 60 and 0.02 <= self.length <= RISER_MAX_M + 0.05
-
-    def without_points(self) -> _Segment:
-        """A copy without the point indices, and without the points unless features_of
-        may use them (the level and extent of a flat segment, a riser's position): much
-        less to send to another process, and nothing computed that might not be used."""
-        slim = copy.copy(self)
-        slim.index = _NO_INDEX
-        if not (self.flat or self.riser):
-            slim.points = _NO_POINTS
-        return slim
-
-
-_NO_POINTS = np.zeros((0, 2))
-_NO_INDEX = np.zeros(0, np.int64)
-
-
-@dataclass
-class ProfileFit:
-    """The straight segments fitted to a profile: the costly part of terrain_features, and
-    independent of the mode hint (replay fits its profiles in its reader process)."""
-
-    segments: list[_Segment]
-    inlier_fraction: float  # profile points explained by the segments
-    residual_m: float  # RMS distance of those points to their segments
-
-    def slim(self) -> ProfileFit:
-        """The same fit with its segments _Segment.without_points(): what features_of
-        needs, small to send to another process."""
-        segments = [s.without_points() for s in self.segments]
-        return ProfileFit(segments, self.inlier_fraction, self.residual_m)
-
-
-def fit_profile(profile: np.ndarray) -> ProfileFit | None:
-    """The segments of the leveled profile ((M, 2): forward x, height z, camera at the
-    origin); None when too few points or no segment."""
+    mode_hint: the fused decision ("LG", "US", "DS", "UR", "DR") or None; it only relaxes
+    the evidence needed for the matching kind.
+    """
     pts = np.asarray(profile, dtype=np.float64).reshape(-1, 2)
     x, z = pts[:, 0], pts[:, 1]
     keep = (x > 0) & (x < np.inf) & np.isfinite(z)  # per column: all(axis=1) costs more
     x, z = x[keep], z[keep]
     if len(x) < MIN_POINTS:
-        return None
+        return TerrainFeatures()
     # Sorted by angle bin, then by range within the bin (ranges < 100 m): the polyline's
     # medians are the middle of each bin, and a segment's own points are one slice.
     rng = np.sqrt(x * x + z * z)
@@ -158,32 +112,16 @@ def fit_profile(profile: np.ndarray) -> ProfileFit | None:
     bins, rng = bins[order], rng[order]
     segments = [s for run in _polyline_runs(bins, rng) for s in _fit_segments(run, pts, bins)]
     if not segments:
-        return None
+        return TerrainFeatures()
     explained = np.zeros(len(pts), bool)
     for s in segments:
         explained[s.index] = True
+    inlier_fraction = float(explained.mean())
     residual = float(
         np.sqrt(
             sum(s.rms_m**2 * len(s.points) for s in segments) / sum(len(s.points) for s in segments)
         )
     )
-    return ProfileFit(segments, float(explained.mean()), residual)
-
-
-def terrain_features(profile: np.ndarray, mode_hint: str | None = None) -> TerrainFeatures:
-    """Features of the leveled profile ((M, 2): forward x, height z, camera at the origin).
-
-    mode_hint: the fused decision ("LG", "US", "DS", "UR", "DR") or None; it only relaxes
-    the evidence needed for the matching kind.
-    """
-    return features_of(fit_profile(profile), mode_hint)
-
-
-def features_of(fit: ProfileFit | None, mode_hint: str | None = None) -> TerrainFeatures:
-    """terrain_features() from the profile's fit_profile()."""
-    if fit is None:
-        return TerrainFeatures()
-    segments = fit.segments
     result = (
         _stairs(segments, mode_hint)
         or _ramp(segments, mode_hint)
@@ -191,8 +129,8 @@ def features_of(fit: ProfileFit | None, mode_hint: str | None = None) -> Terrain
         or TerrainFeatures()
     )
     result.ahead_slope_deg = _slope_at(segments, AHEAD_M)
-    result.inlier_fraction = fit.inlier_fraction
-    result.residual_m = fit.residual_m
+    result.inlier_fraction = inlier_fraction
+    result.residual_m = residual
     result.segments = [
         (float(s.start[0]), float(s.start[1]), float(s.end[0]), float(s.end[1]), float(s.angle_deg))
         for s in segments
@@ -349,13 +287,17 @@ def _stairs(segments: list[_Segment], hint: str | None) -> TerrainFeatures | Non
         rise = b.level - a.level
         if not RISER_MIN_M <= abs(rise) <= RISER_MAX_M:
             continue
-        gap = b.x_p2 - a.x_p98
+        gap = float(np.percentile(b.points[:, 0], 2) - np.percentile(a.points[:, 0], 98))
         if rise > 0 and gap <= 0.05:
             up_rises.append(rise)
         elif rise < 0 and -0.02 <= gap <= MAX_HIDDEN_M:  # the lower tread is half hidden
             down_steps.append((-rise, i, j))
     # Going up, the risers face the camera: each is a stair edge.
-    risers = [i for i, s in enumerate(segments) if s.riser]
+    risers = [
+        i
+        for i, s in enumerate(segments)
+        if s.angle_deg > 60 and 0.02 <= s.length <= RISER_MAX_M + 0.05
+    ]
     up_evidence, down_evidence = len(up_rises) + len(risers), len(down_steps)
     if hint == "US" and up_evidence or not down_evidence:
         going_up = True
@@ -367,7 +309,7 @@ def _stairs(segments: list[_Segment], hint: str | None) -> TerrainFeatures | Non
         rises = up_rises or [r for r in (_complete_riser(segments, i) for i in risers) if r]
         if not rises and len(risers) < 2:
             return None
-        edges = [segments[i].x_median for i in risers]
+        edges = [float(np.median(segments[i].points[:, 0])) for i in risers]
         tops = [float(segments[i].end[1]) for i in risers]
         bottoms = [float(segments[i].start[1]) for i in risers]
         depths = [
@@ -404,8 +346,8 @@ def _nosing(upper: _Segment, lower: _Segment) -> float:
     origin), and the first sample there lies beyond. The mean of both cancels most of
     the sampling bias.
     """
-    last = upper.x_p98
-    first = lower.x_p2
+    last = float(np.percentile(upper.points[:, 0], 98))
+    first = float(np.percentile(lower.points[:, 0], 2))
     if upper.level < -0.02 and lower.level < upper.level:
         return 0.5 * (last + first * upper.level / lower.level)
     return last

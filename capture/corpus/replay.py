@@ -6,17 +6,17 @@ original file is only read.
 
 As fast as possible (`speed=None`), the work is split over two processes, since one
 Python process cannot use a second core: a reader process decodes the frames, levels and
-preprocesses them, fits their profiles' segments (the costly part of the terrain
-features) and encodes what the new recording keeps of them (depth, cloud, image,
-orientation, truth); this one classifies them in batches, fuses, finishes the terrain
-features and records (its main thread shares the interpreter with the threads that
-receive the frames and write the file). The IMU is read in one pass and kept in compact
-columns. While the reader process starts, this one prepares the first frames itself. The
-frames are classified in batches of BATCH from the first frame on, whatever the reader
-process has sent so far: the CNN's float results depend on the batch's size, and fixed
-batches give the same file on every run. Paced replays (`speed=X`), and replays that are
-one task of a corpus job (`reader_process=False`: the cluster has given each task one
-core), run in this process alone.
+preprocesses them and encodes what the new recording keeps of them (depth, cloud, image,
+orientation, truth); this one classifies them in batches, fuses, measures the terrain and
+records (its main thread shares the interpreter with the threads that receive the frames
+and write the file: the two processes' shares of a frame's CPU time are about even). The
+IMU is read in one pass and kept in compact columns. While the reader process starts,
+this one prepares the first frames itself. The frames are classified in batches of BATCH
+from the first frame on, whatever the reader process has sent so far: the CNN's float
+results depend on the batch's size, and fixed batches give the same file on every run.
+Paced replays (`speed=X`), and replays that are one task of a corpus job
+(`reader_process=False`: the cluster has given each task one core), run in this process
+alone.
 """
 
 from __future__ import annotations
@@ -348,13 +348,10 @@ def _serve_prepared(conn, source: str, params, mounting) -> None:
 
 
 def _encoded(frame: DepthFrame, q, pre):
-    """What the recording needs of a frame that fusion does not change, encoded, and the
-    segments fitted to its profile (the costly part of the terrain features, whatever the
-    fused decision): in the reader process when replaying fast. The frame and its
-    Preprocessed go on without their bulky arrays (the profile too, once fitted). The rays
-    come with the source's attachments."""
+    """What the recording needs of a frame that fusion does not change, encoded (in the
+    reader process when replaying fast); the frame and its Preprocessed go on without
+    their bulky arrays. The rays come with the source's attachments."""
     from capture.recording.encode import encode_depth, encode_processed, encode_truth
-    from inference.features import fit_profile
 
     t, log_time = frame.device_time_ns, frame.host_time_ns
     messages = encode_depth(frame, t, log_time) + encode_processed(
@@ -366,14 +363,7 @@ def _encoded(frame: DepthFrame, q, pre):
     slim = dataclasses.replace(
         frame, xyz=np.zeros((0, 0, 3), np.float32), confidence=none, gray=none, range_mm=None
     )
-    fit = fit_profile(pre.profile) if pre.ok else None
-    # the fit is what the features need of the profile
-    pre = dataclasses.replace(
-        pre,
-        cloud=np.zeros((0, 3), np.float32),
-        profile=pre.profile if fit is None else np.zeros((0, 2), np.float32),
-    )
-    return slim, q, pre, messages, fit and fit.slim()
+    return slim, q, dataclasses.replace(pre, cloud=np.zeros((0, 3), np.float32)), messages
 
 
 def replay(
@@ -534,11 +524,11 @@ def _replay(
             recorder.write_event(dict(ev))
         for block in blocks:
             probs = (
-                batch(np.stack([pre.image for _, _, pre, _, _ in block]))
+                batch(np.stack([pre.image for _, _, pre, _ in block]))
                 if batch is not None
-                else [classifier.predict(pre.image) for _, _, pre, _, _ in block]
+                else [classifier.predict(pre.image) for _, _, pre, _ in block]
             )
-            for (frame, q, pre, encoded, fit), p in zip(block, probs):
+            for (frame, q, pre, encoded), p in zip(block, probs):
                 t = frame.device_time_ns
                 first_t = t if first_t is None else first_t
                 last_t = t
@@ -549,9 +539,7 @@ def _replay(
                 while i_imu < len(imu_times) and imu_times[i_imu] <= t + IMU_LOOKAHEAD_NS:
                     recorder.write_imu(next(imu_samples))
                     i_imu += 1
-                result = pipeline.process(
-                    frame, q, t, prepared=pre, probabilities=p, profile_fit=fit
-                )
+                result = pipeline.process(frame, q, t, prepared=pre, probabilities=p)
                 recorder.write_encoded(frame.index, t, frame.host_time_ns, encoded)
                 record_decisions(recorder, result, frame.host_time_ns)
                 frames += 1

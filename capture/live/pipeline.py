@@ -22,8 +22,6 @@ from inference.fusion import FusionOutput
 # One torch thread for the per-frame CNN: the pipeline shares the cores with the devices and
 # the recorder, and torch's thread pool spinning against them costs far more than it gains.
 CNN_THREADS = 1
-# Pipeline.process's profile_fit when the pipeline fits the profile itself.
-FIT_HERE = object()
 # How far past the newest IMU sample its rate of turn carries the orientation (a few sample
 # periods); beyond that the sample is held, and the frame's orientation is stale.
 EXTRAPOLATE_NS = 50_000_000
@@ -216,17 +214,15 @@ class Pipeline:
         *,
         prepared=None,
         probabilities: np.ndarray | None = None,
-        profile_fit=FIT_HERE,
         orientation_age_ns: int = 0,
     ) -> FrameResult:
-        """The whole frame; `prepared`, `probabilities` and `profile_fit` (the profile's
-        inference.features.fit_profile()) when worked out ahead (replay preprocesses and
-        fits in another process and classifies in batches).
+        """The whole frame; `prepared` and `probabilities` when worked out ahead (replay
+        preprocesses in another process and classifies in batches).
 
         A frame whose orientation is stale gets no decision: the CNN does not see it and
         the fusion holds (it is not fed), so nothing is decided on a wrongly levelled cloud.
         """
-        from inference.features import features_of, fit_profile, ground_ahead, shown_mode
+        from inference.features import ground_ahead, shown_mode, terrain_features
         from inference.preprocess import STALE_ORIENTATION
 
         if quaternion is None:
@@ -257,11 +253,7 @@ class Pipeline:
             hint = MODES[
                 fused.decision if fused is not None and fused.decision is not None else cnn
             ]
-            if not pre.ok:
-                feats = None
-            else:
-                fit = fit_profile(pre.profile) if profile_fit is FIT_HERE else profile_fit
-                feats = features_of(fit, hint)
+            feats = terrain_features(pre.profile, hint) if pre.ok else None
             if getattr(self.fusion, "uses_geometry", False):  # decides this frame next push
                 if feats is None:
                     self.fusion.see_geometry(-1, -1)

@@ -168,30 +168,3 @@ def test_ground_ahead_names_the_mode_its_slope_shows(slope, mode):
     from inference.features import ground_ahead
 
     assert ground_ahead(slope) == mode
-
-
-def test_features_from_a_fit_made_elsewhere_are_the_same_for_every_hint():
-    """Replay fits the profiles in its reader process and measures the features with the
-    fused decision here: the fit, sent without its point indices, gives the same features."""
-    import pickle
-
-    from inference.features import features_of, fit_profile
-
-    profiles = []
-    terrains = (tr.ramp(12.0), tr.stairs(0.17, 0.3), tr.stairs(0.17, 0.3, up=False), tr.level())
-    for terrain in terrains:
-        for q, height, k in poses(3, 7, (-20, 10)):
-            xyz, conf = tr.render(terrain, q, height_m=height, noise_m=0.01, seed=k)
-            pre = preprocess(xyz, conf, q, PARAMS)
-            if pre.ok:
-                profiles.append(pre.profile)
-    assert len(profiles) >= 8
-    kinds = set()
-    for profile in profiles:
-        sent = pickle.loads(pickle.dumps(fit_profile(profile).slim()))
-        for hint in (None, "LG", "US", "DS", "UR", "DR"):
-            here = terrain_features(profile, hint)
-            assert features_of(sent, hint) == here
-            kinds.add(here.kind)
-    assert {"ramp", "stairs", "level"} <= kinds
-    assert fit_profile(np.zeros((0, 2))) is None and features_of(None) == TerrainFeatures()

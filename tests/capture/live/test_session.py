@@ -342,7 +342,7 @@ def test_fast_replay_prepares_frames_itself_until_its_reader_process_is_ready(re
     reader = Reader()
     frames = []
     for block in R._head_start(path, params, mounting, imu, reader):
-        frames += [frame.index for frame, *_ in block]
+        frames += [frame.index for frame, _, _, _ in block]
         if len(frames) == 3:
             reader.ready.set()  # the reader process says it is ready
     every = [frame.index for frame, _, _ in R.prepared_frames(path, params, mounting, imu)]
