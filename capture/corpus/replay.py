@@ -8,16 +8,20 @@ As fast as possible (`speed=None`), the work is split over two processes, since 
 Python process cannot use a second core: a reader process decodes the frames, levels and
 preprocesses them and encodes what the new recording keeps of them (depth, cloud, image,
 orientation, truth); this one classifies them in batches, fuses, measures the terrain and
-records. While the reader process starts, this one prepares the first frames itself.
-The frames are classified in batches of BATCH from the first frame on, whatever the reader
-process has sent so far: the CNN's float results depend on the batch's size, and fixed
-batches give the same file on every run. Paced replays (`speed=X`), and replays that are
-one task of a corpus job (`reader_process=False`: the cluster has given each task one
-core), run in this process alone.
+records (its main thread shares the interpreter with the threads that receive the frames
+and write the file: the two processes' shares of a frame's CPU time are about even). The
+IMU is read in one pass and kept in compact columns. While the reader process starts,
+this one prepares the first frames itself. The frames are classified in batches of BATCH
+from the first frame on, whatever the reader process has sent so far: the CNN's float
+results depend on the batch's size, and fixed batches give the same file on every run.
+Paced replays (`speed=X`), and replays that are one task of a corpus job
+(`reader_process=False`: the cluster has given each task one core), run in this process
+alone.
 """
 
 from __future__ import annotations
 
+import array
 import dataclasses
 import os
 import queue
@@ -75,33 +79,131 @@ def default_output(source: Path, folder: Path | None = None) -> Path:
         k += 1
 
 
-def recorded(rec) -> tuple[list[ImuSample], list[dict], list[dict]]:
-    """The recording's IMU samples (in sample-time order), labels and events: one pass."""
-    imu, labels, events = [], [], []
+_INTS = ("host_time_ns", "time_ns", "packet_counter", "sample_time_fine", "status_word")
+_VECTORS = (("quaternion", 4), ("acceleration", 3), ("rate_of_turn", 3))
+
+
+class ImuColumns:
+    """IMU samples kept as columns, about 130 bytes a sample (an ImuSample object takes
+    nearly 800: a two-hour trial's samples would take over half a GB). A sample that does
+    not fit the columns (a value of another type or shape, extra outputs) is kept whole."""
+
+    def __init__(self) -> None:
+        self._ints = [array.array("q") for _ in _INTS]
+        self._vectors = [array.array("d") for _ in _VECTORS]
+        self._present = [bytearray() for _ in _INTS + _VECTORS]
+        self._whole: dict[int, ImuSample] = {}
+        self._n = 0
+
+    def add(self, s: ImuSample) -> None:
+        ints = [getattr(s, name) for name in _INTS]
+        vectors = [getattr(s, name) for name, _ in _VECTORS]
+        fits = not s.extra and all(v is None or type(v) is int for v in ints)
+        fits = fits and all(v is None or v.shape == (k,) for v, (_, k) in zip(vectors, _VECTORS))
+        if not fits:
+            self._whole[self._n] = s
+            ints, vectors = [None] * len(_INTS), [None] * len(_VECTORS)
+        for column, present, v in zip(self._ints, self._present, ints):
+            column.append(0 if v is None else v)
+            present.append(v is not None)
+        for (_, k), column, present, v in zip(
+            _VECTORS, self._vectors, self._present[len(_INTS) :], vectors
+        ):
+            column.extend((np.nan,) * k if v is None else v.tolist())
+            present.append(v is not None)
+        self._n += 1
+
+    def __len__(self) -> int:
+        return self._n
+
+    def column(self, name: str) -> tuple[np.ndarray, np.ndarray]:
+        """(values, present) of a field over the samples that fit the columns."""
+        if name in _INTS:
+            k = _INTS.index(name)
+            values = np.frombuffer(self._ints[k], dtype=np.int64)
+        else:
+            k = [n for n, _ in _VECTORS].index(name)
+            values = np.frombuffer(self._vectors[k], dtype=np.float64).reshape(-1, _VECTORS[k][1])
+            k += len(_INTS)
+        return values, np.frombuffer(self._present[k], dtype=bool)
+
+    def whole(self) -> dict[int, ImuSample]:
+        """The samples kept whole, by their position."""
+        return self._whole
+
+    def sample(self, i: int) -> ImuSample:
+        """Sample `i` (in the order added), the same as the one added."""
+        whole = self._whole.get(i)
+        if whole is not None:
+            return whole
+        values = {
+            name: int(c[i]) if p[i] else None
+            for name, c, p in zip(_INTS, self._ints, self._present)
+        }
+        for k, (name, size) in enumerate(_VECTORS):
+            here = self._present[len(_INTS) + k][i]
+            c = self._vectors[k]
+            values[name] = np.array(c[i * size : (i + 1) * size]) if here else None
+        return ImuSample(**values)
+
+    @property
+    def nbytes(self) -> int:
+        columns = (*self._ints, *self._vectors, *self._present)
+        return sum(len(c) * (c.itemsize if isinstance(c, array.array) else 1) for c in columns)
+
+
+@dataclass
+class RecordedImu:
+    """What replay keeps of a recording's IMU from one pass, in compact arrays.
+    `samples`: in file order; `order`: their positions sorted by sample time (stable);
+    `times_ns`: their sample times in that order; `orientations`: (times ns, quaternions
+    N x 4, rates of turn N x 3, NaN where absent) of the samples that carry an
+    orientation, in that order: what the orientation track needs, compact to hand over."""
+
+    samples: ImuColumns
+    order: np.ndarray
+    times_ns: np.ndarray
+    orientations: tuple[np.ndarray, np.ndarray, np.ndarray]
+
+    def in_order(self) -> Iterator[ImuSample]:
+        """The samples in sample-time order."""
+        for i in self.order:
+            yield self.samples.sample(int(i))
+
+
+def recorded_compact(rec) -> tuple[RecordedImu, list[dict], list[dict]]:
+    """The recording's IMU (as RecordedImu), labels and events: one pass."""
+    samples = ImuColumns()
+    labels, events = [], []
     for m in rec.messages([T.IMU, T.LABELS, T.EVENTS]):
         if m.topic == T.IMU:
-            imu.append(imu_sample(m.data))
+            samples.add(imu_sample(m.data))
         else:
             (labels if m.topic == T.LABELS else events).append(m.data)
-    imu.sort(key=_sample_time)
-    return imu, labels, events
+    t, has_t = samples.column("time_ns")
+    host, _ = samples.column("host_time_ns")
+    quats, has_q = samples.column("quaternion")
+    rates, has_rate = samples.column("rate_of_turn")
+    t, quats, rates = np.where(has_t, t, host), quats.copy(), rates.copy()
+    has_q = has_q.copy()
+    rates[~has_rate] = np.nan
+    for i, s in samples.whole().items():
+        t[i] = _sample_time(s)
+        has_q[i] = s.quaternion is not None
+        if has_q[i]:
+            quats[i] = s.quaternion
+            rates[i] = s.rate_of_turn if s.rate_of_turn is not None else np.nan
+    order = np.argsort(t, kind="stable")
+    kept = order[has_q[order]]
+    return (
+        RecordedImu(samples, order, t[order], (t[kept], quats[kept], rates[kept])),
+        labels,
+        events,
+    )
 
 
 def _sample_time(s: ImuSample) -> int:
     return s.time_ns if s.time_ns is not None else s.host_time_ns
-
-
-def orientations(imu: list[ImuSample]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(times ns, quaternions N x 4, rates of turn N x 3, NaN where absent) of the samples
-    that carry an orientation: what the orientation track needs, compact to hand over."""
-    kept = [s for s in imu if s.quaternion is not None]
-    times = np.array([_sample_time(s) for s in kept], dtype=np.int64)
-    quats = np.array([s.quaternion for s in kept], dtype=np.float64).reshape(-1, 4)
-    rates = np.array(
-        [s.rate_of_turn if s.rate_of_turn is not None else np.full(3, np.nan) for s in kept],
-        dtype=np.float64,
-    ).reshape(-1, 3)
-    return times, quats, rates
 
 
 def prepared_frames(
@@ -109,12 +211,12 @@ def prepared_frames(
 ) -> Iterator[tuple[DepthFrame, np.ndarray | None, object]]:
     """(frame, orientation, Preprocessed) for every recorded frame, in order, after the
     first `skip`, preprocessed with `params` (a PreprocessConfig) and the camera's
-    `mounting`. `imu_orientations`: orientations() of the recording's IMU, if already read."""
+    `mounting`. `imu_orientations`: RecordedImu.orientations of the recording, if already read."""
     from capture.recording.reader import depth_frames, open_recording
     from inference.preprocess import preprocess
 
     if imu_orientations is None:
-        imu_orientations = orientations(recorded(open_recording(source))[0])
+        imu_orientations = recorded_compact(open_recording(source))[0].orientations
     times, quats, rates = imu_orientations
     track = OrientationTrack(span_s=5.0)
     i = 0
@@ -292,8 +394,8 @@ def replay(
     # the reader process starts first: its imports overlap with reading the IMU here
     frames_in = _ReaderProcess(source, params, mounting) if fast and reader_process else None
     try:
-        imu, labels, events = recorded(rec)
-        imu_orientations = orientations(imu)
+        imu, labels, events = recorded_compact(rec)
+        imu_orientations = imu.orientations
         if frames_in is not None:
             frames_in.start(imu_orientations)
             blocks = _head_start(source, params, mounting, imu_orientations, frames_in)
@@ -410,6 +512,7 @@ def _replay(
     )
     recorder.start()
     batch = getattr(classifier, "predict_batch", None)
+    imu_times, imu_samples = imu.times_ns, imu.in_order()
     i_imu = 0
     frames = 0
     first_t = last_t = None
@@ -433,8 +536,8 @@ def _replay(
                     wait = (t - first_t) * 1e-9 / speed - (time.monotonic() - wall0)
                     if wait > 0:
                         time.sleep(wait)
-                while i_imu < len(imu) and _sample_time(imu[i_imu]) <= t + IMU_LOOKAHEAD_NS:
-                    recorder.write_imu(imu[i_imu])
+                while i_imu < len(imu_times) and imu_times[i_imu] <= t + IMU_LOOKAHEAD_NS:
+                    recorder.write_imu(next(imu_samples))
                     i_imu += 1
                 result = pipeline.process(frame, q, t, prepared=pre, probabilities=p)
                 recorder.write_encoded(frame.index, t, frame.host_time_ns, encoded)
@@ -442,7 +545,7 @@ def _replay(
                 frames += 1
                 if progress is not None:
                     progress(frames)
-        for s in imu[i_imu:]:
+        for s in imu_samples:
             recorder.write_imu(s)
     finally:
         stats = recorder.close()

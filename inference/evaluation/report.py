@@ -67,15 +67,15 @@ def report(
     "conditions" (with their own paired t-tests)."""
     files = []
     for r in results:
-        entry: dict[str, Any] = {"path": r.trial.path, "frames": len(r.trial.reference)}
-        labeled = int((r.trial.reference >= 0).sum())
+        entry: dict[str, Any] = {"path": r.trial.path, "frames": r.trial.frames}
+        labeled = r.trial.labeled_frames
         if labeled != entry["frames"]:
             entry["labeled_frames"] = labeled
         if grouped:
             entry["subject"] = r.trial.subject
             entry["condition"] = r.trial.condition
         entry["accuracy"] = _nums(r.accuracy)
-        entry["references"] = list(r.trial.references())
+        entry["references"] = r.trial.reference_names
         entry["transitions"] = {
             m: {name: tr.summary(st) for name, st in r.transitions.get(m, {}).items()}
             for m in methods

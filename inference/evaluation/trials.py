@@ -101,6 +101,19 @@ class Trial:
         return out
 
     @property
+    def frames(self) -> int:
+        return len(self.reference)
+
+    @property
+    def labeled_frames(self) -> int:
+        """Frames with a reference mode."""
+        return int((self.reference >= 0).sum())
+
+    @property
+    def reference_names(self) -> list[str]:
+        return list(self.references())
+
+    @property
     def subject(self) -> str:
         return str(self.metadata.get("subject") or Path(self.path).stem)
 
@@ -123,6 +136,34 @@ class Trial:
 
 
 @dataclass
+class TrialSummary:
+    """What a report says of a trial (Trial's names and counts) without its per-frame
+    arrays: a study's results held for hundreds of trials at once."""
+
+    path: str
+    frames: int
+    labeled_frames: int
+    reference_name: str
+    reference_names: list[str]
+    metadata: dict = field(default_factory=dict)
+
+    @classmethod
+    def of(cls, trial: Trial) -> TrialSummary:
+        return cls(
+            trial.path,
+            trial.frames,
+            trial.labeled_frames,
+            trial.reference_name,
+            trial.reference_names,
+            dict(trial.metadata),
+        )
+
+    subject = Trial.subject
+    condition = Trial.condition
+    title = Trial.title
+
+
+@dataclass
 class FusionRun:
     """One method over one sequence; -1 / NaN where a frame got nothing."""
 
@@ -134,11 +175,17 @@ class FusionRun:
 
 @dataclass
 class TrialResult:
-    trial: Trial
+    trial: Trial | TrialSummary  # the summary alone once summarized()
     accuracy: dict[str, float]
     runs: dict[str, FusionRun]
     # method -> reference name -> its switches against that reference
     transitions: dict[str, dict[str, tr.TransitionStats]] = field(default_factory=dict)
+
+    def summarized(self) -> TrialResult:
+        """The accuracies and switches a report needs, without the per-frame arrays (the
+        trial's and each method's run: several MB for a long trial). Plots, the delay
+        sweep and the confusion matrices need the whole result."""
+        return TrialResult(TrialSummary.of(self.trial), dict(self.accuracy), {}, self.transitions)
 
 
 # ---------------------------------------------------------------------------------------

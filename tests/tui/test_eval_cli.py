@@ -334,3 +334,41 @@ def test_scores_json_carries_switches_against_both_references(capsys, tmp_path):
     assert data["sweep"]["spurious_per_min"]["cnn"] == [pytest.approx(30.0)] * 2
     code, out, _ = run(capsys, "eval", "scores", str(path), "--methods", "cnn", "--fps", "30")
     assert "spurious/min" in out and "lead median" in out and "60.0" in out
+
+
+def test_recordings_are_read_and_evaluated_one_at_a_time(capsys, fake_reader, monkeypatch):
+    """A folder of many long trials: each trial's frames are let go once it is evaluated
+    (only its figures stay), so memory does not grow with the number of trials; the
+    report is the one evaluating every trial at once gives."""
+    import gc
+    import weakref
+
+    from capture.recording import reader
+
+    folder = str(fake_reader[0]).rsplit("/", 1)[0]
+    alive: list[weakref.ref] = []
+    most = []
+    read = reader.read_evaluation_trial
+
+    def counted(*args):
+        gc.collect()
+        most.append(sum(r() is not None for r in alive))  # trials still held at this read
+        trial = read(*args)
+        alive.append(weakref.ref(trial))
+        return trial
+
+    monkeypatch.setattr(reader, "read_evaluation_trial", counted)
+    argv = ("eval", "recordings", folder, "--json", "--reference", "locomotion")
+    code, out, err = run(capsys, *argv)
+    assert code == 0, err
+    assert most == [0, 0, 0, 0]  # the trial before was gone when the next was read
+    streamed = json.loads(out)
+
+    # the same with every trial's frames at once (the delay sweep needs them all)
+    alive.clear()
+    code, out, err = run(capsys, *argv, "--sweep-delay", "1")
+    assert code == 0, err
+    whole = json.loads(out)
+    assert max(most[4:]) >= 1  # held together, for the sweep
+    whole.pop("sweep")
+    assert streamed == whole

@@ -28,6 +28,13 @@ def add_arguments(parser) -> None:
         help="instead: synth and replay of --sessions sessions with --cluster against one "
         "process, --rounds interleaved rounds; the cluster's start-up; throughput per core",
     )
+    parser.add_argument(
+        "--replay",
+        nargs="+",
+        metavar="FILE",
+        help="instead: `walkcap replay` of each recording (a real trial, minutes long), the "
+        "whole command as a user runs it, 3 runs each: times real time, CPU time, peak memory",
+    )
     bench_corpus.add_arguments(parser)
 
 
@@ -39,6 +46,8 @@ def run(args, config) -> int:
         return _soak(bench, args.soak, args.json)
     if args.cluster:
         return bench_corpus.run(args, config)
+    if args.replay:
+        return _replay(args.replay, args.json, say)
     results = bench.run_all(args.seconds, progress=say)
     machine = bench.machine()
     if args.json:
@@ -49,6 +58,42 @@ def run(args, config) -> int:
         f"Python {machine['python']}, torch {machine['torch']}, load {machine['load_avg_1min']}"
     )
     print(f"{'benchmark':32} {'value':>12} {'unit':10} {'goal':>12}  ")
+    for r in results:
+        goal = "" if r.goal is None else ("<= " if r.better == "lower" else ">= ") + f"{r.goal:g}"
+        mark = {True: "ok", False: "MISSED", None: ""}[r.met]
+        print(f"{r.name:32} {r.value:12.4g} {r.unit:10} {goal:>12}  {mark} {r.note}")
+    return 0
+
+
+def _replay(files: list[str], as_json: bool, say) -> int:
+    import numpy as np
+
+    from capture.bench import Result, machine
+    from capture.bench.replay import replay_trial
+
+    results = []
+    for f in files:
+        say(f"replay of {f}, 3 runs")
+        run = replay_trial(f)
+        minutes = f"{run.frames} frames, {run.recorded_s:.0f} s recorded"
+        results += [
+            Result("replay_speedup", run.speedup, "x", 20, "higher", minutes),
+            Result("replay_wall", float(np.median(run.wall_s)), "s", None, "lower"),
+            Result(
+                "replay_cpu",
+                float(np.median(run.cpu_s)),
+                "s",
+                None,
+                "lower",
+                f"user + system, both processes: {run.cpu_speedup:.1f}x real time per CPU second",
+            ),
+            Result("replay_peak_rss", max(run.peak_rss_mib), "MiB", 600, "lower"),
+        ]
+    m = machine()
+    if as_json:
+        print(json.dumps({"machine": m, "results": [r.to_dict() for r in results]}, indent=2))
+        return 0
+    print(f"machine: {m['cpu']}, {m['cores']} cores, load {m['load_avg_1min']}")
     for r in results:
         goal = "" if r.goal is None else ("<= " if r.better == "lower" else ">= ") + f"{r.goal:g}"
         mark = {True: "ok", False: "MISSED", None: ""}[r.met]

@@ -186,19 +186,28 @@ def run(args, config) -> int:
         lag=args.lag if args.lag is not None else config.fusion.lag,
     )
 
+    if args.methods is None:
+        default = RECORDING_METHODS if args.eval_command == "recordings" else DEFAULT_METHODS
+        args.methods = _methods(default)
+    # What needs every trial's frames at once: the plots, the delay sweep, transitions
+    # estimated from the other trials. Otherwise recordings are read and evaluated one at
+    # a time, each kept as its figures alone.
+    whole = args.plot or args.sweep_delay is not None or args.transition == "estimated"
     if args.eval_command == "scores":
         trials = [ev.read_scores(path, args.fps) for path in args.files]
     else:
         files = _recordings(args.files, args.replays)
-        trials = _trials(files, args.reference, args.cluster)
-    per_trial = params
-    if args.transition == "estimated":
-        per_trial = [replace(params, transition=t) for t in ev.leave_one_out_transitions(trials)]
-
-    if args.methods is None:
-        default = RECORDING_METHODS if args.eval_command == "recordings" else DEFAULT_METHODS
-        args.methods = _methods(default)
-    results = ev.evaluate(trials, args.methods, per_trial)
+        if whole:
+            trials = _trials(files, args.reference, args.cluster)
+        else:
+            trials = None
+            results = _results(files, args.reference, args.cluster, args.methods, params)
+    if trials is not None:
+        per_trial = params
+        if args.transition == "estimated":
+            transitions = ev.leave_one_out_transitions(trials)
+            per_trial = [replace(params, transition=t) for t in transitions]
+        results = ev.evaluate(trials, args.methods, per_trial)
     sweep = (
         ev.delay_sweep(trials, args.methods, args.sweep_delay, per_trial)
         if args.sweep_delay is not None
@@ -401,6 +410,25 @@ def _recordings(paths: list[str], replays: bool = False) -> list[str]:
     for line in corpus.report_lines():
         print(line, file=sys.stderr)
     return [str(p) for p in corpus.files]
+
+
+def _results(files: list[str], reference: str, address: str | None, methods, params) -> list:
+    """Each recording's summarized result (capture.corpus.evaluate), here or with one Ray
+    task each; in the order given, each named by its path as given."""
+    from capture.corpus import jobs
+    from capture.corpus.evaluate import evaluate_recording
+
+    where = jobs.choose(address)
+    tasks = [
+        jobs.Task(
+            Path(f).name,
+            evaluate_recording,
+            (jobs.task_path(where, f), reference, f, list(methods), params),
+        )
+        for f in files
+    ]
+    progress = None if address else False
+    return jobs.run(tasks, where, desc="eval", unit="recording", show_progress=progress)
 
 
 def _trials(files: list[str], reference: str, address: str | None) -> list:

@@ -326,7 +326,7 @@ def test_fast_replay_prepares_frames_itself_until_its_reader_process_is_ready(re
     path, _, _, _ = recorded
     config = Config()
     params, mounting = config.preprocess, config.mounting
-    imu = R.orientations(R.recorded(open_recording(path))[0])
+    imu = R.recorded_compact(open_recording(path))[0].orientations
 
     class Reader:  # stands in for the reader process
         ready = threading.Event()

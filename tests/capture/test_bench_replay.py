@@ -1,0 +1,36 @@
+"""`walkcap bench --replay`: the whole command measured in a fresh process each run."""
+
+import sys
+
+import pytest
+
+from capture.bench.replay import replay_trial
+from capture.errors import CaptureError
+from capture.recording.reader import open_recording
+from tests.recording_fixtures import write_recording
+
+# Stands in for `walkcap`: takes `replay FILE -o OUT`, holds 64 MiB, writes OUT.
+STAND_IN = (
+    "import sys; block = bytearray(64 << 20); block[::4096] = b'x' * len(block[::4096]); "
+    "open(sys.argv[sys.argv.index('-o') + 1], 'wb').write(b'replayed')"
+)
+
+
+def test_each_run_is_measured_in_its_own_process(tmp_path):
+    path = tmp_path / "trial.mcap"
+    write_recording(path, seconds=2.0)
+    rec = open_recording(path)
+    run = replay_trial(path, runs=2, command=[sys.executable, "-c", STAND_IN])
+    assert run.frames == rec.topics["/camera/depth"].count > 0
+    assert run.recorded_s == rec.duration_s
+    assert len(run.wall_s) == len(run.cpu_s) == len(run.peak_rss_mib) == 2
+    assert min(run.peak_rss_mib) >= 64  # the stand-in's memory is its own, not this one's
+    assert all(c > 0 for c in run.cpu_s) and run.speedup > 0 and run.cpu_speedup > 0
+
+
+def test_a_failed_replay_is_one_line_with_its_reason(tmp_path):
+    path = tmp_path / "trial.mcap"
+    write_recording(path, seconds=1.0)
+    failing = [sys.executable, "-c", "import sys; sys.exit('replay: the disk is full')"]
+    with pytest.raises(CaptureError, match="failed: replay: the disk is full"):
+        replay_trial(path, runs=1, command=failing)
