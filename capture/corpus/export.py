@@ -92,14 +92,15 @@ def tables(path: str | os.PathLike) -> dict:
     imu, events = [], []
 
     def take(m) -> None:
-        (imu if m.topic == T.IMU else events).append(m.data)
+        if m.topic == T.IMU:  # the fields the table takes: a long trial's samples are many
+            s = m.data
+            imu.append(tuple(s.get(k) for k in _IMU_FIELDS))
+        else:
+            events.append(m.data)
 
     table, changes = frame_table(rec, (T.IMU, T.EVENTS), take)
     events.sort(key=lambda e: int(e.get("time_ns", 0)))  # in time order, as the rest
-    imu_t = np.array(
-        [int(s["time_ns"] if s.get("time_ns") is not None else s["host_time_ns"]) for s in imu],
-        dtype=np.int64,
-    )
+    imu_t = np.array([int(s[0] if s[0] is not None else s[1]) for s in imu], dtype=np.int64)
     label_t = np.array([c[0] for c in changes], dtype=np.int64)
     event_t = np.array([int(e.get("time_ns", 0)) for e in events], dtype=np.int64)
     # time_s counts from the recording's start: its earliest time, receive or sample (an
@@ -156,24 +157,37 @@ def _frame_columns(table: FrameTable, offset: int | None, t0: int) -> dict:
     return frames
 
 
-def _imu_columns(imu: list[dict], imu_t: np.ndarray, offset: int | None, t0: int) -> dict:
-    imu_cols = {"time_ns": imu_t, "host_time_ns": _ints([s.get("host_time_ns") for s in imu])}
+# an IMU sample's fields the table takes, in this order
+_IMU_FIELDS = (
+    "time_ns",
+    "host_time_ns",
+    "packet_counter",
+    "sample_time_fine",
+    "quaternion",
+    "acceleration",
+    "rate_of_turn",
+    "status_word",
+)
+
+
+def _imu_columns(imu: list[tuple], imu_t: np.ndarray, offset: int | None, t0: int) -> dict:
+    imu_cols = {"time_ns": imu_t, "host_time_ns": _ints([s[1] for s in imu])}
     imu_cols.update(_clock(imu_t, offset, t0))
-    imu_cols["packet_counter"] = _ints([s.get("packet_counter") for s in imu])
-    imu_cols["sample_time_fine"] = _ints([s.get("sample_time_fine") for s in imu])
-    for key, names in (
-        ("quaternion", ("qw", "qx", "qy", "qz")),
-        ("acceleration", ("acc_x", "acc_y", "acc_z")),
-        ("rate_of_turn", ("gyr_x", "gyr_y", "gyr_z")),
+    imu_cols["packet_counter"] = _ints([s[2] for s in imu])
+    imu_cols["sample_time_fine"] = _ints([s[3] for s in imu])
+    for at, names in (
+        (4, ("qw", "qx", "qy", "qz")),
+        (5, ("acc_x", "acc_y", "acc_z")),
+        (6, ("gyr_x", "gyr_y", "gyr_z")),
     ):
         values = np.full((len(imu), len(names)), np.nan)
         for k, s in enumerate(imu):
-            v = s.get(key)
+            v = s[at]
             if v is not None:
                 values[k] = [np.nan if x is None else x for x in v]
         for j, name in enumerate(names):
             imu_cols[name] = values[:, j]
-    imu_cols["status_word"] = _ints([s.get("status_word") for s in imu])
+    imu_cols["status_word"] = _ints([s[7] for s in imu])
     return imu_cols
 
 
@@ -299,17 +313,14 @@ def write(tables_: dict, out: str | os.PathLike, fmt: str = "parquet") -> list[P
     except OSError as e:
         raise CaptureError(f"cannot create {folder}: {e.strerror}") from None
     if fmt == "mat":
-        from scipy.io import savemat
-
-        structs = {name: _mat_struct(df) for name, df in tables_.items()}
-        return [_whole(folder / "walkcap.mat", lambda p: savemat(p, structs, oned_as="column"))]
+        return [_whole(folder / "walkcap.mat", lambda p: _write_mat(p, tables_))]
     written: list[Path] = []
     for name, df in tables_.items():
         path = folder / f"{name}.{fmt}"
         if fmt == "parquet":
-            write_table = lambda p, df=df: df.to_parquet(p, index=False)  # noqa: E731
+            write_table = lambda p, df=df: _write_parquet(p, df)  # noqa: E731
         else:
-            write_table = lambda p, df=df: df.to_csv(p, index=False)  # noqa: E731
+            write_table = lambda p, df=df: df.to_csv(p, index=False, chunksize=ROW_GROUP)  # noqa: E731
         try:
             written.append(_whole(path, write_table))
         except ImportError:
@@ -318,6 +329,32 @@ def write(tables_: dict, out: str | os.PathLike, fmt: str = "parquet") -> list[P
             done = f"; written before it: {', '.join(p.name for p in written)}" if written else ""
             raise CaptureError(f"{e}{done}") from None
     return written
+
+
+ROW_GROUP = 50_000  # rows a Parquet row group (and a CSV block) holds
+
+
+def _write_parquet(path: Path, df) -> None:
+    """The table in row groups of ROW_GROUP rows, each converted to Arrow on its own: one
+    group's copy in memory at a time, not the table's. Read back, it is the table."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    schema = pa.Schema.from_pandas(df, preserve_index=False)
+    with pq.ParquetWriter(path, schema) as writer:
+        for start in range(0, max(len(df), 1), ROW_GROUP):
+            part = df.iloc[start : start + ROW_GROUP]
+            writer.write_table(pa.Table.from_pandas(part, schema=schema, preserve_index=False))
+
+
+def _write_mat(path: Path, tables_: dict) -> None:
+    """One walkcap.mat, a struct per table, the tables converted and written one by one: a
+    table's MATLAB copy is held while it is written, never the whole trial's twice."""
+    from scipy.io import savemat
+
+    with open(path, "wb") as f:  # savemat writes the file's header at its start only
+        for name, df in tables_.items():
+            savemat(f, {name: _mat_struct(df)}, oned_as="column")
 
 
 def _whole(path: Path, write) -> Path:
