@@ -302,6 +302,162 @@ def corpus_tables(
     return out, chosen
 
 
+def spool(path: str, folder: str) -> dict[str, int]:
+    """One corpus job (capture.corpus.jobs): a recording's tables as Parquet files in
+    `folder`, one a table; the rows of each."""
+    out = Path(folder)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = {}
+    for name, df in tables(path).items():
+        df.to_parquet(out / f"{name}.parquet", index=False)
+        rows[name] = len(df)
+    return rows
+
+
+def write_corpus(
+    paths: Iterable[str | os.PathLike],
+    out: str | os.PathLike,
+    fmt: str = "parquet",
+    *,
+    replays: bool = False,
+    every_file: bool = False,
+    progress: bool = False,
+    cluster: str | None = None,
+):
+    """corpus_tables() written by write(), trial by trial: each recording's tables go to a
+    spool folder as they are made, and each table's file is then written from those one
+    trial at a time (tables whose columns differ between trials, a few small ones, are
+    joined in memory as corpus_tables joins them). Memory does not grow with the number
+    of trials. (written files, rows per table, the corpus)."""
+    import shutil
+
+    pd = _pd()
+    if fmt not in FORMATS:
+        raise CaptureError(f"export format {fmt!r}: one of {', '.join(FORMATS)}")
+    if cluster:  # a node need not see this folder: the tables come back whole
+        tables_, chosen = corpus_tables(
+            paths, replays=replays, every_file=every_file, progress=progress, cluster=cluster
+        )
+        return write(tables_, out, fmt), {n: len(df) for n, df in tables_.items()}, chosen
+    if every_file:
+        files = corpus_mod.recording_files(paths)
+        chosen = corpus_mod.Corpus([], [])
+    else:
+        chosen = corpus_mod.select(paths, replays=replays)
+        files = chosen.files
+    if not files:
+        raise chosen.nothing_left("nothing to export")
+    if len(files) == 1:  # one trial's tables: written as they are, no spool
+        one = tables(files[0])
+        return write(one, out, fmt), {n: len(df) for n, df in one.items()}, chosen
+    folder = Path(out)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise CaptureError(f"cannot create {folder}: {e.strerror}") from None
+    work = folder / ".export-spool"
+    shutil.rmtree(work, ignore_errors=True)
+    try:
+        parts = [work / f"{k:06d}" for k in range(len(files))]
+        tasks = [
+            jobs.Task(Path(f).name, spool, (str(f), str(p)))
+            for f, p in zip(files, parts, strict=True)
+        ]
+        per_file = jobs.run(
+            tasks,
+            jobs.LOCAL,
+            desc="export",
+            unit="recording",
+            show_progress=progress and len(files) > 1,
+        )
+        rows = {name: sum(r[name] for r in per_file) for name in TABLES}
+        written = _write_spooled(pd, parts, folder, fmt)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    return written, rows, chosen
+
+
+class _Spooled:
+    """One table of every trial, from the spool: whole (joined as corpus_tables joins
+    them) or trial by trial when every trial has the same columns."""
+
+    def __init__(self, pd, parts: list[Path], name: str) -> None:
+        import pyarrow.parquet as pq
+
+        self.pd = pd
+        self.files = [p / f"{name}.parquet" for p in parts]
+        self.nonempty = [f for f in self.files if pq.ParquetFile(f).metadata.num_rows]
+        # as corpus_tables joins them, an empty table adds nothing, not even its columns
+        schemas = [pq.read_schema(f).remove_metadata() for f in self.nonempty or self.files[:1]]
+        self.same = all(s.equals(schemas[0]) for s in schemas)
+
+    def frames(self):
+        """Each trial's table, the empty ones only when all are empty."""
+        for f in self.nonempty or self.files[:1]:
+            yield self.pd.read_parquet(f)
+
+    def whole(self):
+        dfs = list(self.frames())
+        return self.pd.concat(dfs, ignore_index=True) if len(dfs) > 1 else dfs[0]
+
+
+def _write_spooled(pd, parts: list[Path], folder: Path, fmt: str) -> list[Path]:
+    if fmt == "mat":  # a MATLAB variable is written whole: one table in memory at a time
+        lazy = _Lazy({name: _Spooled(pd, parts, name) for name in TABLES})
+        return [_whole(folder / "walkcap.mat", lambda p: _write_mat(p, lazy))]
+    written: list[Path] = []
+    for name in TABLES:
+        table = _Spooled(pd, parts, name)
+        path = folder / f"{name}.{fmt}"
+        if not table.same:
+            written.append(_write_one(path, table.whole(), fmt))
+            continue
+        if fmt == "parquet":
+            write_table = lambda p, t=table: _parquet_parts(p, t.frames())  # noqa: E731
+        else:
+            write_table = lambda p, t=table: _csv_parts(p, t.frames())  # noqa: E731
+        written.append(_whole(path, write_table))
+    return written
+
+
+class _Lazy(dict):
+    """name -> DataFrame, each read when asked for (the .mat writer takes one at a time)."""
+
+    def items(self):
+        return ((name, spooled.whole()) for name, spooled in super().items())
+
+
+def _parquet_parts(path: Path, frames) -> None:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    writer = None
+    try:
+        for df in frames:
+            schema = pa.Schema.from_pandas(df, preserve_index=False)
+            if writer is None:
+                writer = pq.ParquetWriter(path, schema)
+            for start in range(0, max(len(df), 1), ROW_GROUP):
+                part = df.iloc[start : start + ROW_GROUP]
+                table = pa.Table.from_pandas(part, schema=schema, preserve_index=False)
+                writer.write_table(table.replace_schema_metadata(writer.schema.metadata))
+    finally:
+        if writer is not None:
+            writer.close()
+
+
+def _csv_parts(path: Path, frames) -> None:
+    with open(path, "w", newline="") as f:
+        for k, df in enumerate(frames):
+            df.to_csv(f, index=False, header=k == 0, chunksize=ROW_GROUP)
+
+
+def _write_one(path: Path, df, fmt: str) -> Path:
+    if fmt == "parquet":
+        return _whole(path, lambda p: _write_parquet(p, df))
+    return _whole(path, lambda p: df.to_csv(p, index=False, chunksize=ROW_GROUP))
+
+
 def write(tables_: dict, out: str | os.PathLike, fmt: str = "parquet") -> list[Path]:
     """Write the tables into folder `out`: one file per table (parquet, csv), or one
     walkcap.mat with a struct per table whose fields are the columns (MATLAB)."""

@@ -51,8 +51,11 @@ def run(args, config) -> int:
 
     from capture.corpus import export
 
-    tables, corpus = export.corpus_tables(
+    # trial by trial through a spool: the tables of hundreds of trials are never all in memory
+    written, rows, corpus = export.write_corpus(
         args.files,
+        args.out,
+        args.format,
         replays=args.replays,
         every_file=args.every_file,
         progress=not args.quiet and not args.json,
@@ -60,8 +63,6 @@ def run(args, config) -> int:
     )
     for line in corpus.report_lines():
         print(line, file=sys.stderr)
-    written = export.write(tables, args.out, args.format)
-    rows = {name: len(df) for name, df in tables.items()}
     if args.json:
         print(
             json.dumps(

@@ -58,3 +58,49 @@ def test_mat_written_table_by_table_is_the_one_savemat_writes(tables, tmp_path):
                 assert [str(v) for v in x.ravel()] == [str(v) for v in y.ravel()]
             else:
                 np.testing.assert_array_equal(x, y)
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory):
+    """Four trials, one without truth (its frames table lacks the column)."""
+    from tests.recording_fixtures import T0, write_trial
+
+    folder = tmp_path_factory.mktemp("study")
+    for k in range(3):
+        write_recording(folder / f"S0{k + 1}_indoor_t01.mcap", seconds=1.0)
+    write_trial(folder / "S09_indoor_t01.mcap", [(T0, "LG", "operator")], frames=30)
+    return folder
+
+
+@pytest.mark.parametrize("fmt", ["parquet", "csv", "mat"])
+def test_a_study_is_written_trial_by_trial_as_the_joined_tables(study, tmp_path, fmt, monkeypatch):
+    import pyarrow.parquet as pq
+    from scipy.io import loadmat
+
+    joined, _ = export.corpus_tables([study], every_file=True)
+    export.write(joined, tmp_path / "joined", fmt)
+
+    def refused(*args, **kwargs):
+        raise AssertionError("the study's tables were joined in memory")
+
+    monkeypatch.setattr(export, "corpus_tables", refused)
+    written, rows, _ = export.write_corpus([study], tmp_path / "streamed", fmt, every_file=True)
+    assert rows == {name: len(df) for name, df in joined.items()}
+    assert not (tmp_path / "streamed" / ".export-spool").exists()
+    if fmt == "mat":
+        got = loadmat(tmp_path / "streamed" / "walkcap.mat")
+        want = loadmat(tmp_path / "joined" / "walkcap.mat")
+        for name in export.TABLES:
+            a, b = got[name][0, 0], want[name][0, 0]
+            assert a.dtype.names == b.dtype.names
+            for field in a.dtype.names:
+                assert [str(v) for v in a[field].ravel()] == [str(v) for v in b[field].ravel()]
+        return
+    for name in export.TABLES:
+        a, b = tmp_path / "streamed" / f"{name}.{fmt}", tmp_path / "joined" / f"{name}.{fmt}"
+        if fmt == "csv":
+            assert a.read_text() == b.read_text(), name
+        else:
+            pd.testing.assert_frame_equal(pd.read_parquet(a), pd.read_parquet(b))
+    if fmt == "parquet":  # the IMU table has the same columns in every trial: one trial a group
+        assert pq.ParquetFile(tmp_path / "streamed" / "imu.parquet").num_row_groups >= 3
