@@ -598,15 +598,8 @@ def scan(stream: BinaryIO, result: ScanResult | None = None) -> Iterator[McapRec
                 Damage(damage_at[0], offset - damage_at[0], damage_at[1], result.last_log_ns)
             )
             damage_at = None
-        positions = (
-            proven.positions
-            if proven.opcode
-            in (
-                Opcode.CHUNK,
-                Opcode.MESSAGE_INDEX,
-            )
-            else None
-        )
+        indexed = proven.opcode in (Opcode.CHUNK, Opcode.MESSAGE_INDEX)
+        positions = proven.positions if indexed else None
         end = proven.end
         if proven.ending:
             result.valid_end = end if proven.opcode == Opcode.DATA_END else offset
