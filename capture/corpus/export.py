@@ -113,14 +113,15 @@ def tables(path: str | os.PathLike) -> dict:
     imu, events = [], []
 
     def take(m) -> None:
-        (imu if m.topic == T.IMU else events).append(m.data)
+        if m.topic == T.IMU:  # the fields the table takes: a long trial's samples are many
+            s = m.data
+            imu.append(tuple(s.get(k) for k in _IMU_FIELDS))
+        else:
+            events.append(m.data)
 
     table, changes = frame_table(rec, (T.IMU, T.EVENTS), take)
     events.sort(key=lambda e: int(e.get("time_ns", 0)))  # in time order, as the rest
-    imu_t = np.array(
-        [int(s["time_ns"] if s.get("time_ns") is not None else s["host_time_ns"]) for s in imu],
-        dtype=np.int64,
-    )
+    imu_t = np.array([int(s[0] if s[0] is not None else s[1]) for s in imu], dtype=np.int64)
     label_t = np.array([c[0] for c in changes], dtype=np.int64)
     event_t = np.array([int(e.get("time_ns", 0)) for e in events], dtype=np.int64)
     # time_s counts from the recording's start: its earliest time, receive or sample (an
@@ -209,24 +210,37 @@ def _frame_columns(table: FrameTable, offset: int | None, t0: int) -> dict:
     return frames
 
 
-def _imu_columns(imu: list[dict], imu_t: np.ndarray, offset: int | None, t0: int) -> dict:
-    imu_cols = {"time_ns": imu_t, "host_time_ns": _ints([s.get("host_time_ns") for s in imu])}
+# an IMU sample's fields the table takes, in this order
+_IMU_FIELDS = (
+    "time_ns",
+    "host_time_ns",
+    "packet_counter",
+    "sample_time_fine",
+    "quaternion",
+    "acceleration",
+    "rate_of_turn",
+    "status_word",
+)
+
+
+def _imu_columns(imu: list[tuple], imu_t: np.ndarray, offset: int | None, t0: int) -> dict:
+    imu_cols = {"time_ns": imu_t, "host_time_ns": _ints([s[1] for s in imu])}
     imu_cols.update(_clock(imu_t, offset, t0))
-    imu_cols["packet_counter"] = _ints([s.get("packet_counter") for s in imu])
-    imu_cols["sample_time_fine"] = _ints([s.get("sample_time_fine") for s in imu])
-    for key, names in (
-        ("quaternion", ("qw", "qx", "qy", "qz")),
-        ("acceleration", ("acc_x", "acc_y", "acc_z")),
-        ("rate_of_turn", ("gyr_x", "gyr_y", "gyr_z")),
+    imu_cols["packet_counter"] = _ints([s[2] for s in imu])
+    imu_cols["sample_time_fine"] = _ints([s[3] for s in imu])
+    for at, names in (
+        (4, ("qw", "qx", "qy", "qz")),
+        (5, ("acc_x", "acc_y", "acc_z")),
+        (6, ("gyr_x", "gyr_y", "gyr_z")),
     ):
         values = np.full((len(imu), len(names)), np.nan)
         for k, s in enumerate(imu):
-            v = s.get(key)
+            v = s[at]
             if v is not None:
                 values[k] = [np.nan if x is None else x for x in v]
         for j, name in enumerate(names):
             imu_cols[name] = values[:, j]
-    imu_cols["status_word"] = _ints([s.get("status_word") for s in imu])
+    imu_cols["status_word"] = _ints([s[7] for s in imu])
     return imu_cols
 
 
@@ -334,6 +348,162 @@ def corpus_tables(
     return out, chosen
 
 
+def spool(path: str, folder: str) -> dict[str, int]:
+    """One corpus job (capture.corpus.jobs): a recording's tables as Parquet files in
+    `folder`, one a table; the rows of each."""
+    out = Path(folder)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = {}
+    for name, df in tables(path).items():
+        df.to_parquet(out / f"{name}.parquet", index=False)
+        rows[name] = len(df)
+    return rows
+
+
+def write_corpus(
+    paths: Iterable[str | os.PathLike],
+    out: str | os.PathLike,
+    fmt: str = "parquet",
+    *,
+    replays: bool = False,
+    every_file: bool = False,
+    progress: bool = False,
+    cluster: str | None = None,
+):
+    """corpus_tables() written by write(), trial by trial: each recording's tables go to a
+    spool folder as they are made, and each table's file is then written from those one
+    trial at a time (tables whose columns differ between trials, a few small ones, are
+    joined in memory as corpus_tables joins them). Memory does not grow with the number
+    of trials. (written files, rows per table, the corpus)."""
+    import shutil
+
+    pd = _pd()
+    if fmt not in FORMATS:
+        raise CaptureError(f"export format {fmt!r}: one of {', '.join(FORMATS)}")
+    if cluster:  # a node need not see this folder: the tables come back whole
+        tables_, chosen = corpus_tables(
+            paths, replays=replays, every_file=every_file, progress=progress, cluster=cluster
+        )
+        return write(tables_, out, fmt), {n: len(df) for n, df in tables_.items()}, chosen
+    if every_file:
+        files = corpus_mod.recording_files(paths)
+        chosen = corpus_mod.Corpus([], [])
+    else:
+        chosen = corpus_mod.select(paths, replays=replays)
+        files = chosen.files
+    if not files:
+        raise chosen.nothing_left("nothing to export")
+    if len(files) == 1:  # one trial's tables: written as they are, no spool
+        one = tables(files[0])
+        return write(one, out, fmt), {n: len(df) for n, df in one.items()}, chosen
+    folder = Path(out)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise CaptureError(f"cannot create {folder}: {e.strerror}") from None
+    work = folder / ".export-spool"
+    shutil.rmtree(work, ignore_errors=True)
+    try:
+        parts = [work / f"{k:06d}" for k in range(len(files))]
+        tasks = [
+            jobs.Task(Path(f).name, spool, (str(f), str(p)))
+            for f, p in zip(files, parts, strict=True)
+        ]
+        per_file = jobs.run(
+            tasks,
+            jobs.LOCAL,
+            desc="export",
+            unit="recording",
+            show_progress=progress and len(files) > 1,
+        )
+        rows = {name: sum(r[name] for r in per_file) for name in TABLES}
+        written = _write_spooled(pd, parts, folder, fmt)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    return written, rows, chosen
+
+
+class _Spooled:
+    """One table of every trial, from the spool: whole (joined as corpus_tables joins
+    them) or trial by trial when every trial has the same columns."""
+
+    def __init__(self, pd, parts: list[Path], name: str) -> None:
+        import pyarrow.parquet as pq
+
+        self.pd = pd
+        self.files = [p / f"{name}.parquet" for p in parts]
+        self.nonempty = [f for f in self.files if pq.ParquetFile(f).metadata.num_rows]
+        # as corpus_tables joins them, an empty table adds nothing, not even its columns
+        schemas = [pq.read_schema(f).remove_metadata() for f in self.nonempty or self.files[:1]]
+        self.same = all(s.equals(schemas[0]) for s in schemas)
+
+    def frames(self):
+        """Each trial's table, the empty ones only when all are empty."""
+        for f in self.nonempty or self.files[:1]:
+            yield self.pd.read_parquet(f)
+
+    def whole(self):
+        dfs = list(self.frames())
+        return self.pd.concat(dfs, ignore_index=True) if len(dfs) > 1 else dfs[0]
+
+
+def _write_spooled(pd, parts: list[Path], folder: Path, fmt: str) -> list[Path]:
+    if fmt == "mat":  # a MATLAB variable is written whole: one table in memory at a time
+        lazy = _Lazy({name: _Spooled(pd, parts, name) for name in TABLES})
+        return [_whole(folder / "walkcap.mat", lambda p: _write_mat(p, lazy))]
+    written: list[Path] = []
+    for name in TABLES:
+        table = _Spooled(pd, parts, name)
+        path = folder / f"{name}.{fmt}"
+        if not table.same:
+            written.append(_write_one(path, table.whole(), fmt))
+            continue
+        if fmt == "parquet":
+            write_table = lambda p, t=table: _parquet_parts(p, t.frames())  # noqa: E731
+        else:
+            write_table = lambda p, t=table: _csv_parts(p, t.frames())  # noqa: E731
+        written.append(_whole(path, write_table))
+    return written
+
+
+class _Lazy(dict):
+    """name -> DataFrame, each read when asked for (the .mat writer takes one at a time)."""
+
+    def items(self):
+        return ((name, spooled.whole()) for name, spooled in super().items())
+
+
+def _parquet_parts(path: Path, frames) -> None:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    writer = None
+    try:
+        for df in frames:
+            schema = pa.Schema.from_pandas(df, preserve_index=False)
+            if writer is None:
+                writer = pq.ParquetWriter(path, schema)
+            for start in range(0, max(len(df), 1), ROW_GROUP):
+                part = df.iloc[start : start + ROW_GROUP]
+                table = pa.Table.from_pandas(part, schema=schema, preserve_index=False)
+                writer.write_table(table.replace_schema_metadata(writer.schema.metadata))
+    finally:
+        if writer is not None:
+            writer.close()
+
+
+def _csv_parts(path: Path, frames) -> None:
+    with open(path, "w", newline="") as f:
+        for k, df in enumerate(frames):
+            df.to_csv(f, index=False, header=k == 0, chunksize=ROW_GROUP)
+
+
+def _write_one(path: Path, df, fmt: str) -> Path:
+    if fmt == "parquet":
+        return _whole(path, lambda p: _write_parquet(p, df))
+    return _whole(path, lambda p: df.to_csv(p, index=False, chunksize=ROW_GROUP))
+
+
 def write(tables_: dict, out: str | os.PathLike, fmt: str = "parquet") -> list[Path]:
     """Write the tables into folder `out`: one file per table (parquet, csv), or one
     walkcap.mat with a struct per table whose fields are the columns (MATLAB)."""
@@ -345,17 +515,14 @@ def write(tables_: dict, out: str | os.PathLike, fmt: str = "parquet") -> list[P
     except OSError as e:
         raise CaptureError(f"cannot create {folder}: {e.strerror}") from None
     if fmt == "mat":
-        from scipy.io import savemat
-
-        structs = {name: _mat_struct(df) for name, df in tables_.items()}
-        return [_whole(folder / "walkcap.mat", lambda p: savemat(p, structs, oned_as="column"))]
+        return [_whole(folder / "walkcap.mat", lambda p: _write_mat(p, tables_))]
     written: list[Path] = []
     for name, df in tables_.items():
         path = folder / f"{name}.{fmt}"
         if fmt == "parquet":
-            write_table = lambda p, df=df: df.to_parquet(p, index=False)  # noqa: E731
+            write_table = lambda p, df=df: _write_parquet(p, df)  # noqa: E731
         else:
-            write_table = lambda p, df=df: df.to_csv(p, index=False)  # noqa: E731
+            write_table = lambda p, df=df: df.to_csv(p, index=False, chunksize=ROW_GROUP)  # noqa: E731
         try:
             written.append(_whole(path, write_table))
         except ImportError:
@@ -364,6 +531,32 @@ def write(tables_: dict, out: str | os.PathLike, fmt: str = "parquet") -> list[P
             done = f"; written before it: {', '.join(p.name for p in written)}" if written else ""
             raise CaptureError(f"{e}{done}") from None
     return written
+
+
+ROW_GROUP = 50_000  # rows a Parquet row group (and a CSV block) holds
+
+
+def _write_parquet(path: Path, df) -> None:
+    """The table in row groups of ROW_GROUP rows, each converted to Arrow on its own: one
+    group's copy in memory at a time, not the table's. Read back, it is the table."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    schema = pa.Schema.from_pandas(df, preserve_index=False)
+    with pq.ParquetWriter(path, schema) as writer:
+        for start in range(0, max(len(df), 1), ROW_GROUP):
+            part = df.iloc[start : start + ROW_GROUP]
+            writer.write_table(pa.Table.from_pandas(part, schema=schema, preserve_index=False))
+
+
+def _write_mat(path: Path, tables_: dict) -> None:
+    """One walkcap.mat, a struct per table, the tables converted and written one by one: a
+    table's MATLAB copy is held while it is written, never the whole trial's twice."""
+    from scipy.io import savemat
+
+    with open(path, "wb") as f:  # savemat writes the file's header at its start only
+        for name, df in tables_.items():
+            savemat(f, {name: _mat_struct(df)}, oned_as="column")
 
 
 def _whole(path: Path, write) -> Path:

@@ -123,6 +123,24 @@ def file_bytes(stream: BinaryIO):
         return stream.read()
 
 
+_RELEASE_BYTES = 32 << 20
+
+
+def _release(data, released: int, offset: int) -> int:
+    """Give back the mapped pages before `offset`, every 32 MiB: a mapping's pages count
+    as the process's memory until dropped; reading them again (a resync) maps them again."""
+    if offset - released < _RELEASE_BYTES or not hasattr(data, "madvise"):
+        return released
+    import mmap
+
+    cut = offset - offset % mmap.PAGESIZE
+    try:
+        data.madvise(mmap.MADV_DONTNEED, released, cut - released)
+    except (OSError, ValueError, AttributeError):
+        return offset  # nothing to give back on this system
+    return cut
+
+
 # A record head whose length is below 4 GiB: an opcode, four bytes, four zeros.
 _CANDIDATE = re.compile(rb"(?=[\x01-\x0f][\x00-\xff]{4}\x00{4})", re.DOTALL)
 
@@ -149,6 +167,7 @@ _DATA_OPCODES = {
     Opcode.DATA_END,
     Opcode.FOOTER,
 }
+_MESSAGE_HEAD = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
 _CHUNK_FIELDS = struct.Struct("<QQQI")  # start time, end time, uncompressed size and CRC
 _ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"
 _FOOTER_AT_END = RECORD_HEAD.size + 20 + len(MAGIC)  # footer record and closing magic
@@ -209,9 +228,20 @@ def _chunk_records(raw: bytes):
             body_at = at + RECORD_HEAD.size
             if opcode not in kinds or body_at + length > end:
                 return None
-            record = _exact(kinds[opcode], raw[body_at : body_at + length])
-            if isinstance(record, Message):
-                positions[at] = (record.channel_id, record.log_time)
+            if opcode == Opcode.MESSAGE:  # its data fills the rest: only the head can misfit
+                if length < _MESSAGE_HEAD.size:
+                    return None
+                cid, sequence, log_time, publish_time = _MESSAGE_HEAD.unpack_from(raw, body_at)
+                record = Message(
+                    channel_id=cid,
+                    sequence=sequence,
+                    log_time=log_time,
+                    publish_time=publish_time,
+                    data=raw[body_at + _MESSAGE_HEAD.size : body_at + length],
+                )
+                positions[at] = (cid, log_time)
+            else:
+                record = _exact(kinds[opcode], raw[body_at : body_at + length])
             records.append(record)
             at = body_at + length
     except Exception:  # the library's errors for fields that do not fit
@@ -522,6 +552,7 @@ def scan(stream: BinaryIO, result: ScanResult | None = None) -> Iterator[McapRec
         raise NotMcapError("not an MCAP recording (no MCAP magic at its start)")
     offset = len(MAGIC)
     result.valid_end = offset
+    released = 0  # the mapped bytes before this are given back
     damage_at: tuple[int, str] | None = None
     positions: dict | None = None  # the last chunk's messages, for its message indexes
     pending: _Proven | None = None
@@ -567,15 +598,8 @@ def scan(stream: BinaryIO, result: ScanResult | None = None) -> Iterator[McapRec
                 Damage(damage_at[0], offset - damage_at[0], damage_at[1], result.last_log_ns)
             )
             damage_at = None
-        positions = (
-            proven.positions
-            if proven.opcode
-            in (
-                Opcode.CHUNK,
-                Opcode.MESSAGE_INDEX,
-            )
-            else None
-        )
+        indexed = proven.opcode in (Opcode.CHUNK, Opcode.MESSAGE_INDEX)
+        positions = proven.positions if indexed else None
         end = proven.end
         if proven.ending:
             result.valid_end = end if proven.opcode == Opcode.DATA_END else offset
@@ -601,6 +625,7 @@ def scan(stream: BinaryIO, result: ScanResult | None = None) -> Iterator[McapRec
             return
         offset = end
         result.valid_end = offset
+        released = _release(data, released, offset)
         for record in proven.records:
             if isinstance(record, Header):
                 result.header = record

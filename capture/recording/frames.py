@@ -111,9 +111,11 @@ class FrameJoin:
 
     TOPICS = (T.CNN, T.FUSED, T.PREPROCESS, T.TF, T.TRUTH, T.FEATURES)
 
+    # Only the fields the table takes are kept, as tuples: a long trial's frames are many.
     def __init__(self) -> None:
-        self.cnn: dict[int, tuple[dict, int]] = {}  # frame -> (message, log time)
-        self.pre: dict[int, tuple[dict, int]] = {}
+        self.cnn: dict[int, tuple[int, int, tuple, int]] = {}  # (time, log, p, decision)
+        self.pre: dict[int, tuple[int, int, str, bool, int | None]] = {}  # (time, log, flag,
+        # oriented, cloud points)
         self.fused: dict[int, tuple[int, int]] = {}  # frame -> (decision, produced at)
         self.posterior: dict[int, list] = {}
         self.voted: dict[int, tuple[int, int]] = {}
@@ -127,7 +129,12 @@ class FrameJoin:
         its topic is not a per-frame one."""
         d, topic = m.data, m.topic
         if topic == T.CNN:
-            self.cnn[int(d["frame_index"])] = (d, m.log_time_ns)
+            self.cnn[int(d["frame_index"])] = (
+                int(d["time_ns"]),
+                m.log_time_ns,
+                tuple(_numbers(d["probabilities"])),
+                L.mode_index(d["decision"]),
+            )
         elif topic == T.FUSED:
             made = int(d["source_frame_index"])
             if d.get("decision") is not None:
@@ -141,7 +148,13 @@ class FrameJoin:
             if d.get("voted") is not None and d.get("voted_frame_index") is not None:
                 self.voted[int(d["voted_frame_index"])] = (L.mode_index(d["voted"]), made)
         elif topic == T.PREPROCESS:
-            self.pre[int(d["frame_index"])] = (d, m.log_time_ns)
+            self.pre[int(d["frame_index"])] = (
+                int(d["time_ns"]),
+                m.log_time_ns,
+                d.get("flag", "") or "",
+                bool(d.get("oriented", False)),
+                d.get("cloud_points"),
+            )
         elif topic == T.TF:
             self.quaternion[m.sequence] = np.asarray(d, dtype=float)
         elif topic == T.TRUTH:
@@ -159,13 +172,13 @@ class FrameJoin:
         index = np.array(sorted(set(self.cnn) | set(self.pre)), dtype=np.int64)
         n = len(index)
         first = [self.cnn.get(int(i)) or self.pre[int(i)] for i in index]
-        times = np.array([int(d["time_ns"]) for d, _ in first], dtype=np.int64).reshape(-1)
+        times = np.array([f[0] for f in first], dtype=np.int64).reshape(-1)
         probs = np.full((n, len(MODES)), np.nan)
         post = np.full((n, len(MODES)), np.nan)
         quats = np.full((n, 4), np.nan)
         for k, i in enumerate(index.tolist()):
             if i in self.cnn:
-                probs[k] = _numbers(self.cnn[i][0]["probabilities"])
+                probs[k] = self.cnn[i][2]
             if i in self.posterior:
                 post[k] = _numbers(self.posterior[i])
             if i in self.quaternion:
@@ -174,7 +187,7 @@ class FrameJoin:
         def column(values: dict, default=NONE) -> np.ndarray:
             return np.array([values.get(int(i), default) for i in index], dtype=int)
 
-        pre = [self.pre.get(int(i), ({}, 0))[0] for i in index]
+        pre = [self.pre.get(int(i), (0, 0, "", False, None)) for i in index]
         reference = L.effective_changes(changes)
         labels = L.labels_at(times, reference)
         truth = column(self.truth)
@@ -182,10 +195,10 @@ class FrameJoin:
         return FrameTable(
             index=index,
             time_ns=times,
-            host_time_ns=np.array([t for _, t in first], dtype=np.int64),
+            host_time_ns=np.array([f[1] for f in first], dtype=np.int64),
             classified=np.array([int(i) in self.cnn for i in index], dtype=bool),
             probabilities=probs,
-            cnn_decision=column({i: L.mode_index(d["decision"]) for i, (d, _) in self.cnn.items()}),
+            cnn_decision=column({i: c[3] for i, c in self.cnn.items()}),
             decision=column({i: v[0] for i, v in self.fused.items()}),
             decision_at=column({i: v[1] for i, v in self.fused.items()}),
             posterior=post,
@@ -195,9 +208,9 @@ class FrameJoin:
             truth=truth,
             has_truth=has_truth,
             quaternion=quats,
-            flag=[d.get("flag", "") or "" for d in pre],
-            oriented=np.array([bool(d.get("oriented", False)) for d in pre], dtype=bool),
-            cloud_points=[d.get("cloud_points") for d in pre],
+            flag=[f[2] for f in pre],
+            oriented=np.array([f[3] for f in pre], dtype=bool),
+            cloud_points=[f[4] for f in pre],
             features=[self.features.get(int(i), {}) for i in index],
             labels=labels,
             locomotion=L.labels_at(times, L.live_changes(reference)),

@@ -159,22 +159,77 @@ def recorded_periods(metadata: dict) -> dict[str, float]:
     return out
 
 
+_REORDER = 1024  # items held to put a stream in receive-time order
+
+
+class RecordedLoss:
+    """One recorded stream's loss, counted as its messages are read, in memory that does
+    not grow with the file: the items reach the counter in receive-time order through a
+    window of _REORDER items (walkcap's writer stores each stream in that order already).
+    Without its configured rate (an old file) the period is the median device interval,
+    and then every item is kept until the end."""
+
+    def __init__(self, stream: str, period_s: float | None) -> None:
+        self.stream = stream
+        self.period_s = period_s
+        self._heap: list = []
+        self._n = 0
+        self._kept: list[tuple[int | None, int | None, int]] | None = None
+        self._counter: LossCounter | None = None
+        if period_s is None:
+            self._kept = []
+        elif period_s > 0:
+            self._counter = LossCounter(period_s, MODULUS[stream], OWN_CLOCK[stream])
+
+    def add(self, seq: int | None, device_ns: int | None, host_ns: int) -> None:
+        import heapq
+
+        self._n += 1
+        heapq.heappush(self._heap, (host_ns, self._n, seq, device_ns))
+        if len(self._heap) > _REORDER:
+            self._take(heapq.heappop(self._heap))
+
+    def _take(self, item) -> None:
+        host_ns, _, seq, device_ns = item
+        if self._kept is not None:
+            self._kept.append((seq, device_ns, host_ns))
+        elif self._counter is not None:
+            self._counter.add(seq, device_ns, host_ns)
+
+    def loss(self) -> StreamLoss:
+        import heapq
+
+        while self._heap:
+            self._take(heapq.heappop(self._heap))
+        if self._kept is not None:
+            items = self._kept
+            device = sorted(b[1] - a[1] for a, b in zip(items, items[1:], strict=False))
+            period = device[len(device) // 2] * 1e-9 if device else 0.0
+            if period <= 0:
+                return StreamLoss()
+            return stream_loss(items, period, MODULUS[self.stream], OWN_CLOCK[self.stream])
+        return self._counter.loss if self._counter is not None else StreamLoss()
+
+
+def loss_counters(metadata: dict, topics) -> dict[str, RecordedLoss]:
+    """A RecordedLoss per sensor topic among `topics`, with its period from the metadata."""
+    periods = recorded_periods(metadata)
+    return {
+        topic: RecordedLoss(stream, periods.get(topic))
+        for topic, stream in TOPICS.items()
+        if topic in topics
+    }
+
+
 def recording_loss(rec) -> dict[str, StreamLoss]:
     """Each recorded sensor topic's loss (a capture.recording.reader.Recording), as the live alarms
     count it: the device's sequence in the message's sequence, its time in publish_time,
-    the host's receive time in log_time."""
-    periods = recorded_periods(rec.metadata)
-    out = {}
-    for topic, stream in TOPICS.items():
-        if topic not in rec.topics:
-            continue
-        items = rec.sequences(topic)
-        period = periods.get(topic)
-        if period is None:  # an old file without its rate: the median device interval
-            device = sorted(b[1] - a[1] for a, b in zip(items, items[1:], strict=False))
-            period = device[len(device) // 2] * 1e-9 if device else 0.0
-        if period <= 0:
-            out[topic] = StreamLoss()
-            continue
-        out[topic] = stream_loss(items, period, MODULUS[stream], OWN_CLOCK[stream])
-    return out
+    the host's receive time in log_time. One pass over the file, messages not decoded."""
+    from capture.recording.messages import damage_is_an_error, iter_raw
+
+    counters = loss_counters(rec.metadata, rec.topics)
+    if counters:
+        with damage_is_an_error(rec.path):
+            for _, channel, m in iter_raw(rec.path, rec.complete, set(counters)):
+                counters[channel.topic].add(m.sequence, m.publish_time, m.log_time)
+    return {topic: c.loss() for topic, c in counters.items()}

@@ -196,11 +196,14 @@ def chunk_messages(f, offset: int, length: int, wanted: set[int]):
 
 
 def log_times(path: Path, complete: bool) -> dict[str, np.ndarray]:
-    """Log times per topic from the message indexes: no chunk is decompressed."""
+    """Log times per topic from the message indexes: no chunk is decompressed (an
+    unfinished file: its messages read)."""
     from mcap.data_stream import ReadDataStream
     from mcap.reader import make_reader
     from mcap.records import MessageIndex
 
+    if not complete:
+        return _scan_times(path)
     times: dict[str, list[int]] = {}
     with open(path, "rb") as f:
         summary = make_reader(f).get_summary()

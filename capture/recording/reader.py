@@ -141,24 +141,34 @@ class Recording:
         if isinstance(topics, str):
             topics = [topics]
         wanted = None if topics is None else set(topics)
+        decode = self.decoder(raw=raw)
+        with damage_is_an_error(self.path):
+            for schema, channel, message in iter_raw(self.path, self.complete, wanted):
+                yield decode(schema, channel, message)
+
+    def decoder(self, *, raw: bool = False) -> Callable[[Any, Any, Any], RecordedMessage]:
+        """decode(schema, channel, message) -> RecordedMessage, as `messages` decodes: for
+        readers that walk the records themselves (capture.recording.summary)."""
         decoders = Decoders()
         offset = self.unix_offset_ns
         upgrade = not versions.is_current(self.format_version)
-        with damage_is_an_error(self.path):
-            for schema, channel, message in iter_raw(self.path, self.complete, wanted):
-                decoded = decoders.decode(schema, channel, message.data)
-                if not raw:
-                    decoded = convert(channel.topic, decoded)
-                    if upgrade:
-                        decoded = versions.upgrade_message(channel.topic, decoded)
-                yield RecordedMessage(
-                    channel.topic,
-                    message.log_time,
-                    message.publish_time,
-                    message.sequence,
-                    decoded,
-                    offset,
-                )
+
+        def decode(schema, channel, message) -> RecordedMessage:
+            decoded = decoders.decode(schema, channel, message.data)
+            if not raw:
+                decoded = convert(channel.topic, decoded)
+                if upgrade:
+                    decoded = versions.upgrade_message(channel.topic, decoded)
+            return RecordedMessage(
+                channel.topic,
+                message.log_time,
+                message.publish_time,
+                message.sequence,
+                decoded,
+                offset,
+            )
+
+        return decode
 
     def read(self, topic: str, *, raw: bool = False) -> list[RecordedMessage]:
         return list(self.messages([topic], raw=raw))
@@ -276,13 +286,16 @@ def _open_unfinished(p: Path, size: int) -> Recording:
     schemas, channels = {}, {}
     raw, attachments = [], {}
     counts: dict[int, int] = {}
-    times: dict[int, list[int]] = {}
+    first: dict[int, int] = {}
+    last: dict[int, int] = {}
     library = ""
     with open(p, "rb") as f:
         for record in scan(f, result):
             if isinstance(record, Message):
-                counts[record.channel_id] = counts.get(record.channel_id, 0) + 1
-                times.setdefault(record.channel_id, []).append(record.log_time)
+                cid, t = record.channel_id, record.log_time
+                counts[cid] = counts.get(cid, 0) + 1
+                first[cid] = min(first.get(cid, t), t)
+                last[cid] = max(last.get(cid, t), t)
             elif isinstance(record, Schema):
                 schemas[record.id] = record
             elif isinstance(record, Channel):
@@ -295,7 +308,7 @@ def _open_unfinished(p: Path, size: int) -> Recording:
                 library = record.library
     if result.records == 0 and result.reason.startswith(("unreadable", "damaged")):
         raise CaptureError(f"{p}: no MCAP record can be read after the magic ({result.reason})")
-    topics, log_times = {}, {}
+    topics = {}
     for cid, channel in channels.items():
         schema = schemas.get(channel.schema_id)
         topics[channel.topic] = TopicInfo(
@@ -305,8 +318,7 @@ def _open_unfinished(p: Path, size: int) -> Recording:
             channel.message_encoding,
             channel.metadata.get("description", ""),
         )
-        log_times[channel.topic] = np.sort(np.asarray(times.get(cid, []), dtype=np.int64))
-    every = [t for ts in log_times.values() for t in (ts[:1].tolist() + ts[-1:].tolist())]
+    every = [t[cid] for t in (first, last) for cid in channels if cid in t]
     version, records = versions.read_metadata(raw, p)
     return Recording(
         p,
@@ -321,7 +333,7 @@ def _open_unfinished(p: Path, size: int) -> Recording:
         topics,
         min(every) if every else None,
         max(every) if every else None,
-        log_times,
+        None,
         raw,
         result.damaged,
         version,

@@ -4,9 +4,10 @@
     s.state, s.topics[0].rate_hz, s.losses, s.labels
     s.to_json()                                # what `walkcap info --json` prints
 
-Damage is looked for in every chunk (capture.recording._mcap.check), finished file or
-not; in a damaged file the labels and events before the damage are listed and the gaps
-are not counted (count them on its recovered copy).
+Damage is looked for in every chunk (the reading of capture.recording._mcap.check),
+finished file or not, in the one pass that also counts gaps; in a damaged file the labels
+and events before the damage are listed and the gaps are not counted (count them on its
+recovered copy). Memory stays the same whatever the file's length.
 """
 
 from __future__ import annotations
@@ -16,12 +17,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from capture.errors import CaptureError
 from capture.recording import labels as L
 from capture.recording import topics as T
-from capture.recording._mcap import Damage, check
-from capture.recording.gaps import StreamLoss, recording_loss
+from capture.recording._mcap import Damage, ScanResult, describe_damage, scan, summary_of
+from capture.recording.gaps import StreamLoss, loss_counters
 from capture.recording.lineage import RECORDING, Member, describe
+from capture.recording.messages import damage_is_an_error
 from capture.recording.reader import Recording
 from inference.preprocess import STALE_ORIENTATION
 
@@ -161,43 +162,28 @@ def _iso(unix_ns: int | None) -> str | None:
 
 
 def summary(rec: Recording) -> RecordingSummary:
-    """Everything `walkcap info` says about an open recording."""
-    damaged = check(rec.path).damaged  # every chunk's CRC, finished file or not
-    times = rec.log_times()
+    """Everything `walkcap info` says about an open recording. Counts, times, topics,
+    metadata and attachments come from what `open_recording` read (a finished file's
+    summary section); damage, rates, gaps, labels, events and the frames' flags from one
+    pass over the records (`_read_through`) that keeps a few numbers per topic."""
+    seen = _read_through(rec)
     topics = []
     for topic in sorted(rec.topics):
         info = rec.topics[topic]
-        t = times.get(topic, [])
-        span = (t[-1] - t[0]) * 1e-9 if len(t) > 1 else 0.0
+        n, first, last = seen.times.get(topic, (0, 0, 0))
+        span = (last - first) * 1e-9 if n > 1 else 0.0
         regular = topic not in (T.LABELS, T.EVENTS)
-        rate = (len(t) - 1) / span if span > 0 and regular else None
+        rate = (n - 1) / span if span > 0 and regular else None
         topics.append(
             TopicSummary(topic, info.count, rate, info.schema_name, info.message_encoding)
         )
-    try:
-        losses: dict[str, StreamLoss] | None = recording_loss(rec)
-    except CaptureError:  # damaged: counted on the recovered copy
-        losses = None
-    labels, events, markers = [], {}, []
-    small = [t for t in (T.LABELS, T.EVENTS) if t in rec.topics]
-    try:
-        for m in rec.messages(small):
-            if m.topic == T.LABELS:
-                labels.append(L.change_from_message(m.data))
-            else:
-                events[m.data["kind"]] = events.get(m.data["kind"], 0) + 1
-                if m.data["kind"] == "marker":
-                    markers.append((int(m.data["time_ns"]), m.data.get("message", "")))
-    except CaptureError:  # damaged: the labels and events before the damage
-        if not damaged:
-            raise
-    labels = L.in_time_order(labels)
+    labels = L.in_time_order(seen.labels)
     in_force = set(L.effective_changes(labels))
     return RecordingSummary(
         path=rec.path,
         complete=rec.complete,
         reason=rec.reason,
-        damaged=damaged,
+        damaged=seen.damaged,
         size_bytes=rec.size,
         duration_s=rec.duration_s,
         member=describe(rec),
@@ -206,29 +192,85 @@ def summary(rec: Recording) -> RecordingSummary:
         end_ns=rec.end_ns,
         unix_offset_ns=rec.unix_offset_ns,
         topics=topics,
-        losses=losses,
-        frame_flags=_frame_flags(rec),
+        losses=seen.losses,
+        frame_flags=seen.flags if T.PREPROCESS in rec.topics else None,
         processed_frames=rec.topics[T.PREPROCESS].count if T.PREPROCESS in rec.topics else None,
         labels=labels,
         in_reference=[c in in_force for c in labels],
-        events=events,
-        markers=sorted(markers),
+        events=seen.events,
+        markers=sorted(seen.markers),
         metadata=rec.metadata,
         attachments=dict(rec.attachment_sizes),
     )
 
 
-def _frame_flags(rec: Recording) -> dict[str, int] | None:
-    """How many frames have each preprocessing flag (why their image is empty); None when
-    the file has no /camera/preprocess. Damage ends the count where it starts."""
-    if T.PREPROCESS not in rec.topics:
-        return None
-    counts: dict[str, int] = {}
-    try:
-        for m in rec.messages([T.PREPROCESS]):
-            flag = m.data.get("flag") or ""
-            if flag:
-                counts[flag] = counts.get(flag, 0) + 1
-    except CaptureError:
-        pass  # the damage is listed on its own line
-    return counts
+@dataclass
+class _Seen:
+    """What one pass over a file's records finds: a few numbers per topic."""
+
+    damaged: list[Damage]
+    times: dict[str, tuple[int, int, int]]  # topic -> (messages read, first, last log time)
+    losses: dict[str, StreamLoss] | None  # None: damaged, not counted
+    flags: dict[str, int]
+    labels: list[L.LabelChange]
+    events: dict[str, int]
+    markers: list[tuple[int, str]]
+
+
+def _read_through(rec: Recording) -> _Seen:
+    """Every record in file order, every chunk's CRC checked (capture.recording._mcap.scan,
+    the same reading as `check`), finished file or not, one chunk in memory at a time.
+    Labels, events and flags are read up to the first damage, where every reader stops;
+    the gaps of a damaged file are not counted."""
+    from mcap.records import Channel, Message, Schema
+
+    result = ScanResult()
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    times: dict[int, list[int]] = {}
+    counters = loss_counters(rec.metadata, rec.topics)
+    decode = rec.decoder()
+    decoded = {T.LABELS, T.EVENTS, T.PREPROCESS}
+    flags: dict[str, int] = {}
+    labels, events, markers = [], {}, []
+    with open(rec.path, "rb") as f, damage_is_an_error(rec.path):
+        for record in scan(f, result):
+            if not isinstance(record, Message):
+                if isinstance(record, Schema):
+                    schemas[record.id] = record
+                elif isinstance(record, Channel):
+                    channels[record.id] = record
+                continue
+            t = times.get(record.channel_id)
+            if t is None:
+                times[record.channel_id] = [1, record.log_time, record.log_time]
+            else:
+                t[0] += 1
+                t[1] = min(t[1], record.log_time)
+                t[2] = max(t[2], record.log_time)
+            channel = channels.get(record.channel_id)
+            if channel is None or result.lost:  # after damage: counted, not read
+                continue
+            topic = channel.topic
+            if topic in counters:
+                counters[topic].add(record.sequence, record.publish_time, record.log_time)
+            elif topic in decoded:
+                m = decode(schemas.get(channel.schema_id), channel, record)
+                if topic == T.PREPROCESS:
+                    flag = m.data.get("flag") or ""
+                    if flag:
+                        flags[flag] = flags.get(flag, 0) + 1
+                elif topic == T.LABELS:
+                    labels.append(L.change_from_message(m.data))
+                else:
+                    events[m.data["kind"]] = events.get(m.data["kind"], 0) + 1
+                    if m.data["kind"] == "marker":
+                        markers.append((int(m.data["time_ns"]), m.data.get("message", "")))
+        if result.damaged:
+            describe_damage(result.damaged, summary_of(f))
+    by_topic: dict[str, tuple[int, int, int]] = {}
+    for cid, (n, first, last) in times.items():
+        if cid in channels:
+            by_topic[channels[cid].topic] = (n, first, last)
+    losses = None if result.lost else {topic: c.loss() for topic, c in counters.items()}
+    return _Seen(result.damaged, by_topic, losses, flags, labels, events, markers)

@@ -35,6 +35,18 @@ def add_arguments(parser) -> None:
         help="instead: `walkcap replay` of each recording (a real trial, minutes long), the "
         "whole command as a user runs it, 3 runs each: times real time, CPU time, peak memory",
     )
+    parser.add_argument(
+        "--scale",
+        action="store_true",
+        help="instead: synthesize trials of growing length (--minutes) and measure each "
+        "reading command's time and peak memory on each, with the growth",
+    )
+    parser.add_argument(
+        "--minutes",
+        default="1,2,4",
+        metavar="M,M,...",
+        help="trial lengths for --scale, in minutes (default 1,2,4)",
+    )
     bench_corpus.add_arguments(parser)
 
 
@@ -48,6 +60,8 @@ def run(args, config) -> int:
         return bench_corpus.run(args, config)
     if args.replay:
         return _replay(args.replay, args.json, say)
+    if args.scale:
+        return _scale(args.minutes, args.json, say)
     results = bench.run_all(args.seconds, progress=say)
     machine = bench.machine()
     if args.json:
@@ -99,6 +113,24 @@ def _replay(files: list[str], as_json: bool, say) -> int:
         mark = {True: "ok", False: "MISSED", None: ""}[r.met]
         print(f"{r.name:32} {r.value:12.4g} {r.unit:10} {goal:>12}  {mark} {r.note}")
     return 0
+
+
+def _scale(minutes: str, as_json: bool, say) -> int:
+    from capture.bench import scale
+    from capture.errors import CaptureError
+
+    try:
+        lengths = [float(m) for m in minutes.split(",") if m.strip()]
+    except ValueError:
+        raise CaptureError(f"--minutes {minutes!r}: numbers separated by commas") from None
+    if not lengths or min(lengths) <= 0:
+        raise CaptureError(f"--minutes {minutes!r}: lengths above 0")
+    runs = scale.run(lengths, progress=say)
+    if as_json:
+        print(json.dumps([r.__dict__ for r in runs], indent=2))
+    else:
+        print("\n".join(scale.table(runs)))
+    return 0 if all(r.ok for r in runs) else 1
 
 
 def _known(value: float) -> float | None:

@@ -110,8 +110,11 @@ def run(args, config) -> int:
     ]
     if bids_only:
         raise CaptureError(f"{bids_only[0]} goes with --format bids")
-    tables, corpus = export.corpus_tables(
+    # trial by trial through a spool: the tables of hundreds of trials are never all in memory
+    written, rows, corpus = export.write_corpus(
         args.files,
+        args.out,
+        args.format,
         replays=args.replays,
         every_file=args.every_file,
         progress=not args.quiet and not args.json,
@@ -119,8 +122,6 @@ def run(args, config) -> int:
     )
     for line in corpus.report_lines():
         print(line, file=sys.stderr)
-    written = export.write(tables, args.out, args.format)
-    rows = {name: len(df) for name, df in tables.items()}
     if args.json:
         print(
             json.dumps(

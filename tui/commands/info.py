@@ -9,7 +9,9 @@ HELP = "describe a recording: topics, counts, rates, gaps, metadata"
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("files", nargs="+", metavar="FILE", help="MCAP recording(s)")
+    parser.add_argument(
+        "files", nargs="+", metavar="FILE|DIR", help="MCAP recording(s), or folders of them"
+    )
     parser.add_argument(
         "--json",
         action="store_true",
@@ -17,18 +19,35 @@ def add_arguments(parser) -> None:
     )
 
 
+def files(paths: list[str]) -> list:
+    """The files given, and the .mcap files in the folders given (and their subfolders)."""
+    from pathlib import Path
+
+    from capture.corpus.selection import recording_files
+
+    out: list = []
+    for p in paths:
+        out += recording_files([p]) if Path(p).is_dir() else [p]
+    return out
+
+
 def run(args, config) -> int:
     from capture.recording.reader import open_recording
     from capture.recording.summary import summary
 
+    # one file at a time, printed as soon as it is read: a folder of hundreds of trials
+    # costs the memory of one
     if args.json:
-        data = [summary(open_recording(path)).to_json() for path in args.files]
-        print(json.dumps(data, indent=2))
+        print("[", end="")
+        for i, path in enumerate(files(args.files)):
+            text = json.dumps(summary(open_recording(path)).to_json(), indent=2)
+            print(("," if i else "") + "\n  " + text.replace("\n", "\n  "), end="", flush=True)
+        print("\n]" if args.files else "]")
         return 0
-    for i, path in enumerate(args.files):
+    for i, path in enumerate(files(args.files)):
         if i:
             print()
-        print("\n".join(describe(summary(open_recording(path)))))
+        print("\n".join(describe(summary(open_recording(path)))), flush=True)
     return 0
 
 

@@ -1,0 +1,173 @@
+"""`walkcap bench --scale`: what reading a trial costs as the trial grows.
+
+Synthesizes trials of growing length (every topic a session writes, 45 fps, 100 Hz IMU,
+written with a blocking recorder so that nothing is shed), runs each reading command on
+each in a fresh process, one at a time, and reports its wall time and peak memory (the
+child's maximum resident set) per minute of recording, with the growth from the shortest
+trial: flat memory and linear time are ratios of 1 and of the length ratio.
+
+    walkcap bench --scale --minutes 1,4,16
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+FPS = 45.0
+IMU_HZ = 100.0
+T0 = 1_000_000_000_000  # 1000 s on the session clock
+# (name, the command's arguments after `walkcap`; FILE, CUT and OUT are filled in)
+COMMANDS = (
+    ("info", ["info", "FILE"]),
+    ("export parquet", ["export", "FILE", "--quiet", "-o", "OUT"]),
+    ("export csv", ["export", "FILE", "--quiet", "--format", "csv", "-o", "OUT"]),
+    ("export mat", ["export", "FILE", "--quiet", "--format", "mat", "-o", "OUT"]),
+    ("recover (60 % cut)", ["recover", "CUT", "-o", "OUT/recovered.mcap"]),
+)
+
+
+def synthesize(path: str | os.PathLike, minutes: float, seed: int = 0) -> Path:
+    """A mock trial of `minutes` at 45 fps: depth, cloud, image, CNN, fused decision,
+    features, truth, IMU, a label change every 5 s. Frames cycle through a few synthetic
+    ones (devices.simulator.synthetic): the sizes and rates of a trial, quickly."""
+    from capture.recording.writer import Recorder
+    from devices.frames import MODES, ImuSample
+    from devices.simulator.synthetic import synthetic_frame
+
+    frames = [synthetic_frame(i, 0, seed=seed) for i in range(24)]
+    metadata = {
+        "session": {"subject": "B01", "condition": "indoor", "trial": 1},
+        "devices": {"camera_backend": "mock", "camera_fps": FPS, "imu_rate_hz": IMU_HZ},
+    }
+    rec = Recorder(path, metadata=metadata, blocking=True, queue_size=4096)
+    rec.start()
+    n = int(minutes * 60 * FPS)
+    k_imu = 0
+    quaternion = np.array([0.9, 0.1, -0.2, 0.3]) / np.linalg.norm([0.9, 0.1, -0.2, 0.3])
+    cloud = np.column_stack([np.linspace(0.0, 1.5, 600), np.zeros(600), np.full(600, -0.55)])
+    image = np.zeros((100, 100), np.uint8)
+    for i in range(n):
+        t = T0 + int(round(i * 1e9 / FPS))
+        while T0 + k_imu * 1e9 / IMU_HZ <= t:
+            ti = T0 + int(round(k_imu * 1e9 / IMU_HZ))
+            rec.write_imu(
+                ImuSample(
+                    host_time_ns=ti + 1_000_000,
+                    time_ns=ti,
+                    packet_counter=k_imu % 65536,
+                    sample_time_fine=k_imu * 100,
+                    quaternion=quaternion,
+                    acceleration=np.array([0.1, -0.2, 9.81]),
+                    rate_of_turn=np.array([0.01, 0.02, -0.03]),
+                    status_word=3,
+                )
+            )
+            k_imu += 1
+        mode = MODES[(i // 225) % len(MODES)]
+        if i % 225 == 0:
+            rec.write_label(t + 1, mode, "operator")
+        frame = dataclasses.replace(
+            frames[i % len(frames)], index=i, device_time_ns=t, host_time_ns=t + 3_000_000
+        )
+        rec.write_frame(frame)
+        image[:] = 0
+        image[50 + i % 20 :, :] = 1
+        rec.write_processed(i, t, t + 3_000_000, cloud, image, quaternion, "")
+        p = np.full(len(MODES), 0.05)
+        p[MODES.index(mode)] = 0.8
+        fused = {"frame_index": max(0, i - 1), "decision": mode, "posterior": p}
+        rec.write_inference(i, t, t + 9_000_000, p, fused)
+        rec.write_features(i, t, {"kind": "level", "slope_deg": 0.5, "riser_m": None})
+        rec.write_truth(i, t, {"mode": mode})
+    rec.close()
+    return Path(path)
+
+
+@dataclass
+class Run:
+    command: str
+    minutes: float
+    seconds: float
+    peak_mib: float
+    ok: bool
+
+
+def measure(argv: list[str]) -> tuple[float, float, bool]:
+    """(wall s, the child's peak resident MiB, exit 0) of `walkcap argv` in a fresh process."""
+    start = time.perf_counter()
+    child = subprocess.Popen(
+        [sys.executable, "-m", "tui.cli", *argv],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    _, status, usage = os.wait4(child.pid, 0)
+    child.returncode = os.waitstatus_to_exitcode(status)
+    return time.perf_counter() - start, usage.ru_maxrss / 1024, child.returncode == 0
+
+
+def cut_copy(path: Path, out: Path, fraction: float = 0.6) -> Path:
+    """The first `fraction` of a file: a trial cut off by a crash."""
+    with open(path, "rb") as src, open(out, "wb") as dst:
+        left = int(path.stat().st_size * fraction)
+        while left > 0:
+            block = src.read(min(left, 1 << 24))
+            if not block:
+                break
+            dst.write(block)
+            left -= len(block)
+    return out
+
+
+def run(minutes: list[float], folder: str | None = None, progress=print) -> list[Run]:
+    """Each command on a synthesized trial of each length, one command at a time."""
+    runs: list[Run] = []
+    with tempfile.TemporaryDirectory(dir=folder) as tmp:
+        work = Path(tmp)
+        for m in sorted(minutes):
+            progress(f"synthesizing a {m:g}-minute trial")
+            trial = synthesize(work / f"B01_indoor_t01_{m:g}min.mcap", m)
+            cut = cut_copy(trial, work / f"cut_{m:g}min.mcap")
+            for name, args in COMMANDS:
+                out = work / "out"
+                out.mkdir(exist_ok=True)
+                argv = [
+                    str(trial) if a == "FILE" else str(cut) if a == "CUT" else a
+                    for a in (x.replace("OUT", str(out)) for x in args)
+                ]
+                progress(f"{name} on {m:g} min")
+                seconds, peak, ok = measure(argv)
+                runs.append(Run(name, m, seconds, peak, ok))
+                for p in sorted(out.rglob("*"), reverse=True):
+                    p.unlink() if p.is_file() else p.rmdir()
+            trial.unlink()
+            cut.unlink()
+    return runs
+
+
+def table(runs: list[Run]) -> list[str]:
+    """Markdown: per command and length, time and peak memory; growth from the shortest."""
+    lengths = sorted({r.minutes for r in runs})
+    head = "| command | " + " | ".join(f"{m:g} min" for m in lengths)
+    head += f" | growth {lengths[0]:g} -> {lengths[-1]:g} min (time, memory) |"
+    lines = [head, "|---" * (len(lengths) + 2) + "|"]
+    for name, _ in COMMANDS:
+        rows = {r.minutes: r for r in runs if r.command == name}
+        if not rows:
+            continue
+        cells = [
+            f"{r.seconds:.1f} s, {r.peak_mib:.0f} MiB" + ("" if r.ok else " (failed)")
+            for r in (rows[m] for m in lengths)
+        ]
+        a, b = rows[lengths[0]], rows[lengths[-1]]
+        growth = f"{b.seconds / a.seconds:.2f}x, {b.peak_mib / a.peak_mib:.2f}x"
+        lines.append(f"| {name} | " + " | ".join(cells) + f" | {growth} |")
+    return lines
