@@ -189,7 +189,7 @@ def test_the_documented_topic_table_is_the_registry():
     root = Path(__file__).resolve().parents[3]
     rows = {}
     for doc in [root / "README.md", *sorted((root / "docs").glob("*.md"))]:
-        for topic, encoding in re.findall(r"^\| `(/[^`]+)` \| ([^|]+) \|", doc.read_text(), re.M):
+        for topic, encoding in re.findall(r"^\| `(/[^` ]+)` \| ([^|]+) \|", doc.read_text(), re.M):
             rows.setdefault(topic, encoding.strip())
     # A row such as /lsl/NAME documents a family of topics named at run time (other
     # devices' LSL streams), not a registered topic.
