@@ -19,7 +19,8 @@ perpendicular fit would tilt far level ground down. Then:
 - ramp: a long slanted segment; slope = its angle, positive uphill;
 - level: mostly horizontal segments; slope reported too (near 0): the flat segments'
   angles averaged by their precision (a curb splits level ground, not its tilt); when the
-  fused decision says level ground, level wins over a ramp while it holds;
+  fused decision says level ground, level wins over a ramp while it holds or while the
+  ground a step ahead (AHEAD_M) is flat;
 - unknown: anything else (too few points, clutter).
 """
 
@@ -168,12 +169,13 @@ def terrain_features(
             sum(s.rms_m**2 * len(s.points) for s in segments) / sum(len(s.points) for s in segments)
         )
     )
-    # A fused decision of level ground keeps the frame level while flat pieces make up
-    # most of what is seen: a slanted piece beyond (the next terrain coming into view, or a
-    # far stretch the noise tilts) is not yet the ground the image shows.
+    # A fused decision of level ground keeps the frame level while the ground a step ahead
+    # (AHEAD_M, where the image's terrain is judged) is flat, or flat pieces make up most of
+    # what is seen: a slanted piece beyond (the next terrain coming into view, or a far
+    # stretch the noise tilts) is not yet the ground the image shows.
     result = (
         _stairs(segments, mode_hint)
-        or (mode_hint == "LG" and _level(segments))
+        or (mode_hint == "LG" and _level(segments, _flat_at(segments, AHEAD_M)))
         or _ramp(segments, mode_hint)
         or _level(segments)
         or TerrainFeatures()
@@ -510,10 +512,20 @@ def _ramp(segments: list[_Segment], hint: str | None) -> TerrainFeatures | None:
     )
 
 
-def _level(segments: list[_Segment]) -> TerrainFeatures | None:
+def _flat_at(segments: list[_Segment], x_m: float) -> bool:
+    """Whether the fitted segment over forward distance `x_m` is flat (False where none)."""
+    for s in segments:
+        if min(s.start[0], s.end[0]) <= x_m <= max(s.start[0], s.end[0]):
+            return s.flat
+    return False
+
+
+def _level(segments: list[_Segment], ahead_flat: bool = False) -> TerrainFeatures | None:
+    """Level ground: flat pieces most of what is seen, or (ahead_flat) the ground a step
+    ahead flat."""
     total = sum(s.length for s in segments)
     flat = [s for s in segments if s.flat]
-    if not flat or sum(s.length for s in flat) < 0.5 * total:
+    if not flat or (not ahead_flat and sum(s.length for s in flat) < 0.5 * total):
         return None
     # One tilt from all the flat pieces (a curb splits level ground into pieces at two
     # heights, not two tilts): their angles weighted by the inverse square of their
