@@ -17,7 +17,10 @@ perpendicular fit would tilt far level ground down. Then:
   distance between consecutive stair edges (up: the riser's position; down: the far end
   of the upper tread, where it drops), when at least two edges are seen;
 - ramp: a long slanted segment; slope = its angle, positive uphill;
-- level: mostly horizontal segments; slope reported too (near 0);
+- level: mostly horizontal segments; slope reported too (near 0): the flat segments'
+  angles averaged by their precision (a curb splits level ground, not its tilt); when the
+  fused decision says level ground, level wins over a ramp while it holds or while the
+  ground a step ahead (AHEAD_M) is flat;
 - unknown: anything else (too few points, clutter).
 """
 
@@ -46,6 +49,7 @@ FLAT_SE = 2.0  # ...or closer than this many standard errors of its angle (angle
 NOISE_CELL_POINTS = 9  # the range noise is correlated over about 3 x 3 pixels
 FLAT_SHORT_RISE_M = 0.015  # ...or a short one that rises less than this end to end
 FLAT_SHORT_MAX_DEG = 12.0
+MIN_ANGLE_SE_DEG = 0.05  # a level slope's weights: no piece's angle is surer than this
 RAMP_MAX_DEG = 35.0
 RAMP_MIN_LENGTH_M = 0.25  # 0.15 when the fused decision says ramp
 RISER_MIN_M = 0.04
@@ -165,8 +169,13 @@ def terrain_features(
             sum(s.rms_m**2 * len(s.points) for s in segments) / sum(len(s.points) for s in segments)
         )
     )
+    # A fused decision of level ground keeps the frame level while the ground a step ahead
+    # (AHEAD_M, where the image's terrain is judged) is flat, or flat pieces make up most of
+    # what is seen: a slanted piece beyond (the next terrain coming into view, or a far
+    # stretch the noise tilts) is not yet the ground the image shows.
     result = (
         _stairs(segments, mode_hint)
+        or (mode_hint == "LG" and _level(segments, _flat_at(segments, AHEAD_M)))
         or _ramp(segments, mode_hint)
         or _level(segments)
         or TerrainFeatures()
@@ -503,10 +512,24 @@ def _ramp(segments: list[_Segment], hint: str | None) -> TerrainFeatures | None:
     )
 
 
-def _level(segments: list[_Segment]) -> TerrainFeatures | None:
+def _flat_at(segments: list[_Segment], x_m: float) -> bool:
+    """Whether the fitted segment over forward distance `x_m` is flat (False where none)."""
+    for s in segments:
+        if min(s.start[0], s.end[0]) <= x_m <= max(s.start[0], s.end[0]):
+            return s.flat
+    return False
+
+
+def _level(segments: list[_Segment], ahead_flat: bool = False) -> TerrainFeatures | None:
+    """Level ground: flat pieces most of what is seen, or (ahead_flat) the ground a step
+    ahead flat."""
     total = sum(s.length for s in segments)
     flat = [s for s in segments if s.flat]
-    if not flat or sum(s.length for s in flat) < 0.5 * total:
+    if not flat or (not ahead_flat and sum(s.length for s in flat) < 0.5 * total):
         return None
-    ground = max(flat, key=lambda s: s.length)
-    return TerrainFeatures(kind="level", slope_deg=ground.angle_deg)
+    # One tilt from all the flat pieces (a curb splits level ground into pieces at two
+    # heights, not two tilts): their angles weighted by the inverse square of their
+    # standard errors, so that a short far piece the noise tilts counts for little.
+    weights = np.array([1.0 / max(s.angle_se_deg, MIN_ANGLE_SE_DEG) ** 2 for s in flat])
+    angles = np.array([s.angle_deg for s in flat])
+    return TerrainFeatures(kind="level", slope_deg=float(weights @ angles / weights.sum()))

@@ -160,6 +160,24 @@ def test_the_ground_ahead_is_the_slope_a_step_ahead_not_the_terrain_in_view():
     assert [ground_ahead(f.ahead_slope_deg) for f in before_ramp] == [0] * len(before_ramp)
 
 
+def test_a_level_decision_keeps_level_ground_while_the_ground_a_step_ahead_is_flat():
+    """Level ground with a ramp up beyond the image's reach: unhinted (or with a ramp
+    decision) the features show the ramp; a fused decision of level ground keeps the frame
+    level, its slope that of the level ground, while the ground a step ahead is flat."""
+    from inference.features import AHEAD_M
+
+    terrain = tr.ramp(12.0, start_m=AHEAD_M + 0.8)
+    plain = features_over_poses(terrain, seed=8)
+    assert sum(f.kind == "ramp" for f in plain) >= 4
+    assert sum(f.kind == "ramp" for f in features_over_poses(terrain, seed=8, hint="UR")) >= 4
+    level = features_over_poses(terrain, seed=8, hint="LG")
+    assert len(level) >= 5 and all(f.kind == "level" for f in level)
+    assert all(abs(f.slope_deg) < 1.0 for f in level)
+    # On the ramp itself the decision does not hide it.
+    on_ramp = features_over_poses(tr.ramp(12.0), seed=9, hint="LG")
+    assert sum(f.kind == "ramp" for f in on_ramp) >= 0.8 * len(on_ramp) >= 5
+
+
 @pytest.mark.parametrize(
     "slope, mode",
     [(None, -1), (float("nan"), -1), (0.0, 0), (2.9, 0), (-2.9, 0), (3.5, 3), (-3.5, 4)],
