@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import shutil
 import struct
+import zlib
 
 import pytest
 from mcap.reader import make_reader
@@ -141,7 +142,7 @@ def test_each_journal_line_carries_its_crc(recording, tmp_path, capsys):
     copy = tmp_path / "trial.mcap"
     shutil.copy(recording, copy)
     lines = journal_lines(recording)
-    assert all(b"\t" in line for line in lines)
+    assert all(json.loads(line)["crc32"] for line in lines)
     number = next(k for k, line in enumerate(lines, 1) if b'"label"' in line)
     damaged = bytearray(lines[number - 1])
     damaged[damaged.index(b"time_ns") + 1] ^= 0x01  # the key: a label at time 0 before
@@ -173,6 +174,42 @@ def test_impossible_journal_values_are_skipped_and_reported(recording, tmp_path,
     journal_path(copy).write_bytes(b"".join(lines))
     report = recover(copy, tmp_path / "out.mcap")
     assert [s.split(":")[0] for s in report.journal_skipped] == ["line 3"]
+
+
+def test_a_stock_jsonl_reader_reads_the_journal(recording):
+    """json.loads per line and pandas' read_json(lines=True) take the file as it is."""
+    import pandas as pd
+
+    path = journal_path(recording)
+    rows = [json.loads(line) for line in path.read_text().splitlines()]
+    assert [r["type"] for r in rows][:1] == ["start"] and "label" in {r["type"] for r in rows}
+    frame = pd.read_json(path, lines=True)
+    assert list(frame["type"]) == [r["type"] for r in rows]
+    believed = check_journal(path)
+    assert believed.skipped == [] and len(believed.entries) == len(rows)
+    assert all("crc32" not in e for e in believed.entries)  # the check is no entry's value
+
+
+def test_a_journal_of_tab_and_crc_lines_still_reads(recording, tmp_path):
+    entries = [
+        {"type": "label", "time_ns": 5, "mode": "LG", "source": "operator"},
+        {"type": "label", "time_ns": 9, "mode": "US", "source": "operator"},
+    ]
+    texts = [json.dumps(e, separators=(",", ":")).encode() for e in entries]
+    lines = [t + b"\t%08x\n" % zlib.crc32(t) for t in texts]
+    lines[1] = lines[1].replace(b"US", b"UT")
+    old = tmp_path / "tabbed.jsonl"
+    old.write_bytes(b"".join(lines))
+    read = check_journal(old)
+    assert read.entries == entries[:1] and read.skipped == ["line 2: CRC mismatch"]
+
+
+def test_a_line_without_its_check_in_a_checked_journal_is_damage(tmp_path):
+    path = tmp_path / "j.jsonl"
+    good = {"type": "label", "time_ns": 5, "mode": "LG", "source": "operator"}
+    bare = json.dumps({**good, "time_ns": 7}).encode() + b"\n"
+    path.write_bytes(encode_line(good) + bare)
+    assert check_journal(path).skipped == ["line 2: no CRC (damaged)"]
 
 
 def test_a_journal_without_crcs_still_reads_and_a_cut_line_is_reported(recording, tmp_path):
