@@ -35,13 +35,16 @@ from capture.recording import labels as L
 from capture.recording import topics as T
 from capture.recording import versions
 from capture.recording._mcap import (
+    MAGIC,
     Damage,
     ScanResult,
     check_magic,
+    digest_damage,
     file_bytes,
     scan,
     summary_damage,
 )
+from capture.recording.digests import DIGESTS
 from capture.recording.frames import FrameJoin, FrameTable
 from capture.recording.messages import Decoders, damage_is_an_error, iter_raw, log_times
 from devices.frames import MODES, CameraGeometry, DepthFrame, ImuSample
@@ -143,7 +146,7 @@ class Recording:
         wanted = None if topics is None else set(topics)
         decoders = Decoders()
         offset = self.unix_offset_ns
-        upgrade = not versions.is_current(self.format_version)
+        upgrade = versions.needs_upgrade(self.format_version)
         with damage_is_an_error(self.path):
             for schema, channel, message in iter_raw(self.path, self.complete, wanted):
                 decoded = decoders.decode(schema, channel, message.data)
@@ -232,8 +235,10 @@ def _open(p: Path) -> Recording:
         except Exception:  # no footer, cut-off summary: read it record by record
             summary = None
         if summary is not None and summary.statistics is not None:
-            raw = [(m.name, dict(m.metadata)) for m in reader.iter_metadata()]
+            every = list(reader.iter_metadata())
+            raw = [(m.name, dict(m.metadata)) for m in every if m.name != DIGESTS]
             version, records = versions.read_metadata(raw, p)
+            damaged = summary_digest_damage(reader.get_header(), every, summary)
             attachments = {a.name: a.data for a in reader.iter_attachments()}
             sizes = {a.name: a.data_size for a in summary.attachment_indexes}
             stats = summary.statistics
@@ -264,9 +269,27 @@ def _open(p: Path) -> Recording:
                 start,
                 end,
                 raw_metadata_records=raw,
+                damaged=damaged,
                 format_version=version,
             )
     return _open_unfinished(p, size)
+
+
+def summary_digest_damage(header, metadata: list, summary) -> list[Damage]:
+    """The header, metadata (every record, digests included, in file order) and the
+    summary's schemas and channels checked against their digests, each failure by name.
+    Offsets where the summary says (metadata), else 0."""
+    indexes = summary.metadata_indexes
+    if len(indexes) != len(metadata):
+        indexes = [None] * len(metadata)
+    checked = [(header, len(MAGIC), 0)]
+    checked += [
+        (m, i.offset, i.length) if i is not None else (m, 0, 0)
+        for m, i in zip(metadata, indexes, strict=True)
+    ]
+    checked += [(s, 0, 0) for s in summary.schemas.values()]
+    checked += [(c, 0, 0) for c in summary.channels.values()]
+    return digest_damage(checked, finished=True)
 
 
 def _open_unfinished(p: Path, size: int) -> Recording:
@@ -287,7 +310,7 @@ def _open_unfinished(p: Path, size: int) -> Recording:
                 schemas[record.id] = record
             elif isinstance(record, Channel):
                 channels[record.id] = record
-            elif isinstance(record, Metadata):
+            elif isinstance(record, Metadata) and record.name != DIGESTS:
                 raw.append((record.name, dict(record.metadata)))
             elif isinstance(record, Attachment):
                 attachments[record.name] = record.data

@@ -18,6 +18,7 @@ from capture.recording import check, recover
 from capture.recording import topics as T
 from capture.recording.journal import check_journal, encode_line, journal_path
 from capture.recording.reader import open_recording
+from capture.recording.writer import Recorder
 from tests.capture.recording.damage_sweep import records, sweep
 from tests.recording_fixtures import write_recording
 from tui import cli
@@ -47,7 +48,7 @@ def record_offsets(path, opcode: int) -> list[int]:
     return [at for at, op, _ in records(path.read_bytes()) if op == opcode]
 
 
-@pytest.mark.parametrize("kind", ["opcode", "length", "summary", "journal", "cut"])
+@pytest.mark.parametrize("kind", ["opcode", "length", "summary", "journal", "cut", "records"])
 def test_a_sample_of_each_class_loses_nothing_silently(recording, kind):
     totals, failing = sweep(recording, {kind}, sample=12)
     cases, silent, phantom, internal, _ = totals[kind]
@@ -132,6 +133,81 @@ def test_a_damaged_summary_is_not_believed(recording, tmp_path, capsys):
     assert cli.main(["info", str(bad)]) == 0
     out = capsys.readouterr().out
     assert "summary CRC mismatch" in out and "state       complete" not in out
+
+
+def test_one_bit_of_the_session_record_is_reported_by_name(tmp_path, capsys):
+    """Subject S77 read back as S76: MCAP checks no metadata byte; the digest does."""
+    path = tmp_path / "trial.mcap"
+    rec = Recorder(path, metadata={"session": {"subject": "S77", "condition": "indoor"}})
+    rec.start()
+    rec.write_label(5_000_000_000, "LG", "operator")
+    rec.close()
+    data = bytearray(path.read_bytes())
+    at = data.index(b'"S77"') + 3
+    data[at] ^= 0x01  # "7" -> "6"
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(data))
+    assert open_recording(bad).metadata["session"]["subject"] == "S76"  # what MCAP reads
+    assert [d.record for d in open_recording(bad).damaged] == ["metadata session"]
+    assert [d.record for d in check(bad).damaged] == ["metadata session"]
+    assert cli.main(["info", str(bad)]) == 0
+    out = capsys.readouterr().out
+    assert "state       complete" not in out and "metadata session (" in out
+    assert "fails its digest" in out
+    report = recover(bad, tmp_path / "out.mcap")
+    assert not report.complete and [d.record for d in report.damaged] == ["metadata session"]
+    assert cli.main(["recover", str(bad), "-o", str(tmp_path / "out2.mcap")]) == 0
+    out = capsys.readouterr().out
+    assert "complete file" not in out and "found damaged metadata session" in out
+    assert open_recording(path).damaged == [] and check(path).complete  # the original
+
+
+def test_the_summary_path_checks_schemas_and_channels_too(recording, tmp_path):
+    """A reader that believes the summary (its CRC recomputed over a flipped channel
+    record: as if the file had none) still finds the channel by its digest."""
+    data = bytearray(recording.read_bytes())
+    channel = next(at for at, op, _ in records(bytes(data)) if op == 0x04 and at > data_end(data))
+    data[channel + 9 + 8 + 1] ^= 0x04  # the topic name: id u16, schema u16, length u32
+    footer = len(data) - 8 - 29
+    (summary_start,) = struct.unpack_from("<Q", data, footer + 9)
+    crc = zlib.crc32(bytes(data[summary_start : footer + 9 + 16]))
+    struct.pack_into("<I", data, footer + 9 + 16, crc)
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(data))
+    (cid,) = struct.unpack_from("<H", data, channel + 9)
+    assert [d.record for d in open_recording(bad).damaged] == [f"channel {cid}"]
+
+
+def test_record_digests_name_what_fails():
+    from mcap.records import Metadata
+
+    from capture.recording.digests import check_records, record_bytes, seal
+
+    session = record_bytes(Metadata("session", {"subject": '"S77"'}))
+    end = record_bytes(Metadata("recording_end", {"messages": "5"}))
+    stored = [seal([("metadata session", session)]), seal([("metadata recording_end", end)])]
+    assert (
+        check_records([("metadata session", session)], stored[:1], required=True, finished=True)
+        == []
+    )
+    bad = session.replace(b"S77", b"S76")
+    [p] = check_records([("metadata session", bad)], stored[:1], required=True, finished=True)
+    assert p.key == "metadata session" and "fails its digest" in p.why
+    broken = {**stored[1], "metadata recording_end": "00000000"}  # the digest record itself
+    problems = check_records(
+        [("metadata session", session), ("metadata recording_end", end)],
+        [stored[0], broken],
+        required=True,
+        finished=True,
+    )
+    assert [p.key for p in problems] == ["record_digests #2", "metadata recording_end"]
+    missing = check_records([], stored[:1], required=True, finished=True)
+    assert [p.key for p in missing] == ["metadata session"] and "missing" in missing[0].why
+    assert check_records([], stored[:1], required=True, finished=False) == []  # cut off
+
+
+def data_end(data) -> int:
+    return next(at for at, op, _ in records(bytes(data)) if op == 0x0F)
 
 
 def journal_lines(path):
