@@ -91,6 +91,7 @@ class ScanResult:
     damaged: list[Damage] = field(default_factory=list)  # found, with readable data after
     last_log_ns: int | None = None  # of the last message read
     record_at: tuple[int, int] = (0, 0)  # offset and length of the record being yielded
+    record_raw: bytes | None = None  # its bytes, when it is a header or metadata record
 
     @property
     def lost_bytes(self) -> int:
@@ -518,17 +519,17 @@ def scan(stream: BinaryIO, result: ScanResult | None = None) -> Iterator[McapRec
     records checked against their digests (capture.recording.digests): each that fails is
     listed in `result.damaged` by name."""
     result = result if result is not None else ScanResult()
-    checked: list[tuple[McapRecord, int, int]] = []  # (record, offset, length)
+    checked: list[tuple] = []  # (record, offset, length, its bytes when top-level)
     for record in _scan(stream, result):
         if isinstance(record, (Header, Metadata, Schema, Channel)):
-            checked.append((record, *result.record_at))
+            checked.append((record, *result.record_at, result.record_raw))
         yield record
     result.damaged.extend(digest_damage(checked, finished=result.finished))
     result.complete = result.complete and not result.damaged
 
 
-def digest_damage(checked: list[tuple[McapRecord, int, int]], *, finished: bool) -> list[Damage]:
-    """Damage for each (record, offset, length) its digest does not prove, by its name."""
+def digest_damage(checked: list[tuple], *, finished: bool) -> list[Damage]:
+    """Damage for each (record, offset, length, bytes or None) its digest does not prove."""
     return [
         Damage(p.offset, p.length, p.why, lost=False, record=p.key)
         for p in located_damage(checked, finished=finished)
@@ -627,6 +628,8 @@ def _scan(stream: BinaryIO, result: ScanResult) -> Iterator[McapRecord]:
             result.complete = result.finished and not result.damaged
             return
         result.record_at = (offset, end - offset)  # of what is yielded next: a chunk's own
+        top = proven.opcode in (Opcode.HEADER, Opcode.METADATA)
+        result.record_raw = bytes(data[offset:end]) if top else None
         offset = end
         result.valid_end = offset
         for record in proven.records:

@@ -167,17 +167,26 @@ def check_records(
 
 
 def record_damage(
-    records: Iterable[McapRecord], *, required: bool, finished: bool
+    records: Iterable[McapRecord],
+    *,
+    required: bool,
+    finished: bool,
+    raw: Iterable[bytes | None] | None = None,
 ) -> list[RecordDamage]:
-    """check_records on parsed mcap records in file order (the digest records among them)."""
+    """check_records on parsed mcap records in file order (the digest records among them).
+    `raw`: each record's bytes as the file holds them, where the reader has them (None:
+    written again from the parsed record); a parser may read past a damaged length that
+    writing the record again would hide."""
     keys, pairs, stored = Keys(), [], []
-    for record in records:
+    records = list(records)
+    raws = list(raw) if raw is not None else [None] * len(records)
+    for record, data in zip(records, raws, strict=True):
         if isinstance(record, Metadata) and record.name == DIGESTS:
             stored.append(dict(record.metadata))
             continue
         key = keys.key(record)
         if key is not None:
-            pairs.append((key, record_bytes(record)))
+            pairs.append((key, bytes(data) if data is not None else record_bytes(record)))
     return check_records(pairs, stored, required=required or bool(stored), finished=finished)
 
 
@@ -194,20 +203,20 @@ def carries_digests(records: Iterable[McapRecord]) -> bool:
     return version >= FIRST_VERSION
 
 
-def located_damage(
-    checked: Iterable[tuple[McapRecord, int, int]], *, finished: bool
-) -> list[RecordDamage]:
-    """record_damage on (record, offset, length) in file order, each finding placed at its
-    record (the first of its key)."""
+def located_damage(checked: Iterable[tuple], *, finished: bool) -> list[RecordDamage]:
+    """record_damage on (record, offset, length, raw bytes or None) in file order, each
+    finding placed at its record (the first of its key)."""
     checked = list(checked)
     where: dict[str, tuple[int, int]] = {}
     keys = Keys()
-    for record, offset, length in checked:
+    for record, offset, length, _ in checked:
         key = keys.key(record)
         if key is not None:
             where.setdefault(key, (offset, length))
-    records = [record for record, _, _ in checked]
-    problems = record_damage(records, required=carries_digests(records), finished=finished)
+    records = [c[0] for c in checked]
+    problems = record_damage(
+        records, required=carries_digests(records), finished=finished, raw=[c[3] for c in checked]
+    )
     for p in problems:
         p.offset, p.length = where.get(p.key, (0, 0))
     return problems

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import io
 import os
+import struct
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -238,7 +239,7 @@ def _open(p: Path) -> Recording:
             every = list(reader.iter_metadata())
             raw = [(m.name, dict(m.metadata)) for m in every if m.name != DIGESTS]
             version, records = versions.read_metadata(raw, p)
-            damaged = summary_digest_damage(reader.get_header(), every, summary)
+            damaged = summary_digest_damage(reader.get_header(), every, summary, file_bytes(f))
             attachments = {a.name: a.data for a in reader.iter_attachments()}
             sizes = {a.name: a.data_size for a in summary.attachment_indexes}
             stats = summary.statistics
@@ -275,20 +276,24 @@ def _open(p: Path) -> Recording:
     return _open_unfinished(p, size)
 
 
-def summary_digest_damage(header, metadata: list, summary) -> list[Damage]:
+def summary_digest_damage(header, metadata: list, summary, data) -> list[Damage]:
     """The header, metadata (every record, digests included, in file order) and the
     summary's schemas and channels checked against their digests, each failure by name.
     Offsets where the summary says (metadata), else 0."""
     indexes = summary.metadata_indexes
     if len(indexes) != len(metadata):
         indexes = [None] * len(metadata)
-    checked = [(header, len(MAGIC), 0)]
+    (head_length,) = struct.unpack_from("<Q", data, len(MAGIC) + 1)
+    head_end = min(len(data), len(MAGIC) + 9 + head_length)
+    checked = [(header, len(MAGIC), 0, bytes(data[len(MAGIC) : head_end]))]
     checked += [
-        (m, i.offset, i.length) if i is not None else (m, 0, 0)
+        (m, i.offset, i.length, bytes(data[i.offset : i.offset + i.length]))
+        if i is not None
+        else (m, 0, 0, None)
         for m, i in zip(metadata, indexes, strict=True)
     ]
-    checked += [(s, 0, 0) for s in summary.schemas.values()]
-    checked += [(c, 0, 0) for c in summary.channels.values()]
+    checked += [(s, 0, 0, None) for s in summary.schemas.values()]
+    checked += [(c, 0, 0, None) for c in summary.channels.values()]
     return digest_damage(checked, finished=True)
 
 

@@ -14,6 +14,7 @@ import zlib
 import pytest
 from mcap.reader import make_reader
 
+from capture.errors import CaptureError
 from capture.recording import check, recover
 from capture.recording import topics as T
 from capture.recording.journal import check_journal, encode_line, journal_path
@@ -160,6 +161,20 @@ def test_one_bit_of_the_session_record_is_reported_by_name(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "complete file" not in out and "found damaged metadata session" in out
     assert open_recording(path).damaged == [] and check(path).complete  # the original
+
+
+def test_a_length_inside_a_record_that_the_parser_reads_past_is_caught(recording, tmp_path):
+    """A value's length prefix flipped (6 -> 22): the mcap parser still reads a record, and
+    writing it again gives the original bytes: the digest is over the file's own bytes."""
+    data = bytearray(recording.read_bytes())
+    header_library_length = 8 + 9 + 4  # magic, head, the empty profile's length
+    data[header_library_length] ^= 0x80
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(data))
+    assert [d.record for d in check(bad).damaged] == ["header"]
+    assert not recover(bad, tmp_path / "out.mcap").complete
+    with pytest.raises(CaptureError, match="damaged"):  # the index's reader: one line
+        open_recording(bad)
 
 
 def test_the_summary_path_checks_schemas_and_channels_too(recording, tmp_path):
