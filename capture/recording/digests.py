@@ -177,17 +177,21 @@ def record_damage(
     `raw`: each record's bytes as the file holds them, where the reader has them (None:
     written again from the parsed record); a parser may read past a damaged length that
     writing the record again would hide."""
-    keys, pairs, stored = Keys(), [], []
+    keys, pairs, stored, odd = Keys(), [], [], []
     records = list(records)
     raws = list(raw) if raw is not None else [None] * len(records)
     for record, data in zip(records, raws, strict=True):
         if isinstance(record, Metadata) and record.name == DIGESTS:
+            if data is not None and bytes(data) != record_bytes(record):
+                # a length the parser read past: its values may read right, its bytes do not
+                why = "is damaged: its bytes are not what its values write"
+                odd.append(RecordDamage(f"{DIGESTS} #{len(stored) + 1}", why))
             stored.append(dict(record.metadata))
             continue
         key = keys.key(record)
         if key is not None:
             pairs.append((key, bytes(data) if data is not None else record_bytes(record)))
-    return check_records(pairs, stored, required=required or bool(stored), finished=finished)
+    return odd + check_records(pairs, stored, required=required or bool(stored), finished=finished)
 
 
 def carries_digests(records: Iterable[McapRecord]) -> bool:
