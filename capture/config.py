@@ -279,7 +279,13 @@ def _build(cls: type, table: dict, prefix: str = "") -> Any:
         if name not in names or name == "source":
             known = ", ".join(sorted(n for n in names if n != "source"))
             raise ConfigError(f"unknown key {full!r} (known here: {known})")
-        kwargs[name] = _convert(value, hints[name], full)
+        try:
+            kwargs[name] = _convert(value, hints[name], full)
+        except ConfigError:
+            field = next(f for f in dataclasses.fields(cls) if f.name == name)
+            if field.metadata.get("secret"):  # its value is said nowhere, not even here
+                raise ConfigError(f"{full}: expected {_type_name(hints[name])}") from None
+            raise
     built = cls(**kwargs)
     check_range(built, prefix)
     return built
@@ -375,6 +381,18 @@ def _toml_value(value: Any) -> str:
     raise TypeError(value)
 
 
+def secrets_of(config: Config) -> list[str]:
+    """The values of the secret keys that are set (a token): what nothing may print."""
+    out = []
+    for name, cls in sections():
+        section = getattr(config, name)
+        for f in dataclasses.fields(cls):
+            value = getattr(section, f.name)
+            if f.metadata.get("secret") and isinstance(value, str) and value:
+                out.append(value)
+    return out
+
+
 def dumps(config: Config, secrets: bool = True) -> str:
     """The configuration as TOML (every key, so a saved file documents itself). Without
     `secrets` (the copy a recording carries), a secret key that is set reads as empty, with
@@ -396,7 +414,8 @@ def dumps(config: Config, secrets: bool = True) -> str:
 def documented(config: Config) -> str:
     """The configuration as TOML with a comment per key: what it is and its default.
 
-    What `walkcap config` prints; it loads back as the same configuration.
+    What `walkcap config` prints; it loads back as the same configuration, but for a
+    secret key that is set (a token): that reads as empty, with a comment saying it is set.
     """
     defaults = to_dict(Config())
     lines = [
@@ -414,7 +433,9 @@ def documented(config: Config) -> str:
             if len(default) > 40:  # a matrix: `walkcap config --default` shows it in full
                 default = "printed by --default"
             lines.append(f"# {_described(f)} [default: {default}]")
-            if value and isinstance(value, list) and isinstance(value[0], list):
+            if value and f.metadata.get("secret"):  # set: loads back empty, says so
+                lines.append(f'{f.name} = ""  # set, not shown (see your configuration file)')
+            elif value and isinstance(value, list) and isinstance(value[0], list):
                 rows = [f"    {_toml_value(row)}," for row in value]
                 lines += [f"{f.name} = [", *rows, "]"]
             else:

@@ -10,9 +10,10 @@
 A backend subclasses `Camera`, implements the hooks `_open`, `_start`, `_stop`, `_close`,
 and hands frames from its own thread (or the SDK's) to `_deliver`. The base class does the
 rest: a bounded buffer that drops the oldest frame when the consumer is slow (and counts
-it), the measured rate, events, the life cycle and the context manager, and a watchdog:
-a silent camera is a "stall" (and "resumed", with the gap, when frames come again); silent
-for `lost_after_s` it is "lost" and reopened (`_restart`) until frames come ("reconnected").
+it), the measured rate (by the frames' device times: the camera's own clock), events, the
+life cycle and the context manager, and a watchdog: a silent camera is a "stall" (and
+"resumed", with the gap, when frames come again); silent for `lost_after_s` it is "lost"
+and reopened (`_restart`) until frames come ("reconnected").
 Backends are named in `BACKENDS` and imported only when chosen, so a missing vendor SDK
 costs nothing until someone asks for that camera (as python-can does).
 """
@@ -335,7 +336,9 @@ class Camera:
         if self._stalled or self._state == LOST:
             self._resumed(frame.host_time_ns)
         with self._lock:
-            self._rate.tick(frame.host_time_ns)
+            # the camera's own clock: a host stall delays arrivals, not the frames' times,
+            # and must not read as a change of frame rate (silence is the watchdog's, above)
+            self._rate.tick(frame.device_time_ns)
             self._delivered += 1
             self._last_frame_ns = frame.host_time_ns
             self._last_index = frame.index

@@ -50,6 +50,9 @@ BAD_ORIENTATION = "bad_orientation"
 # The IMU orientation at the frame's time is older than max_orientation_age_ms (the IMU is
 # silent or unplugged): a held orientation would level the cloud wrongly, so no image.
 STALE_ORIENTATION = "stale_orientation"
+# Frames no orientation can level (stale, or not a rotation at all): no image, no CNN, the
+# fusion not fed, so nothing is decided on a cloud that cannot be trusted.
+UNDECIDED = (STALE_ORIENTATION, BAD_ORIENTATION)
 NAN_INPUT = "nan_input"
 BAD_INPUT = "bad_input"
 

@@ -1,8 +1,8 @@
 """Test helper: files of format version 1, made from files written now.
 
 `as_version_1` copies a recording record for record into a file that says
-`format_version` 1 and holds what version 1 held: no "derivation" record, and fused
-messages without `source_frame_index`.
+`format_version` 1 and holds what version 1 held: no "derivation" record, no record
+digests, and fused messages without `source_frame_index`.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ def as_version_1(
         w.start(profile="", library=reader.get_header().library)
         for m in reader.iter_metadata():
             values = dict(m.metadata)
-            if m.name == "derivation" or m.name in extra:
+            if m.name in ("derivation", "record_digests") or m.name in extra:
                 continue
             if m.name == "recording":
                 values["format_version"] = T.encode_metadata({"v": version})["v"]

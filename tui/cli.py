@@ -15,6 +15,7 @@ import sys
 import traceback
 
 from capture import __version__
+from tui.logfile import REDACTOR
 
 COMMANDS = (
     "tui",
@@ -104,6 +105,7 @@ def main(argv: list[str] | None = None) -> int:
         from capture import config as config_mod
 
         config = config_mod.load(args.config)
+        REDACTOR.secrets = config_mod.secrets_of(config)  # out of every line said
         return int(args._module.run(args, config) or 0)
     except KeyboardInterrupt:
         print("walkcap: interrupted", file=sys.stderr)
@@ -118,9 +120,9 @@ def main(argv: list[str] | None = None) -> int:
         if os.environ.get("WALKCAP_DEBUG"):
             raise
         log = _write_crash_log()
+        what = REDACTOR.redact(f"{type(e).__name__}: {e}")
         print(
-            f"walkcap {args.command}: internal error: {type(e).__name__}: {e} "
-            f"(details in {log}; please report it)",
+            f"walkcap {args.command}: internal error: {what} (details in {log}; please report it)",
             file=sys.stderr,
         )
         return 70
@@ -134,6 +136,7 @@ class _StderrLog(logging.Handler):
 
     def __init__(self, command: str, verbose: int) -> None:
         super().__init__(logging.WARNING - 10 * min(verbose, 2))
+        self.addFilter(REDACTOR)
         self.command = command
         self.verbose = verbose
         self.said: list[str] = []
@@ -171,6 +174,7 @@ def _log_to_stderr(command: str | None, verbose: int) -> None:
 
 def error_line(command: str, text: str) -> None:
     """The command's error, once: not again when a log line just said the same."""
+    text = REDACTOR.redact(text)
     if _handler is not None and any(text in said for said in _handler.said):
         return
     print(f"walkcap {command}: error: {text}", file=sys.stderr)
@@ -188,7 +192,7 @@ def _write_crash_log() -> str:
     try:
         os.makedirs(os.path.dirname(path), exist_ok=True)
         with open(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o600), "a") as f:
-            f.write(traceback.format_exc() + "\n")
+            f.write(REDACTOR.redact(traceback.format_exc()) + "\n")
     except OSError:
         return "(no crash log could be written)"
     return path

@@ -1,10 +1,40 @@
-"""Where the UI's log lines go while it owns the terminal."""
+"""Where the UI's log lines go while it owns the terminal, and the filter that keeps the
+configuration's secrets out of every log line, wherever it goes."""
 
 from __future__ import annotations
 
 import contextlib
 import logging
 import os
+
+HIDDEN = "<secret>"
+
+
+class Redactor(logging.Filter):
+    """Replaces every secret value the configuration sets (capture.config.secrets_of) in a
+    log record's text (message, arguments, traceback) before any handler writes it."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.secrets: list[str] = []
+
+    def redact(self, text: str) -> str:
+        for secret in self.secrets:
+            text = text.replace(secret, HIDDEN)
+        return text
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if self.secrets:
+            message = record.getMessage()
+            if record.exc_info and not record.exc_text:
+                record.exc_text = logging.Formatter().formatException(record.exc_info)
+            record.msg, record.args = self.redact(message), ()
+            if record.exc_text:
+                record.exc_text = self.redact(record.exc_text)
+        return True
+
+
+REDACTOR = Redactor()  # one for the process: the CLI sets its secrets once configured
 
 
 def log_path() -> str:
@@ -24,6 +54,7 @@ def logging_to_file(path: str):
     except OSError:
         handler = logging.NullHandler()
     handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+    handler.addFilter(REDACTOR)
     root.handlers = [handler]
     level = root.level
     # what happened in the session (losses, stalls, reconnects, trials saved) is INFO

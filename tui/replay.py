@@ -38,7 +38,7 @@ from devices.base import DeviceEvent, DeviceState, DeviceStatus
 from devices.clock import now_ns
 from devices.frames import MODES
 from inference.fusion import FusionOutput
-from inference.preprocess import STALE_ORIENTATION
+from inference.preprocess import UNDECIDED
 
 log = logging.getLogger(__name__)
 
@@ -67,8 +67,9 @@ class _Frames:
 
     @classmethod
     def shown(cls, table: FrameTable, images: dict, profiles: dict) -> _Frames:
-        """The frames the screens show: classified ones, and undecided ones (stale)."""
-        stale = np.array([f == STALE_ORIENTATION for f in table.flag], dtype=bool)
+        """The frames the screens show: classified ones, and undecided ones (stale or bad
+        orientation)."""
+        stale = np.array([f in UNDECIDED for f in table.flag], dtype=bool)
         t = table.select(table.classified | stale)
         probs = t.probabilities
         shown = np.full(len(t), -1, dtype=int)
@@ -135,7 +136,7 @@ class ReplaySource:
         self.frames = self._load(rec)
         # stale frames up to each frame, for the devices panel's count
         self._stale_upto = np.cumsum(
-            [self.frames.flags.get(int(i)) == STALE_ORIENTATION for i in self.frames.index]
+            [self.frames.flags.get(int(i)) in UNDECIDED for i in self.frames.index]
         )
         n = len(self.frames.index)
         if n == 0:

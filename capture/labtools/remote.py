@@ -203,6 +203,7 @@ class RemoteControl:
                 result, refused = f"refused: {type(e).__name__}: {e}", True
             if result.startswith("saved "):
                 self.saved.append(result.removeprefix("saved "))
+        command, result = self._hidden(command), self._hidden(result)
         # the client's text, fit for a terminal; a refused command's participant may be a
         # name: it stays out of the log and the recording's events
         shown = escape(_PARTICIPANT.sub("{participant:…}", command) if refused else command, 80)
@@ -211,6 +212,14 @@ class RemoteControl:
         if refused:
             self._event("refused", f"{shown} -> {escape(result)}", {"command": shown})
         return result
+
+    def _hidden(self, text: str) -> str:
+        """`text` without the token, nor whatever follows a `token` word (a mistyped token
+        is nearly the token): for the log, the events, the screen and the recording."""
+        if text.split(maxsplit=1)[:1] == ["token"]:
+            text = "token <secret>"
+        token = self._token.decode("utf-8", "replace")
+        return text.replace(token, "<secret>") if token else text
 
     def _command(self, command: str) -> str:
         if command == "start":

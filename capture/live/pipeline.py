@@ -154,8 +154,8 @@ class FrameResult:
 
     @property
     def decided(self) -> bool:
-        """False for a frame left undecided (stale orientation): no CNN output, and the
-        fusion held, not fed."""
+        """False for a frame left undecided (stale or bad orientation): no CNN output, and
+        the fusion held, not fed."""
         return self.cnn_decision >= 0
 
     @property
@@ -219,18 +219,19 @@ class Pipeline:
         """The whole frame; `prepared` and `probabilities` when worked out ahead (replay
         preprocesses in another process and classifies in batches).
 
-        A frame whose orientation is stale gets no decision: the CNN does not see it and
-        the fusion holds (it is not fed), so nothing is decided on a wrongly levelled cloud.
+        A frame whose orientation is stale or bad (inference.preprocess.UNDECIDED) gets no
+        decision: the CNN does not see it and the fusion holds (it is not fed), so nothing
+        is decided on a wrongly levelled cloud.
         """
         from inference.features import ground_ahead, shown_mode, terrain_features
-        from inference.preprocess import STALE_ORIENTATION
+        from inference.preprocess import UNDECIDED
 
         if quaternion is None:
             quaternion = np.full(4, np.nan)
         if prepared is None:
             prepared = self.prepare(frame, quaternion, orientation_age_ns)
         pre = prepared
-        if pre.flag == STALE_ORIENTATION:
+        if pre.flag in UNDECIDED:
             # no image to trust: no CNN output, and the fusion is not fed (it holds)
             probs, cnn, fused, feats, done_ns = (
                 np.full(len(MODES), np.nan),

@@ -33,6 +33,7 @@ from mcap.records import (
 )
 
 from capture.errors import CaptureError
+from capture.recording.digests import located_damage
 
 log = logging.getLogger(__name__)
 
@@ -57,8 +58,12 @@ class Damage:
     end_ns: int | None = None
     topics: tuple[str, ...] = ()  # topics of the chunks lost, when the file's index says
     lost: bool = True  # False: bytes no reader needs (a record head its content proves)
+    record: str = ""  # a record its digest does not prove ("metadata session"): kept as read
 
     def describe(self, origin_ns: int | None = None) -> str:
+        if self.record:
+            where = f" ({self.length} bytes at byte {self.offset})" if self.length else ""
+            return f"{self.record}{where} {self.reason}"
         if not self.lost:
             return f"{self.length} bytes at byte {self.offset}, nothing lost: {self.reason}"
         where = f"{self.length} bytes at byte {self.offset}"
@@ -85,6 +90,8 @@ class ScanResult:
     records: int = 0
     damaged: list[Damage] = field(default_factory=list)  # found, with readable data after
     last_log_ns: int | None = None  # of the last message read
+    record_at: tuple[int, int] = (0, 0)  # offset and length of the record being yielded
+    record_raw: bytes | None = None  # its bytes, when it is a header or metadata record
 
     @property
     def lost_bytes(self) -> int:
@@ -538,6 +545,28 @@ def summary_damage(data) -> str:
 
 
 def scan(stream: BinaryIO, result: ScanResult | None = None) -> Iterator[McapRecord]:
+    """`_scan`, and once every record is read, the header, metadata, schema and channel
+    records checked against their digests (capture.recording.digests): each that fails is
+    listed in `result.damaged` by name."""
+    result = result if result is not None else ScanResult()
+    checked: list[tuple] = []  # (record, offset, length, its bytes when top-level)
+    for record in _scan(stream, result):
+        if isinstance(record, (Header, Metadata, Schema, Channel)):
+            checked.append((record, *result.record_at, result.record_raw))
+        yield record
+    result.damaged.extend(digest_damage(checked, finished=result.finished))
+    result.complete = result.complete and not result.damaged
+
+
+def digest_damage(checked: list[tuple], *, finished: bool) -> list[Damage]:
+    """Damage for each (record, offset, length, bytes or None) its digest does not prove."""
+    return [
+        Damage(p.offset, p.length, p.why, lost=False, record=p.key)
+        for p in located_damage(checked, finished=finished)
+    ]
+
+
+def _scan(stream: BinaryIO, result: ScanResult) -> Iterator[McapRecord]:
     """Records in file order (chunks opened into their schemas, channels and messages),
     up to the data end. Only records that their structure proves are believed (`_prove`);
     a record that proves nothing is damage, skipped up to the next record that proves
@@ -545,7 +574,6 @@ def scan(stream: BinaryIO, result: ScanResult | None = None) -> Iterator[McapRec
     after it is where the file stops. A record whose head is damaged but whose content
     proves it (a chunk's CRC) is kept, and listed too. Summary records are not yielded:
     everything they say is also in the data section; a summary whose CRC fails is listed."""
-    result = result if result is not None else ScanResult()
     data = file_bytes(stream)
     result.size = len(data)
     if data[: len(MAGIC)] != MAGIC:
@@ -623,6 +651,9 @@ def scan(stream: BinaryIO, result: ScanResult | None = None) -> Iterator[McapRec
                     )
             result.complete = result.finished and not result.damaged
             return
+        result.record_at = (offset, end - offset)  # of what is yielded next: a chunk's own
+        top = proven.opcode in (Opcode.HEADER, Opcode.METADATA)
+        result.record_raw = bytes(data[offset:end]) if top else None
         offset = end
         result.valid_end = offset
         released = _release(data, released, offset)

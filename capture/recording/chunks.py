@@ -23,6 +23,7 @@ import numpy as np
 
 from capture import __version__
 from capture.recording import topics as T
+from capture.recording.digests import Sealer
 from capture.recording.encode import (
     Encoded,
     encode_depth,
@@ -154,6 +155,7 @@ class ChunkWriter:
         self.file = file
         self.path = path
         self._writer = Writer(file, chunk_size=64 * 1024 * 1024, compression=CompressionType.ZSTD)
+        self._sealed = Sealer(self._writer)  # header, metadata, schemas, channels: digests
         self._chunk_interval_s = chunk_interval_s
         self._gray = gray
         self._cloud_voxel_m = cloud_voxel_m
@@ -177,9 +179,11 @@ class ChunkWriter:
         """Header, metadata records and attachments, on disk; returns their Unix time."""
         from mcap.writer import LIBRARY_IDENTIFIER
 
-        self._writer.start(profile="", library=f"walkcap {__version__}; {LIBRARY_IDENTIFIER}")
-        for name, values in metadata.items():
-            self._writer.add_metadata(name, T.encode_metadata(values))
+        self._sealed.start(
+            "",
+            f"walkcap {__version__}; {LIBRARY_IDENTIFIER}",
+            [(name, T.encode_metadata(values)) for name, values in metadata.items()],
+        )
         created = time.time_ns()
         for name, data in attachments.items():
             self._writer.add_attachment(created, now_ns(), name, _media_type(name), bytes(data))
@@ -217,7 +221,7 @@ class ChunkWriter:
 
     def finish(self, end: dict) -> None:
         """The closing metadata record, summary and index; the file closed."""
-        self._writer.add_metadata("recording_end", T.encode_metadata(end))
+        self._sealed.metadata("recording_end", T.encode_metadata(end))
         self._writer.finish()
         self.file.fsync()
         self.file.close()
@@ -240,10 +244,8 @@ class ChunkWriter:
         channel = self._channels.get(topic)
         if channel is None:
             spec = self._declared.get(topic) or T.TOPICS[topic]
-            schema = self._writer.register_schema(
-                spec.schema_name, spec.schema_encoding, spec.schema_data
-            )
-            channel_id = self._writer.register_channel(
+            schema = self._sealed.schema(spec.schema_name, spec.schema_encoding, spec.schema_data)
+            channel_id = self._sealed.channel(
                 topic, spec.message_encoding, schema, {"description": spec.description}
             )
             channel = self._channels[topic] = (channel_id, spec.sensor)
@@ -319,7 +321,7 @@ class ChunkWriter:
         camera = dict(dataclasses.asdict(g))
         camera["rays_attachment"] = T.RAYS_ATTACHMENT
         camera["from_frame_index"] = frame.index
-        self._writer.add_metadata("camera", T.encode_metadata(camera))
+        self._sealed.metadata("camera", T.encode_metadata(camera))
         self._geometry = g
         off_ray = T.ray_error_m(frame.xyz, rays, frame.confidence)
         if off_ray > 0.0005:  # the rays do not fit royale's points: say so in the file

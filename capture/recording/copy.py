@@ -19,6 +19,7 @@ from typing import BinaryIO
 
 from capture.errors import CaptureError
 from capture.recording import topics as T
+from capture.recording.digests import DIGESTS, Sealer
 from capture.recording.lineage import derivation
 from capture.recording.messages import iter_raw
 from capture.recording.reader import open_recording
@@ -34,6 +35,7 @@ class RecordingCopy:
         from mcap.writer import CompressionType, Writer
 
         self._writer = Writer(stream, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD)
+        self._sealed = Sealer(self._writer)  # the copy's own record digests
         self._schemas: dict[int, int] = {}  # the source's schema id -> the copy's
         self._channels: dict[int, int] = {}  # the source's channel id -> the copy's
         self.topics: dict[int, str] = {}  # the source's channel id -> its topic
@@ -42,7 +44,7 @@ class RecordingCopy:
         self.started = False
 
     def start(self, profile: str = "", library: str = "walkcap") -> None:
-        self._writer.start(profile=profile, library=library)
+        self._sealed.start(profile, library)
         self.started = True
 
     def schema(self, schema) -> int:
@@ -50,7 +52,7 @@ class RecordingCopy:
         if schema is None:
             return 0
         if schema.id not in self._schemas:
-            self._schemas[schema.id] = self._writer.register_schema(
+            self._schemas[schema.id] = self._sealed.schema(
                 schema.name, schema.encoding, schema.data
             )
         return self._schemas[schema.id]
@@ -63,7 +65,7 @@ class RecordingCopy:
                 sid = self.schema(schema)
             else:
                 sid = self._schemas.get(channel.schema_id, 0)
-            cid = self._writer.register_channel(
+            cid = self._sealed.channel(
                 channel.topic, channel.message_encoding, sid, dict(channel.metadata)
             )
             self._channels[channel.id] = cid
@@ -92,10 +94,8 @@ class RecordingCopy:
         cid = self._by_topic.get(topic)
         if cid is None:
             spec = T.TOPICS[topic]
-            sid = self._writer.register_schema(
-                spec.schema_name, spec.schema_encoding, spec.schema_data
-            )
-            cid = self._writer.register_channel(
+            sid = self._sealed.schema(spec.schema_name, spec.schema_encoding, spec.schema_data)
+            cid = self._sealed.channel(
                 topic, spec.message_encoding, sid, {"description": spec.description}
             )
             self._by_topic[topic] = cid
@@ -104,8 +104,10 @@ class RecordingCopy:
         self.counts[topic] = self.counts.get(topic, 0) + 1
 
     def metadata(self, name: str, values: dict[str, str]) -> None:
-        """A metadata record as MCAP holds it (values as text: T.encode_metadata)."""
-        self._writer.add_metadata(name, values)
+        """A metadata record as MCAP holds it (values as text: T.encode_metadata); a
+        source's digest records are not copied (the copy writes its own)."""
+        if name != DIGESTS:
+            self._sealed.metadata(name, values)
 
     def attachment(self, create_time: int, log_time: int, name: str, media: str, data) -> None:
         self._writer.add_attachment(create_time, log_time, name, media, data)

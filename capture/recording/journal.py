@@ -5,11 +5,15 @@ labels must survive anything, so each one is also appended as a line of JSON to
 `<recording>.journal.jsonl` and fsync'ed before the call returns. `walkcap recover` merges
 the journal back into the recording.
 
-Each line carries its own check: the JSON, a tab and the CRC-32 of the JSON as eight hex
-digits. A line whose CRC fails (a bad disk, a bad copy), that a crash cut, or whose values
-cannot be (a time that is no integer, a label without a mode) is skipped and reported by
-its line number, never guessed. Journals written before lines had a CRC are read as they
-are, with the same value checks; in a journal that has CRCs, a line without one is damage.
+The file is JSON Lines: one object a line, read by `json.loads`, `jq` or pandas'
+`read_json(lines=True)` as it is. Each object carries its own check: the key `crc32`, the
+CRC-32 (eight hex digits) of the object's other keys canonically encoded (sorted keys,
+compact separators, ASCII), so that a reader recomputes it from the parsed object without
+the line's bytes. A line whose CRC fails (a bad disk, a bad copy), that a crash cut, or
+whose values cannot be (a time that is no integer, a label without a mode) is skipped and
+reported by its line number, never guessed. Two older line forms are read too: the JSON, a
+tab and the CRC-32 of the JSON's bytes; and bare JSON without a check. In a journal where
+any line has a check, a line without one is damage.
 """
 
 from __future__ import annotations
@@ -26,14 +30,30 @@ from pathlib import Path
 log = logging.getLogger(__name__)
 
 SUFFIX = ".journal.jsonl"
-_CHECKED = re.compile(rb"(.*)\t([0-9a-f]{8})", re.DOTALL)
+CRC_KEY = "crc32"
+_TABBED = re.compile(rb"(.*)\t([0-9a-f]{8})", re.DOTALL)  # the older form: JSON, tab, CRC
+_HEX8 = re.compile(r"[0-9a-f]{8}")
 _TIME_MAX = 2**63 - 1
 
 
+def canonical(entry: dict) -> bytes:
+    """The one encoding the check is computed over: sorted keys, compact, ASCII."""
+    return json.dumps(entry, sort_keys=True, separators=(",", ":"), ensure_ascii=True).encode()
+
+
+def entry_crc(entry: dict) -> str:
+    """The CRC-32 of an entry's keys other than the check itself, as eight hex digits."""
+    return f"{zlib.crc32(canonical({k: v for k, v in entry.items() if k != CRC_KEY})):08x}"
+
+
 def encode_line(entry: dict) -> bytes:
-    """One journal line: the JSON, a tab, the CRC-32 of the JSON, a newline."""
-    text = json.dumps(entry, separators=(",", ":"), default=str).encode()
-    return text + b"\t%08x\n" % zlib.crc32(text)
+    """One journal line: the entry's JSON object with its `crc32` key, and a newline."""
+    # through JSON once, so the check covers exactly what a reader parses back (str() of
+    # a value JSON cannot hold, lists for tuples)
+    plain = json.loads(json.dumps(entry, default=str))
+    crc = entry_crc(plain)
+    plain.pop(CRC_KEY, None)
+    return canonical(plain)[:-1] + f',"{CRC_KEY}":"{crc}"}}\n'.encode()
 
 
 def journal_path(recording: str | os.PathLike) -> Path:
@@ -115,6 +135,26 @@ def _problem(entry) -> str:
     return ""
 
 
+def _parse(line: bytes) -> tuple[object, bool, str]:
+    """(the entry, whether the line carries a check, why it cannot be believed or "")."""
+    tabbed = _TABBED.fullmatch(line)
+    if tabbed:
+        text, crc = tabbed.groups()
+        if zlib.crc32(text) != int(crc, 16):
+            return None, True, "CRC mismatch"
+        line = text
+    try:
+        entry = json.loads(line)
+    except ValueError:
+        return None, bool(tabbed), "unreadable"
+    if tabbed or not isinstance(entry, dict) or CRC_KEY not in entry:
+        return entry, bool(tabbed), ""
+    crc = entry.pop(CRC_KEY)
+    if not isinstance(crc, str) or not _HEX8.fullmatch(crc) or crc != entry_crc(entry):
+        return None, True, "CRC mismatch"
+    return entry, True, ""
+
+
 def check_journal(path: str | os.PathLike) -> JournalRead:
     """Every entry whose line proves itself; the others listed by line number."""
     out = JournalRead()
@@ -124,27 +164,15 @@ def check_journal(path: str | os.PathLike) -> JournalRead:
         return out
     lines = data.split(b"\n")
     cut = lines.pop() if lines else b""  # after the last newline: empty, or cut by a crash
-    checked = any(_CHECKED.fullmatch(line) for line in lines)
-    for number, line in enumerate(lines, 1):
+    parsed = [_parse(line) for line in lines]
+    checked = any(has_check for _, has_check, _ in parsed)
+    for number, (line, (entry, has_check, why)) in enumerate(zip(lines, parsed), 1):
         if not line.strip():
             continue
-        match = _CHECKED.fullmatch(line)
-        if match:
-            text, crc = match.groups()
-            if zlib.crc32(text) != int(crc, 16):
-                out.skipped.append(f"line {number}: CRC mismatch")
-                continue
-        elif checked:
-            out.skipped.append(f"line {number}: no CRC (damaged)")
-            continue
-        else:
-            text = line
-        try:
-            entry = json.loads(text)
-        except ValueError:
-            out.skipped.append(f"line {number}: unreadable")
-            continue
-        why = _problem(entry)
+        if not why and not has_check and checked:
+            why = "no CRC (damaged)"
+        if not why:
+            why = _problem(entry)
         if why:
             out.skipped.append(f"line {number}: {why}")
             continue

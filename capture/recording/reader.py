@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import io
 import os
+import struct
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,13 +36,16 @@ from capture.recording import labels as L
 from capture.recording import topics as T
 from capture.recording import versions
 from capture.recording._mcap import (
+    MAGIC,
     Damage,
     ScanResult,
     check_magic,
+    digest_damage,
     file_bytes,
     scan,
     summary_damage,
 )
+from capture.recording.digests import DIGESTS
 from capture.recording.frames import FrameJoin, FrameTable
 from capture.recording.messages import Decoders, damage_is_an_error, iter_raw, log_times
 from devices.frames import MODES, CameraGeometry, DepthFrame, ImuSample
@@ -151,7 +155,7 @@ class Recording:
         readers that walk the records themselves (capture.recording.summary)."""
         decoders = Decoders()
         offset = self.unix_offset_ns
-        upgrade = not versions.is_current(self.format_version)
+        upgrade = versions.needs_upgrade(self.format_version)
 
         def decode(schema, channel, message) -> RecordedMessage:
             decoded = decoders.decode(schema, channel, message.data)
@@ -242,8 +246,10 @@ def _open(p: Path) -> Recording:
         except Exception:  # no footer, cut-off summary: read it record by record
             summary = None
         if summary is not None and summary.statistics is not None:
-            raw = [(m.name, dict(m.metadata)) for m in reader.iter_metadata()]
+            every = list(reader.iter_metadata())
+            raw = [(m.name, dict(m.metadata)) for m in every if m.name != DIGESTS]
             version, records = versions.read_metadata(raw, p)
+            damaged = summary_digest_damage(reader.get_header(), every, summary, file_bytes(f))
             attachments = {a.name: a.data for a in reader.iter_attachments()}
             sizes = {a.name: a.data_size for a in summary.attachment_indexes}
             stats = summary.statistics
@@ -274,9 +280,31 @@ def _open(p: Path) -> Recording:
                 start,
                 end,
                 raw_metadata_records=raw,
+                damaged=damaged,
                 format_version=version,
             )
     return _open_unfinished(p, size)
+
+
+def summary_digest_damage(header, metadata: list, summary, data) -> list[Damage]:
+    """The header, metadata (every record, digests included, in file order) and the
+    summary's schemas and channels checked against their digests, each failure by name.
+    Offsets where the summary says (metadata), else 0."""
+    indexes = summary.metadata_indexes
+    if len(indexes) != len(metadata):
+        indexes = [None] * len(metadata)
+    (head_length,) = struct.unpack_from("<Q", data, len(MAGIC) + 1)
+    head_end = min(len(data), len(MAGIC) + 9 + head_length)
+    checked = [(header, len(MAGIC), 0, bytes(data[len(MAGIC) : head_end]))]
+    checked += [
+        (m, i.offset, i.length, bytes(data[i.offset : i.offset + i.length]))
+        if i is not None
+        else (m, 0, 0, None)
+        for m, i in zip(metadata, indexes, strict=True)
+    ]
+    checked += [(s, 0, 0, None) for s in summary.schemas.values()]
+    checked += [(c, 0, 0, None) for c in summary.channels.values()]
+    return digest_damage(checked, finished=True)
 
 
 def _open_unfinished(p: Path, size: int) -> Recording:
@@ -300,7 +328,7 @@ def _open_unfinished(p: Path, size: int) -> Recording:
                 schemas[record.id] = record
             elif isinstance(record, Channel):
                 channels[record.id] = record
-            elif isinstance(record, Metadata):
+            elif isinstance(record, Metadata) and record.name != DIGESTS:
                 raw.append((record.name, dict(record.metadata)))
             elif isinstance(record, Attachment):
                 attachments[record.name] = record.data

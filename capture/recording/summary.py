@@ -24,7 +24,7 @@ from capture.recording.gaps import StreamLoss, loss_counters
 from capture.recording.lineage import RECORDING, Member, describe
 from capture.recording.messages import damage_is_an_error
 from capture.recording.reader import Recording
-from inference.preprocess import STALE_ORIENTATION
+from inference.preprocess import BAD_ORIENTATION, STALE_ORIENTATION
 
 
 @dataclass
@@ -63,6 +63,11 @@ class RecordingSummary:
     @property
     def stale_orientation_frames(self) -> int:
         return (self.frame_flags or {}).get(STALE_ORIENTATION, 0)
+
+    @property
+    def bad_orientation_frames(self) -> int:
+        """Frames whose orientation is no rotation (left undecided, as stale ones are)."""
+        return (self.frame_flags or {}).get(BAD_ORIENTATION, 0)
 
     @property
     def reference(self) -> list[L.LabelChange]:
@@ -144,6 +149,7 @@ class RecordingSummary:
             "gaps": gaps,
             "late": late,
             "stale_orientation_frames": self.stale_orientation_frames,
+            "bad_orientation_frames": self.bad_orientation_frames,
             "labels": [
                 {**self.when(t), "mode": mode, "source": source, "in_reference": used}
                 for (t, mode, source), used in zip(self.labels, self.in_reference, strict=True)

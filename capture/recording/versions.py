@@ -12,6 +12,12 @@ capture.recording.topics.FORMAT_VERSION when written). The rule:
   what this version holds: no other reading code knows about older files;
 - a file of a newer version is refused with one line.
 
+Version 2 -> 3:
+- record digests: in 3 every header, metadata, schema and channel record has its digest
+  in a `record_digests` metadata record (capture.recording.digests), checked on reading;
+  a record without one is damage. A version 2 file has none: its records are read as
+  they are, unchecked. Nothing else changed: a version 2 file is read as version 3 is.
+
 Version 1 -> 2:
 - metadata values: in 2 every value is JSON; in 1 they are plain strings unless the
   "recording" record says `metadata_values: json` (the known fields are typed here, and
@@ -59,8 +65,10 @@ def file_version(raw: RawRecords) -> str:
     return version
 
 
-def is_current(version: str) -> bool:
-    return version == T.FORMAT_VERSION
+def needs_upgrade(version: str) -> bool:
+    """Whether a file's messages are read through `upgrade_message` (version 1)."""
+    number = _number(version)
+    return number is None or number < 2
 
 
 def read_metadata(raw: RawRecords, path: Path) -> tuple[str, Records]:
@@ -72,7 +80,7 @@ def read_metadata(raw: RawRecords, path: Path) -> tuple[str, Records]:
             f"{path}: recording format {version!r}, newer than this walkcap reads "
             f"(up to {T.FORMAT_VERSION}): update walkcap to read it"
         )
-    if is_current(version):
+    if number >= 2:  # version 3 adds record digests (checked by the scan), no new values
         return version, [
             (name, {k: T.decode_metadata_value(v) for k, v in values.items()})
             for name, values in raw

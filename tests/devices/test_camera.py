@@ -73,9 +73,55 @@ def test_measured_rate_follows_deliveries():
     t = now_ns()
     for i in range(11):
         f = blank_frame(i)
-        f.host_time_ns = t - int((10 - i) * 1e8)  # 10 Hz over the last second
+        f.device_time_ns = f.host_time_ns = t - int((10 - i) * 1e8)  # 10 Hz, the last second
         cam._deliver(f)
     assert cam.status().measured_rate_hz == pytest.approx(10.0, rel=0.01)
+
+
+class StepClock:
+    """The session clock as the test sets it (ns)."""
+
+    def __init__(self) -> None:
+        self.t = 0
+
+    def __call__(self) -> int:
+        return self.t
+
+
+def stalled_arrivals(fps: float = 15.0, n: int = 60, stall_at: int = 30, stall_s: float = 0.6):
+    """(device time, arrival) of frames taken at a steady `fps`: the host stalls for
+    `stall_s` when frame `stall_at` is taken; the frames queued meanwhile arrive one after
+    another, 20 ms apart, once it ends, until the backlog is gone."""
+    period = int(1e9 / fps)
+    base = 10**12
+    stall_end = base + stall_at * period + int(stall_s * 1e9)
+    out, previous = [], 0
+    for i in range(n):
+        device = base + i * period
+        arrival = max(device + 2_000_000, previous + 20_000_000 if previous else 0)
+        if i >= stall_at:
+            arrival = max(arrival, stall_end)
+        out.append((device, arrival))
+        previous = arrival
+    return out
+
+
+@pytest.mark.parametrize("status_at", [30, 35, 45, 59])
+def test_a_host_stall_is_no_change_of_frame_rate(status_at):
+    """The rate comes from the frames' device times: arrivals that stall and then come in
+    a burst read as the camera's steady 15 Hz, just after the burst and later on."""
+    clock = StepClock()
+    cam = ScriptedCamera(clock=clock)
+    cam.start()
+    arrivals = stalled_arrivals()
+    for k, (device, arrival) in enumerate(arrivals):
+        f = blank_frame(k)
+        f.device_time_ns, f.host_time_ns = device, arrival
+        clock.t = arrival
+        cam._deliver(f)
+        if k == status_at:
+            break
+    assert cam.status().measured_rate_hz == pytest.approx(15.0, rel=0.01)
 
 
 # ---- registry ------------------------------------------------------------------------------

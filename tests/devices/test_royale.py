@@ -797,3 +797,27 @@ def test_without_events_or_is_connected_a_second_of_silence_is_a_lost_camera(mon
         assert "no frame" in cam.status().message
     finally:
         cam.close()
+
+
+def test_the_rate_comes_from_the_cameras_timestamps_not_arrivals(roypy, monkeypatch):
+    """A host stall delays onNewData, not the camera's timestamps: the measured rate stays
+    the camera's 15 Hz while the backlog comes in (scripted times, no wall clock)."""
+    import devices.royale
+    from tests.devices.test_camera import StepClock, stalled_arrivals
+
+    clock = StepClock()
+    monkeypatch.setattr(devices.royale, "now_ns", clock)
+    cam = open_camera(royale())
+    cam._now = clock
+    rates = []
+    try:
+        for k, (device, arrival) in enumerate(stalled_arrivals()):
+            clock.t = arrival
+            stamp_us = device // 1000 - 5_000_000  # the camera's clock: 5 s behind
+            cam._on_data(roypy.DepthData(sdk_points(k, roypy.channels), stamp_us))
+            if k >= 30:  # from the stall's end on
+                rates.append(cam.status().measured_rate_hz)
+    finally:
+        cam.close()
+    assert min(rates) == pytest.approx(15.0, rel=0.01)
+    assert max(rates) == pytest.approx(15.0, rel=0.01)

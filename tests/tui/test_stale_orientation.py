@@ -147,7 +147,7 @@ async def test_the_tui_unplug_drill_flags_the_frames_everywhere(tmp_path, busy_p
     assert not {d["frame_index"] for d in fused} & set(stale)  # nor a fused decision
     # `info`, text and JSON, and the export count the same frames
     assert main(["info", str(path)]) == 0
-    assert f"stale orientation {len(stale)} (no image, no decision)" in capsys.readouterr().out
+    assert f"stale orientation {len(stale)}, bad orientation 0 (no image" in capsys.readouterr().out
     assert main(["info", "--json", str(path)]) == 0
     assert json.loads(capsys.readouterr().out)[0]["stale_orientation_frames"] == len(stale)
     tables = export.tables(path)
@@ -198,3 +198,43 @@ def test_a_late_imu_is_waited_for_and_a_silent_one_is_not():
     q, age = track.fresh_at(frame_t, bound, late_s=60.0)  # generous: never reached
     late.join()
     assert age <= bound and q is not None
+
+
+class CountingClassifier(StubClassifier):
+    def __init__(self) -> None:
+        self.seen = 0
+
+    def predict(self, image):
+        self.seen += 1
+        return super().predict(image)
+
+
+def test_a_bad_orientation_frame_is_left_undecided_and_counted_in_info(tmp_path, capsys):
+    """A quaternion that is no rotation (none at all, or NaN): no image to classify, so no
+    CNN output and no decision, the fusion held, as for a stale one; info counts them."""
+    from capture.live.pipeline import record_result
+    from capture.recording.writer import Recorder
+    from inference.preprocess import BAD_ORIENTATION
+
+    fusion, classifier = CountingFusion(), CountingClassifier()
+    pipeline = Pipeline(PreprocessConfig(), classifier, fusion)
+    bad = np.full(4, np.nan)
+    quaternions = [LEVEL, None, bad, LEVEL, np.zeros(4)]
+    path = tmp_path / "trial.mcap"
+    with Recorder(path, metadata={}, blocking=True) as recorder:
+        results = []
+        for k, q in enumerate(quaternions):
+            frame = level_frame(k, (k + 1) * 66_000_000)
+            results.append(pipeline.process(frame, q, frame.device_time_ns))
+            record_result(recorder, frame, results[-1], frame.host_time_ns)
+    assert [r.flag == BAD_ORIENTATION for r in results] == [False, True, True, False, True]
+    assert [r.decided for r in results] == [True, False, False, True, False]
+    assert fusion.pushed == 2 and classifier.seen == 2  # the CNN never saw the bad frames
+    assert all(r.fused is None and np.isnan(r.probabilities).all() for r in results[1:3])
+    assert set(read_trial(path)["frame_index"].tolist()) == {0, 3}
+    assert main(["info", str(path)]) == 0
+    assert "stale orientation 0, bad orientation 3 (no image, no decision)" in (
+        capsys.readouterr().out
+    )
+    assert main(["info", "--json", str(path)]) == 0
+    assert json.loads(capsys.readouterr().out)[0]["bad_orientation_frames"] == 3

@@ -70,7 +70,7 @@ def _wall(s, t_ns: int) -> str:
 def describe(s) -> list[str]:
     """The recording (a capture.recording.summary.RecordingSummary) in a few readable lines."""
     from capture.recording import lineage
-    from inference.preprocess import STALE_ORIENTATION
+    from inference.preprocess import UNDECIDED
 
     lines = [str(s.path)]
     if s.damaged:
@@ -134,13 +134,13 @@ def describe(s) -> list[str]:
     if late:
         lines.append("  late        " + "; ".join(late) + ": delivered late, nothing lost")
     if s.frame_flags is not None:
-        stale = s.stale_orientation_frames
         empty = ", ".join(
-            f"{k} {v}" for k, v in sorted(s.frame_flags.items()) if k != STALE_ORIENTATION
+            f"{k} {v}" for k, v in sorted(s.frame_flags.items()) if k not in UNDECIDED
         )
         lines.append(
             f"  frames      {s.processed_frames} processed; stale orientation "
-            f"{stale} (no image, no decision)" + (f"; no image: {empty}" if empty else "")
+            f"{s.stale_orientation_frames}, bad orientation {s.bad_orientation_frames} "
+            "(no image, no decision)" + (f"; no image: {empty}" if empty else "")
         )
     if s.labels:
         # the modes as they stand: an undone change (and the undo) is no mode of the trial

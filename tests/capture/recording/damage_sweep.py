@@ -7,11 +7,18 @@ off by a crash, and counts against the undamaged file:
 - phantom messages: messages (or labels) the original never had,
 - internal errors: anything but walkcap's one-line errors (CaptureError).
 
+Class "records" flips bits inside the records MCAP itself leaves unchecked (the header,
+metadata records, and the summary's schemas and channels; capture.recording.digests
+protects them): every bit of the header and of each metadata record but the digests' own,
+one bit a byte of those; each flip must be reported by `check` (behind `walkcap info`),
+by `recover` and by `open_recording` (its `damaged`, or one line), else it counts as a
+silent loss.
+
 All three must be 0. The suite runs a sample of each class
 (tests/capture/recording/test_damage_sweep.py); the full sweep is
 
     python -m tests.capture.recording.damage_sweep FILE [--jobs 2] \
-        [--classes opcode,length,summary,journal,cut]
+        [--classes opcode,length,summary,journal,cut,records]
 
 (FILE: a finished recording with its journal beside it; with `--make` a small
 synthetic one is written there first). Class "cut" cuts the file at every record
@@ -104,6 +111,16 @@ def plan(
         middle = at + (RECORD_HEAD.size + length) // 2
         for cutoff in (at, middle):
             cases["cut"].append(Case("cut", cutoff, -2, cutoff, "cut, zero-filled tail"))
+    for at, opcode, length in table:  # the bytes MCAP checks nowhere but by our digests
+        if opcode not in (0x01, 0x03, 0x04, 0x0C) or (opcode in (0x03, 0x04) and at < data_end):
+            continue
+        body = at + RECORD_HEAD.size
+        digest = data[body + 4 : body + 4 + len(b"record_digests")] == b"record_digests"
+        name = f"{opcode:#04x} record at {at}"
+        for byte in range(body, body + length):
+            every = opcode in (0x01, 0x0C) and not digest
+            for bit in range(8) if every or every_bit else (byte % 8,):
+                cases["records"].append(Case("records", byte, bit, None, name))
     summary_start = data_end + RECORD_HEAD.size + 4
     for at in range(summary_start, len(data)):
         for bit in range(8) if every_bit else (at % 8,):
@@ -116,7 +133,7 @@ def plan(
                 for bit in range(8):
                     cases["journal"].append(Case("journal", at, bit, cutoff, "journal"))
     out = []
-    for kind in ("opcode", "length", "summary", "journal", "cut"):
+    for kind in ("opcode", "length", "summary", "journal", "cut", "records"):
         if kind not in classes:
             continue
         items = cases[kind]
@@ -244,6 +261,8 @@ def run_case(base: Baseline, case: Case, work: Path) -> Outcome:
 
     out = Outcome()
     path = damaged_copy(base, case, work)
+    if case.kind == "records":
+        _records_reported(path, work, out)
     if case.kind == "cut":
         expected = base.before(case.cut)
     else:
@@ -316,6 +335,32 @@ def run_case(base: Baseline, case: Case, work: Path) -> Outcome:
     return out
 
 
+def _records_reported(path: Path, work: Path, out: Outcome) -> None:
+    """A flip in a record no MCAP CRC covers: each reader must say so."""
+    from capture.errors import CaptureError
+    from capture.recording._mcap import check
+    from capture.recording.reader import open_recording
+    from capture.recording.recover import recover
+
+    readers = {
+        "check": lambda: bool(check(path).damaged),
+        "recover": lambda: not recover(path, work / "r.mcap", overwrite=True).complete,
+        "open_recording": lambda: bool(open_recording(path).damaged),
+    }
+    for name, reported in readers.items():
+        try:
+            said = reported()
+        except CaptureError:
+            said = True  # one line: reported
+        except Exception as e:  # noqa: BLE001 - what the sweep counts
+            out.internal += 1
+            out.notes.append(f"{name}: {type(e).__name__}: {e}")
+            continue
+        if not said:
+            out.silent_loss += 1
+            out.notes.append(f"{name}: not reported")
+
+
 def _worker(args):
     base, cases = args
     work = Path(tempfile.mkdtemp(prefix="sweep-"))
@@ -374,7 +419,7 @@ def main(argv=None) -> int:
     parser.add_argument(
         "--make", action="store_true", help="write a small synthetic recording to FILE first"
     )
-    parser.add_argument("--classes", default="opcode,length,summary,journal,cut")
+    parser.add_argument("--classes", default="opcode,length,summary,journal,cut,records")
     parser.add_argument("--sample", type=int, help="about N cases per class (default: all)")
     parser.add_argument("--jobs", type=int, default=1)
     parser.add_argument("--every-bit", action="store_true", help="all 8 bits of each summary byte")

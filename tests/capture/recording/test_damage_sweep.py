@@ -9,14 +9,17 @@ from __future__ import annotations
 import json
 import shutil
 import struct
+import zlib
 
 import pytest
 from mcap.reader import make_reader
 
+from capture.errors import CaptureError
 from capture.recording import check, recover
 from capture.recording import topics as T
 from capture.recording.journal import check_journal, encode_line, journal_path
 from capture.recording.reader import open_recording
+from capture.recording.writer import Recorder
 from tests.capture.recording.damage_sweep import records, sweep
 from tests.recording_fixtures import write_recording
 from tui import cli
@@ -46,7 +49,7 @@ def record_offsets(path, opcode: int) -> list[int]:
     return [at for at, op, _ in records(path.read_bytes()) if op == opcode]
 
 
-@pytest.mark.parametrize("kind", ["opcode", "length", "summary", "journal", "cut"])
+@pytest.mark.parametrize("kind", ["opcode", "length", "summary", "journal", "cut", "records"])
 def test_a_sample_of_each_class_loses_nothing_silently(recording, kind):
     totals, failing = sweep(recording, {kind}, sample=12)
     cases, silent, phantom, internal, _ = totals[kind]
@@ -133,6 +136,95 @@ def test_a_damaged_summary_is_not_believed(recording, tmp_path, capsys):
     assert "summary CRC mismatch" in out and "state       complete" not in out
 
 
+def test_one_bit_of_the_session_record_is_reported_by_name(tmp_path, capsys):
+    """Subject S77 read back as S76: MCAP checks no metadata byte; the digest does."""
+    path = tmp_path / "trial.mcap"
+    rec = Recorder(path, metadata={"session": {"subject": "S77", "condition": "indoor"}})
+    rec.start()
+    rec.write_label(5_000_000_000, "LG", "operator")
+    rec.close()
+    data = bytearray(path.read_bytes())
+    at = data.index(b'"S77"') + 3
+    data[at] ^= 0x01  # "7" -> "6"
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(data))
+    assert open_recording(bad).metadata["session"]["subject"] == "S76"  # what MCAP reads
+    assert [d.record for d in open_recording(bad).damaged] == ["metadata session"]
+    assert [d.record for d in check(bad).damaged] == ["metadata session"]
+    assert cli.main(["info", str(bad)]) == 0
+    out = capsys.readouterr().out
+    assert "state       complete" not in out and "metadata session (" in out
+    assert "fails its digest" in out
+    report = recover(bad, tmp_path / "out.mcap")
+    assert not report.complete and [d.record for d in report.damaged] == ["metadata session"]
+    assert cli.main(["recover", str(bad), "-o", str(tmp_path / "out2.mcap")]) == 0
+    out = capsys.readouterr().out
+    assert "complete file" not in out and "found damaged metadata session" in out
+    assert open_recording(path).damaged == [] and check(path).complete  # the original
+
+
+def test_a_length_inside_a_record_that_the_parser_reads_past_is_caught(recording, tmp_path):
+    """A value's length prefix flipped (6 -> 22): the mcap parser still reads a record, and
+    writing it again gives the original bytes: the digest is over the file's own bytes."""
+    data = bytearray(recording.read_bytes())
+    header_library_length = 8 + 9 + 4  # magic, head, the empty profile's length
+    data[header_library_length] ^= 0x80
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(data))
+    assert [d.record for d in check(bad).damaged] == ["header"]
+    assert not recover(bad, tmp_path / "out.mcap").complete
+    with pytest.raises(CaptureError, match="damaged"):  # the index's reader: one line
+        open_recording(bad)
+
+
+def test_the_summary_path_checks_schemas_and_channels_too(recording, tmp_path):
+    """A reader that believes the summary (its CRC recomputed over a flipped channel
+    record: as if the file had none) still finds the channel by its digest."""
+    data = bytearray(recording.read_bytes())
+    channel = next(at for at, op, _ in records(bytes(data)) if op == 0x04 and at > data_end(data))
+    data[channel + 9 + 8 + 1] ^= 0x04  # the topic name: id u16, schema u16, length u32
+    footer = len(data) - 8 - 29
+    (summary_start,) = struct.unpack_from("<Q", data, footer + 9)
+    crc = zlib.crc32(bytes(data[summary_start : footer + 9 + 16]))
+    struct.pack_into("<I", data, footer + 9 + 16, crc)
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(data))
+    (cid,) = struct.unpack_from("<H", data, channel + 9)
+    assert [d.record for d in open_recording(bad).damaged] == [f"channel {cid}"]
+
+
+def test_record_digests_name_what_fails():
+    from mcap.records import Metadata
+
+    from capture.recording.digests import check_records, record_bytes, seal
+
+    session = record_bytes(Metadata("session", {"subject": '"S77"'}))
+    end = record_bytes(Metadata("recording_end", {"messages": "5"}))
+    stored = [seal([("metadata session", session)]), seal([("metadata recording_end", end)])]
+    assert (
+        check_records([("metadata session", session)], stored[:1], required=True, finished=True)
+        == []
+    )
+    bad = session.replace(b"S77", b"S76")
+    [p] = check_records([("metadata session", bad)], stored[:1], required=True, finished=True)
+    assert p.key == "metadata session" and "fails its digest" in p.why
+    broken = {**stored[1], "metadata recording_end": "00000000"}  # the digest record itself
+    problems = check_records(
+        [("metadata session", session), ("metadata recording_end", end)],
+        [stored[0], broken],
+        required=True,
+        finished=True,
+    )
+    assert [p.key for p in problems] == ["record_digests #2", "metadata recording_end"]
+    missing = check_records([], stored[:1], required=True, finished=True)
+    assert [p.key for p in missing] == ["metadata session"] and "missing" in missing[0].why
+    assert check_records([], stored[:1], required=True, finished=False) == []  # cut off
+
+
+def data_end(data) -> int:
+    return next(at for at, op, _ in records(bytes(data)) if op == 0x0F)
+
+
 def journal_lines(path):
     return journal_path(path).read_bytes().splitlines(keepends=True)
 
@@ -141,7 +233,7 @@ def test_each_journal_line_carries_its_crc(recording, tmp_path, capsys):
     copy = tmp_path / "trial.mcap"
     shutil.copy(recording, copy)
     lines = journal_lines(recording)
-    assert all(b"\t" in line for line in lines)
+    assert all(json.loads(line)["crc32"] for line in lines)
     number = next(k for k, line in enumerate(lines, 1) if b'"label"' in line)
     damaged = bytearray(lines[number - 1])
     damaged[damaged.index(b"time_ns") + 1] ^= 0x01  # the key: a label at time 0 before
@@ -173,6 +265,42 @@ def test_impossible_journal_values_are_skipped_and_reported(recording, tmp_path,
     journal_path(copy).write_bytes(b"".join(lines))
     report = recover(copy, tmp_path / "out.mcap")
     assert [s.split(":")[0] for s in report.journal_skipped] == ["line 3"]
+
+
+def test_a_stock_jsonl_reader_reads_the_journal(recording):
+    """json.loads per line and pandas' read_json(lines=True) take the file as it is."""
+    import pandas as pd
+
+    path = journal_path(recording)
+    rows = [json.loads(line) for line in path.read_text().splitlines()]
+    assert [r["type"] for r in rows][:1] == ["start"] and "label" in {r["type"] for r in rows}
+    frame = pd.read_json(path, lines=True)
+    assert list(frame["type"]) == [r["type"] for r in rows]
+    believed = check_journal(path)
+    assert believed.skipped == [] and len(believed.entries) == len(rows)
+    assert all("crc32" not in e for e in believed.entries)  # the check is no entry's value
+
+
+def test_a_journal_of_tab_and_crc_lines_still_reads(recording, tmp_path):
+    entries = [
+        {"type": "label", "time_ns": 5, "mode": "LG", "source": "operator"},
+        {"type": "label", "time_ns": 9, "mode": "US", "source": "operator"},
+    ]
+    texts = [json.dumps(e, separators=(",", ":")).encode() for e in entries]
+    lines = [t + b"\t%08x\n" % zlib.crc32(t) for t in texts]
+    lines[1] = lines[1].replace(b"US", b"UT")
+    old = tmp_path / "tabbed.jsonl"
+    old.write_bytes(b"".join(lines))
+    read = check_journal(old)
+    assert read.entries == entries[:1] and read.skipped == ["line 2: CRC mismatch"]
+
+
+def test_a_line_without_its_check_in_a_checked_journal_is_damage(tmp_path):
+    path = tmp_path / "j.jsonl"
+    good = {"type": "label", "time_ns": 5, "mode": "LG", "source": "operator"}
+    bare = json.dumps({**good, "time_ns": 7}).encode() + b"\n"
+    path.write_bytes(encode_line(good) + bare)
+    assert check_journal(path).skipped == ["line 2: no CRC (damaged)"]
 
 
 def test_a_journal_without_crcs_still_reads_and_a_cut_line_is_reported(recording, tmp_path):

@@ -7,7 +7,7 @@ from mcap.writer import Writer
 
 from capture.corpus.export import tables
 from capture.errors import CaptureError
-from capture.recording import FORMAT_VERSION, lineage, versions
+from capture.recording import FORMAT_VERSION, check, lineage, versions
 from capture.recording import topics as T
 from capture.recording.reader import open_recording, read_trial
 from capture.recording.writer import Recorder
@@ -39,9 +39,25 @@ def files(tmp_path_factory):
 
 def test_files_written_now_name_the_current_version(files):
     new, old = files
-    assert FORMAT_VERSION == "2"
+    assert FORMAT_VERSION == "3"
     assert open_recording(new).format_version == FORMAT_VERSION
     assert open_recording(old).format_version == "1"
+
+
+def test_a_file_without_record_digests_reads_unchecked_as_it_did(files, tmp_path):
+    """Versions 1 and 2 wrote no digests: their records are read as they are, and such a
+    file is complete; a version 3 file without them is damaged, record by record."""
+    new, _ = files
+    for version in ("1", "2"):
+        old = as_version_1(new, tmp_path / f"v{version}.mcap", version=version)
+        rec = open_recording(old)
+        assert rec.format_version == version and rec.damaged == []
+        assert check(old).complete
+        assert rec.metadata["session"]["subject"] == "S03"
+    stripped = as_version_1(new, tmp_path / "v3.mcap", version="3")
+    damaged = {d.record for d in check(stripped).damaged}
+    assert {"header", "metadata session", "metadata recording"} <= damaged
+    assert {d.record for d in open_recording(stripped).damaged} >= damaged
 
 
 def test_a_version_1_file_is_upgraded_on_reading(files):
@@ -92,8 +108,8 @@ def test_version_1_metadata_text_is_typed(tmp_path):
 
 def test_a_newer_version_is_refused_with_one_line(files, tmp_path, capsys):
     new, _ = files
-    future = as_version_1(new, tmp_path / "future.mcap", version="3")
-    with pytest.raises(CaptureError, match="recording format '3', newer than this walkcap"):
+    future = as_version_1(new, tmp_path / "future.mcap", version="4")
+    with pytest.raises(CaptureError, match="recording format '4', newer than this walkcap"):
         open_recording(future)
     assert cli.main(["info", str(future)]) == 1
     err = capsys.readouterr().err
