@@ -12,7 +12,8 @@ how a copy made for sharing reduces it), `FORMAT_VERSION` (capture.recording.ver
 files of an older version are read). The label rules: capture.recording.labels.
 """
 
-from capture.recording._mcap import NotMcapError, check
+from capture.recording._mcap import NotMcapError
+from capture.recording.checking import check
 from capture.recording.copy import copy_recording
 from capture.recording.encode import Encoded
 from capture.recording.frames import FrameTable

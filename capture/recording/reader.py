@@ -92,7 +92,7 @@ class Recording:
     _log_times: dict[str, np.ndarray] | None = field(default=None, repr=False)
     raw_metadata_records: list[tuple[str, dict[str, str]]] = field(default_factory=list)
     # Damaged regions found while opening an unfinished file (a finished one is read
-    # through its index: `capture.recording._mcap.check` reads and checks every chunk).
+    # through its index: `capture.recording.checking.check` reads and checks every chunk).
     damaged: list[Damage] = field(default_factory=list)
     format_version: str = T.FORMAT_VERSION  # the file's (capture.recording.versions)
 

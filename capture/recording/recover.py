@@ -22,14 +22,8 @@ from mcap.records import (
 
 from capture.errors import CaptureError
 from capture.recording import topics as T
-from capture.recording._mcap import (
-    Damage,
-    ScanResult,
-    check_magic,
-    describe_damage,
-    scan,
-    summary_of,
-)
+from capture.recording._mcap import Damage, ScanResult, check_magic, scan
+from capture.recording.checking import describe_damage, summary_of
 from capture.recording.copy import RecordingCopy
 from capture.recording.journal import check_journal, journal_path
 from capture.recording.lineage import RECOVERED, derivation

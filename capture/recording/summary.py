@@ -4,7 +4,7 @@
     s.state, s.topics[0].rate_hz, s.losses, s.labels
     s.to_json()                                # what `walkcap info --json` prints
 
-Damage is looked for in every chunk (the reading of capture.recording._mcap.check),
+Damage is looked for in every chunk (the reading of capture.recording.checking.check),
 finished file or not, in the one pass that also counts gaps; in a damaged file the labels
 and events before the damage are listed and the gaps are not counted (count them on its
 recovered copy). Memory stays the same whatever the file's length.
@@ -19,7 +19,8 @@ from typing import Any
 
 from capture.recording import labels as L
 from capture.recording import topics as T
-from capture.recording._mcap import Damage, ScanResult, describe_damage, scan, summary_of
+from capture.recording._mcap import Damage, ScanResult, scan
+from capture.recording.checking import describe_damage, summary_of
 from capture.recording.gaps import StreamLoss, loss_counters
 from capture.recording.lineage import RECORDING, Member, describe
 from capture.recording.messages import damage_is_an_error

@@ -338,7 +338,7 @@ def run_case(base: Baseline, case: Case, work: Path) -> Outcome:
 def _records_reported(path: Path, work: Path, out: Outcome) -> None:
     """A flip in a record no MCAP CRC covers: each reader must say so."""
     from capture.errors import CaptureError
-    from capture.recording._mcap import check
+    from capture.recording.checking import check
     from capture.recording.reader import open_recording
     from capture.recording.recover import recover
 

@@ -100,7 +100,7 @@ def test_the_scan_gives_back_the_pages_it_has_read(tmp_path, monkeypatch):
     so what it holds does not grow with the file."""
     import mmap
 
-    from capture.recording import _mcap
+    from capture.recording import _mcap, checking
     from tests.recording_fixtures import write_recording
 
     path = tmp_path / "S01_indoor_t01.mcap"
@@ -116,7 +116,7 @@ def test_the_scan_gives_back_the_pages_it_has_read(tmp_path, monkeypatch):
     monkeypatch.setattr(
         _mcap, "file_bytes", lambda f: Mapped(f.fileno(), 0, access=mmap.ACCESS_READ)
     )
-    result = _mcap.check(path)
+    result = checking.check(path)
     assert result.complete and len(given_back) > 3
     starts = [s for s, _ in given_back]
     assert starts == sorted(starts) and starts[0] == 0
