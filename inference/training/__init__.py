@@ -1,6 +1,6 @@
 """Training the terrain classifier, and measuring it: `data` (the split, balancing,
 augmentation), `loop` (`train`), `metrics` (per-frame quality), `checkpoint` (the saved
-model and its metadata).
+model and its metadata), `settings` (`TrainSettings`).
 
 - Sessions are split into train / validation / test by session (stratified by preset), so
   frames of one walk never sit on both sides.
@@ -25,17 +25,42 @@ model and its metadata).
   DistributedDataParallel, each epoch's frames and each batch split between the processes
   (the batch size is the total), validation split and summed, so every process takes the
   same early-stopping and learning-rate steps.
+
+The package loads its parts on first use: `TrainSettings` (in `settings`) is plain values,
+and `walkcap`'s parser reads its defaults on every command without loading torch.
 """
 
-from inference.training.checkpoint import save_result, training_metadata
-from inference.training.data import augment_image, split_by_session
-from inference.training.loop import TrainResult, TrainSettings, keep_freed_memory, train
-from inference.training.metrics import (
-    GroupMetrics,
-    evaluate_sessions,
-    format_metrics,
-    group_metrics,
-)
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from inference.training.checkpoint import save_result, training_metadata
+    from inference.training.data import augment_image, split_by_session
+    from inference.training.loop import TrainResult, keep_freed_memory, train
+    from inference.training.metrics import (
+        GroupMetrics,
+        evaluate_sessions,
+        format_metrics,
+        group_metrics,
+    )
+    from inference.training.settings import TrainSettings
+
+_HOMES = {  # name -> the module of this package that defines it
+    "GroupMetrics": "metrics",
+    "TrainResult": "loop",
+    "TrainSettings": "settings",
+    "augment_image": "data",
+    "evaluate_sessions": "metrics",
+    "format_metrics": "metrics",
+    "group_metrics": "metrics",
+    "keep_freed_memory": "loop",
+    "save_result": "checkpoint",
+    "split_by_session": "data",
+    "train": "loop",
+    "training_metadata": "checkpoint",
+}
 
 __all__ = [
     "GroupMetrics",
@@ -51,3 +76,16 @@ __all__ = [
     "train",
     "training_metadata",
 ]
+
+
+def __getattr__(name: str):
+    home = _HOMES.get(name)
+    if home is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{home}"), name)
+    globals()[name] = value  # found directly from now on
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_HOMES))

@@ -8,7 +8,8 @@ from dataclasses import asdict
 import torch
 
 from inference.model import save_model
-from inference.training.loop import TrainResult, TrainSettings
+from inference.training.loop import TrainResult
+from inference.training.settings import TrainSettings
 
 
 def training_metadata(

@@ -19,39 +19,12 @@ from devices.frames import MODES
 from inference.dataset import LabeledSession, summarize
 from inference.errors import InferenceError
 from inference.evaluation.metrics import confusion_matrix
-from inference.model import DEFAULT_HIDDEN, Classifier, TerrainCNN, choose_device, images_to_tensor
+from inference.model import Classifier, TerrainCNN, choose_device, images_to_tensor
 from inference.training.data import batches, epoch_indices, split_by_session, stack_labelled
 from inference.training.metrics import confusion_metrics, evaluate_sessions
+from inference.training.settings import TrainSettings
 
 log = logging.getLogger(__name__)
-
-
-@dataclass
-class TrainSettings:
-    epochs: int = 12
-    batch_size: int = 64
-    lr: float = 1e-3
-    weight_decay: float = 1e-4
-    patience: int = 3  # epochs without a better validation loss before stopping
-    val_fraction: float = 0.15  # of the sessions
-    test_fraction: float = 0.15
-    seed: int = 0
-    hidden: int = DEFAULT_HIDDEN
-    device: str = "auto"
-    augment: bool = True
-    balance: bool = True
-    # Sampling weight of a frame: class frequency ** -balance_power. 1 draws every class
-    # equally often (softmax ~ likelihood); lower keeps part of level ground's prior. 0.3
-    # scores higher than 0.5 on held-out sessions, per frame and after HMM fusion, at some
-    # cost in down-stairs recall.
-    balance_power: float = 0.3
-    augment_probability: float = 0.5  # share of training frames that are augmented
-    mirror_probability: float = 0.2  # share of US and UR frames mirrored into DS and DR
-    bf16: bool = True  # bfloat16 autocast on CPUs with native support (about 1.7x faster)
-    samples_per_epoch: int = 0  # frames drawn per epoch; 0: as many as the training set
-    max_steps: int = 0  # stop after this many optimiser steps in total (0: no limit)
-    threads: int = 0  # torch intra-op threads; 0: leave as is
-    max_seconds: float = 0.0  # wall-clock budget; the epoch running out of it ends early
 
 
 @dataclass
@@ -68,12 +41,13 @@ class TrainResult:
 
 def train(
     sessions: list[LabeledSession],
-    settings: TrainSettings = TrainSettings(),
+    settings: TrainSettings | None = None,
     show_progress: bool = True,
     on_epoch: Callable[[dict], None] | None = None,
 ) -> TrainResult:
     """Train a TerrainCNN on sessions (split by session); see the package docstring.
     `on_epoch`: called with each epoch's entry of the history."""
+    settings = settings or TrainSettings()
     started = time.perf_counter()
     run = _start(settings, started)
     frames = _Frames.split(sessions, settings)

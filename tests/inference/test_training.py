@@ -343,3 +343,10 @@ def test_a_training_process_keeps_the_memory_of_its_last_batch():
 
     assert released_mb("default") > 35  # handed back to the system at once
     assert released_mb("keep") < 5  # kept for the next batch: no pages to zero again
+
+
+def test_training_settings_default_to_the_networks_width():
+    """TrainSettings writes the width out (its module must not load torch); one value."""
+    from inference.model import DEFAULT_HIDDEN
+
+    assert TrainSettings().hidden == DEFAULT_HIDDEN

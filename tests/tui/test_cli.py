@@ -127,3 +127,40 @@ def test_an_unknown_flag_of_a_subcommand_points_to_its_help(capsys):
         cli.main(["eval", "recordings", "x.mcap", "--bogus"])
     err = capsys.readouterr().err
     assert "walkcap eval recordings --help" in err and "--bogus" in err
+
+
+_WITHOUT_TORCH = """
+import sys
+from tui import cli
+for argv in sys.argv[1:]:
+    argv = argv.split()
+    try:
+        rc = cli.main(argv)
+    except SystemExit as e:
+        rc = e.code
+    print("@@", argv[0], rc, "torch" in sys.modules, file=sys.stderr)
+"""
+
+
+@pytest.mark.subprocess
+def test_commands_that_need_no_model_do_not_import_torch(tmp_path):
+    """The parser holds `train`'s defaults; building it must not load torch (seconds and
+    ~200 MiB on every command)."""
+    from tests.recording_fixtures import write_recording
+
+    path = tmp_path / "r.mcap"
+    write_recording(path, seconds=1.0)
+    commands = ["--help", "config", f"info {path}", f"export {path} -o {tmp_path / 'out'}"]
+    out = subprocess.run(
+        [sys.executable, "-c", _WITHOUT_TORCH, *commands],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        cwd=tmp_path,
+    )
+    reports = [line.split()[1:] for line in out.stderr.splitlines() if line.startswith("@@ ")]
+    assert [r[0] for r in reports] == ["--help", "config", "info", "export"], out.stderr
+    assert all(rc == "0" for _, rc, _ in reports), out.stderr
+    assert [torch for *_, torch in reports] == ["False"] * len(commands), out.stderr
+    assert any(tmp_path.joinpath("out").iterdir())  # export wrote its tables

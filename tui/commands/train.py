@@ -20,7 +20,8 @@ HELP = "train the terrain classifier"
 
 
 def add_arguments(parser) -> None:
-    from inference.training import TrainSettings
+    # plain values, no torch: every walkcap command builds this parser
+    from inference.training.settings import TrainSettings
 
     d = TrainSettings()
     parser.add_argument(
