@@ -2,11 +2,9 @@
 
 import argparse
 
+from capture.live.trials import TRIAL_MAX
+from devices.config import SEED_MAX
 from tui.subject import SUBJECT_FIELDS
-
-# capture.live.trials.TRIAL_MAX and devices.config.SEED_MAX, not imported: `--help` stays instant
-TRIAL_MAX = 99_999
-SEED_MAX = 2**32 - 1
 
 
 def count(minimum: int, maximum: int | None = None):
