@@ -164,3 +164,12 @@ def test_commands_that_need_no_model_do_not_import_torch(tmp_path):
     assert all(rc == "0" for _, rc, _ in reports), out.stderr
     assert [torch for *_, torch in reports] == ["False"] * len(commands), out.stderr
     assert any(tmp_path.joinpath("out").iterdir())  # export wrote its tables
+
+
+def test_version_is_the_installed_distributions(capsys):
+    from importlib import metadata
+
+    with pytest.raises(SystemExit) as done:
+        cli.main(["--version"])
+    assert done.value.code == 0
+    assert capsys.readouterr().out.strip() == f"walkcap {metadata.version('walkcap')}"
