@@ -8,12 +8,14 @@ so a slow consumer costs data that is accounted for, never a stalled device.
 from __future__ import annotations
 
 import collections
+import importlib
 import threading
 from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Generic, TypeVar
 
 from devices.clock import now_ns
+from devices.errors import DeviceNotAvailable
 
 T = TypeVar("T")
 
@@ -115,3 +117,19 @@ class RateMeter:
         first, last = min(self._times), max(self._times)
         span = (last - first) * 1e-9
         return (len(self._times) - 1) / span if span > 0 else 0.0
+
+
+def load_backend(kind: str, backends: dict[str, str], name: str) -> type:
+    """The class registered as "module:Class" under `name` in a backend registry, its module
+    imported now: a missing vendor SDK costs nothing until its backend is chosen."""
+    try:
+        target = backends[name]
+    except KeyError:
+        known = ", ".join(sorted(backends))
+        raise DeviceNotAvailable(f"unknown {kind} backend {name!r} (known: {known})") from None
+    module_name, _, class_name = target.partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as e:
+        raise DeviceNotAvailable(f"{kind} backend {name!r} cannot be loaded: {e}") from None
+    return getattr(module, class_name)

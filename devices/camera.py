@@ -20,7 +20,6 @@ costs nothing until someone asks for that camera (as python-can does).
 
 from __future__ import annotations
 
-import importlib
 import threading
 from collections.abc import Callable, Iterator
 
@@ -34,9 +33,9 @@ from devices.base import (
     DeviceState,
     DeviceStatus,
     RateMeter,
+    load_backend,
 )
 from devices.clock import now_ns
-from devices.errors import DeviceNotAvailable
 from devices.frames import CameraGeometry, DepthFrame
 from devices.watchdog import EventThrottle, SilenceWatch
 
@@ -53,17 +52,7 @@ def register_backend(name: str, target: str) -> None:
 
 def camera_class(name: str) -> type[Camera]:
     """The backend class registered under `name`, its module imported now."""
-    try:
-        target = BACKENDS[name]
-    except KeyError:
-        known = ", ".join(sorted(BACKENDS))
-        raise DeviceNotAvailable(f"unknown camera backend {name!r} (known: {known})") from None
-    module_name, _, class_name = target.partition(":")
-    try:
-        module = importlib.import_module(module_name)
-    except ImportError as e:
-        raise DeviceNotAvailable(f"camera backend {name!r} cannot be loaded: {e}") from None
-    return getattr(module, class_name)
+    return load_backend("camera", BACKENDS, name)
 
 
 def open_camera(camera_config=None, simulator_config=None, **kw) -> Camera:

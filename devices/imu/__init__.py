@@ -5,7 +5,7 @@
         sample = imu.recv(timeout=0.5)  # ImuSample or None
         imu.status(); imu.poll_events()
 
-    base.py       Imu (the surface every backend shares), BACKENDS, open_imu()
+    base.py       Imu (the surface every backend shares), BACKENDS, open_imu(), register_backend()
     link.py       XbusLink: Xbus frames over a serial port, a request and its reply
     outputs.py    the output configuration fitted and checked; MTData2 values -> ImuSample
     driver.py     XbusImu: the device's state machine (configuration, measurement, reconnect)
@@ -18,8 +18,16 @@ There is one real driver, `XbusImu` (Xsens MTi over pyserial); the mock backend,
 `EmulatedImu`, is that same driver talking to an `ImuEmulator` on a pseudo-terminal.
 """
 
-from devices.imu.base import BACKENDS, Imu, open_imu
+from devices.imu.base import BACKENDS, Imu, open_imu, register_backend
 from devices.imu.driver import XbusImu, device_id_text
 from devices.imu.emulated import EmulatedImu
 
-__all__ = ["BACKENDS", "EmulatedImu", "Imu", "XbusImu", "device_id_text", "open_imu"]
+__all__ = [
+    "BACKENDS",
+    "EmulatedImu",
+    "Imu",
+    "XbusImu",
+    "device_id_text",
+    "open_imu",
+    "register_backend",
+]

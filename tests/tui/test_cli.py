@@ -173,3 +173,16 @@ def test_version_is_the_installed_distributions(capsys):
         cli.main(["--version"])
     assert done.value.code == 0
     assert capsys.readouterr().out.strip() == f"walkcap {metadata.version('walkcap')}"
+
+
+def test_device_help_lists_the_registered_backends(monkeypatch):
+    from devices import camera, imu
+
+    monkeypatch.setitem(camera.BACKENDS, "kinect", "nowhere:Kinect")
+    monkeypatch.setitem(imu.BACKENDS, "lpms", "nowhere:Lpms")
+    parser = cli.build_parser()
+    for command in ("record", "check", "tui"):
+        sub = parser._subparsers._group_actions[0].choices[command]
+        text = " ".join(sub.format_help().split())
+        assert "camera backend: mock | royale | replay | kinect" in text
+        assert "IMU backend: mock | serial | lpms" in text

@@ -3,7 +3,9 @@
 import argparse
 
 from capture.live.trials import TRIAL_MAX
+from devices.camera import BACKENDS as CAMERA_BACKENDS
 from devices.config import SEED_MAX
+from devices.imu import BACKENDS as IMU_BACKENDS
 from tui.subject import SUBJECT_FIELDS
 
 
@@ -128,20 +130,21 @@ def finish_recording(command: str, stats, path) -> int:
     return 0
 
 
-def add_device_arguments(parser, camera_backends: str = "mock | royale") -> None:
-    """The device and model flags `record` and `tui` share (they override the config file)."""
+def add_device_arguments(parser) -> None:
+    """The device and model flags `record`, `check` and `tui` share (they override the config
+    file); the backends listed are the registries' (capture has registered its own by now)."""
     g = parser.add_argument_group("devices")
     g.add_argument(
         "--camera",
         type=config_value("camera.backend", str),
         metavar="BACKEND",
-        help=f"camera backend: {camera_backends}",
+        help="camera backend: " + " | ".join(CAMERA_BACKENDS),
     )
     g.add_argument(
         "--imu",
         type=config_value("imu.backend", str),
         metavar="BACKEND",
-        help="IMU backend: mock | serial",
+        help="IMU backend: " + " | ".join(IMU_BACKENDS),
     )
     g.add_argument("--port", help="IMU serial port (backend serial)")
     g.add_argument("--fps", type=config_value("camera.fps"), help="camera frame rate")
