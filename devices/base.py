@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Generic, TypeVar
 
+from devices import clock
 from devices.clock import now_ns
 from devices.errors import DeviceNotAvailable
 
@@ -98,7 +99,7 @@ class RateMeter:
 
     def __init__(self, window_s: float = 2.0) -> None:
         self._times: collections.deque[int] = collections.deque()
-        self._window_ns = int(window_s * 1e9)
+        self._window_ns = clock.to_ns(window_s)
 
     def tick(self, t_ns: int | None = None) -> None:
         t = now_ns() if t_ns is None else t_ns
@@ -115,7 +116,7 @@ class RateMeter:
         if len(self._times) < 2:
             return 0.0
         first, last = min(self._times), max(self._times)
-        span = (last - first) * 1e-9
+        span = clock.seconds(last - first)
         return (len(self._times) - 1) / span if span > 0 else 0.0
 
 

@@ -23,6 +23,7 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable, Iterator
 
+from devices import clock
 from devices.base import (
     DEGRADED,
     LOST,
@@ -243,7 +244,9 @@ class Camera:
         self._check(t)
         state, message = self._state, self._message
         if state == OK:
-            silent_s = (t - self._silence.since(self._last_frame_ns or self._started_ns)) * 1e-9
+            silent_s = clock.seconds(
+                t - self._silence.since(self._last_frame_ns or self._started_ns)
+            )
             if silent_s > self._stall_after_s():
                 state, message = DEGRADED, f"no frame for {silent_s:.1f} s"
         with self._lock:
@@ -291,7 +294,7 @@ class Camera:
             self._silence.check(t)
             if self._state == OK and self._running:
                 since = self._silence.since(self._last_frame_ns or self._started_ns)
-                silent_s = (t - since) * 1e-9
+                silent_s = clock.seconds(t - since)
                 if silent_s > self._stall_after_s() and not self._stalled:
                     self._stalled = True
                     self._event("stall", f"no frame for {silent_s:.1f} s")
@@ -306,7 +309,7 @@ class Camera:
                 and self.watchdog
                 and t >= self._next_reopen_ns
             ):
-                self._next_reopen_ns = t + int(self._lost_after_s() * 1e9)
+                self._next_reopen_ns = t + clock.to_ns(self._lost_after_s())
                 try:
                     self._restart()
                 except Exception as e:  # not back yet: again after lost_after_s
@@ -349,7 +352,7 @@ class Camera:
     def _resumed(self, t: int) -> None:
         with self._watch_lock:
             last = self._last_frame_ns or self._started_ns
-            gap_s = (t - last) * 1e-9
+            gap_s = clock.seconds(t - last)
             if self._state == LOST and self._running:
                 self._set_state(OK, "streaming")
                 self._event(

@@ -54,6 +54,7 @@ from typing import Any
 
 import numpy as np
 
+from devices import clock
 from devices.base import LOST, OK
 from devices.camera import Camera
 from devices.clock import now_ns
@@ -471,7 +472,7 @@ class RoyaleCamera(Camera):
             elif self._state == OK:
                 # A frame being copied (slow on 3.x) is not silence.
                 since = max(self._last_frame_ns or self._started_ns, self._activity_ns)
-                silent = not self._copying and (t - since) * 1e-9 > max(
+                silent = not self._copying and clock.seconds(t - since) > max(
                     SILENT_LOST_S, 2.0 / max(self.config.fps, 1)
                 )
                 if self.is_recording:
