@@ -18,9 +18,17 @@ There is one real driver, `XbusImu` (Xsens MTi over pyserial); the mock backend,
 `EmulatedImu`, is that same driver talking to an `ImuEmulator` on a pseudo-terminal.
 """
 
+import importlib
+
 from devices.imu.base import BACKENDS, Imu, open_imu, register_backend
-from devices.imu.driver import XbusImu, device_id_text
-from devices.imu.emulated import EmulatedImu
+
+# The driver and the emulator load on first use: the registry and open_imu() alone are
+# what the CLI's parser needs, and --help stays fast.
+_LAZY = {
+    "XbusImu": "devices.imu.driver",
+    "device_id_text": "devices.imu.driver",
+    "EmulatedImu": "devices.imu.emulated",
+}
 
 __all__ = [
     "BACKENDS",
@@ -31,3 +39,11 @@ __all__ = [
     "open_imu",
     "register_backend",
 ]
+
+
+def __getattr__(name: str):
+    if name not in _LAZY:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(_LAZY[name]), name)
+    globals()[name] = value
+    return value
