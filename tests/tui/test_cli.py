@@ -186,3 +186,16 @@ def test_device_help_lists_the_registered_backends(monkeypatch):
         text = " ".join(sub.format_help().split())
         assert "camera backend: mock | royale | replay | kinect" in text
         assert "IMU backend: mock | serial | lpms" in text
+
+
+def test_trial_and_seed_limits_are_their_owners(monkeypatch, capsys):
+    from capture.live import trials
+    from devices import config
+
+    monkeypatch.setattr(trials, "TRIAL_MAX", 7)
+    monkeypatch.setattr(config, "SEED_MAX", 9)
+    parser = cli.build_parser()
+    for flag, value, limit in (("--trial", "8", "1..7"), ("--seed", "10", "0..9")):
+        with pytest.raises(SystemExit):
+            parser.parse_args(["record", flag, value])
+        assert f"within {limit}, got {value}" in capsys.readouterr().err
