@@ -399,14 +399,19 @@ class RoyaleCamera(Camera):
             self.geometry, intrinsics = lens_geometry(lens, width, height, name, serial)
         self._serial_id = serial
         self._use_case = use_case
-        self.details = {
-            "camera": name,
-            "id": serial,
-            "use_case": use_case,
-            "source": self.source or serial,
-            "intrinsics": intrinsics,
-            "roypy": str(getattr(self._roypy, "__version__", "") or _roypy_version(self._roypy)),
-        }
+        # update, not replace: after a reopen the frame path and unplug detection stay
+        self.details.update(
+            {
+                "camera": name,
+                "id": serial,
+                "use_case": use_case,
+                "source": self.source or serial,
+                "intrinsics": intrinsics,
+                "roypy": str(
+                    getattr(self._roypy, "__version__", "") or _roypy_version(self._roypy)
+                ),
+            }
+        )
 
     def _start(self) -> None:
         self._index = 0

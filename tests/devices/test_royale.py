@@ -238,6 +238,7 @@ def test_an_unplug_is_lost_and_reopened_by_the_camera_layers_rule(detection, mon
         seen = frames_from(cam, 3, timeout=30.0)
         assert len(seen) == 3
         first = roypy.devices[0]
+        before = cam.status().details
         roypy.unplug()
         first.thread.join(30.0)  # the SDK delivers no more
         assert not first.thread.is_alive()
@@ -259,6 +260,9 @@ def test_an_unplug_is_lost_and_reopened_by_the_camera_layers_rule(detection, mon
         assert len(roypy.devices) == 2 and roypy.devices[1].source == first.getId()
         wait_for(lambda: cam.status().state == "ok", what="frames from the reopened camera")
         after = frames_from(cam, 1, timeout=30.0)
+        details = cam.status().details
+        assert details["frame_path"] == "npoints (numpy)"  # kept across the reopen
+        assert details["unplug_detection"] == before["unplug_detection"]
         events = [e for e in cam.poll_events() if e.kind in ("stall", "lost", "reconnected")]
     finally:
         cam.close()
@@ -284,10 +288,7 @@ def test_an_event_listener_that_cannot_be_made_is_a_warning_not_a_failed_start(m
         detection = cam.status().details["unplug_detection"]
         assert detection.startswith("isConnected and silence") and "abstract" in detection
         roypy.unplug()
-        deadline = time.monotonic() + 10.0
-        while cam.status().state != "lost" and time.monotonic() < deadline:
-            time.sleep(0.01)
-        assert cam.status().state == "lost"
+        wait_for(lambda: cam.status().state == "lost", what="the camera lost")
         events = cam.poll_events()
     finally:
         cam.close()
