@@ -13,7 +13,9 @@ rest: a bounded buffer that drops the oldest frame when the consumer is slow (an
 it), the measured rate (by the frames' device times: the camera's own clock), events, the
 life cycle and the context manager, and a watchdog: a silent camera is a "stall" (and
 "resumed", with the gap, when frames come again); silent for `lost_after_s` it is "lost"
-and reopened (`_restart`) until frames come ("reconnected").
+and reopened (`_restart`) until frames come ("reconnected"). That rule is the same for
+every backend; a backend that can tell more than silence (an unplug event, the device
+saying it is disconnected, the end of a recording) says so through `_watch_device`.
 Backends are named in `BACKENDS` and imported only when chosen, so a missing vendor SDK
 costs nothing until someone asks for that camera (as python-can does).
 """
@@ -92,8 +94,8 @@ class Camera:
     """Base of every depth camera backend. Thread-safe between one producer and consumers."""
 
     backend = "camera"
-    # False where something else watches for silence (the mock rig's child process, a
-    # backend with its own watcher): stalls and resumed frames are still reported.
+    # False where something else watches for silence (the mock rig's child process):
+    # stalls and resumed frames are still reported.
     watchdog = True
 
     def __init__(
@@ -158,6 +160,12 @@ class Camera:
 
     def _close(self) -> None:
         """Release the device."""
+
+    def _watch_device(self, silent_s: float) -> str | None:
+        """Why the streaming device is lost now, before `lost_after_s` of silence (an unplug
+        the device reported), or None. Called by the watchdog with the lock held, every
+        check while streaming; a backend may also end the stream here (`_finish`)."""
+        return None
 
     def _restart(self) -> None:
         """Get a silent device streaming again (raise DeviceError if it cannot be yet)."""
@@ -308,8 +316,13 @@ class Camera:
                     self._event("stall", f"no frame for {silent_s:.1f} s")
                 if not self.watchdog:
                     return
-                if silent_s > self._lost_after_s():
-                    self._fail(f"no frame for {silent_s:.1f} s")
+                reason = self._watch_device(silent_s)
+                if self._state != OK:  # the backend ended the stream
+                    return
+                if reason is None and silent_s > self._lost_after_s():
+                    reason = f"no frame for {silent_s:.1f} s"
+                if reason is not None:
+                    self._fail(reason)
                     self._next_reopen_ns = t
             if (
                 self._state == LOST
@@ -318,13 +331,15 @@ class Camera:
                 and t >= self._next_reopen_ns
             ):
                 self._next_reopen_ns = t + int(self._lost_after_s() * 1e9)
+                # Before the restart: its first frame may come (from the backend's thread)
+                # before _restart returns.
+                self._index_base, self._index_shift = self._last_index + 1, -1
                 try:
                     self._restart()
                 except Exception as e:  # not back yet: again after lost_after_s
                     self._message = f"lost: {e}; retrying"
                     return
                 self.reopens += 1
-                self._index_base, self._index_shift = self._last_index + 1, -1
                 self._message = f"lost: reopened ({self.reopens}), waiting for frames"
 
     def _deliver(self, frame: DepthFrame) -> None:
