@@ -130,6 +130,7 @@ class Camera:
         self._drops = EventThrottle(self._report_drops)  # on the frames' clock
         self._stalled = False
         self._watch_lock = threading.RLock()  # the watchdog's and the producer's transitions
+        self._resume_pending: tuple[int, int] | None = None  # (frame time, last frame before)
         self._watchdog: threading.Thread | None = None
         self._watch_stop = threading.Event()
         self._next_reopen_ns = 0
@@ -304,6 +305,10 @@ class Camera:
     def _check(self, t: int) -> None:
         """Stall, lost and reopen: from the watchdog thread (and status())."""
         with self._watch_lock:
+            with self._lock:
+                pending, self._resume_pending = self._resume_pending, None
+            if pending is not None and (self._stalled or self._state == LOST):
+                self._resume(*pending)
             # Checks run every 0.1 s: a longer pause is the host's own stall (stopped,
             # swapped, starved), not the camera's silence. The frames the camera kept
             # sending meanwhile are still on their way: silence counts from here.
@@ -373,27 +378,41 @@ class Camera:
         )
 
     def _resumed(self, t: int) -> None:
-        with self._watch_lock:
-            last = self._last_frame_ns or self._started_ns
-            gap_s = (t - last) * 1e-9
-            if self._state == LOST and self._running:
-                self._set_state(OK, "streaming")
-                self._event(
-                    "reconnected",
-                    f"camera back after a gap of {gap_s:.2f} s ({self.reopens} reopens)",
-                    gap_s=gap_s,
-                    gap_start_ns=last,
-                    gap_end_ns=t,
-                )
-            elif self._stalled:
-                self._event(
-                    "resumed",
-                    f"frames again after a gap of {gap_s:.2f} s",
-                    gap_s=gap_s,
-                    gap_start_ns=last,
-                    gap_end_ns=t,
-                )
-            self._stalled = False
+        """Frames again after a stall or a loss, from the producer's thread. It never waits
+        for the watchdog: while the watchdog reopens the device it holds the lock, and a
+        backend's stop (royale's stopCapture) may wait for this very callback to return.
+        The watchdog's next check takes a resume it held up."""
+        last = self._last_frame_ns or self._started_ns
+        if not self._watch_lock.acquire(blocking=False):
+            with self._lock:
+                if self._resume_pending is None:
+                    self._resume_pending = (t, last)
+            return
+        try:
+            self._resume(t, last)
+        finally:
+            self._watch_lock.release()
+
+    def _resume(self, t: int, last: int) -> None:
+        gap_s = (t - last) * 1e-9
+        if self._state == LOST and self._running:
+            self._set_state(OK, "streaming")
+            self._event(
+                "reconnected",
+                f"camera back after a gap of {gap_s:.2f} s ({self.reopens} reopens)",
+                gap_s=gap_s,
+                gap_start_ns=last,
+                gap_end_ns=t,
+            )
+        elif self._stalled:
+            self._event(
+                "resumed",
+                f"frames again after a gap of {gap_s:.2f} s",
+                gap_s=gap_s,
+                gap_start_ns=last,
+                gap_end_ns=t,
+            )
+        self._stalled = False
 
     def _event(self, kind: str, message: str, **details) -> None:
         self._events.put(DeviceEvent(self._now(), "camera", kind, message, details))
