@@ -13,7 +13,9 @@ rest: a bounded buffer that drops the oldest frame when the consumer is slow (an
 it), the measured rate (by the frames' device times: the camera's own clock), events, the
 life cycle and the context manager, and a watchdog: a silent camera is a "stall" (and
 "resumed", with the gap, when frames come again); silent for `lost_after_s` it is "lost"
-and reopened (`_restart`) until frames come ("reconnected").
+and reopened (`_restart`) until frames come ("reconnected"). That rule is the same for
+every backend; a backend that can tell more than silence (an unplug event, the device
+saying it is disconnected, the end of a recording) says so through `_watch_device`.
 Backends are named in `BACKENDS` and imported only when chosen, so a missing vendor SDK
 costs nothing until someone asks for that camera (as python-can does).
 """
@@ -82,8 +84,8 @@ class Camera:
     """Base of every depth camera backend. Thread-safe between one producer and consumers."""
 
     backend = "camera"
-    # False where something else watches for silence (the mock rig's child process, a
-    # backend with its own watcher): stalls and resumed frames are still reported.
+    # False where something else watches for silence (the mock rig's child process):
+    # stalls and resumed frames are still reported.
     watchdog = True
 
     def __init__(
@@ -118,6 +120,7 @@ class Camera:
         self._drops = EventThrottle(self._report_drops)  # on the frames' clock
         self._stalled = False
         self._watch_lock = threading.RLock()  # the watchdog's and the producer's transitions
+        self._resume_pending: tuple[int, int] | None = None  # (frame time, last frame before)
         self._watchdog: threading.Thread | None = None
         self._watch_stop = threading.Event()
         self._next_reopen_ns = 0
@@ -148,6 +151,12 @@ class Camera:
 
     def _close(self) -> None:
         """Release the device."""
+
+    def _watch_device(self, silent_s: float) -> str | None:
+        """Why the streaming device is lost now, before `lost_after_s` of silence (an unplug
+        the device reported), or None. Called by the watchdog with the lock held, every
+        check while streaming; a backend may also end the stream here (`_finish`)."""
+        return None
 
     def _restart(self) -> None:
         """Get a silent device streaming again (raise DeviceError if it cannot be yet)."""
@@ -244,9 +253,8 @@ class Camera:
         self._check(t)
         state, message = self._state, self._message
         if state == OK:
-            silent_s = clock.seconds(
-                t - self._silence.since(self._last_frame_ns or self._started_ns)
-            )
+            since = self._silence.since(self._last_frame_ns or self._started_ns)
+            silent_s = clock.seconds(t - since)
             if silent_s > self._stall_after_s():
                 state, message = DEGRADED, f"no frame for {silent_s:.1f} s"
         with self._lock:
@@ -288,6 +296,10 @@ class Camera:
     def _check(self, t: int) -> None:
         """Stall, lost and reopen: from the watchdog thread (and status())."""
         with self._watch_lock:
+            with self._lock:
+                pending, self._resume_pending = self._resume_pending, None
+            if pending is not None and (self._stalled or self._state == LOST):
+                self._resume(*pending)
             # Checks run every 0.1 s: a longer pause is the host's own stall (stopped,
             # swapped, starved), not the camera's silence. The frames the camera kept
             # sending meanwhile are still on their way: silence counts from here.
@@ -300,8 +312,13 @@ class Camera:
                     self._event("stall", f"no frame for {silent_s:.1f} s")
                 if not self.watchdog:
                     return
-                if silent_s > self._lost_after_s():
-                    self._fail(f"no frame for {silent_s:.1f} s")
+                reason = self._watch_device(silent_s)
+                if self._state != OK:  # the backend ended the stream
+                    return
+                if reason is None and silent_s > self._lost_after_s():
+                    reason = f"no frame for {silent_s:.1f} s"
+                if reason is not None:
+                    self._fail(reason)
                     self._next_reopen_ns = t
             if (
                 self._state == LOST
@@ -310,13 +327,15 @@ class Camera:
                 and t >= self._next_reopen_ns
             ):
                 self._next_reopen_ns = t + clock.to_ns(self._lost_after_s())
+                # Before the restart: its first frame may come (from the backend's thread)
+                # before _restart returns.
+                self._index_base, self._index_shift = self._last_index + 1, -1
                 try:
                     self._restart()
                 except Exception as e:  # not back yet: again after lost_after_s
                     self._message = f"lost: {e}; retrying"
                     return
                 self.reopens += 1
-                self._index_base, self._index_shift = self._last_index + 1, -1
                 self._message = f"lost: reopened ({self.reopens}), waiting for frames"
 
     def _deliver(self, frame: DepthFrame) -> None:
@@ -350,27 +369,41 @@ class Camera:
         )
 
     def _resumed(self, t: int) -> None:
-        with self._watch_lock:
-            last = self._last_frame_ns or self._started_ns
-            gap_s = clock.seconds(t - last)
-            if self._state == LOST and self._running:
-                self._set_state(OK, "streaming")
-                self._event(
-                    "reconnected",
-                    f"camera back after a gap of {gap_s:.2f} s ({self.reopens} reopens)",
-                    gap_s=gap_s,
-                    gap_start_ns=last,
-                    gap_end_ns=t,
-                )
-            elif self._stalled:
-                self._event(
-                    "resumed",
-                    f"frames again after a gap of {gap_s:.2f} s",
-                    gap_s=gap_s,
-                    gap_start_ns=last,
-                    gap_end_ns=t,
-                )
-            self._stalled = False
+        """Frames again after a stall or a loss, from the producer's thread. It never waits
+        for the watchdog: while the watchdog reopens the device it holds the lock, and a
+        backend's stop (royale's stopCapture) may wait for this very callback to return.
+        The watchdog's next check takes a resume it held up."""
+        last = self._last_frame_ns or self._started_ns
+        if not self._watch_lock.acquire(blocking=False):
+            with self._lock:
+                if self._resume_pending is None:
+                    self._resume_pending = (t, last)
+            return
+        try:
+            self._resume(t, last)
+        finally:
+            self._watch_lock.release()
+
+    def _resume(self, t: int, last: int) -> None:
+        gap_s = clock.seconds(t - last)
+        if self._state == LOST and self._running:
+            self._set_state(OK, "streaming")
+            self._event(
+                "reconnected",
+                f"camera back after a gap of {gap_s:.2f} s ({self.reopens} reopens)",
+                gap_s=gap_s,
+                gap_start_ns=last,
+                gap_end_ns=t,
+            )
+        elif self._stalled:
+            self._event(
+                "resumed",
+                f"frames again after a gap of {gap_s:.2f} s",
+                gap_s=gap_s,
+                gap_start_ns=last,
+                gap_end_ns=t,
+            )
+        self._stalled = False
 
     def _event(self, kind: str, message: str, **details) -> None:
         self._events.put(DeviceEvent(self._now(), "camera", kind, message, details))

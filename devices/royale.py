@@ -34,11 +34,17 @@ offers (pmd's public interface file, roypy.i, and its samples):
   `EventType_ROYALE_DEVICE_DISCONNECTED`. `roypy.IEventListener` itself has no director
   (SWIG: "No constructor defined - class is abstract"), so it is tried only where
   PythonEventListener is missing. A binding without a listener that can be made (a warning,
-  never a failed start) is watched through `isConnected()` and frame silence, checked every
-  0.2 s: the camera is reported lost within a second and reopened when it is back.
+  never a failed start) is watched through `isConnected()`. Either says the camera is lost
+  at the camera layer's next check; a camera that says neither is lost by the camera
+  layer's rule for every backend, `[camera] lost_after_s` without a frame. The camera layer
+  reopens it (`_restart`: the same camera id again) until frames come.
   `details["unplug_detection"]` says which.
 - .rrf playback: `asReplay()` with `loop(False)` and `frameCount()` where the binding has
   them; without them playback has ended when frames stop coming for a second.
+
+What is royale's here reaches the camera layer through its hooks: `_watch_device` (an
+unplug event, `isConnected()`, the end of a playback) and `_restart`; stalls, loss after
+`lost_after_s`, reopening and the events are `devices.camera.Camera`'s.
 """
 
 from __future__ import annotations
@@ -46,7 +52,6 @@ from __future__ import annotations
 import logging
 import operator
 import re
-import threading
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
@@ -54,8 +59,6 @@ from typing import Any
 
 import numpy as np
 
-from devices import clock
-from devices.base import LOST, OK
 from devices.camera import Camera
 from devices.clock import now_ns
 from devices.errors import DeviceInitError, DeviceNotAvailable, DeviceOperationError
@@ -301,17 +304,16 @@ def device_time_us(data: Any) -> int | None:
     return None
 
 
-WATCH_INTERVAL_S = 0.2
-SILENT_LOST_S = 0.8  # no frame for this long (and no other way to tell): lost within 1 s
-REOPEN_INTERVAL_S = 0.5
+RECORDING_END_S = 1.0  # a playback without frameCount(): ended when frames stop this long
 
 
 class RoyaleCamera(Camera):
     backend = "royale"
-    watchdog = False  # its own watcher: unplug events, isConnected and silence
 
-    def __init__(self, config=None, *, source: str | None = None) -> None:
-        super().__init__(config)
+    def __init__(
+        self, config=None, *, source: str | None = None, clock: Callable[[], int] = now_ns
+    ) -> None:
+        super().__init__(config, clock=clock)
         self.source = self.config.camera_id if source is None else source
         self._roypy = None
         self._manager = None
@@ -323,12 +325,8 @@ class RoyaleCamera(Camera):
         self._serial_id = ""
         self._use_case = ""
         self._events_listener = None
-        self._watcher: threading.Thread | None = None
-        self._watching = threading.Event()
         self._lost_reason: str | None = None  # set by the event listener (SDK thread)
-        self._copying = False  # onNewData is copying a frame out
         self._warned_stamp = False
-        self._activity_ns = 0  # the last onNewData's end
         self._frame_path: str | None = None  # decided on the first frame
         self._events_registered = False
         self._warned_events = False
@@ -347,6 +345,10 @@ class RoyaleCamera(Camera):
         roypy = import_roypy()
         self._roypy = roypy
         self._manager = roypy.CameraManager()
+        self._connect()
+
+    def _connect(self) -> None:
+        """Create, initialise and configure the camera (after a loss: the same camera id)."""
         if self.is_recording:
             if not Path(self.source).is_file():
                 raise DeviceNotAvailable(f"royale recording not found: {self.source}")
@@ -357,13 +359,13 @@ class RoyaleCamera(Camera):
                 raise DeviceNotAvailable(
                     "no pmd camera connected (check the USB cable and the royale SDK's udev rules)"
                 )
-            if self.source and self.source not in connected:
+            wanted = self.source or self._serial_id  # the camera streaming before a loss
+            if wanted and wanted not in connected:
                 raise DeviceNotAvailable(
-                    f"pmd camera {self.source!r} is not connected "
-                    f"(connected: {', '.join(connected)})"
+                    f"pmd camera {wanted!r} is not connected (connected: {', '.join(connected)})"
                 )
             device = self._sdk(
-                "opening the camera", self._manager.createCamera, self.source or connected[0]
+                "opening the camera", self._manager.createCamera, wanted or connected[0]
             )
         if device is None:
             raise DeviceNotAvailable(f"royale could not open {self.source or 'the camera'}")
@@ -397,23 +399,25 @@ class RoyaleCamera(Camera):
             self.geometry, intrinsics = lens_geometry(lens, width, height, name, serial)
         self._serial_id = serial
         self._use_case = use_case
-        self.details = {
-            "camera": name,
-            "id": serial,
-            "use_case": use_case,
-            "source": self.source or serial,
-            "intrinsics": intrinsics,
-            "roypy": str(getattr(self._roypy, "__version__", "") or _roypy_version(self._roypy)),
-        }
+        # update, not replace: after a reopen the frame path and unplug detection stay
+        self.details.update(
+            {
+                "camera": name,
+                "id": serial,
+                "use_case": use_case,
+                "source": self.source or serial,
+                "intrinsics": intrinsics,
+                "roypy": str(
+                    getattr(self._roypy, "__version__", "") or _roypy_version(self._roypy)
+                ),
+            }
+        )
 
     def _start(self) -> None:
         self._index = 0
         self._offset_ns = None
         self._lost_reason = None
         self._capture()
-        self._watching.set()
-        self._watcher = threading.Thread(target=self._watch, name="walkcap-royale", daemon=True)
-        self._watcher.start()
 
     def _capture(self) -> None:
         """Listeners on, capture started (at start and after a reconnect)."""
@@ -457,94 +461,41 @@ class RoyaleCamera(Camera):
             self._event("frame_path", text)
 
     def _on_lost_event(self, text: str) -> None:
-        self._lost_reason = text  # the watcher acts on it (off the SDK's thread)
+        self._lost_reason = text  # the camera layer's watchdog acts on it (off the SDK's thread)
 
-    def _watch(self) -> None:
-        """Every 0.2 s: lost (an event, isConnected() False, or a second without frames),
-        reopened when the camera is back; a 3.x replay ends when its frames stop."""
-        next_reopen = 0.0
-        while self._watching.wait(0) and not self._stopped_watching():
-            t = now_ns()
-            if self._state == LOST:
-                if t >= next_reopen:
-                    next_reopen = t + REOPEN_INTERVAL_S * 1e9
-                    self._reopen()
-            elif self._state == OK:
-                # A frame being copied (slow on 3.x) is not silence.
-                since = max(self._last_frame_ns or self._started_ns, self._activity_ns)
-                silent = not self._copying and clock.seconds(t - since) > max(
-                    SILENT_LOST_S, 2.0 / max(self.config.fps, 1)
-                )
-                if self.is_recording:
-                    if silent and not self._recording_frames and self._index:
-                        self._finish(
-                            "end_of_recording",
-                            f"end of {Path(self.source).name} after {self._index} frames",
-                        )
-                else:
-                    reason = self._lost_reason or self._disconnected(silent)
-                    if reason and self._lost_reason:  # the SDK's own words, if they came meanwhile
-                        reason = self._lost_reason
-                    if reason:
-                        self._lose(reason)
-            self._watching.wait(WATCH_INTERVAL_S)
-            if not self._running:
-                return
+    def _watch_device(self, silent_s: float) -> str | None:
+        """What royale tells beyond silence: an unplug event or isConnected() False (lost
+        now); a playback without frameCount() whose frames stopped (ended)."""
+        if self.is_recording:
+            if silent_s > RECORDING_END_S and not self._recording_frames and self._index:
+                self._end_of_recording()
+            return None
+        reason = self._lost_reason or self._disconnected()
+        if reason and self._lost_reason:  # the SDK's own words, if they came meanwhile
+            reason = self._lost_reason
+        if reason is None:
+            return None
+        self._lost_reason = None
+        return f"camera lost: {reason}; reopening when it is connected"
 
-    def _stopped_watching(self) -> bool:
-        return not self._running
-
-    def _disconnected(self, silent: bool) -> str | None:
+    def _disconnected(self) -> str | None:
         is_connected = getattr(self._device, "isConnected", None)
         try:
             if is_connected is not None and not is_connected():
                 return "camera disconnected"
         except Exception as e:  # a vanished device may raise instead
             return f"camera disconnected ({e})"
-        if silent and is_connected is None:
-            return "no frame for a second"
         return None
 
-    def _lose(self, reason: str) -> None:
-        self._fail(f"camera lost: {reason}; reopening when it is connected")
-        self._lost_reason = None
-        device, self._device = self._device, None
-        try:
-            if device is not None:
-                device.stopCapture()
-        except Exception:  # an unplugged camera cannot stop
-            pass
-
-    def _reopen(self) -> None:
-        try:
-            connected = [str(c) for c in self._manager.getConnectedCameraList()]
-        except Exception:
-            return
-        wanted = self.source or self._serial_id
-        if wanted not in connected:
-            return
-        try:
-            device = self._manager.createCamera(wanted)
-            device.initialize()
-            if self._use_case:
-                device.setUseCase(self._use_case)
-            self._device = device
-            self._capture()
-        except Exception as e:
-            log.info("royale reopen: %s", e)
-            self._device = None
-            return
-        self._started_ns = now_ns()
-        self._last_frame_ns = 0
-        self._set_state(OK, "streaming")
-        self._event("reconnected", f"camera {wanted} is back")
+    def _restart(self) -> None:
+        """The lost camera's capture stopped, the same camera opened again: the manager is
+        kept, a camera not connected yet raises DeviceNotAvailable (retried)."""
+        self._stop()
+        self._device = None
+        self._connect()
+        self._start()
 
     def _stop(self) -> None:
-        self._watching.clear()
-        self._running = False
-        if self._watcher is not None and self._watcher is not threading.current_thread():
-            self._watcher.join(timeout=2.0)
-        self._watcher = None
         device = self._device
         if device is None:
             return
@@ -565,15 +516,7 @@ class RoyaleCamera(Camera):
         self._manager = None
 
     def _on_data(self, data) -> None:
-        self._copying = True
-        try:
-            self._take(data)
-        finally:
-            self._copying = False
-            self._activity_ns = now_ns()
-
-    def _take(self, data) -> None:
-        host = now_ns()
+        host = self._now()
         if self._frame_path is None:
             self._choose_frame_path(data)
         try:
@@ -603,9 +546,12 @@ class RoyaleCamera(Camera):
         self._index += 1
         self._deliver(frame)
         if self._recording_frames and self._index >= self._recording_frames:
-            self._finish(
-                "end_of_recording", f"end of {Path(self.source).name} after {self._index} frames"
-            )
+            self._end_of_recording()
+
+    def _end_of_recording(self) -> None:
+        self._finish(
+            "end_of_recording", f"end of {Path(self.source).name} after {self._index} frames"
+        )
 
 
 def _frame_path_text(path: str, why: str) -> str:

@@ -190,7 +190,7 @@ def terrain_features(
     return result
 
 
-# The mode each kind of terrain shows: the geometry cue of fusion "steady+geometry".
+# The mode each kind of terrain shows: the geometry cue of fusion (GeometryFusion).
 _SHOWN = {
     ("level", ""): "LG",
     ("stairs", "up"): "US",
@@ -211,7 +211,7 @@ def ground_ahead(slope_deg: float | None) -> int:
     """The mode the ground AHEAD_M ahead shows by its slope (`ahead_slope_deg` of
     TerrainFeatures or of a recorded /terrain/features message), as an index into MODES:
     a ramp up or down beyond FLAT_MAX_DEG, else level ground; -1 when not seen. The cue of
-    fusion "steady+slope"."""
+    fusion (SlopeFusion)."""
     if slope_deg is None or not math.isfinite(slope_deg):
         return -1
     if slope_deg > FLAT_MAX_DEG:

@@ -7,7 +7,8 @@ get back what became known with that frame; `flush` at the end of a sequence dec
 frames still waiting for future frames. Offline evaluation runs the same objects, so live
 and offline decisions are identical by construction.
 
-Methods (`make_fusion`), with the number of frames each decision waits for:
+Methods (one row each of `METHOD_TABLE`, built by `make_fusion`), with the number of frames
+each decision waits for:
 - "cnn": argmax of each frame's probabilities (delay 0).
 - "cnn+voting": mode of the argmax decisions over frames t-l_v..t+l_v (delay l_v).
 - "hmm": Algorithm 1; frame t-1 is decided when frame t arrives (delay 1).
@@ -47,6 +48,8 @@ At the ends of a sequence (documented choices, the paper does not say):
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -78,6 +81,7 @@ from inference.fusion_steady import (
 
 __all__ = [
     "METHODS",
+    "METHOD_TABLE",
     "N_MODES",
     "ArgmaxFusion",
     "FixedLagSmoother",
@@ -88,33 +92,20 @@ __all__ = [
     "GeometryFusion",
     "HmmFusion",
     "HysteresisFusion",
+    "Method",
     "SlopeFusion",
     "SteadyFusion",
     "Voter",
+    "fusion_method",
     "make_fusion",
 ]
 
-METHODS = (
-    "cnn",
-    "cnn+voting",
-    "hmm",
-    "hmm+voting",
-    "forward",
-    "fixed-lag",
-    "steady",
-    "steady+gait",
-    "steady+hysteresis",
-    "steady+geometry",
-    "steady+slope",
-)
-
 
 class ArgmaxFusion(Stream):
-    """The CNN alone ("cnn"), or with voting ("cnn+voting")."""
+    """The CNN alone, or with voting."""
 
     def __init__(self, vote_delay: int | None = None):
         super().__init__(vote_delay)
-        self.method = "cnn" if vote_delay is None else "cnn+voting"
         self.delay_frames = vote_delay or 0
 
     def _reset_state(self) -> None:
@@ -152,7 +143,6 @@ class HmmFusion(Stream):
         if int(window) != window or window < 1:
             raise InferenceError(f"fusion window l_w must be an integer >= 1, got {window}")
         super().__init__(vote_delay)
-        self.method = "hmm" if vote_delay is None else "hmm+voting"
         self.delay_frames = 1 + (vote_delay or 0)
         self.window = int(window)
         self.transition = validate_transition(transition)
@@ -239,7 +229,6 @@ class ForwardFilter(Stream):
 
     def __init__(self, transition=PAPER_TRANSITION):
         super().__init__(None)
-        self.method = "forward"
         self.delay_frames = 0
         self.transition = validate_transition(transition)
         self._alpha: np.ndarray | None = None
@@ -276,7 +265,6 @@ class FixedLagSmoother(Stream):
         if lag < 0:
             raise InferenceError(f"smoother lag must be >= 0, got {lag}")
         super().__init__(None)
-        self.method = "fixed-lag"
         self.lag = self.delay_frames = int(lag)
         self.transition = validate_transition(transition)
         self._alphas: deque[np.ndarray] = deque(maxlen=self.lag + 1)
@@ -327,6 +315,231 @@ class FixedLagSmoother(Stream):
         return outputs
 
 
+# ---------------------------------------------------------------------------------------
+# the methods: one row each, from which make_fusion, the CLI, the docs, eval and the plots
+# take a method's name, object, title, style and parameters
+
+
+@dataclass(frozen=True)
+class Method:
+    """One fusion method: what builds it and how every surface names and shows it."""
+
+    name: str
+    cls: type
+    args: Callable[[dict], tuple]  # the [fusion] parameters -> cls's arguments
+    keys: tuple[str, ...]  # the [fusion] keys it takes (besides the transition matrix)
+    title: str  # in figures, tables and the live screen
+    style: dict  # in figures: grey level, hatch, marker and dash (never a mode's colour)
+    doc: str  # what it decides: the docs' methods table and `eval --methods` help
+    cues: tuple[str, ...] = ()  # per-frame inputs beyond the CNN's (recordings only)
+    paper: bool = False  # one of the paper's four
+    default: bool = False  # `walkcap eval` runs it unless --methods says otherwise
+    votes_on: str | None = None  # votes over this method's decisions (`--vote-delay`)
+    bench_us: float | None = None  # `walkcap bench`'s bound on one push, us
+
+
+METHOD_TABLE: tuple[Method, ...] = (
+    Method(
+        "cnn",
+        ArgmaxFusion,
+        lambda p: (),
+        (),
+        "CNN",
+        {"color": "#e4e4e4", "hatch": "", "line": "#a8a8a8", "marker": "o", "linestyle": ":"},
+        "each frame's largest CNN probability, no delay",
+        paper=True,
+        default=True,
+    ),
+    Method(
+        "cnn+voting",
+        ArgmaxFusion,
+        lambda p: (int(p["vote_delay"]),),
+        ("vote_delay",),
+        "CNN + voting",
+        {
+            "color": "#bcbcbc",
+            "hatch": "////",
+            "hatchcolor": "#4a4a4a",
+            "line": "#7c7c7c",
+            "marker": "s",
+            "linestyle": "-.",
+        },
+        "the CNN's decisions voted over `--vote-delay` frames either side",
+        paper=True,
+        default=True,
+        votes_on="cnn",
+    ),
+    Method(
+        "hmm",
+        HmmFusion,
+        lambda p: (p["window"], p["transition"]),
+        ("window",),
+        "HMM",
+        {"color": "#6a6a6a", "hatch": "", "line": "#505050", "marker": "D", "linestyle": "--"},
+        "the HMM of Zhang et al. (Algorithm 1) over a smoothing window of `--window` frames",
+        paper=True,
+        default=True,
+    ),
+    Method(
+        "hmm+voting",
+        HmmFusion,
+        lambda p: (p["window"], p["transition"], int(p["vote_delay"])),
+        ("window", "vote_delay"),
+        "HMM + voting",
+        {
+            "color": "#262626",
+            "hatch": "////",
+            "hatchcolor": "#d0d0d0",
+            "line": "#000000",
+            "marker": "^",
+            "linestyle": "-",
+        },
+        "the HMM's decisions voted over `--vote-delay` frames either side (the paper's)",
+        paper=True,
+        default=True,
+        votes_on="hmm",
+    ),
+    Method(
+        "forward",
+        ForwardFilter,
+        lambda p: (p["transition"],),
+        (),
+        "forward filter",
+        {
+            "color": "#ffffff",
+            "hatch": "....",
+            "line": "#606060",
+            "marker": "X",
+            "linestyle": (0, (1, 1)),
+        },
+        "the standard HMM filter",
+    ),
+    Method(
+        "fixed-lag",
+        FixedLagSmoother,
+        lambda p: (p["transition"], p["lag"]),
+        ("lag",),
+        "fixed-lag smoother",
+        {
+            "color": "#d8d8d8",
+            "hatch": "----",
+            "line": "#404040",
+            "marker": "p",
+            "linestyle": (0, (6, 2)),
+        },
+        "the standard fixed-lag HMM smoother, `--lag` frames",
+    ),
+    Method(
+        "steady",
+        SteadyFusion,
+        lambda p: (p["stay"], p["evidence"]),
+        ("stay", "evidence"),
+        "steady",
+        {
+            "color": "#ffffff",
+            "hatch": "xxxx",
+            "line": "#303030",
+            "marker": "v",
+            "linestyle": (0, (5, 1, 1, 1)),
+        },
+        "an HMM whose stay probability comes from walking (`[fusion] stay`, a terrain held "
+        "~5 s) and whose evidence is tempered (`[fusion] evidence`): it switches once per "
+        "terrain change",
+        default=True,
+        bench_us=5.0,
+    ),
+    Method(
+        "steady+gait",
+        GaitSteadyFusion,
+        lambda p: (p["stay"], p["evidence"]),
+        ("stay", "evidence"),
+        "steady + gait",
+        {
+            "color": "#949494",
+            "hatch": "\\\\\\\\",
+            "hatchcolor": "#000000",
+            "line": "#202020",
+            "marker": "P",
+            "linestyle": (0, (3, 1, 1, 1, 1, 1)),
+        },
+        "`steady` with the gait phase from the camera's pitch: a mode changes more readily "
+        "while the thigh pitches the camera down",
+        cues=("orientation",),
+        bench_us=20.0,
+    ),
+    Method(
+        "steady+hysteresis",
+        HysteresisFusion,
+        lambda p: (p["stay"], p["evidence"], p["hysteresis"]),
+        ("stay", "evidence", "hysteresis"),
+        "steady + hysteresis",
+        {
+            "color": "#b4b4b4",
+            "hatch": "++++",
+            "hatchcolor": "#000000",
+            "line": "#101010",
+            "marker": "h",
+            "linestyle": (0, (8, 2, 2, 2)),
+        },
+        "`steady` that leaves stairs or a ramp for level ground only once level ground's "
+        "posterior reaches `[fusion] hysteresis`",
+        default=True,
+        bench_us=5.0,
+    ),
+    Method(
+        "steady+geometry",
+        GeometryFusion,
+        lambda p: (p["stay"], p["evidence"], p["geometry_hysteresis"], p["geometry_evidence"]),
+        ("stay", "evidence", "geometry_hysteresis", "geometry_evidence"),
+        "steady + geometry",
+        {
+            "color": "#1a1a1a",
+            "hatch": "oo",
+            "hatchcolor": "#ffffff",
+            "line": "#000000",
+            "marker": "*",
+            "linestyle": (0, (2, 1)),
+        },
+        "`steady+hysteresis` whose filter also observes the terrain features of each frame "
+        "(the mode their geometry shows), with `[fusion] geometry_evidence` and "
+        "`geometry_hysteresis`",
+        cues=("geometry",),
+        bench_us=20.0,
+    ),
+    Method(
+        "steady+slope",
+        SlopeFusion,
+        lambda p: (p["stay"], p["evidence"], p["hysteresis"]),
+        ("stay", "evidence", "hysteresis"),
+        "steady + slope",
+        {
+            "color": "#ffffff",
+            "hatch": "\\\\\\\\",
+            "line": "#000000",
+            "marker": "<",
+            "linestyle": (0, (4, 1, 1, 1, 1, 1)),
+        },
+        "`steady` that leaves a ramp for level ground only at `[fusion] hysteresis`, and a "
+        "ramp down only once the ground a step ahead (the terrain features' slope there) has "
+        "stopped sloping down for 3 frames",
+        cues=("geometry",),
+        bench_us=20.0,
+    ),
+)
+METHODS = tuple(m.name for m in METHOD_TABLE)
+_BY_NAME = {m.name: m for m in METHOD_TABLE}
+
+
+def fusion_method(name: str) -> Method:
+    """The row of METHOD_TABLE named `name`."""
+    try:
+        return _BY_NAME[name]
+    except KeyError:
+        raise InferenceError(
+            f"unknown fusion method {name!r} (known: {', '.join(METHODS)})"
+        ) from None
+
+
 def make_fusion(
     method: str,
     window: int = 5,
@@ -339,32 +552,11 @@ def make_fusion(
     geometry_hysteresis: float = GEOMETRY_HYSTERESIS,
     geometry_evidence: float = GEOMETRY_EVIDENCE,
 ) -> Fusion:
-    """A fresh streaming fusion object; `lag` is used by "fixed-lag" only, `stay` and
-    `evidence` by the "steady" methods only, `hysteresis` by "steady+hysteresis" and
-    "steady+slope" only,
-    `geometry_*` by "steady+geometry" only."""
+    """A fresh streaming fusion object of `method`; each method takes the parameters
+    its row's `keys` name (and the HMMs the transition matrix), the others go unused."""
     if int(vote_delay) != vote_delay or vote_delay < 0:
         raise InferenceError(f"vote delay l_v must be an integer >= 0, got {vote_delay}")
-    if method == "cnn":
-        return ArgmaxFusion()
-    if method == "cnn+voting":
-        return ArgmaxFusion(int(vote_delay))
-    if method == "hmm":
-        return HmmFusion(window, transition)
-    if method == "hmm+voting":
-        return HmmFusion(window, transition, int(vote_delay))
-    if method == "forward":
-        return ForwardFilter(transition)
-    if method == "fixed-lag":
-        return FixedLagSmoother(transition, lag)
-    if method == "steady":
-        return SteadyFusion(stay, evidence)
-    if method == "steady+gait":
-        return GaitSteadyFusion(stay, evidence)
-    if method == "steady+hysteresis":
-        return HysteresisFusion(stay, evidence, hysteresis)
-    if method == "steady+geometry":
-        return GeometryFusion(stay, evidence, geometry_hysteresis, geometry_evidence)
-    if method == "steady+slope":
-        return SlopeFusion(stay, evidence, hysteresis)
-    raise InferenceError(f"unknown fusion method {method!r} (known: {', '.join(METHODS)})")
+    spec = fusion_method(method)
+    fusion = spec.cls(*spec.args(locals()))
+    fusion.method = spec.name
+    return fusion

@@ -38,14 +38,6 @@ class FusionOutput:
     voted_frame: int | None = None
 
     @property
-    def frame_index(self) -> int | None:  # the name capture's session uses
-        return self.frame
-
-    @property
-    def voted_frame_index(self) -> int | None:
-        return self.voted_frame
-
-    @property
     def posterior(self) -> np.ndarray | None:
         # Built on demand: an array per frame would cost more than the fusion update.
         return None if self.probabilities is None else np.array(self.probabilities)
@@ -135,7 +127,7 @@ class Voter:
 class Stream:
     """Frame counting, voting and the end-of-sequence flag shared by every method."""
 
-    method: str
+    method = "fusion"  # make_fusion names each object after its row of METHOD_TABLE
     delay_frames: int
 
     def __init__(self, vote_delay: int | None):

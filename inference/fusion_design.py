@@ -1,5 +1,5 @@
 """What the fusion methods' HMMs are built from: transition matrices and the designed
-parameters of the "steady" methods (inference.fusion runs them).
+parameters of the steady methods (inference.fusion runs them).
 
 The transition matrix follows the paper's six rules (`design_transition`; the authors'
 numbers are `PAPER_TRANSITION`), or is counted from labelled sequences
@@ -33,7 +33,7 @@ PAPER_TRANSITION = np.array(
     ]
 )
 
-# "steady"'s design, from walking, not from any data set it is evaluated on:
+# SteadyFusion's design, from walking, not from any data set it is evaluated on:
 # - a terrain lasts about a flight of stairs or a ramp: some 8 steps, 4.6 s at 105 steps a
 #   minute; so about 5 s, and at the paper's 15 fps a frame stays in its mode with
 #   probability 1 - 1/(15 * 5) = 0.987;
@@ -52,7 +52,7 @@ def walking_stay(fps: float = 15.0, dwell_s: float = TERRAIN_DWELL_S) -> float:
 
 STEADY_STAY = round(walking_stay(), 3)  # 0.987 at 15 fps
 
-# "steady+gait": on the same 12 simulated recordings, 63 % of the terrain changes (settled,
+# GaitSteadyFusion: on the same 12 simulated recordings, 63 % of the terrain changes (settled,
 # inference.evaluation.transitions) came while the camera pitched down faster than 0.75 standard
 # deviations of its frame-to-frame pitch change, in 30 % of the frames; so a change is
 # 0.63 / 0.30 = 2.1 times likelier than average in that phase and 0.37 / 0.70 = 0.53 times
@@ -61,7 +61,7 @@ GAIT_PHASE_SD = -0.75  # the phase: pitch change below this many standard deviat
 GAIT_LEAVE = (2.1, 0.53)  # leaving a mode, times the average: in the phase, outside it
 GAIT_RATE_FRAMES = 15  # the pitch change's variance: running over about a second
 
-# "steady+hysteresis": the CNN's misreads outdoors (level ground on a ramp or stairs) come in
+# HysteresisFusion: the CNN's misreads outdoors (level ground on a ramp or stairs) come in
 # runs of 1 frame up to about a step (13 frames at 15 fps) read with a middling
 # probability: 0.73 on average, 0.58-0.89 for 80 % of the runs (`walkcap synth --format
 # recording --sessions 12 --seed 900000`), and steady's posterior follows the longer runs.
@@ -78,7 +78,7 @@ GAIT_RATE_FRAMES = 15  # the pitch change's variance: running over about a secon
 HYSTERESIS = 0.8
 
 
-# "steady+geometry": the terrain features (inference.features) as a second observation of
+# GeometryFusion: the terrain features (inference.features) as a second observation of
 # each frame. How often the features show each terrain (columns: level ground, stairs up,
 # stairs down, ramp up, ramp down, unknown; inference.features.shown_mode) on each one
 # (rows, the terrain the image shows), counted on the 24 design recordings (seeds
@@ -103,7 +103,7 @@ GEOMETRY_EVIDENCE = 0.18
 # read at a middling posterior for a frame or two.
 GEOMETRY_HYSTERESIS = 0.6
 
-# "steady+slope": steady+hysteresis's remaining spurious switches outdoors are mostly runs
+# SlopeFusion: HysteresisFusion's remaining spurious switches outdoors are mostly runs
 # of level ground read on a ramp down, some at 0.9-1.0, where the CNN's probabilities and
 # the features' kind cannot outweigh them. The slope of the fitted ground about a step ahead
 # (inference.features: AHEAD_M, beyond FLAT_MAX_DEG) keeps showing a ramp down through such
@@ -117,7 +117,7 @@ GEOMETRY_HYSTERESIS = 0.6
 # or reads a bump; on the design recordings 2 frames leave more spurious switches, 6 or more
 # miss a real change). A ramp up is not held: at its top the ground ahead shows the ramp for
 # a frame or two after the image shows level ground (the crest), and outdoors it shows a
-# ramp up on only 67 % of the frames on one. Leaving a ramp keeps steady+hysteresis's
+# ramp up on only 67 % of the frames on one. Leaving a ramp keeps HysteresisFusion's
 # margin; stairs are left as steady leaves them (their landings indoors show the next
 # flight, and with ramps held a margin on stairs removed no spurious switch on the design
 # recordings). Designed on 72 simulated recordings (`walkcap synth --format recording

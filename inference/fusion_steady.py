@@ -1,4 +1,4 @@
-"""The "steady" fusion methods (inference.fusion): a fixed-lag-1 smoother built to switch
+"""The steady fusion methods (inference.fusion): a fixed-lag-1 smoother built to switch
 once per terrain change, and its variants with gait, hysteresis and terrain-geometry cues.
 Their design is in inference.fusion_design."""
 
@@ -28,7 +28,7 @@ from inference.fusion_design import (
 
 
 class SteadyFusion(Stream):
-    """ "steady": the fixed-lag-1 smoother p(z_{t-1} | x_1..x_t) of an HMM built to switch
+    """The fixed-lag-1 smoother p(z_{t-1} | x_1..x_t) of an HMM built to switch
     once per terrain change (delay 1 frame).
 
     The HMM: `steady_transition(stay)` (the paper's rules, a stay from walking) and the
@@ -44,7 +44,6 @@ class SteadyFusion(Stream):
         if not 0.0 < evidence <= 1.0:
             raise InferenceError(f"steady: evidence must be in (0, 1], got {evidence}")
         super().__init__(None)
-        self.method = "steady"
         self.delay_frames = 1
         self.stay, self.evidence = float(stay), float(evidence)
         self.transition = validate_transition(steady_transition(self.stay), "steady transition")
@@ -107,7 +106,7 @@ class SteadyFusion(Stream):
 
 
 class GaitSteadyFusion(SteadyFusion):
-    """ "steady+gait": steady whose chance of leaving a mode follows the gait phase.
+    """Steady whose chance of leaving a mode follows the gait phase.
 
     `push(probabilities, elevation_deg)`: the camera's optical axis above the horizon at
     the frame (inference.preprocess; it follows the thigh). The frame-to-frame change of
@@ -121,7 +120,6 @@ class GaitSteadyFusion(SteadyFusion):
 
     def __init__(self, stay: float = STEADY_STAY, evidence: float = STEADY_EVIDENCE):
         super().__init__(stay, evidence)
-        self.method = "steady+gait"
         leave = 1.0 - self.stay
         self._phase_rows = tuple(
             tuple(tuple(r) for r in steady_transition(1.0 - leave * g).tolist()) for g in GAIT_LEAVE
@@ -150,7 +148,7 @@ class GaitSteadyFusion(SteadyFusion):
 
 
 class HysteresisFusion(SteadyFusion):
-    """ "steady+hysteresis": steady's posterior, with a switch margin (delay 1 frame).
+    """Steady's posterior, with a switch margin (delay 1 frame).
 
     The first decision is steady's. After it, the decision moves from stairs or a ramp to
     level ground only when level ground's posterior (steady's, for the decided frame)
@@ -166,9 +164,8 @@ class HysteresisFusion(SteadyFusion):
         hysteresis: float = HYSTERESIS,
     ):
         if not 0.0 <= hysteresis < 1.0:
-            raise InferenceError(f"steady+hysteresis: margin must be in [0, 1), got {hysteresis}")
+            raise InferenceError(f"hysteresis: margin must be in [0, 1), got {hysteresis}")
         super().__init__(stay, evidence)
-        self.method = "steady+hysteresis"
         self.hysteresis = float(hysteresis)
         self._held = -1  # the last decision; -1 before the first
 
@@ -197,7 +194,7 @@ class HysteresisFusion(SteadyFusion):
 
 
 class GeometryFusion(HysteresisFusion):
-    """ "steady+geometry": steady+hysteresis with the terrain features as a second
+    """HysteresisFusion with the terrain features as a second
     observation of each frame (delay 1 frame).
 
     After each push, `see_geometry(mode)` gives the mode the frame's features show (index
@@ -219,11 +216,8 @@ class GeometryFusion(HysteresisFusion):
         geometry_evidence: float = GEOMETRY_EVIDENCE,
     ):
         if not 0.0 < geometry_evidence <= 1.0:
-            raise InferenceError(
-                f"steady+geometry: geometry evidence must be in (0, 1], got {geometry_evidence}"
-            )
+            raise InferenceError(f"geometry evidence must be in (0, 1], got {geometry_evidence}")
         super().__init__(stay, evidence, hysteresis)
-        self.method = "steady+geometry"
         self.geometry_evidence = float(geometry_evidence)
         # per shown mode (the last: unknown), the likelihood of each terrain
         self._shown = tuple(
@@ -233,7 +227,7 @@ class GeometryFusion(HysteresisFusion):
 
     def see_geometry(self, mode: int, ahead: int = -1) -> None:
         """The mode the newest pushed frame's terrain features show (-1: unknown); `ahead`
-        (the ground ahead's mode, steady+slope's cue) is not used."""
+        (the ground ahead's mode, SlopeFusion's cue) is not used."""
         a = self._alpha
         if a is None or self._flushed:
             return
@@ -244,14 +238,14 @@ class GeometryFusion(HysteresisFusion):
 
 
 class SlopeFusion(HysteresisFusion):
-    """ "steady+slope": steady, holding a ramp down while the ground ahead still slopes
+    """Steady, holding a ramp down while the ground ahead still slopes
     down (delay 1 frame).
 
     After each push, `see_geometry(mode, ahead)` gives the mode the ground AHEAD_M ahead
     shows by its slope (index into MODES, -1: not seen; inference.features.ground_ahead;
     `mode`, the features' own reading, is not used). The decision leaves a ramp for level
     ground only when level ground's posterior reaches `hysteresis` (as in
-    steady+hysteresis), and a ramp down only once the ground ahead has not shown a ramp
+    HysteresisFusion), and a ramp down only once the ground ahead has not shown a ramp
     down in any of the last SLOPE_HOLD_FRAMES frames up to the decided one. Every other
     switch, leaving stairs included, is steady's.
     """
@@ -268,9 +262,8 @@ class SlopeFusion(HysteresisFusion):
         hold_frames: int = SLOPE_HOLD_FRAMES,
     ):
         if int(hold_frames) != hold_frames or hold_frames < 1:
-            raise InferenceError(f"steady+slope: hold frames must be >= 1, got {hold_frames}")
+            raise InferenceError(f"slope: hold frames must be >= 1, got {hold_frames}")
         super().__init__(stay, evidence, hysteresis)
-        self.method = "steady+slope"
         self.hold_frames = int(hold_frames)
         self._ahead: deque[int] = deque(maxlen=self.hold_frames)
 

@@ -183,3 +183,14 @@ def test_the_python_example_of_docs_recordings_runs(tmp_path, monkeypatch, capsy
     write_recording(tmp_path / path, seconds=0.5)
     exec(compile(example, "docs/recordings.md", "exec"), {})
     assert "'subject'" in capsys.readouterr().out  # the session metadata it prints
+
+
+def test_the_methods_table_of_docs_analysis_is_the_method_table():
+    from inference.fusion import METHOD_TABLE
+
+    text = (ROOT / "docs" / "analysis.md").read_text()
+    section = text[text.index("## Fusion methods") :]
+    rows = re.findall(
+        r"^\| `([^`]+)` \| (.+) \|$", section.split("\n\n| method |")[1].split("\n\n")[0], re.M
+    )
+    assert rows == [(m.name, m.doc) for m in METHOD_TABLE]

@@ -77,14 +77,14 @@ class FrameTable:
     @property
     def camera_elevation_deg(self) -> np.ndarray:
         """The camera's optical axis above the horizon (from /tf), NaN without orientation:
-        the gait cue of fusion "steady+gait"."""
+        the gait cue of fusion (GaitSteadyFusion)."""
         x, y = self.quaternion[:, 1], self.quaternion[:, 2]
         return np.degrees(np.arcsin(np.clip(1 - 2 * (x * x + y * y), -1.0, 1.0)))
 
     @property
     def geometry(self) -> np.ndarray:
         """The mode each frame's terrain features show (inference.features.shown_mode), -1
-        where unknown or not recorded: the cue of fusion "steady+geometry"."""
+        where unknown or not recorded: the cue of fusion (GeometryFusion)."""
         shown = [shown_mode(f.get("kind"), f.get("direction")) for f in self.features]
         return np.array(shown, dtype=int).reshape(-1)
 
@@ -92,7 +92,7 @@ class FrameTable:
     def ground_ahead(self) -> np.ndarray:
         """The mode the ground ahead of each frame shows by its slope
         (inference.features.ground_ahead), -1 where not seen or not recorded: the cue of
-        fusion "steady+slope"."""
+        fusion (SlopeFusion)."""
         ahead = [ground_ahead(f.get("ahead_slope_deg")) for f in self.features]
         return np.array(ahead, dtype=int).reshape(-1)
 

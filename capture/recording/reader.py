@@ -409,11 +409,11 @@ def read_trial(path: str | os.PathLike) -> dict:
       the simulator's truth, else the labels made offline in `replay --tui` laid over the
       live keys (`labels`), else None; terrain_source: "simulator", "offline labels" or None
     - camera_elevation_deg (N,): the camera's optical axis above the horizon (/tf), NaN
-      where the frame had no orientation: the gait cue of fusion "steady+gait"
+      where the frame had no orientation: the gait cue of fusion (GaitSteadyFusion)
     - geometry (N,): the mode the frame's terrain features show (/terrain/features,
-      inference.features.shown_mode), -1 where unknown: the cue of "steady+geometry"
+      inference.features.shown_mode), -1 where unknown: the cue of GeometryFusion
     - ground_ahead (N,): the mode the ground ahead shows by its slope (/terrain/features,
-      inference.features.ground_ahead), -1 where not seen: the cue of "steady+slope"
+      inference.features.ground_ahead), -1 where not seen: the cue of SlopeFusion
     - label_changes: every recorded change [(time_ns, mode, source)] in time order, undos
       and what they undid included (the audit trail); reference_changes: the ones that
       define `labels`; metadata (typed); id; modes: MODES

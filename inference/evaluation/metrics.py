@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -23,23 +23,11 @@ from inference.config import FusionConfig
 from inference.errors import InferenceError
 from inference.evaluation import transitions as tr
 from inference.evaluation.trials import FusionRun, Trial, TrialResult
-from inference.fusion import FixedLagSmoother, Fusion, Voter
+from inference.fusion import METHOD_TABLE, Fusion, Voter, fusion_method
 from inference.fusion_design import N_MODES, estimate_transition
 
-PAPER_METHODS = ("cnn", "cnn+voting", "hmm", "hmm+voting")
-TITLES = {
-    "cnn": "CNN",
-    "cnn+voting": "CNN + voting",
-    "hmm": "HMM",
-    "hmm+voting": "HMM + voting",
-    "forward": "forward filter",
-    "fixed-lag": "fixed-lag smoother",
-    "steady": "steady",
-    "steady+gait": "steady + gait",
-    "steady+hysteresis": "steady + hysteresis",
-    "steady+geometry": "steady + geometry",
-    "steady+slope": "steady + slope",
-}
+PAPER_METHODS = tuple(m.name for m in METHOD_TABLE if m.paper)
+TITLES = {m.name: m.title for m in METHOD_TABLE}
 
 
 # A paired t-test on fewer trials than this is reported as too few, not tested: with 2-4
@@ -393,8 +381,8 @@ def delay_sweep(
 ) -> DelaySweep:
     """Accuracy against the number of delayed frames D = 0..max_delay (the paper's trade-off).
 
-    cnn+voting: l_v = D; hmm+voting: l_v = D-1 (the HMM adds one frame); fixed-lag: lag = D.
-    Methods without a delay parameter (cnn, forward: 0; hmm: 1) keep their accuracy for
+    A method that votes (`votes_on`): l_v = D minus its base's delay (the HMM adds one
+    frame); one that takes a lag: lag = D. Methods without a delay parameter keep their accuracy for
     every D at or above their own delay; NaN below it. Beside accuracy, the spurious
     switches (inference.evaluation.transitions) against the same reference.
     """
@@ -426,19 +414,15 @@ def delay_sweep(
             return stages[method]
 
         for m in methods:
-            if m == "cnn+voting":
-                for d in delays:
-                    score(m, d, vote_offline(stage("cnn").decisions, d), d)
-            elif m == "hmm+voting":
-                for d in delays[1:]:
-                    score(m, d, vote_offline(stage("hmm").decisions, d - 1), d)
-            elif m == "fixed-lag":
+            spec = fusion_method(m)
+            if spec.votes_on is not None:  # its voting window: the delay beyond its base's
+                base = p.delay_frames(spec.votes_on)
+                for d in delays[base:]:
+                    score(m, d, vote_offline(stage(spec.votes_on).decisions, d - base), d)
+            elif "lag" in spec.keys:  # its lag: the delay
                 for d in delays:
                     score(
-                        m,
-                        d,
-                        run_offline(FixedLagSmoother(p.transition, d), trial.probabilities).final,
-                        d,
+                        m, d, run_offline(replace(p, lag=d).make(m), trial.probabilities).final, d
                     )
             else:  # no delay parameter: the same decisions at every delay from their own
                 own = p.delay_frames(m)

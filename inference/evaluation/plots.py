@@ -28,7 +28,7 @@ from inference.evaluation.metrics import (
     run_offline,
 )
 from inference.evaluation.trials import Trial, TrialResult
-from inference.fusion import N_MODES, HmmFusion
+from inference.fusion import METHOD_TABLE, N_MODES, HmmFusion
 
 # A figure is as wide as one column of a two-column paper (3.5 in) and is printed at that
 # size: every text at 6 pt or more.
@@ -49,81 +49,7 @@ FIGURE_STYLE = {
 }
 # Methods are told apart by grey level, hatch, marker and dash, never by a mode's colour
 # (colour means a mode on every screen and figure: devices.frames.MODE_COLORS).
-METHOD_STYLES = {  # shade: the method (light CNN, dark HMM); hatch: with voting
-    "cnn": {"color": "#e4e4e4", "hatch": "", "line": "#a8a8a8", "marker": "o", "linestyle": ":"},
-    "cnn+voting": {
-        "color": "#bcbcbc",
-        "hatch": "////",
-        "hatchcolor": "#4a4a4a",
-        "line": "#7c7c7c",
-        "marker": "s",
-        "linestyle": "-.",
-    },
-    "hmm": {"color": "#6a6a6a", "hatch": "", "line": "#505050", "marker": "D", "linestyle": "--"},
-    "hmm+voting": {
-        "color": "#262626",
-        "hatch": "////",
-        "hatchcolor": "#d0d0d0",
-        "line": "#000000",
-        "marker": "^",
-        "linestyle": "-",
-    },
-}
-# the streaming smoothers: white or mid grey, with hatches of their own
-METHOD_STYLES |= {
-    "steady": {
-        "color": "#ffffff",
-        "hatch": "xxxx",
-        "line": "#303030",
-        "marker": "v",
-        "linestyle": (0, (5, 1, 1, 1)),
-    },
-    "steady+gait": {
-        "color": "#949494",
-        "hatch": "\\\\\\\\",
-        "hatchcolor": "#000000",
-        "line": "#202020",
-        "marker": "P",
-        "linestyle": (0, (3, 1, 1, 1, 1, 1)),
-    },
-    "forward": {
-        "color": "#ffffff",
-        "hatch": "....",
-        "line": "#606060",
-        "marker": "X",
-        "linestyle": (0, (1, 1)),
-    },
-    "steady+hysteresis": {
-        "color": "#b4b4b4",
-        "hatch": "++++",
-        "hatchcolor": "#000000",
-        "line": "#101010",
-        "marker": "h",
-        "linestyle": (0, (8, 2, 2, 2)),
-    },
-    "fixed-lag": {
-        "color": "#d8d8d8",
-        "hatch": "----",
-        "line": "#404040",
-        "marker": "p",
-        "linestyle": (0, (6, 2)),
-    },
-    "steady+geometry": {
-        "color": "#1a1a1a",
-        "hatch": "oo",
-        "hatchcolor": "#ffffff",
-        "line": "#000000",
-        "marker": "*",
-        "linestyle": (0, (2, 1)),
-    },
-    "steady+slope": {
-        "color": "#ffffff",
-        "hatch": "\\\\\\\\",
-        "line": "#000000",
-        "marker": "<",
-        "linestyle": (0, (4, 1, 1, 1, 1, 1)),
-    },
-}
+METHOD_STYLES = {m.name: m.style for m in METHOD_TABLE}
 _SPARE_STYLES = (
     {
         "color": "#909090",
@@ -536,9 +462,10 @@ def _plot_decisions(plt, result, methods):
 def _plot_probabilities(plt, result, params):
     trial = result.trial
     t, xlabel = _time_axis(trial)
-    run = result.runs.get("hmm") or result.runs.get("hmm+voting")
+    hmms = [m.name for m in METHOD_TABLE if m.cls is HmmFusion]  # alone first, then voted
+    run = next((result.runs[m] for m in hmms if m in result.runs), None)
     if run is None:
-        run = run_offline(HmmFusion(params.window, params.transition), trial.probabilities)
+        run = run_offline(params.make(hmms[0]), trial.probabilities)
     fig, axes = plt.subplots(2, 1, figsize=(COLUMN_IN, 2.9), sharex=True, layout="constrained")
     for ax, p, title in (
         (axes[0], trial.probabilities, "CNN softmax output"),

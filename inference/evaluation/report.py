@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import fields
 from typing import Any
 
 import numpy as np
@@ -23,6 +24,14 @@ from inference.evaluation.metrics import (
     summarize,
 )
 from inference.evaluation.trials import TrialResult
+from inference.fusion import fusion_method
+
+# Beside window and vote_delay, the report lists each [fusion] key a method it ran takes.
+_PARAMETER_KEYS = [f.name for f in fields(FusionConfig)]
+
+
+def _keys_of(methods: Sequence[str]) -> set[str]:
+    return {k for m in methods for k in fusion_method(m).keys}
 
 
 def _num(x: float) -> float | None:
@@ -93,25 +102,11 @@ def report(
         "parameters": {
             "window": params.window,
             "vote_delay": params.vote_delay,
-            **({"lag": params.lag} if "fixed-lag" in methods else {}),
-            **(
-                {"stay": params.stay, "evidence": params.evidence}
-                if any(m.startswith("steady") for m in methods)
-                else {}
-            ),
-            **(
-                {"hysteresis": params.hysteresis}
-                if {"steady+hysteresis", "steady+slope"} & set(methods)
-                else {}
-            ),
-            **(
-                {
-                    "geometry_hysteresis": params.geometry_hysteresis,
-                    "geometry_evidence": params.geometry_evidence,
-                }
-                if "steady+geometry" in methods
-                else {}
-            ),
+            **{
+                k: getattr(params, k)
+                for k in _PARAMETER_KEYS
+                if k in _keys_of(methods) and k not in ("window", "vote_delay")
+            },
         },
     }
     out["paired_t_tests"] = _tests_json(paired_t_tests(results, methods))

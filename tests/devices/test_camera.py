@@ -331,3 +331,52 @@ def test_mock_loops_when_asked(short_sim):
     looped = cam.walk_time(t / 15)
     assert looped < short_sim.duration_s
     np.testing.assert_allclose(cam.orientation_at(t / 15), short_sim.thigh_quaternion(looped))
+
+
+def test_a_frame_while_the_watchdog_reopens_never_waits_and_its_resume_is_kept():
+    """A backend's stop may wait for its frame callback to return (royale's stopCapture
+    does): a frame that arrives while the watchdog holds its lock to reopen the device is
+    delivered at once, and the watchdog's next check reports the camera back, with the gap
+    measured to that frame."""
+    import threading
+
+    clock = StepClock()
+    cam = ScriptedCamera(clock=clock)
+    cam.start()
+    cam._watch_stop.set()  # the test runs the checks
+    cam._watchdog.join(5)
+    first = blank_frame(0)
+    first.host_time_ns = first.device_time_ns = clock.t = 10**9
+    cam._deliver(first)
+    assert cam.recv(timeout=1.0) is first
+    clock.t = 10**9 + int((cam._lost_after_s() + 1) * 1e9)
+    cam._check(clock.t)
+    assert cam.status().state == "lost"
+    cam.poll_events()
+
+    held, release = threading.Event(), threading.Event()
+
+    def reopening():  # the watchdog inside a reopen: its lock held
+        with cam._watch_lock:
+            held.set()
+            release.wait(60)
+
+    watchdog = threading.Thread(target=reopening, daemon=True)
+    watchdog.start()
+    assert held.wait(10)
+    back = blank_frame(1)
+    back.host_time_ns = back.device_time_ns = clock.t = clock.t + 10**8
+    delivered = threading.Thread(target=cam._deliver, args=(back,), daemon=True)
+    delivered.start()
+    delivered.join(5)
+    assert not delivered.is_alive()  # the frame did not wait for the watchdog
+    assert cam.recv(timeout=1.0) is back
+    release.set()
+    watchdog.join(10)
+
+    cam._check(clock.t)
+    (event,) = [e for e in cam.poll_events() if e.kind == "reconnected"]
+    assert event.details["gap_start_ns"] == first.host_time_ns
+    assert event.details["gap_end_ns"] == back.host_time_ns
+    assert cam.status().state == "ok"
+    cam.stop()

@@ -162,7 +162,7 @@ def test_hmm_decides_the_previous_frame_and_flush_decides_the_last():
     for t in range(1, 10):
         out = fusion.push(e[t])
         assert out.frame == t - 1 and out.posterior_frame == t and out.voted is None
-        assert out.frame_index == out.frame and out.decision is not None
+        assert out.decision is not None
     (last,) = fusion.flush()
     assert last.frame == 9
     assert fusion.flush() == []
@@ -257,7 +257,6 @@ def test_voting_delays_and_combines_with_the_hmm():
         if o is not None and o.voted_frame is not None
     ]
     assert voted[0] == (3, 0) and all(t - f == 3 for t, f in voted)
-    assert all(o.voted_frame_index == o.voted_frame for o in outs if o is not None)
     hmm, _, _ = stream(make_fusion("hmm"), e)
     _, votes, _ = stream(make_fusion("hmm+voting", window=5, vote_delay=2), e)
     for f in range(30):
@@ -494,7 +493,7 @@ def test_steady_hysteresis_is_steadys_posterior_with_a_switch_margin(margin):
     _, _, steady_posteriors = stream(SteadyFusion(), e)
     np.testing.assert_allclose(posteriors, steady_posteriors, rtol=1e-12)
     np.testing.assert_array_equal(decisions, hysteresis_reference(steady_posteriors, margin))
-    assert fusion.delay_frames == 1 and fusion.method == "steady+hysteresis"
+    assert fusion.delay_frames == 1
     if margin == 0.0:  # no margin: steady itself
         np.testing.assert_array_equal(decisions, stream(SteadyFusion(), e)[0])
     fusion.reset()  # a new sequence starts without the held decision
@@ -572,7 +571,7 @@ def test_steady_geometry_is_the_steady_hmm_observing_the_geometry_too(margin, we
     fusion = GeometryFusion(hysteresis=margin, geometry_evidence=weight)
     decisions = stream_geometry(fusion, e, shown)
     np.testing.assert_array_equal(decisions, geometry_reference(e, shown, margin, weight))
-    assert fusion.method == "steady+geometry" and fusion.delay_frames == 1
+    assert fusion.delay_frames == 1
     fusion.reset()
     assert np.array_equal(stream_geometry(fusion, e, shown), decisions)
 
@@ -732,3 +731,18 @@ def test_steady_slope_parameters_are_checked_and_configured():
     fusion = make_fusion("steady+slope", hysteresis=0.7)
     assert (fusion.hysteresis, fusion.hold_frames, SLOPE_HOLD_FRAMES) == (0.7, 3, 3)
     assert fusion.uses_geometry and fusion.delay_frames == 1
+
+
+def test_make_fusion_builds_and_names_every_row_of_the_method_table():
+    from inference.fusion import METHOD_TABLE, METHODS, make_fusion
+
+    assert METHODS == tuple(m.name for m in METHOD_TABLE) and len(set(METHODS)) == len(METHODS)
+    for m in METHOD_TABLE:
+        fusion = make_fusion(m.name, window=4, vote_delay=2, lag=3)
+        assert type(fusion) is m.cls and fusion.method == m.name
+        assert fusion.votes == (m.votes_on is not None)
+        if m.votes_on is not None:  # the vote's window on top of its base's delay
+            assert fusion.delay_frames == make_fusion(m.votes_on, window=4).delay_frames + 2
+    assert make_fusion("fixed-lag", lag=3).delay_frames == 3
+    with pytest.raises(InferenceError, match="unknown fusion method 'nope'"):
+        make_fusion("nope")

@@ -17,19 +17,19 @@ import json
 import math
 from pathlib import Path
 
+from inference.fusion import METHOD_TABLE, METHODS
 from tui.commands import add_cluster_argument, count, eval_model, positive
 
 HELP = "evaluate classifiers and fusion on score files or recordings"
 
-DEFAULT_METHODS = "cnn,cnn+voting,hmm,hmm+voting,steady,steady+hysteresis"
-RECORDING_METHODS = DEFAULT_METHODS + ",steady+gait,steady+geometry,steady+slope"  # with cues
+DEFAULT_METHODS = ",".join(m.name for m in METHOD_TABLE if m.default)
+_CUE_METHODS = [m.name for m in METHOD_TABLE if m.cues]  # recordings carry their cues
+RECORDING_METHODS = ",".join([DEFAULT_METHODS, *_CUE_METHODS])
 SWEEP_DEFAULT = 6  # frames; the paper's trade-off figure reaches 6
 SWEEP_MAX = 100  # frames: several seconds of delay, beyond any use for a prosthesis
 
 
 def _methods(text: str) -> list[str]:
-    from inference.fusion import METHODS
-
     names = [m.strip() for m in text.split(",") if m.strip()]
     unknown = [m for m in names if m not in METHODS]
     if unknown or not names:
@@ -37,6 +37,14 @@ def _methods(text: str) -> list[str]:
             f"unknown method {', '.join(unknown) or '(none)'} (known: {', '.join(METHODS)})"
         )
     return list(dict.fromkeys(names))
+
+
+def _methods_help() -> str:
+    cues = ", ".join(_CUE_METHODS[:-1]) + " and " + _CUE_METHODS[-1]
+    each = "; ".join(f"{m.name}: {m.doc.replace('`', '')}" for m in METHOD_TABLE)
+    return (
+        f"comma-separated methods (default: {DEFAULT_METHODS}, and {cues} for recordings). {each}"
+    )
 
 
 def _common_arguments(p: argparse.ArgumentParser) -> None:
@@ -57,15 +65,7 @@ def _common_arguments(p: argparse.ArgumentParser) -> None:
         type=_methods,
         default=None,
         metavar="LIST",
-        help=f"comma-separated methods (default: {DEFAULT_METHODS}, and steady+gait, "
-        "steady+geometry and steady+slope for recordings; steady switches once per terrain "
-        "change, with "
-        "[fusion] stay and evidence; steady+hysteresis leaves stairs or a ramp for level "
-        "ground only at [fusion] hysteresis posterior; "
-        "steady+gait adds the gait phase from the camera's pitch; steady+geometry the "
-        "terrain features, with [fusion] geometry_hysteresis and geometry_evidence; "
-        "steady+slope holds a ramp down while the ground ahead still slopes down; also "
-        "forward, fixed-lag: standard HMM filter and smoother)",
+        help=_methods_help(),
     )
     p.add_argument(
         "--lag",
