@@ -8,12 +8,15 @@ so a slow consumer costs data that is accounted for, never a stalled device.
 from __future__ import annotations
 
 import collections
+import importlib
 import threading
 from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Generic, TypeVar
 
+from devices import clock
 from devices.clock import now_ns
+from devices.errors import DeviceNotAvailable
 
 T = TypeVar("T")
 
@@ -96,7 +99,7 @@ class RateMeter:
 
     def __init__(self, window_s: float = 2.0) -> None:
         self._times: collections.deque[int] = collections.deque()
-        self._window_ns = int(window_s * 1e9)
+        self._window_ns = clock.to_ns(window_s)
 
     def tick(self, t_ns: int | None = None) -> None:
         t = now_ns() if t_ns is None else t_ns
@@ -113,5 +116,21 @@ class RateMeter:
         if len(self._times) < 2:
             return 0.0
         first, last = min(self._times), max(self._times)
-        span = (last - first) * 1e-9
+        span = clock.seconds(last - first)
         return (len(self._times) - 1) / span if span > 0 else 0.0
+
+
+def load_backend(kind: str, backends: dict[str, str], name: str) -> type:
+    """The class registered as "module:Class" under `name` in a backend registry, its module
+    imported now: a missing vendor SDK costs nothing until its backend is chosen."""
+    try:
+        target = backends[name]
+    except KeyError:
+        known = ", ".join(sorted(backends))
+        raise DeviceNotAvailable(f"unknown {kind} backend {name!r} (known: {known})") from None
+    module_name, _, class_name = target.partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as e:
+        raise DeviceNotAvailable(f"{kind} backend {name!r} cannot be loaded: {e}") from None
+    return getattr(module, class_name)

@@ -22,10 +22,10 @@ costs nothing until someone asks for that camera (as python-can does).
 
 from __future__ import annotations
 
-import importlib
 import threading
 from collections.abc import Callable, Iterator
 
+from devices import clock
 from devices.base import (
     DEGRADED,
     LOST,
@@ -36,9 +36,9 @@ from devices.base import (
     DeviceState,
     DeviceStatus,
     RateMeter,
+    load_backend,
 )
 from devices.clock import now_ns
-from devices.errors import DeviceNotAvailable
 from devices.frames import CameraGeometry, DepthFrame
 from devices.watchdog import EventThrottle, SilenceWatch
 
@@ -55,17 +55,7 @@ def register_backend(name: str, target: str) -> None:
 
 def camera_class(name: str) -> type[Camera]:
     """The backend class registered under `name`, its module imported now."""
-    try:
-        target = BACKENDS[name]
-    except KeyError:
-        known = ", ".join(sorted(BACKENDS))
-        raise DeviceNotAvailable(f"unknown camera backend {name!r} (known: {known})") from None
-    module_name, _, class_name = target.partition(":")
-    try:
-        module = importlib.import_module(module_name)
-    except ImportError as e:
-        raise DeviceNotAvailable(f"camera backend {name!r} cannot be loaded: {e}") from None
-    return getattr(module, class_name)
+    return load_backend("camera", BACKENDS, name)
 
 
 def open_camera(camera_config=None, simulator_config=None, **kw) -> Camera:
@@ -263,7 +253,8 @@ class Camera:
         self._check(t)
         state, message = self._state, self._message
         if state == OK:
-            silent_s = (t - self._silence.since(self._last_frame_ns or self._started_ns)) * 1e-9
+            since = self._silence.since(self._last_frame_ns or self._started_ns)
+            silent_s = clock.seconds(t - since)
             if silent_s > self._stall_after_s():
                 state, message = DEGRADED, f"no frame for {silent_s:.1f} s"
         with self._lock:
@@ -315,7 +306,7 @@ class Camera:
             self._silence.check(t)
             if self._state == OK and self._running:
                 since = self._silence.since(self._last_frame_ns or self._started_ns)
-                silent_s = (t - since) * 1e-9
+                silent_s = clock.seconds(t - since)
                 if silent_s > self._stall_after_s() and not self._stalled:
                     self._stalled = True
                     self._event("stall", f"no frame for {silent_s:.1f} s")
@@ -335,7 +326,7 @@ class Camera:
                 and self.watchdog
                 and t >= self._next_reopen_ns
             ):
-                self._next_reopen_ns = t + int(self._lost_after_s() * 1e9)
+                self._next_reopen_ns = t + clock.to_ns(self._lost_after_s())
                 # Before the restart: its first frame may come (from the backend's thread)
                 # before _restart returns.
                 self._index_base, self._index_shift = self._last_index + 1, -1
@@ -394,7 +385,7 @@ class Camera:
             self._watch_lock.release()
 
     def _resume(self, t: int, last: int) -> None:
-        gap_s = (t - last) * 1e-9
+        gap_s = clock.seconds(t - last)
         if self._state == LOST and self._running:
             self._set_state(OK, "streaming")
             self._event(

@@ -14,7 +14,7 @@ import os
 import sys
 import traceback
 
-from capture import __version__
+import capture
 from tui.logfile import REDACTOR
 
 COMMANDS = (
@@ -50,13 +50,21 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     return (WalkcapError, OSError)
 
 
+class _Version(argparse.Action):
+    """--version: the installed distribution's version, looked up only when asked for."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(f"walkcap {capture.__version__}")
+        parser.exit()
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="walkcap",
         description="Data-collection sessions for assistive walking: depth camera + IMU, "
         "live terrain classification with HMM fusion, synchronized MCAP recordings.",
     )
-    parser.add_argument("--version", action="version", version=f"walkcap {__version__}")
+    parser.add_argument("--version", action=_Version, nargs=0, help="show the version and exit")
     _add_common(parser, argparse.SUPPRESS)
     parser.set_defaults(config=None, verbose=0, _parser=parser)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)

@@ -22,6 +22,7 @@ from textual.widgets import Footer, Static
 from capture.live.session import Snapshot
 from capture.recording.labels import effective_changes
 from capture.recording.writer import RecorderState
+from devices import clock
 from devices.clock import now_ns
 from devices.frames import MODE_NAMES, MODES
 from inference.evaluation.metrics import TITLES
@@ -291,7 +292,7 @@ class LiveScreen(Screen):
             return None
         if self.app.preflight_state == "running":
             return None
-        return (snap.time_ns - snap.recording_started_ns) * 1e-9
+        return clock.seconds(snap.time_ns - snap.recording_started_ns)
 
     def _show_banner(self, snap: Snapshot | None) -> None:
         """The full-width line that says at a glance whether a trial records."""

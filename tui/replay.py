@@ -34,6 +34,7 @@ from capture.recording.frames import FrameTable
 from capture.recording.labels import CORRECTION, LabelChange
 from capture.recording.lineage import CORRECTED
 from capture.recording.reader import frame_table, open_recording
+from devices import clock
 from devices.base import DeviceEvent, DeviceState, DeviceStatus
 from devices.clock import now_ns
 from devices.frames import MODES
@@ -142,7 +143,7 @@ class ReplaySource:
         if n == 0:
             raise CaptureError(f"{self.path}: no classified frames to replay")
         self._start_ns = int(self.frames.time_ns[0])
-        self.duration_s = (int(self.frames.time_ns[-1]) - self._start_ns) * 1e-9
+        self.duration_s = clock.seconds(int(self.frames.time_ns[-1]) - self._start_ns)
         self._camera, self._imu = self._device_status(rec, n)
         self.subject_info = _subject_from_metadata(rec.metadata.get("session", {}))
         self._anchor_wall = self._clock()
@@ -207,7 +208,7 @@ class ReplaySource:
         """(seconds from the first frame, duration); playing stops at the end."""
         pos = self._anchor_pos
         if self.playing:
-            pos += (self._clock() - self._anchor_wall) * 1e-9
+            pos += clock.seconds(self._clock() - self._anchor_wall)
             if pos >= self.duration_s:
                 self._anchor(self.duration_s)
                 self.playing = False
@@ -231,7 +232,7 @@ class ReplaySource:
     def _cursor(self) -> tuple[int, int]:
         """(position in the frame arrays, time on the recording's clock) now."""
         pos, _ = self.position()
-        t = self._start_ns + int(round(pos * 1e9))
+        t = self._start_ns + clock.to_ns(pos)
         k = int(np.searchsorted(self.frames.time_ns, t, side="right")) - 1
         return max(k, 0), t
 
@@ -340,7 +341,7 @@ class ReplaySource:
             fused=FusionOutput(frame=None, decision=shown) if shown >= 0 else None,
             features=f.features.get(i, {}),
         )
-        lo = int(np.searchsorted(f.time_ns, t - int(TIMELINE_S * 1e9), side="left"))
+        lo = int(np.searchsorted(f.time_ns, t - clock.to_ns(TIMELINE_S), side="left"))
         times = f.time_ns[lo : k + 1]
         labels = self._labels_at(times)
         timeline = [

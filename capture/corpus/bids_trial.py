@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from capture.recording.gaps import MODULUS, missing_between
+from devices import clock
 from devices.frames import MODE_NAMES, MODES
 
 NA = "n/a"
@@ -152,7 +153,7 @@ def motion_file(imu, rate_hz: float | None) -> MotionFile:
         cells = [seconds(times[k] - first)]
         cells += [_number(_value(col[k])) for col in columns[1:]]
         rows.append("\t".join(cells))
-    return MotionFile(rows, n, missing, first, (times[-1] - first) * 1e-9, rate_hz)
+    return MotionFile(rows, n, missing, first, clock.seconds(times[-1] - first), rate_hz)
 
 
 def channels_tsv(placement: str) -> str:

@@ -49,6 +49,7 @@ from capture.recording.gaps import TOPICS as GAP_TOPICS
 from capture.recording.gaps import recording_loss
 from capture.recording.lineage import describe
 from capture.recording.reader import frame_table, open_recording
+from devices import clock
 from devices.files import check_replaceable
 from devices.frames import MODES
 
@@ -584,7 +585,7 @@ def _whole(path: Path, write) -> Path:
 def _clock(times: np.ndarray, offset: int | None, t0: int) -> dict:
     return {
         "unix_time_ns": _ints([None if offset is None else int(t) + offset for t in times]),
-        "time_s": (times.astype(np.int64) - t0) * 1e-9 if len(times) else np.zeros(0),
+        "time_s": clock.seconds(times.astype(np.int64) - t0) if len(times) else np.zeros(0),
     }
 
 

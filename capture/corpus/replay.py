@@ -46,6 +46,7 @@ from capture.live.pipeline import (
 from capture.recording import topics as T
 from capture.recording.lineage import REPLAY, derivation
 from capture.recording.reader import imu_sample
+from devices import clock
 from devices.frames import DepthFrame, ImuSample
 
 IMU_LOOKAHEAD_NS = 20_000_000  # samples recorded up to this long after a frame may be used
@@ -533,7 +534,7 @@ def _replay(
                 first_t = t if first_t is None else first_t
                 last_t = t
                 if speed:  # recorded pace, scaled
-                    wait = (t - first_t) * 1e-9 / speed - (time.monotonic() - wall0)
+                    wait = clock.seconds(t - first_t) / speed - (time.monotonic() - wall0)
                     if wait > 0:
                         time.sleep(wait)
                 while i_imu < len(imu_times) and imu_times[i_imu] <= t + IMU_LOOKAHEAD_NS:
@@ -550,7 +551,7 @@ def _replay(
     finally:
         stats = recorder.close()
     taken = time.monotonic() - wall0
-    recorded = (last_t - first_t) * 1e-9 if frames > 1 else 0.0
+    recorded = clock.seconds(last_t - first_t) if frames > 1 else 0.0
     return ReplayReport(str(source), str(output), frames, recorded, taken, stats)
 
 

@@ -24,6 +24,7 @@ from capture.live.pipeline import (
     software_metadata,
 )
 from capture.recording import topics as T
+from devices import clock
 from devices.clock import now_ns
 from devices.frames import ImuSample
 from devices.orientation_error import OrientationError, OrientationErrorModel
@@ -54,7 +55,7 @@ def imu_samples(
         nxt = quats[min(k + 1, n - 1)]
         dq = quat_multiply(quat_conjugate(q), nxt)  # body-frame rotation to the next sample
         gyro = 2 * dq[1:] * rate_hz * np.sign(dq[0] or 1.0) + rng.normal(0, 0.01, 3)
-        time_ns = t0_ns + int(round(t[k] * 1e9))
+        time_ns = t0_ns + clock.to_ns(t[k])
         yield ImuSample(
             host_time_ns=time_ns + TRANSPORT_NS,
             time_ns=time_ns,

@@ -39,6 +39,7 @@ import numpy as np
 from capture.errors import CaptureError
 from capture.labtools.safetext import escape
 from capture.recording.sink import Sink
+from devices import clock
 from devices.base import DeviceEvent
 from devices.clock import now_ns
 from devices.frames import MODES
@@ -215,7 +216,7 @@ class LslOutlets(Sink):
         self.errors = 0
 
     def _lsl_time(self, time_ns: int) -> float:
-        return time_ns * 1e-9 + self.offset_s
+        return clock.seconds(time_ns) + self.offset_s
 
     def _push(self, stream: str, outlet, values, time_ns: int) -> None:
         try:
@@ -503,7 +504,7 @@ class LslInlets:
                     offset, uncertainty = correct(0.5)
                     next_correction = time.monotonic() + TIME_CORRECTION_EVERY_S
             except RuntimeError as e:  # pylsl's LostError: the outlet went away
-                since = f" after {(now_ns() - last_ns) * 1e-9:.2f} s" if last_ns else ""
+                since = f" after {clock.seconds(now_ns() - last_ns):.2f} s" if last_ns else ""
                 self._event(name, "lsl_lost", f"LSL stream {name} lost{since}: {e}")
                 inlet.close_stream()
                 return uid

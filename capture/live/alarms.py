@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from capture.recording.gaps import GAP_PERIODS, MODULUS, OWN_CLOCK, Gap, Late, LossCounter
+from devices import clock
 
 if TYPE_CHECKING:
     from capture.recording.writer import RecorderStats
@@ -64,7 +65,7 @@ class StreamCounter:
             if self._last_host_ns is None:
                 return None
             silent = now_ns - self._last_host_ns
-            return silent * 1e-9 if silent > GAP_PERIODS * self.period_s * 1e9 else None
+            return clock.seconds(silent) if silent > GAP_PERIODS * self.period_s * 1e9 else None
 
 
 @dataclass
@@ -103,7 +104,7 @@ def recorder_alarms(stats: RecorderStats | None) -> list[Alarm]:
 
 def event_alarms(events: list, now_ns: int) -> list[Alarm]:
     """Pipeline failures of the last few seconds, whatever the pipeline reports."""
-    horizon = now_ns - int(RECENT_S * 1e9)
+    horizon = now_ns - clock.to_ns(RECENT_S)
     out = []
     for e in events:
         if e.device == "pipeline" and e.time_ns >= horizon:

@@ -8,6 +8,7 @@ import logging
 
 from capture import config as config_mod
 from capture.recording import topics as T
+from devices import clock
 from devices.clock import now_ns
 
 log = logging.getLogger(__name__)
@@ -51,7 +52,7 @@ def open_devices(config: config_mod.Config, camera=None, imu=None):
                 )
                 emulator = getattr(imu, "emulator", None)
                 if emulator is not None and emulator.start_time_ns is not None:
-                    offset["s"] = (emulator.start_time_ns - camera.start_time_ns) * 1e-9
+                    offset["s"] = clock.seconds(emulator.start_time_ns - camera.start_time_ns)
             else:
                 imu = open_imu(config.imu)
         imu.open()

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from capture.recording.sink import Sink
-from devices.clock import now_ns
+from devices.clock import now_ns, seconds, to_ns
 from devices.frames import MODES, DepthFrame
 from devices.rotations import quat_multiply, quat_slerp
 from inference.errors import InferenceError
@@ -40,7 +40,7 @@ class OrientationTrack:
         self._added_ns: int | None = None  # when the newest sample came in, host clock
         self._times: collections.deque[int] = collections.deque()
         self._quats: collections.deque[np.ndarray] = collections.deque()
-        self._span_ns = int(span_s * 1e9)
+        self._span_ns = to_ns(span_s)
         self._rate: np.ndarray | None = None  # body rate of turn at the newest sample, rad/s
         self._lock = threading.Lock()
         self._new = threading.Condition(self._lock)
@@ -107,7 +107,7 @@ class OrientationTrack:
         with self._new:
             if not self._times or time_ns <= self._times[-1] or self._added_ns is None:
                 return q, age  # before the first sample, or inside the track: a real gap
-            left_s = (self._added_ns + int(late_s * 1e9) - self._clock()) * 1e-9
+            left_s = seconds(self._added_ns + to_ns(late_s) - self._clock())
             if left_s <= 0:
                 return q, age  # silent for longer than a late IMU would be
             wanted = time_ns - max_age_ns

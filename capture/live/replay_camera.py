@@ -17,6 +17,7 @@ from pathlib import Path
 from capture.errors import CaptureError
 from capture.recording import topics as T
 from capture.recording.reader import depth_frames, imu_sample, open_recording
+from devices import clock
 from devices.base import OK
 from devices.camera import Camera
 from devices.clock import now_ns
@@ -95,7 +96,7 @@ class ReplayCamera(Camera):
             first = frame.device_time_ns if first is None else first
             due = start + int((frame.device_time_ns - first) / self.speed)
             if self.realtime:
-                wait = (due - now_ns()) * 1e-9
+                wait = clock.seconds(due - now_ns())
                 if wait > 0 and self._halt.wait(wait):
                     return
             else:  # as fast as the consumer takes them, never dropping

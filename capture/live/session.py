@@ -46,6 +46,7 @@ from capture.live.trials import (
 )
 from capture.recording.labels import UNDO, LabelChange
 from capture.recording.sink import Sink
+from devices import clock
 from devices.base import DeviceEvent, DeviceState, DeviceStatus
 from devices.clock import now_ns
 from devices.frames import DepthFrame
@@ -282,7 +283,7 @@ class Session:
         while not self._stop.wait(0.2):
             t = now_ns()
             if t - last > HOST_STALL_NS:  # this loop wakes every 0.2 s: the host stalled
-                stall_s = (t - last) * 1e-9
+                stall_s = clock.seconds(t - last)
                 self._event(
                     DeviceEvent(
                         t,

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from capture.live.pipeline import FrameResult
+from devices import clock
 
 TIMELINE_S = 20.0
 SWITCHES_S = 60.0  # the live screen counts the fused decision's switches over this long
@@ -31,7 +32,7 @@ class SwitchCounter:
     """Changes of the final fused decision over the last `span_s` of frame time."""
 
     def __init__(self, span_s: float) -> None:
-        self.span_ns = int(span_s * 1e9)
+        self.span_ns = clock.to_ns(span_s)
         self._last: int | None = None
         self._times: collections.deque[int] = collections.deque()
 
@@ -79,7 +80,7 @@ class FrameTimeline:
         """Frame `r`, labelled `label`; its fused output fills in the earlier entries it
         decides. `votes`: the fusion's final decision is its vote."""
         entry = TimelineEntry(r.index, r.time_ns, label, r.cnn_decision, truth=truth)
-        horizon = r.time_ns - int(TIMELINE_S * 1e9)
+        horizon = r.time_ns - clock.to_ns(TIMELINE_S)
         with self._lock:
             self._latest = r
             self._frames += 1

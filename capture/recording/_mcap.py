@@ -34,6 +34,7 @@ from mcap.records import (
 
 from capture.errors import CaptureError
 from capture.recording.digests import located_damage
+from devices import clock
 
 log = logging.getLogger(__name__)
 
@@ -69,7 +70,9 @@ class Damage:
         where = f"{self.length} bytes at byte {self.offset}"
         if self.start_ns is not None and self.end_ns is not None:
             o = origin_ns if origin_ns is not None else self.start_ns
-            where += f", {(self.start_ns - o) * 1e-9:.2f}-{(self.end_ns - o) * 1e-9:.2f} s"
+            where += (
+                f", {clock.seconds(self.start_ns - o):.2f}-{clock.seconds(self.end_ns - o):.2f} s"
+            )
         if self.topics:
             shown = ", ".join(self.topics[:4])
             more = f" and {len(self.topics) - 4} more" if len(self.topics) > 4 else ""

@@ -16,6 +16,8 @@ from __future__ import annotations
 import threading
 from dataclasses import dataclass, field
 
+from devices import clock
+
 GAP_PERIODS = 3.0  # late delivery: a receive interval longer than this many periods
 MODULUS = {"camera": None, "imu": 1 << 16}  # the sequence's wrap (None: it never wraps)
 # Whether the stream's time is the device's own clock (a frame's exposure) or the host's
@@ -72,7 +74,7 @@ def missing_between(
     step the time cannot hold, or, on the device's own clock, one shorter than it."""
     by_time = None
     if device_dt_ns is not None and period_s > 0:
-        by_time = max(0, round(device_dt_ns * 1e-9 / period_s) - 1)
+        by_time = max(0, round(clock.seconds(device_dt_ns) / period_s) - 1)
     step = seq - last_seq - 1
     if modulus is not None:
         step %= modulus
@@ -107,20 +109,20 @@ class LossCounter:
             if seq is None or last_seq is None:  # no sequence: the device time alone
                 if dev_dt is None:
                     return None
-                missing = max(0, round(dev_dt * 1e-9 / self.period_s) - 1)
+                missing = max(0, round(clock.seconds(dev_dt) / self.period_s) - 1)
                 missing = missing if dev_dt > GAP_PERIODS * self.period_s * 1e9 else 0
             else:
                 missing = missing_between(
                     last_seq, seq, dev_dt, self.period_s, self.modulus, self.own_clock
                 )
             if missing > 0:
-                length = dev_dt * 1e-9 if dev_dt else (missing + 1) * self.period_s
+                length = clock.seconds(dev_dt) if dev_dt else (missing + 1) * self.period_s
                 gap = Gap(last_dev if last_dev is not None else last_host, length, missing)
                 self.loss.gaps.append(gap)
                 return gap
             host_dt = host_ns - last_host
             if host_dt > GAP_PERIODS * self.period_s * 1e9:
-                late = Late(last_host, host_dt * 1e-9)
+                late = Late(last_host, clock.seconds(host_dt))
                 self.loss.late.append(late)
                 return late
             return None
@@ -204,7 +206,7 @@ class RecordedLoss:
         if self._kept is not None:
             items = self._kept
             device = sorted(b[1] - a[1] for a, b in zip(items, items[1:], strict=False))
-            period = device[len(device) // 2] * 1e-9 if device else 0.0
+            period = clock.seconds(device[len(device) // 2]) if device else 0.0
             if period <= 0:
                 return StreamLoss()
             return stream_loss(items, period, MODULUS[self.stream], OWN_CLOCK[self.stream])

@@ -48,6 +48,7 @@ from capture.recording._mcap import (
 from capture.recording.digests import DIGESTS
 from capture.recording.frames import FrameJoin, FrameTable
 from capture.recording.messages import Decoders, damage_is_an_error, iter_raw, log_times
+from devices import clock
 from devices.frames import MODES, CameraGeometry, DepthFrame, ImuSample
 
 
@@ -98,7 +99,7 @@ class Recording:
 
     @property
     def duration_s(self) -> float:
-        return 0.0 if self.start_ns is None else (self.end_ns - self.start_ns) * 1e-9
+        return 0.0 if self.start_ns is None else clock.seconds(self.end_ns - self.start_ns)
 
     @property
     def unix_offset_ns(self) -> int | None:
@@ -608,4 +609,4 @@ def find_gaps(
     if median <= 0:
         return []
     long = np.nonzero(dt > factor * median)[0]
-    return [(int(t[i]), float(dt[i]) * 1e-9) for i in long]
+    return [(int(t[i]), clock.seconds(float(dt[i]))) for i in long]

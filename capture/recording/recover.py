@@ -28,6 +28,7 @@ from capture.recording.copy import RecordingCopy
 from capture.recording.journal import check_journal, journal_path
 from capture.recording.lineage import RECOVERED, derivation
 from capture.recording.reader import open_recording
+from devices import clock
 from devices.files import check_replaceable
 
 log = logging.getLogger(__name__)
@@ -61,7 +62,7 @@ class RecoveryReport:
     def duration_s(self) -> float:
         if self.first_ns is None or self.last_ns is None:
             return 0.0
-        return (self.last_ns - self.first_ns) * 1e-9
+        return clock.seconds(self.last_ns - self.first_ns)
 
 
 def default_output(path: str | os.PathLike) -> Path:

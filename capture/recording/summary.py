@@ -25,6 +25,7 @@ from capture.recording.gaps import StreamLoss, loss_counters
 from capture.recording.lineage import RECORDING, Member, describe
 from capture.recording.messages import damage_is_an_error
 from capture.recording.reader import Recording
+from devices import clock
 from inference.preprocess import BAD_ORIENTATION, STALE_ORIENTATION
 
 
@@ -81,7 +82,7 @@ class RecordingSummary:
 
     def at_s(self, t_ns: int) -> float | None:
         """Seconds from the recording's start."""
-        return (t_ns - self.start_ns) * 1e-9 if self.start_ns is not None else None
+        return clock.seconds(t_ns - self.start_ns) if self.start_ns is not None else None
 
     def unix_time_ns(self, t_ns: int) -> int | None:
         return None if self.unix_offset_ns is None else t_ns + self.unix_offset_ns
@@ -165,7 +166,9 @@ class RecordingSummary:
 def _iso(unix_ns: int | None) -> str | None:
     if unix_ns is None:
         return None
-    return dt.datetime.fromtimestamp(unix_ns * 1e-9, dt.UTC).isoformat(timespec="milliseconds")
+    return dt.datetime.fromtimestamp(clock.seconds(unix_ns), dt.UTC).isoformat(
+        timespec="milliseconds"
+    )
 
 
 def summary(rec: Recording) -> RecordingSummary:
@@ -178,7 +181,7 @@ def summary(rec: Recording) -> RecordingSummary:
     for topic in sorted(rec.topics):
         info = rec.topics[topic]
         n, first, last = seen.times.get(topic, (0, 0, 0))
-        span = (last - first) * 1e-9 if n > 1 else 0.0
+        span = clock.seconds(last - first) if n > 1 else 0.0
         regular = topic not in (T.LABELS, T.EVENTS)
         rate = (n - 1) / span if span > 0 and regular else None
         topics.append(

@@ -56,6 +56,7 @@ from capture.recording.write_queue import (
     QueuedTruth,
     WriteQueue,
 )
+from devices import clock
 from devices.clock import now_ns
 from devices.scheduling import NORMAL_PRIORITY, realtime_priority
 
@@ -293,7 +294,7 @@ class Recorder(Sink):
         chunks = self._chunks
         span, rate = 0.0, 0.0
         if chunks is not None and chunks.first_ns is not None and chunks.last_ns is not None:
-            span = (chunks.last_ns - chunks.first_ns) * 1e-9
+            span = clock.seconds(chunks.last_ns - chunks.first_ns)
         growth = list(chunks.growth) if chunks is not None else []
         if len(growth) > 1 and growth[-1][0] > growth[0][0]:
             rate = (growth[-1][1] - growth[0][1]) / (growth[-1][0] - growth[0][0])
@@ -482,7 +483,7 @@ class Recorder(Sink):
         chunks = self._chunks
         seconds = 0.0
         if chunks.first_ns is not None:
-            seconds = (chunks.last_ns - chunks.first_ns) * 1e-9
+            seconds = clock.seconds(chunks.last_ns - chunks.first_ns)
         self._accepting = False
         self._set_failed(_failure_message(e, self.path, seconds))
         log.error("recording %s: %s", self.path, self._message, exc_info=not isinstance(e, OSError))

@@ -7,7 +7,6 @@ and imported only when chosen.
 
 from __future__ import annotations
 
-import importlib
 import logging
 import threading
 from collections.abc import Callable, Iterator
@@ -15,18 +14,29 @@ from typing import Any
 
 import numpy as np
 
-from devices.base import STOPPED, BoundedBuffer, DeviceEvent, DeviceStatus, RateMeter
+from devices.base import (
+    STOPPED,
+    BoundedBuffer,
+    DeviceEvent,
+    DeviceStatus,
+    RateMeter,
+    load_backend,
+)
 from devices.clock import now_ns
-from devices.errors import DeviceNotAvailable
 from devices.frames import ImuSample
 
 log = logging.getLogger(__name__)
 
-# name -> (module, class); imported when chosen.
-BACKENDS = {
-    "mock": ("devices.imu.emulated", "EmulatedImu"),
-    "serial": ("devices.imu.driver", "XbusImu"),
+# name -> "module:Class", imported only when chosen (as devices.camera's BACKENDS).
+BACKENDS: dict[str, str] = {
+    "mock": "devices.imu.emulated:EmulatedImu",
+    "serial": "devices.imu.driver:XbusImu",
 }
+
+
+def register_backend(name: str, target: str) -> None:
+    """Add a backend, "module:Class", imported only when chosen (higher layers add theirs)."""
+    BACKENDS[name] = target
 
 
 def open_imu(config: Any, orientation_at: Callable[[float], np.ndarray] | None = None) -> Imu:
@@ -35,12 +45,7 @@ def open_imu(config: Any, orientation_at: Callable[[float], np.ndarray] | None =
     Not yet opened: call open() (or start(), or use it as a context manager).
     """
     backend = getattr(config, "backend", "mock")
-    if backend not in BACKENDS:
-        raise DeviceNotAvailable(
-            f"unknown IMU backend {backend!r} (known: {', '.join(sorted(BACKENDS))})"
-        )
-    module_name, class_name = BACKENDS[backend]
-    cls = getattr(importlib.import_module(module_name), class_name)
+    cls = load_backend("IMU", BACKENDS, backend)
     return cls.from_config(config, orientation_at=orientation_at)
 
 

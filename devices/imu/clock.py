@@ -22,6 +22,8 @@ import logging
 import threading
 from dataclasses import dataclass
 
+from devices import clock
+
 log = logging.getLogger(__name__)
 
 TICK_NS = 100_000  # one SampleTimeFine tick (10 kHz)
@@ -60,13 +62,13 @@ class DeviceClock:
     ) -> None:
         self.tick_ns = tick_ns
         self.wrap = wrap
-        self.window_ns = int(window_s * 1e9)
-        self.bucket_ns = int(bucket_s * 1e9)
+        self.window_ns = clock.to_ns(window_s)
+        self.bucket_ns = clock.to_ns(bucket_s)
         self.max_slope = max_drift_ppm * 1e-6
         self.jump_ns = jump_ms * 1e6  # arriving this much before the envelope: clock jumped
         self.max_delay_ns = max_delay_s * 1e9  # this late for long: the device clock restarted
         # Over a shorter span jitter dominates the slope: assume no drift until then.
-        self.min_span_ns = int(min_span_s * 1e9)
+        self.min_span_ns = clock.to_ns(min_span_s)
         self.resets = 0  # fits forgotten because the device clock jumped or restarted
         self._excused_until = 0  # samples taken before this host time: a stall's backlog
         # The reader thread updates the fit while status() reads it from another thread.
@@ -216,7 +218,7 @@ class DeviceClock:
             offset_ms=self.offset_ns * 1e-6 if self.ready else 0.0,
             drift_ppm=self.drift_ppm,
             residual_ms=self._residual * 1e-6,
-            span_s=span * 1e-9,
+            span_s=clock.seconds(span),
             points=len(self._buckets),
             resets=self.resets,
             drift_uncertainty_ppm=self.drift_uncertainty_ppm,

@@ -21,7 +21,7 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
-from devices import xbus
+from devices import clock, xbus
 from devices.base import DEGRADED, LOST, OK, STOPPED, DeviceStatus
 from devices.clock import now_ns
 from devices.errors import DeviceError, DeviceInitError, DeviceNotAvailable
@@ -106,7 +106,7 @@ class XbusImu(Imu):
         self.silence_ns = int(
             (silence_s if silence_s is not None else max(0.5, 3.0 / max(self.rate_hz, 1))) * 1e9
         )
-        self.retry_ns = int(retry_s * 1e9)
+        self.retry_ns = clock.to_ns(retry_s)
         self.raw_sink = raw_sink
         self.configured_rate_hz = float(self.rate_hz)
         self.clock = DeviceClock()
@@ -350,7 +350,7 @@ class XbusImu(Imu):
         # started: (re)connected
         last = self._watch.since(max(self._last_sample_ns or 0, self._started_ns))
         if t - last > self.silence_ns:
-            self._lose(f"no data for {(t - last) * 1e-9:.1f} s")
+            self._lose(f"no data for {clock.seconds(t - last):.1f} s")
         self._count_problems(t)
 
     def _lose(self, reason: str) -> None:
@@ -373,7 +373,7 @@ class XbusImu(Imu):
     def _retry(self) -> None:
         t = now_ns()
         if t < self._next_retry_ns:
-            self._stopping.wait(min(0.05, (self._next_retry_ns - t) * 1e-9))
+            self._stopping.wait(min(0.05, clock.seconds(self._next_retry_ns - t)))
             return
         self._next_retry_ns = t + self.retry_ns
         try:
@@ -430,7 +430,7 @@ class XbusImu(Imu):
     def _reconnected(self, t: int) -> None:
         lost_at = self._lost_at_ns or t
         last = self._last_sample_ns if self._last_sample_ns is not None else lost_at
-        gap_s = (t - last) * 1e-9
+        gap_s = clock.seconds(t - last)
         self.reconnects += 1
         self._state = OK
         self._message = f"streaming from {self.port}"

@@ -26,6 +26,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from devices import clock
 from devices.camera import Camera
 from devices.clock import now_ns
 from devices.frames import CameraGeometry
@@ -107,7 +108,7 @@ class MockCamera(Camera):
         """A fault for tests and drills: "stall" delivers no frame for `seconds`."""
         if fault != "stall":
             raise ValueError(f"unknown camera fault {fault!r} (known: stall)")
-        self._stall_until_ns = self._clock() + int(seconds * 1e9)
+        self._stall_until_ns = self._clock() + clock.to_ns(seconds)
 
     def orientation_at(self, t_s: float) -> np.ndarray:
         """The thigh orientation t_s seconds after start_time_ns (what the IMU should see)."""
@@ -140,7 +141,9 @@ class MockCamera(Camera):
         if self.start_time_ns is None:
             self._start()
             return
-        self._resume_k = max(0, int((self._clock() - self.start_time_ns) * 1e-9 * self.config.fps))
+        self._resume_k = max(
+            0, int(clock.seconds(self._clock() - self.start_time_ns) * self.config.fps)
+        )
         self._halt.clear()
         self._thread = threading.Thread(target=self._run, name="walkcap-mock-camera", daemon=True)
         self._thread.start()
@@ -164,7 +167,7 @@ class MockCamera(Camera):
                 self._finish("end_of_course", f"end of the course after {k} frames")
                 return
             if self.realtime:
-                wait = (start + t * 1e9 - self._clock()) * 1e-9
+                wait = clock.seconds(start + t * 1e9 - self._clock())
                 if wait > 0 and self._sleep(wait):
                     return
                 behind = int(-wait / period)
@@ -179,7 +182,7 @@ class MockCamera(Camera):
                 while len(self._buffer) >= self._buffer_size and not self._halt.is_set():
                     time.sleep(0.002)  # as fast as the consumer takes frames, losing none
             frame = self.simulator.render(self.walk_time(t), index=k)
-            frame.device_time_ns = start + int(round(t * 1e9))
+            frame.device_time_ns = start + clock.to_ns(t)
             frame.host_time_ns = self._clock()
             if frame.host_time_ns >= self._stall_until_ns:  # a stalled camera sends nothing
                 self._deliver(frame)

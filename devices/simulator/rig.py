@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from devices import clock
 from devices.camera import Camera
 from devices.child import Child
 from devices.clock import now_ns
@@ -368,7 +369,7 @@ def _serve(conn, camera_config, simulator_config, imu_config) -> None:
             start = camera.start_time_ns
             if start is None:
                 return blend(t_s, None)
-            return blend(t_s, max(0.0, (emulator.start_time_ns - start) * 1e-9 + t_s))
+            return blend(t_s, max(0.0, clock.seconds(emulator.start_time_ns - start) + t_s))
 
         emulator = ImuEmulator(
             rate_hz=imu_config.rate_hz,

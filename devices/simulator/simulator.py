@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from devices import clock
 from devices.errors import DeviceConfigError
 from devices.frames import MODES, CameraGeometry, DepthFrame
 from devices.simulator.course import Course, make_course
@@ -227,7 +228,7 @@ class Simulator:
             "segment": segment,
             "error": event.kind if event is not None else "",
         }
-        t_ns = int(round(t_s * 1e9))
+        t_ns = clock.to_ns(t_s)
         return DepthFrame(index, t_ns, t_ns, xyz, confidence, gray, self.geometry, truth)
 
 

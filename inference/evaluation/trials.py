@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from devices import clock
 from devices.frames import MODES
 from inference.errors import InferenceError
 from inference.evaluation import transitions as tr
@@ -323,7 +324,7 @@ def trial_from_recording(path: str, data: Any, reference: str = "terrain") -> Tr
     times_s = None
     if times is not None and len(times) == len(chosen) and len(times):
         t = np.asarray(times, dtype=np.int64)
-        times_s = (t - t[0]) * 1e-9
+        times_s = clock.seconds(t - t[0])
     elevation = get("camera_elevation_deg")
     if elevation is not None:
         elevation = np.asarray(elevation, dtype=float)

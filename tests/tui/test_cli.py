@@ -164,3 +164,38 @@ def test_commands_that_need_no_model_do_not_import_torch(tmp_path):
     assert all(rc == "0" for _, rc, _ in reports), out.stderr
     assert [torch for *_, torch in reports] == ["False"] * len(commands), out.stderr
     assert any(tmp_path.joinpath("out").iterdir())  # export wrote its tables
+
+
+def test_version_is_the_installed_distributions(capsys):
+    from importlib import metadata
+
+    with pytest.raises(SystemExit) as done:
+        cli.main(["--version"])
+    assert done.value.code == 0
+    assert capsys.readouterr().out.strip() == f"walkcap {metadata.version('walkcap')}"
+
+
+def test_device_help_lists_the_registered_backends(monkeypatch):
+    from devices import camera, imu
+
+    monkeypatch.setitem(camera.BACKENDS, "kinect", "nowhere:Kinect")
+    monkeypatch.setitem(imu.BACKENDS, "lpms", "nowhere:Lpms")
+    parser = cli.build_parser()
+    for command in ("record", "check", "tui"):
+        sub = parser._subparsers._group_actions[0].choices[command]
+        text = " ".join(sub.format_help().split())
+        assert "camera backend: mock | royale | replay | kinect" in text
+        assert "IMU backend: mock | serial | lpms" in text
+
+
+def test_trial_and_seed_limits_are_their_owners(monkeypatch, capsys):
+    from capture.live import trials
+    from devices import config
+
+    monkeypatch.setattr(trials, "TRIAL_MAX", 7)
+    monkeypatch.setattr(config, "SEED_MAX", 9)
+    parser = cli.build_parser()
+    for flag, value, limit in (("--trial", "8", "1..7"), ("--seed", "10", "0..9")):
+        with pytest.raises(SystemExit):
+            parser.parse_args(["record", flag, value])
+        assert f"within {limit}, got {value}" in capsys.readouterr().err

@@ -1,25 +1,39 @@
 """One module per `walkcap` subcommand: HELP, add_arguments(parser), run(args, config)."""
 
 import argparse
+from collections.abc import Callable
 
+from devices.camera import BACKENDS as CAMERA_BACKENDS
+from devices.imu import BACKENDS as IMU_BACKENDS
 from tui.subject import SUBJECT_FIELDS
 
-# capture.live.trials.TRIAL_MAX and devices.config.SEED_MAX, not imported: `--help` stays instant
-TRIAL_MAX = 99_999
-SEED_MAX = 2**32 - 1
+
+def trial_max() -> int:
+    """capture.live.trials' TRIAL_MAX, imported when a value is parsed: --help stays fast."""
+    from capture.live.trials import TRIAL_MAX
+
+    return TRIAL_MAX
 
 
-def count(minimum: int, maximum: int | None = None):
-    """An argparse type: an integer of at least `minimum` (and at most `maximum`), else a
-    one-line usage error."""
+def seed_max() -> int:
+    """devices.config's SEED_MAX, imported when a value is parsed: --help stays fast."""
+    from devices.config import SEED_MAX
+
+    return SEED_MAX
+
+
+def count(minimum: int, maximum: int | Callable[[], int] | None = None):
+    """An argparse type: an integer of at least `minimum` (and at most `maximum`, or what
+    `maximum()` returns when a value is parsed), else a one-line usage error."""
 
     def parse(text: str) -> int:
         try:
             value = int(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-        if value < minimum or (maximum is not None and value > maximum):
-            valid = f">= {minimum}" if maximum is None else f"within {minimum}..{maximum}"
+        high = maximum() if callable(maximum) else maximum
+        if value < minimum or (high is not None and value > high):
+            valid = f">= {minimum}" if high is None else f"within {minimum}..{high}"
             raise argparse.ArgumentTypeError(f"must be {valid}, got {value}")
         return value
 
@@ -130,20 +144,21 @@ def finish_recording(command: str, stats, path) -> int:
     return 0
 
 
-def add_device_arguments(parser, camera_backends: str = "mock | royale") -> None:
-    """The device and model flags `record` and `tui` share (they override the config file)."""
+def add_device_arguments(parser) -> None:
+    """The device and model flags `record`, `check` and `tui` share (they override the config
+    file); the backends listed are the registries' (capture has registered its own by now)."""
     g = parser.add_argument_group("devices")
     g.add_argument(
         "--camera",
         type=config_value("camera.backend", str),
         metavar="BACKEND",
-        help=f"camera backend: {camera_backends}",
+        help="camera backend: " + " | ".join(CAMERA_BACKENDS),
     )
     g.add_argument(
         "--imu",
         type=config_value("imu.backend", str),
         metavar="BACKEND",
-        help="IMU backend: mock | serial",
+        help="IMU backend: " + " | ".join(IMU_BACKENDS),
     )
     g.add_argument("--port", help="IMU serial port (backend serial)")
     g.add_argument("--fps", type=config_value("camera.fps"), help="camera frame rate")
@@ -158,7 +173,7 @@ def add_device_arguments(parser, camera_backends: str = "mock | royale") -> None
         help="recordings folder (default: [session] recordings)",
     )
     g.add_argument("--course", choices=("indoor", "outdoor"), help="mock walk preset")
-    g.add_argument("--seed", type=count(0, SEED_MAX), help="mock walk seed")
+    g.add_argument("--seed", type=count(0, seed_max), help="mock walk seed")
     g.add_argument("--model", metavar="PATH", help="classifier weights (default: bundled)")
     g.add_argument("--operator", help="who runs the session (written into each recording)")
 
@@ -178,7 +193,7 @@ def add_session_arguments(parser) -> None:
     )
     g.add_argument(
         "--trial",
-        type=count(1, TRIAL_MAX),
+        type=count(1, trial_max),
         metavar="N",
         help="trial number (default: the next free one for subject and condition in the "
         "recordings folder); `record` refuses one that exists unless --overwrite, the UI "

@@ -5,6 +5,8 @@ from __future__ import annotations
 import datetime as dt
 import json
 
+from devices import clock
+
 HELP = "describe a recording: topics, counts, rates, gaps, metadata"
 
 
@@ -63,8 +65,10 @@ def _wall(s, t_ns: int) -> str:
     """Clock time (local, with its zone) of a session-clock time."""
     unix = s.unix_time_ns(t_ns)
     if unix is None:
-        return f"{t_ns * 1e-9:.3f} s (session clock)"
-    return dt.datetime.fromtimestamp(unix * 1e-9).astimezone().strftime("%Y-%m-%d %H:%M:%S %Z")
+        return f"{clock.seconds(t_ns):.3f} s (session clock)"
+    return (
+        dt.datetime.fromtimestamp(clock.seconds(unix)).astimezone().strftime("%Y-%m-%d %H:%M:%S %Z")
+    )
 
 
 def describe(s) -> list[str]:
@@ -107,7 +111,7 @@ def describe(s) -> list[str]:
             f"  time        {_wall(s, s.start_ns)} -> {_wall(s, s.end_ns)}, {s.duration_s:.1f} s"
         )
         lines.append(
-            f"  session     {s.start_ns * 1e-9:.3f} -> {s.end_ns * 1e-9:.3f} s "
+            f"  session     {clock.seconds(s.start_ns):.3f} -> {clock.seconds(s.end_ns):.3f} s "
             "(session clock: the message times; + unix_offset_ns = Unix time)"
         )
     lines.append("  topics      messages    rate  schema" if s.topics else "  topics      none")
@@ -150,7 +154,7 @@ def describe(s) -> list[str]:
     if s.events:
         lines.append("  events      " + ", ".join(f"{k} {v}" for k, v in sorted(s.events.items())))
     for t, note in s.markers:
-        at = s.at_s(t) if s.start_ns is not None else t * 1e-9
+        at = s.at_s(t) if s.start_ns is not None else clock.seconds(t)
         lines.append(f"  marker      +{at:.1f} s  {_clip(note or 'marker')}")
     lines.append("  metadata")
     for name, values in s.metadata.items():

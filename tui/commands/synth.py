@@ -13,7 +13,7 @@ metadata) for `walkcap train`. Session i uses seed S + i; "both" alternates pres
 
 from __future__ import annotations
 
-from tui.commands import SEED_MAX, add_cluster_argument, count, positive
+from tui.commands import add_cluster_argument, count, positive, seed_max
 
 HELP = "write simulated sessions (training sets and recordings)"
 _positive = count(1)
@@ -32,7 +32,7 @@ def add_arguments(parser) -> None:
     )
     parser.add_argument(
         "--seed",
-        type=count(0, SEED_MAX - 100_000),
+        type=count(0, lambda: seed_max() - 100_000),
         default=0,
         metavar="S",
         help="seed S: synthesized session i uses seed S + i (default 0)",

@@ -16,7 +16,7 @@ def add_arguments(parser) -> None:
         help="mock devices only: keys that inject faults (ctrl+u unplugs the IMU for 2 s, "
         "ctrl+t stalls the camera for 2 s), to rehearse what the alarms show",
     )
-    add_device_arguments(parser, "mock | royale | replay")
+    add_device_arguments(parser)
     add_session_arguments(parser)
     lab_flags.add_arguments(parser)
 

@@ -10,6 +10,7 @@ from rich.text import Text
 from textual.widget import Widget
 
 from capture.recording.writer import RecorderState, RecorderStats
+from devices import clock
 from tui.widgets.pacing import Pacer
 
 
@@ -30,7 +31,7 @@ class ByteRate:
     """Bytes per second over the last few seconds, from (time, total bytes) readings."""
 
     def __init__(self, window_s: float = 3.0) -> None:
-        self._window_ns = int(window_s * 1e9)
+        self._window_ns = clock.to_ns(window_s)
         self._readings: collections.deque[tuple[int, int]] = collections.deque()
 
     def add(self, time_ns: int, total: int) -> float | None:
@@ -41,7 +42,7 @@ class ByteRate:
         while len(self._readings) > 2 and time_ns - self._readings[0][0] > self._window_ns:
             self._readings.popleft()
         (t0, b0), (t1, b1) = self._readings[0], self._readings[-1]
-        return (b1 - b0) / ((t1 - t0) * 1e-9) if t1 > t0 else None
+        return (b1 - b0) / clock.seconds(t1 - t0) if t1 > t0 else None
 
 
 def recording_rows(

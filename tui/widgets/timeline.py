@@ -8,6 +8,7 @@ from collections.abc import Sequence
 from rich.text import Text
 from textual.widget import Widget
 
+from devices import clock
 from tui.widgets.modes import MODE_COLORS, mode_name
 
 SPAN_S = 20.0
@@ -25,7 +26,7 @@ def strip_cells(
     cells: list[str | None] = [None] * width
     if width <= 0:
         return cells
-    start = now_ns - int(span_s * 1e9)
+    start = now_ns - clock.to_ns(span_s)
     per_col = span_s * 1e9 / width
     if entries:
         first = int((entries[0].time_ns - start) // per_col)

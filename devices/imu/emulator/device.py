@@ -21,7 +21,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from devices import xbus
+from devices import clock, xbus
 from devices.clock import now_ns
 from devices.imu.emulator.line import PtyLine
 from devices.imu.emulator.samples import EmulatorClock, Motion, gait_orientation
@@ -206,7 +206,7 @@ class ImuEmulator:
             self.clock = EmulatorClock(t, 0, self.drift_ppm)
         self._counter = 0
         self._measuring = False
-        self._wakeup_until = t + int(self.wakeup_s * 1e9)
+        self._wakeup_until = t + clock.to_ns(self.wakeup_s)
         self._next_wakeup = t
         self._hang_until = 0
         self._corrupt = 0
@@ -266,10 +266,10 @@ class ImuEmulator:
                 while now_ns() < due:
                     time.sleep(0)  # yields the GIL: a bare spin would stall the host's threads
                 return
-            timeout = min(timeout, (due - now_ns() - _SPIN_NS) * 1e-9)
+            timeout = min(timeout, clock.seconds(due - now_ns() - _SPIN_NS))
         if self._measuring:
             next_ticks = self._meas_ticks0 + self._sample_index * self._period_ticks
-            wait = (self.clock.time_of_ticks(next_ticks) - now_ns()) * 1e-9
+            wait = clock.seconds(self.clock.time_of_ticks(next_ticks) - now_ns())
             timeout = min(timeout, max(0.0, wait))
         if line.plugged:
             if line.wait_readable(timeout):
@@ -315,7 +315,7 @@ class ImuEmulator:
                 index,
                 counter,
                 ticks,
-                since_start * 1e-9,
+                clock.seconds(since_start),
                 self._utc_at_start_ns + since_start,  # the host's UTC at start, then its own
             )
             frame = bytearray(xbus.build(MID.MTDATA2, payload))
@@ -340,7 +340,7 @@ class ImuEmulator:
     def _answer(self, answer: Answer, t: int) -> None:
         if answer.slow:  # the ack of a settings write, once the (slow) write to flash is done
             self.line.transmit(
-                xbus.build(answer.mid, answer.data), t + int(self.settings_write_s * 1e9)
+                xbus.build(answer.mid, answer.data), t + clock.to_ns(self.settings_write_s)
             )
         else:
             self._reply(answer.mid, answer.data, t)
@@ -393,10 +393,10 @@ class ImuEmulator:
             line.flush_at_old_rate()
             line.baudrate, self._pending_baudrate = self._pending_baudrate, None
         # Booting: deaf and silent for reset_s, then it announces itself (WakeUp).
-        boot = int(self.reset_s * 1e9)
+        boot = clock.to_ns(self.reset_s)
         self._hang_until = t + boot
         self._next_wakeup = t + boot
-        self._wakeup_until = t + boot + int(self.wakeup_s * 1e9)
+        self._wakeup_until = t + boot + clock.to_ns(self.wakeup_s)
 
     def _baudrate_request(self, data: bytes, t: int) -> None:
         if not data:
@@ -421,12 +421,12 @@ class ImuEmulator:
         elif fault == "error":
             self._error_ahead = int(kw.get("code", xbus.DATA_OVERFLOW))
         elif fault == "hang":
-            self._hang_until = t + int(float(kw.get("seconds", 2.0)) * 1e9)
+            self._hang_until = t + clock.to_ns(float(kw.get("seconds", 2.0)))
             self.line.queue.clear()
         elif fault == "disconnect":
             self.line.unplug()
             seconds = kw.get("seconds")
-            self._reconnect_at = t + int(float(seconds) * 1e9) if seconds is not None else None
+            self._reconnect_at = t + clock.to_ns(float(seconds)) if seconds is not None else None
         elif fault == "reconnect":
             self._reconnect_at = None
             if not self.line.plugged:
