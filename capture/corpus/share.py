@@ -26,7 +26,7 @@ import orjson
 from capture.corpus.selection import Corpus, select
 from capture.errors import CaptureError
 from capture.recording import topics as T
-from capture.recording.copy import RecordingCopy, _media_type
+from capture.recording.copy import RecordingCopy, _media_type, new_recording
 from capture.recording.lineage import SHARED, derivation, describe
 from capture.recording.messages import iter_raw
 from capture.recording.personal import (
@@ -80,75 +80,61 @@ def share_recording(source: Path, target: Path, rules: ShareRules) -> Shared:
     offset = date_offset_ns(rules, subject)
     removed: list[str] = []
     rewritten: dict[str, int] = {}
-    tmp = target.with_name(f".{target.name}.partial")
-    try:
-        with open(tmp, "wb") as out:
-            copy = RecordingCopy(out)
-            copy.start(library=rec.library or "walkcap")
-            copy_id = _new_id()
-            for name, values in rec.metadata_records:
-                if name == "derivation":
-                    continue  # the copy's own derivation follows
-                reduced = reduce_metadata(name, values, rules, offset)
-                if name == "recording":
-                    reduced.values = {
-                        **reduced.values,
-                        "id": copy_id,
-                        T.METADATA_VALUES_KEY: T.METADATA_VALUES,
-                    }
-                    reduced.values.pop("journal", None)  # no journal goes with the copy
-                removed += [r for r in reduced.removed if r not in removed]
-                copy.metadata(name, T.encode_metadata(reduced.values))
-            d = derivation(rec, copy_id, SHARED, "shared copy: personal fields reduced")
-            d["source_name"] = strip_file_time(d["source_name"])
-            d["source_kind"] = member.kind
-            copy.metadata("derivation", T.encode_metadata(d))
-            start_unix = shift_unix_ns(rec.unix_time_ns(rec.start_ns or 0), offset) or 0
-            for name, data in rec.attachments.items():
-                if name == "walkcap.toml":
-                    text = reduce_config_text(bytes(data).decode(errors="replace"), rules)
-                    if text.encode() != bytes(data):
-                        removed.append("walkcap.toml: operator")
-                    data = text.encode()
-                copy.attachment(start_unix, rec.start_ns or 0, name, _media_type(name), data)
-            messages = 0
-            for schema, channel, message in iter_raw(source, rec.complete, None):
-                copy.channel(channel, schema)
-                data = _reduced_message(channel.topic, message.data, rules, offset)
-                if data is not None:
-                    rewritten[channel.topic] = rewritten.get(channel.topic, 0) + 1
-                    message = _with_data(message, data)
-                copy.message(message)
-                messages += 1
-            for topic, n in sorted(rewritten.items()):
-                what = "marker text" if topic == T.EVENTS else "UTC date shifted"
-                removed.append(f"{topic}: {what} in {n} message(s)")
-            if offset:
-                removed.append("dates shifted (whole days)")
-            copy.metadata(
-                "sharing",
-                T.encode_metadata(
-                    {
-                        "rules": rules.describe(),
-                        "removed": removed,
-                        "source_id": rec.id,
-                        "unchanged": "every other message, byte for byte",
-                    }
-                ),
-            )
-            copy.finish()
-            out.flush()
-            os.fsync(out.fileno())
-        os.link(tmp, target)  # fails if the target exists: never overwrite
-    except FileExistsError:
-        raise CaptureError(f"{target} exists: a recording is never overwritten") from None
-    except OSError as e:
-        raise CaptureError(f"cannot write {target}: {e.strerror or e}") from None
-    finally:
-        try:
-            tmp.unlink()
-        except OSError:
-            pass
+    with new_recording(target) as out:
+        copy = RecordingCopy(out)
+        copy.start(library=rec.library or "walkcap")
+        copy_id = _new_id()
+        for name, values in rec.metadata_records:
+            if name == "derivation":
+                continue  # the copy's own derivation follows
+            reduced = reduce_metadata(name, values, rules, offset)
+            if name == "recording":
+                reduced.values = {
+                    **reduced.values,
+                    "id": copy_id,
+                    T.METADATA_VALUES_KEY: T.METADATA_VALUES,
+                }
+                reduced.values.pop("journal", None)  # no journal goes with the copy
+            removed += [r for r in reduced.removed if r not in removed]
+            copy.metadata(name, T.encode_metadata(reduced.values))
+        d = derivation(rec, copy_id, SHARED, "shared copy: personal fields reduced")
+        d["source_name"] = strip_file_time(d["source_name"])
+        d["source_kind"] = member.kind
+        copy.metadata("derivation", T.encode_metadata(d))
+        start_unix = shift_unix_ns(rec.unix_time_ns(rec.start_ns or 0), offset) or 0
+        for name, data in rec.attachments.items():
+            if name == "walkcap.toml":
+                text = reduce_config_text(bytes(data).decode(errors="replace"), rules)
+                if text.encode() != bytes(data):
+                    removed.append("walkcap.toml: operator")
+                data = text.encode()
+            copy.attachment(start_unix, rec.start_ns or 0, name, _media_type(name), data)
+        messages = 0
+        for schema, channel, message in iter_raw(source, rec.complete, None):
+            copy.channel(channel, schema)
+            data = _reduced_message(channel.topic, message.data, rules, offset)
+            if data is not None:
+                rewritten[channel.topic] = rewritten.get(channel.topic, 0) + 1
+                message = _with_data(message, data)
+            copy.message(message)
+            messages += 1
+        for topic, n in sorted(rewritten.items()):
+            what = "marker text" if topic == T.EVENTS else "UTC date shifted"
+            removed.append(f"{topic}: {what} in {n} message(s)")
+        if offset:
+            removed.append("dates shifted (whole days)")
+        copy.metadata(
+            "sharing",
+            T.encode_metadata(
+                {
+                    "rules": rules.describe(),
+                    "removed": removed,
+                    "source_id": rec.id,
+                    "unchanged": "every other message, byte for byte",
+                }
+            ),
+        )
+        copy.finish()
     return Shared(source, target, removed, messages, rewritten)
 
 

@@ -11,9 +11,10 @@ labels, events and metadata records and naming the copy's own id and its derivat
 
 from __future__ import annotations
 
+import contextlib
 import os
 import uuid
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import BinaryIO
 
@@ -118,6 +119,29 @@ class RecordingCopy:
         self._writer.finish()
 
 
+@contextlib.contextmanager
+def new_recording(target: Path) -> Iterator[BinaryIO]:
+    """A new recording file written whole: into a partial file beside `target` (a leftover
+    one of ours is replaced), synced, then linked to its name, which fails where a file
+    exists: a recording is never overwritten. Any OS error is one CaptureError line."""
+    tmp = target.with_name(f".{target.name}.partial")
+    try:
+        with open(tmp, "wb") as out:
+            yield out
+            out.flush()
+            os.fsync(out.fileno())
+        os.link(tmp, target)
+    except FileExistsError:
+        raise CaptureError(f"{target} exists: a recording is never overwritten") from None
+    except OSError as e:
+        raise CaptureError(f"cannot write {target}: {e.strerror or e}") from None
+    finally:
+        try:
+            tmp.unlink()
+        except OSError:
+            pass
+
+
 def _media_type(name: str) -> str:
     if name.endswith(".npy"):
         return "application/x-npy"
@@ -145,40 +169,26 @@ def copy_recording(
         raise CaptureError("the copy must be a new file: the original is never modified")
     check_replaceable(target)
     rec = open_recording(source)
-    tmp = target.with_name(f".{target.name}.partial")
-    try:
-        with open(tmp, "wb") as out:  # a leftover partial file of ours is replaced
-            copy = RecordingCopy(out)
-            copy.start(library=rec.library or "walkcap")
-            copy_id = str(uuid.uuid4())
-            for name, values in rec.metadata_records:
-                if name == "recording":
-                    values = {**values, "id": copy_id, T.METADATA_VALUES_KEY: T.METADATA_VALUES}
-                if name != "derivation":
-                    copy.metadata(name, T.encode_metadata(values))
-            copy.metadata("derivation", T.encode_metadata(derivation(rec, copy_id, kind, how)))
-            for name, values in metadata:
+    with new_recording(target) as out:
+        copy = RecordingCopy(out)
+        copy.start(library=rec.library or "walkcap")
+        copy_id = str(uuid.uuid4())
+        for name, values in rec.metadata_records:
+            if name == "recording":
+                values = {**values, "id": copy_id, T.METADATA_VALUES_KEY: T.METADATA_VALUES}
+            if name != "derivation":
                 copy.metadata(name, T.encode_metadata(values))
-            t0 = rec.start_ns or 0
-            for name, data in rec.attachments.items():
-                copy.attachment(t0, t0, name, _media_type(name), data)
-            for schema, channel, message in iter_raw(source, rec.complete, None):
-                copy.channel(channel, schema)
-                copy.message(message)
-            added = [(T.LABELS, e) for e in labels] + [(T.EVENTS, e) for e in events]
-            for topic, entry in sorted(added, key=lambda x: x[1]["time_ns"]):
-                copy.add(topic, entry)
-            copy.finish()
-            out.flush()
-            os.fsync(out.fileno())
-        os.link(tmp, target)  # fails if the target exists: never overwrite
-    except FileExistsError:
-        raise CaptureError(f"{target} exists: a recording is never overwritten") from None
-    except OSError as e:
-        raise CaptureError(f"cannot write {target}: {e.strerror or e}") from None
-    finally:
-        try:
-            tmp.unlink()
-        except OSError:
-            pass
+        copy.metadata("derivation", T.encode_metadata(derivation(rec, copy_id, kind, how)))
+        for name, values in metadata:
+            copy.metadata(name, T.encode_metadata(values))
+        t0 = rec.start_ns or 0
+        for name, data in rec.attachments.items():
+            copy.attachment(t0, t0, name, _media_type(name), data)
+        for schema, channel, message in iter_raw(source, rec.complete, None):
+            copy.channel(channel, schema)
+            copy.message(message)
+        added = [(T.LABELS, e) for e in labels] + [(T.EVENTS, e) for e in events]
+        for topic, entry in sorted(added, key=lambda x: x[1]["time_ns"]):
+            copy.add(topic, entry)
+        copy.finish()
     return target
