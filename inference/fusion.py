@@ -34,6 +34,9 @@ each decision waits for:
   steady+hysteresis's margin, and a ramp down only once the ground about a step ahead
   (the terrain features' slope there, `see_geometry`) has stopped sloping down
   (`SlopeFusion`; delay 1).
+- "steady+steps": steady+hysteresis whose decision changes only around a gait event of the
+  instrumented leg (a heel contact or toe off, `see_gait`), once the proposed mode has held
+  a few frames; as a prosthesis changes its mode at a step (`StepFusion`; delay 1).
 The standard HMMs use the CNN output as a scaled emission likelihood, as the paper does.
 
 At the ends of a sequence (documented choices, the paper does not say):
@@ -78,6 +81,7 @@ from inference.fusion_steady import (
     SlopeFusion,
     SteadyFusion,
 )
+from inference.fusion_steps import StepFusion
 
 __all__ = [
     "METHODS",
@@ -95,6 +99,7 @@ __all__ = [
     "Method",
     "SlopeFusion",
     "SteadyFusion",
+    "StepFusion",
     "Voter",
     "fusion_method",
     "make_fusion",
@@ -523,6 +528,26 @@ METHOD_TABLE: tuple[Method, ...] = (
         "ramp down only once the ground a step ahead (the terrain features' slope there) has "
         "stopped sloping down for 3 frames",
         cues=("geometry",),
+        bench_us=20.0,
+    ),
+    Method(
+        "steady+steps",
+        StepFusion,
+        lambda p: (p["stay"], p["evidence"], p["hysteresis"]),
+        ("stay", "evidence", "hysteresis"),
+        "steady + steps",
+        {
+            "color": "#5a5a5a",
+            "hatch": "||||",
+            "hatchcolor": "#ffffff",
+            "line": "#2a2a2a",
+            "marker": "d",
+            "linestyle": (0, (1, 2)),
+        },
+        "`steady+hysteresis` whose decision changes only within a few frames of a gait event "
+        "(a heel contact or toe off of the instrumented leg), once the new mode has held 2 "
+        "frames: a mode changes at a step, as a prosthesis changes it",
+        cues=("gait",),
         bench_us=20.0,
     ),
 )

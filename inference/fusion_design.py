@@ -242,3 +242,16 @@ def estimate_transition(label_sequences: Iterable[Iterable], smoothing: float = 
         np.add.at(counts, (a[keep], b[keep]), 1.0)
     counts += smoothing
     return counts / counts.sum(axis=1, keepdims=True)
+
+
+# StepFusion (inference.fusion_steps): a mode changes at a step. A prosthesis switches at a
+# gait event, 90 ms after it in Simon et al. (2017); the thigh's detector reports a heel
+# contact or toe off some tens of ms after it, so a change may happen in the frames up to
+# STEP_WINDOW_FRAMES after the event is handed over (at 15 fps: 0.2 s, inside the swing or
+# loading response that follows). A proposed change must first hold STEP_HOLD_FRAMES decided
+# frames. Without a gait event for STEP_STALL_FRAMES frames (2 s: longer than any stride at
+# walking cadences, 1.0-1.3 s) the walker stands or the detector is silent, and changes
+# need the hold alone.
+STEP_HOLD_FRAMES = 2
+STEP_WINDOW_FRAMES = 3
+STEP_STALL_FRAMES = 30

@@ -24,6 +24,7 @@ from inference.evaluation.metrics import (
     group_results,
     mean_sd,
     pooled_confusion,
+    pooled_steps,
     pooled_transitions,
     run_offline,
 )
@@ -92,7 +93,9 @@ def write_plots(
     accuracy_per_subject[_<condition>] (mean and SD over each subject's trials, per
     method), accuracy_vs_delay (with a sweep; mean and SD over trials, and spurious
     switches a minute below), switches (per condition, each method's accuracy against its
-    spurious switches a minute, the trade-off, with its delay), decisions_<trial>
+    spurious switches a minute, the trade-off, with its delay), steps (with gait events: per
+    condition, each method's errors at heel contact against its spurious switches a
+    minute), decisions_<trial>
     and probabilities_<trial> (every trial, or those whose file name or title contains
     one of `trials`), confusion[_<condition>] (row-normalised, with counts).
     Time is in seconds from the trial's first frame when the trial has frame times; where
@@ -124,6 +127,8 @@ def write_plots(
         if sweep is not None:
             save(_plot_sweep(plt, results, sweep), "accuracy_vs_delay")
         save(_plot_switches(plt, results, methods, params), "switches")
+        if any(r.steps for r in results):
+            save(_plot_steps(plt, results, methods, params), "steps")
         for r in results:
             name = Path(r.trial.path).stem
             if trials and not any(t in name or t in r.trial.title for t in trials):
@@ -360,6 +365,60 @@ def _plot_switches(plt, results, methods, params):
         title="method (delay in frames); up and left is better",
         note="Accuracy: mean over trials. Spurious switches: decision changes with no change "
         "of the reference to that mode within 2 s, pooled over trials.",
+    )
+    return fig
+
+
+def _plot_steps(plt, results, methods, params):
+    """Per condition (one panel each, stacked): each method's errors at heel contact
+    (pooled over the trials' steps) against its spurious switches a minute: what a
+    prosthesis acting at steps feels."""
+    conditions = {c: rs for c, rs in by_condition(results).items() if any(r.steps for r in rs)}
+    fig, axes = plt.subplots(
+        len(conditions),
+        1,
+        figsize=(COLUMN_IN, 0.4 + 1.6 * len(conditions)),
+        squeeze=False,
+        sharex=True,
+        layout="constrained",
+    )
+    reference = _reference_of(results)
+    for (ax,), (condition, rs) in zip(axes, conditions.items()):
+        for k, m in enumerate(methods):
+            steps = pooled_steps(rs, m)
+            switches = pooled_transitions(rs, m).get(reference)
+            if steps is None or switches is None:
+                continue
+            style = method_style(m, k)
+            ax.plot(
+                switches.spurious_per_min,
+                100 * steps.error_rate_at_heel_contact,
+                marker=style["marker"],
+                color=style["line"],
+                markeredgecolor="black",
+                markeredgewidth=0.4,
+                linestyle="none",
+                markersize=4.5,
+                label=f"{TITLES.get(m, m)} ({params.delay_frames(m)} fr)",
+            )
+        ax.set_ylabel("errors at heel contact (%)")
+        ax.grid(True, linewidth=0.3)
+        heel = sum(r.steps[methods[0]].heel_contacts for r in rs if methods[0] in r.steps)
+        ax.set_title(f"{condition or 'all trials'} ({heel} heel contacts)")
+        ax.set_ylim(bottom=0)
+    for (ax,) in axes:
+        right = max(1.0, ax.get_xlim()[1])
+        ax.set_xlim(-0.04 * right, right)
+    axes[-1][0].set_xlabel("spurious switches a minute")
+    fig.suptitle("Errors at heel contact against spurious switches")
+    _legend_below(
+        fig,
+        axes[0][0],
+        ncol=2,
+        title="method (delay in frames); down and left is better",
+        note="Errors at heel contact: the decision in force at each heel contact of the "
+        "instrumented leg against that step's mode, pooled over trials. Spurious switches: "
+        f"against the {reference} reference, as in the switches figure.",
     )
     return fig
 
