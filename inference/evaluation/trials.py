@@ -391,7 +391,8 @@ def trial_from_recording(path: str, data: Any, reference: str = "terrain") -> Tr
     gait = get("gait") if has("gait") else None
     if gait and times is not None and len(times):
         t0 = int(np.asarray(times, dtype=np.int64)[0])
-        steps, gait_events = gait_steps(gait, t0, times_s, second)
+        logged = get("gait_logged_ns") if has("gait_logged_ns") else None
+        steps, gait_events = gait_steps(gait, t0, times_s, second, logged)
         gait_events = gait_events or []
     finite = np.isfinite(probabilities).all(axis=1) if probabilities.ndim == 2 else None
     if finite is not None and not finite.all():
@@ -423,27 +424,40 @@ def _event_field(event, name: str):
 
 
 def gait_steps(
-    events, t0_ns: int, times_s: np.ndarray | None, locomotion: np.ndarray | None
+    events,
+    t0_ns: int,
+    times_s: np.ndarray | None,
+    locomotion: np.ndarray | None,
+    logged_ns=None,
 ) -> tuple[st.Steps | None, list[tuple[float, str]] | None]:
     """From a recording's gait events (times on the session clock, `t0_ns` the first
     frame's): the steps the per-step metrics score at, and the detector's events as the
-    step fusion's cue ((seconds since the first frame, event), in time order).
+    step fusion's cue ((seconds since the first frame, event), in time order): each at
+    the later of its time and when it was logged (`logged_ns`, one per event: when the
+    detector reported it), as live the fusion gets an event only once it is detected.
 
     The steps are the simulator's heel contacts with the terrain under the foot where the
     recording has them; else the detector's, each with the locomotion mode (keyed live) in
     force at the frame at or before it; None without either."""
+    logged = [None] * len(events) if logged_ns is None else list(logged_ns)
     rows = [
         (
             clock.seconds(int(_event_field(e, "time_ns")) - t0_ns),
             str(_event_field(e, "event")),
             str(_event_field(e, "source")),
             _event_field(e, "mode"),
+            None if known is None else clock.seconds(int(known) - t0_ns),
         )
-        for e in events
+        for e, known in zip(events, logged)
     ]
     rows.sort(key=lambda r: r[0])
-    imu = [(t, ev) for t, ev, source, _ in rows if source == "imu"]
-    sim = [r for r in rows if r[2] == "simulator"]
+    imu = [(t, ev) for t, ev, source, _, _ in rows if source == "imu"]
+    detected = sorted(
+        (t if known is None else max(t, known), ev)
+        for t, ev, source, _, known in rows
+        if source == "imu"
+    )
+    sim = [r[:4] for r in rows if r[2] == "simulator"]
     steps = None
     if any(ev == st.HEEL_CONTACT for _, ev, _, _ in sim):
         hc = [(t, mode) for t, ev, _, mode in sim if ev == st.HEEL_CONTACT]
@@ -469,4 +483,4 @@ def gait_steps(
             source="imu",
             mode_source="locomotion",
         )
-    return steps, (imu or None)
+    return steps, (detected or None)

@@ -161,3 +161,30 @@ def test_score_file_event_column_must_be_zero_or_one(tmp_path):
 def test_trial_without_steps_has_no_step_figures():
     trial = Trial("t", _probabilities(np.zeros(20, dtype=int)), np.zeros(20, dtype=int))
     assert evaluate_trial(trial, ["cnn"]).steps == {}
+
+
+def test_recorded_gait_events_give_steps_and_the_detected_cue():
+    from devices.frames import GaitEvent
+    from inference.evaluation.trials import gait_steps
+
+    t0 = 10**9
+    events = [
+        GaitEvent(t0 + 500_000_000, "heel_contact", "simulator", "LG"),
+        GaitEvent(t0 + 520_000_000, "heel_contact", "imu"),
+        GaitEvent(t0 + 900_000_000, "toe_off", "simulator", "LG"),
+        GaitEvent(t0 + 1_500_000_000, "heel_contact", "simulator", "US"),
+    ]
+    logged = [t0 + 500_000_000, t0 + 580_000_000, t0 + 900_000_000, t0 + 1_500_000_000]
+    times = _frames(20)
+    locomotion = np.zeros(20, dtype=int)
+    steps, cue = gait_steps(events, t0, times, locomotion, logged)
+    # the simulator's steps, with the terrain under the foot
+    assert steps.source == "simulator" and steps.modes.tolist() == [LG, US]
+    assert steps.heel_contacts_s.tolist() == pytest.approx([0.5, 1.5])
+    assert steps.toe_offs_s.tolist() == pytest.approx([0.9])
+    # the fusion gets the detector's event when it was detected (logged), not before
+    assert cue == [(pytest.approx(0.58), "heel_contact")]
+    # without the simulator's: the detector's heel contacts, with the live keys' mode
+    steps, _ = gait_steps(events[1:2], t0, times, locomotion, logged[1:2])
+    assert steps.source == "imu" and steps.mode_source == "locomotion"
+    assert steps.heel_contacts_s.tolist() == pytest.approx([0.52]) and steps.modes.tolist() == [LG]
