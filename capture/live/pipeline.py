@@ -196,18 +196,20 @@ class Pipeline:
         # append and popleft are atomic, so the two threads share it without a lock
         self._gait: collections.deque = collections.deque(maxlen=256)
 
-    def see_gait(self, event) -> None:
-        """A gait event (devices.frames.GaitEvent) from the detector, on any thread: the
-        fusion gets it before the first frame pushed at or after its time, if it acts at
-        steps (`uses_steps`)."""
+    def see_gait(self, event, known_ns: int | None = None) -> None:
+        """A gait event (devices.frames.GaitEvent) from the detector, on any thread, and when
+        it was known (the receipt of the IMU sample that revealed it; default: its time):
+        a fusion that acts at steps (`uses_steps`) gets it before the first frame pushed at
+        or after that, as `eval` hands it the recorded events (their log time)."""
         if getattr(self.fusion, "uses_steps", False):
-            self._gait.append(event)
+            at = event.time_ns if known_ns is None else max(event.time_ns, known_ns)
+            self._gait.append((at, event.event))
 
     def _hand_gait(self, time_ns: int) -> None:
-        """The queued gait events up to the frame's time, in order, to the fusion."""
+        """The queued gait events known by the frame's time, in order, to the fusion."""
         gait = self._gait
-        while gait and gait[0].time_ns <= time_ns:
-            self.fusion.see_gait(gait.popleft().event)
+        while gait and gait[0][0] <= time_ns:
+            self.fusion.see_gait(gait.popleft()[1])
 
     def prepare(
         self, frame: DepthFrame, quaternion: np.ndarray | None, orientation_age_ns: int = 0

@@ -55,12 +55,15 @@ def test_the_pipeline_hands_a_step_fusion_the_gait_events_up_to_each_frame():
     # after its time
     pipeline.see_gait(GaitEvent(50_000_000, "heel_contact", "imu"))
     pipeline.see_gait(GaitEvent(100_000_000, "toe_off", "imu"))
+    # known only at 0.15 s (the IMU sample that revealed it): after frame 1
+    pipeline.see_gait(GaitEvent(110_000_000, "heel_contact", "imu"), 150_000_000)
     pipeline.see_gait(GaitEvent(250_000_000, "heel_contact", "imu"))
     q = quat_from_euler(0.0, 0.0, 0.0)
     for f in frames:
         pipeline.process(f, q)
-    # both events before frame 1's push (the fusion had taken frame 0); the last waits
-    assert seen == [(1, "heel_contact"), (1, "toe_off")]
+    # two before frame 1's push (the fusion had taken frame 0), one before frame 2's; the
+    # last waits for a frame at 0.25 s
+    assert seen == [(1, "heel_contact"), (1, "toe_off"), (2, "heel_contact")]
     # a fusion that does not act at steps is never handed any
     plain = Pipeline(PreprocessConfig(), Classifier(), GeometryFusion())
     plain.see_gait(GaitEvent(0, "heel_contact", "imu"))
