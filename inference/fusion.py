@@ -34,9 +34,10 @@ each decision waits for:
   steady+hysteresis's margin, and a ramp down only once the ground about a step ahead
   (the terrain features' slope there, `see_geometry`) has stopped sloping down
   (`SlopeFusion`; delay 1).
-- "steady+steps": steady+hysteresis whose decision changes only around a gait event of the
-  instrumented leg (a heel contact or toe off, `see_gait`), once the proposed mode has held
-  a few frames; as a prosthesis changes its mode at a step (`StepFusion`; delay 1).
+- "steady+steps": steady+hysteresis whose changes are timed to the steps of the
+  instrumented leg (the detector's heel contacts, `see_gait`): each at the heel contact
+  before the foot swings onto the new terrain, as a prosthesis changes its mode at a gait
+  event (`StepFusion`; delay 1).
 The standard HMMs use the CNN output as a scaled emission likelihood, as the paper does.
 
 At the ends of a sequence (documented choices, the paper does not say):
@@ -544,9 +545,9 @@ METHOD_TABLE: tuple[Method, ...] = (
             "marker": "d",
             "linestyle": (0, (1, 2)),
         },
-        "`steady+hysteresis` whose decision changes only within a few frames of a gait event "
-        "(a heel contact or toe off of the instrumented leg), once the new mode has held 2 "
-        "frames: a mode changes at a step, as a prosthesis changes it",
+        "`steady+hysteresis` whose changes are timed to the steps: each at the heel contact "
+        "of the instrumented leg before the foot reaches the new terrain (from the detector's "
+        "gait events and the stride), and dropped if the terrain read goes back before it",
         cues=("gait",),
         bench_us=20.0,
     ),

@@ -114,8 +114,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="any classifier's per-frame scores from CSV files",
         description="Evaluate per-frame scores: each CSV has the header "
         "LG,US,DS,UR,DR,label and one row per frame in capture order; label is the terrain "
-        "each image shows. An optional last column, locomotion, the subject's mode keyed "
-        "live, adds the lead time.",
+        "each image shows. Optional columns after it, in this order: locomotion, the "
+        "subject's mode keyed live (adds the lead time); heel_contact and toe_off, 1 on the "
+        "first frame at or after each gait event of the instrumented leg (adds the per-step "
+        "figures, and feeds steady+steps).",
     )
     p.add_argument("files", nargs="+", metavar="FILE.csv", help="score files, one per trial")
     p.add_argument(
