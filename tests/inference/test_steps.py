@@ -204,3 +204,22 @@ def test_recorded_gait_events_give_steps_and_the_detected_cue():
     steps, _ = gait_steps(events[1:2], t0, times, locomotion, logged[1:2])
     assert steps.source == "imu" and steps.mode_source == "locomotion"
     assert steps.heel_contacts_s.tolist() == pytest.approx([0.52]) and steps.modes.tolist() == [LG]
+
+
+def test_bench_times_steady_steps_with_its_gait_events(monkeypatch):
+    from capture.bench.components import bench_method_update
+    from inference.fusion import METHOD_TABLE
+
+    assert "steady+steps" in [m.name for m in METHOD_TABLE if m.bench_us]  # `walkcap bench`
+    seen = []
+    original = make_fusion
+
+    def spying(method):
+        fusion = original(method)
+        see = fusion.see_gait
+        fusion.see_gait = lambda event: (seen.append(event), see(event))
+        return fusion
+
+    monkeypatch.setattr("capture.bench.components.make_fusion", spying)
+    assert bench_method_update("steady+steps", updates=200) > 0
+    assert {"heel_contact", "toe_off"} <= set(seen)
