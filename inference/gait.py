@@ -223,3 +223,70 @@ def _signal(sample: ImuSample) -> tuple[float | None, float] | None:
     if r is not None and math.isfinite(float(r[1])):
         rate = -float(r[1])  # flexion turns about the thigh's -y (left) axis
     return rate, flexion
+
+
+# ---- judged against a reference (the simulator's truth, or a lab's insoles) -----------------
+
+
+def detect(samples) -> list[GaitEvent]:
+    """Every event of a stream of ImuSamples, in order (one detector, start to end)."""
+    detector = GaitDetector()
+    return [event for sample in samples for event in detector.push(sample)]
+
+
+def match_events(truth_ns, detected_ns, tolerance_ns: int) -> list[tuple[int, int]]:
+    """(truth index, detection index) pairs, one-to-one, each within `tolerance_ns`: in time
+    order, each true event takes the nearest detection not taken yet."""
+    import numpy as np
+
+    truth = np.asarray(truth_ns, dtype=np.int64)
+    found = np.asarray(detected_ns, dtype=np.int64)
+    order = np.argsort(found, kind="stable")
+    found_sorted = found[order]
+    taken = np.zeros(len(found), dtype=bool)
+    pairs = []
+    for i in np.argsort(truth, kind="stable"):
+        j = int(np.searchsorted(found_sorted, truth[i]))
+        best = None
+        for k in range(max(0, j - 2), min(len(found_sorted), j + 2)):
+            d = abs(int(found_sorted[k]) - int(truth[i]))
+            if not taken[k] and d <= tolerance_ns and (best is None or d < best[0]):
+                best = (d, k)
+        if best is not None:
+            taken[best[1]] = True
+            pairs.append((int(i), int(order[best[1]])))
+    return pairs
+
+
+@dataclass(frozen=True)
+class EventScore:
+    """One event kind's detection against a reference: counts and timing (detected - true)."""
+
+    true: int
+    detected: int
+    matched: int
+    errors_ms: tuple[float, ...]
+
+    @property
+    def recall(self) -> float | None:
+        """Share of the true events detected within the tolerance."""
+        return self.matched / self.true if self.true else None
+
+    @property
+    def precision(self) -> float | None:
+        """Share of the detected events that are a true one within the tolerance."""
+        return self.matched / self.detected if self.detected else None
+
+    def __add__(self, other: EventScore) -> EventScore:
+        return EventScore(
+            self.true + other.true,
+            self.detected + other.detected,
+            self.matched + other.matched,
+            self.errors_ms + other.errors_ms,
+        )
+
+
+def score_events(truth_ns, detected_ns, tolerance_ns: int) -> EventScore:
+    pairs = match_events(truth_ns, detected_ns, tolerance_ns)
+    errors = tuple((int(detected_ns[j]) - int(truth_ns[i])) * 1e-6 for i, j in pairs)
+    return EventScore(len(truth_ns), len(detected_ns), len(pairs), errors)
