@@ -115,11 +115,13 @@ def step_stats(
 ) -> StepStats:
     """The per-step figures of `final` (one decision a frame) at `steps`' gait events."""
     t = np.asarray(frame_times_s, dtype=float)
+    if not len(t):  # nothing decided: nothing scored
+        return StepStats(0, 0, 0, 0, 0, 0, 0, 0.0, [], steps.source, steps.mode_source)
     if minutes is None:
         period = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
-        minutes = (float(t[-1] - t[0]) + period) / 60.0 if len(t) else 0.0
+        minutes = (float(t[-1] - t[0]) + period) / 60.0
     # events outside the frames are outside what the method decided
-    inside = (steps.heel_contacts_s >= t[0]) & (steps.heel_contacts_s <= t[-1]) if len(t) else []
+    inside = (steps.heel_contacts_s >= t[0]) & (steps.heel_contacts_s <= t[-1])
     hc, modes = steps.heel_contacts_s[inside], steps.modes[inside]
     at_hc = decisions_in_force(t, final, delay_frames, hc)
     scored = (modes >= 0) & (at_hc >= 0)
@@ -138,7 +140,7 @@ def step_stats(
 
     # toe offs: the swing lands at the next heel contact, whose step's mode it needs
     to = steps.toe_offs_s
-    to = to[(to >= t[0]) & (to <= t[-1])] if len(t) else to[:0]
+    to = to[(to >= t[0]) & (to <= t[-1])]
     nxt = np.searchsorted(hc, to, side="right")  # the heel contact after each toe off
     has_next = nxt < len(hc)
     to, nxt = to[has_next], nxt[has_next]
