@@ -126,6 +126,7 @@ class Session:
         self._sync_errors: collections.deque[float] = collections.deque(maxlen=5000)
         self.gait = GaitDetector()  # on the IMU thread: /gait, the cadence and the steps
         self._strides_at_start = 0  # heel contacts before the trial in progress
+        self._gait_failed = False
         self._last_truth_mode: str | None = None
         self._walker_mode: str | None = None
         self._inbox = FrameInbox()
@@ -249,7 +250,7 @@ class Session:
             truth = getattr(self._imu, "true_time_ns", None)
             if truth is not None and sample.sample_time_fine is not None:
                 self._sync_errors.append(abs(t - truth(sample.sample_time_fine)) * 1e-6)
-            gait = self.gait.push(sample)
+            gait = self._gait_events(sample)
             pipeline = self.pipeline
             for event in gait:  # to a fusion that acts at steps (the pipeline thread's)
                 if pipeline is not None:
@@ -258,6 +259,17 @@ class Session:
                 out.write_imu(sample)
                 for event in gait:  # known at this sample's receipt
                     out.write_gait(event, sample.host_time_ns)
+
+    def _gait_events(self, sample) -> list:
+        """The detector's events at this sample; a fault in it costs the steps, never the
+        IMU's samples (said once)."""
+        try:
+            return self.gait.push(sample)
+        except Exception:
+            if not self._gait_failed:
+                self._gait_failed = True
+                log.exception("gait detector")
+            return []
 
     def _frame_loop(self) -> None:
         """Camera frames in: each recorded at once, then handed to the pipeline thread."""

@@ -130,3 +130,15 @@ def test_matching_is_one_to_one_within_the_tolerance():
     assert (score.true, score.detected, score.matched) == (3, 4, 2)
     assert score.recall == 2 / 3 and score.precision == 0.5
     assert np.allclose(score.errors_ms, (10e-6, -10e-6))
+
+
+def test_a_noisy_gyroscope_makes_no_extra_event():
+    clean = detect(samples(walking))
+    noisy = samples(walking, seed=3)
+    rng = np.random.default_rng(5)
+    for s in noisy:  # 0.2 rad/s (11 deg/s) of white noise, far beyond an MTi's
+        s.rate_of_turn[1] += rng.normal(0, 0.2)
+    events = detect(noisy)
+    assert [e.event for e in events] == [e.event for e in clean]
+    diff = np.array([a.time_ns - b.time_ns for a, b in zip(events, clean, strict=True)])
+    assert np.max(np.abs(diff)) < 30_000_000
