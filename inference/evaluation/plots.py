@@ -95,7 +95,8 @@ def write_plots(
     switches a minute below), switches (per condition, each method's accuracy against its
     spurious switches a minute, the trade-off, with its delay), steps (with gait events: per
     condition, each method's errors at heel contact against its spurious switches a
-    minute), decisions_<trial>
+    minute), decisions_<trial> (with the heel contacts of the instrumented leg where the
+    trial has steps)
     and probabilities_<trial> (every trial, or those whose file name or title contains
     one of `trials`), confusion[_<condition>] (row-normalised, with counts).
     Time is in seconds from the trial's first frame when the trial has frame times; where
@@ -508,6 +509,11 @@ def _plot_decisions(plt, result, methods):
             )
     ax.set_yticks(range(len(rows)), [name for name, _ in reversed(rows)])
     ax.set_ylim(-0.6, len(rows) - 0.4)
+    steps = getattr(trial, "steps", None)
+    if steps is not None and len(steps.heel_contacts_s) and xlabel == "time (s)":
+        # where a prosthesis reads the mode
+        ax.vlines(steps.heel_contacts_s, -0.6, len(rows) - 0.4, colors="black", linewidth=0.3)
+        xlabel += "; lines: heel contacts of the instrumented leg"
     ax.set_xlabel(xlabel)
     ax.set_xlim(t[0] if len(t) else 0, (t[-1] + _frame_period(t)) if len(t) else 1)
     ax.tick_params(axis="y", length=0)
