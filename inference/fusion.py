@@ -34,6 +34,10 @@ each decision waits for:
   steady+hysteresis's margin, and a ramp down only once the ground about a step ahead
   (the terrain features' slope there, `see_geometry`) has stopped sloping down
   (`SlopeFusion`; delay 1).
+- "steady+steps": steady+hysteresis whose changes are timed to the steps of the
+  instrumented leg (the detector's heel contacts, `see_gait`): each at the heel contact
+  before the foot swings onto the new terrain, as a prosthesis changes its mode at a gait
+  event (`StepFusion`; delay 1).
 The standard HMMs use the CNN output as a scaled emission likelihood, as the paper does.
 
 At the ends of a sequence (documented choices, the paper does not say):
@@ -78,6 +82,7 @@ from inference.fusion_steady import (
     SlopeFusion,
     SteadyFusion,
 )
+from inference.fusion_steps import StepFusion
 
 __all__ = [
     "METHODS",
@@ -95,6 +100,7 @@ __all__ = [
     "Method",
     "SlopeFusion",
     "SteadyFusion",
+    "StepFusion",
     "Voter",
     "fusion_method",
     "make_fusion",
@@ -523,6 +529,26 @@ METHOD_TABLE: tuple[Method, ...] = (
         "ramp down only once the ground a step ahead (the terrain features' slope there) has "
         "stopped sloping down for 3 frames",
         cues=("geometry",),
+        bench_us=20.0,
+    ),
+    Method(
+        "steady+steps",
+        StepFusion,
+        lambda p: (p["stay"], p["evidence"], p["hysteresis"]),
+        ("stay", "evidence", "hysteresis"),
+        "steady + steps",
+        {
+            "color": "#5a5a5a",
+            "hatch": "||||",
+            "hatchcolor": "#ffffff",
+            "line": "#2a2a2a",
+            "marker": "d",
+            "linestyle": (0, (1, 2)),
+        },
+        "`steady+hysteresis` whose changes are timed to the steps: each at the heel contact "
+        "of the instrumented leg before the foot reaches the new terrain (from the detector's "
+        "gait events and the stride), and dropped if the terrain read goes back before it",
+        cues=("gait",),
         bench_us=20.0,
     ),
 )

@@ -242,3 +242,40 @@ def estimate_transition(label_sequences: Iterable[Iterable], smoothing: float = 
         np.add.at(counts, (a[keep], b[keep]), 1.0)
     counts += smoothing
     return counts / counts.sum(axis=1, keepdims=True)
+
+
+# StepFusion (inference.fusion_steps): a mode changes at a step. A prosthesis needs the
+# old mode at the heel contact of the last step on the old terrain and the new one from the
+# toe off after it (the swing onto the new terrain): so the change belongs just after that
+# heel contact. The camera sees the new terrain earlier, by how far ahead each terrain
+# shows in the image: on the 16 design recordings (`walkcap synth --format recording
+# --sessions 8 --preset indoor --seed 960000` and `--preset outdoor --seed 970000`; 92
+# terrain changes) steady+hysteresis's switch comes a median 1.15 strides before the
+# transition step's heel contact (quartiles 1.3 and 0.34), so it is wrong at the heel
+# contact before in 36-43 % of the steps' heel contacts there. Its proposal is therefore
+# scheduled at a heel contact: the one nearest to STEP_OFFSET[old][new] strides after the
+# proposal (0: the last one, passed: at once). Per pair of terrains, the middle of the
+# widest range of offsets that schedules the most design changes at the heel contact before
+# the transition step: onto stairs up from level ground and onto stairs down from a ramp
+# down the image shows the stairs late (their first tread; nosings hide the risers), so the
+# switch comes at once unless the proposal comes late in the stride (-0.2, -0.3); off
+# stairs down onto level ground the proposal comes in the stride before the one before,
+# and waits two heel contacts unless early in it (0.65); the others wait for the next heel
+# contact (0.1-0.2). Pairs the design recordings never showed take the offset that
+# schedules the most changes over all pairs (-0.1; 80 of 92). A proposal must hold
+# STEP_HOLD_FRAMES decided frames first (a one-frame misread never schedules). The stride
+# is the running mean of the intervals between heel contacts, from STEP_STRIDE_FRAMES (1.1
+# s at 15 fps: 105 steps a minute). Without a heel contact for STEP_STALL_FRAMES frames (2
+# s, longer than any stride at walking cadence) the walker stands or the detector is
+# silent: a proposal then switches on the hold alone.
+STEP_HOLD_FRAMES = 2
+STEP_STALL_FRAMES = 30
+STEP_STRIDE_FRAMES = 17.0
+_STEP_ANY = -0.1  # a pair of terrains the design recordings never showed
+STEP_OFFSET = (  # strides; rows: from, columns: to (LG, US, DS, UR, DR)
+    (_STEP_ANY, -0.2, _STEP_ANY, _STEP_ANY, 0.1),
+    (_STEP_ANY, _STEP_ANY, _STEP_ANY, 0.1, _STEP_ANY),
+    (0.65, _STEP_ANY, _STEP_ANY, _STEP_ANY, _STEP_ANY),
+    (0.2, _STEP_ANY, _STEP_ANY, _STEP_ANY, _STEP_ANY),
+    (_STEP_ANY, _STEP_ANY, -0.3, _STEP_ANY, _STEP_ANY),
+)

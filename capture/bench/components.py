@@ -229,6 +229,13 @@ def bench_method_update(method: str, updates: int = 20000, seed: int = 0) -> flo
             start = clock()
             fusion.push(row, elevation[k])
             times.append(clock() - start)
+    elif getattr(fusion, "uses_steps", False):  # a gait event every 8 frames: 2 a stride
+        for k, row in enumerate(frames):
+            start = clock()
+            if k % 8 == 0:
+                fusion.see_gait("heel_contact" if k % 16 == 0 else "toe_off")
+            fusion.push(row)
+            times.append(clock() - start)
     elif getattr(fusion, "uses_geometry", False):  # the push and the frame's geometry
         shown = rng.integers(-1, N_MODES, size=len(frames)).tolist()
         ahead = rng.integers(-1, N_MODES, size=len(frames)).tolist()

@@ -522,6 +522,7 @@ def _replay(
         recorder.write_imu(sample)
         for event in gait.push(sample):
             recorder.write_gait(event, sample.host_time_ns)
+            pipeline.see_gait(event, sample.host_time_ns)  # as live
 
     i_imu = 0
     frames = 0

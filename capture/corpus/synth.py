@@ -131,6 +131,7 @@ def synth_recording(
                 recorder.write_imu(pending)
                 for event in detector.push(pending):
                     recorder.write_gait(event, pending.host_time_ns)
+                    pipeline.see_gait(event, pending.host_time_ns)  # as live
                 pending = next(imu, None)
             frame = simulator.render(k / cfg.camera.fps, index=k)
             frame.device_time_ns, frame.host_time_ns = t, t + FRAME_TRANSFER_NS

@@ -192,6 +192,24 @@ class Pipeline:
         # fusion counts pushes; decisions name camera frames: remember which is which
         self._pushed = 0
         self._frame_of_push: dict[int, int] = {}
+        # gait events for a fusion that acts at steps, from the IMU's thread: a deque's
+        # append and popleft are atomic, so the two threads share it without a lock
+        self._gait: collections.deque = collections.deque(maxlen=256)
+
+    def see_gait(self, event, known_ns: int | None = None) -> None:
+        """A gait event (devices.frames.GaitEvent) from the detector, on any thread, and when
+        it was known (the receipt of the IMU sample that revealed it; default: its time):
+        a fusion that acts at steps (`uses_steps`) gets it before the first frame pushed at
+        or after that, as `eval` hands it the recorded events (their log time)."""
+        if getattr(self.fusion, "uses_steps", False):
+            at = event.time_ns if known_ns is None else max(event.time_ns, known_ns)
+            self._gait.append((at, event.event))
+
+    def _hand_gait(self, time_ns: int) -> None:
+        """The queued gait events known by the frame's time, in order, to the fusion."""
+        gait = self._gait
+        while gait and gait[0][0] <= time_ns:
+            self.fusion.see_gait(gait.popleft()[1])
 
     def prepare(
         self, frame: DepthFrame, quaternion: np.ndarray | None, orientation_age_ns: int = 0
@@ -249,6 +267,8 @@ class Pipeline:
                 # before the fusion: one NaN would stay in the HMM's state for good
                 raise InferenceError(f"the classifier's output is not finite: {probs.tolist()}")
             cnn = int(np.argmax(probs))
+            if self._gait:
+                self._hand_gait(frame.device_time_ns if time_ns is None else time_ns)
             fused = self._push(frame.index, probs, pre.elevation_deg)
             done_ns = now_ns()  # the decision is out; features: display, recording, geometry cue
             hint = MODES[

@@ -251,6 +251,10 @@ class Session:
             if truth is not None and sample.sample_time_fine is not None:
                 self._sync_errors.append(abs(t - truth(sample.sample_time_fine)) * 1e-6)
             gait = self._gait_events(sample)
+            pipeline = self.pipeline
+            for event in gait:  # to a fusion that acts at steps (the pipeline thread's)
+                if pipeline is not None:
+                    pipeline.see_gait(event, sample.host_time_ns)
             for out in self._outputs():
                 out.write_imu(sample)
                 for event in gait:  # known at this sample's receipt

@@ -414,13 +414,25 @@ def read_trial(path: str | os.PathLike) -> dict:
       inference.features.shown_mode), -1 where unknown: the cue of GeometryFusion
     - ground_ahead (N,): the mode the ground ahead shows by its slope (/terrain/features,
       inference.features.ground_ahead), -1 where not seen: the cue of SlopeFusion
+    - gait: the gait events (devices.frames.GaitEvent) of /gait and /sim/gait, in time order;
+      gait_logged_ns: when each was logged (the detector's: when it was detected)
     - label_changes: every recorded change [(time_ns, mode, source)] in time order, undos
       and what they undid included (the audit trail); reference_changes: the ones that
       define `labels`; metadata (typed); id; modes: MODES
     """
     rec = open_recording(path)
+    gait: list = []  # the gait events and when each was logged, read in the same pass
+
+    def take_gait(m: RecordedMessage) -> None:
+        gait.append((T.gait_from_message(m.data), m.log_time_ns))
+
     # frames with a CNN output only: their preprocessing records not read
-    table, changes = frame_table(rec, frame_topics=(T.CNN, T.FUSED, T.TF, T.TRUTH, T.FEATURES))
+    table, changes = frame_table(
+        rec,
+        (T.GAIT, T.SIM_GAIT),
+        take_gait,
+        frame_topics=(T.CNN, T.FUSED, T.TF, T.TRUTH, T.FEATURES),
+    )
     frames = table.select(table.classified)
     return {
         "frame_index": frames.index,
@@ -438,6 +450,8 @@ def read_trial(path: str | os.PathLike) -> dict:
         "camera_elevation_deg": frames.camera_elevation_deg,
         "geometry": frames.geometry,
         "ground_ahead": frames.ground_ahead,
+        "gait": [e for e, _ in sorted(gait, key=lambda g: g[0].time_ns)],
+        "gait_logged_ns": [t for _, t in sorted(gait, key=lambda g: g[0].time_ns)],
         "label_changes": changes,
         "reference_changes": L.effective_changes(changes),
         "metadata": rec.metadata,

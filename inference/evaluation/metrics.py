@@ -21,6 +21,7 @@ import numpy as np
 
 from inference.config import FusionConfig
 from inference.errors import InferenceError
+from inference.evaluation import steps as st
 from inference.evaluation import transitions as tr
 from inference.evaluation.trials import FusionRun, Trial, TrialResult
 from inference.fusion import METHOD_TABLE, Fusion, Voter, fusion_method
@@ -105,6 +106,8 @@ def run_offline(
     elevation_deg: np.ndarray | None = None,
     geometry: np.ndarray | None = None,
     ground_ahead: np.ndarray | None = None,
+    gait_events: list[tuple[float, str]] | None = None,
+    times_s: np.ndarray | None = None,
 ) -> FusionRun:
     """Push every frame through a fresh streaming object, then flush: the live decisions.
 
@@ -113,7 +116,9 @@ def run_offline(
     with gait cues (`uses_gait`) gets each frame's camera elevation, `elevation_deg`; one
     with the geometry cue (`uses_geometry`) sees each frame's `geometry` and `ground_ahead`
     (-1 where not given) after its push, as the live pipeline shows it the frame's terrain
-    features."""
+    features; one that acts at steps (`uses_steps`) gets each of `gait_events` ((time s,
+    event), the detector's) with `see_gait` before the first frame at or after its time
+    (`times_s`), as the live pipeline hands it each event as it is detected."""
     e = np.array(probabilities, dtype=float)
     unusable = ~np.all(np.isfinite(e), axis=1) if e.ndim == 2 else np.zeros(len(e), bool)
     e[unusable] = 1.0 / N_MODES
@@ -140,6 +145,20 @@ def run_offline(
             )
         for row, elevation in zip(e, np.asarray(elevation_deg, dtype=float).tolist()):
             collect(fusion.push(row, elevation))
+    elif getattr(fusion, "uses_steps", False):
+        if gait_events is None:
+            raise InferenceError(
+                f"{fusion.method} needs the gait events of the instrumented leg (/gait in "
+                "recordings, the heel_contact column in score files)"
+            )
+        t = tr.frame_times(n, times_s).tolist()
+        events = sorted(gait_events)
+        k = 0
+        for row, time in zip(e, t):
+            while k < len(events) and events[k][0] <= time:
+                fusion.see_gait(events[k][1])
+                k += 1
+            collect(fusion.push(row))
     elif getattr(fusion, "uses_geometry", False):
         if geometry is None:
             raise InferenceError(
@@ -206,16 +225,7 @@ def evaluate_trial(
         raise InferenceError(f"{trial.path}: no frame has a reference mode")
     params = params or FusionConfig()
     try:
-        runs = {
-            m: run_offline(
-                params.make(m),
-                trial.probabilities,
-                trial.elevation_deg,
-                trial.geometry,
-                trial.ground_ahead,
-            )
-            for m in methods
-        }
+        runs = {m: run_trial(params.make(m), trial) for m in methods}
     except InferenceError as e:
         raise InferenceError(f"{trial.path}: {e}") from None
     return TrialResult(
@@ -223,7 +233,35 @@ def evaluate_trial(
         {m: accuracy(r.final, trial.reference) for m, r in runs.items()},
         runs,
         {m: trial_transitions(trial, r.final, params.delay_frames(m)) for m, r in runs.items()},
+        {m: trial_steps(trial, r.final, params.delay_frames(m)) for m, r in runs.items()}
+        if trial.steps is not None
+        else {},
     )
+
+
+def run_trial(fusion: Fusion, trial: Trial) -> FusionRun:
+    """`run_offline` over a trial, with every cue it has."""
+    return run_offline(
+        fusion,
+        trial.probabilities,
+        trial.elevation_deg,
+        trial.geometry,
+        trial.ground_ahead,
+        trial.gait_events,
+        trial.times_s,
+    )
+
+
+def trial_steps(trial: Trial, final: np.ndarray, delay_frames: int) -> st.StepStats:
+    """A decision sequence's per-step figures at the trial's steps."""
+    t = tr.frame_times(trial.frames, trial.times_s)
+    return st.step_stats(t, final, delay_frames, trial.steps, tr.duration_minutes(t))
+
+
+def pooled_steps(results: Sequence[TrialResult], method: str) -> st.StepStats | None:
+    """The trials' per-step figures pooled (None: no trial has steps)."""
+    stats = [r.steps[method] for r in results if method in r.steps]
+    return st.pooled(stats) if stats else None
 
 
 def trial_transitions(
@@ -404,13 +442,7 @@ def delay_sweep(
 
         def stage(method: str, stages=stages, p=p, trial=trial) -> FusionRun:
             if method not in stages:
-                stages[method] = run_offline(
-                    p.make(method),
-                    trial.probabilities,
-                    trial.elevation_deg,
-                    trial.geometry,
-                    trial.ground_ahead,
-                )
+                stages[method] = run_trial(p.make(method), trial)
             return stages[method]
 
         for m in methods:

@@ -24,6 +24,7 @@ from inference.evaluation.metrics import (
     group_results,
     mean_sd,
     pooled_confusion,
+    pooled_steps,
     pooled_transitions,
     run_offline,
 )
@@ -92,7 +93,10 @@ def write_plots(
     accuracy_per_subject[_<condition>] (mean and SD over each subject's trials, per
     method), accuracy_vs_delay (with a sweep; mean and SD over trials, and spurious
     switches a minute below), switches (per condition, each method's accuracy against its
-    spurious switches a minute, the trade-off, with its delay), decisions_<trial>
+    spurious switches a minute, the trade-off, with its delay), steps (with gait events: per
+    condition, each method's errors at heel contact against its spurious switches a
+    minute), decisions_<trial> (with the heel contacts of the instrumented leg where the
+    trial has steps)
     and probabilities_<trial> (every trial, or those whose file name or title contains
     one of `trials`), confusion[_<condition>] (row-normalised, with counts).
     Time is in seconds from the trial's first frame when the trial has frame times; where
@@ -124,6 +128,8 @@ def write_plots(
         if sweep is not None:
             save(_plot_sweep(plt, results, sweep), "accuracy_vs_delay")
         save(_plot_switches(plt, results, methods, params), "switches")
+        if any(r.steps for r in results):
+            save(_plot_steps(plt, results, methods, params), "steps")
         for r in results:
             name = Path(r.trial.path).stem
             if trials and not any(t in name or t in r.trial.title for t in trials):
@@ -364,6 +370,60 @@ def _plot_switches(plt, results, methods, params):
     return fig
 
 
+def _plot_steps(plt, results, methods, params):
+    """Per condition (one panel each, stacked): each method's errors at heel contact
+    (pooled over the trials' steps) against its spurious switches a minute: what a
+    prosthesis acting at steps feels."""
+    conditions = {c: rs for c, rs in by_condition(results).items() if any(r.steps for r in rs)}
+    fig, axes = plt.subplots(
+        len(conditions),
+        1,
+        figsize=(COLUMN_IN, 0.4 + 1.6 * len(conditions)),
+        squeeze=False,
+        sharex=True,
+        layout="constrained",
+    )
+    reference = _reference_of(results)
+    for (ax,), (condition, rs) in zip(axes, conditions.items()):
+        for k, m in enumerate(methods):
+            steps = pooled_steps(rs, m)
+            switches = pooled_transitions(rs, m).get(reference)
+            if steps is None or switches is None:
+                continue
+            style = method_style(m, k)
+            ax.plot(
+                switches.spurious_per_min,
+                100 * steps.error_rate_at_heel_contact,
+                marker=style["marker"],
+                color=style["line"],
+                markeredgecolor="black",
+                markeredgewidth=0.4,
+                linestyle="none",
+                markersize=4.5,
+                label=f"{TITLES.get(m, m)} ({params.delay_frames(m)} fr)",
+            )
+        ax.set_ylabel("errors at heel contact (%)")
+        ax.grid(True, linewidth=0.3)
+        heel = sum(r.steps[methods[0]].heel_contacts for r in rs if methods[0] in r.steps)
+        ax.set_title(f"{condition or 'all trials'} ({heel} heel contacts)")
+        ax.set_ylim(bottom=0)
+    for (ax,) in axes:
+        right = max(1.0, ax.get_xlim()[1])
+        ax.set_xlim(-0.04 * right, right)
+    axes[-1][0].set_xlabel("spurious switches a minute")
+    fig.suptitle("Errors at heel contact against spurious switches")
+    _legend_below(
+        fig,
+        axes[0][0],
+        ncol=2,
+        title="method (delay in frames); down and left is better",
+        note="Errors at heel contact: the decision in force at each heel contact of the "
+        "instrumented leg against that step's mode, pooled over trials. Spurious switches: "
+        f"against the {reference} reference, as in the switches figure.",
+    )
+    return fig
+
+
 def _time_axis(trial: Trial) -> tuple[np.ndarray, str]:
     if trial.times_s is not None and len(trial.times_s) == len(trial.reference):
         return trial.times_s, "time (s)"
@@ -449,6 +509,11 @@ def _plot_decisions(plt, result, methods):
             )
     ax.set_yticks(range(len(rows)), [name for name, _ in reversed(rows)])
     ax.set_ylim(-0.6, len(rows) - 0.4)
+    steps = getattr(trial, "steps", None)
+    if steps is not None and len(steps.heel_contacts_s) and xlabel == "time (s)":
+        # where a prosthesis reads the mode
+        ax.vlines(steps.heel_contacts_s, -0.6, len(rows) - 0.4, colors="black", linewidth=0.3)
+        xlabel += "; lines: heel contacts of the instrumented leg"
     ax.set_xlabel(xlabel)
     ax.set_xlim(t[0] if len(t) else 0, (t[-1] + _frame_period(t)) if len(t) else 1)
     ax.tick_params(axis="y", length=0)

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from inference.config import FusionConfig
+from inference.evaluation import steps as st
 from inference.evaluation import transitions as tr
 from inference.evaluation.metrics import (
     DelaySweep,
@@ -20,6 +21,7 @@ from inference.evaluation.metrics import (
     column_sd,
     group_results,
     paired_t_tests,
+    pooled_steps,
     pooled_transitions,
     summarize,
 )
@@ -89,6 +91,8 @@ def report(
             m: {name: tr.summary(st) for name, st in r.transitions.get(m, {}).items()}
             for m in methods
         }
+        if r.steps:
+            entry["steps"] = {m: st.summary(r.steps[m]) for m in methods if m in r.steps}
         files.append(entry)
     summary = summarize(results, methods)
     scored = sorted({r.trial.reference_name for r in results})
@@ -98,6 +102,7 @@ def report(
         "mean": _nums(summary["mean"]),
         "sd": _nums(summary["sd"]),
         "transitions": _transitions_json(results, methods),
+        **_steps_json(results, methods),
         "delay_frames": {m: params.delay_frames(m) for m in methods},
         "parameters": {
             "window": params.window,
@@ -134,6 +139,7 @@ def report(
                     "sd": _nums(s["sd"]),
                     "paired_t_tests": _tests_json(paired_t_tests(rs, methods)),
                     "transitions": _transitions_json(rs, methods),
+                    **_steps_json(rs, methods),
                 }
             )
     if sweep is not None:
@@ -155,3 +161,13 @@ def _transitions_json(results: Sequence[TrialResult], methods: Sequence[str]) ->
         m: {name: tr.summary(st) for name, st in pooled_transitions(results, m).items()}
         for m in methods
     }
+
+
+def _steps_json(results: Sequence[TrialResult], methods: Sequence[str]) -> dict:
+    """{"steps": method -> the pooled per-step figures} when any trial has steps, else {}."""
+    out = {}
+    for m in methods:
+        stats = pooled_steps(results, m)
+        if stats is not None:
+            out[m] = st.summary(stats)
+    return {"steps": out} if out else {}

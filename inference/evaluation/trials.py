@@ -21,6 +21,7 @@ import numpy as np
 from devices import clock
 from devices.frames import MODES
 from inference.errors import InferenceError
+from inference.evaluation import steps as st
 from inference.evaluation import transitions as tr
 from inference.fusion_design import N_MODES, mode_indices
 
@@ -28,6 +29,8 @@ log = logging.getLogger(__name__)
 
 SCORE_HEADER = (*MODES, "label")  # label: the terrain each image shows
 SCORE_HEADER_LOCOMOTION = (*SCORE_HEADER, "locomotion")  # + the mode keyed live
+# optional columns after label, in this order: the mode keyed live, gait events (0/1)
+SCORE_OPTIONAL = ("locomotion", "heel_contact", "toe_off")
 SUM_TOLERANCE = 0.01  # score rows must sum to 1 within this (they are often rounded)
 
 
@@ -49,6 +52,8 @@ class Trial:
     elevation_deg: np.ndarray | None = None  # (N,) camera above the horizon: gait cues
     geometry: np.ndarray | None = None  # (N,) the mode the terrain features show, -1: unknown
     ground_ahead: np.ndarray | None = None  # (N,) the mode the ground ahead slopes as, -1: unknown
+    steps: st.Steps | None = None  # the gait events the per-step metrics score at
+    gait_events: list[tuple[float, str]] | None = None  # (time s, event): the step fusion's cue
 
     def __post_init__(self) -> None:
         self.probabilities = np.asarray(self.probabilities, dtype=float)
@@ -181,12 +186,15 @@ class TrialResult:
     runs: dict[str, FusionRun]
     # method -> reference name -> its switches against that reference
     transitions: dict[str, dict[str, tr.TransitionStats]] = field(default_factory=dict)
+    steps: dict[str, st.StepStats] = field(default_factory=dict)  # method -> per-step figures
 
     def summarized(self) -> TrialResult:
         """The accuracies and switches a report needs, without the per-frame arrays (the
         trial's and each method's run: several MB for a long trial). Plots, the delay
         sweep and the confusion matrices need the whole result."""
-        return TrialResult(TrialSummary.of(self.trial), dict(self.accuracy), {}, self.transitions)
+        return TrialResult(
+            TrialSummary.of(self.trial), dict(self.accuracy), {}, self.transitions, self.steps
+        )
 
 
 # ---------------------------------------------------------------------------------------
@@ -195,8 +203,12 @@ class TrialResult:
 
 def read_scores(path: str | Path, fps: float = tr.PAPER_FPS) -> Trial:
     """A score CSV: header LG,US,DS,UR,DR,label, one row per frame in capture order, frames
-    `fps` a second. `label` is the terrain reference; an optional last column `locomotion`
-    (header LG,US,DS,UR,DR,label,locomotion) the locomotion reference.
+    `fps` a second. `label` is the terrain reference; optional columns after it, in this
+    order: `locomotion` (the locomotion reference), `heel_contact` and `toe_off` (1 on the
+    first frame at or after each gait event of the instrumented leg, else 0 or empty).
+    With `heel_contact` the trial is scored per step (inference.evaluation.steps): each
+    step's mode is the `locomotion` column's at its heel contact, else the `label`'s; and
+    its events feed the methods that act at steps.
 
     Every problem is a ScoreFileError naming the file and line (1 = the header).
     """
@@ -205,6 +217,7 @@ def read_scores(path: str | Path, fps: float = tr.PAPER_FPS) -> Trial:
     probabilities: list[list[float]] = []
     labels: list[int] = []
     locomotion: list[int] = []
+    events: dict[str, list[int]] = {"heel_contact": [], "toe_off": []}
     header_fields = SCORE_HEADER
     with open(path, newline="", encoding="utf-8-sig") as f:
         rows = csv.reader(f)
@@ -215,25 +228,35 @@ def read_scores(path: str | Path, fps: float = tr.PAPER_FPS) -> Trial:
                     f"{path}: empty file (expected the header {expected} and one row per frame)"
                 )
             header_fields = tuple(h.strip() for h in header)
-            if header_fields not in (SCORE_HEADER, SCORE_HEADER_LOCOMOTION):
+            if not _score_header_ok(header_fields):
                 raise ScoreFileError(
-                    f"{path}:1: expected the header {expected} (optionally ,locomotion), "
-                    f"got {','.join(header)}"
+                    f"{path}:1: expected the header {expected} (optionally followed by "
+                    f"{','.join(SCORE_OPTIONAL)}, in that order), got {','.join(header)}"
                 )
+            label_columns = [c for c in header_fields[N_MODES:] if c in ("label", "locomotion")]
+            event_columns = header_fields[N_MODES + len(label_columns) :]
             for row in rows:
                 line = rows.line_num
                 if not row or not any(c.strip() for c in row):
                     continue  # blank lines (often one at the end)
                 probabilities.append(_score_row(path, line, row, header_fields))
-                for column, into in zip(row[N_MODES:], (labels, locomotion)):
+                for name, column in zip(label_columns, row[N_MODES:]):
                     label = column.strip()
                     if label not in MODES:
-                        name = "label" if into is labels else "locomotion"
                         raise ScoreFileError(
                             f"{path}:{line}: unknown {name} {label!r} "
                             f"(expected one of {', '.join(MODES)})"
                         )
-                    into.append(MODES.index(label))
+                    (labels if name == "label" else locomotion).append(MODES.index(label))
+                first = N_MODES + len(label_columns)
+                for name, column in zip(event_columns, row[first:]):
+                    flag = column.strip()
+                    if flag not in ("", "0", "1"):
+                        raise ScoreFileError(
+                            f"{path}:{line}: {name}: expected 1 (an event) or 0, got {flag!r}"
+                        )
+                    if flag == "1":
+                        events[name].append(len(probabilities) - 1)
         except csv.Error as e:
             raise ScoreFileError(f"{path}:{rows.line_num}: not valid CSV: {e}") from None
         except UnicodeDecodeError:
@@ -241,13 +264,39 @@ def read_scores(path: str | Path, fps: float = tr.PAPER_FPS) -> Trial:
     if not probabilities:
         raise ScoreFileError(f"{path}: no frames after the header")
     n = len(probabilities)
+    times_s = np.arange(n) / fps
+    steps, gait_events = None, None
+    if "heel_contact" in header_fields:
+        hc = np.array(events["heel_contact"], dtype=int)
+        step_modes = np.array(locomotion or labels, dtype=int)[hc] if len(hc) else hc
+        steps = st.Steps(
+            times_s[hc],
+            step_modes,
+            times_s[np.array(events["toe_off"], dtype=int)],
+            source="scores",
+            mode_source="locomotion" if locomotion else "terrain",
+        )
+        gait_events = sorted(
+            (float(times_s[k]), name) for name, frames in events.items() for k in frames
+        )
     return Trial(
         path,
         np.array(probabilities),
         np.array(labels),
-        times_s=np.arange(n) / fps,
+        times_s=times_s,
         locomotion=np.array(locomotion) if locomotion else None,
+        steps=steps,
+        gait_events=gait_events,
     )
+
+
+def _score_header_ok(header: tuple[str, ...]) -> bool:
+    """LG..DR,label then any of SCORE_OPTIONAL, in their order."""
+    if header[: len(SCORE_HEADER)] != SCORE_HEADER:
+        return False
+    rest = list(header[len(SCORE_HEADER) :])
+    order = [c for c in SCORE_OPTIONAL if c in rest]
+    return rest == order
 
 
 def _score_row(
@@ -287,7 +336,10 @@ def trial_from_recording(path: str, data: Any, reference: str = "terrain") -> Tr
     data: a mapping (or object) with "probabilities" (N, 5), "terrain" (N modes each image
     shows, or None; a flat dict may give "truth" instead), "locomotion" (N modes keyed live,
     -1/None before the first key; or "labels"), "time_ns" and "metadata" (capture's
-    {"session": {...}}, or a flat dict). reference: what accuracy is scored against,
+    {"session": {...}}, or a flat dict); optionally "gait", the recording's gait events
+    (devices.frames.GaitEvent or their dicts: time_ns, event, source, mode), which give the
+    per-step metrics (`gait_steps`) and the step fusion's cue (the detector's events).
+    reference: what accuracy is scored against,
     "terrain" or "locomotion"; the other one, when present, serves the transition metrics.
     Frames without a finite CNN output are left out.
     """
@@ -333,6 +385,15 @@ def trial_from_recording(path: str, data: Any, reference: str = "terrain") -> Tr
         geometry = np.asarray(geometry, dtype=int)
     if ahead is not None:
         ahead = np.asarray(ahead, dtype=int)
+    # a recording without the detector's events still runs the step fusion: it then
+    # switches on its hold alone (inference.fusion_steps)
+    steps, gait_events = None, []
+    gait = get("gait") if has("gait") else None
+    if gait and times is not None and len(times):
+        t0 = int(np.asarray(times, dtype=np.int64)[0])
+        logged = get("gait_logged_ns") if has("gait_logged_ns") else None
+        steps, gait_events = gait_steps(gait, t0, times_s, second, logged)
+        gait_events = gait_events or []
     finite = np.isfinite(probabilities).all(axis=1) if probabilities.ndim == 2 else None
     if finite is not None and not finite.all():
         log.warning("%s: %d frame(s) without a CNN output left out", path, (~finite).sum())
@@ -353,4 +414,73 @@ def trial_from_recording(path: str, data: Any, reference: str = "terrain") -> Tr
         elevation,
         geometry,
         ahead,
+        steps,
+        gait_events,
     )
+
+
+def _event_field(event, name: str):
+    return event.get(name) if isinstance(event, dict) else getattr(event, name, None)
+
+
+def gait_steps(
+    events,
+    t0_ns: int,
+    times_s: np.ndarray | None,
+    locomotion: np.ndarray | None,
+    logged_ns=None,
+) -> tuple[st.Steps | None, list[tuple[float, str]] | None]:
+    """From a recording's gait events (times on the session clock, `t0_ns` the first
+    frame's): the steps the per-step metrics score at, and the detector's events as the
+    step fusion's cue ((seconds since the first frame, event), in time order): each at
+    the later of its time and when it was logged (`logged_ns`, one per event: when the
+    detector reported it), as live the fusion gets an event only once it is detected.
+
+    The steps are the simulator's heel contacts with the terrain under the foot where the
+    recording has them; else the detector's, each with the locomotion mode (keyed live) in
+    force at the frame at or before it; None without either."""
+    logged = [None] * len(events) if logged_ns is None else list(logged_ns)
+    rows = [
+        (
+            clock.seconds(int(_event_field(e, "time_ns")) - t0_ns),
+            str(_event_field(e, "event")),
+            str(_event_field(e, "source")),
+            _event_field(e, "mode"),
+            None if known is None else clock.seconds(int(known) - t0_ns),
+        )
+        for e, known in zip(events, logged)
+    ]
+    rows.sort(key=lambda r: r[0])
+    imu = [(t, ev) for t, ev, source, _, _ in rows if source == "imu"]
+    detected = sorted(
+        (t if known is None else max(t, known), ev)
+        for t, ev, source, _, known in rows
+        if source == "imu"
+    )
+    sim = [r[:4] for r in rows if r[2] == "simulator"]
+    steps = None
+    if any(ev == st.HEEL_CONTACT for _, ev, _, _ in sim):
+        hc = [(t, mode) for t, ev, _, mode in sim if ev == st.HEEL_CONTACT]
+        steps = st.Steps(
+            np.array([t for t, _ in hc]),
+            np.array([MODES.index(m) if m in MODES else -1 for _, m in hc], dtype=int),
+            np.array([t for t, ev, _, _ in sim if ev == st.TOE_OFF]),
+            source="simulator",
+            mode_source="simulator",
+        )
+    elif (
+        locomotion is not None
+        and times_s is not None
+        and any(ev == st.HEEL_CONTACT for _, ev in imu)
+    ):
+        hc = np.array([t for t, ev in imu if ev == st.HEEL_CONTACT])
+        k = np.searchsorted(np.asarray(times_s), hc, side="right") - 1
+        modes = np.where(k >= 0, np.asarray(locomotion)[np.maximum(k, 0)], -1)
+        steps = st.Steps(
+            hc,
+            modes,
+            np.array([t for t, ev in imu if ev == st.TOE_OFF]),
+            source="imu",
+            mode_source="locomotion",
+        )
+    return steps, (detected or None)

@@ -49,13 +49,14 @@ def trials():
 # --- running methods ---------------------------------------------------------------------
 
 
-# gait and geometry need a recording's cues
+# gait, geometry and steps need a recording's cues
 SCORE_METHODS = [
     m
     for m in METHODS
     if not (
         getattr(make_fusion(m), "uses_gait", False)
         or getattr(make_fusion(m), "uses_geometry", False)
+        or getattr(make_fusion(m), "uses_steps", False)
     )
 ]
 

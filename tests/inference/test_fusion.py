@@ -324,6 +324,7 @@ def test_make_fusion_knows_every_method_and_its_delay():
         "steady+hysteresis": 1,
         "steady+geometry": 1,
         "steady+slope": 1,
+        "steady+steps": 1,
     }
     with pytest.raises(InferenceError, match="unknown fusion method"):
         make_fusion("kalman")

@@ -115,8 +115,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="any classifier's per-frame scores from CSV files",
         description="Evaluate per-frame scores: each CSV has the header "
         "LG,US,DS,UR,DR,label and one row per frame in capture order; label is the terrain "
-        "each image shows. An optional last column, locomotion, the subject's mode keyed "
-        "live, adds the lead time.",
+        "each image shows. Optional columns after it, in this order: locomotion, the "
+        "subject's mode keyed live (adds the lead time); heel_contact and toe_off, 1 on the "
+        "first frame at or after each gait event of the instrumented leg (adds the per-step "
+        "figures, and feeds steady+steps).",
     )
     p.add_argument("files", nargs="+", metavar="FILE.csv", help="score files, one per trial")
     p.add_argument(
@@ -301,6 +303,7 @@ def format_report(data: dict, methods: list[str]) -> str:
         out += _table(["condition", "subject", "trials", *titles], rows, left=2)
 
     out += _format_transitions(data, methods)
+    out += _format_steps(data, methods)
 
     out += _format_tests(data.get("paired_t_tests"))
 
@@ -396,6 +399,45 @@ def _format_transitions(data: dict, methods: list[str]) -> list[str]:
                 rows.append([scope, _title(m), str(s["changes"]), str(s["missed"]), *tail])
         out += _table(head, rows, left=2)
     return out
+
+
+def _format_steps(data: dict, methods: list[str]) -> list[str]:
+    """The per-step figures per method, pooled over the files (and per condition)."""
+    scopes = [("all", data.get("steps") or {})]
+    if len(data.get("conditions") or []) > 1:
+        scopes += [(c["condition"] or "-", c.get("steps") or {}) for c in data["conditions"]]
+    if not scopes[0][1]:
+        return []
+    any_stats = next(iter(scopes[0][1].values()))
+    out = [
+        "",
+        f"per step (gait events: {any_stats['source']}, step modes: {any_stats['mode_source']}): "
+        "errors at heel contact and at toe off in %, transition steps wrong at their heel "
+        "contact (late), median lead in steps, critical errors (wrong at a heel contact more "
+        "than one step from a transition) a minute",
+    ]
+    head = ["", "method", "heel contacts", "HC err", "TO err", "transitions", "late", "lead"]
+    head.append("critical/min")
+    rows = []
+    for scope, steps in scopes:
+        for m in methods:
+            s = steps.get(m)
+            if s is None:
+                continue
+            rows.append(
+                [
+                    scope,
+                    _title(m),
+                    str(s["heel_contacts"]),
+                    _pct(s["error_rate_at_heel_contact"]),
+                    _pct(s["error_rate_at_toe_off"]),
+                    str(s["transition_steps"]),
+                    str(s["transition_steps_late"]),
+                    _num(s["lead_steps"]["median"], 1),
+                    _num(s["critical_per_min"], 2),
+                ]
+            )
+    return out + _table(head, rows, left=2)
 
 
 def _mean_sd(entry: dict, method: str) -> str:

@@ -33,3 +33,38 @@ def test_the_pipeline_shows_a_geometry_fusion_each_frames_features():
     assert seen == shown and -1 not in seen  # each frame's features, after its push
     ahead = [ground_ahead(r.features.get("ahead_slope_deg")) for r in results]
     assert ahead_seen == ahead and set(ahead) != {-1}  # and the ground ahead, seen or not
+
+
+def test_the_pipeline_hands_a_step_fusion_the_gait_events_up_to_each_frame():
+    from devices.frames import GaitEvent
+    from inference.fusion import StepFusion
+
+    class Spy(StepFusion):
+        def see_gait(self, event):
+            seen.append((self._frame, event))
+            super().see_gait(event)
+
+    class Classifier:
+        def predict(self, image):
+            return np.array([0.6, 0.1, 0.1, 0.1, 0.1])
+
+    seen: list = []
+    pipeline = Pipeline(PreprocessConfig(), Classifier(), Spy())
+    frames = [synthetic_frame(k, 100_000_000 * k) for k in range(3)]  # 0, 0.1, 0.2 s
+    # from the IMU's thread, ahead of the frames: each waits for the first frame at or
+    # after its time
+    pipeline.see_gait(GaitEvent(50_000_000, "heel_contact", "imu"))
+    pipeline.see_gait(GaitEvent(100_000_000, "toe_off", "imu"))
+    # known only at 0.15 s (the IMU sample that revealed it): after frame 1
+    pipeline.see_gait(GaitEvent(110_000_000, "heel_contact", "imu"), 150_000_000)
+    pipeline.see_gait(GaitEvent(250_000_000, "heel_contact", "imu"))
+    q = quat_from_euler(0.0, 0.0, 0.0)
+    for f in frames:
+        pipeline.process(f, q)
+    # two before frame 1's push (the fusion had taken frame 0), one before frame 2's; the
+    # last waits for a frame at 0.25 s
+    assert seen == [(1, "heel_contact"), (1, "toe_off"), (2, "heel_contact")]
+    # a fusion that does not act at steps is never handed any
+    plain = Pipeline(PreprocessConfig(), Classifier(), GeometryFusion())
+    plain.see_gait(GaitEvent(0, "heel_contact", "imu"))
+    assert not plain._gait

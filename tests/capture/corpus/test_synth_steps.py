@@ -1,0 +1,34 @@
+"""A recording made with the step fusion: the live pipeline got the detector's gait events
+as eval hands them over, so offline decisions repeat the live ones."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from capture.recording.reader import read_evaluation_trial, read_trial
+from tui import cli
+
+
+@pytest.mark.slow
+def test_steady_steps_decides_offline_as_it_decided_live(tmp_path):
+    from inference.evaluation.metrics import run_trial
+    from inference.fusion import make_fusion
+
+    config = tmp_path / "walkcap.toml"
+    config.write_text('[fusion]\nmethod = "steady+steps"\n')
+    out = tmp_path / "synth"
+    args = ["--config", str(config), "synth", "--format", "recording", "--out", str(out)]
+    args += ["--sessions", "1", "--preset", "indoor", "--seed", "78", "--frames", "120"]
+    assert cli.main(args) == 0
+    (path,) = out.glob("*.mcap")
+    recorded = read_trial(path)
+    live = recorded["decisions"]
+    trial = read_evaluation_trial(path)
+    assert sum(1 for _, e in trial.gait_events if e == "heel_contact") >= 5  # 8 s walking
+    assert len(set(live[live >= 0].tolist())) > 1  # it changed its mode at least once
+    offline = run_trial(make_fusion("steady+steps"), trial)
+    np.testing.assert_array_equal(offline.final[live >= 0], live[live >= 0])
+    # without the events the schedule differs: the test would see a broken hand-over
+    alone = run_trial(make_fusion("steady+steps"), replace(trial, gait_events=[]))
+    assert not np.array_equal(alone.final[live >= 0], live[live >= 0])
