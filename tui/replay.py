@@ -45,6 +45,53 @@ log = logging.getLogger(__name__)
 
 TIMELINE_S = 20.0
 PROFILE_POINTS = 600  # per frame kept for the profile plot (the display is ~100 dots wide)
+WINDOW_S = (1.5, 1.5)  # images and profiles held before and after the cursor's frame
+REREAD_S = (1.0, 0.25)  # read again when the cursor comes this close to the window's edge
+
+
+def _packed_image(data) -> np.ndarray:
+    return np.packbits(np.asarray(data) > 0)
+
+
+def _profile(data) -> np.ndarray:
+    cloud = np.asarray(data)
+    if len(cloud) > PROFILE_POINTS:
+        cloud = cloud[np.linspace(0, len(cloud) - 1, PROFILE_POINTS).astype(int)]
+    return cloud[:, [0, 2]].astype(np.float16)  # forward, height
+
+
+class _Window:
+    """The images and profiles of the frames around the cursor, read from a finished
+    file's chunks (its index) when the cursor nears the edge of what is held: memory the
+    same whatever the recording's length, one short read each second or so of playback."""
+
+    def __init__(self, rec) -> None:
+        self.path = rec.path
+        self._decode = rec.decoder()
+        self._span: tuple[int, int] | None = None  # receive-time span held
+        self.images: dict[int, np.ndarray] = {}
+        self.profiles: dict[int, np.ndarray] = {}
+
+    def around(self, host_ns: int) -> None:
+        """Hold the frames received within WINDOW_S of `host_ns`."""
+        if self._span is not None:
+            lo, hi = self._span
+            if lo + clock.to_ns(REREAD_S[0]) <= host_ns <= hi - clock.to_ns(REREAD_S[1]):
+                return
+        from mcap.reader import make_reader
+
+        lo, hi = host_ns - clock.to_ns(WINDOW_S[0]), host_ns + clock.to_ns(WINDOW_S[1])
+        images, profiles = {}, {}
+        with open(self.path, "rb") as f:
+            for schema, channel, message in make_reader(f).iter_messages(
+                topics=[T.BINARY_IMAGE, T.CLOUD], starting_at=max(lo, 0), ending_before=hi
+            ):
+                m = self._decode(schema, channel, message)
+                if m.topic == T.BINARY_IMAGE:
+                    images[m.sequence] = _packed_image(m.data)
+                else:
+                    profiles[m.sequence] = _profile(m.data)
+        self.images, self.profiles, self._span = images, profiles, (lo, hi)
 
 
 @dataclasses.dataclass
@@ -61,8 +108,8 @@ class _Frames:
     voted: np.ndarray  # (N,)
     fused_shown: np.ndarray  # (N,) latest fused decision produced at or before the frame
     truth: np.ndarray  # (N,) simulator's mode, -1 none
-    images: dict[int, np.ndarray]  # frame -> packed bits of the 100 x 100 image
-    profiles: dict[int, np.ndarray]  # frame -> (M, 2) float16
+    images: dict[int, np.ndarray]  # frame -> packed bits of the 100 x 100 image (all
+    profiles: dict[int, np.ndarray]  # frame -> (M, 2) float16     frames, or the window's)
     flags: dict[int, str]
     features: dict[int, dict]
 
@@ -127,6 +174,7 @@ class ReplaySource:
         self._camera = self._imu = None
         self._changes_cache: tuple[list, np.ndarray] | None = None
         self._unsaved = False
+        self._window: _Window | None = None  # a finished file's images, read as shown
 
     # ---- life cycle -------------------------------------------------------------------
 
@@ -150,7 +198,12 @@ class ReplaySource:
         self.playing = self._play_on_start
 
     def _load(self, rec) -> _Frames:
+        """The per-frame table; the images and profiles of a finished file are read around
+        the cursor as it moves (_Window), an unfinished file's (no index) all at once."""
         images, profiles = {}, {}
+        if rec.complete:
+            self._window = _Window(rec)
+            images, profiles = self._window.images, self._window.profiles
 
         def take(m) -> None:
             d = m.data
@@ -165,14 +218,12 @@ class ReplaySource:
                     )
                 )
             elif m.topic == T.BINARY_IMAGE:
-                images[m.sequence] = np.packbits(np.asarray(d) > 0)
+                images[m.sequence] = _packed_image(d)
             elif m.topic == T.CLOUD:
-                cloud = np.asarray(d)
-                if len(cloud) > PROFILE_POINTS:
-                    cloud = cloud[np.linspace(0, len(cloud) - 1, PROFILE_POINTS).astype(int)]
-                profiles[m.sequence] = cloud[:, [0, 2]].astype(np.float16)  # forward, height
+                profiles[m.sequence] = _profile(d)
 
-        table, self.original_labels = frame_table(rec, (T.EVENTS, T.BINARY_IMAGE, T.CLOUD), take)
+        shown = (T.EVENTS,) if rec.complete else (T.EVENTS, T.BINARY_IMAGE, T.CLOUD)
+        table, self.original_labels = frame_table(rec, shown, take)
         self.events.sort(key=lambda e: e.time_ns)
         return _Frames.shown(table, images, profiles)
 
@@ -320,6 +371,9 @@ class ReplaySource:
         f = self.frames
         k, t = self._cursor()
         i = int(f.index[k])
+        if self._window is not None:
+            self._window.around(int(f.host_ns[k]))
+            f.images, f.profiles = self._window.images, self._window.profiles
         image = (
             np.unpackbits(f.images[i])[: 100 * 100].reshape(100, 100)
             if i in f.images
