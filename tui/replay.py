@@ -18,6 +18,7 @@ import dataclasses
 import datetime as dt
 import logging
 import os
+import struct
 from pathlib import Path
 
 import numpy as np
@@ -45,8 +46,7 @@ log = logging.getLogger(__name__)
 
 TIMELINE_S = 20.0
 PROFILE_POINTS = 600  # per frame kept for the profile plot (the display is ~100 dots wide)
-WINDOW_S = (1.5, 1.5)  # images and profiles held before and after the cursor's frame
-REREAD_S = (1.0, 0.25)  # read again when the cursor comes this close to the window's edge
+WINDOW_S = (1.0, 1.5)  # images and profiles held before and after the cursor's frame
 
 
 def _packed_image(data) -> np.ndarray:
@@ -60,38 +60,98 @@ def _profile(data) -> np.ndarray:
     return cloud[:, [0, 2]].astype(np.float16)  # forward, height
 
 
+_CHUNK_HEAD = struct.Struct("<BQQQQI")  # opcode, length, start, end, uncompressed size, CRC
+_MESSAGE_HEAD = struct.Struct("<BQHIQQ")  # opcode, length, channel, sequence, log, publish
+
+
 class _Window:
     """The images and profiles of the frames around the cursor, read from a finished
-    file's chunks (its index) when the cursor nears the edge of what is held: memory the
-    same whatever the recording's length, one short read each second or so of playback."""
+    file's chunks as the cursor reaches them: each chunk decompressed once while it is
+    near, only its image and cloud messages parsed (by its message index), dropped when
+    the cursor has left it. Memory the same whatever the recording's length."""
 
     def __init__(self, rec) -> None:
+        from mcap.reader import make_reader
+
         self.path = rec.path
         self._decode = rec.decoder()
-        self._span: tuple[int, int] | None = None  # receive-time span held
+        with open(self.path, "rb") as f:
+            summary = make_reader(f).get_summary()
+        self._schemas = summary.schemas
+        self._channels = {
+            c.id: c for c in summary.channels.values() if c.topic in (T.BINARY_IMAGE, T.CLOUD)
+        }
+        self._chunks = sorted(
+            (
+                c
+                for c in summary.chunk_indexes
+                if set(c.message_index_offsets) & set(self._channels)
+            ),
+            key=lambda c: c.message_start_time,
+        )
+        self._held: dict[int, tuple[dict, dict]] = {}  # chunk offset -> (images, profiles)
         self.images: dict[int, np.ndarray] = {}
         self.profiles: dict[int, np.ndarray] = {}
 
     def around(self, host_ns: int) -> None:
-        """Hold the frames received within WINDOW_S of `host_ns`."""
-        if self._span is not None:
-            lo, hi = self._span
-            if lo + clock.to_ns(REREAD_S[0]) <= host_ns <= hi - clock.to_ns(REREAD_S[1]):
-                return
-        from mcap.reader import make_reader
-
+        """Hold the frames of the chunks received within WINDOW_S of `host_ns`."""
         lo, hi = host_ns - clock.to_ns(WINDOW_S[0]), host_ns + clock.to_ns(WINDOW_S[1])
-        images, profiles = {}, {}
+        near = [c for c in self._chunks if c.message_end_time >= lo and c.message_start_time <= hi]
+        if {c.chunk_start_offset for c in near} == set(self._held):
+            return
         with open(self.path, "rb") as f:
-            for schema, channel, message in make_reader(f).iter_messages(
-                topics=[T.BINARY_IMAGE, T.CLOUD], starting_at=max(lo, 0), ending_before=hi
-            ):
-                m = self._decode(schema, channel, message)
+            held = {
+                c.chunk_start_offset: self._held.get(c.chunk_start_offset) or self._read(f, c)
+                for c in near
+            }
+        self._held = held
+        self.images = {k: v for images, _ in held.values() for k, v in images.items()}
+        self.profiles = {k: v for _, profiles in held.values() for k, v in profiles.items()}
+
+    def _read(self, f, chunk) -> tuple[dict, dict]:
+        import zstandard
+        from mcap.records import Message
+
+        f.seek(chunk.chunk_start_offset)
+        data = f.read(chunk.chunk_length)
+        *_, size, _ = _CHUNK_HEAD.unpack_from(data)
+        at = _CHUNK_HEAD.size
+        (n,) = struct.unpack_from("<I", data, at)
+        compression = data[at + 4 : at + 4 + n].decode()
+        at += 4 + n + 8
+        records = data[at:]
+        if compression == "zstd":
+            records = zstandard.ZstdDecompressor().decompress(records, max_output_size=size)
+        elif compression:
+            raise CaptureError(f"{self.path}: chunks compressed with {compression}")
+        images, profiles = {}, {}
+        for cid, channel in self._channels.items():
+            index_at = chunk.message_index_offsets.get(cid)
+            if index_at is None:
+                continue
+            f.seek(index_at)
+            head = f.read(15)
+            (length,) = struct.unpack_from("<Q", head, 1)
+            body = head[9:] + f.read(length - 6)
+            pairs = np.frombuffer(body, dtype="<u8", offset=6).reshape(-1, 2)
+            for offset in pairs[:, 1]:
+                _, length, _, seq, log_time, publish_time = _MESSAGE_HEAD.unpack_from(
+                    records, offset
+                )
+                payload = records[offset + _MESSAGE_HEAD.size : offset + 9 + length]
+                message = Message(
+                    channel_id=cid,
+                    sequence=seq,
+                    log_time=log_time,
+                    publish_time=publish_time,
+                    data=payload,
+                )
+                m = self._decode(self._schemas.get(channel.schema_id), channel, message)
                 if m.topic == T.BINARY_IMAGE:
                     images[m.sequence] = _packed_image(m.data)
                 else:
                     profiles[m.sequence] = _profile(m.data)
-        self.images, self.profiles, self._span = images, profiles, (lo, hi)
+        return images, profiles
 
 
 @dataclasses.dataclass
