@@ -111,17 +111,18 @@ def tables(path: str | os.PathLike) -> dict:
         "condition": condition,
         "trial": trial,
     }
-    imu, events = _ImuRows(), []
+    imu, events = [], []
 
     def take(m) -> None:
-        if m.topic == T.IMU:
-            imu.add(m.data)
+        if m.topic == T.IMU:  # the fields the table takes: a long trial's samples are many
+            s = m.data
+            imu.append(tuple(s.get(k) for k in _IMU_FIELDS))
         else:
             events.append(m.data)
 
     table, changes = frame_table(rec, (T.IMU, T.EVENTS), take)
     events.sort(key=lambda e: int(e.get("time_ns", 0)))  # in time order, as the rest
-    imu_t = imu.times()
+    imu_t = np.array([int(s[0] if s[0] is not None else s[1]) for s in imu], dtype=np.int64)
     label_t = np.array([c[0] for c in changes], dtype=np.int64)
     event_t = np.array([int(e.get("time_ns", 0)) for e in events], dtype=np.int64)
     # time_s counts from the recording's start: its earliest time, receive or sample (an
@@ -210,71 +211,37 @@ def _frame_columns(table: FrameTable, offset: int | None, t0: int) -> dict:
     return frames
 
 
-# an IMU sample's fields the table takes: integers (None: missing), then vectors
-_IMU_INTS = ("time_ns", "host_time_ns", "packet_counter", "sample_time_fine", "status_word")
-_IMU_VECTORS = (
-    ("quaternion", ("qw", "qx", "qy", "qz")),
-    ("acceleration", ("acc_x", "acc_y", "acc_z")),
-    ("rate_of_turn", ("gyr_x", "gyr_y", "gyr_z")),
+# an IMU sample's fields the table takes, in this order
+_IMU_FIELDS = (
+    "time_ns",
+    "host_time_ns",
+    "packet_counter",
+    "sample_time_fine",
+    "quaternion",
+    "acceleration",
+    "rate_of_turn",
+    "status_word",
 )
 
 
-class _ImuRows:
-    """The IMU table's fields as the samples are read, in flat typed arrays: 88 bytes a
-    sample rather than a Python object a value (a long trial's samples are many)."""
-
-    def __init__(self) -> None:
-        from array import array
-
-        self.ints = array("q")
-        self.missing = bytearray()
-        self.floats = array("d")
-
-    def __len__(self) -> int:
-        return len(self.missing) // len(_IMU_INTS)
-
-    def add(self, sample: dict) -> None:
-        for key in _IMU_INTS:
-            v = sample.get(key)
-            self.missing.append(v is None)
-            self.ints.append(0 if v is None else int(v))
-        for key, names in _IMU_VECTORS:
-            v = sample.get(key)
-            if v is None:
-                self.floats.extend([np.nan] * len(names))
-            else:
-                self.floats.extend([np.nan if x is None else float(x) for x in v])
-
-    def column(self, key: str):
-        """An integer field as pandas' nullable Int64."""
-        j = _IMU_INTS.index(key)
-        n = len(_IMU_INTS)
-        values = np.frombuffer(self.ints, dtype=np.int64)[j::n].copy()
-        mask = np.frombuffer(bytes(self.missing), dtype=bool)[j::n].copy()
-        return _pd().arrays.IntegerArray(values, mask)
-
-    def times(self) -> np.ndarray:
-        """Each sample's time: its sample time, else its arrival."""
-        n = len(_IMU_INTS)
-        ints = np.frombuffer(self.ints, dtype=np.int64)
-        missing = np.frombuffer(bytes(self.missing), dtype=bool)
-        return np.where(missing[0::n], ints[1::n], ints[0::n]).astype(np.int64)
-
-    def vectors(self) -> np.ndarray:
-        width = sum(len(names) for _, names in _IMU_VECTORS)
-        return np.frombuffer(self.floats, dtype=np.float64).reshape(-1, width)
-
-
-def _imu_columns(imu: _ImuRows, imu_t: np.ndarray, offset: int | None, t0: int) -> dict:
-    imu_cols = {"time_ns": imu_t, "host_time_ns": imu.column("host_time_ns")}
+def _imu_columns(imu: list[tuple], imu_t: np.ndarray, offset: int | None, t0: int) -> dict:
+    imu_cols = {"time_ns": imu_t, "host_time_ns": _ints([s[1] for s in imu])}
     imu_cols.update(_clock(imu_t, offset, t0))
-    imu_cols["packet_counter"] = imu.column("packet_counter")
-    imu_cols["sample_time_fine"] = imu.column("sample_time_fine")
-    names = [name for _, group in _IMU_VECTORS for name in group]
-    vectors = imu.vectors()
-    for j, name in enumerate(names):
-        imu_cols[name] = vectors[:, j].copy()
-    imu_cols["status_word"] = imu.column("status_word")
+    imu_cols["packet_counter"] = _ints([s[2] for s in imu])
+    imu_cols["sample_time_fine"] = _ints([s[3] for s in imu])
+    for at, names in (
+        (4, ("qw", "qx", "qy", "qz")),
+        (5, ("acc_x", "acc_y", "acc_z")),
+        (6, ("gyr_x", "gyr_y", "gyr_z")),
+    ):
+        values = np.full((len(imu), len(names)), np.nan)
+        for k, s in enumerate(imu):
+            v = s[at]
+            if v is not None:
+                values[k] = [np.nan if x is None else x for x in v]
+        for j, name in enumerate(names):
+            imu_cols[name] = values[:, j]
+    imu_cols["status_word"] = _ints([s[7] for s in imu])
     return imu_cols
 
 
