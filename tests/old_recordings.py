@@ -2,7 +2,7 @@
 
 `as_version_1` copies a recording record for record into a file that says
 `format_version` 1 and holds what version 1 held: no "derivation" record, no record
-digests, and fused messages without `source_frame_index`.
+digests or chunk digests, and fused messages without `source_frame_index`.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ def as_version_1(
         w.start(profile="", library=reader.get_header().library)
         for m in reader.iter_metadata():
             values = dict(m.metadata)
-            if m.name in ("derivation", "record_digests") or m.name in extra:
+            if m.name in ("derivation", "record_digests", "chunk_digests") or m.name in extra:
                 continue
             if m.name == "recording":
                 values["format_version"] = T.encode_metadata({"v": version})["v"]

@@ -18,6 +18,7 @@ import dataclasses
 import datetime as dt
 import logging
 import os
+import struct
 from pathlib import Path
 
 import numpy as np
@@ -45,6 +46,112 @@ log = logging.getLogger(__name__)
 
 TIMELINE_S = 20.0
 PROFILE_POINTS = 600  # per frame kept for the profile plot (the display is ~100 dots wide)
+WINDOW_S = (1.0, 1.5)  # images and profiles held before and after the cursor's frame
+
+
+def _packed_image(data) -> np.ndarray:
+    return np.packbits(np.asarray(data) > 0)
+
+
+def _profile(data) -> np.ndarray:
+    cloud = np.asarray(data)
+    if len(cloud) > PROFILE_POINTS:
+        cloud = cloud[np.linspace(0, len(cloud) - 1, PROFILE_POINTS).astype(int)]
+    return cloud[:, [0, 2]].astype(np.float16)  # forward, height
+
+
+_CHUNK_HEAD = struct.Struct("<BQQQQI")  # opcode, length, start, end, uncompressed size, CRC
+_MESSAGE_HEAD = struct.Struct("<BQHIQQ")  # opcode, length, channel, sequence, log, publish
+
+
+class _Window:
+    """The images and profiles of the frames around the cursor, read from a finished
+    file's chunks as the cursor reaches them: each chunk decompressed once while it is
+    near, only its image and cloud messages parsed (by its message index), dropped when
+    the cursor has left it. Memory the same whatever the recording's length."""
+
+    def __init__(self, rec) -> None:
+        from mcap.reader import make_reader
+
+        self.path = rec.path
+        self._decode = rec.decoder()
+        with open(self.path, "rb") as f:
+            summary = make_reader(f).get_summary()
+        self._schemas = summary.schemas
+        self._channels = {
+            c.id: c for c in summary.channels.values() if c.topic in (T.BINARY_IMAGE, T.CLOUD)
+        }
+        self._chunks = sorted(
+            (
+                c
+                for c in summary.chunk_indexes
+                if set(c.message_index_offsets) & set(self._channels)
+            ),
+            key=lambda c: c.message_start_time,
+        )
+        self._held: dict[int, tuple[dict, dict]] = {}  # chunk offset -> (images, profiles)
+        self.images: dict[int, np.ndarray] = {}
+        self.profiles: dict[int, np.ndarray] = {}
+
+    def around(self, host_ns: int) -> None:
+        """Hold the frames of the chunks received within WINDOW_S of `host_ns`."""
+        lo, hi = host_ns - clock.to_ns(WINDOW_S[0]), host_ns + clock.to_ns(WINDOW_S[1])
+        near = [c for c in self._chunks if c.message_end_time >= lo and c.message_start_time <= hi]
+        if {c.chunk_start_offset for c in near} == set(self._held):
+            return
+        with open(self.path, "rb") as f:
+            held = {
+                c.chunk_start_offset: self._held.get(c.chunk_start_offset) or self._read(f, c)
+                for c in near
+            }
+        self._held = held
+        self.images = {k: v for images, _ in held.values() for k, v in images.items()}
+        self.profiles = {k: v for _, profiles in held.values() for k, v in profiles.items()}
+
+    def _read(self, f, chunk) -> tuple[dict, dict]:
+        import zstandard
+        from mcap.records import Message
+
+        f.seek(chunk.chunk_start_offset)
+        data = f.read(chunk.chunk_length)
+        *_, size, _ = _CHUNK_HEAD.unpack_from(data)
+        at = _CHUNK_HEAD.size
+        (n,) = struct.unpack_from("<I", data, at)
+        compression = data[at + 4 : at + 4 + n].decode()
+        at += 4 + n + 8
+        records = data[at:]
+        if compression == "zstd":
+            records = zstandard.ZstdDecompressor().decompress(records, max_output_size=size)
+        elif compression:
+            raise CaptureError(f"{self.path}: chunks compressed with {compression}")
+        images, profiles = {}, {}
+        for cid, channel in self._channels.items():
+            index_at = chunk.message_index_offsets.get(cid)
+            if index_at is None:
+                continue
+            f.seek(index_at)
+            head = f.read(15)
+            (length,) = struct.unpack_from("<Q", head, 1)
+            body = head[9:] + f.read(length - 6)
+            pairs = np.frombuffer(body, dtype="<u8", offset=6).reshape(-1, 2)
+            for offset in pairs[:, 1]:
+                _, length, _, seq, log_time, publish_time = _MESSAGE_HEAD.unpack_from(
+                    records, offset
+                )
+                payload = records[offset + _MESSAGE_HEAD.size : offset + 9 + length]
+                message = Message(
+                    channel_id=cid,
+                    sequence=seq,
+                    log_time=log_time,
+                    publish_time=publish_time,
+                    data=payload,
+                )
+                m = self._decode(self._schemas.get(channel.schema_id), channel, message)
+                if m.topic == T.BINARY_IMAGE:
+                    images[m.sequence] = _packed_image(m.data)
+                else:
+                    profiles[m.sequence] = _profile(m.data)
+        return images, profiles
 
 
 @dataclasses.dataclass
@@ -61,8 +168,8 @@ class _Frames:
     voted: np.ndarray  # (N,)
     fused_shown: np.ndarray  # (N,) latest fused decision produced at or before the frame
     truth: np.ndarray  # (N,) simulator's mode, -1 none
-    images: dict[int, np.ndarray]  # frame -> packed bits of the 100 x 100 image
-    profiles: dict[int, np.ndarray]  # frame -> (M, 2) float16
+    images: dict[int, np.ndarray]  # frame -> packed bits of the 100 x 100 image (all
+    profiles: dict[int, np.ndarray]  # frame -> (M, 2) float16     frames, or the window's)
     flags: dict[int, str]
     features: dict[int, dict]
 
@@ -127,6 +234,7 @@ class ReplaySource:
         self._camera = self._imu = None
         self._changes_cache: tuple[list, np.ndarray] | None = None
         self._unsaved = False
+        self._window: _Window | None = None  # a finished file's images, read as shown
 
     # ---- life cycle -------------------------------------------------------------------
 
@@ -150,7 +258,12 @@ class ReplaySource:
         self.playing = self._play_on_start
 
     def _load(self, rec) -> _Frames:
+        """The per-frame table; the images and profiles of a finished file are read around
+        the cursor as it moves (_Window), an unfinished file's (no index) all at once."""
         images, profiles = {}, {}
+        if rec.complete:
+            self._window = _Window(rec)
+            images, profiles = self._window.images, self._window.profiles
 
         def take(m) -> None:
             d = m.data
@@ -165,14 +278,12 @@ class ReplaySource:
                     )
                 )
             elif m.topic == T.BINARY_IMAGE:
-                images[m.sequence] = np.packbits(np.asarray(d) > 0)
+                images[m.sequence] = _packed_image(d)
             elif m.topic == T.CLOUD:
-                cloud = np.asarray(d)
-                if len(cloud) > PROFILE_POINTS:
-                    cloud = cloud[np.linspace(0, len(cloud) - 1, PROFILE_POINTS).astype(int)]
-                profiles[m.sequence] = cloud[:, [0, 2]].astype(np.float16)  # forward, height
+                profiles[m.sequence] = _profile(d)
 
-        table, self.original_labels = frame_table(rec, (T.EVENTS, T.BINARY_IMAGE, T.CLOUD), take)
+        shown = (T.EVENTS,) if rec.complete else (T.EVENTS, T.BINARY_IMAGE, T.CLOUD)
+        table, self.original_labels = frame_table(rec, shown, take)
         self.events.sort(key=lambda e: e.time_ns)
         return _Frames.shown(table, images, profiles)
 
@@ -320,6 +431,9 @@ class ReplaySource:
         f = self.frames
         k, t = self._cursor()
         i = int(f.index[k])
+        if self._window is not None:
+            self._window.around(int(f.host_ns[k]))
+            f.images, f.profiles = self._window.images, self._window.profiles
         image = (
             np.unpackbits(f.images[i])[: 100 * 100].reshape(100, 100)
             if i in f.images

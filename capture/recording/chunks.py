@@ -17,12 +17,14 @@ import logging
 import os
 import threading
 import time
+import zlib
 from pathlib import Path
 
 import numpy as np
 
 from capture import __version__
 from capture.recording import topics as T
+from capture.recording.chunk_digests import CHUNK_DIGESTS, Tally
 from capture.recording.digests import Sealer
 from capture.recording.encode import (
     Encoded,
@@ -98,15 +100,19 @@ MEDIA_TYPES = {
 
 
 class TrackedFile:
-    """The recording's file as the mcap writer sees it: complete writes, counted bytes."""
+    """The recording's file as the mcap writer sees it: complete writes, counted bytes, and
+    a CRC-32 of what was written since the last `region` (capture.recording.chunk_digests)."""
 
     def __init__(self, fd: int) -> None:
         self.fd = fd
         self.position = 0
+        self._region_start = 0
+        self._crc = 0
 
     def write(self, data) -> int:
         view = memoryview(data)
         total = len(view)
+        self._crc = zlib.crc32(view, self._crc)
         while view:
             n = os.write(self.fd, view)
             self.position += n
@@ -115,6 +121,12 @@ class TrackedFile:
 
     def tell(self) -> int:
         return self.position
+
+    def region(self) -> tuple[int, int, int]:
+        """(offset, length, CRC-32) of the bytes written since the last call."""
+        out = (self._region_start, self.position - self._region_start, self._crc)
+        self._region_start, self._crc = self.position, 0
+        return out
 
     def flush(self) -> None:
         pass  # nothing is buffered here; fsync() makes it durable
@@ -126,6 +138,7 @@ class TrackedFile:
         os.ftruncate(self.fd, size)
         os.lseek(self.fd, size, os.SEEK_SET)
         self.position = size
+        self._region_start, self._crc = size, 0  # a cut file is never finished: no digest
 
     def close(self) -> None:
         if self.fd >= 0:
@@ -176,11 +189,13 @@ class ChunkWriter:
         self.growth: collections.deque = collections.deque(maxlen=6)  # (wall s, bytes)
         self._geometry = None
         self._frame_times: dict[int, tuple[int, int]] = {}  # index -> (time, log time)
+        self._tally: Tally | None = None  # what `info` reads instead of the chunks
 
     def start(self, metadata: dict[str, dict], attachments: dict[str, bytes]) -> int:
         """Header, metadata records and attachments, on disk; returns their Unix time."""
         from mcap.writer import LIBRARY_IDENTIFIER
 
+        self._tally = Tally(metadata)
         self._sealed.start(
             "",
             f"walkcap {__version__}; {LIBRARY_IDENTIFIER}",
@@ -192,6 +207,7 @@ class ChunkWriter:
         self._writer.flush()
         self.file.fsync()
         self.good_offset = self.file.tell()
+        self._tally.region(*self.file.region())
         self._next_flush = time.monotonic() + self._chunk_interval_s
         return created
 
@@ -216,13 +232,19 @@ class ChunkWriter:
             self.file.fsync()
             self.chunks += 1
             self.good_offset = self.file.tell()
+            if self._tally is not None:
+                self._tally.region(*self.file.region())
         self.growth.append((time.monotonic(), self.good_offset))
         self._open_messages = 0
         self._span = None
         self._next_flush = time.monotonic() + self._chunk_interval_s
 
     def finish(self, end: dict) -> None:
-        """The closing metadata record, summary and index; the file closed."""
+        """The chunk digests, the closing metadata record, summary and index; the file closed."""
+        self._writer.flush()  # a chunk still open (the Recorder flushes first) is digested
+        if self._tally is not None:
+            self._tally.region(*self.file.region())
+            self._sealed.metadata(CHUNK_DIGESTS, self._tally.values())
         self._sealed.metadata("recording_end", T.encode_metadata(end))
         self._writer.finish()
         self.file.fsync()
@@ -256,9 +278,10 @@ class ChunkWriter:
     def add(self, m: Encoded) -> None:
         channel_id, sensor = self._channel(m.topic)
         log_time = int(m.log_time)
-        self._writer.add_message(
-            channel_id, log_time, m.data, int(m.publish_time), int(m.sequence) & 0xFFFFFFFF
-        )
+        publish_time, sequence = int(m.publish_time), int(m.sequence) & 0xFFFFFFFF
+        self._writer.add_message(channel_id, log_time, m.data, publish_time, sequence)
+        if self._tally is not None:
+            self._tally.message(m.topic, log_time, publish_time, sequence, m.data)
         self.messages += 1
         self._open_messages += 1
         if sensor:

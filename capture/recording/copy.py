@@ -20,6 +20,7 @@ from typing import BinaryIO
 
 from capture.errors import CaptureError
 from capture.recording import topics as T
+from capture.recording.chunk_digests import CHUNK_DIGESTS
 from capture.recording.digests import DIGESTS, Sealer
 from capture.recording.lineage import derivation
 from capture.recording.messages import iter_raw
@@ -106,8 +107,8 @@ class RecordingCopy:
 
     def metadata(self, name: str, values: dict[str, str]) -> None:
         """A metadata record as MCAP holds it (values as text: T.encode_metadata); a
-        source's digest records are not copied (the copy writes its own)."""
-        if name != DIGESTS:
+        source's record and chunk digests are not copied (the copy's bytes are its own)."""
+        if name not in (DIGESTS, CHUNK_DIGESTS):
             self._sealed.metadata(name, values)
 
     def attachment(self, create_time: int, log_time: int, name: str, media: str, data) -> None:

@@ -45,6 +45,7 @@ from capture.recording._mcap import (
     scan,
     summary_damage,
 )
+from capture.recording.chunk_digests import CHUNK_DIGESTS
 from capture.recording.digests import DIGESTS
 from capture.recording.frames import FrameJoin, FrameTable
 from capture.recording.messages import Decoders, damage_is_an_error, iter_raw, log_times
@@ -213,6 +214,9 @@ class Recording:
         return CameraGeometry(**kwargs)
 
 
+_BOOKKEEPING = (DIGESTS, CHUNK_DIGESTS)  # records about the file's own bytes, not its data
+
+
 def convert(topic: str, decoded: Any) -> Any:
     """A decoded message as walkcap data: images as arrays, clouds (N, 3), quaternions."""
     if topic in (T.DEPTH, T.CONFIDENCE, T.GRAY, T.BINARY_IMAGE):
@@ -248,7 +252,7 @@ def _open(p: Path) -> Recording:
             summary = None
         if summary is not None and summary.statistics is not None:
             every = list(reader.iter_metadata())
-            raw = [(m.name, dict(m.metadata)) for m in every if m.name != DIGESTS]
+            raw = [(m.name, dict(m.metadata)) for m in every if m.name not in _BOOKKEEPING]
             version, records = versions.read_metadata(raw, p)
             damaged = summary_digest_damage(reader.get_header(), every, summary, file_bytes(f))
             attachments = {a.name: a.data for a in reader.iter_attachments()}
@@ -329,7 +333,7 @@ def _open_unfinished(p: Path, size: int) -> Recording:
                 schemas[record.id] = record
             elif isinstance(record, Channel):
                 channels[record.id] = record
-            elif isinstance(record, Metadata) and record.name != DIGESTS:
+            elif isinstance(record, Metadata) and record.name not in _BOOKKEEPING:
                 raw.append((record.name, dict(record.metadata)))
             elif isinstance(record, Attachment):
                 attachments[record.name] = record.data

@@ -4,8 +4,11 @@
     s.state, s.topics[0].rate_hz, s.losses, s.labels
     s.to_json()                                # what `walkcap info --json` prints
 
-Damage is looked for in every chunk (the reading of capture.recording.checking.check),
-finished file or not, in the one pass that also counts gaps; in a damaged file the labels
+Damage is looked for in every chunk: in a finished file with chunk digests, by the CRC of
+every byte the writer wrote (capture.recording.chunk_digests), which also carries the gaps,
+flags, labels and events, so no chunk is decompressed; in any other file, or one whose
+digests do not prove it, by the reading of capture.recording.checking.check, finished
+file or not, in the one pass that also counts gaps. In a damaged file the labels
 and events before the damage are listed and the gaps are not counted (count them on its
 recovered copy). Memory stays the same whatever the file's length.
 """
@@ -17,6 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from capture.recording import chunk_digests as CD
 from capture.recording import labels as L
 from capture.recording import topics as T
 from capture.recording._mcap import Damage, ScanResult, scan
@@ -174,9 +178,10 @@ def _iso(unix_ns: int | None) -> str | None:
 def summary(rec: Recording) -> RecordingSummary:
     """Everything `walkcap info` says about an open recording. Counts, times, topics,
     metadata and attachments come from what `open_recording` read (a finished file's
-    summary section); damage, rates, gaps, labels, events and the frames' flags from one
-    pass over the records (`_read_through`) that keeps a few numbers per topic."""
-    seen = _read_through(rec)
+    summary section); damage, rates, gaps, labels, events and the frames' flags from the
+    writer's chunk digests once they prove the file (`_from_digests`), else from one pass
+    over the records (`_read_through`) that keeps a few numbers per topic."""
+    seen = _from_digests(rec) or _read_through(rec)
     topics = []
     for topic in sorted(rec.topics):
         info = rec.topics[topic]
@@ -270,12 +275,8 @@ def _read_through(rec: Recording) -> _Seen:
                     flag = m.data.get("flag") or ""
                     if flag:
                         flags[flag] = flags.get(flag, 0) + 1
-                elif topic == T.LABELS:
-                    labels.append(L.change_from_message(m.data))
                 else:
-                    events[m.data["kind"]] = events.get(m.data["kind"], 0) + 1
-                    if m.data["kind"] == "marker":
-                        markers.append((int(m.data["time_ns"]), m.data.get("message", "")))
+                    _take(m, labels, events, markers)
         if result.damaged:
             describe_damage(result.damaged, summary_of(f))
     by_topic: dict[str, tuple[int, int, int]] = {}
@@ -284,3 +285,56 @@ def _read_through(rec: Recording) -> _Seen:
             by_topic[channels[cid].topic] = (n, first, last)
     losses = None if result.lost else {topic: c.loss() for topic, c in counters.items()}
     return _Seen(result.damaged, by_topic, losses, flags, labels, events, markers)
+
+
+def _take(m, labels: list, events: dict, markers: list) -> None:
+    """A decoded label or event message into what `info` lists."""
+    if m.topic == T.LABELS:
+        labels.append(L.change_from_message(m.data))
+    else:
+        events[m.data["kind"]] = events.get(m.data["kind"], 0) + 1
+        if m.data["kind"] == "marker":
+            markers.append((int(m.data["time_ns"]), m.data.get("message", "")))
+
+
+def _from_digests(rec: Recording) -> _Seen | None:
+    """What `_read_through` finds, from a finished file's chunk digests once its bytes are
+    proven to be the writer's (capture.recording.chunk_digests); None: read it through."""
+    from mcap.reader import make_reader
+    from mcap.records import Message
+
+    if not rec.complete or rec.damaged:
+        return None
+    with open(rec.path, "rb") as f:
+        try:
+            reader = make_reader(f)
+            found = reader.get_summary()
+            stored = [m for m in reader.iter_metadata() if m.name == CD.CHUNK_DIGESTS]
+        except Exception:  # the reader saw a readable summary; any doubt: the scan decides
+            return None
+        parsed = CD.parse(stored[0].metadata) if found is not None and len(stored) == 1 else None
+        if parsed is None:
+            return None
+        regions, digest = parsed
+        indexes = (found.metadata_indexes, found.chunk_indexes, found.attachment_indexes)
+        if not CD.proven(f, rec.size, regions, *indexes):
+            return None
+    channels = {c.topic: c for c in found.channels.values()}
+    decode = rec.decoder()
+    labels, events, markers = [], {}, []
+    for topic, log_time, publish_time, sequence, data in digest.kept:
+        channel = channels.get(topic)
+        if channel is None:
+            return None
+        record = Message(
+            channel_id=channel.id,
+            sequence=sequence,
+            log_time=log_time,
+            publish_time=publish_time,
+            data=data,
+        )
+        m = decode(found.schemas.get(channel.schema_id), channel, record)
+        _take(m, labels, events, markers)
+    counters = loss_counters(rec.metadata, rec.topics)
+    losses = {topic: digest.losses.get(topic, StreamLoss()) for topic in counters}
+    return _Seen([], digest.times, losses, dict(digest.flags), labels, events, markers)

@@ -12,6 +12,13 @@ capture.recording.topics.FORMAT_VERSION when written). The rule:
   what this version holds: no other reading code knows about older files;
 - a file of a newer version is refused with one line.
 
+Version 3 -> 4:
+- chunk digests: a finished file of 4 holds a `chunk_digests` metadata record
+  (capture.recording.chunk_digests) with the CRC of every region the writer wrote and
+  the figures `walkcap info` needs, so it reads them without decompressing a chunk. A
+  version 3 file has none: `info` reads it through the streaming scan. Nothing else
+  changed: a version 3 file is read as version 4 is.
+
 Version 2 -> 3:
 - record digests: in 3 every header, metadata, schema and channel record has its digest
   in a `record_digests` metadata record (capture.recording.digests), checked on reading;
@@ -80,7 +87,7 @@ def read_metadata(raw: RawRecords, path: Path) -> tuple[str, Records]:
             f"{path}: recording format {version!r}, newer than this walkcap reads "
             f"(up to {T.FORMAT_VERSION}): update walkcap to read it"
         )
-    if number >= 2:  # version 3 adds record digests (checked by the scan), no new values
+    if number >= 2:  # 3 adds record digests, 4 chunk digests (checked on reading), no new values
         return version, [
             (name, {k: T.decode_metadata_value(v) for k, v in values.items()})
             for name, values in raw

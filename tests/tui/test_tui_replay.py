@@ -238,3 +238,42 @@ async def test_each_replay_correction_shows_at_once_and_notices_fit(recording, w
         shown = notices.render().plain
         assert source.saved_path.name in shown and "…" not in shown, shown
         assert shown.rstrip().endswith("unchanged)") and len(shown) <= width
+
+
+def test_replay_holds_the_images_around_the_cursor_only(tmp_path):
+    """A finished file's images and profiles are read around the cursor as it moves, the
+    same ones a whole read gives; what is held does not grow with the recording."""
+    import dataclasses
+
+    from tests.recording_fixtures import imu_sample
+
+    path = tmp_path / "S05_indoor_t04.mcap"
+    meta = {"devices": {"camera_fps": "15.0"}}
+    rec = Recorder(path, metadata=meta, chunk_interval_s=0.5, queue_size=100_000)
+    rec.start()
+    n = 15 * 12  # 12 s
+    for i in range(n):
+        t = frame_time(i)
+        image = np.zeros((100, 100), np.uint8)
+        image[: 1 + i % 97, :] = 1  # each frame's image its own
+        cloud = np.column_stack([np.full(20, 1.0), np.zeros(20), np.full(20, 0.01 * i)])
+        rec.write_processed(i, t, t + 1_000_000, cloud, image, np.array([1.0, 0, 0, 0]), "")
+        rec.write_inference(i, t, t + 2_000_000, np.full(5, 0.2), {})
+        for k in range(3):  # sensor data: its times close a chunk each 0.5 s
+            at = t + k * 20_000_000
+            sample = dataclasses.replace(imu_sample(3 * i + k), time_ns=at, host_time_ns=at)
+            rec.write_imu(sample)
+    rec.close()
+    clock = FakeClock()
+    source = ReplaySource(path, clock=clock, play=False)
+    source.start()
+    held = []
+    for second in (0.0, 5.0, 11.0, 2.0):
+        source.seek(second - source.position()[0])
+        snap = source.snapshot()
+        i = snap.latest.index
+        assert i == round(second * 15)
+        assert snap.latest.image.sum() == 100 * (1 + i % 97)
+        assert float(snap.latest.profile[0, 1]) == pytest.approx(0.01 * i, abs=2e-3)
+        held.append(len(source.frames.images))
+    assert 0 < min(held) and max(held) < n / 2

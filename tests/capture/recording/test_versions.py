@@ -39,7 +39,7 @@ def files(tmp_path_factory):
 
 def test_files_written_now_name_the_current_version(files):
     new, old = files
-    assert FORMAT_VERSION == "3"
+    assert FORMAT_VERSION == "4"
     assert open_recording(new).format_version == FORMAT_VERSION
     assert open_recording(old).format_version == "1"
 
@@ -108,8 +108,9 @@ def test_version_1_metadata_text_is_typed(tmp_path):
 
 def test_a_newer_version_is_refused_with_one_line(files, tmp_path, capsys):
     new, _ = files
-    future = as_version_1(new, tmp_path / "future.mcap", version="4")
-    with pytest.raises(CaptureError, match="recording format '4', newer than this walkcap"):
+    newer = str(int(FORMAT_VERSION) + 1)
+    future = as_version_1(new, tmp_path / "future.mcap", version=newer)
+    with pytest.raises(CaptureError, match=f"recording format '{newer}', newer than this walkcap"):
         open_recording(future)
     assert cli.main(["info", str(future)]) == 1
     err = capsys.readouterr().err
