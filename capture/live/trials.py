@@ -12,6 +12,7 @@ from pathlib import Path
 
 from capture import config as config_mod
 from capture.errors import CaptureError
+from capture.recording.metadata import DevicesRecord, SessionRecord, SoftwareRecord, as_dicts
 
 TRIAL_MAX = 99_999  # trial numbers name files (t01 ... t99999) and fit every integer field
 # The default of [session] subject_pattern: a code of letters then digits (S01, P07, OP1).
@@ -121,7 +122,11 @@ def trial_metadata(
     session["operator"] = config.session.operator
     if trial.supersedes:
         session["supersedes"] = trial.supersedes
-    return {"session": session, "devices": devices, "software": software}
+    return as_dicts(
+        SessionRecord.build(**session),
+        DevicesRecord.from_dict(devices),
+        SoftwareRecord.from_dict(software),
+    )
 
 
 def trial_attachments(config: config_mod.Config, model_metadata: dict) -> dict[str, bytes]:

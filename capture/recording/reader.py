@@ -21,6 +21,7 @@ are read with their undos applied (capture.recording.labels); the file keeps bot
 
 from __future__ import annotations
 
+import functools
 import io
 import os
 import struct
@@ -48,6 +49,7 @@ from capture.recording._mcap import (
 from capture.recording.digests import DIGESTS
 from capture.recording.frames import FrameJoin, FrameTable
 from capture.recording.messages import Decoders, damage_is_an_error, iter_raw, log_times
+from capture.recording.metadata import Metadata
 from devices import clock
 from devices.frames import MODES, CameraGeometry, DepthFrame, ImuSample
 
@@ -97,6 +99,11 @@ class Recording:
     damaged: list[Damage] = field(default_factory=list)
     format_version: str = T.FORMAT_VERSION  # the file's (capture.recording.versions)
 
+    @functools.cached_property
+    def meta(self) -> Metadata:
+        """The metadata records typed (capture.recording.metadata): the last of each name."""
+        return Metadata.from_dict(self.metadata)
+
     @property
     def duration_s(self) -> float:
         return 0.0 if self.start_ns is None else clock.seconds(self.end_ns - self.start_ns)
@@ -104,11 +111,7 @@ class Recording:
     @property
     def unix_offset_ns(self) -> int | None:
         """Add to a session-clock time (any log or publish time) for Unix time in ns."""
-        value = self.metadata.get("recording", {}).get("unix_offset_ns")
-        try:
-            return int(value) if value not in (None, "") else None
-        except (TypeError, ValueError):
-            return None
+        return self.meta.recording.unix_offset
 
     def unix_time_ns(self, session_ns):
         """Session-clock time(s) as Unix time in ns (None when the file has no offset)."""
@@ -122,20 +125,14 @@ class Recording:
     @property
     def id(self) -> str:
         """The recording's unique id; files without one get a stand-in from their name."""
-        derived = self.metadata.get("derivation", {}).get("id")
-        return str(
-            derived or self.metadata.get("recording", {}).get("id") or f"file:{self.path.name}"
-        )
+        meta = self.meta
+        return str(meta.derivation.id or meta.recording.id or f"file:{self.path.name}")
 
     @property
     def trial(self) -> tuple[str, str, int | None]:
         """(subject, condition, trial) from the session metadata."""
-        session = self.metadata.get("session", {})
-        try:
-            number = int(session.get("trial"))
-        except (TypeError, ValueError):
-            number = None
-        return str(session.get("subject") or ""), str(session.get("condition") or ""), number
+        session = self.meta.session
+        return str(session.subject or ""), str(session.condition or ""), session.trial_number
 
     def messages(
         self, topics: Iterable[str] | str | None = None, *, raw: bool = False
@@ -203,14 +200,7 @@ class Recording:
         return np.load(io.BytesIO(data))
 
     def geometry(self) -> CameraGeometry:
-        camera = self.metadata.get("camera")
-        if not camera:
-            return CameraGeometry()
-        kwargs = {}
-        for name in CameraGeometry.__dataclass_fields__:
-            if name in camera:
-                kwargs[name] = type(getattr(CameraGeometry(), name))(camera[name])
-        return CameraGeometry(**kwargs)
+        return self.meta.camera.geometry()
 
 
 def convert(topic: str, decoded: Any) -> Any:
