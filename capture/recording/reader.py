@@ -48,7 +48,13 @@ from capture.recording._mcap import (
 )
 from capture.recording.digests import DIGESTS
 from capture.recording.frames import FrameJoin, FrameTable
-from capture.recording.messages import Decoders, damage_is_an_error, iter_raw, log_times
+from capture.recording.messages import (
+    Decoders,
+    damage_is_an_error,
+    iter_indexed,
+    iter_raw,
+    log_times,
+)
 from capture.recording.metadata import Metadata
 from devices import clock
 from devices.frames import MODES, CameraGeometry, DepthFrame, ImuSample
@@ -98,6 +104,23 @@ class Recording:
     # through its index: `capture.recording.checking.check` reads and checks every chunk).
     damaged: list[Damage] = field(default_factory=list)
     format_version: str = T.FORMAT_VERSION  # the file's (capture.recording.versions)
+    # a finished file's summary (channels, chunk index), read once when opened
+    _summary: Any = field(default=None, repr=False)
+    _file: Any = field(default=None, repr=False)  # open while in a `with` block
+
+    def __enter__(self) -> Recording:
+        if self._file is None and self.complete:
+            self._file = open(self.path, "rb")  # noqa: SIM115 (closed by __exit__)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Close the file a `with` block holds open (reading again reopens it)."""
+        if self._file is not None:
+            self._file.close()
+            self._file = None
 
     @functools.cached_property
     def meta(self) -> Metadata:
@@ -135,18 +158,37 @@ class Recording:
         return str(session.subject or ""), str(session.condition or ""), session.trial_number
 
     def messages(
-        self, topics: Iterable[str] | str | None = None, *, raw: bool = False
+        self,
+        topics: Iterable[str] | str | None = None,
+        *,
+        start: int | None = None,
+        end: int | None = None,
+        raw: bool = False,
     ) -> Iterator[RecordedMessage]:
-        """Messages in file order (which is time order per topic), decoded with the file's
-        schemas; `raw=True` gives the protobuf objects and JSON dicts as stored (without
-        conversion, and an older format version's messages not upgraded)."""
+        """Messages of `topics` (a topic, several, or None: all) in file order (which is
+        time order per topic), decoded with the file's schemas. `start` / `end`: only the
+        messages logged in [start, end), session-clock ns; a finished file reads only the
+        chunks of its index that hold a wanted topic in that window. `raw=True` gives the
+        protobuf objects and JSON dicts as stored (without conversion, and an older format
+        version's messages not upgraded)."""
         if isinstance(topics, str):
             topics = [topics]
         wanted = None if topics is None else set(topics)
         decode = self.decoder(raw=raw)
         with damage_is_an_error(self.path):
-            for schema, channel, message in iter_raw(self.path, self.complete, wanted):
+            for schema, channel, message in self._raw(wanted, start, end):
                 yield decode(schema, channel, message)
+
+    def _raw(self, wanted: set[str] | None, start: int | None, end: int | None):
+        """(schema, channel, message) through the file a `with` block holds open, or the
+        file opened again for this read."""
+        if self._file is not None and self._summary is not None:
+            # one chunk read whole at a time: reads may interleave on the one handle
+            yield from iter_indexed(self._file, wanted, start, end, self._summary)
+            return
+        yield from iter_raw(
+            self.path, self.complete, wanted, start=start, end=end, summary=self._summary
+        )
 
     def decoder(self, *, raw: bool = False) -> Callable[[Any, Any, Any], RecordedMessage]:
         """decode(schema, channel, message) -> RecordedMessage, as `messages` decodes: for
@@ -181,7 +223,7 @@ class Recording:
         with damage_is_an_error(self.path):
             items = [
                 (m.sequence, m.publish_time, m.log_time)
-                for _, _, m in iter_raw(self.path, self.complete, {topic})
+                for _, _, m in self._raw({topic}, None, None)
             ]
         return sorted(items, key=lambda x: x[2])
 
@@ -216,7 +258,12 @@ def convert(topic: str, decoded: Any) -> Any:
 
 def open_recording(path: str | os.PathLike) -> Recording:
     """Open a recording: metadata, attachments and topic counts, finished or not.
-    Raises CaptureError (one line) for a missing file or one that is not MCAP."""
+    Raises CaptureError (one line) for a missing file or one that is not MCAP.
+
+        with open_recording(path) as rec:      # the file held open, its index read once
+            for m in rec.messages("/imu", start=t0_ns, end=t1_ns):
+                ...
+    """
 
     p = Path(path)
     if not p.exists():
@@ -273,6 +320,7 @@ def _open(p: Path) -> Recording:
                 raw_metadata_records=raw,
                 damaged=damaged,
                 format_version=version,
+                _summary=summary,
             )
     return _open_unfinished(p, size)
 
