@@ -57,7 +57,7 @@ from capture.recording.messages import (
 )
 from capture.recording.metadata import Metadata
 from devices import clock
-from devices.frames import MODES, CameraGeometry, DepthFrame, ImuSample
+from devices.frames import CameraGeometry, DepthFrame, ImuSample
 
 
 @dataclass
@@ -430,60 +430,6 @@ def imu_sample(d: dict) -> ImuSample:
     )
 
 
-def read_trial(path: str | os.PathLike) -> dict:
-    """Per-frame arrays of one trial, in frame order (frames with a CNN output), from the
-    per-frame table (capture.recording.frames):
-
-    - frame_index (N,), time_ns (N,): the frame's sample time, session clock;
-      unix_time_ns (N,): the same instant as Unix time (None if the file has no offset)
-    - probabilities (N, 5): CNN softmax, mode order MODES
-    - cnn_decisions (N,): argmax; decisions (N,): the fused (HMM) decision recorded for
-      the frame, -1 if none; voted (N,): the voted decision, -1 if none
-    - labels (N,): the operator's mode in force at the frame's time (-1: none yet), undos
-      applied (capture.recording.labels: an undone change never happened)
-    - truth (N,) simulator's true mode, or None when the recording has no /sim/truth
-    - the two references (inference.evaluation): locomotion (N,), the subject's mode keyed
-      live (undos applied, offline corrections not); terrain (N,), what each image shows:
-      the simulator's truth, else the labels made offline in `replay --tui` laid over the
-      live keys (`labels`), else None; terrain_source: "simulator", "offline labels" or None
-    - camera_elevation_deg (N,): the camera's optical axis above the horizon (/tf), NaN
-      where the frame had no orientation: the gait cue of fusion (GaitSteadyFusion)
-    - geometry (N,): the mode the frame's terrain features show (/terrain/features,
-      inference.features.shown_mode), -1 where unknown: the cue of GeometryFusion
-    - ground_ahead (N,): the mode the ground ahead shows by its slope (/terrain/features,
-      inference.features.ground_ahead), -1 where not seen: the cue of SlopeFusion
-    - label_changes: every recorded change [(time_ns, mode, source)] in time order, undos
-      and what they undid included (the audit trail); reference_changes: the ones that
-      define `labels`; metadata (typed); id; modes: MODES
-    """
-    rec = open_recording(path)
-    # frames with a CNN output only: their preprocessing records not read
-    table, changes = frame_table(rec, frame_topics=(T.CNN, T.FUSED, T.TF, T.TRUTH, T.FEATURES))
-    frames = table.select(table.classified)
-    return {
-        "frame_index": frames.index,
-        "time_ns": frames.time_ns,
-        "unix_time_ns": rec.unix_time_ns(frames.time_ns),
-        "probabilities": frames.probabilities,
-        "cnn_decisions": frames.cnn_decision,
-        "decisions": frames.decision,
-        "voted": frames.voted,
-        "labels": frames.labels,
-        "truth": frames.truth if frames.has_truth else None,
-        "locomotion": frames.locomotion,
-        "terrain": frames.terrain,
-        "terrain_source": frames.terrain_source,
-        "camera_elevation_deg": frames.camera_elevation_deg,
-        "geometry": frames.geometry,
-        "ground_ahead": frames.ground_ahead,
-        "label_changes": changes,
-        "reference_changes": L.effective_changes(changes),
-        "metadata": rec.metadata,
-        "id": rec.id,
-        "modes": MODES,
-    }
-
-
 def frame_table(
     rec: Recording,
     other_topics: Iterable[str] = (),
@@ -507,62 +453,6 @@ def frame_table(
             take(m)
     changes = L.in_time_order(changes)
     return join.table(changes, has_truth=T.TRUTH in rec.topics), changes
-
-
-def read_trials(paths, reference: str = "terrain") -> list:
-    """Evaluation trials (inference.evaluation.Trial) from recordings, one a file.
-
-    reference: what accuracy is scored against, "terrain" (what the images show) or
-    "locomotion" (the subject's mode keyed live); see read_trial.
-    """
-    return [read_evaluation_trial(p, reference) for p in paths]
-
-
-def read_evaluation_trial(path, reference: str = "terrain", name: str | None = None):
-    """One recording's evaluation trial (see read_trials), named `name` (default: the
-    path); one task of a corpus job (capture.corpus.jobs)."""
-    from inference.evaluation import trial_from_recording
-
-    return trial_from_recording(str(name or path), read_trial(path), reference)
-
-
-def labeled_session(path: str | os.PathLike, reference: str = "terrain"):
-    """The recording as a training session (inference.dataset.LabeledSession): every
-    classifier input image, labelled with what it shows (`reference` "terrain": the
-    simulator's truth where the recording has it, else the labels), the operator's mode at
-    its time ("labels"), or the simulator's truth ("truth"); -1 where there is none."""
-    from inference.dataset import LabeledSession
-
-    rec = open_recording(path)
-    images: dict[int, np.ndarray] = {}
-    times: dict[int, int] = {}
-    for m in rec.messages([T.BINARY_IMAGE]):
-        images[m.sequence] = (np.asarray(m.data) > 0).astype(np.uint8)
-        times[m.sequence] = m.publish_time_ns
-    if not images:
-        raise CaptureError(f"{rec.path}: no classifier images (/camera/binary_image) to train on")
-    index = sorted(images)
-    t = np.array([times[i] for i in index], dtype=np.int64)
-    if reference == "terrain":
-        reference = "truth" if T.TRUTH in rec.topics else "labels"
-    if reference == "truth":
-        truth = {
-            int(m.data["frame_index"]): L.mode_index(m.data.get("mode"))
-            for m in rec.messages([T.TRUTH])
-        }
-        labels = np.array([truth.get(i, -1) for i in index], dtype=np.int64)
-    else:
-        changes = [L.change_from_message(m.data) for m in rec.messages([T.LABELS])]
-        labels = L.labels_at(t, L.effective_changes(changes)).astype(np.int64)
-    session = rec.metadata.get("session", {})
-    return LabeledSession(
-        name=Path(rec.path).stem,
-        images=np.stack([images[i] for i in index]),
-        labels=labels,
-        preset=session.get("condition", ""),
-        source="recording",
-        meta={"path": str(rec.path), "session": dict(session), "reference": reference},
-    )
 
 
 _TRUTH_WAIT_FRAMES = 64  # frames held back waiting for their truth, at most
