@@ -519,22 +519,3 @@ def _frame(
         truth=truth,
         range_mm=depth,
     )
-
-
-def find_gaps(
-    times_ns: np.ndarray, factor: float | None = None, period_s: float | None = None
-) -> list[tuple[int, float]]:
-    """Gaps in a regular stream: intervals longer than `factor` (default: the live alarms'
-    GAP_PERIODS) x the period (default: the median interval), as (start time ns, length s)."""
-    from capture.recording.gaps import GAP_PERIODS
-
-    factor = GAP_PERIODS if factor is None else factor
-    t = np.asarray(times_ns, dtype=np.int64)
-    if len(t) < 3:
-        return []
-    dt = np.diff(t)
-    median = period_s * 1e9 if period_s else float(np.median(dt))
-    if median <= 0:
-        return []
-    long = np.nonzero(dt > factor * median)[0]
-    return [(int(t[i]), clock.seconds(float(dt[i]))) for i in long]

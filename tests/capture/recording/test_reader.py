@@ -9,7 +9,7 @@ from capture.corpus.trials import read_trial
 from capture.errors import CaptureError
 from capture.recording import topics as T
 from capture.recording.labels import labels_at
-from capture.recording.reader import depth_frames, find_gaps, open_recording
+from capture.recording.reader import depth_frames, open_recording
 from capture.recording.writer import Recorder
 from devices.frames import MODES
 from tests.recording_fixtures import (
@@ -196,14 +196,6 @@ def test_missing_and_foreign_files_are_one_line_errors(tmp_path):
     text.write_text("hello")
     with pytest.raises(CaptureError, match="not an MCAP recording"):
         open_recording(text)
-
-
-def test_find_gaps():
-    t = np.arange(0, 100) * 22_000_000
-    t = np.concatenate([t[:50], t[53:]])  # three frames missing
-    gaps = find_gaps(t)
-    assert len(gaps) == 1 and gaps[0][0] == t[49] and gaps[0][1] == pytest.approx(0.088)
-    assert find_gaps(np.arange(10) * 10) == []
 
 
 def test_two_references_live_keys_and_offline_terrain_labels(tmp_path):
