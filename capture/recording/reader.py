@@ -1,14 +1,15 @@
 """Reading walkcap recordings in Python: metadata, topics decoded into numpy and dicts.
 
-    rec = open_recording("S01_indoor_t01.mcap")
-    rec.metadata["session"]["subject"]
-    for m in rec.messages(["/camera/cloud"]):    # m.data: (N, 3) float32
-        ...
-    trial = read_trial(path)                     # per-frame arrays for evaluation
+    with open_recording("S01_indoor_t01.mcap") as rec:
+        rec.meta.session.subject                 # typed metadata (capture.recording.metadata)
+        for m in rec.messages(["/camera/cloud"], start=t0_ns, end=t1_ns):  # (N, 3) float32
+            ...
+    table, changes = frame_table(rec)            # every per-frame topic joined by frame
     for frame in depth_frames(path):             # DepthFrame with xyz rebuilt exactly
         ...
 
-Finished files are read through their index. Unfinished ones (a crash, a full disk) are
+Finished files are read through their index: a window of time reads only the chunks
+that overlap it. Unfinished ones (a crash, a full disk) are
 read record by record up to where they stop (capture.recording.messages), so everything
 that reached the disk is readable without `walkcap recover`.
 Messages are decoded with the schema stored in the file (protobuf descriptors, JSON).
