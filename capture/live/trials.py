@@ -118,12 +118,11 @@ def trial_metadata(
 ) -> dict[str, dict]:
     """The trial's metadata records: its form and operator ("session"), the "devices" and
     "software" records (capture.live.devices, capture.live.pipeline)."""
-    session = trial.info.to_metadata()
-    session["operator"] = config.session.operator
+    session = SessionRecord.build(**trial.info.to_metadata(), operator=config.session.operator)
     if trial.supersedes:
-        session["supersedes"] = trial.supersedes
+        session = session.replaced(supersedes=trial.supersedes)
     return as_dicts(
-        SessionRecord.build(**session),
+        session,
         DevicesRecord.from_dict(devices),
         SoftwareRecord.from_dict(software),
     )
