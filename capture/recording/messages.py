@@ -142,6 +142,8 @@ def iter_indexed(f, topics: set[str] | None, start=None, end=None, summary=None)
             end is not None and index.message_start_time >= end
         ):
             continue
+        if not _within(index, start, end) and not _indexed_in_window(f, index, wanted, start, end):
+            continue  # a label or event widens its span: no wanted message in the window
         try:
             messages = list(chunk_messages(f, index.chunk_start_offset, index.chunk_length, wanted))
         except Exception as e:  # CRC, zstd or a record running past the chunk's end
@@ -175,6 +177,34 @@ def iter_indexed(f, topics: set[str] | None, start=None, end=None, summary=None)
                     data=data,
                 ),
             )
+
+
+def _within(index, start: int | None, end: int | None) -> bool:
+    """Whether every message of the chunk is logged inside [start, end)."""
+    return (start is None or index.message_start_time >= start) and (
+        end is None or index.message_end_time < end
+    )
+
+
+def _indexed_in_window(f, index, wanted: set[int], start, end) -> bool:
+    """Whether the chunk's message indexes (small records after it, read without
+    decompressing it) put a message of a wanted channel in [start, end); True when the
+    chunk has no index to tell."""
+    from mcap.data_stream import ReadDataStream
+    from mcap.records import MessageIndex
+
+    offsets = index.message_index_offsets
+    if not offsets:
+        return True
+    try:
+        for cid in wanted & set(offsets):
+            f.seek(offsets[cid] + RECORD_HEAD.size)
+            records = MessageIndex.read(ReadDataStream(f)).records
+            if any(_in_window(t, start, end) for t, _ in records):
+                return True
+    except Exception:  # a damaged index: the chunk itself is read (its CRC checks it)
+        return True
+    return False
 
 
 def chunk_messages(f, offset: int, length: int, wanted: set[int]):
