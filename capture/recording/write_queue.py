@@ -93,6 +93,15 @@ class QueuedTruth(QueuedItem):
 
 
 @dataclass(slots=True)
+class QueuedGait(QueuedItem):
+    # Raw, not derived, though the detector computes it: two a second weigh nothing, and the
+    # steps the operator saw counted are the ones the file keeps.
+    kind: ClassVar[str] = "gait"
+    event: Any  # a devices.frames.GaitEvent
+    log_time: int | None
+
+
+@dataclass(slots=True)
 class QueuedEncodedFrame(QueuedItem):
     """A frame's messages encoded in another process (replay's reader)."""
 
