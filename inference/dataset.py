@@ -6,7 +6,7 @@ see LabeledSessions, whatever wrote them:
 - synthesized sessions (`walkcap synth --format dataset`): one compressed .npz per walk,
   written by `capture.corpus.dataset.render_synth_session` + `write_session`, read by
   `read_session`;
-- recordings with operator labels (.mcap): `capture.recording.reader.labeled_session` (the
+- recordings with operator labels (.mcap): `capture.corpus.dataset.labeled_session` (the
   recorded /camera/binary_image, labelled with the operator's mode in force at each
   frame; frames before the first label are unlabelled).
 

@@ -52,7 +52,8 @@ def test_export_tables(recordings, tmp_path):
     out = _example("export_tables.py", str(recordings), str(tmp_path / "tables"))
     assert f"frames: {FRAMES} rows" in out and "trials: 1 rows" in out
     written = sorted(p.name for p in (tmp_path / "tables").iterdir())
-    assert written == ["events.csv", "frames.csv", "imu.csv", "labels.csv", "trials.csv"]
+    tables = ["events", "frames", "gait", "imu", "labels", "trials"]
+    assert written == [f"{name}.csv" for name in tables]
     assert len((tmp_path / "tables" / "frames.csv").read_text().splitlines()) == FRAMES + 1
 
 

@@ -34,6 +34,7 @@ from capture.recording.copy import copy_recording
 from capture.recording.frames import FrameTable
 from capture.recording.labels import CORRECTION, LabelChange
 from capture.recording.lineage import CORRECTED
+from capture.recording.metadata import Metadata, SessionRecord
 from capture.recording.reader import frame_table, open_recording
 from devices import clock
 from devices.base import DeviceEvent, DeviceState, DeviceStatus
@@ -225,7 +226,7 @@ class ReplaySource:
         self.corrections: list[LabelChange] = []
         self.markers: list[DeviceEvent] = []
         self.events: list[DeviceEvent] = []
-        self.metadata: dict = {}
+        self.meta = Metadata()
         self.subject_info: SubjectInfo | None = None
         self.saved_path: Path | None = None
         self.trial_notice = ""  # a replay records no trial
@@ -241,7 +242,7 @@ class ReplaySource:
     def start(self) -> None:
         """Read the recording into memory (images packed, profiles decimated)."""
         rec = open_recording(self.path)
-        self.metadata = rec.metadata
+        self.meta = rec.meta
         self.frames = self._load(rec)
         # stale frames up to each frame, for the devices panel's count
         self._stale_upto = np.cumsum(
@@ -253,7 +254,7 @@ class ReplaySource:
         self._start_ns = int(self.frames.time_ns[0])
         self.duration_s = clock.seconds(int(self.frames.time_ns[-1]) - self._start_ns)
         self._camera, self._imu = self._device_status(rec, n)
-        self.subject_info = _subject_from_metadata(rec.metadata.get("session", {}))
+        self.subject_info = _subject_from_metadata(rec.meta.session)
         self._anchor_wall = self._clock()
         self.playing = self._play_on_start
 
@@ -288,22 +289,24 @@ class ReplaySource:
         return _Frames.shown(table, images, profiles)
 
     def _device_status(self, rec, frames: int) -> tuple[DeviceStatus, DeviceStatus]:
-        devices = self.metadata.get("devices", {})
+        devices = self.meta.devices
+        camera_backend = devices.camera_backend if devices.has("camera_backend") else "?"
+        imu_backend = devices.imu_backend if devices.has("imu_backend") else "?"
         seconds = max(rec.duration_s, 1e-9)
         imu_count = rec.topics[T.IMU].count if T.IMU in rec.topics else 0
         name = self.path.name
         camera = DeviceStatus(
-            backend=f"replay of {devices.get('camera_backend', '?')}",
+            backend=f"replay of {camera_backend}",
             state=DeviceState.OK,
             message=name,
-            configured_rate_hz=float(devices.get("camera_fps") or 0),
+            configured_rate_hz=float(devices.camera_fps or 0),
             measured_rate_hz=frames / seconds,
             delivered=frames,
         )
         imu = DeviceStatus(
-            backend=f"replay of {devices.get('imu_backend', '?')}",
+            backend=f"replay of {imu_backend}",
             state=DeviceState.OK,
-            configured_rate_hz=float(devices.get("imu_rate_hz") or 0),
+            configured_rate_hz=float(devices.imu_rate_hz or 0),
             measured_rate_hz=imu_count / seconds,
             delivered=imu_count,
         )
@@ -488,17 +491,17 @@ class ReplaySource:
             frames=k + 1,
             latency_ms={},
             stale_frames=int(self._stale_upto[k]),
-            fusion_method=str(self.metadata.get("software", {}).get("fusion_method") or ""),
+            fusion_method=str(self.meta.software.fusion_method or ""),
         )
 
 
-def _subject_from_metadata(session: dict) -> SubjectInfo | None:
+def _subject_from_metadata(session: SessionRecord) -> SubjectInfo | None:
     """The recording's session metadata back into a SubjectInfo (best effort, for display)."""
     if not session:
         return None
     kwargs = {}
     for f in dataclasses.fields(SubjectInfo):
-        raw = session.get(f.name)
+        raw = session.value(f.name)
         if raw in (None, ""):
             continue
         try:

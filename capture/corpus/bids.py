@@ -39,6 +39,7 @@ from capture.corpus import selection
 from capture.errors import CaptureError
 from capture.recording import personal
 from capture.recording.journal import journal_path
+from capture.recording.metadata import Metadata, SessionRecord
 from capture.recording.reader import open_recording
 
 BIDS_VERSION = "1.10.0"
@@ -138,18 +139,19 @@ def trial_of(path: Path, trial: tuple) -> Trial:
     return Trial(path, str(subject), str(condition), int(number))
 
 
-def participant(meta: dict, share: personal.ShareRules | None = None) -> dict[str, str]:
+def participant(meta: Metadata, share: personal.ShareRules | None = None) -> dict[str, str]:
     """A recording's participants.tsv values (n/a where the form left it empty), reduced
     by the share rules when de-identifying (capture.recording.personal)."""
-    session = meta.get("session", {})
+    session = meta.session
     if share is not None:
-        session, _ = personal.reduce_session(session, share)
+        reduced, _ = personal.reduce_session(session.to_dict(), share)
+        session = SessionRecord.from_dict(reduced)
     out = {}
     for column, key, _ in PARTICIPANT_COLUMNS:
-        v = session.get(key)
+        v = session.value(key)
         if key == "amputee":
             v = None if v in (None, "") else ("yes" if str(v).lower() == "true" else "no")
-        elif key == "side" and session.get("amputee") in (False, "False", "false"):
+        elif key == "side" and session.amputee in (False, "False", "false"):
             v = None
         out[column] = BT.text(v) if isinstance(v, str) else BT._number(v)
     return out
@@ -228,7 +230,7 @@ def export(
             )
         seen[key] = t.path
     people = _read_tsv(root / "participants.tsv", "participant_id")
-    metas = {t.path: open_recording(t.path).metadata for t in trials}
+    metas = {t.path: open_recording(t.path).meta for t in trials}
     body: dict[str, tuple[dict, str]] = {}
     for t in trials:
         values = participant(metas[t.path], share)
@@ -262,7 +264,7 @@ def export(
         existing = scans.get(t.motion)  # its row is written last: the trial is whole
         if existing is not None and not overwrite:
             was = existing.get("walkcap_recording_id", "")
-            now = metas[t.path].get("recording", {}).get("id", "")
+            now = metas[t.path].recording.id or ""
             why = "already in the dataset"
             if was and now and was != now:
                 why += f" from another recording ({was}); --overwrite replaces it"
@@ -283,9 +285,9 @@ def export(
 def _write_trial(root: Path, t: Trial, study, share: personal.ShareRules | None) -> dict | None:
     """One trial's files; its scans.tsv row (None: no IMU samples, nothing written)."""
     rec = open_recording(t.path)
-    meta = rec.metadata
+    meta = rec.meta
     tables = export_mod.tables(t.path)
-    rate = BT.configured_rate(meta.get("devices", {}))
+    rate = BT.configured_rate(meta.devices)
     motion = BT.motion_file(tables["imu"], rate)
     if not motion.rows:
         return None
@@ -337,7 +339,7 @@ def _write_trial(root: Path, t: Trial, study, share: personal.ShareRules | None)
     return {
         "filename": t.motion,
         "acq_time": _acq_time(first_unix),
-        "walkcap_recording_id": meta.get("recording", {}).get("id", BT.NA),
+        "walkcap_recording_id": meta.recording.id if meta.recording.has("id") else BT.NA,
         "source_file": source_file,
         "original_file": original_file,
         "imu_samples": str(motion.samples),
@@ -422,8 +424,8 @@ def _write_participants(root: Path, people: dict) -> None:
 
 def _write_descriptions(root: Path, study, metas: dict, share) -> None:
     old = _read_json(root / "dataset_description.json")
-    software = [m.get("software", {}) for m in metas.values()]
-    versions = sorted({s.get("walkcap_version", "") for s in software} - {""})
+    software = [m.software for m in metas.values()]
+    versions = sorted({s.walkcap_version or "" for s in software} - {""})
     desc = {
         "Name": study.name or old.get("Name") or "walkcap dataset",
         "BIDSVersion": BIDS_VERSION,
@@ -448,7 +450,7 @@ def _write_descriptions(root: Path, study, metas: dict, share) -> None:
     }
     _json(root / "dataset_description.json", {k: v for k, v in desc.items() if v})
     _text(root / "README", readme(study, share is not None))
-    hashes = sorted({s.get("model_hash", "") for s in software} - {""})
+    hashes = sorted({s.model_hash or "" for s in software} - {""})
     deriv = root / "derivatives" / "walkcap"
     old_deriv = _read_json(deriv / "dataset_description.json")
     known = set(old_deriv.get("walkcap", {}).get("model_hashes", []))

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from capture.recording.gaps import MODULUS, missing_between
+from capture.recording.metadata import DevicesRecord, Metadata
 from devices import clock
 from devices.frames import MODE_NAMES, MODES
 
@@ -176,17 +177,17 @@ def channels_json() -> dict:
     }
 
 
-def motion_json(meta: dict, study, condition: str, motion: MotionFile) -> dict:
+def motion_json(meta: Metadata, study, condition: str, motion: MotionFile) -> dict:
     """The *_motion.json sidecar: the required and recommended keys from the recording's
     metadata (device, firmware, rates, missing samples) and the [study] section."""
-    devices = meta.get("devices", {})
-    info = devices.get("imu_info") or devices.get("imu_details") or {}
-    software = meta.get("software", {})
+    devices = meta.devices
+    info = devices.imu_info or devices.imu_details or {}
+    software = meta.software
     rate = motion.rate_hz
     counts = Counter(c[2] for c in CHANNELS)
     rows = motion.samples + motion.missing
     effective = (rows - 1) / motion.duration_s if rows > 1 and motion.duration_s > 0 else NA
-    backend = str(devices.get("imu_backend", ""))
+    backend = str(devices.imu_backend if devices.has("imu_backend") else "")
     model = str(info.get("product_code") or "Xsens MTi")
     if backend == "mock":
         model += " (walkcap's emulated MTi)"
@@ -203,7 +204,7 @@ def motion_json(meta: dict, study, condition: str, motion: MotionFile) -> dict:
         "ManufacturersModelName": model,
         "DeviceSerialNumber": str(info.get("device_id") or NA),
         "SoftwareVersions": f"firmware {info.get('firmware') or NA}; walkcap "
-        f"{software.get('walkcap_version') or NA}",
+        f"{software.walkcap_version or NA}",
         "InstitutionName": study.institution_name or None,
         "InstitutionAddress": study.institution_address or None,
         "InstitutionalDepartmentName": study.institution_department or None,
@@ -221,19 +222,15 @@ def motion_json(meta: dict, study, condition: str, motion: MotionFile) -> dict:
     out["walkcap"] = {
         "missing_samples": motion.missing,
         "recorded_samples": motion.samples,
-        "recording_id": meta.get("recording", {}).get("id", ""),
+        "recording_id": meta.recording.id if meta.recording.has("id") else "",
         "time_zero": "the first IMU sample (SampleTimeFine on the session clock)",
     }
     return {k: v for k, v in out.items() if v is not None}
 
 
-def configured_rate(devices: dict) -> float | None:
+def configured_rate(devices: DevicesRecord) -> float | None:
     """The IMU's output rate the recording was made with ([imu] rate_hz), if it says."""
-    try:
-        rate = float(devices.get("imu_rate_hz"))
-    except (TypeError, ValueError):
-        return None
-    return rate if rate > 0 else None
+    return devices.rates_hz.get("imu")
 
 
 # ---- events ---------------------------------------------------------------------------
@@ -435,8 +432,8 @@ def frames_rows(frames, first_ns: int | None) -> tuple[list[str], list[str]]:
     return header, rows
 
 
-def frames_json(meta: dict) -> dict:
-    software = meta.get("software", {})
+def frames_json(meta: Metadata) -> dict:
+    software = meta.software
     out = {
         "Description": "walkcap's results per camera frame: the terrain CNN's probabilities, "
         "the fused decision, the terrain features",
@@ -450,9 +447,9 @@ def frames_json(meta: dict) -> dict:
     for name, description, units in FRAME_COLUMNS:
         out[name] = {"Description": description, **({"Units": units} if units else {})}
     out["walkcap"] = {
-        "model_hash": software.get("model_hash", ""),
-        "walkcap_version": software.get("walkcap_version", ""),
-        "fusion_method": software.get("fusion_method", ""),
-        "recording_id": meta.get("recording", {}).get("id", ""),
+        "model_hash": software.model_hash if software.has("model_hash") else "",
+        "walkcap_version": software.walkcap_version if software.has("walkcap_version") else "",
+        "fusion_method": software.fusion_method if software.has("fusion_method") else "",
+        "recording_id": meta.recording.id if meta.recording.has("id") else "",
     }
     return out

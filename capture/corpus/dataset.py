@@ -2,7 +2,7 @@
 
 Reading: `read_sessions` takes files and folders of synthesized sessions (.npz, the format
 of inference.dataset) and of recordings (.mcap, the recorded /camera/binary_image labelled
-with the operator's mode in force at each frame; capture.recording.reader.labeled_session).
+with the operator's mode in force at each frame; `labeled_session`).
 
 Synthesizing: `render_synth_session` walks one simulated course and preprocesses every
 frame as the live pipeline does; `synth_dataset` writes many, one .npz each.
@@ -20,7 +20,9 @@ import numpy as np
 
 from capture.corpus import jobs
 from capture.errors import CaptureError
-from capture.recording.reader import labeled_session
+from capture.recording import labels as L
+from capture.recording import topics as T
+from capture.recording.reader import open_recording
 from devices.config import MountingConfig, SimulatorConfig
 from devices.frames import MODES
 from devices.orientation_error import OrientationError, OrientationErrorModel
@@ -30,6 +32,43 @@ from inference.dataset import LabeledSession, read_session, write_session
 from inference.errors import InferenceError
 from inference.preprocess import metadata as preprocess_metadata
 from inference.preprocess import preprocess_frame
+
+
+def labeled_session(path: str | os.PathLike, reference: str = "terrain"):
+    """The recording as a training session (inference.dataset.LabeledSession): every
+    classifier input image, labelled with what it shows (`reference` "terrain": the
+    simulator's truth where the recording has it, else the labels), the operator's mode at
+    its time ("labels"), or the simulator's truth ("truth"); -1 where there is none."""
+    rec = open_recording(path)
+    images: dict[int, np.ndarray] = {}
+    times: dict[int, int] = {}
+    for m in rec.messages([T.BINARY_IMAGE]):
+        images[m.sequence] = (np.asarray(m.data) > 0).astype(np.uint8)
+        times[m.sequence] = m.publish_time_ns
+    if not images:
+        raise CaptureError(f"{rec.path}: no classifier images (/camera/binary_image) to train on")
+    index = sorted(images)
+    t = np.array([times[i] for i in index], dtype=np.int64)
+    if reference == "terrain":
+        reference = "truth" if T.TRUTH in rec.topics else "labels"
+    if reference == "truth":
+        truth = {
+            int(m.data["frame_index"]): L.mode_index(m.data.get("mode"))
+            for m in rec.messages([T.TRUTH])
+        }
+        labels = np.array([truth.get(i, -1) for i in index], dtype=np.int64)
+    else:
+        changes = [L.change_from_message(m.data) for m in rec.messages([T.LABELS])]
+        labels = L.labels_at(t, L.effective_changes(changes)).astype(np.int64)
+    session = rec.meta.session
+    return LabeledSession(
+        name=Path(rec.path).stem,
+        images=np.stack([images[i] for i in index]),
+        labels=labels,
+        preset=session.condition if session.has("condition") else "",
+        source="recording",
+        meta={"path": str(rec.path), "session": session.to_dict(), "reference": reference},
+    )
 
 
 def _read_recording(path: Path) -> LabeledSession:

@@ -7,7 +7,7 @@ def evaluate_recording(path, reference: str, name: str, methods, params):
     """One recording's evaluation (inference.evaluation.evaluate_trial) as its summarized
     result: a task of a corpus job (capture.corpus.jobs), so that a study of hundreds of
     long trials holds one trial's frames at a time, and each trial's figures."""
-    from capture.recording.reader import read_evaluation_trial
+    from capture.corpus.trials import read_evaluation_trial
     from inference.evaluation.metrics import evaluate_trial
 
     trial = read_evaluation_trial(path, reference, name)

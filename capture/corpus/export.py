@@ -307,12 +307,11 @@ def _trial_row(rec, member, identity: dict, table: FrameTable) -> dict:
         }
     )
     # a fixed set of columns whatever the metadata holds (SESSION_COLUMNS; absent: NA)
-    session = rec.metadata.get("session", {})
+    session, software = rec.meta.session, rec.meta.software
     for key in SESSION_COLUMNS:
-        trials[f"session_{key}"] = session.get(key)
-    software = rec.metadata.get("software", {})
+        trials[f"session_{key}"] = session.value(key)
     for key in SOFTWARE_COLUMNS:
-        trials[key] = software.get(key)
+        trials[key] = software.value(key)
 
     # loss by the one definition of the live alarms and `walkcap info` (capture.recording.gaps)
     # (a stream the file does not hold: NA in its columns, which are always there)

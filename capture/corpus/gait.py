@@ -46,7 +46,7 @@ def gait_evaluation(path: str | os.PathLike, tolerance_ms: float, recorded: bool
                     by_mode[mode] = (int(mine.sum()), int(hit[mine].sum()))
     return {
         "file": str(path),
-        "condition": str(rec.metadata.get("session", {}).get("condition") or ""),
+        "condition": str(rec.meta.session.condition or ""),
         "scores": scores,
         "heel_contacts_by_mode": by_mode,
     }

@@ -45,6 +45,13 @@ from capture.live.pipeline import (
 )
 from capture.recording import topics as T
 from capture.recording.lineage import REPLAY, derivation
+from capture.recording.metadata import (
+    CameraRecord,
+    DerivationRecord,
+    DevicesRecord,
+    SessionRecord,
+    SoftwareRecord,
+)
 from capture.recording.reader import imu_sample
 from devices import clock
 from devices.frames import DepthFrame, ImuSample
@@ -484,25 +491,29 @@ def _replay(
 
     imu, labels, events = recorded_streams
 
+    meta = rec.meta
+    # the source's records kept, in the source's order
     metadata = {
-        name: dict(values)
-        for name, values in rec.metadata.items()
-        if name in ("session", "devices", "camera")
+        name: getattr(meta, name).to_dict()
+        for name in rec.metadata
+        if name in (SessionRecord.NAME, DevicesRecord.NAME, CameraRecord.NAME)
     }
-    software = {
-        **rec.metadata.get("software", {}),
-        **software_metadata(config, pipeline),
-        "replay_of": source.name,
-    }
-    metadata["software"] = software
+    software = SoftwareRecord.from_dict(
+        {
+            **meta.software.to_dict(),
+            **software_metadata(config, pipeline),
+            "replay_of": source.name,
+        }
+    )
+    metadata[software.NAME] = software.to_dict()
     replay_id = str(uuid.uuid4())
-    metadata["derivation"] = derivation(
+    metadata[DerivationRecord.NAME] = derivation(
         rec,
         replay_id,
         REPLAY,
-        f"replay with model {software['model_hash'][:12] or '?'} ({software['model_path']})",
-        model_hash=software["model_hash"],
-        model_path=software["model_path"],
+        f"replay with model {software.model_hash[:12] or '?'} ({software.model_path})",
+        model_hash=software.model_hash,
+        model_path=software.model_path,
     )
     attachments = {name: data for name, data in rec.attachments.items()}
     recorder = Recorder(

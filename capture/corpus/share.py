@@ -29,6 +29,7 @@ from capture.recording import topics as T
 from capture.recording.copy import RecordingCopy, _media_type, new_recording
 from capture.recording.lineage import SHARED, derivation, describe
 from capture.recording.messages import iter_raw
+from capture.recording.metadata import DerivationRecord, SharingRecord
 from capture.recording.personal import (
     ShareRules,
     date_offset_ns,
@@ -97,10 +98,11 @@ def share_recording(source: Path, target: Path, rules: ShareRules) -> Shared:
                 reduced.values.pop("journal", None)  # no journal goes with the copy
             removed += [r for r in reduced.removed if r not in removed]
             copy.metadata(name, T.encode_metadata(reduced.values))
-        d = derivation(rec, copy_id, SHARED, "shared copy: personal fields reduced")
-        d["source_name"] = strip_file_time(d["source_name"])
-        d["source_kind"] = member.kind
-        copy.metadata("derivation", T.encode_metadata(d))
+        d = DerivationRecord.from_dict(
+            derivation(rec, copy_id, SHARED, "shared copy: personal fields reduced")
+        )
+        d = d.replaced(source_name=strip_file_time(d.source_name), source_kind=member.kind)
+        copy.metadata(d.NAME, T.encode_metadata(d.to_dict()))
         start_unix = shift_unix_ns(rec.unix_time_ns(rec.start_ns or 0), offset) or 0
         for name, data in rec.attachments.items():
             if name == "walkcap.toml":
@@ -123,16 +125,15 @@ def share_recording(source: Path, target: Path, rules: ShareRules) -> Shared:
             removed.append(f"{topic}: {what} in {n} message(s)")
         if offset:
             removed.append("dates shifted (whole days)")
+        sharing = SharingRecord.build(
+            rules=rules.describe(),
+            removed=removed,
+            source_id=rec.id,
+            unchanged="every other message, byte for byte",
+        )
         copy.metadata(
-            "sharing",
-            T.encode_metadata(
-                {
-                    "rules": rules.describe(),
-                    "removed": removed,
-                    "source_id": rec.id,
-                    "unchanged": "every other message, byte for byte",
-                }
-            ),
+            sharing.NAME,
+            T.encode_metadata(sharing.to_dict()),
         )
         copy.finish()
     return Shared(source, target, removed, messages, rewritten)

@@ -11,7 +11,6 @@ The file has the same topics as a live recording, so eval, train and replay read
 from __future__ import annotations
 
 import copy
-import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +22,7 @@ from capture.live.pipeline import (
     record_result,
     software_metadata,
 )
-from capture.recording import topics as T
+from capture.recording.metadata import SessionRecord, devices_record
 from devices import clock
 from devices.clock import now_ns
 from devices.frames import ImuSample
@@ -91,19 +90,13 @@ def synth_recording(
     rng = np.random.default_rng([seed, 4242])
     pipeline = build_pipeline(cfg, classifier)
     metadata = {
-        "session": {
-            "subject": subject,
-            "condition": preset,
-            "trial": trial,
-            "notes": f"simulated: preset {preset}, seed {seed}",
-        },
-        "devices": {
-            "camera_backend": "mock",
-            "camera_fps": cfg.camera.fps,
-            "imu_backend": "synthetic",
-            "imu_rate_hz": cfg.imu.rate_hz,
-            "simulator": T.jsonable(dataclasses.asdict(cfg.simulator)),
-        },
+        "session": SessionRecord.build(
+            subject=subject,
+            condition=preset,
+            trial=trial,
+            notes=f"simulated: preset {preset}, seed {seed}",
+        ).to_dict(),
+        "devices": devices_record(cfg, simulated=True).to_dict(),
         "software": software_metadata(cfg, pipeline),
     }
     recorder = Recorder(

@@ -3,11 +3,10 @@ and described for a recording's "devices" metadata record."""
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 
 from capture import config as config_mod
-from capture.recording import topics as T
+from capture.recording.metadata import devices_record
 from devices import clock
 from devices.clock import now_ns
 
@@ -94,17 +93,9 @@ def devices_metadata(config: config_mod.Config, camera, imu) -> dict:
     """The "devices" metadata record: what was configured, and what the devices say."""
     cam = camera.status() if camera else None
     imu_status = imu.status() if imu else None
-    devices = {
-        "camera_backend": config.camera.backend,
-        "camera_fps": config.camera.fps,
-        "camera_use_case": config.camera.use_case,
-        "camera_details": T.jsonable(cam.details if cam else {}),
-        "imu_backend": config.imu.backend,
-        "imu_port": config.imu.port,
-        "imu_rate_hz": config.imu.rate_hz,
-        "imu_info": T.jsonable(getattr(imu, "info", {}) or {}),
-        "imu_details": T.jsonable(imu_status.details if imu_status else {}),
-    }
-    if config.camera.backend == "mock":
-        devices["simulator"] = T.jsonable(dataclasses.asdict(config.simulator))
-    return devices
+    return devices_record(
+        config,
+        camera_details=cam.details if cam else {},
+        imu_info=getattr(imu, "info", {}) or {},
+        imu_details=imu_status.details if imu_status else {},
+    ).to_dict()

@@ -386,22 +386,23 @@ def software_metadata(config, pipeline: Pipeline | None, **extra) -> dict:
     recording's decisions (None: no pipeline built yet); `extra` entries added (scheduling,
     what a replay replays)."""
     from capture import __version__
+    from capture.recording.metadata import SoftwareRecord
     from capture.recording.topics import jsonable
     from inference.preprocess import metadata as preprocess_metadata
 
     f = config.fusion
     preprocess = preprocess_metadata(pipeline.params, pipeline.mounting) if pipeline else {}
-    return {
-        "walkcap_version": __version__,
-        "model_path": config.model.path or "bundled",
-        "model_hash": model_hash(pipeline.classifier if pipeline else None),
-        "fusion_method": f.method,
-        "fusion_window": f.window,
-        "fusion_vote_delay": f.vote_delay,
-        "fusion_transition": jsonable(f.transition),
-        "preprocess": jsonable(preprocess),
+    return SoftwareRecord.build(
+        walkcap_version=__version__,
+        model_path=config.model.path or "bundled",
+        model_hash=model_hash(pipeline.classifier if pipeline else None),
+        fusion_method=f.method,
+        fusion_window=f.window,
+        fusion_vote_delay=f.vote_delay,
+        fusion_transition=jsonable(f.transition),
+        preprocess=jsonable(preprocess),
         **extra,
-    }
+    ).to_dict()
 
 
 def model_hash(classifier) -> str:

@@ -12,6 +12,7 @@ from pathlib import Path
 
 from capture import config as config_mod
 from capture.errors import CaptureError
+from capture.recording.metadata import DevicesRecord, SessionRecord, SoftwareRecord, as_dicts
 
 TRIAL_MAX = 99_999  # trial numbers name files (t01 ... t99999) and fit every integer field
 # The default of [session] subject_pattern: a code of letters then digits (S01, P07, OP1).
@@ -117,11 +118,14 @@ def trial_metadata(
 ) -> dict[str, dict]:
     """The trial's metadata records: its form and operator ("session"), the "devices" and
     "software" records (capture.live.devices, capture.live.pipeline)."""
-    session = trial.info.to_metadata()
-    session["operator"] = config.session.operator
+    session = SessionRecord.build(**trial.info.to_metadata(), operator=config.session.operator)
     if trial.supersedes:
-        session["supersedes"] = trial.supersedes
-    return {"session": session, "devices": devices, "software": software}
+        session = session.replaced(supersedes=trial.supersedes)
+    return as_dicts(
+        session,
+        DevicesRecord.from_dict(devices),
+        SoftwareRecord.from_dict(software),
+    )
 
 
 def trial_attachments(config: config_mod.Config, model_metadata: dict) -> dict[str, bytes]:

@@ -11,7 +11,6 @@ high so that the timer, not the size, decides. The file's end is the last comple
 from __future__ import annotations
 
 import collections
-import dataclasses
 import io
 import logging
 import os
@@ -37,6 +36,7 @@ from capture.recording.encode import (
     encode_processed,
     encode_truth,
 )
+from capture.recording.metadata import CameraRecord
 from capture.recording.write_queue import (
     QueuedDeviceEvent,
     QueuedEncodedFrame,
@@ -343,10 +343,8 @@ class ChunkWriter:
             "application/x-npy",
             buf.getvalue(),
         )
-        camera = dict(dataclasses.asdict(g))
-        camera["rays_attachment"] = T.RAYS_ATTACHMENT
-        camera["from_frame_index"] = frame.index
-        self._sealed.metadata("camera", T.encode_metadata(camera))
+        camera = CameraRecord.of(g, T.RAYS_ATTACHMENT, frame.index)
+        self._sealed.metadata(camera.NAME, T.encode_metadata(camera.to_dict()))
         self._geometry = g
         off_ray = T.ray_error_m(frame.xyz, rays, frame.confidence)
         if off_ray > 0.0005:  # the rays do not fit royale's points: say so in the file

@@ -10,8 +10,8 @@ One row per frame with a CNN output or a preprocessing record (a frame left unde
 its orientation stale, has only the latter), in frame order. What a fused message says
 is put on the frame it refers to (`decision`, `posterior`, `voted`), and the frame whose
 arrival produced it is kept beside (`decision_at`, `voted_at`, `produced`). The label
-references come from capture.recording.labels. `read_trial`, `walkcap export` and the
-replay screen read recordings through this one join.
+references come from capture.recording.labels. `read_trial` (capture.corpus.trials),
+`walkcap export` and the replay screen read recordings through this one join.
 """
 
 from __future__ import annotations

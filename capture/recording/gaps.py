@@ -16,6 +16,7 @@ from __future__ import annotations
 import threading
 from dataclasses import dataclass, field
 
+from capture.recording.metadata import DevicesRecord
 from devices import clock
 
 GAP_PERIODS = 3.0  # late delivery: a receive interval longer than this many periods
@@ -144,21 +145,12 @@ def stream_loss(
 # ---- a recording ----------------------------------------------------------------------
 
 TOPICS = {"/camera/depth": "camera", "/imu": "imu"}  # the sensor streams, by topic
-_RATE_KEYS = {"camera": "camera_fps", "imu": "imu_rate_hz"}
 
 
-def recorded_periods(metadata: dict) -> dict[str, float]:
-    """Each sensor topic's configured period from the file's metadata (`devices`)."""
-    devices = metadata.get("devices", {})
-    out = {}
-    for topic, stream in TOPICS.items():
-        try:
-            rate = float(devices.get(_RATE_KEYS[stream], ""))
-        except (TypeError, ValueError):
-            continue
-        if rate > 0:
-            out[topic] = 1.0 / rate
-    return out
+def recorded_periods(devices: DevicesRecord) -> dict[str, float]:
+    """Each sensor topic's configured period from the file's "devices" record."""
+    rates = devices.rates_hz
+    return {topic: 1.0 / rates[stream] for topic, stream in TOPICS.items() if stream in rates}
 
 
 _REORDER = 1024  # items held to put a stream in receive-time order
@@ -213,9 +205,10 @@ class RecordedLoss:
         return self._counter.loss if self._counter is not None else StreamLoss()
 
 
-def loss_counters(metadata: dict, topics) -> dict[str, RecordedLoss]:
-    """A RecordedLoss per sensor topic among `topics`, with its period from the metadata."""
-    periods = recorded_periods(metadata)
+def loss_counters(devices: DevicesRecord, topics) -> dict[str, RecordedLoss]:
+    """A RecordedLoss per sensor topic among `topics`, with its period from the "devices"
+    record."""
+    periods = recorded_periods(devices)
     return {
         topic: RecordedLoss(stream, periods.get(topic))
         for topic, stream in TOPICS.items()
@@ -229,7 +222,7 @@ def recording_loss(rec) -> dict[str, StreamLoss]:
     the host's receive time in log_time. One pass over the file, messages not decoded."""
     from capture.recording.messages import damage_is_an_error, iter_raw
 
-    counters = loss_counters(rec.metadata, rec.topics)
+    counters = loss_counters(rec.meta.devices, rec.topics)
     if counters:
         with damage_is_an_error(rec.path):
             for _, channel, m in iter_raw(rec.path, rec.complete, set(counters)):

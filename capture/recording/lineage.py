@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from capture.recording.metadata import DerivationRecord
 from capture.recording.reader import Recording
 
 RECORDING, REPLAY, CORRECTED, RECOVERED = "recording", "replay", "corrected", "recovered"
@@ -27,17 +28,17 @@ ORIGINAL_KINDS = (RECORDING, SHARED)
 def derivation(source: Recording, new_id: str, kind: str, how: str, **extra) -> dict:
     """The "derivation" metadata record of a file made from `source`."""
     subject, condition, trial = source.trial
-    return {
-        "id": new_id,
-        "kind": kind,
-        "source_id": source.id,
-        "source_name": source.path.name,
-        "how": how,
-        "subject": subject,
-        "condition": condition,
-        "trial": trial,
+    return DerivationRecord.build(
+        id=new_id,
+        kind=kind,
+        source_id=source.id,
+        source_name=source.path.name,
+        how=how,
+        subject=subject,
+        condition=condition,
+        trial=trial,
         **extra,
-    }
+    ).to_dict()
 
 
 @dataclass
@@ -63,20 +64,20 @@ class Member:
 
 def describe(rec: Recording) -> Member:
     """The identity and lineage of an open recording."""
-    meta = rec.metadata
-    d = meta.get("derivation") or {}
+    meta = rec.meta
+    d = meta.derivation
     kind, source_id, source_name, how = RECORDING, "", "", ""
-    if d.get("kind") in (*DERIVED_KINDS, SHARED):
-        kind = d["kind"]
+    if d.kind in (*DERIVED_KINDS, SHARED):
+        kind = d.kind
         source_id, source_name, how = (
-            str(d.get("source_id") or ""),
-            str(d.get("source_name") or ""),
-            str(d.get("how") or ""),
+            str(d.source_id or ""),
+            str(d.source_name or ""),
+            str(d.how or ""),
         )
     own_id = rec.id
     if own_id.startswith("file:"):  # no id in the file: its path stands in
         own_id = f"file:{rec.path.resolve()}"
-    supersedes = meta.get("session", {}).get("supersedes") or []
+    supersedes = meta.session.supersedes or []
     try:
         mtime = rec.path.stat().st_mtime
     except OSError:

@@ -65,13 +65,24 @@ class Decoders:
         return decoder(data)
 
 
-def iter_raw(path: Path, complete: bool, topics: set[str] | None):
-    """(schema, channel, message) in file order."""
+def iter_raw(
+    path: Path,
+    complete: bool,
+    topics: set[str] | None,
+    *,
+    start: int | None = None,
+    end: int | None = None,
+    summary=None,
+):
+    """(schema, channel, message) in file order; with `start` / `end`, only the messages
+    logged in [start, end) (ns, session clock). A finished file is read through its index
+    (`summary`: the one already read, else read here): only the chunks that hold a wanted
+    topic in that window are read. An unfinished one is read record by record."""
     from mcap.records import Channel, Message, Schema
 
     with open(path, "rb") as f:
         if complete:
-            yield from _iter_indexed(f, topics)
+            yield from iter_indexed(f, topics, start, end, summary)
             return
         schemas: dict[int, Schema] = {}
         channels: dict[int, Channel] = {}
@@ -90,21 +101,34 @@ def iter_raw(path: Path, complete: bool, topics: set[str] | None):
                 channel = channels.get(record.channel_id)
                 if channel is None or (topics is not None and channel.topic not in topics):
                     continue
+                if not _in_window(record.log_time, start, end):
+                    continue
                 yield schemas.get(channel.schema_id), channel, record
+
+
+def _in_window(t: int, start: int | None, end: int | None) -> bool:
+    return (start is None or t >= start) and (end is None or t < end)
+
+
+def read_summary(f):
+    """A finished file's summary (channels, schemas, statistics, chunk index)."""
+    from mcap.reader import make_reader
+
+    return make_reader(f).get_summary()
 
 
 _MESSAGE_HEAD = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
 
 
-def _iter_indexed(f, topics: set[str] | None):
+def iter_indexed(f, topics: set[str] | None, start=None, end=None, summary=None):
     """A finished file's messages chunk by chunk, in file order, through its index:
-    chunks without a wanted channel are not read, and one chunk is in memory at a time
-    (the mcap library's file-order iteration opens every chunk before the first message:
-    a whole long recording in memory, and a wait before anything comes)."""
-    from mcap.reader import make_reader
+    chunks without a wanted channel, or outside [start, end), are not read, and one chunk
+    is in memory at a time (the mcap library's file-order iteration opens every chunk
+    before the first message: a whole long recording in memory, and a wait before
+    anything comes)."""
     from mcap.records import Message
 
-    summary = make_reader(f).get_summary()
+    summary = summary if summary is not None else read_summary(f)
     wanted = {cid for cid, c in summary.channels.items() if topics is None or c.topic in topics}
     if not wanted:
         return
@@ -113,6 +137,13 @@ def _iter_indexed(f, topics: set[str] | None):
     for index in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
         if index.message_index_offsets and wanted.isdisjoint(index.message_index_offsets):
             continue
+        # the chunk's log times span [message_start_time, message_end_time]
+        if (start is not None and index.message_end_time < start) or (
+            end is not None and index.message_start_time >= end
+        ):
+            continue
+        if not _within(index, start, end) and not _indexed_in_window(f, index, wanted, start, end):
+            continue  # a label or event widens its span: no wanted message in the window
         try:
             messages = list(chunk_messages(f, index.chunk_start_offset, index.chunk_length, wanted))
         except Exception as e:  # CRC, zstd or a record running past the chunk's end
@@ -132,6 +163,8 @@ def _iter_indexed(f, topics: set[str] | None):
             )
             raise CaptureError(_damage_line(Path(f.name), damage.describe(origin))) from None
         for cid, sequence, log_time, publish_time, data in messages:
+            if not _in_window(log_time, start, end):
+                continue
             channel = summary.channels[cid]
             yield (
                 summary.schemas.get(channel.schema_id),
@@ -144,6 +177,34 @@ def _iter_indexed(f, topics: set[str] | None):
                     data=data,
                 ),
             )
+
+
+def _within(index, start: int | None, end: int | None) -> bool:
+    """Whether every message of the chunk is logged inside [start, end)."""
+    return (start is None or index.message_start_time >= start) and (
+        end is None or index.message_end_time < end
+    )
+
+
+def _indexed_in_window(f, index, wanted: set[int], start, end) -> bool:
+    """Whether the chunk's message indexes (small records after it, read without
+    decompressing it) put a message of a wanted channel in [start, end); True when the
+    chunk has no index to tell."""
+    from mcap.data_stream import ReadDataStream
+    from mcap.records import MessageIndex
+
+    offsets = index.message_index_offsets
+    if not offsets:
+        return True
+    try:
+        for cid in wanted & set(offsets):
+            f.seek(offsets[cid] + RECORD_HEAD.size)
+            records = MessageIndex.read(ReadDataStream(f)).records
+            if any(_in_window(t, start, end) for t, _ in records):
+                return True
+    except Exception:  # a damaged index: the chunk itself is read (its CRC checks it)
+        return True
+    return False
 
 
 def chunk_messages(f, offset: int, length: int, wanted: set[int]):

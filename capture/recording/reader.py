@@ -1,14 +1,15 @@
 """Reading walkcap recordings in Python: metadata, topics decoded into numpy and dicts.
 
-    rec = open_recording("S01_indoor_t01.mcap")
-    rec.metadata["session"]["subject"]
-    for m in rec.messages(["/camera/cloud"]):    # m.data: (N, 3) float32
-        ...
-    trial = read_trial(path)                     # per-frame arrays for evaluation
+    with open_recording("S01_indoor_t01.mcap") as rec:
+        rec.meta.session.subject                 # typed metadata (capture.recording.metadata)
+        for m in rec.messages(["/camera/cloud"], start=t0_ns, end=t1_ns):  # (N, 3) float32
+            ...
+    table, changes = frame_table(rec)            # every per-frame topic joined by frame
     for frame in depth_frames(path):             # DepthFrame with xyz rebuilt exactly
         ...
 
-Finished files are read through their index. Unfinished ones (a crash, a full disk) are
+Finished files are read through their index: a window of time reads only the chunks
+that overlap it. Unfinished ones (a crash, a full disk) are
 read record by record up to where they stop (capture.recording.messages), so everything
 that reached the disk is readable without `walkcap recover`.
 Messages are decoded with the schema stored in the file (protobuf descriptors, JSON).
@@ -21,6 +22,7 @@ are read with their undos applied (capture.recording.labels); the file keeps bot
 
 from __future__ import annotations
 
+import functools
 import io
 import os
 import struct
@@ -48,9 +50,16 @@ from capture.recording._mcap import (
 from capture.recording.chunk_digests import CHUNK_DIGESTS
 from capture.recording.digests import DIGESTS
 from capture.recording.frames import FrameJoin, FrameTable
-from capture.recording.messages import Decoders, damage_is_an_error, iter_raw, log_times
+from capture.recording.messages import (
+    Decoders,
+    damage_is_an_error,
+    iter_indexed,
+    iter_raw,
+    log_times,
+)
+from capture.recording.metadata import Metadata
 from devices import clock
-from devices.frames import MODES, CameraGeometry, DepthFrame, ImuSample
+from devices.frames import CameraGeometry, DepthFrame, ImuSample
 
 
 @dataclass
@@ -97,6 +106,28 @@ class Recording:
     # through its index: `capture.recording.checking.check` reads and checks every chunk).
     damaged: list[Damage] = field(default_factory=list)
     format_version: str = T.FORMAT_VERSION  # the file's (capture.recording.versions)
+    # a finished file's summary (channels, chunk index), read once when opened
+    _summary: Any = field(default=None, repr=False)
+    _file: Any = field(default=None, repr=False)  # open while in a `with` block
+
+    def __enter__(self) -> Recording:
+        if self._file is None and self.complete:
+            self._file = open(self.path, "rb")  # noqa: SIM115 (closed by __exit__)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Close the file a `with` block holds open (reading again reopens it)."""
+        if self._file is not None:
+            self._file.close()
+            self._file = None
+
+    @functools.cached_property
+    def meta(self) -> Metadata:
+        """The metadata records typed (capture.recording.metadata): the last of each name."""
+        return Metadata.from_dict(self.metadata)
 
     @property
     def duration_s(self) -> float:
@@ -105,11 +136,7 @@ class Recording:
     @property
     def unix_offset_ns(self) -> int | None:
         """Add to a session-clock time (any log or publish time) for Unix time in ns."""
-        value = self.metadata.get("recording", {}).get("unix_offset_ns")
-        try:
-            return int(value) if value not in (None, "") else None
-        except (TypeError, ValueError):
-            return None
+        return self.meta.recording.unix_offset
 
     def unix_time_ns(self, session_ns):
         """Session-clock time(s) as Unix time in ns (None when the file has no offset)."""
@@ -123,34 +150,47 @@ class Recording:
     @property
     def id(self) -> str:
         """The recording's unique id; files without one get a stand-in from their name."""
-        derived = self.metadata.get("derivation", {}).get("id")
-        return str(
-            derived or self.metadata.get("recording", {}).get("id") or f"file:{self.path.name}"
-        )
+        meta = self.meta
+        return str(meta.derivation.id or meta.recording.id or f"file:{self.path.name}")
 
     @property
     def trial(self) -> tuple[str, str, int | None]:
         """(subject, condition, trial) from the session metadata."""
-        session = self.metadata.get("session", {})
-        try:
-            number = int(session.get("trial"))
-        except (TypeError, ValueError):
-            number = None
-        return str(session.get("subject") or ""), str(session.get("condition") or ""), number
+        session = self.meta.session
+        return str(session.subject or ""), str(session.condition or ""), session.trial_number
 
     def messages(
-        self, topics: Iterable[str] | str | None = None, *, raw: bool = False
+        self,
+        topics: Iterable[str] | str | None = None,
+        *,
+        start: int | None = None,
+        end: int | None = None,
+        raw: bool = False,
     ) -> Iterator[RecordedMessage]:
-        """Messages in file order (which is time order per topic), decoded with the file's
-        schemas; `raw=True` gives the protobuf objects and JSON dicts as stored (without
-        conversion, and an older format version's messages not upgraded)."""
+        """Messages of `topics` (a topic, several, or None: all) in file order (which is
+        time order per topic), decoded with the file's schemas. `start` / `end`: only the
+        messages logged in [start, end), session-clock ns; a finished file reads only the
+        chunks of its index that hold a wanted topic in that window. `raw=True` gives the
+        protobuf objects and JSON dicts as stored (without conversion, and an older format
+        version's messages not upgraded)."""
         if isinstance(topics, str):
             topics = [topics]
         wanted = None if topics is None else set(topics)
         decode = self.decoder(raw=raw)
         with damage_is_an_error(self.path):
-            for schema, channel, message in iter_raw(self.path, self.complete, wanted):
+            for schema, channel, message in self._raw(wanted, start, end):
                 yield decode(schema, channel, message)
+
+    def _raw(self, wanted: set[str] | None, start: int | None, end: int | None):
+        """(schema, channel, message) through the file a `with` block holds open, or the
+        file opened again for this read."""
+        if self._file is not None and self._summary is not None:
+            # one chunk read whole at a time: reads may interleave on the one handle
+            yield from iter_indexed(self._file, wanted, start, end, self._summary)
+            return
+        yield from iter_raw(
+            self.path, self.complete, wanted, start=start, end=end, summary=self._summary
+        )
 
     def decoder(self, *, raw: bool = False) -> Callable[[Any, Any, Any], RecordedMessage]:
         """decode(schema, channel, message) -> RecordedMessage, as `messages` decodes: for
@@ -185,7 +225,7 @@ class Recording:
         with damage_is_an_error(self.path):
             items = [
                 (m.sequence, m.publish_time, m.log_time)
-                for _, _, m in iter_raw(self.path, self.complete, {topic})
+                for _, _, m in self._raw({topic}, None, None)
             ]
         return sorted(items, key=lambda x: x[2])
 
@@ -204,14 +244,7 @@ class Recording:
         return np.load(io.BytesIO(data))
 
     def geometry(self) -> CameraGeometry:
-        camera = self.metadata.get("camera")
-        if not camera:
-            return CameraGeometry()
-        kwargs = {}
-        for name in CameraGeometry.__dataclass_fields__:
-            if name in camera:
-                kwargs[name] = type(getattr(CameraGeometry(), name))(camera[name])
-        return CameraGeometry(**kwargs)
+        return self.meta.camera.geometry()
 
 
 _BOOKKEEPING = (DIGESTS, CHUNK_DIGESTS)  # records about the file's own bytes, not its data
@@ -230,7 +263,12 @@ def convert(topic: str, decoded: Any) -> Any:
 
 def open_recording(path: str | os.PathLike) -> Recording:
     """Open a recording: metadata, attachments and topic counts, finished or not.
-    Raises CaptureError (one line) for a missing file or one that is not MCAP."""
+    Raises CaptureError (one line) for a missing file or one that is not MCAP.
+
+        with open_recording(path) as rec:      # the file held open, its index read once
+            for m in rec.messages("/imu", start=t0_ns, end=t1_ns):
+                ...
+    """
 
     p = Path(path)
     if not p.exists():
@@ -287,6 +325,7 @@ def _open(p: Path) -> Recording:
                 raw_metadata_records=raw,
                 damaged=damaged,
                 format_version=version,
+                _summary=summary,
             )
     return _open_unfinished(p, size)
 
@@ -396,74 +435,6 @@ def imu_sample(d: dict) -> ImuSample:
     )
 
 
-def read_trial(path: str | os.PathLike) -> dict:
-    """Per-frame arrays of one trial, in frame order (frames with a CNN output), from the
-    per-frame table (capture.recording.frames):
-
-    - frame_index (N,), time_ns (N,): the frame's sample time, session clock;
-      unix_time_ns (N,): the same instant as Unix time (None if the file has no offset)
-    - probabilities (N, 5): CNN softmax, mode order MODES
-    - cnn_decisions (N,): argmax; decisions (N,): the fused (HMM) decision recorded for
-      the frame, -1 if none; voted (N,): the voted decision, -1 if none
-    - labels (N,): the operator's mode in force at the frame's time (-1: none yet), undos
-      applied (capture.recording.labels: an undone change never happened)
-    - truth (N,) simulator's true mode, or None when the recording has no /sim/truth
-    - the two references (inference.evaluation): locomotion (N,), the subject's mode keyed
-      live (undos applied, offline corrections not); terrain (N,), what each image shows:
-      the simulator's truth, else the labels made offline in `replay --tui` laid over the
-      live keys (`labels`), else None; terrain_source: "simulator", "offline labels" or None
-    - camera_elevation_deg (N,): the camera's optical axis above the horizon (/tf), NaN
-      where the frame had no orientation: the gait cue of fusion (GaitSteadyFusion)
-    - geometry (N,): the mode the frame's terrain features show (/terrain/features,
-      inference.features.shown_mode), -1 where unknown: the cue of GeometryFusion
-    - ground_ahead (N,): the mode the ground ahead shows by its slope (/terrain/features,
-      inference.features.ground_ahead), -1 where not seen: the cue of SlopeFusion
-    - gait: the gait events (devices.frames.GaitEvent) of /gait and /sim/gait, in time order;
-      gait_logged_ns: when each was logged (the detector's: when it was detected)
-    - label_changes: every recorded change [(time_ns, mode, source)] in time order, undos
-      and what they undid included (the audit trail); reference_changes: the ones that
-      define `labels`; metadata (typed); id; modes: MODES
-    """
-    rec = open_recording(path)
-    gait: list = []  # the gait events and when each was logged, read in the same pass
-
-    def take_gait(m: RecordedMessage) -> None:
-        gait.append((T.gait_from_message(m.data), m.log_time_ns))
-
-    # frames with a CNN output only: their preprocessing records not read
-    table, changes = frame_table(
-        rec,
-        (T.GAIT, T.SIM_GAIT),
-        take_gait,
-        frame_topics=(T.CNN, T.FUSED, T.TF, T.TRUTH, T.FEATURES),
-    )
-    frames = table.select(table.classified)
-    return {
-        "frame_index": frames.index,
-        "time_ns": frames.time_ns,
-        "unix_time_ns": rec.unix_time_ns(frames.time_ns),
-        "probabilities": frames.probabilities,
-        "cnn_decisions": frames.cnn_decision,
-        "decisions": frames.decision,
-        "voted": frames.voted,
-        "labels": frames.labels,
-        "truth": frames.truth if frames.has_truth else None,
-        "locomotion": frames.locomotion,
-        "terrain": frames.terrain,
-        "terrain_source": frames.terrain_source,
-        "camera_elevation_deg": frames.camera_elevation_deg,
-        "geometry": frames.geometry,
-        "ground_ahead": frames.ground_ahead,
-        "gait": [e for e, _ in sorted(gait, key=lambda g: g[0].time_ns)],
-        "gait_logged_ns": [t for _, t in sorted(gait, key=lambda g: g[0].time_ns)],
-        "label_changes": changes,
-        "reference_changes": L.effective_changes(changes),
-        "metadata": rec.metadata,
-        "id": rec.id,
-        "modes": MODES,
-    }
-
-
 def frame_table(
     rec: Recording,
     other_topics: Iterable[str] = (),
@@ -487,62 +458,6 @@ def frame_table(
             take(m)
     changes = L.in_time_order(changes)
     return join.table(changes, has_truth=T.TRUTH in rec.topics), changes
-
-
-def read_trials(paths, reference: str = "terrain") -> list:
-    """Evaluation trials (inference.evaluation.Trial) from recordings, one a file.
-
-    reference: what accuracy is scored against, "terrain" (what the images show) or
-    "locomotion" (the subject's mode keyed live); see read_trial.
-    """
-    return [read_evaluation_trial(p, reference) for p in paths]
-
-
-def read_evaluation_trial(path, reference: str = "terrain", name: str | None = None):
-    """One recording's evaluation trial (see read_trials), named `name` (default: the
-    path); one task of a corpus job (capture.corpus.jobs)."""
-    from inference.evaluation import trial_from_recording
-
-    return trial_from_recording(str(name or path), read_trial(path), reference)
-
-
-def labeled_session(path: str | os.PathLike, reference: str = "terrain"):
-    """The recording as a training session (inference.dataset.LabeledSession): every
-    classifier input image, labelled with what it shows (`reference` "terrain": the
-    simulator's truth where the recording has it, else the labels), the operator's mode at
-    its time ("labels"), or the simulator's truth ("truth"); -1 where there is none."""
-    from inference.dataset import LabeledSession
-
-    rec = open_recording(path)
-    images: dict[int, np.ndarray] = {}
-    times: dict[int, int] = {}
-    for m in rec.messages([T.BINARY_IMAGE]):
-        images[m.sequence] = (np.asarray(m.data) > 0).astype(np.uint8)
-        times[m.sequence] = m.publish_time_ns
-    if not images:
-        raise CaptureError(f"{rec.path}: no classifier images (/camera/binary_image) to train on")
-    index = sorted(images)
-    t = np.array([times[i] for i in index], dtype=np.int64)
-    if reference == "terrain":
-        reference = "truth" if T.TRUTH in rec.topics else "labels"
-    if reference == "truth":
-        truth = {
-            int(m.data["frame_index"]): L.mode_index(m.data.get("mode"))
-            for m in rec.messages([T.TRUTH])
-        }
-        labels = np.array([truth.get(i, -1) for i in index], dtype=np.int64)
-    else:
-        changes = [L.change_from_message(m.data) for m in rec.messages([T.LABELS])]
-        labels = L.labels_at(t, L.effective_changes(changes)).astype(np.int64)
-    session = rec.metadata.get("session", {})
-    return LabeledSession(
-        name=Path(rec.path).stem,
-        images=np.stack([images[i] for i in index]),
-        labels=labels,
-        preset=session.get("condition", ""),
-        source="recording",
-        meta={"path": str(rec.path), "session": dict(session), "reference": reference},
-    )
 
 
 _TRUTH_WAIT_FRAMES = 64  # frames held back waiting for their truth, at most
@@ -609,22 +524,3 @@ def _frame(
         truth=truth,
         range_mm=depth,
     )
-
-
-def find_gaps(
-    times_ns: np.ndarray, factor: float | None = None, period_s: float | None = None
-) -> list[tuple[int, float]]:
-    """Gaps in a regular stream: intervals longer than `factor` (default: the live alarms'
-    GAP_PERIODS) x the period (default: the median interval), as (start time ns, length s)."""
-    from capture.recording.gaps import GAP_PERIODS
-
-    factor = GAP_PERIODS if factor is None else factor
-    t = np.asarray(times_ns, dtype=np.int64)
-    if len(t) < 3:
-        return []
-    dt = np.diff(t)
-    median = period_s * 1e9 if period_s else float(np.median(dt))
-    if median <= 0:
-        return []
-    long = np.nonzero(dt > factor * median)[0]
-    return [(int(t[i]), clock.seconds(float(dt[i]))) for i in long]

@@ -28,6 +28,7 @@ from capture.recording.checking import describe_damage, summary_of
 from capture.recording.gaps import StreamLoss, loss_counters
 from capture.recording.lineage import RECORDING, Member, describe
 from capture.recording.messages import damage_is_an_error
+from capture.recording.metadata import Metadata
 from capture.recording.reader import Recording
 from devices import clock
 from inference.preprocess import BAD_ORIENTATION, STALE_ORIENTATION
@@ -65,6 +66,11 @@ class RecordingSummary:
     metadata: dict[str, dict[str, Any]]
     attachments: dict[str, int]  # name -> bytes
     trial: tuple[str, str, int | None]  # (subject, condition, trial)
+
+    @property
+    def meta(self) -> Metadata:
+        """The metadata records typed (capture.recording.metadata)."""
+        return Metadata.from_dict(self.metadata)
 
     @property
     def stale_orientation_frames(self) -> int:
@@ -243,7 +249,7 @@ def _read_through(rec: Recording) -> _Seen:
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
     times: dict[int, list[int]] = {}
-    counters = loss_counters(rec.metadata, rec.topics)
+    counters = loss_counters(rec.meta.devices, rec.topics)
     decode = rec.decoder()
     decoded = {T.LABELS, T.EVENTS, T.PREPROCESS}
     flags: dict[str, int] = {}

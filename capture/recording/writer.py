@@ -41,6 +41,7 @@ from capture.recording import topics as T
 from capture.recording.chunks import ZSTD_LEVEL, ChunkWriter, TrackedFile, set_zstd_level
 from capture.recording.encode import CLOUD_MAX_POINTS, CLOUD_VOXEL_M, Encoded
 from capture.recording.journal import Journal, fsync_directory, journal_path
+from capture.recording.metadata import RecordingRecord, as_dicts
 from capture.recording.sink import Sink
 from capture.recording.write_queue import (
     STOP,
@@ -233,23 +234,23 @@ class Recorder(Sink):
 
     def _recording_metadata(self) -> dict[str, dict]:
         unix_offset = time.time_ns() - now_ns()
-        recording = {
-            "id": self.id,
-            T.METADATA_VALUES_KEY: T.METADATA_VALUES,
-            "format_version": T.FORMAT_VERSION,
-            "writer": f"walkcap {__version__}",
-            "clock": "session clock: time.monotonic_ns of the recording host",
-            "unix_offset_ns": unix_offset,  # add to a log time for Unix time
-            "chunk_interval_s": self._chunk_interval_s,
-            "depth": "range along each pixel's ray in mm (16UC1) x attachment "
+        recording = RecordingRecord.build(
+            id=self.id,
+            **{T.METADATA_VALUES_KEY: T.METADATA_VALUES},
+            format_version=T.FORMAT_VERSION,
+            writer=f"walkcap {__version__}",
+            clock="session clock: time.monotonic_ns of the recording host",
+            unix_offset_ns=unix_offset,  # add to a log time for Unix time
+            chunk_interval_s=self._chunk_interval_s,
+            depth="range along each pixel's ray in mm (16UC1) x attachment "
             f"{T.RAYS_ATTACHMENT} = xyz; within 0.5 mm",
-            "cloud_quantum_m": T.CLOUD_QUANTUM_M,
-            "cloud_max_points": self._cloud_max_points,
-            "cloud_voxel_m": self._cloud_voxel_m,
-            "journal": self.journal_path.name,
-            "topics": {name: topic.description for name, topic in T.TOPICS.items()},
-        }
-        return {**self._metadata, "recording": recording}
+            cloud_quantum_m=T.CLOUD_QUANTUM_M,
+            cloud_max_points=self._cloud_max_points,
+            cloud_voxel_m=self._cloud_voxel_m,
+            journal=self.journal_path.name,
+            topics={name: topic.description for name, topic in T.TOPICS.items()},
+        )
+        return {**self._metadata, **as_dicts(recording)}
 
     def close(self) -> RecorderStats:
         """Write what is queued, finalise the file (summary and index), return the stats."""

@@ -1,6 +1,6 @@
 """What is evaluated: a trial (CNN probabilities per frame and its references), one
 method's run over it, and the trial's result; read from score CSVs (`read_scores`) or from
-what `capture.recording.reader.read_trial` returns for a recording (`trial_from_recording`).
+a recording's per-frame arrays (`trial_from_recording`, from capture.corpus.trials).
 
 Two references: `terrain`, what each image shows (the paper's: labelled offline from the
 images, or the simulator's per-image truth), and `locomotion`, the subject's mode keyed live,
@@ -331,12 +331,13 @@ _REFERENCE_ALIASES = {"truth": "terrain", "labels": "locomotion", "auto": "terra
 
 
 def trial_from_recording(path: str, data: Any, reference: str = "terrain") -> Trial:
-    """A Trial from what `capture.recording.reader.read_trial` returns for one recording.
+    """A Trial from one recording's per-frame arrays (capture.corpus.trials.RecordedTrial's
+    `evaluation_inputs`).
 
     data: a mapping (or object) with "probabilities" (N, 5), "terrain" (N modes each image
     shows, or None; a flat dict may give "truth" instead), "locomotion" (N modes keyed live,
-    -1/None before the first key; or "labels"), "time_ns" and "metadata" (capture's
-    {"session": {...}}, or a flat dict); optionally "gait", the recording's gait events
+    -1/None before the first key; or "labels"), "time_ns" and "metadata" (a flat dict:
+    subject, condition, trial); optionally "gait", the recording's gait events
     (devices.frames.GaitEvent or their dicts: time_ns, event, source, mode), which give the
     per-step metrics (`gait_steps`) and the step fusion's cue (the detector's events).
     reference: what accuracy is scored against,
@@ -370,7 +371,6 @@ def trial_from_recording(path: str, data: Any, reference: str = "terrain") -> Tr
     chosen = mode_indices(terrain if reference == "terrain" else locomotion)
     second = mode_indices(locomotion) if reference == "terrain" and usable(locomotion) else None
     metadata = dict(get("metadata") or {})
-    metadata = {**metadata, **(metadata.get("session") or {})}  # capture nests the form
     probabilities = np.asarray(get("probabilities"), dtype=float)
     times = get("time_ns")
     times_s = None

@@ -307,15 +307,17 @@ def test_trial_from_recording_scores_the_terrain_and_keeps_the_live_keys_for_lea
 
 
 def test_recordings_through_the_reader(monkeypatch, trials):
-    from capture.recording import reader
+    from capture.corpus import trials as reader
 
     by_path = {t.path: t for t in trials}
-    fake = lambda path: {  # noqa: E731
-        "probabilities": by_path[path].probabilities,
-        "labels": [None] * len(by_path[path].reference),
-        "truth": [int(x) for x in by_path[path].reference],
-        "metadata": by_path[path].metadata,
-    }
+    fake = lambda path: types.SimpleNamespace(  # noqa: E731
+        evaluation_inputs=lambda: {
+            "probabilities": by_path[path].probabilities,
+            "labels": [None] * len(by_path[path].reference),
+            "truth": [int(x) for x in by_path[path].reference],
+            "metadata": by_path[path].metadata,
+        }
+    )
     monkeypatch.setattr(reader, "read_trial", fake)
     loaded = reader.read_trials([t.path for t in trials[:2]])
     np.testing.assert_array_equal(loaded[1].reference, trials[1].reference)

@@ -269,8 +269,8 @@ def test_eval_model_is_the_model_command(capsys, monkeypatch):
 
 
 def test_real_recording_end_to_end(capsys, tmp_path):
-    """A recording written by capture's recorder, read by capture.recording.reader."""
-    from capture.recording.reader import read_trial
+    """A recording written by capture's recorder, read by capture.corpus.trials."""
+    from capture.corpus.trials import read_trial
     from tests.recording_fixtures import write_recording
 
     path = str(tmp_path / "S07_indoor_t03.mcap")
@@ -281,14 +281,14 @@ def test_real_recording_end_to_end(capsys, tmp_path):
     (entry,) = data["files"]
     assert (entry["subject"], entry["condition"]) == ("S07", "indoor")
     recorded = read_trial(path)
-    assert entry["frames"] == len(recorded["probabilities"])
+    assert entry["frames"] == len(recorded.frames.probabilities)
     assert entry["accuracy"]["hmm"] == pytest.approx(
-        live_accuracy("hmm", recorded["probabilities"], recorded["labels"])
+        live_accuracy("hmm", recorded.frames.probabilities, recorded.frames.labels)
     )
     code, out, _ = run(capsys, "eval", "recordings", path, "--json")  # terrain: sim truth
     truth = json.loads(out)["files"][0]["accuracy"]
     assert truth["cnn"] == pytest.approx(
-        np.mean(np.argmax(recorded["probabilities"], axis=1) == recorded["truth"])
+        np.mean(np.argmax(recorded.frames.probabilities, axis=1) == recorded.truth)
     )
 
 
@@ -343,7 +343,7 @@ def test_recordings_are_read_and_evaluated_one_at_a_time(capsys, fake_reader, mo
     import gc
     import weakref
 
-    from capture.recording import reader
+    from capture.corpus import trials as reader
 
     folder = str(fake_reader[0]).rsplit("/", 1)[0]
     alive: list[weakref.ref] = []

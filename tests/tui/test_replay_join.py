@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from capture.corpus.export import tables
+from capture.corpus.trials import read_trial
 from capture.recording.labels import mode_index
-from capture.recording.reader import read_trial
 from capture.recording.writer import Recorder
 from devices.frames import MODES
 from inference.preprocess import STALE_ORIENTATION
@@ -74,7 +74,7 @@ def test_read_trial_export_and_the_replay_screen_show_the_same_frames(recording)
     # every frame in export and on the screen, the undecided one too; read_trial: classified
     assert list(frames.frame_index) == list(range(N)) == list(shown.index)
     classified = [i for i in range(N) if i != STALE]
-    assert list(trial["frame_index"]) == classified
+    assert list(trial.frames.index) == classified
     rows = np.array(classified)
 
     exported = {
@@ -89,17 +89,23 @@ def test_read_trial_export_and_the_replay_screen_show_the_same_frames(recording)
         "labels": source._labels_at(shown.time_ns),
         "truth": shown.truth,
     }
+    read = {
+        "decisions": trial.frames.decision,
+        "voted": trial.frames.voted,
+        "labels": trial.frames.labels,
+        "truth": trial.truth,
+    }
     for name in exported:
-        assert list(trial[name]) == list(np.array(exported[name])[rows]), name
+        assert list(read[name]) == list(np.array(exported[name])[rows]), name
         assert list(exported[name]) == list(on_screen[name]), name
-    assert list(trial["time_ns"]) == list(frames.time_ns[rows]) == list(shown.time_ns[rows])
+    assert list(trial.frames.time_ns) == list(frames.time_ns[rows]) == list(shown.time_ns[rows])
     p = frames[[f"p_{m}" for m in MODES]].to_numpy()
-    np.testing.assert_array_equal(trial["probabilities"], p[rows])
+    np.testing.assert_array_equal(trial.frames.probabilities, p[rows])
     np.testing.assert_array_equal(shown.probabilities, p)
 
     # and what the join says is what was recorded
     decided = [j for j in range(1, N - 1) if j + 1 != STALE]  # decided when j + 1 came
-    assert [trial["decisions"][classified.index(j)] for j in decided if j != STALE] == [
+    assert [trial.frames.decision[classified.index(j)] for j in decided if j != STALE] == [
         true_mode(j) for j in decided if j != STALE
     ]
     assert frames.decision[STALE] == MODES[true_mode(STALE)]  # decided at the next frame
@@ -110,7 +116,7 @@ def test_read_trial_export_and_the_replay_screen_show_the_same_frames(recording)
     # the undone US never shows; the US at frame 24 holds from frame 25
     expected = [0 if i <= 24 else 1 for i in range(N)]
     assert exported["labels"] == expected
-    assert trial["terrain_source"] == "simulator"
+    assert trial.frames.terrain_source == "simulator"
     assert list(frames.terrain) == list(frames.truth)
     # the big display shows the latest decision produced: none before frame 2
     assert list(shown.fused_shown[:3]) == [-1, -1, true_mode(1)]

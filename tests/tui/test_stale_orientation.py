@@ -11,10 +11,11 @@ import pytest
 from capture.config import Config, ConfigError, load
 from capture.corpus import export
 from capture.corpus.replay import replay
+from capture.corpus.trials import read_trial
 from capture.live.pipeline import OrientationTrack, Pipeline
 from capture.live.preflight import CheckItem, PreflightReport
 from capture.recording import topics as T
-from capture.recording.reader import open_recording, read_trial
+from capture.recording.reader import open_recording
 from devices.frames import DepthFrame
 from devices.simulator.synthetic import synthetic_frame
 from inference.config import PreprocessConfig
@@ -141,7 +142,7 @@ async def test_the_tui_unplug_drill_flags_the_frames_everywhere(tmp_path, busy_p
     in_gap = sorted(i for i, d in pre.items() if nearest(imu, d["time_ns"]) > 50_000_000)
     assert len(in_gap) >= 15  # ~2 s at 15 fps
     assert set(in_gap) <= set(stale) and len(stale) <= on_screen  # flagged, counted on screen
-    decided = set(read_trial(path)["frame_index"].tolist())
+    decided = set(read_trial(path).frames.index.tolist())
     assert not decided & set(stale)  # no CNN output for a stale frame
     fused = [m.data for m in rec.messages([T.FUSED])]
     assert not {d["frame_index"] for d in fused} & set(stale)  # nor a fused decision
@@ -174,7 +175,7 @@ async def test_the_tui_unplug_drill_flags_the_frames_everywhere(tmp_path, busy_p
         if m.data["flag"] == STALE_ORIENTATION
     }
     assert set(in_gap) <= replayed  # every frame of the unplugged span, with no decision
-    assert not set(read_trial(report.output)["frame_index"].tolist()) & replayed
+    assert not set(read_trial(report.output).frames.index.tolist()) & replayed
 
 
 def test_a_late_imu_is_waited_for_and_a_silent_one_is_not():
@@ -231,7 +232,7 @@ def test_a_bad_orientation_frame_is_left_undecided_and_counted_in_info(tmp_path,
     assert [r.decided for r in results] == [True, False, False, True, False]
     assert fusion.pushed == 2 and classifier.seen == 2  # the CNN never saw the bad frames
     assert all(r.fused is None and np.isnan(r.probabilities).all() for r in results[1:3])
-    assert set(read_trial(path)["frame_index"].tolist()) == {0, 3}
+    assert set(read_trial(path).frames.index.tolist()) == {0, 3}
     assert main(["info", str(path)]) == 0
     assert "stale orientation 0, bad orientation 3 (no image, no decision)" in (
         capsys.readouterr().out

@@ -5,8 +5,9 @@ A stand-in classifier keeps it fast (the CNN has its own tests)."""
 import pytest
 
 from capture.config import Config
+from capture.corpus.trials import read_trial
 from capture.recording.gaps import recording_loss
-from capture.recording.reader import open_recording, read_trial
+from capture.recording.reader import open_recording
 from tests.tui.screens import drill_app
 from tests.waiting import wait_for_app
 from tui.live_screen import LiveScreen
@@ -50,9 +51,9 @@ async def test_real_session_on_mock_devices(tmp_path, busy_pilot):
     files = list((tmp_path / "recordings").glob("S09_indoor_t01_*.mcap"))
     assert len(files) == 1
     trial = read_trial(files[0])
-    assert len(trial["frame_index"]) >= 10
-    assert [c[1] for c in trial["label_changes"]] == ["US", "UR"]
-    assert trial["metadata"]["session"]["subject"] == "S09"
+    assert len(trial.frames.index) >= 10
+    assert [c[1] for c in trial.label_changes] == ["US", "UR"]
+    assert trial.meta.session.subject == "S09"
     assert app.subject.trial == 2
     # the gaps the screen counted are the ones `walkcap info` finds in the file
     loss = recording_loss(open_recording(files[0]))

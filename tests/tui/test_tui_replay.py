@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 from capture.config import Config
+from capture.corpus.trials import read_trial
 from capture.live.trials import SubjectInfo
-from capture.recording.reader import open_recording, read_trial
+from capture.recording.reader import open_recording
 from capture.recording.writer import Recorder
 from devices.base import DeviceEvent
 from devices.frames import MODES
@@ -115,9 +116,9 @@ def test_corrections_go_to_a_new_file_and_the_original_is_untouched(recording):
     assert out == recording.with_name("S05_indoor_t03_corrected.mcap")
     assert digest(recording) == before and not source.unsaved
     old, new = read_trial(recording), read_trial(out)
-    assert (old["labels"] == 1).sum() == N - 37 and (new["labels"] == 1).sum() == N - 30
-    assert np.array_equal(old["probabilities"], new["probabilities"])
-    assert new["label_changes"][-2] == (frame_time(30), "US", "correction")
+    assert (old.frames.labels == 1).sum() == N - 37 and (new.frames.labels == 1).sum() == N - 30
+    assert np.array_equal(old.frames.probabilities, new.frames.probabilities)
+    assert new.label_changes[-2] == (frame_time(30), "US", "correction")
     a, b = open_recording(recording), open_recording(out)
     for topic, info in a.topics.items():  # every original message is in the copy
         expected = info.count + (1 if topic == "/labels" else 0) + (1 if topic == "/events" else 0)
@@ -175,7 +176,7 @@ async def test_replay_in_the_live_screen(recording):
                 break
             await pilot.pause(0.02)
     assert digest(recording) == before
-    assert (read_trial(source.saved_path)["labels"] == 1).sum() == N - 30
+    assert (read_trial(source.saved_path).frames.labels == 1).sum() == N - 30
 
 
 def test_replay_screen_snapshot(recording, snap_compare):

@@ -483,7 +483,7 @@ def _trials(files: list[str], reference: str, address: str | None) -> list:
     """One evaluation trial per recording, here or with one Ray task each; in the order
     given, each named by its path as given."""
     from capture.corpus import jobs
-    from capture.recording.reader import read_evaluation_trial
+    from capture.corpus.trials import read_evaluation_trial
 
     where = jobs.choose(address)
     tasks = [

@@ -102,9 +102,9 @@ def describe(s) -> list[str]:
             + (f" (id {member.source_id})" if member.source_id else "")
             + (f": {member.how}" if member.how else "")
         )
-    sharing = s.metadata.get("sharing")
-    if isinstance(sharing, dict):  # a copy made for sharing: what it lacks (corpus.share)
-        removed = sharing.get("removed") or []
+    sharing = s.meta.sharing
+    if sharing:  # a copy made for sharing: what it lacks (corpus.share)
+        removed = sharing.removed or []
         lines.append(f"  shared      removed: {'; '.join(removed) or 'nothing'}")
     if s.start_ns is not None:
         lines.append(

@@ -14,11 +14,12 @@ from mcap.writer import Writer
 
 from capture.corpus import selection as corpus
 from capture.corpus.export import corpus_tables, matlab_name, tables, write
+from capture.corpus.trials import read_trial
 from capture.errors import CaptureError
 from capture.recording import lineage, naming
 from capture.recording import topics as T
 from capture.recording.labels import LabelChange, effective_changes
-from capture.recording.reader import open_recording, read_trial
+from capture.recording.reader import open_recording
 from capture.recording.recover import recover
 from tests.old_recordings import as_version_1
 from tests.recording_fixtures import T0, frame_time, write_trial
@@ -44,9 +45,9 @@ def test_an_undone_change_never_happened_but_stays_in_the_file(tmp_path):
     path = tmp_path / "S01_indoor_t01.mcap"
     write_trial(path, mistake_and_undo())
     trial = read_trial(path)
-    assert "DS" not in [c[1] for c in trial["reference_changes"]]
-    assert (trial["labels"] == 0).all()  # LG on every frame: the mistake is gone
-    assert [c[2] for c in trial["label_changes"]] == ["operator", "operator", "undo:DS"]
+    assert "DS" not in [c[1] for c in trial.reference_changes]
+    assert (trial.frames.labels == 0).all()  # LG on every frame: the mistake is gone
+    assert [c[2] for c in trial.label_changes] == ["operator", "operator", "undo:DS"]
 
 
 def test_two_undos_undo_two_changes():
@@ -126,7 +127,7 @@ def test_a_folder_with_a_trial_its_copies_and_a_recovered_trial_counts_two_trial
     assert open_recording(recovered).metadata["derivation"]["kind"] == "recovered"
 
     # the corrected labels are the reference of trial 1
-    assert (read_trial(corrected)["labels"][45:] == 1).all()
+    assert (read_trial(corrected).frames.labels[45:] == 1).all()
 
     # live keys only in trial 2: its accuracy only against them, asked for
     assert cli.main(["eval", "recordings", str(folder), "--json"]) == 1
@@ -251,8 +252,8 @@ def test_a_file_from_before_typed_metadata_still_reads(tmp_path):
     assert session["age"] is None and session["notes"] == "old"
     assert rec.id.startswith("file:") and rec.trial == ("S07", "outdoor", 3)
     trial = read_trial(path)
-    assert (trial["labels"] == 0).all()  # the undo applies in old files too
-    assert trial["unix_time_ns"][0] == frame_time(0) + 1_700_000_000_000_000_000
+    assert (trial.frames.labels == 0).all()  # the undo applies in old files too
+    assert trial.unix_time_ns[0] == frame_time(0) + 1_700_000_000_000_000_000
     assert corpus.select([tmp_path]).files == [path]
 
 

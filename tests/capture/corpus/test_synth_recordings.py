@@ -4,8 +4,9 @@ as training data (one dataset code path for synth and recordings)."""
 import numpy as np
 import pytest
 
-from capture.corpus.dataset import read_sessions
-from capture.recording.reader import labeled_session, open_recording, read_trial
+from capture.corpus.dataset import labeled_session, read_sessions
+from capture.corpus.trials import read_trial
+from capture.recording.reader import open_recording
 from tui import cli
 
 
@@ -43,17 +44,17 @@ def test_writes_one_complete_recording_per_session(synth_folder):
         assert rec.topics["/camera/depth"].count == 40
         assert rec.topics["/imu"].count >= 39 / 15 * 100  # the IMU at 100 Hz up to the last frame
         trial = read_trial(f)
-        assert np.all(trial["labels"] >= 0)  # labelled from the first frame
+        assert np.all(trial.frames.labels >= 0)  # labelled from the first frame
         # the labels key the walker's locomotion mode, as an operator keys it live; the
         # terrain reference is what each image shows
         walker = {
             int(m.data["frame_index"]): m.data["locomotion_mode"]
             for m in rec.messages(["/sim/truth"])
         }
-        keyed = [trial["modes"][k] for k in trial["locomotion"]]
-        assert keyed == [walker[int(i)] for i in trial["frame_index"]]
-        np.testing.assert_array_equal(trial["terrain"], trial["truth"])
-        assert trial["terrain_source"] == "simulator"
+        keyed = [trial.MODES[k] for k in trial.frames.locomotion]
+        assert keyed == [walker[int(i)] for i in trial.frames.index]
+        np.testing.assert_array_equal(trial.frames.terrain, trial.truth)
+        assert trial.frames.terrain_source == "simulator"
 
 
 def test_recordings_are_training_sessions(synth_folder):
@@ -76,15 +77,16 @@ def test_each_frame_carries_the_geometry_its_terrain_features_show(synth_folder)
         features = {int(m.data["frame_index"]): m.data for m in recorded}
         expected = [
             shown_mode(features[i]["kind"], features[i]["direction"]) if i in features else -1
-            for i in trial["frame_index"].tolist()
+            for i in trial.frames.index.tolist()
         ]
-        assert trial["geometry"].tolist() == expected
-        assert (trial["geometry"] >= 0).any()
+        assert trial.frames.geometry.tolist() == expected
+        assert (trial.frames.geometry >= 0).any()
         ahead = [
             ground_ahead(features[i].get("ahead_slope_deg")) if i in features else -1
-            for i in trial["frame_index"].tolist()
+            for i in trial.frames.index.tolist()
         ]
-        assert trial["ground_ahead"].tolist() == ahead and (trial["ground_ahead"] >= 0).any()
+        assert trial.frames.ground_ahead.tolist() == ahead
+        assert (trial.frames.ground_ahead >= 0).any()
 
 
 def test_frames_before_the_first_operator_label_are_unlabelled(tmp_path):
@@ -95,7 +97,7 @@ def test_frames_before_the_first_operator_label_are_unlabelled(tmp_path):
     session = labeled_session(path, reference="labels")
     first_label = label_schedule(2.0)[0][0]
     trial = read_trial(path)
-    unlabelled = trial["time_ns"] < first_label
+    unlabelled = trial.frames.time_ns < first_label
     assert np.all(session.labels[unlabelled[: len(session.labels)]] == -1)
     assert np.all(session.labels[~unlabelled[: len(session.labels)]] >= 0)
 
@@ -118,18 +120,18 @@ def test_a_geometry_fusion_decides_offline_as_it_decided_live(tmp_path, method):
     (path,) = out.glob("*.mcap")
     trial = read_trial(path)
     fusion = make_fusion(method)
-    cues = trial["geometry"], trial["ground_ahead"]
-    offline = run_offline(fusion, trial["probabilities"], None, *cues)
-    live = trial["decisions"]
+    cues = trial.frames.geometry, trial.frames.ground_ahead
+    offline = run_offline(fusion, trial.frames.probabilities, None, *cues)
+    live = trial.frames.decision
     assert (live >= 0).sum() == len(live) - 1  # the last frame waits for a next one
     np.testing.assert_array_equal(offline.final[live >= 0], live[live >= 0])
-    row = {int(i): k for k, i in enumerate(trial["frame_index"])}
+    row = {int(i): k for k, i in enumerate(trial.frames.index)}
     posteriors = {
         row[m.data.get("posterior_frame_index", m.data["frame_index"])]: m.data["posterior"]
         for m in open_recording(path).messages(["/inference/fused"])
     }
-    assert len(posteriors) == len(live) - 1 and (trial["geometry"] >= 0).mean() > 0.5
-    assert (trial["ground_ahead"] >= 0).mean() > 0.5
+    assert len(posteriors) == len(live) - 1 and (trial.frames.geometry >= 0).mean() > 0.5
+    assert (trial.frames.ground_ahead >= 0).mean() > 0.5
     for k, posterior in posteriors.items():
         np.testing.assert_allclose(offline.posteriors[k], posterior, rtol=1e-9)
 

@@ -6,7 +6,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from capture.recording.reader import read_evaluation_trial, read_trial
+from capture.corpus.trials import read_evaluation_trial, read_trial
 from tui import cli
 
 
@@ -23,7 +23,7 @@ def test_steady_steps_decides_offline_as_it_decided_live(tmp_path):
     assert cli.main(args) == 0
     (path,) = out.glob("*.mcap")
     recorded = read_trial(path)
-    live = recorded["decisions"]
+    live = recorded.frames.decision
     trial = read_evaluation_trial(path)
     assert sum(1 for _, e in trial.gait_events if e == "heel_contact") >= 5  # 8 s walking
     assert len(set(live[live >= 0].tolist())) > 1  # it changed its mode at least once

@@ -13,9 +13,10 @@ import time
 import numpy as np
 import pytest
 
+from capture.corpus.trials import read_trial
 from capture.live.trials import SubjectInfo
 from capture.recording.journal import check_journal
-from capture.recording.reader import open_recording, read_trial
+from capture.recording.reader import open_recording
 from tests.capture.live.sessions import events_of, session_in
 from tests.waiting import wait_for
 
@@ -43,7 +44,7 @@ def test_imu_unplug_and_replug_during_a_recording(tmp_path):
     kinds = [e["kind"] for e in events_of(path)]
     assert "lost" in kinds and "reconnected" in kinds
     trial = read_trial(path)
-    assert [c[1] for c in trial["label_changes"] if c[2] == "operator"] == ["LG", "US"]
+    assert [c[1] for c in trial.label_changes if c[2] == "operator"] == ["LG", "US"]
     imu_times = [m.log_time_ns for m in open_recording(path).messages(["/imu"])]
     assert np.max(np.diff(imu_times)) > 0.5e9  # the gap is in the file, samples on both sides
 
@@ -117,7 +118,7 @@ def test_disk_full_stops_the_recording_cleanly_and_keeps_it_readable(small_disk)
     assert "\n" not in stats.message
     rec = open_recording(path)  # what was written stays readable, without recover
     assert rec.topics["/camera/depth"].count > 5
-    assert [c[1] for c in read_trial(path)["label_changes"]] == ["LG"]
+    assert [c[1] for c in read_trial(path).label_changes] == ["LG"]
 
 
 def run_cli(*args, timeout=120):
@@ -258,7 +259,7 @@ def test_kill_9_while_recording_then_recover_loses_at_most_a_second_and_no_label
     assert fixed.name in out.stdout + out.stderr
     rec = open_recording(fixed)
     assert rec.topics["/camera/depth"].count >= seen > 0  # nothing on disk is lost
-    labels = [(c[0], c[1]) for c in read_trial(fixed)["label_changes"]]
+    labels = [(c[0], c[1]) for c in read_trial(fixed).label_changes]
     for label in labels_journaled:
         assert label in labels
 

@@ -13,11 +13,12 @@ import pytest
 
 from capture.config import Config
 from capture.corpus.replay import replay
+from capture.corpus.trials import read_trial
 from capture.errors import CaptureError, ConfigError
 from capture.live.session import INTAKE_THREADS, Session
 from capture.live.trials import SubjectInfo
 from capture.recording import topics as T
-from capture.recording.reader import open_recording, read_trial
+from capture.recording.reader import open_recording
 from devices.frames import MODES
 from devices.scheduling import realtime_priority
 from tests.capture.live.sessions import StandInClassifier
@@ -118,7 +119,7 @@ def test_rates_match_the_configuration(recorded):
 def test_labels_markers_and_undo_are_recorded(recorded):
     path, _, _, _ = recorded
     trial = read_trial(path)
-    sources = [c[2] for c in trial["label_changes"]]
+    sources = [c[2] for c in trial.label_changes]
     assert "operator" in sources and any(s.startswith("undo") for s in sources)
     assert "simulator" in sources or "start" in sources
     events = [m.data for m in open_recording(path).messages(["/events"])]
@@ -170,10 +171,10 @@ def test_replay_reproduces_the_trial_into_a_new_file(recorded, tmp_path):
     last_imu = max(m.publish_time_ns for m in open_recording(path).messages(["/imu"]))
     assert all(t > last_imu for i, t in again.items() if i not in live)
     either = set(live) | set(again)
-    assert set(a["frame_index"]) | either == set(b["frame_index"]) | either
-    assert not set(a["frame_index"]) & set(live) and not set(b["frame_index"]) & set(again)
-    assert len(b["frame_index"]) + len(again) == report.frames
-    assert [c[:2] for c in a["label_changes"]] == [c[:2] for c in b["label_changes"]]
+    assert set(a.frames.index) | either == set(b.frames.index) | either
+    assert not set(a.frames.index) & set(live) and not set(b.frames.index) & set(again)
+    assert len(b.frames.index) + len(again) == report.frames
+    assert [c[:2] for c in a.label_changes] == [c[:2] for c in b.label_changes]
     assert report.speedup > 0
     software = open_recording(report.output).metadata["software"]
     assert software["replay_of"] == path.name and software["model_hash"] == "stand-in"
@@ -275,8 +276,8 @@ def test_fast_replay_in_two_processes_matches_a_paced_one(recorded, tmp_path):
     )
     a, b = read_trial(fast.output), read_trial(paced.output)
     assert fast.frames == paced.frames > 30
-    for key in ("frame_index", "probabilities", "cnn_decisions", "decisions", "voted"):
-        np.testing.assert_array_equal(a[key], b[key])
+    for key in ("index", "probabilities", "cnn_decision", "decision", "voted"):
+        np.testing.assert_array_equal(getattr(a.frames, key), getattr(b.frames, key))
 
     def features(p):  # measured from the terrain the reader process prepared, or this one
         return [(m.sequence, m.data) for m in open_recording(p).messages([T.FEATURES])]
@@ -375,7 +376,7 @@ def test_the_snapshot_carries_switches_and_the_walkers_mode_to_key(recorded):
         m.data["time_ns"]: m.data["locomotion_mode"]
         for m in open_recording(path).messages(["/sim/truth"])
     }
-    keyed = [c for c in read_trial(path)["label_changes"] if c[2] == "simulator"]
+    keyed = [c for c in read_trial(path).label_changes if c[2] == "simulator"]
     assert keyed and all(walker[t] == mode for t, mode, _ in keyed if t in walker)
 
 

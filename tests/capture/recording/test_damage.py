@@ -127,7 +127,7 @@ def test_info_reports_damaged_chunks(recording, tmp_path, capsys):
     out = capsys.readouterr().out
     assert "state       complete" not in out
     assert "damaged: 1 region" in out and f"damaged chunk at byte {offset}" in out
-    from capture.recording import check
+    from capture.recording.checking import check
 
     assert check(recording).damaged == []
 

@@ -15,10 +15,11 @@ import pytest
 from mcap.reader import make_reader
 
 from capture.errors import CaptureError
-from capture.recording import check, recover
 from capture.recording import topics as T
+from capture.recording.checking import check
 from capture.recording.journal import check_journal, encode_line, journal_path
 from capture.recording.reader import open_recording
+from capture.recording.recover import recover
 from capture.recording.writer import Recorder
 from tests.capture.recording.damage_sweep import records, sweep
 from tests.recording_fixtures import write_recording

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from capture.recording import read_gait
 from capture.recording import topics as T
+from capture.recording.gait import read_gait
 from capture.recording.reader import open_recording
 from capture.recording.writer import Recorder
 from devices.frames import GaitEvent

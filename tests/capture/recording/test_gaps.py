@@ -8,7 +8,7 @@ import json
 import pytest
 
 from capture.live.alarms import TrialAlarms
-from capture.recording.gaps import LossCounter, missing_between, recording_loss
+from capture.recording.gaps import LossCounter, missing_between, recording_loss, stream_loss
 from capture.recording.reader import open_recording
 from capture.recording.writer import Recorder
 from tests.recording_fixtures import METADATA, T0, frame_at, imu_sample
@@ -16,6 +16,15 @@ from tui import cli
 
 MS = 1_000_000
 PERIOD = 0.01  # 100 Hz
+
+
+def test_a_stream_without_a_sequence_has_its_gaps_found_by_its_times():
+    period = 0.022
+    t = [k * 22 * MS for k in range(100) if not 50 <= k < 53]  # three frames missing
+    (gap,) = stream_loss([(None, x, x) for x in t], period, None).gaps
+    assert (gap.start_ns, gap.missing) == (t[49], 3) and gap.length_s == pytest.approx(0.088)
+    regular = [(None, k * 10, k * 10) for k in range(10)]
+    assert stream_loss(regular, 10e-9, None).gaps == []
 
 
 def test_a_host_stall_with_every_sample_there_is_late_delivery_not_a_gap():

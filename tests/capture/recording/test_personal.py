@@ -2,8 +2,8 @@
 
 import pytest
 
-from capture.recording import PERSONAL_FIELDS, ShareRules
 from capture.recording import personal as P
+from capture.recording.personal import PERSONAL_FIELDS, ShareRules
 
 SESSION = {
     "subject": "S01",

@@ -5,10 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from capture.corpus.trials import read_trial
 from capture.errors import CaptureError
 from capture.recording import topics as T
 from capture.recording.labels import labels_at
-from capture.recording.reader import depth_frames, find_gaps, open_recording, read_trial
+from capture.recording.reader import depth_frames, open_recording
 from capture.recording.writer import Recorder
 from devices.frames import MODES
 from tests.recording_fixtures import (
@@ -34,25 +35,25 @@ def recording(tmp_path_factory):
 def test_read_trial_gives_per_frame_arrays_with_the_label_in_force(recording):
     trial = read_trial(recording)
     n = int(2.0 * FPS)
-    np.testing.assert_array_equal(trial["frame_index"], np.arange(n))
-    np.testing.assert_array_equal(trial["time_ns"], [frame_time(i) for i in range(n)])
-    np.testing.assert_allclose(trial["probabilities"], [probabilities(i) for i in range(n)])
-    assert trial["probabilities"].shape == (n, len(MODES))
-    np.testing.assert_array_equal(trial["cnn_decisions"], trial["probabilities"].argmax(1))
+    np.testing.assert_array_equal(trial.frames.index, np.arange(n))
+    np.testing.assert_array_equal(trial.frames.time_ns, [frame_time(i) for i in range(n)])
+    np.testing.assert_allclose(trial.frames.probabilities, [probabilities(i) for i in range(n)])
+    assert trial.frames.probabilities.shape == (n, len(MODES))
+    np.testing.assert_array_equal(trial.frames.cnn_decision, trial.frames.probabilities.argmax(1))
     # fused decisions are filed under the frame they refer to (one earlier), votes two earlier
     expected = [MODES.index(truth_mode(i)) if 1 <= i <= n - 2 else -1 for i in range(n)]
-    np.testing.assert_array_equal(trial["decisions"], expected)
-    assert trial["voted"][0] == -1 and (trial["voted"][n - 2 :] == -1).all()
+    np.testing.assert_array_equal(trial.frames.decision, expected)
+    assert trial.frames.voted[0] == -1 and (trial.frames.voted[n - 2 :] == -1).all()
     np.testing.assert_array_equal(
-        trial["voted"][1 : n - 2], [MODES.index(truth_mode(i)) for i in range(1, n - 2)]
+        trial.frames.voted[1 : n - 2], [MODES.index(truth_mode(i)) for i in range(1, n - 2)]
     )
-    np.testing.assert_array_equal(trial["truth"], [MODES.index(truth_mode(i)) for i in range(n)])
+    np.testing.assert_array_equal(trial.truth, [MODES.index(truth_mode(i)) for i in range(n)])
     changes = label_schedule(2.0)
-    assert trial["label_changes"] == changes
+    assert trial.label_changes == changes
     for i in range(n):  # the last change at or before the frame's time
         before = [mode for t, mode, _ in changes if t <= frame_time(i)]
-        assert trial["labels"][i] == (MODES.index(before[-1]) if before else -1)
-    assert trial["metadata"]["session"]["subject"] == "S07"
+        assert trial.frames.labels[i] == (MODES.index(before[-1]) if before else -1)
+    assert trial.meta.session.subject == "S07"
 
 
 def test_labels_at_handles_undo_to_nothing_and_same_time_changes():
@@ -73,8 +74,8 @@ def test_without_truth_the_trial_says_so(tmp_path):
         rec.write_inference(0, T0, T0, probabilities(0), {})
         rec.write_label(T0 - 1, "UR", "operator")
     trial = read_trial(path)
-    assert trial["truth"] is None and trial["labels"].tolist() == [MODES.index("UR")]
-    assert trial["decisions"].tolist() == [-1]
+    assert trial.truth is None and trial.frames.labels.tolist() == [MODES.index("UR")]
+    assert trial.frames.decision.tolist() == [-1]
 
 
 def test_messages_decode_into_numpy_and_dicts(recording):
@@ -125,7 +126,7 @@ def test_an_unfinished_file_reads_up_to_its_cut(recording, tmp_path):
     assert error.max() <= 0.0005 + 1e-6
     assert frames[3].truth["mode"] == truth_mode(3)
     trial = read_trial(cut)
-    assert len(trial["frame_index"]) > 0
+    assert len(trial.frames.index) > 0
 
 
 def test_a_finished_file_is_read_one_chunk_at_a_time(tmp_path):
@@ -197,33 +198,24 @@ def test_missing_and_foreign_files_are_one_line_errors(tmp_path):
         open_recording(text)
 
 
-def test_find_gaps():
-    t = np.arange(0, 100) * 22_000_000
-    t = np.concatenate([t[:50], t[53:]])  # three frames missing
-    gaps = find_gaps(t)
-    assert len(gaps) == 1 and gaps[0][0] == t[49] and gaps[0][1] == pytest.approx(0.088)
-    assert find_gaps(np.arange(10) * 10) == []
-
-
 def test_two_references_live_keys_and_offline_terrain_labels(tmp_path):
     """The live keys are the locomotion reference; labels made offline in replay --tui
     (source "correction") over them are the terrain reference; with neither the
     simulator's truth nor offline labels there is no terrain reference."""
-    from capture.recording.reader import read_trial
     from tests.recording_fixtures import T0, frame_time, write_trial
 
     keys = [(T0, "LG", "operator"), (frame_time(40), "US", "operator")]
     live = tmp_path / "live.mcap"
     write_trial(live, keys, frames=80)
     trial = read_trial(live)
-    assert trial["terrain"] is None and trial["terrain_source"] is None
-    assert list(trial["locomotion"][[0, 39, 40, 79]]) == [0, 0, 1, 1]
+    assert trial.frames.terrain is None and trial.frames.terrain_source is None
+    assert list(trial.frames.locomotion[[0, 39, 40, 79]]) == [0, 0, 1, 1]
     labelled = tmp_path / "labelled.mcap"
     write_trial(labelled, [*keys, (frame_time(25), "US", "correction")], frames=80)
     trial = read_trial(labelled)
-    assert trial["terrain_source"] == "offline labels"
-    assert list(trial["terrain"][[0, 24, 25, 79]]) == [0, 0, 1, 1]  # the image shows US early
-    assert list(trial["locomotion"][[0, 39, 40, 79]]) == [0, 0, 1, 1]  # the keys unchanged
+    assert trial.frames.terrain_source == "offline labels"
+    assert list(trial.frames.terrain[[0, 24, 25, 79]]) == [0, 0, 1, 1]  # the image shows US early
+    assert list(trial.frames.locomotion[[0, 39, 40, 79]]) == [0, 0, 1, 1]  # the keys unchanged
 
 
 def test_export_names_both_references(tmp_path):

@@ -17,10 +17,11 @@ from mcap.records import Chunk, Message
 from mcap.stream_reader import breakup_chunk
 
 from capture.errors import CaptureError
-from capture.recording import NotMcapError, recover
+from capture.recording import NotMcapError
 from capture.recording import topics as T
 from capture.recording.journal import journal_path, read_journal
 from capture.recording.reader import open_recording
+from capture.recording.recover import recover
 from devices.clock import now_ns
 from tests.capture.recording.test_recorder import decode_all
 from tests.recording_fixtures import FPS, write_recording

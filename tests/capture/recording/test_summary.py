@@ -2,10 +2,10 @@
 
 import json
 
-from capture.recording import RecordingSummary, summary
 from capture.recording import labels as L
 from capture.recording import topics as T
 from capture.recording.reader import open_recording
+from capture.recording.summary import RecordingSummary, summary
 from tests.recording_fixtures import T0, frame_time, write_trial
 from tui import cli
 

@@ -6,10 +6,13 @@ import pytest
 from mcap.writer import Writer
 
 from capture.corpus.export import tables
+from capture.corpus.trials import read_trial
 from capture.errors import CaptureError
-from capture.recording import FORMAT_VERSION, check, lineage, versions
+from capture.recording import lineage, versions
 from capture.recording import topics as T
-from capture.recording.reader import open_recording, read_trial
+from capture.recording.checking import check
+from capture.recording.reader import open_recording
+from capture.recording.topics import FORMAT_VERSION
 from capture.recording.writer import Recorder
 from devices.frames import MODES
 from tests.old_recordings import as_version_1
@@ -70,7 +73,7 @@ def test_a_version_1_file_is_upgraded_on_reading(files):
     # version 1 did not say which frame produced a decision: the frame it refers to
     assert list(tables(old)["frames"].decision_at_frame[:-1]) == list(range(N - 1))
     assert list(tables(new)["frames"].decision_at_frame[:-1]) == list(range(1, N))
-    assert list(read_trial(old)["decisions"]) == list(read_trial(new)["decisions"])
+    assert list(read_trial(old).frames.decision) == list(read_trial(new).frames.decision)
 
 
 def test_no_other_code_reads_version_1_messages(files, monkeypatch):
