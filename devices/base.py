@@ -90,6 +90,28 @@ class BoundedBuffer(Generic[T]):
         return len(self._items)
 
 
+class Producer:
+    """A backend's own producer thread (a daemon running `target`) and the event that
+    halts it: started, halted and joined alike by every backend that makes its frames."""
+
+    def __init__(self, name: str, target) -> None:
+        self.name = name
+        self.target = target
+        self.halt = threading.Event()  # set: the producer returns at its next check
+        self.thread: threading.Thread | None = None
+
+    def start(self) -> None:
+        self.halt.clear()
+        self.thread = threading.Thread(target=self.target, name=self.name, daemon=True)
+        self.thread.start()
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        self.halt.set()
+        if self.thread is not None:
+            self.thread.join(timeout=timeout_s)
+            self.thread = None
+
+
 class RateMeter:
     """Items per second over the last `window_s` seconds, by the times the items carry.
 
