@@ -25,6 +25,7 @@ from devices.config import MountingConfig, SimulatorConfig
 from devices.frames import MODES
 from devices.orientation_error import OrientationError, OrientationErrorModel
 from devices.simulator import Simulator, make_course
+from devices.simulator.simulator import WALKER_KEYS
 from inference.config import PreprocessConfig
 from inference.dataset import LabeledSession, read_session, write_session
 from inference.errors import InferenceError
@@ -121,14 +122,8 @@ def session_plan(count: int, preset: str, base_seed: int) -> list[tuple[str, int
 
 
 def _walker(rng: np.random.Generator, vary: bool, config) -> dict:
-    base = {
-        "speed_mps": config.speed_mps,
-        "cadence_spm": config.cadence_spm,
-        "camera_height_m": config.camera_height_m,
-        "camera_tilt_deg": config.camera_tilt_deg,
-    }
     if not vary:
-        return base
+        return {k: getattr(config, k) for k in WALKER_KEYS}
     # Subjects and mountings differ: speed, cadence, thigh length, strap angle.
     return {
         "speed_mps": float(rng.uniform(0.85, 1.35)),
