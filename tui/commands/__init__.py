@@ -70,48 +70,50 @@ seconds = positive("seconds")
 _KINDS = {float: "a number", int: "an integer", str: "text"}
 
 
-def config_value(dotted: str, parse=float):
-    """An argparse type: a value for the configuration key `dotted` ("camera.fps"), held to
-    the configuration's own type and range check; out of range, a one-line usage error."""
+def _held_to(check, parse):
+    """An argparse type: the text parsed, then held to `check(value)`; a WalkcapError it
+    raises is a one-line usage error."""
 
-    def check(text: str):
-        from capture.config import Config, override
-        from capture.errors import ConfigError
+    def value_of(text: str):
+        from devices.errors import WalkcapError
 
         try:
             value = parse(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"expected {_KINDS[parse]}, got {text!r}") from None
         try:
-            override(Config(), dotted, value)
-        except ConfigError as e:
+            check(value)
+        except WalkcapError as e:
             raise argparse.ArgumentTypeError(str(e)) from None
         return value
 
-    return check
+    return value_of
+
+
+def config_value(dotted: str, parse=float):
+    """An argparse type: a value for the configuration key `dotted` ("camera.fps"), held to
+    the configuration's own type and range check; out of range, a one-line usage error."""
+
+    def check(value) -> None:
+        from capture.config import Config, override
+
+        override(Config(), dotted, value)
+
+    return _held_to(check, parse)
 
 
 def subject_value(field: str, parse=str):
     """An argparse type: a value of the session form's `field`, held to the form's own check
     (capture.live.trials.SubjectInfo.validate); out of range, a one-line usage error."""
 
-    def check(text: str):
+    def check(value) -> None:
         import dataclasses
 
-        from capture.errors import CaptureError
         from capture.live.trials import SubjectInfo
 
-        try:
-            value = parse(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected {_KINDS[parse]}, got {text!r}") from None
-        try:
-            dataclasses.replace(SubjectInfo(), **{field: value}).validate()
-        except CaptureError as e:
-            raise argparse.ArgumentTypeError(str(e)) from None
-        return value
+        dataclasses.replace(SubjectInfo(), **{field: value}).validate()
 
-    return check
+    return _held_to(check, parse)
 
 
 def folder(text: str) -> str:
