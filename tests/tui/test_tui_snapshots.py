@@ -32,6 +32,20 @@ async def _no_blink(pilot) -> None:
     await pilot.pause()
 
 
+def _recording_app() -> WalkcapApp:
+    """The app of a session that records trial 4 of S03."""
+    fake = FakeSession()
+    fake.start_recording(SubjectInfo(subject="S03", trial=4))
+    return WalkcapApp(
+        Config(), session=fake, subject=SubjectInfo(subject="S03", trial=4), ask_subject=False
+    )
+
+
+def _help_matches(snap_compare, size) -> bool:
+    app = WalkcapApp(Config(), session=FakeSession(), ask_subject=False)
+    return snap_compare(app, terminal_size=size, run_before=_until_live, press=["question_mark"])
+
+
 def test_session_form(snap_compare):
     save_last_session(
         SubjectInfo(
@@ -62,32 +76,18 @@ def test_live_screen_small_terminal(snap_compare):
 
 
 def test_live_screen_recording_wide_terminal(snap_compare):
-    fake = FakeSession()
-    fake.start_recording(SubjectInfo(subject="S03", trial=4))
-    app = WalkcapApp(
-        Config(), session=fake, subject=SubjectInfo(subject="S03", trial=4), ask_subject=False
-    )
+    app = _recording_app()
     assert snap_compare(app, terminal_size=(160, 45), run_before=_until_live)
 
 
 def test_help_screen(snap_compare):
-    app = WalkcapApp(Config(), session=FakeSession(), ask_subject=False)
-    assert snap_compare(
-        app, terminal_size=(120, 40), run_before=_until_live, press=["question_mark"]
-    )
+    assert _help_matches(snap_compare, (120, 40))
 
 
 def test_live_screen_recording_80x24(snap_compare):
-    fake = FakeSession()
-    fake.start_recording(SubjectInfo(subject="S03", trial=4))
-    app = WalkcapApp(
-        Config(), session=fake, subject=SubjectInfo(subject="S03", trial=4), ask_subject=False
-    )
+    app = _recording_app()
     assert snap_compare(app, terminal_size=(80, 24), run_before=_until_live)
 
 
 def test_help_screen_80x24(snap_compare):
-    app = WalkcapApp(Config(), session=FakeSession(), ask_subject=False)
-    assert snap_compare(
-        app, terminal_size=(80, 24), run_before=_until_live, press=["question_mark"]
-    )
+    assert _help_matches(snap_compare, (80, 24))
