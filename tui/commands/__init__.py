@@ -146,6 +146,21 @@ def finish_recording(command: str, stats, path) -> int:
     return 0
 
 
+def add_recordings_argument(parser, help: str = "recordings, or folders of them") -> None:
+    """The recordings a corpus command reads: files, and folders searched for them."""
+    parser.add_argument("files", nargs="+", metavar="FILE|DIR", help=help)
+
+
+def add_preset_argument(parser) -> None:
+    """The course preset of simulated sessions (`synth`, `eval-model`)."""
+    parser.add_argument(
+        "--preset",
+        choices=("indoor", "outdoor", "both"),
+        default="both",
+        help="course preset of the sessions; both alternates indoor and outdoor (default: both)",
+    )
+
+
 def add_device_arguments(parser) -> None:
     """The device and model flags `record`, `check` and `tui` share (they override the config
     file); the backends listed are the registries' (capture has registered its own by now)."""

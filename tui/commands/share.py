@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import sys
 
+from tui.commands import add_recordings_argument
+
 HELP = "copies of recordings to share: notes, operator, marker text, body data and dates reduced"
 
 
@@ -35,9 +37,7 @@ _RULES = (
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument(
-        "files", nargs="+", metavar="FILE|DIR", help="recordings, or folders of them"
-    )
+    add_recordings_argument(parser)
     parser.add_argument(
         "-o", "--out", metavar="DIR", required=True, help="folder the shared copies go into"
     )
