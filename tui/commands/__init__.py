@@ -216,21 +216,12 @@ def add_session_arguments(parser) -> None:
         "recordings folder); `record` refuses one that exists unless --overwrite, the UI "
         "moves on to the next free number and says so",
     )
-    g.add_argument(
-        "--height",
-        type=subject_value("height_m", float),
-        metavar="M",
-        dest="height_m",
-        help="height in metres",
-    )
-    g.add_argument(
-        "--weight",
-        type=subject_value("weight_kg", float),
-        metavar="KG",
-        dest="weight_kg",
-        help="weight in kg",
-    )
-    g.add_argument("--age", type=subject_value("age", int), help="age in years")
+    for flag, name, parse, metavar, what in (
+        ("--height", "height_m", float, "M", "height in metres"),
+        ("--weight", "weight_kg", float, "KG", "weight in kg"),
+        ("--age", "age", int, None, "age in years"),
+    ):
+        g.add_argument(flag, type=subject_value(name, parse), metavar=metavar, dest=name, help=what)
     g.add_argument("--sex", choices=("female", "male", "other"), help="(default: not given)")
     g.add_argument("--amputee", action="store_true", default=None, help="the subject is an amputee")
     g.add_argument(
