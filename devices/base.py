@@ -91,8 +91,8 @@ class BoundedBuffer(Generic[T]):
 
 
 class Producer:
-    """A backend's own producer thread (a daemon running `target`) and the event that
-    halts it: started, halted and joined alike by every backend that makes its frames."""
+    """A device's own thread (a daemon running `target`: a backend's producer, a reader, a
+    watchdog) and the event that halts it: started, halted and joined alike everywhere."""
 
     def __init__(self, name: str, target) -> None:
         self.name = name
@@ -105,11 +105,16 @@ class Producer:
         self.thread = threading.Thread(target=self.target, name=self.name, daemon=True)
         self.thread.start()
 
+    @property
+    def running(self) -> bool:
+        return self.thread is not None and self.thread.is_alive()
+
     def stop(self, timeout_s: float = 5.0) -> None:
+        """Halt and join (unless called from the thread itself, which returns on its own)."""
         self.halt.set()
-        if self.thread is not None:
+        if self.thread is not None and self.thread is not threading.current_thread():
             self.thread.join(timeout=timeout_s)
-            self.thread = None
+        self.thread = None
 
 
 class RateMeter:

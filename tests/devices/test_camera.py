@@ -344,7 +344,7 @@ def test_a_frame_while_the_watchdog_reopens_never_waits_and_its_resume_is_kept()
     cam = ScriptedCamera(clock=clock)
     cam.start()
     cam._watch_stop.set()  # the test runs the checks
-    cam._watchdog.join(5)
+    cam._watchdog.thread.join(5)
     first = blank_frame(0)
     first.host_time_ns = first.device_time_ns = clock.t = 10**9
     cam._deliver(first)
