@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from capture.corpus import jobs
+from capture.corpus.selection import given_files
 from capture.errors import CaptureError
 from capture.recording.reader import labeled_session
 from devices.config import MountingConfig, SimulatorConfig
@@ -50,20 +51,11 @@ READERS: dict[str, Callable[[Path], LabeledSession]] = {
 
 def find_session_files(paths: list[str | os.PathLike]) -> list[Path]:
     """Files of sessions: the given files, and every known file in the given folders."""
-    files: list[Path] = []
-    for p in map(Path, paths):
-        if p.is_dir():
-            found = sorted(
-                f for f in p.rglob("*") if f.suffix.lower() in READERS and ".tmp" not in f.name
-            )
-            if not found:
-                raise InferenceError(f"no sessions (.npz or .mcap) in {p}")
-            files += found
-        elif p.exists():
-            files.append(p)
-        else:
-            raise InferenceError(f"no such file or folder: {p}")
-    return files
+    return given_files(paths, _is_session, "sessions (.npz or .mcap)", InferenceError)
+
+
+def _is_session(f: Path) -> bool:
+    return f.suffix.lower() in READERS and ".tmp" not in f.name
 
 
 def select_session_files(
