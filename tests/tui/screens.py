@@ -5,11 +5,25 @@ import contextlib
 
 import numpy as np
 
+from capture.live.trials import SubjectInfo
 from tests.waiting import wait_for_app
 from tui.live_screen import LiveScreen
 from tui.session_screen import SessionScreen
 
 SIZE = (120, 40)
+# A subject with every field of the session form filled (an amputee: side and limb too).
+FILLED_SUBJECT = SubjectInfo(
+    subject="A01",
+    height_m=1.72,
+    weight_kg=70.0,
+    age=52,
+    sex="female",
+    amputee=True,
+    side="left",
+    residual_limb_cm=31.0,
+    condition="indoor",
+    trial=2,
+)
 
 
 @contextlib.asynccontextmanager

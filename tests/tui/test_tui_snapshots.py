@@ -6,6 +6,7 @@ from textual.widgets import Input
 
 from capture.config import Config
 from capture.live.trials import SubjectInfo
+from tests.tui.screens import FILLED_SUBJECT
 from tests.tui_fake_session import FakeSession
 from tui.app import WalkcapApp
 from tui.live_screen import LiveScreen
@@ -47,20 +48,7 @@ def _help_matches(snap_compare, size) -> bool:
 
 
 def test_session_form(snap_compare):
-    save_last_session(
-        SubjectInfo(
-            subject="A01",
-            height_m=1.72,
-            weight_kg=70.0,
-            age=52,
-            sex="female",
-            amputee=True,
-            side="left",
-            residual_limb_cm=31.0,
-            condition="indoor",
-            trial=2,
-        )
-    )
+    save_last_session(FILLED_SUBJECT)
     app = WalkcapApp(Config(), session=FakeSession())
     assert snap_compare(app, terminal_size=(120, 40), run_before=_no_blink)
 
