@@ -56,3 +56,32 @@ def test_the_simulators_casts_use_the_cores_the_process_may_run_on(monkeypatch):
     assert render._threads_allowed() == len(os.sched_getaffinity(0))
     monkeypatch.setenv("OMP_NUM_THREADS", "1")
     assert render._threads_allowed() == 1
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="no CPU affinity here")
+def test_each_round_runs_every_side_of_both_jobs_first_in_turn(monkeypatch):
+    import capture.bench
+
+    runs = []
+
+    def walkcap(*argv, one_core=False):
+        runs.append((argv[0], "--cluster" in argv, one_core))
+        return 2.0, 3.0
+
+    monkeypatch.setattr(cluster, "_walkcap", walkcap)
+    monkeypatch.setattr(
+        cluster, "_startup", lambda a: {"total_s": 1, "connect_s": 1, "workers_s": 0}
+    )
+    monkeypatch.setattr(cluster, "_frames", lambda folder, suffix: 100)
+    monkeypatch.setattr(capture.bench, "machine", lambda: {"cpu": "x"})
+    report = cluster.run("local", sessions=4, rounds=2, progress=lambda line: None)
+    assert runs[0] == ("synth", True, False)  # the recordings to replay, on the cluster
+    first_round, second_round = runs[1:7], runs[7:13]
+    assert [r[0] for r in first_round] == ["synth"] * 3 + ["replay"] * 3
+    assert first_round[:3] == [
+        ("synth", False, False),
+        ("synth", False, True),
+        ("synth", True, False),
+    ]
+    assert second_round[0] == ("synth", False, True)  # the next side goes first
+    assert report["jobs"]["replay"]["frames"] == 100 and report["jobs"]["synth"]["speedup"] == 1.0
