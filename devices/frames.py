@@ -35,6 +35,10 @@ MODE_COLORS = {
     "UR": "#f0a020",  # amber
     "DR": "#d048c8",  # magenta
 }
+# Gait events of the instrumented leg (the thigh that carries the IMU and the camera): the
+# moments a prosthesis controller acts at. Heel contact starts a stance, toe off a swing.
+GAIT_EVENTS = ("heel_contact", "toe_off")
+GAIT_SOURCES = ("imu", "simulator")  # detected from the thigh IMU, or the simulator's truth
 
 
 @dataclass(frozen=True)
@@ -60,6 +64,19 @@ class CameraGeometry:
         d = np.stack([uu, vv, np.ones_like(uu)], axis=-1)
         d /= np.linalg.norm(d, axis=-1, keepdims=True)
         return d.astype(np.float32)
+
+
+@dataclass(frozen=True, slots=True)
+class GaitEvent:
+    """A heel contact or toe off of the instrumented leg, at `time_ns` on the session clock
+    (the device's clock mapped, as ImuSample.time_ns). `source`: "imu" (the detector,
+    inference.gait) or "simulator" (the walk's truth); `mode`: the MODES name of the
+    terrain under that foot, where known (the simulator knows it; the detector does not)."""
+
+    time_ns: int
+    event: str  # one of GAIT_EVENTS
+    source: str  # one of GAIT_SOURCES
+    mode: str | None = None
 
 
 @dataclass

@@ -64,8 +64,13 @@ def _binding(key: str, action: str, description: str, field: str, **kw) -> Bindi
 
 
 def pipeline_rows(snap: Snapshot) -> list[tuple[str, str, str]]:
-    """Frames processed and the pipeline latency (frame received -> fused decision ready)."""
+    """Frames processed and the pipeline latency (frame received -> fused decision ready);
+    the steps of the trial and the cadence, from the thigh IMU's gait events."""
     rows = [("pipeline", "", "bold"), ("frames", f"{snap.frames}", "")]
+    if snap.steps is not None:  # a live session's (a replay shows none)
+        cadence = snap.cadence_spm
+        pace = f"{cadence:.0f} steps/min" if cadence is not None else "standing"
+        rows.append(("steps", f"{snap.steps}, {pace}", ""))
     if snap.latency_ms:
         p50, p99 = snap.latency_ms.get("p50", 0), snap.latency_ms.get("p99", 0)
         rows.append(("latency", f"median {p50:.0f}, p99 {p99:.0f} ms", ""))

@@ -254,7 +254,7 @@ EVENT_COLUMNS = (
 
 def events_rows(tables: dict, first_ns: int | None, end_ns: int | None) -> list:
     """The events.tsv rows (onset order): every label change with its audit trail, markers
-    (their notes in message), device events."""
+    (their notes in message), device events, gait events."""
     t0 = first_ns if first_ns is not None else 0
     rows = []
     labels = tables["labels"]
@@ -321,6 +321,14 @@ def events_rows(tables: dict, first_ns: int | None, end_ns: int | None) -> list:
                 ],
             )
         )
+    gait = tables.get("gait")
+    if gait is not None:  # heel contacts and toe offs: the detector's and the simulator's
+        for t, event, source, mode in zip(
+            gait["time_ns"], gait["event"], gait["source"], gait["mode"]
+        ):
+            t = int(t)
+            cells = [seconds(t - t0), NA, text(event), text(mode), text(source)]
+            rows.append((t, [*cells, NA, NA, text(source), "gait", NA]))
     rows.sort(key=lambda r: r[0])
     return ["\t".join(cells) for _, cells in rows]
 
@@ -358,12 +366,18 @@ def events_json() -> dict:
                 "undo": "the operator's undo key; mode: the mode gone back to",
                 "marker": "an operator marker; message: its note",
                 "device_event": "a device or pipeline event: gaps, losses, reconnects, stalls",
+                "heel_contact": "a heel contact of the instrumented leg; source: imu "
+                "(detected from the thigh IMU) or simulator (the simulated walk's truth); "
+                "mode: the terrain under the foot, where known",
+                "toe_off": "a toe off of the instrumented leg (source and mode as for "
+                "heel_contact)",
             },
         },
         "mode": {"Description": "the locomotion mode keyed", "Levels": modes},
         "source": {
             "Description": "operator (a key press), start (the mode in force when the trial "
-            "started), simulator, undo:<MODE>, correction (labelled offline)"
+            "started), simulator, undo:<MODE>, correction (labelled offline); for gait "
+            "events imu or simulator"
         },
         "in_reference": {
             "Description": "the change defines the locomotion reference (undos applied)",

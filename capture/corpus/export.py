@@ -20,6 +20,9 @@ is described in docs/export.md):
 - labels: every recorded change, undos included, with in_reference (whether it defines
   `label`) and undone (taken back by a later undo).
 - events: device events and operator markers, in time order.
+- gait: heel contacts and toe offs of the instrumented leg, in time order: event, source
+  ("imu": the detector's, /gait; "simulator": the walk's truth, /sim/gait), mode (the
+  terrain under the foot, where known).
 - trials: one row per file: identity, lineage, session form, model; start_time_ns and
   end_time_ns (session clock), start_unix_time_ns and end_unix_time_ns, duration_s; per
   sensor stream its gaps, items missing and late deliveries (capture.recording.gaps).
@@ -53,7 +56,7 @@ from devices import clock
 from devices.files import check_replaceable
 from devices.frames import MODES
 
-TABLES = ("frames", "imu", "labels", "events", "trials")
+TABLES = ("frames", "imu", "labels", "events", "gait", "trials")
 FORMATS = ("parquet", "csv", "mat")
 # The trials table's session and software columns, the same in every corpus whatever its
 # files' metadata holds: field -> pandas dtype (missing: NA, or "" for text).
@@ -111,24 +114,28 @@ def tables(path: str | os.PathLike) -> dict:
         "condition": condition,
         "trial": trial,
     }
-    imu, events = [], []
+    imu, events, gait = [], [], []
 
     def take(m) -> None:
         if m.topic == T.IMU:  # the fields the table takes: a long trial's samples are many
             s = m.data
             imu.append(tuple(s.get(k) for k in _IMU_FIELDS))
+        elif m.topic in (T.GAIT, T.SIM_GAIT):
+            gait.append(m.data)
         else:
             events.append(m.data)
 
-    table, changes = frame_table(rec, (T.IMU, T.EVENTS), take)
+    table, changes = frame_table(rec, (T.IMU, T.EVENTS, T.GAIT, T.SIM_GAIT), take)
     events.sort(key=lambda e: int(e.get("time_ns", 0)))  # in time order, as the rest
+    gait.sort(key=lambda e: int(e["time_ns"]))
+    gait_t = np.array([int(e["time_ns"]) for e in gait], dtype=np.int64)
     imu_t = np.array([int(s[0] if s[0] is not None else s[1]) for s in imu], dtype=np.int64)
     label_t = np.array([c[0] for c in changes], dtype=np.int64)
     event_t = np.array([int(e.get("time_ns", 0)) for e in events], dtype=np.int64)
     # time_s counts from the recording's start: its earliest time, receive or sample (an
     # IMU sample's time precedes its arrival), so that no row has a negative time
     t0 = min(
-        [int(a.min()) for a in (table.time_ns, imu_t, label_t, event_t) if len(a)]
+        [int(a.min()) for a in (table.time_ns, imu_t, label_t, event_t, gait_t) if len(a)]
         + ([rec.start_ns] if rec.start_ns is not None else []),
         default=0,
     )
@@ -138,6 +145,7 @@ def tables(path: str | os.PathLike) -> dict:
         "imu": _frame(pd, identity, _imu_columns(imu, imu_t, offset, t0), len(imu)),
         "labels": _frame(pd, identity, _label_columns(changes, label_t, offset, t0), len(changes)),
         "events": _frame(pd, identity, _event_columns(events, event_t, offset, t0), len(events)),
+        "gait": _frame(pd, identity, _gait_columns(gait, gait_t, offset, t0), len(gait)),
         "trials": _trials_frame(pd, _trial_row(rec, member, identity, table)),
     }
 
@@ -266,6 +274,15 @@ def _event_columns(events: list[dict], event_t: np.ndarray, offset: int | None, 
     event_cols["message"] = [str(e.get("message", "")) for e in events]
     event_cols["details"] = [_json_text(e.get("details") or {}) for e in events]
     return event_cols
+
+
+def _gait_columns(gait: list[dict], gait_t: np.ndarray, offset: int | None, t0: int) -> dict:
+    cols = {"time_ns": gait_t}
+    cols.update(_clock(gait_t, offset, t0))
+    cols["event"] = [str(e.get("event", "")) for e in gait]
+    cols["source"] = [str(e.get("source", "")) for e in gait]
+    cols["mode"] = [str(e.get("mode") or "") for e in gait]
+    return cols
 
 
 def _trial_row(rec, member, identity: dict, table: FrameTable) -> dict:

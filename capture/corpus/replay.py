@@ -473,8 +473,10 @@ def _replay(
     recorded_streams,
 ) -> ReplayReport:
     from capture.recording.chunks import ZSTD_LEVEL_FAST
+    from capture.recording.gait import read_gait
     from capture.recording.writer import Recorder
     from inference import features  # noqa: F401  (imported now, not in the first frame's time)
+    from inference.gait import GaitDetector
     from inference.model import load_classifier
 
     classifier = classifier or load_classifier(config.model.path or None, threads=CNN_THREADS)
@@ -514,6 +516,13 @@ def _replay(
     recorder.start()
     batch = getattr(classifier, "predict_batch", None)
     imu_times, imu_samples = imu.times_ns, imu.in_order()
+    gait = GaitDetector()  # /gait recomputed from the IMU, as live
+
+    def write_imu(sample) -> None:
+        recorder.write_imu(sample)
+        for event in gait.push(sample):
+            recorder.write_gait(event, sample.host_time_ns)
+
     i_imu = 0
     frames = 0
     first_t = last_t = None
@@ -523,6 +532,8 @@ def _replay(
             recorder.write_label(int(lab["time_ns"]), lab.get("mode", ""), lab.get("source", ""))
         for ev in events:
             recorder.write_event(dict(ev))
+        for event in read_gait(rec, source="simulator").events():  # the truth, as recorded
+            recorder.write_gait(event)
         for block in blocks:
             probs = (
                 batch(np.stack([pre.image for _, _, pre, _ in block]))
@@ -538,7 +549,7 @@ def _replay(
                     if wait > 0:
                         time.sleep(wait)
                 while i_imu < len(imu_times) and imu_times[i_imu] <= t + IMU_LOOKAHEAD_NS:
-                    recorder.write_imu(next(imu_samples))
+                    write_imu(next(imu_samples))
                     i_imu += 1
                 result = pipeline.process(frame, q, t, prepared=pre, probabilities=p)
                 recorder.write_encoded(frame.index, t, frame.host_time_ns, encoded)
@@ -547,7 +558,7 @@ def _replay(
                 if progress is not None:
                     progress(frames)
         for s in imu_samples:
-            recorder.write_imu(s)
+            write_imu(s)
     finally:
         stats = recorder.close()
     taken = time.monotonic() - wall0

@@ -29,6 +29,7 @@ from devices.clock import now_ns
 from devices.frames import ImuSample
 from devices.orientation_error import OrientationError, OrientationErrorModel
 from devices.rotations import quat_conjugate, quat_multiply, quat_to_matrix
+from inference.gait import GaitDetector
 
 GRAVITY = np.array([0.0, 0.0, 9.81])
 TRANSPORT_NS = 3_000_000  # a USB-serial hop: samples arrive ~3 ms after they are taken
@@ -120,15 +121,23 @@ def synth_recording(
     if max_frames:
         n = min(n, max_frames)
     mode = None
+    detector = GaitDetector()
+    walked_s = -1.0  # the walk's gait truth is written up to here (it starts at 0)
     try:
         for k in range(n):
             t = t0 + int(round(k / cfg.camera.fps * 1e9))
             while pending is not None and pending.time_ns <= t + TRANSPORT_NS:
                 track.add(pending.time_ns, pending.quaternion, pending.rate_of_turn)
                 recorder.write_imu(pending)
+                for event in detector.push(pending):
+                    recorder.write_gait(event, pending.host_time_ns)
                 pending = next(imu, None)
             frame = simulator.render(k / cfg.camera.fps, index=k)
             frame.device_time_ns, frame.host_time_ns = t, t + FRAME_TRANSFER_NS
+            gait = simulator.gait_truth(walked_s, k / cfg.camera.fps, t)
+            walked_s = k / cfg.camera.fps
+            if gait and frame.truth is not None:
+                frame.truth["gait"] = gait
             if frame.truth and frame.truth.get("locomotion_mode") != mode:
                 mode = frame.truth["locomotion_mode"]
                 recorder.write_label(t, mode, "simulator")

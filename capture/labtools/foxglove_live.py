@@ -191,6 +191,10 @@ class FoxgloveLive(Sink):
         if self._watched(T.TRUTH):
             self._put(E.encode_truth, frame_index, time_ns, time_ns, truth)
 
+    def write_gait(self, event, log_time_ns=None) -> None:
+        if self._watched(T.gait_topic(event)):
+            self._put(E.encode_gait, event, log_time_ns)
+
     def write_imu(self, sample) -> None:
         if self._watched(T.IMU):
             self._put(E.encode_imu, sample)

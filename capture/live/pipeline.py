@@ -319,7 +319,18 @@ def record_result(
     )
     record_decisions(recorder, r, decided_ns)
     if frame.truth:
-        recorder.write_truth(r.index, r.time_ns, frame.truth)
+        record_truth(recorder, r.index, r.time_ns, frame.truth)
+
+
+def record_truth(recorder: Sink, index: int, time_ns: int, truth: dict) -> None:
+    """A frame's simulator truth onto /sim/truth, and the gait events it carries (the
+    simulator's, since the frame before) onto /sim/gait."""
+    gait = truth.get("gait") or ()
+    if gait:
+        truth = {k: v for k, v in truth.items() if k != "gait"}
+    recorder.write_truth(index, time_ns, truth)
+    for event in gait:
+        recorder.write_gait(event)
 
 
 def record_decisions(recorder: Sink, r: FrameResult, decided_ns: int | None = None) -> None:

@@ -35,6 +35,7 @@ from capture.live.pipeline import (
     Pipeline,
     build_pipeline,
     record_decisions,
+    record_truth,
     software_metadata,
 )
 from capture.live.timeline import FrameTimeline, TimelineEntry
@@ -52,6 +53,7 @@ from devices.clock import now_ns
 from devices.frames import DepthFrame
 from devices.scheduling import NORMAL_PRIORITY, realtime_priority
 from inference.errors import InferenceError
+from inference.gait import GaitDetector
 
 if TYPE_CHECKING:  # the writer's imports take a second: Recorder is imported when it records
     from capture.recording.writer import RecorderStats
@@ -83,6 +85,8 @@ class Snapshot:
     alarms: AlarmState | None = None  # gaps this trial, and what the operator must see now
     stale_frames: int = 0  # frames of this (or the last) trial left undecided: stale IMU
     fusion_method: str = ""  # the method behind the fused decisions ("": not known)
+    cadence_spm: float | None = None  # steps a minute from the IMU's gait events (None: still)
+    steps: int | None = None  # steps this trial (or this session): two a stride of the thigh
 
 
 HOST_STALL_NS = 1_000_000_000  # the monitor (every 0.2 s) not run for this long: a host stall
@@ -120,6 +124,9 @@ class Session:
         self._events: collections.deque[DeviceEvent] = collections.deque(maxlen=200)
         self._taps: tuple[Sink, ...] = ()  # live outputs beside the recorder (LSL, Foxglove)
         self._sync_errors: collections.deque[float] = collections.deque(maxlen=5000)
+        self.gait = GaitDetector()  # on the IMU thread: /gait, the cadence and the steps
+        self._strides_at_start = 0  # heel contacts before the trial in progress
+        self._gait_failed = False
         self._last_truth_mode: str | None = None
         self._walker_mode: str | None = None
         self._inbox = FrameInbox()
@@ -243,8 +250,22 @@ class Session:
             truth = getattr(self._imu, "true_time_ns", None)
             if truth is not None and sample.sample_time_fine is not None:
                 self._sync_errors.append(abs(t - truth(sample.sample_time_fine)) * 1e-6)
+            gait = self._gait_events(sample)
             for out in self._outputs():
                 out.write_imu(sample)
+                for event in gait:  # known at this sample's receipt
+                    out.write_gait(event, sample.host_time_ns)
+
+    def _gait_events(self, sample) -> list:
+        """The detector's events at this sample; a fault in it costs the steps, never the
+        IMU's samples (said once)."""
+        try:
+            return self.gait.push(sample)
+        except Exception:
+            if not self._gait_failed:
+                self._gait_failed = True
+                log.exception("gait detector")
+            return []
 
     def _frame_loop(self) -> None:
         """Camera frames in: each recorded at once, then handed to the pipeline thread."""
@@ -343,7 +364,7 @@ class Session:
         for out in self._outputs():
             out.write_frame(frame, t)
             if frame.truth:
-                out.write_truth(frame.index, t, frame.truth)
+                record_truth(out, frame.index, t, frame.truth)
         return rec
 
     def classify_frame(self, frame: DepthFrame, recorder: Sink | None = None) -> FrameResult | None:
@@ -504,6 +525,7 @@ class Session:
         self._recorder = recorder
         self.trial = target.info
         self._recording_started_ns = now_ns()
+        self._strides_at_start = self.gait.heel_contacts
         label = self.labels.label
         if label is not None:  # the mode in force when the trial starts
             recorder.write_label(self._recording_started_ns, label, "start")
@@ -542,6 +564,8 @@ class Session:
             stale_frames=published.stale_frames,
             latency_ms=published.latency_ms,
             fusion_method=self.pipeline.fusion.method if self.pipeline else "",
+            cadence_spm=self.gait.cadence_spm(),
+            steps=2 * (self.gait.heel_contacts - self._strides_at_start),
         )
         if sync is not None:
             snap.sync = {"p50_ms": float(np.median(sync)), "p99_ms": float(np.percentile(sync, 99))}

@@ -4,7 +4,8 @@ Public API: `Recorder` (writes a trial), `Sink` (what a session writes to: the r
 live taps), `TOPICS` / `Topic` (every topic's schema and message builder), `Encoded` (a message
 ready for the file), `open_recording` / `Recording` (reads one, damaged or not), `read_trial` /
 `read_trials` (per-frame arrays for evaluation), `frame_table` / `FrameTable` (every per-frame
-topic joined by frame), `summary` (what a file holds, behind `walkcap info`), `check` and
+topic joined by frame), `read_gait` / `GaitTable` (the gait events of /gait and /sim/gait),
+`summary` (what a file holds, behind `walkcap info`), `check` and
 `recover` (damage and rebuilding), `copy_recording` (a copy with labels, events and metadata
 added), `describe` / `derivation` (a file's identity and lineage), `trial_conflict` (trial
 numbers), `PERSONAL_FIELDS` / `ShareRules` (capture.recording.personal: what is personal and
@@ -17,6 +18,7 @@ from capture.recording.checking import check
 from capture.recording.copy import copy_recording
 from capture.recording.encode import Encoded
 from capture.recording.frames import FrameTable
+from capture.recording.gait import GaitTable, read_gait
 from capture.recording.lineage import derivation, describe
 from capture.recording.naming import trial_conflict
 from capture.recording.personal import PERSONAL_FIELDS, PersonalField, ShareRules
@@ -38,6 +40,7 @@ __all__ = [
     "TOPICS",
     "Encoded",
     "FrameTable",
+    "GaitTable",
     "PERSONAL_FIELDS",
     "NotMcapError",
     "PersonalField",
@@ -53,6 +56,7 @@ __all__ = [
     "describe",
     "frame_table",
     "open_recording",
+    "read_gait",
     "read_trial",
     "read_trials",
     "recover",

@@ -29,6 +29,7 @@ from capture.recording.encode import (
     encode_depth,
     encode_event,
     encode_features,
+    encode_gait,
     encode_imu,
     encode_inference,
     encode_processed,
@@ -39,6 +40,7 @@ from capture.recording.write_queue import (
     QueuedEncodedFrame,
     QueuedFeatures,
     QueuedFrame,
+    QueuedGait,
     QueuedImuSample,
     QueuedInference,
     QueuedItem,
@@ -365,6 +367,9 @@ class ChunkWriter:
         log_time = self._log_time(item.index, item.time_ns)
         return encode_truth(item.index, item.time_ns, log_time, item.truth)
 
+    def _encode_gait(self, item: QueuedGait) -> list[Encoded]:
+        return encode_gait(item.event, item.log_time)
+
     def _take_encoded_frame(self, item: QueuedEncodedFrame) -> list[Encoded]:
         self._remember(item.index, item.time_ns, item.log_time)
         return item.messages
@@ -384,6 +389,7 @@ class ChunkWriter:
         QueuedInference: _encode_inference,
         QueuedFeatures: _encode_features,
         QueuedTruth: _encode_truth,
+        QueuedGait: _encode_gait,
         QueuedEncodedFrame: _take_encoded_frame,
         QueuedDeviceEvent: _encode_device_event,
         QueuedMessage: _encode_message,

@@ -109,6 +109,13 @@ def encode_truth(index: int, time_ns: int, log_time: int, truth: dict) -> list[E
     return [message(T.TRUTH, log_time, time_ns, index, time_ns, truth, sequence=index)]
 
 
+def encode_gait(event, log_time: int | None = None) -> list[Encoded]:
+    """A GaitEvent on its topic (/gait or /sim/gait), published at its time; logged when it
+    was known (a detector knows an event a little after it happened)."""
+    t = int(event.time_ns)
+    return [message(T.gait_topic(event), t if log_time is None else log_time, t, event)]
+
+
 def encode_imu(sample) -> list[Encoded]:
     """An ImuSample, published at its device-corrected time (its receipt when unknown)."""
     t = sample.time_ns if sample.time_ns is not None else sample.host_time_ns

@@ -1,7 +1,7 @@
 """Where a session's data goes: the one interface of the recorder and the live taps.
 
 A live session hands every sink the same calls: the raw data as it comes (frames, IMU
-samples, device events, simulator truth), what the pipeline derives from each frame
+samples, device events, simulator truth and gait events), what the pipeline derives from each frame
 (preprocessing, inference, terrain features) and the operator's labels and markers. The
 Recorder writes them into the trial's file; a tap (LSL outlets, the Foxglove live view)
 sends what it carries and inherits a no-op for the rest.
@@ -48,6 +48,10 @@ class Sink:
 
     def write_truth(self, frame_index: int, time_ns: int, truth: dict) -> None:
         """The simulator's truth for a frame (mock sessions)."""
+
+    def write_gait(self, event, log_time_ns: int | None = None) -> None:
+        """A GaitEvent: the detector's (/gait) or the simulator's (/sim/gait); `log_time_ns`
+        is when it was known (None: its own time)."""
 
     def write_label(self, time_ns: int, mode: str, source: str) -> None:
         """The operator's mode from `time_ns` on ('' = no mode)."""

@@ -45,7 +45,7 @@ from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
 from google.protobuf.timestamp_pb2 import Timestamp
 
-from devices.frames import MODES
+from devices.frames import GAIT_EVENTS, GAIT_SOURCES, MODES, GaitEvent
 
 FORMAT_VERSION = "3"  # the rule and the reading of older files: capture.recording.versions
 
@@ -63,6 +63,8 @@ CNN = "/inference/cnn"
 FUSED = "/inference/fused"
 FEATURES = "/terrain/features"
 TRUTH = "/sim/truth"
+GAIT = "/gait"  # gait events detected from the thigh IMU (source "imu")
+SIM_GAIT = "/sim/gait"  # the simulator's gait events (source "simulator")
 
 CAMERA_FRAME = "camera"  # royale axes: x right, y down, z forward
 WORLD_FRAME = "world"  # leveled: x forward, y left, z up
@@ -333,6 +335,25 @@ def truth_json(frame_index: int, time_ns: int, truth: dict) -> dict:
     return out
 
 
+def gait_json(event: GaitEvent) -> dict:
+    return {
+        "time_ns": int(event.time_ns),
+        "event": event.event,
+        "source": event.source,
+        "mode": event.mode or None,
+    }
+
+
+def gait_topic(event: GaitEvent) -> str:
+    """/gait for the detector's events, /sim/gait for the simulator's."""
+    return SIM_GAIT if event.source == "simulator" else GAIT
+
+
+def gait_from_message(d: dict) -> GaitEvent:
+    """A /gait or /sim/gait message, decoded, as the GaitEvent it was written from."""
+    return GaitEvent(int(d["time_ns"]), str(d["event"]), str(d["source"]), d.get("mode") or None)
+
+
 def preprocess_json(
     frame_index: int,
     time_ns: int,
@@ -420,6 +441,21 @@ def _object(
         "required": required,
         "additionalProperties": extra,
     }
+
+
+def _gait_schema(title: str, what: str) -> dict:
+    return _object(
+        title,
+        f"A heel contact or toe off of the instrumented leg, {what}: its time (session "
+        "clock), and the mode of the terrain under that foot where known.",
+        {
+            "time_ns": _INT,
+            "event": {"type": "string", "enum": list(GAIT_EVENTS)},
+            "source": {"type": "string", "enum": list(GAIT_SOURCES)},
+            "mode": _MODE_OR_NULL,
+        },
+        ["time_ns", "event", "source", "mode"],
+    )
 
 
 def json_topic(name: str, schema: dict, description: str) -> Topic:
@@ -613,6 +649,18 @@ TOPICS: dict[str, Topic] = {
                 extra=True,
             ),
             truth_json,
+        ),
+        Topic(
+            GAIT,
+            "JSON: heel contacts and toe offs detected from the thigh IMU",
+            _gait_schema("walkcap.GaitEvent", "detected from the thigh IMU (inference.gait)"),
+            gait_json,
+        ),
+        Topic(
+            SIM_GAIT,
+            "JSON: simulator gait events, with the terrain under the foot (mock sessions)",
+            _gait_schema("walkcap.SimGaitEvent", "the simulated walk's truth"),
+            gait_json,
         ),
     )
 }

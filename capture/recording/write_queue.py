@@ -99,6 +99,15 @@ class QueuedTruth(FrameItem):
 
 
 @dataclass(slots=True)
+class QueuedGait(QueuedItem):
+    # Raw, not derived, though the detector computes it: two a second weigh nothing, and the
+    # steps the operator saw counted are the ones the file keeps.
+    kind: ClassVar[str] = "gait"
+    event: Any  # a devices.frames.GaitEvent
+    log_time: int | None
+
+
+@dataclass(slots=True)
 class QueuedEncodedFrame(LoggedFrameItem):
     """A frame's messages encoded in another process (replay's reader)."""
 

@@ -48,6 +48,7 @@ from capture.recording.write_queue import (
     QueuedEncodedFrame,
     QueuedFeatures,
     QueuedFrame,
+    QueuedGait,
     QueuedImuSample,
     QueuedInference,
     QueuedItem,
@@ -377,6 +378,9 @@ class Recorder(Sink):
 
     def write_truth(self, frame_index: int, time_ns: int, truth: dict) -> None:
         self._put(QueuedTruth(frame_index, time_ns, truth))
+
+    def write_gait(self, event, log_time_ns: int | None = None) -> None:
+        self._put(QueuedGait(event, log_time_ns))
 
     def write_encoded(
         self, frame_index: int, time_ns: int, log_time_ns: int, messages: list[Encoded]

@@ -6,7 +6,8 @@ delivered. With `realtime` it paces frames at the configured fps (a frame late b
 little is sent late; CATCH_UP_FRAMES late, frames are skipped, counted and reported as a
 "gap"); otherwise it renders as fast as the consumer takes
 frames, never dropping one. At the end of the course it stops (state "stopped", event
-"end_of_course"), or starts the course again with `loop=True`.
+"end_of_course"), or starts the course again with `loop=True`. Each frame delivered carries
+in `truth["gait"]` the walk's gait events since the frame delivered before (none standing).
 
 The IMU emulator must see the same walk on the same time base: give it
 `camera.orientation_at` (or `camera.simulator.thigh_quaternion` without looping), with t in
@@ -83,6 +84,7 @@ class MockCamera(Camera):
         self._sleep = sleep or self._halt.wait
         self._stall_until_ns = 0
         self._resume_k: int | None = None
+        self._gait_walk_s: float | None = None  # walk time of the last frame's gait truth
         course = simulator.course
         self.details = {
             "course": course.preset,
@@ -122,6 +124,7 @@ class MockCamera(Camera):
     def _start(self) -> None:
         if self.start_time_ns is None:
             self.start_time_ns = self._clock()
+            self._gait_walk_s = None  # a new walk
         self._producer.start()
 
     def _stop(self) -> None:
@@ -172,12 +175,31 @@ class MockCamera(Camera):
             else:
                 while len(self._buffer) >= self._buffer_size and not self._halt.is_set():
                     time.sleep(0.002)  # as fast as the consumer takes frames, losing none
-            frame = self.simulator.render(self.walk_time(t), index=k)
+            walk_s = self.walk_time(t)
+            frame = self.simulator.render(walk_s, index=k)
             frame.device_time_ns = start + clock.to_ns(t)
             frame.host_time_ns = self._clock()
             if frame.host_time_ns >= self._stall_until_ns:  # a stalled camera sends nothing
+                self._add_gait_truth(frame, walk_s)
                 self._deliver(frame)
             k += 1
+
+    def _add_gait_truth(self, frame, walk_s: float) -> None:
+        """The walk's gait events since the last frame delivered (a skipped or stalled
+        frame's go with the next one), on the frame's device clock."""
+        if self.stand:
+            return
+        since = -1.0 if self._gait_walk_s is None else self._gait_walk_s  # the walk starts at 0
+        sim, t_ns = self.simulator, frame.device_time_ns
+        if walk_s >= since:
+            events = sim.gait_truth(since, walk_s, t_ns)
+        else:  # the course began again: the end of the last walk, then the new one
+            wrap_ns = t_ns - clock.to_ns(walk_s)
+            events = sim.gait_truth(since, sim.duration_s, wrap_ns)
+            events += sim.gait_truth(-1.0, walk_s, t_ns)
+        self._gait_walk_s = walk_s
+        if events and frame.truth is not None:
+            frame.truth["gait"] = events
 
     @property
     def _buffer_size(self) -> int:

@@ -19,7 +19,10 @@ ground truth in `frame.truth`:
 - "camera_pose": camera -> world, 4x4 nested list; "thigh_quaternion": [w, x, y, z],
   IMU (thigh) -> world, without sensor noise; "segment": index of the segment the image
   truth names (the look-ahead segment, or the nearest segment of that mode in view);
-  "error": "" or the kind of error image ("swing_blur", "sky", "foot", "occlusion").
+  "error": "" or the kind of error image ("swing_blur", "sky", "foot", "occlusion");
+  "gait" (added by whoever knows the frame before, the mock camera and `walkcap synth`): the
+  GaitEvents of the walk since the frame before (`gait_truth`), source "simulator", each
+  with the mode of the terrain under that foot.
 
 Every frame is a pure function of (course, walker parameters, seed, t): deterministic.
 """
@@ -30,7 +33,7 @@ import numpy as np
 
 from devices import clock
 from devices.errors import DeviceConfigError
-from devices.frames import MODES, CameraGeometry, DepthFrame
+from devices.frames import MODES, CameraGeometry, DepthFrame, GaitEvent
 from devices.simulator.course import Course, make_course
 from devices.simulator.render import (
     NOTHING,
@@ -183,6 +186,15 @@ class Simulator:
     def locomotion_mode(self, t_s: float) -> str:
         """The walker's own mode at t_s: the terrain under its hip."""
         return self.course.mode_at(float(self.walk.position(t_s)))
+
+    def gait_truth(self, t0_s: float, t1_s: float, t1_ns: int) -> list[GaitEvent]:
+        """The walk's gait events with t0_s < time <= t1_s (walk seconds), stamped on the
+        clock that reads t1_ns at t1_s (a frame's device time), with the mode of the
+        terrain under that foot."""
+        return [
+            GaitEvent(t1_ns - clock.to_ns(t1_s - t), event, "simulator", self.course.mode_at(x))
+            for t, event, x in self.walk.gait_events(t0_s, t1_s)
+        ]
 
     def render(self, t_s: float, index: int = 0) -> DepthFrame:
         """The frame at t_s seconds into the walk; times are t_s on the walk's own clock."""

@@ -22,6 +22,16 @@ quickly") are scheduled per stride at the gait phase where they happen:
 - foot: the other foot passing in front of the camera at full extension;
 - occlusion: something close in front of the lens (a hand, a bag, a passer-by), any time.
 
+Gait events of the instrumented leg (the thigh that carries the sensors) follow its swing:
+heel contact 5 % of a stride after the thigh's peak flexion (it peaks late in swing and
+extends a little before the foot lands; a high knee lift moves the peak, and the contact
+with it), toe off STANCE_SHARE of a stride after the stride's own contact (stance takes
+about 60 % of the cycle, swing 40 %: Perry and Burnfield, Gait Analysis, 2010; a knee lift
+leaves that rhythm). Each carries the mode of the terrain under that foot: the foot lands
+where the hip is at mid-stance (a quarter stride after heel contact, the stance leg under
+the hip) and stays put until toe off. A walk starts in mid-swing (phase 0) from standing
+and ends where a stride ends; no event falls outside it.
+
 Everything is precomputed on a 1 cm grid along the course at construction, so any time
 can be asked in any order (the camera and the IMU emulator ask independently), and the
 same seed gives the same walk.
@@ -54,6 +64,11 @@ ERROR_SCHEDULE = {
     "occlusion": (0.03, None, (0.12, 0.40)),
 }
 GRID_M = 0.01
+# Gait events on the phase (flexion = mean + amp * sin(phase), peak flexion at pi / 2 but for
+# a high knee lift): heel contact 5 % of a stride after peak flexion, toe off 60 % of a
+# stride after heel contact.
+HEEL_CONTACT_PHASE = np.pi / 2 + 0.05 * 2 * np.pi
+STANCE_SHARE = 0.60
 
 
 @dataclass(frozen=True)
@@ -157,6 +172,41 @@ class Walk:
         self.events = tuple(sorted(events, key=lambda e: e.t0))
         self._event_t0 = np.array([e.t0 for e in self.events])
         self._sky = [e for e in self.events if e.kind == "sky"]
+        self._gait = self._gait_events()
+
+    # ---- gait events ----------------------------------------------------------------------
+
+    def _gait_events(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(times s, kinds 0 = heel contact / 1 = toe off, foot positions m), in time order."""
+        full = 2 * np.pi
+        k = np.arange(int(self._phase[-1] // full) + 1)
+        # each stride's peak flexion, as the thigh moves (a high knee lift moves it), within
+        # a quarter stride of the swing's own (phase pi / 2)
+        around = np.linspace(-np.pi / 2, np.pi / 2, 121)
+        phases = (full * k + np.pi / 2)[:, None] + around[None, :]
+        flexion = self.flexion(np.interp(phases, self._phase, self._t))
+        peak = phases[np.arange(len(k)), np.argmax(flexion, axis=1)]
+        contact = peak + HEEL_CONTACT_PHASE - np.pi / 2
+        off = full * k + HEEL_CONTACT_PHASE + STANCE_SHARE * full  # the stride's rhythm
+        # mid-stance, the hip above the foot (inside the walk: it ends where a stride ends)
+        foot = np.interp(np.interp(contact + full / 4, self._phase, self._t), self._t, self._x)
+        times, kinds, feet = [], [], []
+        for phases, kind in ((contact, 0), (off, 1)):
+            inside = (phases >= 0) & (phases <= self._phase[-1])
+            times.append(np.interp(phases[inside], self._phase, self._t))
+            kinds.append(np.full(int(inside.sum()), kind))
+            feet.append(foot[inside])
+        t, kind, x = np.concatenate(times), np.concatenate(kinds), np.concatenate(feet)
+        order = np.argsort(t, kind="stable")
+        return t[order], kind[order], x[order]
+
+    def gait_events(self, t0: float, t1: float) -> list[tuple[float, str, float]]:
+        """The instrumented leg's gait events with t0 < time <= t1 (walk seconds): (time,
+        "heel_contact" or "toe_off", course position of that foot)."""
+        t, kind, x = self._gait
+        i, j = np.searchsorted(t, [t0, t1], side="right")
+        names = ("heel_contact", "toe_off")
+        return [(float(t[n]), names[int(kind[n])], float(x[n])) for n in range(i, j)]
 
     # ---- scheduling ---------------------------------------------------------------------
 

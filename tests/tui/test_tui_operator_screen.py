@@ -421,3 +421,32 @@ def _logging_state() -> dict:
         "root": logging.getLogger().level,
         **{n: (logging.getLogger(n).level, logging.getLogger(n).disabled) for n in names},
     }
+
+
+def test_the_stream_and_the_live_screen_show_the_thighs_steps_and_cadence():
+    from capture.live.session import Snapshot
+    from tests.inference.test_gait import samples, walking
+    from tui.commands.imu import _stream_line
+    from tui.live_screen import pipeline_rows
+
+    details = {"drift_ppm": 0.0, "residual_ms": 0.5, "checksum_errors": 0, "missing_packets": 0}
+    status = DeviceStatus(
+        backend="mock",
+        state="ok",
+        configured_rate_hz=100.0,
+        measured_rate_hz=100.0,
+        details=details,
+    )
+    from inference.gait import GaitDetector
+
+    gait = GaitDetector()
+    assert "steps 0 (still)" in _stream_line(None, status, gait)
+    for s in samples(walking):
+        gait.push(s)
+    assert f"steps {2 * gait.heel_contacts} (100/min)" in _stream_line(None, status, gait)
+    snap = Snapshot(0, True, None, None, {}, None, None, [], [], None, None, 0, {})
+    assert not [r for r in pipeline_rows(snap) if r[0] == "steps"]  # a replay knows none
+    snap.steps, snap.cadence_spm = 20, 104.4
+    assert ("steps", "20, 104 steps/min", "") in pipeline_rows(snap)
+    snap.cadence_spm = None
+    assert ("steps", "20, standing", "") in pipeline_rows(snap)

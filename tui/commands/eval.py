@@ -3,6 +3,7 @@
     walkcap eval scores FILE.csv ... [--window 5] [--vote-delay 1] [--json]
     walkcap eval recordings FILE.mcap ... [--sweep-delay [N]] [--plot DIR] [--json]
     walkcap eval model ...            (the CNN on unseen synthetic sessions; eval_model.py)
+    walkcap eval gait FILE.mcap ...   (the IMU's gait events against the simulator's; eval_gait.py)
 
 Accuracies are per trial (file), then mean +- SD across trials, as in the paper, against
 the `terrain` reference (what the images show) unless `--reference locomotion` asks for the
@@ -18,7 +19,7 @@ import math
 from pathlib import Path
 
 from inference.fusion import METHOD_TABLE, METHODS
-from tui.commands import add_cluster_argument, count, eval_model, positive
+from tui.commands import add_cluster_argument, count, eval_gait, eval_model, positive
 
 HELP = "evaluate classifiers and fusion on score files or recordings"
 
@@ -156,10 +157,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p = verbs.add_parser("model", help=eval_model.HELP, description=eval_model.HELP)
     eval_model.add_arguments(p)
 
+    p = verbs.add_parser("gait", help=eval_gait.HELP, description=eval_gait.HELP)
+    eval_gait.add_arguments(p)
+
 
 def run(args, config) -> int:
     if args.eval_command == "model":
         return eval_model.run(args, config)
+    if args.eval_command == "gait":
+        return eval_gait.run(args, config)
 
     from dataclasses import replace
 

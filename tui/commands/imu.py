@@ -254,20 +254,32 @@ def _stream(args, config) -> int:
 
 
 def _stream_lines(imu, seconds: float | None, interval: float) -> None:
+    from inference.gait import GaitDetector
+
     end = time.monotonic() + seconds if seconds is not None else float("inf")
     next_line = time.monotonic() + interval
     last = None
+    gait = GaitDetector()  # the thigh's steps, if the IMU is worn on one
     while time.monotonic() < end:
         sample = imu.recv(0.05)
         last = sample or last
+        if sample is not None:
+            gait.push(sample)
         for event in imu.poll_events():
             print(f"! {event.kind}: {event.message}", flush=True)
         if time.monotonic() >= next_line:
             next_line += interval
-            print(_stream_line(last, imu.status()), flush=True)
+            print(_stream_line(last, imu.status(), gait), flush=True)
 
 
-def _stream_line(sample, status) -> str:
+def gait_text(gait) -> str:
+    """Steps counted (two a stride of the thigh) and the cadence, or "still"."""
+    cadence = gait.cadence_spm()
+    pace = f"{cadence:.0f}/min" if cadence is not None else "still"
+    return f"steps {2 * gait.heel_contacts} ({pace})"
+
+
+def _stream_line(sample, status, gait=None) -> str:
     from devices.imu.clock import drift_text
 
     d = status.details
@@ -277,6 +289,8 @@ def _stream_line(sample, status) -> str:
         f"drift {drift_text(d['drift_ppm'], d.get('drift_uncertainty_ppm'))}  "
         f"jitter {d['residual_ms']:.2f} ms"
     )
+    if gait is not None:
+        head += "  " + gait_text(gait)
     if sample is None:
         return head
     import numpy as np

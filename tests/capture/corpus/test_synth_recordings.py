@@ -132,3 +132,24 @@ def test_a_geometry_fusion_decides_offline_as_it_decided_live(tmp_path, method):
     assert (trial["ground_ahead"] >= 0).mean() > 0.5
     for k, posterior in posteriors.items():
         np.testing.assert_allclose(offline.posteriors[k], posterior, rtol=1e-9)
+
+
+def test_recordings_hold_the_walks_gait_and_the_detectors_and_eval_gait_judges_them(
+    synth_folder, capsys
+):
+    import json
+
+    from capture.recording.gait import read_gait
+
+    for f in sorted(synth_folder.glob("*.mcap")):
+        rec = open_recording(f)
+        truth, found = read_gait(rec, "simulator"), read_gait(rec, "imu")
+        assert len(truth.heel_contacts()) >= 2 and len(found.heel_contacts()) >= 2
+        frames = [m.publish_time_ns for m in rec.messages(["/camera/depth"])]
+        assert frames[0] <= truth.time_ns.min() and truth.time_ns.max() <= frames[-1]
+    assert cli.main(["eval", "gait", str(synth_folder), "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert set(report["groups"]) == {"indoor", "outdoor", "all"}
+    heel = report["groups"]["all"]["scores"]["heel_contact"]
+    assert heel["true"] >= 4 and heel["recall"] == 1.0 and heel["precision"] == 1.0
+    assert abs(heel["error_ms_median"]) < 20

@@ -23,7 +23,7 @@ from capture.recording import topics as T
 from capture.recording.reader import open_recording
 from capture.recording.sink import Sink
 from devices.base import DeviceEvent
-from devices.frames import ImuSample
+from devices.frames import GaitEvent, ImuSample
 from devices.simulator.synthetic import synthetic_frame
 from tests.waiting import wait_for
 
@@ -157,6 +157,8 @@ def test_foxglove_server_publishes_every_topic_with_the_recordings_schemas():
         fox.write_inference(3, t, t, np.full(5, 0.2), fused)
         fox.write_features(3, t, {"slope_deg": 0.5})
         fox.write_truth(3, t, frame.truth)
+        fox.write_gait(GaitEvent(t, "heel_contact", "imu"), t)
+        fox.write_gait(GaitEvent(t, "heel_contact", "simulator", "LG"))
         fox.write_imu(ImuSample(host_time_ns=t, time_ns=t, quaternion=np.array([1.0, 0, 0, 0])))
         fox.write_label(t, "LG", "operator")
         fox.write_event(DeviceEvent(t, "operator", "marker", "start"))
@@ -175,6 +177,7 @@ def test_foxglove_server_publishes_every_topic_with_the_recordings_schemas():
     assert decoded[T.LABELS]["mode"] == "LG"
     assert decoded[T.CNN]["frame_index"] == 3
     assert decoded[T.EVENTS]["message"] == "start"
+    assert decoded[T.SIM_GAIT]["mode"] == "LG"
 
 
 def test_the_shipped_layout_names_only_walkcaps_topics():

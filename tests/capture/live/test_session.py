@@ -405,3 +405,51 @@ def test_a_host_stall_is_one_event_that_names_the_host(tmp_path, monkeypatch):
     stalls = [e for e in session._events if e.kind == "stall"]
     assert [(e.device, round(e.details["gap_s"], 1)) for e in stalls] == [("host", 5.0)]
     assert "the computer stalled for 5.00 s" in stalls[0].message
+
+
+@pytest.mark.realtime
+def test_a_mock_trial_records_the_walks_gait_and_the_detectors(recorded):
+    from capture.corpus import export
+    from capture.recording.gait import read_gait
+    from inference.gait import match_events
+
+    path, _, snap, _ = recorded
+    rec = open_recording(path)
+    assert T.GAIT in rec.topics and T.SIM_GAIT in rec.topics
+    truth, found = read_gait(rec, source="simulator"), read_gait(rec, source="imu")
+    contacts = truth.heel_contacts()
+    assert len(contacts) >= 2 and set(contacts.mode) <= set(MODES)
+    assert set(found.mode) == {""}  # the detector does not know the terrain
+    # the walk's heel contacts are the detector's, within 60 ms (one at the file's start
+    # may have been detected before the recording began)
+    pairs = match_events(contacts.time_ns, found.heel_contacts().time_ns, 60_000_000)
+    assert len(pairs) >= len(contacts) - 1 and len(pairs) >= 1
+    assert all("gait" not in m.data for m in rec.messages([T.TRUTH]))  # on its own topic
+    assert snap.steps is not None and snap.steps >= 2
+    assert snap.cadence_spm is not None and 80 < snap.cadence_spm < 130
+    gait = export.tables(path)["gait"]
+    assert set(gait["source"]) == {"imu", "simulator"}
+    assert list(gait.columns[-6:]) == [
+        "time_ns",
+        "unix_time_ns",
+        "time_s",
+        "event",
+        "source",
+        "mode",
+    ]
+    assert gait["time_ns"].is_monotonic_increasing and (gait["time_s"] >= 0).all()
+
+
+@pytest.mark.realtime
+def test_replay_keeps_the_walks_gait_and_detects_the_same_steps(recorded, tmp_path):
+    from capture.recording.gait import read_gait
+
+    path, _, _, _ = recorded
+    report = replay(path, Config(), output=tmp_path / "gait.mcap", classifier=StandInClassifier())
+    assert read_gait(report.output, "simulator").events() == read_gait(path, "simulator").events()
+    live = read_gait(path, "imu").heel_contacts().time_ns
+    again = read_gait(report.output, "imu").heel_contacts().time_ns
+    # the same samples, the same detector: the same heel contacts, but for one the live
+    # detector placed from samples before the recording began
+    common = [t for t in again if np.min(np.abs(live - t)) <= 1_000]
+    assert len(again) >= 1 and len(common) >= len(again) - 1

@@ -18,7 +18,7 @@ from capture.recording.reader import open_recording
 from capture.recording.sink import Sink
 from capture.recording.writer import Recorder
 from devices.base import DeviceEvent
-from devices.frames import MODES, ImuSample
+from devices.frames import MODES, GaitEvent, ImuSample
 from devices.simulator.synthetic import synthetic_frame
 from tests.recording_fixtures import T0
 
@@ -95,6 +95,14 @@ CASES = {
         {"riser_m": 0.17, "tread_m": None, "frame_index": 4, "time_ns": T0},
     ),
     T.TRUTH: ((4, T0, {"mode": "LG"}), {"mode": "LG", "frame_index": 4, "time_ns": T0}),
+    T.GAIT: (
+        (GaitEvent(T0, "heel_contact", "imu"),),
+        {"time_ns": T0, "event": "heel_contact", "source": "imu", "mode": None},
+    ),
+    T.SIM_GAIT: (
+        (GaitEvent(T0, "toe_off", "simulator", "US"),),
+        {"time_ns": T0, "event": "toe_off", "source": "simulator", "mode": "US"},
+    ),
 }
 
 
@@ -160,6 +168,7 @@ WRITES = {
     "write_inference": (4, T0, T0, np.full(len(MODES), 0.2), _FUSED),
     "write_features": (4, T0, {"riser_m": 0.17}),
     "write_truth": (4, T0, {"mode": "LG"}),
+    "write_gait": (GaitEvent(T0, "heel_contact", "imu"), T0 + 5),
     "write_label": (T0, "LG", "operator"),
     "write_event": (DeviceEvent(T0, "operator", "marker", "start"),),
 }
