@@ -90,6 +90,33 @@ class BoundedBuffer(Generic[T]):
         return len(self._items)
 
 
+class Producer:
+    """A device's own thread (a daemon running `target`: a backend's producer, a reader, a
+    watchdog) and the event that halts it: started, halted and joined alike everywhere."""
+
+    def __init__(self, name: str, target) -> None:
+        self.name = name
+        self.target = target
+        self.halt = threading.Event()  # set: the producer returns at its next check
+        self.thread: threading.Thread | None = None
+
+    def start(self) -> None:
+        self.halt.clear()
+        self.thread = threading.Thread(target=self.target, name=self.name, daemon=True)
+        self.thread.start()
+
+    @property
+    def running(self) -> bool:
+        return self.thread is not None and self.thread.is_alive()
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        """Halt and join (unless called from the thread itself, which returns on its own)."""
+        self.halt.set()
+        if self.thread is not None and self.thread is not threading.current_thread():
+            self.thread.join(timeout=timeout_s)
+        self.thread = None
+
+
 class RateMeter:
     """Items per second over the last `window_s` seconds, by the times the items carry.
 

@@ -35,6 +35,7 @@ from devices.base import (
     DeviceEvent,
     DeviceState,
     DeviceStatus,
+    Producer,
     RateMeter,
     load_backend,
 )
@@ -121,8 +122,8 @@ class Camera:
         self._stalled = False
         self._watch_lock = threading.RLock()  # the watchdog's and the producer's transitions
         self._resume_pending: tuple[int, int] | None = None  # (frame time, last frame before)
-        self._watchdog: threading.Thread | None = None
-        self._watch_stop = threading.Event()
+        self._watchdog = Producer("walkcap-camera-watchdog", self._watchdog_run)
+        self._watch_stop = self._watchdog.halt
         self._next_reopen_ns = 0
         self._lost_at_ns = 0
         self._silence = SilenceWatch(HOST_STALL_NS)  # the watchdog's checks (see _check)
@@ -191,19 +192,12 @@ class Camera:
             self._running = False
             self._set_state(STOPPED, "failed to start")
             raise
-        self._watch_stop.clear()
         if self.watchdog:
-            self._watchdog = threading.Thread(
-                target=self._watchdog_run, name="walkcap-camera-watchdog", daemon=True
-            )
             self._watchdog.start()
 
     def stop(self) -> None:
         """Stop streaming; frames already buffered can still be received. Idempotent."""
-        self._watch_stop.set()
-        if self._watchdog is not None and self._watchdog is not threading.current_thread():
-            self._watchdog.join(timeout=5.0)
-        self._watchdog = None
+        self._watchdog.stop()
         if self._running:
             self._running = False
             with self._watch_lock:  # not while the watchdog reopens the device

@@ -182,13 +182,19 @@ def write_trial(
         t = frame_time(i)
         while pending and pending[0][0] <= t:
             rec.write_label(*pending.pop(0))
-        fused = {"frame_index": i, "decision": truth_mode(i), "posterior": probabilities(i)}
-        rec.write_inference(i, t, t + 1_000_000, probabilities(i), fused)
+        write_decision(rec, i)
     for change in pending:
         rec.write_label(*change)
     if close:
         rec.close()
     return rec
+
+
+def write_decision(rec: Recorder, index: int) -> None:
+    """Frame `index`'s CNN output (the truth mode at 0.8) and its fused decision, 1 ms on."""
+    t = frame_time(index)
+    fused = {"frame_index": index, "decision": truth_mode(index), "posterior": probabilities(index)}
+    rec.write_inference(index, t, t + 1_000_000, probabilities(index), fused)
 
 
 def disk_full_after(budget: int):

@@ -73,6 +73,18 @@ def timeline(now_ns: int = NOW_NS, seconds: float = 20.0) -> list[TimelineEntry]
     return entries
 
 
+def _running(rate_hz: float, measured_hz: float, delivered: int, **more) -> DeviceStatus:
+    """A mock device that runs as it should."""
+    return DeviceStatus(
+        "mock",
+        DeviceState.OK,
+        configured_rate_hz=rate_hz,
+        measured_rate_hz=measured_hz,
+        delivered=delivered,
+        **more,
+    )
+
+
 class FakeSession:
     def __init__(
         self,
@@ -99,22 +111,11 @@ class FakeSession:
         self.trial: SubjectInfo | None = None
         self.alarms = None
         self.recorder_state, self.recorder_message = RecorderState.RECORDING, ""
-        self.camera = DeviceStatus(
-            backend="mock",
-            state=DeviceState.OK,
-            configured_rate_hz=15.0,
-            measured_rate_hz=14.9,
-            delivered=4500,
-            dropped=0,
-            errors=0,
-        )
-        self.imu = DeviceStatus(
-            backend="mock",
-            state=DeviceState.OK,
-            configured_rate_hz=100.0,
-            measured_rate_hz=99.8,
-            delivered=30000,
-            dropped=0,
+        self.camera = _running(15.0, 14.9, 4500)
+        self.imu = _running(
+            100.0,
+            99.8,
+            30000,
             errors=2,
             details={"clock_offset_ms": 1.25, "drift_ppm": 48.0, "checksum_errors": 2},
         )

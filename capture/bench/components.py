@@ -14,6 +14,7 @@ import numpy as np
 import torch
 import zstandard
 
+from capture.bench.fuzz import SAMPLE_VALUES
 from capture.corpus.dataset import render_synth_session
 from capture.recording import topics as T
 from capture.recording.reader import open_recording
@@ -39,15 +40,7 @@ def bench_parse_rate(seconds: float = 2.0) -> float:
     Default outputs in float32 (a 73-byte frame), fed in 4 KiB chunks. CPU time, not wall
     time, so that other processes on a shared machine do not count against the parser.
     """
-    values = {
-        "packet_counter": 1,
-        "sample_time_fine": 123456,
-        "quaternion": (1.0, 0.0, 0.0, 0.0),
-        "acceleration": (0.1, 0.2, 9.8),
-        "rate_of_turn": (0.01, 0.02, 0.03),
-        "status_word": 3,
-    }
-    frame = build(MID.MTDATA2, encode_mtdata2(values))
+    frame = build(MID.MTDATA2, encode_mtdata2({**SAMPLE_VALUES, "packet_counter": 1}))
     per_chunk = max(1, 4096 // len(frame))
     chunk = frame * per_chunk
     parser = XbusParser()

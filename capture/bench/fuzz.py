@@ -17,7 +17,8 @@ from dataclasses import dataclass, field
 
 from devices import xbus
 
-_SENTINEL_VALUES = {
+# A sample of the default outputs, as a measuring MTi sends it (packet_counter set per message).
+SAMPLE_VALUES = {
     "packet_counter": 0,
     "sample_time_fine": 123456,
     "quaternion": (1.0, 0.0, 0.0, 0.0),
@@ -34,7 +35,7 @@ def _sentinel_tail(max_data: int) -> list[bytes]:
     total = 0
     k = 0
     while total < max_data + 8 + 200:
-        payload = xbus.encode_mtdata2({**_SENTINEL_VALUES, "packet_counter": k})
+        payload = xbus.encode_mtdata2({**SAMPLE_VALUES, "packet_counter": k})
         frame = xbus.build(xbus.MID.MTDATA2, payload)
         frames.append(frame)
         total += len(frame)

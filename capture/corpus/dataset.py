@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from capture.corpus import jobs
+from capture.corpus.selection import given_files
 from capture.errors import CaptureError
 from capture.recording import labels as L
 from capture.recording import topics as T
@@ -27,6 +28,7 @@ from devices.config import MountingConfig, SimulatorConfig
 from devices.frames import MODES
 from devices.orientation_error import OrientationError, OrientationErrorModel
 from devices.simulator import Simulator, make_course
+from devices.simulator.simulator import WALKER_KEYS
 from inference.config import PreprocessConfig
 from inference.dataset import LabeledSession, read_session, write_session
 from inference.errors import InferenceError
@@ -88,20 +90,11 @@ READERS: dict[str, Callable[[Path], LabeledSession]] = {
 
 def find_session_files(paths: list[str | os.PathLike]) -> list[Path]:
     """Files of sessions: the given files, and every known file in the given folders."""
-    files: list[Path] = []
-    for p in map(Path, paths):
-        if p.is_dir():
-            found = sorted(
-                f for f in p.rglob("*") if f.suffix.lower() in READERS and ".tmp" not in f.name
-            )
-            if not found:
-                raise InferenceError(f"no sessions (.npz or .mcap) in {p}")
-            files += found
-        elif p.exists():
-            files.append(p)
-        else:
-            raise InferenceError(f"no such file or folder: {p}")
-    return files
+    return given_files(paths, _is_session, "sessions (.npz or .mcap)", InferenceError)
+
+
+def _is_session(f: Path) -> bool:
+    return f.suffix.lower() in READERS and ".tmp" not in f.name
 
 
 def select_session_files(
@@ -160,14 +153,8 @@ def session_plan(count: int, preset: str, base_seed: int) -> list[tuple[str, int
 
 
 def _walker(rng: np.random.Generator, vary: bool, config) -> dict:
-    base = {
-        "speed_mps": config.speed_mps,
-        "cadence_spm": config.cadence_spm,
-        "camera_height_m": config.camera_height_m,
-        "camera_tilt_deg": config.camera_tilt_deg,
-    }
     if not vary:
-        return base
+        return {k: getattr(config, k) for k in WALKER_KEYS}
     # Subjects and mountings differ: speed, cadence, thigh length, strap angle.
     return {
         "speed_mps": float(rng.uniform(0.85, 1.35)),

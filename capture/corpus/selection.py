@@ -63,24 +63,36 @@ class Corpus:
         return lines
 
 
-def recording_files(paths: Iterable[str | os.PathLike]) -> list[Path]:
-    """The .mcap files given, and those in the given folders (and their subfolders)."""
+def given_files(
+    paths: Iterable[str | os.PathLike],
+    wanted: Callable[[Path], bool],
+    what: str,
+    error: type[Exception] = CaptureError,
+) -> list[Path]:
+    """The files given, and the `wanted` ones in the given folders (and their subfolders),
+    sorted within each folder; a folder without any (`what` names them) or a path that is
+    not there is an `error`."""
     out: list[Path] = []
     for p in map(Path, paths):
         if p.is_dir():
-            found = sorted(
-                f
-                for f in p.rglob("*.mcap")
-                if f.is_file() and not f.name.startswith(".")  # ".NAME.partial": in progress
-            )
+            found = sorted(f for f in p.rglob("*") if wanted(f))
             if not found:
-                raise CaptureError(f"{p}: no .mcap recordings in this folder")
+                raise error(f"{p}: no {what} in this folder")
             out += found
         elif p.exists():
             out.append(p)
         else:
-            raise CaptureError(f"{p}: no such file or folder")
-    return list(dict.fromkeys(out))
+            raise error(f"{p}: no such file or folder")
+    return out
+
+
+def _is_recording(f: Path) -> bool:
+    return f.suffix == ".mcap" and f.is_file() and not f.name.startswith(".")  # in progress
+
+
+def recording_files(paths: Iterable[str | os.PathLike]) -> list[Path]:
+    """The .mcap files given, and those in the given folders (and their subfolders)."""
+    return list(dict.fromkeys(given_files(paths, _is_recording, ".mcap recordings")))
 
 
 def select(

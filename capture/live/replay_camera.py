@@ -11,14 +11,13 @@ registry under the name "replay".
 from __future__ import annotations
 
 import logging
-import threading
 from pathlib import Path
 
 from capture.errors import CaptureError
 from capture.recording import topics as T
 from capture.recording.reader import depth_frames, imu_sample, open_recording
 from devices import clock
-from devices.base import OK
+from devices.base import OK, Producer
 from devices.camera import Camera
 from devices.clock import now_ns
 from devices.errors import DeviceNotAvailable
@@ -43,8 +42,8 @@ class ReplayCamera(Camera):
         self.speed = speed
         self.realtime = realtime
         self.loop = loop
-        self._halt = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._producer = Producer("walkcap-replay-camera", self._run)
+        self._halt = self._producer.halt
 
     @classmethod
     def from_config(cls, camera_config, simulator_config=None, **kw) -> ReplayCamera:
@@ -66,15 +65,10 @@ class ReplayCamera(Camera):
         self.details = {"recording": str(self.path), "speed": self.speed}
 
     def _start(self) -> None:
-        self._halt.clear()
-        self._thread = threading.Thread(target=self._run, name="walkcap-replay-camera", daemon=True)
-        self._thread.start()
+        self._producer.start()
 
     def _stop(self) -> None:
-        self._halt.set()
-        if self._thread is not None:
-            self._thread.join(timeout=5.0)
-            self._thread = None
+        self._producer.stop()
 
     def _run(self) -> None:
         try:

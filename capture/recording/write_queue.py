@@ -52,12 +52,25 @@ class QueuedImuSample(QueuedItem):
 
 
 @dataclass(slots=True)
-class QueuedProcessing(QueuedItem):
-    kind: ClassVar[str] = "processed"
-    derived: ClassVar[bool] = True
+class FrameItem(QueuedItem):
+    """An item about one depth frame: its index and time on the session clock."""
+
     index: int
     time_ns: int
+
+
+@dataclass(slots=True)
+class LoggedFrameItem(FrameItem):
+    """A frame's item that carries its own MCAP log time (when it was computed); the items
+    of the frame without one take it from these (ChunkWriter._log_time)."""
+
     log_time: int
+
+
+@dataclass(slots=True)
+class QueuedProcessing(LoggedFrameItem):
+    kind: ClassVar[str] = "processed"
+    derived: ClassVar[bool] = True
     cloud: np.ndarray
     image: np.ndarray
     quaternion: Any  # None: orientation unknown
@@ -65,30 +78,23 @@ class QueuedProcessing(QueuedItem):
 
 
 @dataclass(slots=True)
-class QueuedInference(QueuedItem):
+class QueuedInference(LoggedFrameItem):
     kind: ClassVar[str] = "inference"
     derived: ClassVar[bool] = True
-    index: int
-    time_ns: int
-    log_time: int
     probs: Any
     fused: dict | None
 
 
 @dataclass(slots=True)
-class QueuedFeatures(QueuedItem):
+class QueuedFeatures(FrameItem):
     kind: ClassVar[str] = "features"
     derived: ClassVar[bool] = True
-    index: int
-    time_ns: int
     features: dict
 
 
 @dataclass(slots=True)
-class QueuedTruth(QueuedItem):
+class QueuedTruth(FrameItem):
     kind: ClassVar[str] = "truth"
-    index: int
-    time_ns: int
     truth: dict
 
 
@@ -102,14 +108,11 @@ class QueuedGait(QueuedItem):
 
 
 @dataclass(slots=True)
-class QueuedEncodedFrame(QueuedItem):
+class QueuedEncodedFrame(LoggedFrameItem):
     """A frame's messages encoded in another process (replay's reader)."""
 
     kind: ClassVar[str] = "encoded"
     heavy: ClassVar[bool] = True
-    index: int
-    time_ns: int
-    log_time: int
     messages: list  # of capture.recording.encode.Encoded
 
 

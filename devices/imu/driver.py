@@ -17,12 +17,11 @@ names a rate or baud rate that fits.
 from __future__ import annotations
 
 import logging
-import threading
 from collections.abc import Callable
 from typing import Any
 
 from devices import clock, xbus
-from devices.base import DEGRADED, LOST, OK, STOPPED, DeviceStatus
+from devices.base import DEGRADED, LOST, OK, STOPPED, DeviceStatus, Producer
 from devices.clock import now_ns
 from devices.errors import DeviceError, DeviceInitError, DeviceNotAvailable
 from devices.imu import outputs
@@ -86,7 +85,8 @@ class XbusImu(Imu):
             )
         except (ValueError, KeyError) as e:
             raise DeviceInitError(f"IMU outputs: {e}") from None
-        self._stopping = threading.Event()
+        self._reader = Producer("walkcap-imu", self._run)
+        self._stopping = self._reader.halt
         self.link = XbusLink(
             port,
             baudrate,
@@ -110,7 +110,6 @@ class XbusImu(Imu):
         self.raw_sink = raw_sink
         self.configured_rate_hz = float(self.rate_hz)
         self.clock = DeviceClock()
-        self._thread: threading.Thread | None = None
         self._state = STOPPED
         self._message = "not started"
         self._last_sample_ns: int | None = None
@@ -293,23 +292,18 @@ class XbusImu(Imu):
 
     def start(self) -> None:
         """Start the reader thread (opens first if needed)."""
-        if self._thread is not None and self._thread.is_alive():
+        if self._reader.running:
             return
         self.open()
-        self._stopping.clear()
         self._state = OK
         self._message = f"streaming from {self.port}"
         self._last_sample_ns = None
         self._started_ns = now_ns()
-        self._thread = threading.Thread(target=self._run, name="walkcap-imu", daemon=True)
-        self._thread.start()
+        self._reader.start()
 
     def stop(self) -> None:
         """Stop the reader thread; the port stays open. Idempotent."""
-        self._stopping.set()
-        if self._thread is not None and self._thread is not threading.current_thread():
-            self._thread.join(timeout=5.0)
-        self._thread = None
+        self._reader.stop()
         self._state = STOPPED
         self._message = "stopped"
 

@@ -5,10 +5,8 @@ The mock exercises the same driver, pyserial and termios as a real MTi does.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import inspect
 from typing import Any
-
-import numpy as np
 
 from devices.errors import DeviceInitError
 from devices.imu.driver import XbusImu
@@ -19,38 +17,21 @@ class EmulatedImu(XbusImu):
 
     backend = "mock"
 
-    def __init__(
-        self,
-        rate_hz: int = 100,
-        drift_ppm: float = 0.0,
-        jitter_ms: float = 0.0,
-        seed: int = 0,
-        orientation_at: Callable[[float], np.ndarray] | None = None,
-        noise: bool = True,
-        baudrate: int = 115200,
-        model: str = "MTi-3",
-        settings_write_s: float | None = None,
-        **driver: Any,
-    ) -> None:
+    def __init__(self, rate_hz: int = 100, baudrate: int = 115200, **kw: Any) -> None:
+        """`kw`: the emulator's parameters (ImuEmulator: drift_ppm, jitter_ms, seed,
+        orientation_at, noise, model, settings_write_s, ...) and the driver's (XbusImu:
+        outputs, raw_sink, ...), each given to its owner by name."""
         from devices.imu.emulator import ImuEmulator
 
+        emulated = inspect.signature(ImuEmulator).parameters
+        emulator = {k: kw.pop(k) for k in list(kw) if k in emulated}
         try:
-            self.emulator = ImuEmulator(
-                rate_hz=rate_hz,
-                drift_ppm=drift_ppm,
-                jitter_ms=jitter_ms,
-                seed=seed,
-                orientation_at=orientation_at,
-                noise=noise,
-                baudrate=baudrate,
-                model=model,
-                settings_write_s=settings_write_s,
-            )
+            self.emulator = ImuEmulator(rate_hz=rate_hz, baudrate=baudrate, **emulator)
         except ValueError as e:
             raise DeviceInitError(str(e)) from None
         port = self.emulator.start()
         try:
-            super().__init__(port, baudrate, rate_hz, **driver)
+            super().__init__(port, baudrate, rate_hz, **kw)
         except BaseException:
             self.emulator.stop()
             raise

@@ -21,13 +21,13 @@ meanwhile) pace the frames: a test passes a fake pair and steps through time exa
 from __future__ import annotations
 
 import logging
-import threading
 import time
 from collections.abc import Callable
 
 import numpy as np
 
 from devices import clock
+from devices.base import Producer
 from devices.camera import Camera
 from devices.clock import now_ns
 from devices.frames import CameraGeometry
@@ -78,10 +78,10 @@ class MockCamera(Camera):
         self.stand = bool(getattr(simulator_config, "stand", False))
         self.realtime = True if realtime is None else realtime
         self.start_time_ns: int | None = None
-        self._halt = threading.Event()
+        self._producer = Producer("walkcap-mock-camera", self._run)
+        self._halt = self._producer.halt
         self._clock = clock
         self._sleep = sleep or self._halt.wait
-        self._thread: threading.Thread | None = None
         self._stall_until_ns = 0
         self._resume_k: int | None = None
         self._gait_walk_s: float | None = None  # walk time of the last frame's gait truth
@@ -125,31 +125,22 @@ class MockCamera(Camera):
         if self.start_time_ns is None:
             self.start_time_ns = self._clock()
             self._gait_walk_s = None  # a new walk
-        self._halt.clear()
-        self._thread = threading.Thread(target=self._run, name="walkcap-mock-camera", daemon=True)
-        self._thread.start()
+        self._producer.start()
 
     def _stop(self) -> None:
-        self._halt.set()
-        if self._thread is not None:
-            self._thread.join(timeout=5.0)
-            self._thread = None
+        self._producer.stop()
         self.start_time_ns = None  # a new start() begins a new walk
 
     def _restart(self) -> None:
         """The producer restarted where the walk is now (the walk goes on while silent)."""
-        self._halt.set()
-        if self._thread is not None:
-            self._thread.join(timeout=5.0)
+        self._producer.stop()
         if self.start_time_ns is None:
             self._start()
             return
         self._resume_k = max(
             0, int(clock.seconds(self._clock() - self.start_time_ns) * self.config.fps)
         )
-        self._halt.clear()
-        self._thread = threading.Thread(target=self._run, name="walkcap-mock-camera", daemon=True)
-        self._thread.start()
+        self._producer.start()
 
     def _run(self) -> None:
         try:

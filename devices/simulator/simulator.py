@@ -57,44 +57,34 @@ CELL_M, IMAGE_CELLS = 0.01, 100
 FILL_CELLS = 8  # gaps between a terrain's points it still covers (_covered)
 
 
+# The walker's parameters that a [simulator] section sets (devices.config.SimulatorConfig).
+WALKER_KEYS = ("speed_mps", "cadence_spm", "camera_height_m", "camera_tilt_deg")
+
+
 class Simulator:
     def __init__(
         self,
         course: Course,
         *,
         geometry: CameraGeometry = CameraGeometry(),
-        speed_mps: float = 1.1,
-        cadence_spm: float = 105.0,
-        camera_height_m: float = 0.55,
-        camera_tilt_deg: float = 35.0,
         seed: int = 0,
-        camera_offset_m: float = 0.07,
         error_rate: float | None = None,
-        events=None,
         cast_threads: int = 0,
         fps: float = 15.0,
+        **walker,
     ) -> None:
         """`fps`: the camera's frame rate, which picks its use case and so its depth noise;
-        `camera_offset_m`: the camera's distance in front of the thigh's axis;
-        `error_rate` scales the error images (default 1 indoors, 1.6 outdoors); `events`
-        (ErrorEvent list) replaces their random schedule, e.g. [] for none; `cast_threads`:
-        threads per ray cast (0: all cores)."""
+        `error_rate` scales the error images (default 1 indoors, 1.6 outdoors);
+        `cast_threads`: threads per ray cast (0: all cores); `walker`: the Walk's
+        parameters (speed_mps, cadence_spm, camera_height_m, camera_tilt_deg,
+        camera_forward_m: the camera's distance in front of the thigh's axis, events: an
+        ErrorEvent list that replaces the error images' random schedule, e.g. [] for none)."""
         if error_rate is None:
             error_rate = OUTDOOR_ERROR_RATE if course.outdoor else 1.0
         self.course = course
         self.geometry = geometry
         self.seed = seed
-        self.walk = Walk(
-            course,
-            speed_mps=speed_mps,
-            cadence_spm=cadence_spm,
-            camera_height_m=camera_height_m,
-            camera_tilt_deg=camera_tilt_deg,
-            camera_forward_m=camera_offset_m,
-            error_rate=error_rate,
-            seed=seed,
-            events=events,
-        )
+        self.walk = Walk(course, error_rate=error_rate, seed=seed, **walker)
         self.sensor = ToFSensor(geometry, ToFParams.for_course(course, fps), seed)
         self.scene = TerrainScene(course, self.sensor.rays_cam, cast_threads)
         x = np.arange(-1.0, course.length_m + 1.0, GRID_M)
@@ -115,13 +105,10 @@ class Simulator:
             return cls(
                 course,
                 geometry=geometry or CameraGeometry(),
-                speed_mps=config.speed_mps,
-                cadence_spm=config.cadence_spm,
-                camera_height_m=config.camera_height_m,
-                camera_tilt_deg=config.camera_tilt_deg,
                 seed=config.seed,
                 cast_threads=cast_threads,
                 fps=fps,
+                **{k: getattr(config, k) for k in WALKER_KEYS},
             )
         except ValueError as e:
             raise DeviceConfigError(f"simulator: {e}") from None

@@ -61,6 +61,11 @@ def _swig_property(i):
     return property(lambda self: self._row[i])
 
 
+def _swig_getter(column, kind):
+    """A %extend'ed per-index getter, getX(i) ...: point i's value in `column`."""
+    return lambda self, idx: kind(self._flat[idx, column])
+
+
 class LensParamMap:
     """SWIG's std::map<std::string, float> (%template(LensParamMap)): [], keys, items,
     asdict."""
@@ -109,23 +114,8 @@ class DepthData3:
     def getNumPoints(self):
         return len(self._flat)
 
-    def getX(self, idx):
-        return float(self._flat[idx, 0])
-
-    def getY(self, idx):
-        return float(self._flat[idx, 1])
-
-    def getZ(self, idx):
-        return float(self._flat[idx, 2])
-
-    def getNoise(self, idx):
-        return float(self._flat[idx, 3])
-
-    def getGrayValue(self, idx):
-        return int(self._flat[idx, 4])
-
-    def getDepthConfidence(self, idx):
-        return int(self._flat[idx, 5])
+    getX, getY, getZ, getNoise = (_swig_getter(i, float) for i in range(4))
+    getGrayValue, getDepthConfidence = _swig_getter(4, int), _swig_getter(5, int)
 
 
 class DepthData4(DepthData3):
@@ -158,20 +148,8 @@ class DepthData5:
             raise RuntimeError("Roypy was compiled without numpy support!")
         return self._points
 
-    def getX(self, idx):
-        return float(self._flat[idx, 0])
-
-    def getY(self, idx):
-        return float(self._flat[idx, 1])
-
-    def getZ(self, idx):
-        return float(self._flat[idx, 2])
-
-    def getGrayValue(self, idx):
-        return int(self._flat[idx, 3])
-
-    def getDepthConfidence(self, idx):
-        return int(self._flat[idx, 4])
+    getX, getY, getZ = (_swig_getter(i, float) for i in range(3))
+    getGrayValue, getDepthConfidence = _swig_getter(3, int), _swig_getter(4, int)
 
 
 class DepthData5NoNumpy(DepthData5):

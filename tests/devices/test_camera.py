@@ -257,8 +257,8 @@ def test_mock_sends_frame_k_at_k_periods_on_its_clock(short_sim):
         cam.start()
         # Bounded waits on the frames and on the producer's end, never on a wall-clock gap.
         frames = [cam.recv(60.0) for _ in range(7)]
-        cam._thread.join(60.0)
-        assert not cam._thread.is_alive() and cam.recv(0) is None
+        cam._producer.thread.join(60.0)
+        assert not cam._producer.thread.is_alive() and cam.recv(0) is None
     assert [f.index for f in frames] == list(range(7))
     assert [f.device_time_ns - clock.start for f in frames] == [k * 50_000_000 for k in range(7)]
     assert [f.host_time_ns for f in frames] == [f.device_time_ns for f in frames]  # when due
@@ -344,7 +344,7 @@ def test_a_frame_while_the_watchdog_reopens_never_waits_and_its_resume_is_kept()
     cam = ScriptedCamera(clock=clock)
     cam.start()
     cam._watch_stop.set()  # the test runs the checks
-    cam._watchdog.join(5)
+    cam._watchdog.thread.join(5)
     first = blank_frame(0)
     first.host_time_ns = first.device_time_ns = clock.t = 10**9
     cam._deliver(first)

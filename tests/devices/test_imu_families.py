@@ -12,48 +12,15 @@ import serial
 
 from devices import xbus
 from devices.errors import DeviceInitError
-from devices.imu import EmulatedImu, XbusImu
+from devices.imu import XbusImu
 from devices.imu import family as imu_family
 from devices.imu.emulator import ImuEmulator
 from devices.xbus import MID
+from tests.devices.imu_streams import collect, collect_n
 
 pytestmark = [pytest.mark.timeout(60), pytest.mark.realtime]
 
 PROFILES = ["MTi-1", "MTi-3", "MTi-630"]
-
-
-@pytest.fixture
-def mock_imu():
-    imus = []
-
-    def make(**kw):
-        kw.setdefault("jitter_ms", 0.0)
-        imu = EmulatedImu(**kw)
-        imus.append(imu)
-        return imu
-
-    yield make
-    for imu in imus:
-        imu.close()
-
-
-def collect(imu, seconds):
-    samples, deadline = [], time.monotonic() + seconds
-    while time.monotonic() < deadline:
-        s = imu.recv(0.05)
-        if s is not None:
-            samples.append(s)
-    return samples
-
-
-def collect_n(imu, n, timeout=120.0):
-    """n samples, waiting at most `timeout` s for them (a bound, never the measure)."""
-    samples, deadline = [], time.monotonic() + timeout
-    while len(samples) < n and time.monotonic() < deadline:
-        s = imu.recv(0.05)
-        if s is not None:
-            samples.append(s)
-    return samples
 
 
 class Line:
@@ -281,13 +248,18 @@ def test_timestamps_and_the_status_word_ride_along_and_0xffff_is_the_maximum_els
     assert all(set(p) == set(granted) for p in packets)  # every output in every packet
 
 
-def test_the_emulator_grants_the_rate_it_uses_in_the_ack():
-    with ImuEmulator(model="MTi-3") as emulator:
+def _configure(model: str, outputs: list[str], rate_hz: int):
+    """The reply of a fresh emulated `model` to one output configuration."""
+    with ImuEmulator(model=model) as emulator:
         line = Line(emulator)
         try:
-            ack = line.configure(xbus.output_settings(["packet_counter", "acceleration"], 125))
+            return line.configure(xbus.output_settings(outputs, rate_hz))
         finally:
             line.close()
+
+
+def test_the_emulator_grants_the_rate_it_uses_in_the_ack():
+    ack = _configure("MTi-3", ["packet_counter", "acceleration"], 125)
     assert ack.mid == MID.OUTPUT_CONFIGURATION
     assert {s.name: s.rate_hz for s in xbus.decode_output_configuration(ack.data)} == {
         "packet_counter": 0xFFFF,
@@ -296,12 +268,7 @@ def test_the_emulator_grants_the_rate_it_uses_in_the_ack():
 
 
 def test_an_imu_only_model_refuses_orientation_outputs():
-    with ImuEmulator(model="MTi-1") as emulator:
-        line = Line(emulator)
-        try:
-            reply = line.configure(xbus.output_settings(["packet_counter", "quaternion"], 100))
-        finally:
-            line.close()
+    reply = _configure("MTi-1", ["packet_counter", "quaternion"], 100)
     assert reply.mid == MID.ERROR and reply.data[0] == xbus.INVALID_PARAMETER
 
 

@@ -1,13 +1,42 @@
 """Helpers for driving the terminal UI in tests: the terminal size, the way to the live
 screen, what a screen or widget shows as text, and stand-ins for the classifier and clock."""
 
+import contextlib
+
 import numpy as np
 
+from capture.live.trials import SubjectInfo
 from tests.waiting import wait_for_app
 from tui.live_screen import LiveScreen
 from tui.session_screen import SessionScreen
 
 SIZE = (120, 40)
+# A subject with every field of the session form filled (an amputee: side and limb too).
+FILLED_SUBJECT = SubjectInfo(
+    subject="A01",
+    height_m=1.72,
+    weight_kg=70.0,
+    age=52,
+    sex="female",
+    amputee=True,
+    side="left",
+    residual_limb_cm=31.0,
+    condition="indoor",
+    trial=2,
+)
+
+
+@contextlib.asynccontextmanager
+async def live_app(config=None, **kw):
+    """The app on a FakeSession with its live screen open: (app, fake, pilot, live)."""
+    from capture.config import Config
+    from tests.tui_fake_session import FakeSession
+    from tui.app import WalkcapApp
+
+    fake = FakeSession()
+    app = WalkcapApp(config or Config(), session=fake, **kw)
+    async with app.run_test(size=SIZE) as pilot:
+        yield app, fake, pilot, await open_live(pilot)
 
 
 async def open_live(pilot):

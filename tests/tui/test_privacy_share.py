@@ -17,7 +17,11 @@ from capture.live.trials import TrialFile, trial_metadata
 from capture.recording import open_recording
 from capture.recording.messages import iter_raw
 from capture.recording.writer import Recorder
-from tests.recording_fixtures import frame_time, imu_sample, probabilities, truth_mode
+from tests.recording_fixtures import (
+    frame_time,
+    imu_sample,
+    write_decision,
+)
 from tests.tui.screens import SIZE
 from tests.tui_fake_session import FakeSession
 from tests.waiting import wait_for_app
@@ -41,9 +45,7 @@ def record(folder: Path, config: Config, info) -> Path:
         rec.write_imu(imu_sample(k))
     rec.write_label(frame_time(0), "LG", "operator")
     for i in range(10):
-        t = frame_time(i)
-        fused = {"frame_index": i, "decision": truth_mode(i), "posterior": probabilities(i)}
-        rec.write_inference(i, t, t + 1_000_000, probabilities(i), fused)
+        write_decision(rec, i)
     rec.write_event(
         {"time_ns": frame_time(3), "device": "operator", "kind": "marker", "message": NOTE}
     )

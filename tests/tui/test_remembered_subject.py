@@ -2,12 +2,13 @@
 body data; the trial is the next free one for that subject and condition; the operator is
 remembered across restarts."""
 
+import dataclasses
 import json
 
 from capture.config import Config
 from capture.live.trials import SubjectInfo
 from capture.recording.reader import open_recording
-from tests.tui.screens import SIZE
+from tests.tui.screens import FILLED_SUBJECT, SIZE
 from tests.tui_fake_session import FakeSession
 from tests.waiting import wait_for_app
 from tui import cli
@@ -18,17 +19,12 @@ from tui.commands.record import remembered_operator
 from tui.commands.tui import starting_form
 from tui.session_screen import SessionScreen, last_session_path, save_last_session
 
-S07 = SubjectInfo(
+S07 = dataclasses.replace(
+    FILLED_SUBJECT,
     subject="S07",
     condition="outdoor",
     trial=6,
     height_m=1.82,
-    weight_kg=81.0,
-    age=44,
-    sex="male",
-    amputee=True,
-    side="left",
-    residual_limb_cm=31.0,
     notes="socket refitted",
 )
 

@@ -8,7 +8,7 @@ from capture.config import Config
 from capture.live.trials import SubjectInfo
 from devices.base import DeviceEvent
 from devices.clock import now_ns
-from tests.tui.screens import SIZE, open_live, rendered, screen_text
+from tests.tui.screens import SIZE, live_app, open_live, rendered, screen_text
 from tests.tui_fake_session import FakeSession
 from tests.waiting import wait_for_app
 from tui.app import WalkcapApp
@@ -81,10 +81,7 @@ async def test_the_factory_builds_the_session_in_a_worker():
 
 
 async def test_label_keys_stamp_the_mode_at_once_and_undo_takes_it_back():
-    fake = FakeSession()
-    app = WalkcapApp(Config(), session=fake)
-    async with app.run_test(size=SIZE) as pilot:
-        await open_live(pilot)
+    async with live_app() as (app, fake, pilot, live):
         for key, mode in zip("12345", ("LG", "US", "DS", "UR", "DR")):
             pressed = now_ns()
             await pilot.press(key)
@@ -99,10 +96,7 @@ async def test_label_keys_stamp_the_mode_at_once_and_undo_takes_it_back():
 async def test_keys_come_from_the_configuration():
     config = Config()
     config.keys.mode_lg, config.keys.undo = "a", "z"
-    fake = FakeSession()
-    app = WalkcapApp(config, session=fake)
-    async with app.run_test(size=SIZE) as pilot:
-        await open_live(pilot)
+    async with live_app(config) as (app, fake, pilot, live):
         await pilot.press("1")
         assert fake.labels == []
         await pilot.press("a")
@@ -114,10 +108,7 @@ async def test_keys_come_from_the_configuration():
 
 
 async def test_marker_with_a_note_and_cancelled():
-    fake = FakeSession()
-    app = WalkcapApp(Config(), session=fake)
-    async with app.run_test(size=SIZE) as pilot:
-        await open_live(pilot)
+    async with live_app() as (app, fake, pilot, live):
         pressed = now_ns()
         await pilot.press("m")
         assert isinstance(app.screen, MarkerDialog)
@@ -135,10 +126,7 @@ async def test_marker_with_a_note_and_cancelled():
 
 async def test_record_key_starts_and_stops_a_trial_and_the_trial_advances():
     save_last_session(SubjectInfo(subject="S02", trial=1))
-    fake = FakeSession()
-    app = WalkcapApp(Config(), session=fake)
-    async with app.run_test(size=SIZE) as pilot:
-        live = await open_live(pilot)
+    async with live_app() as (app, fake, pilot, live):
         await pilot.press("r")
         await wait_for_app(pilot, lambda: app.recording_path is not None)
         assert fake.recording and fake.recordings_started[0].subject == "S02"
@@ -178,10 +166,7 @@ async def test_a_remote_root_is_the_remote_trials_folder_only():
 
 
 async def test_session_form_from_the_live_screen():
-    fake = FakeSession()
-    app = WalkcapApp(Config(), session=fake)
-    async with app.run_test(size=SIZE) as pilot:
-        await open_live(pilot)
+    async with live_app() as (app, fake, pilot, live):
         await pilot.press("s")
         assert isinstance(app.screen, SessionScreen)
         app.screen.query_one("#f-trial").value = "9"
@@ -195,10 +180,7 @@ async def test_session_form_from_the_live_screen():
 
 
 async def test_freeze_stops_the_refresh_but_not_the_labels():
-    fake = FakeSession()
-    app = WalkcapApp(Config(), session=fake)
-    async with app.run_test(size=SIZE) as pilot:
-        live = await open_live(pilot)
+    async with live_app() as (app, fake, pilot, live):
         await pilot.press("space")
         await pilot.pause()
         assert live.frozen and "FROZEN" in screen_text(app)
@@ -238,10 +220,7 @@ async def test_the_view_pulls_one_snapshot_per_tick_of_a_20_hz_timer(monkeypatch
 
 
 async def test_help_lists_the_keys():
-    fake = FakeSession()
-    app = WalkcapApp(Config(), session=fake)
-    async with app.run_test(size=SIZE) as pilot:
-        await open_live(pilot)
+    async with live_app() as (app, fake, pilot, live):
         await pilot.press("question_mark")
         assert isinstance(app.screen, HelpScreen)
         await pilot.pause()
@@ -254,20 +233,14 @@ async def test_help_lists_the_keys():
 
 
 async def test_quit_when_not_recording_stops_the_session():
-    fake = FakeSession()
-    app = WalkcapApp(Config(), session=fake)
-    async with app.run_test(size=SIZE) as pilot:
-        await open_live(pilot)
+    async with live_app() as (app, fake, pilot, live):
         await pilot.press("q")
         await wait_for_app(pilot, lambda: fake.stopped == 1)
     assert app.return_code == 0
 
 
 async def test_quit_while_recording_asks_and_a_yes_finalises_the_file():
-    fake = FakeSession()
-    app = WalkcapApp(Config(), session=fake)
-    async with app.run_test(size=SIZE) as pilot:
-        await open_live(pilot)
+    async with live_app() as (app, fake, pilot, live):
         await pilot.press("r")
         await wait_for_app(pilot, lambda: fake.recording)
         await pilot.press("q")
@@ -283,10 +256,7 @@ async def test_quit_while_recording_asks_and_a_yes_finalises_the_file():
 
 
 async def test_a_device_fault_shows_at_once_and_the_rest_goes_on():
-    fake = FakeSession()
-    app = WalkcapApp(Config(), session=fake)
-    async with app.run_test(size=SIZE) as pilot:
-        live = await open_live(pilot)
+    async with live_app() as (app, fake, pilot, live):
         await pilot.press("r")
         await wait_for_app(pilot, lambda: fake.recording)
         fake.imu.state, fake.imu.message = "lost", "no data for 0.5 s (unplugged?)"

@@ -397,19 +397,24 @@ def test_check_stream_and_panel_say_the_drift_with_its_uncertainty():
         "checksum_errors": 0,
         "missing_packets": 0,
     }
-    status = DeviceStatus(
-        backend="mock",
-        state="ok",
-        configured_rate_hz=100.0,
-        measured_rate_hz=100.0,
-        details=details,
-    )
+    status = _imu_at_100_hz(details)
     assert "clock drift +48 ± 12 ppm" in preflight.device_item("imu", status).summary
     assert "drift +48 ± 12 ppm" in _stream_line(None, status)
     assert ("drift", "+48 ± 12 ppm", "") in device_rows("imu", status)
     details["drift_uncertainty_ppm"] = None  # the first 2 s: held at zero, and said so
     assert "drift not fitted yet" in _stream_line(None, status)
     assert "clock drift not fitted yet" in preflight.device_item("imu", status).summary
+
+
+def _imu_at_100_hz(details: dict) -> DeviceStatus:
+    """A mock IMU streaming at its configured 100 Hz, with `details`."""
+    return DeviceStatus(
+        backend="mock",
+        state="ok",
+        configured_rate_hz=100.0,
+        measured_rate_hz=100.0,
+        details=details,
+    )
 
 
 def _logging_state() -> dict:
@@ -430,13 +435,7 @@ def test_the_stream_and_the_live_screen_show_the_thighs_steps_and_cadence():
     from tui.live_screen import pipeline_rows
 
     details = {"drift_ppm": 0.0, "residual_ms": 0.5, "checksum_errors": 0, "missing_packets": 0}
-    status = DeviceStatus(
-        backend="mock",
-        state="ok",
-        configured_rate_hz=100.0,
-        measured_rate_hz=100.0,
-        details=details,
-    )
+    status = _imu_at_100_hz(details)
     from inference.gait import GaitDetector
 
     gait = GaitDetector()

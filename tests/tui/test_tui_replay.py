@@ -14,6 +14,7 @@ from capture.recording.writer import Recorder
 from devices.base import DeviceEvent
 from devices.frames import MODES
 from tests.tui.screens import FakeClock
+from tests.waiting import wait_for_app
 from tui.app import WalkcapApp
 from tui.live_screen import LiveScreen
 from tui.replay import ReplaySource, corrected_path, write_corrected
@@ -138,10 +139,7 @@ async def test_replay_in_the_live_screen(recording):
     source = ReplaySource(recording, clock=FakeClock())
     app = WalkcapApp(Config(), session=source, ask_subject=False, start_status="loading…")
     async with app.run_test(size=(120, 40)) as pilot:
-        for _ in range(3000):  # a bound, not a measure: a loaded machine may take seconds
-            if app.ready:
-                break
-            await pilot.pause(0.02)
+        await wait_for_app(pilot, lambda: app.ready, 60.0)
         live = app.screen
         assert isinstance(live, LiveScreen) and app.subject.subject == "S05"
         await pilot.press("p")
@@ -165,16 +163,12 @@ async def test_replay_in_the_live_screen(recording):
         assert isinstance(app.screen, QuitDialog)
         await pilot.press("n")
         await pilot.press("w")
-        for _ in range(3000):
-            if source.saved_path is not None and not source.unsaved:
-                break
-            await pilot.pause(0.02)
+        await wait_for_app(
+            pilot, lambda: source.saved_path is not None and not source.unsaved, 60.0
+        )  # a bound, not a measure
         assert source.saved_path.exists()
         await pilot.press("q")
-        for _ in range(3000):
-            if not app.is_running:
-                break
-            await pilot.pause(0.02)
+        await wait_for_app(pilot, lambda: not app.is_running, 60.0)
     assert digest(recording) == before
     assert (read_trial(source.saved_path).frames.labels == 1).sum() == N - 30
 
@@ -209,10 +203,7 @@ async def test_each_replay_correction_shows_at_once_and_notices_fit(recording, w
     source = ReplaySource(recording, clock=FakeClock(), play=False)
     app = WalkcapApp(Config(), session=source, ask_subject=False, start_status="loading…")
     async with app.run_test(size=(width, 40)) as pilot:
-        for _ in range(3000):  # a bound, not a measure
-            if app.ready:
-                break
-            await pilot.pause(0.02)
+        await wait_for_app(pilot, lambda: app.ready, 60.0)
         live = app.screen
         source.seek(2.03)  # between frames 30 and 31, paused: nothing moves on its own
         live.refresh_view()
@@ -231,10 +222,9 @@ async def test_each_replay_correction_shows_at_once_and_notices_fit(recording, w
         assert strips._entries[-1].label == "LG" and "taken back" in notices.render().plain
         await pilot.press("2")
         await pilot.press("w")
-        for _ in range(3000):
-            if source.saved_path is not None and not source.unsaved:
-                break
-            await pilot.pause(0.02)
+        await wait_for_app(
+            pilot, lambda: source.saved_path is not None and not source.unsaved, 60.0
+        )  # a bound, not a measure
         await pilot.pause()
         shown = notices.render().plain
         assert source.saved_path.name in shown and "…" not in shown, shown

@@ -6,6 +6,7 @@ from textual.widgets import Input
 
 from capture.config import Config
 from capture.live.trials import SubjectInfo
+from tests.tui.screens import FILLED_SUBJECT
 from tests.tui_fake_session import FakeSession
 from tui.app import WalkcapApp
 from tui.live_screen import LiveScreen
@@ -32,21 +33,22 @@ async def _no_blink(pilot) -> None:
     await pilot.pause()
 
 
-def test_session_form(snap_compare):
-    save_last_session(
-        SubjectInfo(
-            subject="A01",
-            height_m=1.72,
-            weight_kg=70.0,
-            age=52,
-            sex="female",
-            amputee=True,
-            side="left",
-            residual_limb_cm=31.0,
-            condition="indoor",
-            trial=2,
-        )
+def _recording_app() -> WalkcapApp:
+    """The app of a session that records trial 4 of S03."""
+    fake = FakeSession()
+    fake.start_recording(SubjectInfo(subject="S03", trial=4))
+    return WalkcapApp(
+        Config(), session=fake, subject=SubjectInfo(subject="S03", trial=4), ask_subject=False
     )
+
+
+def _help_matches(snap_compare, size) -> bool:
+    app = WalkcapApp(Config(), session=FakeSession(), ask_subject=False)
+    return snap_compare(app, terminal_size=size, run_before=_until_live, press=["question_mark"])
+
+
+def test_session_form(snap_compare):
+    save_last_session(FILLED_SUBJECT)
     app = WalkcapApp(Config(), session=FakeSession())
     assert snap_compare(app, terminal_size=(120, 40), run_before=_no_blink)
 
@@ -62,32 +64,18 @@ def test_live_screen_small_terminal(snap_compare):
 
 
 def test_live_screen_recording_wide_terminal(snap_compare):
-    fake = FakeSession()
-    fake.start_recording(SubjectInfo(subject="S03", trial=4))
-    app = WalkcapApp(
-        Config(), session=fake, subject=SubjectInfo(subject="S03", trial=4), ask_subject=False
-    )
+    app = _recording_app()
     assert snap_compare(app, terminal_size=(160, 45), run_before=_until_live)
 
 
 def test_help_screen(snap_compare):
-    app = WalkcapApp(Config(), session=FakeSession(), ask_subject=False)
-    assert snap_compare(
-        app, terminal_size=(120, 40), run_before=_until_live, press=["question_mark"]
-    )
+    assert _help_matches(snap_compare, (120, 40))
 
 
 def test_live_screen_recording_80x24(snap_compare):
-    fake = FakeSession()
-    fake.start_recording(SubjectInfo(subject="S03", trial=4))
-    app = WalkcapApp(
-        Config(), session=fake, subject=SubjectInfo(subject="S03", trial=4), ask_subject=False
-    )
+    app = _recording_app()
     assert snap_compare(app, terminal_size=(80, 24), run_before=_until_live)
 
 
 def test_help_screen_80x24(snap_compare):
-    app = WalkcapApp(Config(), session=FakeSession(), ask_subject=False)
-    assert snap_compare(
-        app, terminal_size=(80, 24), run_before=_until_live, press=["question_mark"]
-    )
+    assert _help_matches(snap_compare, (80, 24))

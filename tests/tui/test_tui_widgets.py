@@ -9,6 +9,7 @@ from capture.config import Config
 from capture.errors import CaptureError
 from capture.live.timeline import TimelineEntry
 from capture.live.trials import SubjectInfo
+from tests.tui.screens import FILLED_SUBJECT
 from tui.app import keymap
 from tui.session_screen import (
     form_values,
@@ -140,18 +141,7 @@ def test_keymap_follows_config_keys():
 
 
 def test_form_round_trip_and_validation():
-    info = SubjectInfo(
-        subject="A02",
-        height_m=1.78,
-        weight_kg=81.5,
-        age=41,
-        sex="male",
-        amputee=True,
-        side="left",
-        residual_limb_cm=28.0,
-        condition="outdoor",
-        trial=3,
-    )
+    info = FILLED_SUBJECT
     assert info_from_form(form_values(info)) == info
     values = form_values(info)
     with pytest.raises(CaptureError, match="height"):

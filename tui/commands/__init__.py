@@ -70,48 +70,50 @@ seconds = positive("seconds")
 _KINDS = {float: "a number", int: "an integer", str: "text"}
 
 
-def config_value(dotted: str, parse=float):
-    """An argparse type: a value for the configuration key `dotted` ("camera.fps"), held to
-    the configuration's own type and range check; out of range, a one-line usage error."""
+def _held_to(check, parse):
+    """An argparse type: the text parsed, then held to `check(value)`; a WalkcapError it
+    raises is a one-line usage error."""
 
-    def check(text: str):
-        from capture.config import Config, override
-        from capture.errors import ConfigError
+    def value_of(text: str):
+        from devices.errors import WalkcapError
 
         try:
             value = parse(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"expected {_KINDS[parse]}, got {text!r}") from None
         try:
-            override(Config(), dotted, value)
-        except ConfigError as e:
+            check(value)
+        except WalkcapError as e:
             raise argparse.ArgumentTypeError(str(e)) from None
         return value
 
-    return check
+    return value_of
+
+
+def config_value(dotted: str, parse=float):
+    """An argparse type: a value for the configuration key `dotted` ("camera.fps"), held to
+    the configuration's own type and range check; out of range, a one-line usage error."""
+
+    def check(value) -> None:
+        from capture.config import Config, override
+
+        override(Config(), dotted, value)
+
+    return _held_to(check, parse)
 
 
 def subject_value(field: str, parse=str):
     """An argparse type: a value of the session form's `field`, held to the form's own check
     (capture.live.trials.SubjectInfo.validate); out of range, a one-line usage error."""
 
-    def check(text: str):
+    def check(value) -> None:
         import dataclasses
 
-        from capture.errors import CaptureError
         from capture.live.trials import SubjectInfo
 
-        try:
-            value = parse(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected {_KINDS[parse]}, got {text!r}") from None
-        try:
-            dataclasses.replace(SubjectInfo(), **{field: value}).validate()
-        except CaptureError as e:
-            raise argparse.ArgumentTypeError(str(e)) from None
-        return value
+        dataclasses.replace(SubjectInfo(), **{field: value}).validate()
 
-    return check
+    return _held_to(check, parse)
 
 
 def folder(text: str) -> str:
@@ -142,6 +144,21 @@ def finish_recording(command: str, stats, path) -> int:
         return 1
     print(path)
     return 0
+
+
+def add_recordings_argument(parser, help: str = "recordings, or folders of them") -> None:
+    """The recordings a corpus command reads: files, and folders searched for them."""
+    parser.add_argument("files", nargs="+", metavar="FILE|DIR", help=help)
+
+
+def add_preset_argument(parser) -> None:
+    """The course preset of simulated sessions (`synth`, `eval-model`)."""
+    parser.add_argument(
+        "--preset",
+        choices=("indoor", "outdoor", "both"),
+        default="both",
+        help="course preset of the sessions; both alternates indoor and outdoor (default: both)",
+    )
 
 
 def add_device_arguments(parser) -> None:
@@ -199,21 +216,12 @@ def add_session_arguments(parser) -> None:
         "recordings folder); `record` refuses one that exists unless --overwrite, the UI "
         "moves on to the next free number and says so",
     )
-    g.add_argument(
-        "--height",
-        type=subject_value("height_m", float),
-        metavar="M",
-        dest="height_m",
-        help="height in metres",
-    )
-    g.add_argument(
-        "--weight",
-        type=subject_value("weight_kg", float),
-        metavar="KG",
-        dest="weight_kg",
-        help="weight in kg",
-    )
-    g.add_argument("--age", type=subject_value("age", int), help="age in years")
+    for flag, name, parse, metavar, what in (
+        ("--height", "height_m", float, "M", "height in metres"),
+        ("--weight", "weight_kg", float, "KG", "weight in kg"),
+        ("--age", "age", int, None, "age in years"),
+    ):
+        g.add_argument(flag, type=subject_value(name, parse), metavar=metavar, dest=name, help=what)
     g.add_argument("--sex", choices=("female", "male", "other"), help="(default: not given)")
     g.add_argument("--amputee", action="store_true", default=None, help="the subject is an amputee")
     g.add_argument(

@@ -72,11 +72,16 @@ def run(args, config) -> int:
         f"Python {machine['python']}, torch {machine['torch']}, load {machine['load_avg_1min']}"
     )
     print(f"{'benchmark':32} {'value':>12} {'unit':10} {'goal':>12}  ")
+    _print_results(results)
+    return 0
+
+
+def _print_results(results) -> None:
+    """One line a result: its value against its goal, and whether the goal is met."""
     for r in results:
         goal = "" if r.goal is None else ("<= " if r.better == "lower" else ">= ") + f"{r.goal:g}"
         mark = {True: "ok", False: "MISSED", None: ""}[r.met]
         print(f"{r.name:32} {r.value:12.4g} {r.unit:10} {goal:>12}  {mark} {r.note}")
-    return 0
 
 
 def _replay(files: list[str], as_json: bool, say) -> int:
@@ -108,10 +113,7 @@ def _replay(files: list[str], as_json: bool, say) -> int:
         print(json.dumps({"machine": m, "results": [r.to_dict() for r in results]}, indent=2))
         return 0
     print(f"machine: {m['cpu']}, {m['cores']} cores, load {m['load_avg_1min']}")
-    for r in results:
-        goal = "" if r.goal is None else ("<= " if r.better == "lower" else ">= ") + f"{r.goal:g}"
-        mark = {True: "ok", False: "MISSED", None: ""}[r.met]
-        print(f"{r.name:32} {r.value:12.4g} {r.unit:10} {goal:>12}  {mark} {r.note}")
+    _print_results(results)
     return 0
 
 

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import json
 
-from tui.commands import count
+from tui.commands import add_preset_argument, count
 
 HELP = "the CNN's per-frame accuracy on unseen synthetic sessions"
 UNSEEN_SEED = 100_000  # synthetic training sets use small seeds
@@ -49,12 +49,7 @@ def add_arguments(parser) -> None:
         metavar="N",
         help="fresh synthetic sessions to render (default 4)",
     )
-    parser.add_argument(
-        "--preset",
-        choices=("indoor", "outdoor", "both"),
-        default="both",
-        help="course preset of the sessions; both alternates (default: both)",
-    )
+    add_preset_argument(parser)
     parser.add_argument(
         "--seed",
         type=int,

@@ -15,15 +15,13 @@ from __future__ import annotations
 import sys
 
 from capture.errors import CaptureError
-from tui.commands import add_cluster_argument
+from tui.commands import add_cluster_argument, add_recordings_argument
 
 HELP = "recordings as tables for analysis (Parquet, CSV, MATLAB .mat) or a BIDS dataset"
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument(
-        "files", nargs="+", metavar="FILE|DIR", help="recordings, or folders of them"
-    )
+    add_recordings_argument(parser)
     parser.add_argument(
         "--format",
         choices=("parquet", "csv", "mat", "bids"),

@@ -6,14 +6,13 @@ import datetime as dt
 import json
 
 from devices import clock
+from tui.commands import add_recordings_argument
 
 HELP = "describe a recording: topics, counts, rates, gaps, metadata"
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument(
-        "files", nargs="+", metavar="FILE|DIR", help="MCAP recording(s), or folders of them"
-    )
+    add_recordings_argument(parser, "MCAP recording(s), or folders of them")
     parser.add_argument(
         "--json",
         action="store_true",

@@ -13,39 +13,36 @@ from __future__ import annotations
 
 import sys
 
+from tui.commands import add_recordings_argument
+
 HELP = "copies of recordings to share: notes, operator, marker text, body data and dates reduced"
 
 
+_TEXT = ("drop", "replace", "keep")
+_FIELD = ("keep", "drop")
+# The ShareRules fields a flag of the same name sets: (name, choices, what it covers).
+_RULES = (
+    ("notes", _TEXT, "the form's Notes"),
+    ("operator", _TEXT, "the operator"),
+    ("markers", _TEXT, "a marker's typed note"),
+    ("body", ("keep", "coarsen", "drop"), "age, height, weight, residual limb"),
+    ("sex", _FIELD, "sex"),
+    ("amputation", _FIELD, "amputee and side"),
+    (
+        "dates",
+        ("subject", "study", "keep"),
+        "one date offset per subject, one per study, or the real dates",
+    ),
+)
+
+
 def add_arguments(parser) -> None:
-    parser.add_argument(
-        "files", nargs="+", metavar="FILE|DIR", help="recordings, or folders of them"
-    )
+    add_recordings_argument(parser)
     parser.add_argument(
         "-o", "--out", metavar="DIR", required=True, help="folder the shared copies go into"
     )
-    text = ("drop", "replace", "keep")
-    parser.add_argument("--notes", choices=text, help="the form's Notes (default: [share] notes)")
-    parser.add_argument("--operator", choices=text, help="the operator (default: [share] operator)")
-    parser.add_argument(
-        "--markers", choices=text, help="a marker's typed note (default: [share] markers)"
-    )
-    parser.add_argument(
-        "--body",
-        choices=("keep", "coarsen", "drop"),
-        help="age, height, weight, residual limb (default: [share] body)",
-    )
-    parser.add_argument("--sex", choices=("keep", "drop"), help="default: [share] sex")
-    parser.add_argument(
-        "--amputation",
-        choices=("keep", "drop"),
-        help="amputee and side (default: [share] amputation)",
-    )
-    parser.add_argument(
-        "--dates",
-        choices=("subject", "study", "keep"),
-        help="one date offset per subject, one per study, or the real dates (default: "
-        "[share] dates)",
-    )
+    for name, choices, what in _RULES:
+        parser.add_argument(f"--{name}", choices=choices, help=f"{what} (default: [share] {name})")
     parser.add_argument(
         "--shift-days",
         type=int,
@@ -78,13 +75,7 @@ def rules_from(args, config):
             raise CaptureError(f"--secret-file {args.secret_file}: the file is empty")
     rules = ShareRules.from_config(
         section,
-        notes=args.notes,
-        operator=args.operator,
-        markers=args.markers,
-        body=args.body,
-        sex=args.sex,
-        amputation=args.amputation,
-        dates=args.dates,
+        **{name: getattr(args, name) for name, *_ in _RULES},
         secret=secret,
         shift_days=args.shift_days,
     )

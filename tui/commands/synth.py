@@ -13,7 +13,7 @@ metadata) for `walkcap train`. Session i uses seed S + i; "both" alternates pres
 
 from __future__ import annotations
 
-from tui.commands import add_cluster_argument, count, positive, seed_max
+from tui.commands import add_cluster_argument, add_preset_argument, count, positive, seed_max
 
 HELP = "write simulated sessions (training sets and recordings)"
 _positive = count(1)
@@ -24,12 +24,7 @@ def add_arguments(parser) -> None:
     parser.add_argument(
         "--sessions", type=_positive, default=1, metavar="N", help="number of sessions (default 1)"
     )
-    parser.add_argument(
-        "--preset",
-        choices=("indoor", "outdoor", "both"),
-        default="both",
-        help="course preset; both alternates indoor and outdoor (default)",
-    )
+    add_preset_argument(parser)
     parser.add_argument(
         "--seed",
         type=count(0, lambda: seed_max() - 100_000),

@@ -18,6 +18,48 @@ from tui.commands import count
 
 HELP = "train the terrain classifier"
 
+# The flags that set the TrainSettings field of their name: (flag, type, metavar, help).
+# The default is the field's; "{}" in the help shows it.
+_SETTINGS = (
+    ("--epochs", count(1), "N", "at most N epochs (default {})"),
+    ("--batch-size", count(1), "N", "images per training step (default {})"),
+    ("--lr", float, None, "learning rate (default {})"),
+    ("--patience", count(1), "N", "stop after N epochs without progress (default {})"),
+    ("--seed", int, "S", "seed of the split, sampling, augmentation and initialisation"),
+    ("--hidden", count(1), "N", "width of the hidden fully connected layer (default {})"),
+    (
+        "--samples-per-epoch",
+        count(1),
+        "N",
+        "frames drawn per epoch (default: the training set's size)",
+    ),
+    ("--max-steps", count(1), "N", "stop after N optimiser steps (quick checks)"),
+    ("--threads", count(1), "N", "CPU threads for torch (default: torch's choice)"),
+    (
+        "--val-fraction",
+        float,
+        "F",
+        "share of the sessions held out for early stopping, whole sessions (default {})",
+    ),
+    (
+        "--test-fraction",
+        float,
+        "F",
+        "share of the sessions held out for the final test, unseen in training (default {})",
+    ),
+    (
+        "--balance-power",
+        float,
+        "P",
+        "sample frames with weight class_frequency**-P: "
+        "1 balances fully, 0 not at all (default {})",
+    ),
+)
+
+
+def _field(flag: str) -> str:
+    return flag[2:].replace("-", "_")
+
 
 def add_arguments(parser) -> None:
     # plain values, no torch: every walkcap command builds this parser
@@ -40,61 +82,16 @@ def add_arguments(parser) -> None:
         help="weights file to write; metadata goes to PATH with .json "
         "(default runs/terrain_cnn.pt)",
     )
-    parser.add_argument(
-        "--epochs",
-        type=count(1),
-        default=d.epochs,
-        metavar="N",
-        help=f"at most N epochs (default {d.epochs})",
-    )
-    parser.add_argument(
-        "--batch-size",
-        type=count(1),
-        default=d.batch_size,
-        metavar="N",
-        help=f"images per training step (default {d.batch_size})",
-    )
-    parser.add_argument("--lr", type=float, default=d.lr, help=f"learning rate (default {d.lr})")
-    parser.add_argument(
-        "--patience",
-        type=count(1),
-        default=d.patience,
-        metavar="N",
-        help=f"stop after N epochs without progress (default {d.patience})",
-    )
-    parser.add_argument(
-        "--seed",
-        type=int,
-        default=d.seed,
-        metavar="S",
-        help="seed of the split, sampling, augmentation and initialisation",
-    )
-    parser.add_argument(
-        "--hidden",
-        type=count(1),
-        default=d.hidden,
-        metavar="N",
-        help=f"width of the hidden fully connected layer (default {d.hidden})",
-    )
+    for flag, kind, metavar, text in _SETTINGS:
+        default = getattr(d, _field(flag))
+        parser.add_argument(
+            flag, type=kind, default=default, metavar=metavar, help=text.format(default)
+        )
     parser.add_argument(
         "--device",
         choices=("auto", "cpu", "cuda"),
         default=None,
         help="default: [model] device (auto: the GPU when there is one)",
-    )
-    parser.add_argument(
-        "--samples-per-epoch",
-        type=count(1),
-        default=None,
-        metavar="N",
-        help="frames drawn per epoch (default: the training set's size)",
-    )
-    parser.add_argument(
-        "--max-steps",
-        type=count(1),
-        default=None,
-        metavar="N",
-        help="stop after N optimiser steps (quick checks)",
     )
     parser.add_argument(
         "--max-minutes",
@@ -104,40 +101,9 @@ def add_arguments(parser) -> None:
         help="wall-clock budget: stop training after M minutes",
     )
     parser.add_argument(
-        "--threads",
-        type=count(1),
-        default=None,
-        metavar="N",
-        help="CPU threads for torch (default: torch's choice)",
-    )
-    parser.add_argument(
-        "--val-fraction",
-        type=float,
-        default=d.val_fraction,
-        metavar="F",
-        help="share of the sessions held out for early stopping, whole sessions "
-        f"(default {d.val_fraction})",
-    )
-    parser.add_argument(
-        "--test-fraction",
-        type=float,
-        default=d.test_fraction,
-        metavar="F",
-        help="share of the sessions held out for the final test, unseen in training "
-        f"(default {d.test_fraction})",
-    )
-    parser.add_argument(
         "--no-augment", action="store_true", help="no augmentation (nor mirrored ascents)"
     )
     parser.add_argument("--no-balance", action="store_true", help="no class balancing")
-    parser.add_argument(
-        "--balance-power",
-        type=float,
-        default=d.balance_power,
-        metavar="P",
-        help="sample frames with weight class_frequency**-P: 1 balances "
-        f"fully, 0 not at all (default {d.balance_power})",
-    )
     parser.add_argument(
         "--no-bf16",
         action="store_true",
@@ -180,23 +146,12 @@ def run(args, config) -> int:
     )
 
     settings = TrainSettings(
-        epochs=args.epochs,
-        batch_size=args.batch_size,
-        lr=args.lr,
-        patience=args.patience,
-        seed=args.seed,
-        hidden=args.hidden,
+        **{_field(flag): getattr(args, _field(flag)) for flag, *_ in _SETTINGS},
         device=args.device or config.model.device,
         augment=not args.no_augment,
         balance=not args.no_balance,
-        balance_power=args.balance_power,
         bf16=not args.no_bf16,
-        samples_per_epoch=args.samples_per_epoch or 0,
-        max_steps=args.max_steps or 0,
-        threads=args.threads or 0,
         max_seconds=(args.max_minutes or 0) * 60,
-        val_fraction=args.val_fraction,
-        test_fraction=args.test_fraction,
     )
     keep_freed_memory()  # this process only trains
     files, left_out = select_session_files(args.data)

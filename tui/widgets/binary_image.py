@@ -5,15 +5,14 @@ from __future__ import annotations
 import numpy as np
 from rich.style import Style
 
-from tui.widgets.lines import CachedLines, Line
-from tui.widgets.pacing import IMAGE_HZ, Pacer
+from tui.widgets.lines import FrameLines, Line
 from tui.widgets.raster import fit_binary_image
 
 _DIM = Style(dim=True)
 _FLAG = Style(bold=True, color="#f0a020")
 
 
-class BinaryImage(CachedLines):
+class BinaryImage(FrameLines):
     """Half-blocks when the full image fits, braille (pooled if need be) otherwise.
 
     Drawn as inference.preprocess makes it: row 0 highest, column 0 nearest (seen from
@@ -28,23 +27,12 @@ class BinaryImage(CachedLines):
         super().__init__(**kwargs)
         self._image: np.ndarray | None = None
         self._flag = ""
-        self._key: object = None
-        self._pacer = Pacer(IMAGE_HZ)
 
     def present(self, image: np.ndarray | None, flag: str = "", key: object = None) -> None:
-        """`key` identifies the frame: the same key again costs nothing."""
-        if key is not None and key == self._key:
-            return
-        if key is not None and not self._pacer.due(urgent=self._key is None):
-            return  # a new frame again within 1/10 s: the next one will show
-        self._key = key
-        self._image, self._flag = image, flag
-        self.invalidate()
-
-    @property
-    def shown_key(self) -> object:
-        """The frame the widget shows (it lags a new frame by at most 1/IMAGE_HZ)."""
-        return self._key
+        """`key` identifies the frame (FrameLines)."""
+        if self._admit(key):
+            self._image, self._flag = image, flag
+            self.invalidate()
 
     def build_lines(self, width: int, height: int) -> list[Line]:
         if self._image is None:

@@ -14,6 +14,8 @@ from textual.geometry import Size
 from textual.strip import Strip
 from textual.widget import Widget
 
+from tui.widgets.pacing import IMAGE_HZ, Pacer
+
 log = logging.getLogger(__name__)
 
 Line = list[tuple[str, Style | None]]  # (text, style) runs; None: the widget's own style
@@ -52,3 +54,28 @@ class CachedLines(Widget):
         if y < len(self._strips):
             return self._strips[y]
         return Strip.blank(size.width, self.rich_style)
+
+
+class FrameLines(CachedLines):
+    """Lines drawn from one frame's data, at most IMAGE_HZ new frames a second: the same
+    frame (`key`) again costs nothing, and a new one within 1/IMAGE_HZ of the last waits
+    for the next (the first shows at once)."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(**kwargs)
+        self._key: object = None
+        self._pacer = Pacer(IMAGE_HZ)
+
+    def _admit(self, key: object) -> bool:
+        """True when the frame `key` is to be shown now (a None key always is)."""
+        if key is not None and key == self._key:
+            return False
+        if key is not None and not self._pacer.due(urgent=self._key is None):
+            return False
+        self._key = key
+        return True
+
+    @property
+    def shown_key(self) -> object:
+        """The frame the widget shows (it lags a new frame by at most 1/IMAGE_HZ)."""
+        return self._key

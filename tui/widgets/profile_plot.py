@@ -5,8 +5,7 @@ from __future__ import annotations
 import numpy as np
 from rich.style import Style
 
-from tui.widgets.lines import CachedLines, Line
-from tui.widgets.pacing import IMAGE_HZ, Pacer
+from tui.widgets.lines import FrameLines, Line
 from tui.widgets.raster import plot_points
 
 _DIM = Style(dim=True)
@@ -30,7 +29,7 @@ def profile_ranges(
     return (x0, x1), (mid - span / 2, mid + span / 2)
 
 
-class ProfilePlot(CachedLines):
+class ProfilePlot(FrameLines):
     DEFAULT_CSS = """
     ProfilePlot { color: $accent; }
     """
@@ -39,23 +38,14 @@ class ProfilePlot(CachedLines):
         super().__init__(**kwargs)
         self.forward_m = forward_m
         self._points: np.ndarray | None = None
-        self._key: object = None
-        self._pacer = Pacer(IMAGE_HZ)
 
     def present(self, profile: np.ndarray | None, key: object = None) -> None:
-        if key is not None and key == self._key:
-            return
-        if key is not None and not self._pacer.due(urgent=self._key is None):
-            return  # a new frame again within 1/10 s: the next one will show
-        self._key = key
-        self._points = (
-            None if profile is None else np.asarray(profile, dtype=np.float64).reshape(-1, 2)
-        )
-        self.invalidate()
-
-    @property
-    def shown_key(self) -> object:
-        return self._key
+        """`key` identifies the frame (FrameLines)."""
+        if self._admit(key):
+            self._points = (
+                None if profile is None else np.asarray(profile, dtype=np.float64).reshape(-1, 2)
+            )
+            self.invalidate()
 
     def build_lines(self, width: int, height: int) -> list[Line]:
         if self._points is None:

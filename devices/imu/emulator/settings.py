@@ -56,20 +56,15 @@ class DeviceFacts:
     named_profiles: bool = False  # ReqFilterProfile answers a label ("Robust/VRU")
 
 
-_ONE_SERIES_PROFILES = (
-    FilterProfile(50, 1, "general"),
-    FilterProfile(51, 1, "high_mag_dep"),
-    FilterProfile(52, 1, "dynamic"),
-    FilterProfile(53, 1, "north_reference"),
-    FilterProfile(54, 1, "vru_general"),
+def _numbered(first: int, labels: tuple[str, ...]) -> tuple[FilterProfile, ...]:
+    """A family's filter profiles, numbered on from `first` in the order it lists them."""
+    return tuple(FilterProfile(first + i, 1, label) for i, label in enumerate(labels))
+
+
+_ONE_SERIES_PROFILES = _numbered(
+    50, ("general", "high_mag_dep", "dynamic", "north_reference", "vru_general")
 )
-_MK4_PROFILES = (
-    FilterProfile(39, 1, "general"),
-    FilterProfile(40, 1, "high_mag_dep"),
-    FilterProfile(41, 1, "dynamic"),
-    FilterProfile(42, 1, "low_mag_dep"),
-    FilterProfile(43, 1, "vru_general"),
-)
+_MK4_PROFILES = _numbered(39, ("general", "high_mag_dep", "dynamic", "low_mag_dep", "vru_general"))
 _600_BASE = (FilterProfile(195, 1, "Robust"), FilterProfile(195, 1, "Responsive"))
 _DEVICE_FACTS = {
     "MTi-1 series": DeviceFacts(0x0300, _ONE_SERIES_PROFILES, _ONE_SERIES_PROFILES[4:]),

@@ -17,7 +17,11 @@ from capture.recording import topics as T
 from capture.recording.copy import copy_recording
 from capture.recording.messages import iter_raw
 from capture.recording.writer import Recorder
-from tests.recording_fixtures import frame_time, imu_sample, probabilities, truth_mode
+from tests.recording_fixtures import (
+    frame_time,
+    imu_sample,
+    write_decision,
+)
 
 NAME = "Anna Schmidt"
 NOTES = f"{NAME}, transfemoral, came from Uniklinik ward 3"
@@ -63,9 +67,7 @@ def write(folder: Path, subject: str, trial: int, *, utc: bool = False) -> Path:
         rec.write_imu(sample)
     rec.write_label(frame_time(0), "LG", "operator")
     for i in range(20):
-        t = frame_time(i)
-        fused = {"frame_index": i, "decision": truth_mode(i), "posterior": probabilities(i)}
-        rec.write_inference(i, t, t + 1_000_000, probabilities(i), fused)
+        write_decision(rec, i)
     rec.write_event(
         {"time_ns": frame_time(5), "device": "operator", "kind": "marker", "message": MARKER}
     )

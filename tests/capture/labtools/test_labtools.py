@@ -204,22 +204,29 @@ class _Controller:
         return "saved"
 
 
-def test_an_over_long_line_closes_its_connection_with_one_event():
+def _misbehaving_client(payload: bytes) -> tuple:
+    """What a client sending `payload` reads back before its connection is closed, the
+    events that caused, and the remote's command log; the next client is served as ever."""
     events: list[DeviceEvent] = []
     remote = RemoteControl(_Controller(), port=0, on_event=events.append).start()
     try:
         with socket.create_connection(("127.0.0.1", remote.port), timeout=20) as sock:
             try:
-                sock.sendall(b"x" * (4 << 20))  # 4 MB, no newline
-                closed = sock.recv(16) == b""
+                sock.sendall(payload)
+                answers = sock.makefile("rb").read()  # until the remote closes
             except (ConnectionResetError, BrokenPipeError):
-                closed = True
-            assert closed
+                answers = b""
         wait_for(lambda: events)
         with socket.create_connection(("127.0.0.1", remote.port), timeout=20) as sock:
-            assert _send(sock, "update") == b"OK"  # the next client is served as ever
+            assert _send(sock, "update") == b"OK"
     finally:
         remote.close()
+    return answers, events, remote.log
+
+
+def test_an_over_long_line_closes_its_connection_with_one_event():
+    answers, events, _ = _misbehaving_client(b"x" * (4 << 20))  # 4 MB, no newline
+    assert answers == b""
     assert [e.kind for e in events] == ["line_too_long"]
     assert events[0].device == "remote"
 
@@ -387,22 +394,9 @@ def test_foxglove_client_text_is_escaped_and_its_repeats_counted(caplog):
 def test_a_flood_of_commands_closes_its_connection_with_one_event():
     from capture.labtools.remote import COMMAND_BURST
 
-    events: list[DeviceEvent] = []
-    remote = RemoteControl(_Controller(), port=0, on_event=events.append).start()
-    try:
-        with socket.create_connection(("127.0.0.1", remote.port), timeout=20) as sock:
-            try:
-                sock.sendall(b"update\n" * 100_000)
-                answers = sock.makefile("rb").read()
-            except (ConnectionResetError, BrokenPipeError):
-                answers = b""
-        assert len(answers) < 2 * 100_000  # closed long before the last
-        wait_for(lambda: events)
-        assert COMMAND_BURST <= len(remote.log) < 100_000
-        with socket.create_connection(("127.0.0.1", remote.port), timeout=20) as sock:
-            assert _send(sock, "update") == b"OK"  # the next client is served as ever
-    finally:
-        remote.close()
+    answers, events, log = _misbehaving_client(b"update\n" * 100_000)
+    assert len(answers) < 2 * 100_000  # closed long before the last
+    assert COMMAND_BURST <= len(log) < 100_000
     assert [e.kind for e in events] == ["flood"]
 
 

@@ -1,9 +1,15 @@
 """Live sessions in tests: a cheap stand-in for the CNN and a session on the mock devices."""
 
+import contextlib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
 import numpy as np
 
 from capture.config import Config
 from capture.live.session import Session
+from capture.live.trials import SubjectInfo
 from capture.recording.reader import open_recording
 
 
@@ -24,6 +30,27 @@ def session_in(tmp_path) -> Session:
     c = Config()
     c.session.recordings = str(tmp_path)
     return Session(c, classifier=StandInClassifier())
+
+
+@dataclass
+class Trial:
+    session: Session
+    path: Path
+    stats: Any = None  # the recorder's stats, once the session has stopped
+
+
+@contextlib.contextmanager
+def recording_in(folder):
+    """A started session on the mock devices recording a trial into `folder`; stopped on
+    the way out, whatever happened, with the recorder's stats then in `trial.stats`."""
+    session = session_in(folder)
+    session.start()
+    trial = Trial(session, Path())
+    try:
+        trial.path = session.start_recording(SubjectInfo())
+        yield trial
+    finally:
+        trial.stats = session.stop()
 
 
 def events_of(path) -> list[dict]:

@@ -14,19 +14,16 @@ import numpy as np
 import pytest
 
 from capture.corpus.trials import read_trial
-from capture.live.trials import SubjectInfo
 from capture.recording.journal import check_journal
 from capture.recording.reader import open_recording
-from tests.capture.live.sessions import events_of, session_in
+from tests.capture.live.sessions import events_of, recording_in
 from tests.waiting import wait_for
 
 
 @pytest.mark.realtime
 def test_imu_unplug_and_replug_during_a_recording(tmp_path):
-    session = session_in(tmp_path)
-    session.start()
-    try:
-        path = session.start_recording(SubjectInfo())
+    with recording_in(tmp_path) as trial:
+        session, path = trial.session, trial.path
         session.set_label("LG")
         time.sleep(1.0)
         session._imu.inject("disconnect")
@@ -38,8 +35,7 @@ def test_imu_unplug_and_replug_during_a_recording(tmp_path):
         session._imu.inject("reconnect")
         wait_for(lambda: session.snapshot().imu.state == "ok", 5.0, what="the reconnect")
         time.sleep(0.5)
-    finally:
-        stats = session.stop()
+    stats = trial.stats
     assert stats.state == "stopped"
     kinds = [e["kind"] for e in events_of(path)]
     assert "lost" in kinds and "reconnected" in kinds
@@ -51,16 +47,12 @@ def test_imu_unplug_and_replug_during_a_recording(tmp_path):
 
 @pytest.mark.realtime
 def test_corrupted_serial_bytes_are_counted_and_capture_goes_on(tmp_path):
-    session = session_in(tmp_path)
-    session.start()
-    try:
-        path = session.start_recording(SubjectInfo())
+    with recording_in(tmp_path) as trial:
+        session, path = trial.session, trial.path
         time.sleep(0.5)
         session._imu.inject("corrupt", count=5, garbage=b"\xfa\xff\x36\xff\x00garbage")
         time.sleep(1.0)
         snap = session.snapshot()
-    finally:
-        session.stop()
     assert snap.imu.details["checksum_errors"] >= 1
     assert snap.imu.state in ("ok", "degraded")
     assert any(e["kind"] in ("checksum_error", "resync") for e in events_of(path))
@@ -70,17 +62,13 @@ def test_corrupted_serial_bytes_are_counted_and_capture_goes_on(tmp_path):
 
 @pytest.mark.realtime
 def test_camera_stall_is_reported_and_the_imu_keeps_recording(tmp_path):
-    session = session_in(tmp_path)
-    session.start()
-    try:
-        path = session.start_recording(SubjectInfo())
+    with recording_in(tmp_path) as trial:
+        session, path = trial.session, trial.path
         time.sleep(0.5)
         session._camera.inject("stall", seconds=2.0)
         wait_for(lambda: session.snapshot().camera.state == "degraded", 2.0)
         time.sleep(1.8)
         wait_for(lambda: session.snapshot().camera.state == "ok", 3.0)
-    finally:
-        session.stop()
     assert "stall" in [e["kind"] for e in events_of(path)]
     assert open_recording(path).topics["/imu"].count > 250  # 100 Hz all along
 
@@ -103,16 +91,13 @@ def small_disk(tmp_path):
 
 @pytest.mark.realtime
 def test_disk_full_stops_the_recording_cleanly_and_keeps_it_readable(small_disk):
-    session = session_in(small_disk)
-    session.start()
-    try:
-        path = session.start_recording(SubjectInfo())
+    with recording_in(small_disk) as trial:
+        session, path = trial.session, trial.path
         session.set_label("LG")
         wait_for(lambda: session.snapshot().recording.state == "failed", 30.0)
         snap = session.snapshot()
         assert snap.running  # devices and pipeline go on; only the file stopped
-    finally:
-        stats = session.stop()
+    stats = trial.stats
     assert stats.state == "failed"
     assert "full" in stats.message.lower() or "space" in stats.message.lower()
     assert "\n" not in stats.message

@@ -178,23 +178,30 @@ def test_range_quantisation_bound_on_random_points():
     assert np.linalg.norm(back - xyz, axis=-1).max() <= 0.0005 + 1e-6
 
 
-def test_a_full_queue_drops_counts_and_records_but_never_blocks_or_loses_labels(
-    tmp_path, monkeypatch
-):
-    path = tmp_path / "slow.mcap"
+def _held_writer(monkeypatch, path, queue_size: int):
+    """A started recorder whose writer holds its first frame (a disk or CPU that cannot keep
+    up) until the returned event is set."""
     real = chunk_writer.encode_depth
     encoding, disk_free = threading.Event(), threading.Event()
 
-    def stuck(*args):  # a disk or CPU that cannot keep up: the writer holds its first frame
+    def stuck(*args):
         encoding.set()
         disk_free.wait(10.0)
         return real(*args)
 
     monkeypatch.setattr(chunk_writer, "encode_depth", stuck)
-    rec = Recorder(path, metadata={}, queue_size=4)
+    rec = Recorder(path, metadata={}, queue_size=queue_size)
     rec.start()
     rec.write_frame(frame_at(0))
     assert encoding.wait(5.0)
+    return rec, disk_free
+
+
+def test_a_full_queue_drops_counts_and_records_but_never_blocks_or_loses_labels(
+    tmp_path, monkeypatch
+):
+    path = tmp_path / "slow.mcap"
+    rec, disk_free = _held_writer(monkeypatch, path, queue_size=4)
 
     def writes():
         for i in range(60):
@@ -224,19 +231,8 @@ def test_a_full_queue_drops_counts_and_records_but_never_blocks_or_loses_labels(
 
 def test_a_writer_behind_sheds_derived_data_and_keeps_every_raw_item(tmp_path, monkeypatch):
     path = tmp_path / "behind.mcap"
-    real = chunk_writer.encode_depth
-    encoding, disk_free = threading.Event(), threading.Event()
-
-    def stuck(*args):  # the writer falls behind on its first frame
-        encoding.set()
-        disk_free.wait(10.0)
-        return real(*args)
-
-    monkeypatch.setattr(chunk_writer, "encode_depth", stuck)
-    rec = Recorder(path, metadata={}, queue_size=200)  # room for the raw items alone
-    rec.start()
-    rec.write_frame(frame_at(0))
-    assert encoding.wait(5.0)
+    # room for the raw items alone; the writer falls behind on its first frame
+    rec, disk_free = _held_writer(monkeypatch, path, queue_size=200)
     for i in range(1, 60):  # 60 frames' worth: raw and derived, as a session writes them
         t = frame_time(i)
         rec.write_imu(imu_sample(i))
@@ -275,19 +271,7 @@ def test_the_writer_thread_runs_at_the_priority_it_is_given(tmp_path):
 def test_a_backlog_of_imu_samples_finds_room_beside_the_frames(tmp_path, monkeypatch):
     """After a host stall the IMU's backlog comes at once: light items have their own room."""
     path = tmp_path / "burst.mcap"
-    real = chunk_writer.encode_depth
-    encoding, disk_free = threading.Event(), threading.Event()
-
-    def stuck(*args):
-        encoding.set()
-        disk_free.wait(10.0)
-        return real(*args)
-
-    monkeypatch.setattr(chunk_writer, "encode_depth", stuck)
-    rec = Recorder(path, metadata={}, queue_size=16)
-    rec.start()
-    rec.write_frame(frame_at(0))
-    assert encoding.wait(5.0)
+    rec, disk_free = _held_writer(monkeypatch, path, queue_size=16)
     for k in range(100):  # a second of IMU samples in one burst, six times the queue's size
         rec.write_imu(imu_sample(k))
     assert rec.stats().dropped == 0
