@@ -547,12 +547,12 @@ def _level_shown(segments: list[_Segment], x_near: float) -> bool:
     return not ramps or sum(cover(s) for s in segments if s.flat) >= max(ramps)
 
 
-def _level(segments: list[_Segment], ahead_flat: bool = False) -> TerrainFeatures | None:
-    """Level ground: flat pieces most of what is seen, or (ahead_flat) the ground a step
-    ahead flat."""
+def _level(segments: list[_Segment], shown: bool = False) -> TerrainFeatures | None:
+    """Level ground: flat pieces most of what is seen, or (`shown`, _level_shown) level
+    ground what the image shows."""
     total = sum(s.length for s in segments)
     flat = [s for s in segments if s.flat]
-    if not flat or (not ahead_flat and sum(s.length for s in flat) < 0.5 * total):
+    if not flat or (not shown and sum(s.length for s in flat) < 0.5 * total):
         return None
     # One tilt from all the stretches of level ground (a curb splits level ground into
     # stretches at two heights, not two tilts): their angles weighted by the inverse square
