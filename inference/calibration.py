@@ -28,6 +28,7 @@ MAX_OFFSET_DEG = 25.0  # floor normal vs. up predicted by the current mounting
 MAX_MOTION_DEG = 2.0  # spread of gravity in the IMU frame across frames: subject moved
 MAX_HEIGHT_SPREAD_M = 0.03
 MIN_FRAMES = 3
+REFIT_ROUNDS = 5  # least-squares refits of RANSAC's plane on its own inliers
 MAX_POINTS = 10000  # per frame, subsampled evenly: plenty for a plane
 
 
@@ -82,7 +83,19 @@ def floor_plane(
     inliers = inliers.numpy()
     if len(inliers) < 50:
         return None
-    on_plane = pts[inliers].astype(np.float64)
+    # RANSAC's plane comes from three points: its inliers are a band tilted with it, and
+    # one least-squares fit on them keeps part of that tilt. Refit on the points near the
+    # refitted plane until they stay the same (a few rounds).
+    every = pts.astype(np.float64)
+    on_plane = every[inliers]
+    for _ in range(REFIT_ROUNDS):
+        centre = on_plane.mean(axis=0)
+        normal = np.linalg.svd(on_plane - centre, full_matrices=False)[2][2]
+        near = np.abs((every - centre) @ normal) <= PLANE_DISTANCE_M
+        if near.sum() < 50 or np.array_equal(near.nonzero()[0], inliers):
+            break
+        inliers = near.nonzero()[0]
+        on_plane = every[inliers]
     centre = on_plane.mean(axis=0)
     normal = np.linalg.svd(on_plane - centre, full_matrices=False)[2][2]
     if normal @ centre > 0:  # point from the floor towards the camera (the origin)

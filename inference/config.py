@@ -149,7 +149,7 @@ class FusionConfig:
     geometry_evidence: float = key(
         GEOMETRY_EVIDENCE,
         "steady+geometry: each frame's terrain-feature likelihood to this power (their "
-        "misreads come in runs of 5.6 frames)",
+        "misreads come in runs of 2.7 frames)",
     )
 
     def make(self, method: str | None = None) -> Fusion:

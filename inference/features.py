@@ -17,10 +17,14 @@ perpendicular fit would tilt far level ground down. Then:
   distance between consecutive stair edges (up: the riser's position; down: the far end
   of the upper tread, where it drops), when at least two edges are seen;
 - ramp: a long slanted segment; slope = its angle, positive uphill;
-- level: mostly horizontal segments; slope reported too (near 0): the flat segments'
-  angles averaged by their precision (a curb splits level ground, not its tilt); when the
-  fused decision says level ground, level wins over a ramp while it holds or while the
-  ground a step ahead (AHEAD_M) is flat;
+- level: mostly horizontal segments; slope reported too (near 0), the tilt of the level
+  ground the frame shows: one line along the rays through each stretch of level ground
+  (its flat pieces and the short noisy ones between them), the stretches' angles averaged
+  by their precision (a curb splits level ground, not its tilt); None where that tilt is
+  uncertain by more than LEVEL_SLOPE_MAX_SE_DEG. When the fused decision says level
+  ground, level wins over a ramp while the ground a step ahead (AHEAD_M) is flat or flat
+  pieces fill more of the image than the ramp: the image's terrain is the one filling
+  most of it, so a ramp or stairs beginning inside it do not yet set the slope;
 - unknown: anything else (too few points, clutter).
 """
 
@@ -50,6 +54,7 @@ NOISE_CELL_POINTS = 9  # the range noise is correlated over about 3 x 3 pixels
 FLAT_SHORT_RISE_M = 0.015  # ...or a short one that rises less than this end to end
 FLAT_SHORT_MAX_DEG = 12.0
 MIN_ANGLE_SE_DEG = 0.05  # a level slope's weights: no piece's angle is surer than this
+LEVEL_SLOPE_MAX_SE_DEG = 1.5  # a level slope less sure than this (one SE) is not reported
 RAMP_MAX_DEG = 35.0
 RAMP_MIN_LENGTH_M = 0.25  # 0.15 when the fused decision says ramp
 RISER_MIN_M = 0.04
@@ -65,6 +70,7 @@ CUT_MARGIN_M = 0.08
 # Where the classifier's terrain is judged: about a step ahead of the camera (the images are
 # labelled with the terrain they show there; the simulator's truth looks 0.6-1.1 m ahead).
 AHEAD_M = 1.0
+IMAGE_REACH_M = 0.99  # the image's forward reach from the nearest point (preprocess.rasterise)
 
 
 @dataclass
@@ -170,12 +176,12 @@ def terrain_features(
         )
     )
     # A fused decision of level ground keeps the frame level while the ground a step ahead
-    # (AHEAD_M, where the image's terrain is judged) is flat, or flat pieces make up most of
-    # what is seen: a slanted piece beyond (the next terrain coming into view, or a far
-    # stretch the noise tilts) is not yet the ground the image shows.
+    # (AHEAD_M) is flat, or flat pieces fill more of the image than a ramp, or make up most
+    # of what is seen: a slanted piece beyond or starting inside the image (the next terrain
+    # coming into view, or a far stretch the noise tilts) is not yet the ground it shows.
     result = (
         _stairs(segments, mode_hint)
-        or (mode_hint == "LG" and _level(segments, _flat_at(segments, AHEAD_M)))
+        or (mode_hint == "LG" and _level(segments, _level_shown(segments, float(x.min()))))
         or _ramp(segments, mode_hint)
         or _level(segments)
         or TerrainFeatures()
@@ -333,7 +339,11 @@ def _merge(fitted: list[tuple[int, int, _Segment]], pts: np.ndarray):
 def _fit_line(pts: np.ndarray, first: int, stop: int) -> _Segment | None:
     """The line through pts[first:stop] by least squares along the camera's rays, refit
     once without the points beyond FIT_TRIM_M of it."""
-    points, index = pts[first:stop], np.arange(first, stop)
+    return _fit_points(pts[first:stop], np.arange(first, stop), first, stop)
+
+
+def _fit_points(points: np.ndarray, index: np.ndarray, first: int = 0, stop: int = 0):
+    """_fit_line on any set of profile points (`index`: theirs in the profile)."""
     for _ in range(2):
         if len(points) < 5:
             return None
@@ -499,17 +509,17 @@ def _complete_riser(segments: list[_Segment], i: int) -> float | None:
 
 def _ramp(segments: list[_Segment], hint: str | None) -> TerrainFeatures | None:
     min_length = 0.15 if hint in ("UR", "DR") else RAMP_MIN_LENGTH_M
-    slanted = [
-        s
-        for s in segments
-        if not s.flat and abs(s.angle_deg) <= RAMP_MAX_DEG and s.length >= min_length
-    ]
+    slanted = [s for s in segments if _ramp_piece(s, min_length)]
     if not slanted:
         return None
     ramp = max(slanted, key=lambda s: s.length)
     return TerrainFeatures(
         kind="ramp", slope_deg=ramp.angle_deg, direction="up" if ramp.angle_deg > 0 else "down"
     )
+
+
+def _ramp_piece(s: _Segment, min_length: float) -> bool:
+    return not s.flat and abs(s.angle_deg) <= RAMP_MAX_DEG and s.length >= min_length
 
 
 def _flat_at(segments: list[_Segment], x_m: float) -> bool:
@@ -520,16 +530,76 @@ def _flat_at(segments: list[_Segment], x_m: float) -> bool:
     return False
 
 
-def _level(segments: list[_Segment], ahead_flat: bool = False) -> TerrainFeatures | None:
-    """Level ground: flat pieces most of what is seen, or (ahead_flat) the ground a step
-    ahead flat."""
+def _level_shown(segments: list[_Segment], x_near: float) -> bool:
+    """Whether the image shows level ground: the ground AHEAD_M ahead is flat, or flat
+    pieces cover more of the image's forward reach (IMAGE_REACH_M from the nearest point,
+    `x_near`) than the ramp would: the image's terrain is the one that fills most of it
+    (a ramp that starts inside it, or a far zig-zag of noise, is not yet what it shows)."""
+    if _flat_at(segments, AHEAD_M):
+        return True
+    lo, hi = x_near, x_near + IMAGE_REACH_M
+
+    def cover(s: _Segment) -> float:
+        a, b = sorted((float(s.start[0]), float(s.end[0])))
+        return max(0.0, min(b, hi) - max(a, lo))
+
+    ramps = [cover(s) for s in segments if _ramp_piece(s, RAMP_MIN_LENGTH_M)]
+    return not ramps or sum(cover(s) for s in segments if s.flat) >= max(ramps)
+
+
+def _level(segments: list[_Segment], shown: bool = False) -> TerrainFeatures | None:
+    """Level ground: flat pieces most of what is seen, or (`shown`, _level_shown) level
+    ground what the image shows."""
     total = sum(s.length for s in segments)
     flat = [s for s in segments if s.flat]
-    if not flat or (not ahead_flat and sum(s.length for s in flat) < 0.5 * total):
+    if not flat or (not shown and sum(s.length for s in flat) < 0.5 * total):
         return None
-    # One tilt from all the flat pieces (a curb splits level ground into pieces at two
-    # heights, not two tilts): their angles weighted by the inverse square of their
-    # standard errors, so that a short far piece the noise tilts counts for little.
-    weights = np.array([1.0 / max(s.angle_se_deg, MIN_ANGLE_SE_DEG) ** 2 for s in flat])
-    angles = np.array([s.angle_deg for s in flat])
-    return TerrainFeatures(kind="level", slope_deg=float(weights @ angles / weights.sum()))
+    # One tilt from all the stretches of level ground (a curb splits level ground into
+    # stretches at two heights, not two tilts): their angles weighted by the inverse square
+    # of their standard errors, so that a short far stretch the noise tilts counts for little.
+    stretches = _level_stretches(segments)
+    weights = np.array([1.0 / max(s.angle_se_deg, MIN_ANGLE_SE_DEG) ** 2 for s in stretches])
+    angles = np.array([s.angle_deg for s in stretches])
+    # A tilt the noise leaves this uncertain cannot tell level ground from a walkway's
+    # 1:20 (far ground alone, at a grazing angle): level, its slope not measured.
+    slope = float(weights @ angles / weights.sum())
+    measured = 1.0 / math.sqrt(float(weights.sum())) <= LEVEL_SLOPE_MAX_SE_DEG
+    return TerrainFeatures(kind="level", slope_deg=slope if measured else None)
+
+
+def _level_stretches(segments: list[_Segment]) -> list[_Segment]:
+    """The stretches of level ground, each one line along the rays through the points of
+    its flat pieces and the short pieces between them that rise less than a riser.
+
+    Far level ground splits into pieces by the range noise, correlated over a few pixels:
+    a patch read too far lies low and far along its rays, the next one read too near lies
+    high and near, so the polyline zig-zags in long shallow pieces down and short steep
+    ones up. Only the long ones pass as flat; their angles alone tilt the ground down.
+    One line through the whole stretch sees the noise along the rays, as it is."""
+    stretches: list[list[_Segment]] = []
+    current: list[_Segment] = []
+    for s in segments:
+        rise = abs(float(s.end[1] - s.start[1]))
+        ground = s.flat or (s.length < RAMP_MIN_LENGTH_M and rise < RISER_MIN_M)
+        joins = bool(current) and abs(float(s.start[1] - current[-1].end[1])) < RISER_MIN_M
+        if ground and (joins or not current):
+            current.append(s)
+            continue
+        if current:
+            stretches.append(current)
+        current = [s] if ground else []
+    if current:
+        stretches.append(current)
+    out = []
+    for stretch in stretches:
+        flat = [s for s in stretch if s.flat]
+        if not flat:
+            continue
+        if len(stretch) == 1:
+            out.append(stretch[0])
+            continue
+        # neighbours share their corner's points: each point once
+        index, first = np.unique(np.concatenate([s.index for s in stretch]), return_index=True)
+        fitted = _fit_points(np.concatenate([s.points for s in stretch])[first], index)
+        out.extend([fitted] if fitted is not None and fitted.flat else flat)
+    return out

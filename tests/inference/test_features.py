@@ -219,3 +219,64 @@ def test_level_ground_stays_level_under_range_noise_along_the_rays(noise_rel):
     slopes = slopes[np.isfinite(slopes)]
     assert abs(np.median(slopes)) < 0.5
     assert np.mean(np.abs(slopes) > 3.0) <= 0.05
+
+
+def test_a_level_decision_keeps_level_ground_while_it_fills_most_of_the_image():
+    """A ramp up beginning inside the image (the ground a step ahead is the ramp): under a
+    fused decision of level ground the frame is level, its slope level ground's, while
+    level ground fills most of the image's columns (the rule that names the image's
+    terrain), a ramp once the ramp does; unhinted the features show the ramp."""
+    start = 0.85
+    terrain = tr.ramp(10.0, start_m=start)
+    levels, ramps = 0, 0
+    for q, height, k in poses(24, 5, (-20, 10)):
+        xyz, conf = tr.render(terrain, q, height_m=height, noise_m=0.01, seed=500 + k)
+        pre = preprocess(xyz, conf, q, PARAMS)
+        if not pre.ok:
+            continue
+        columns = np.flatnonzero(pre.image.any(axis=0))
+        level_share = np.mean(pre.origin_m[0] + (columns + 0.5) * PARAMS.cell_m < start)
+        hinted = terrain_features(pre.profile, "LG")
+        assert terrain_features(pre.profile).kind == "ramp"
+        if level_share > 0.52:
+            assert hinted.kind == "level" and abs(hinted.slope_deg) < 1.0, level_share
+            levels += 1
+        elif level_share <= 0.4:
+            assert hinted.kind == "ramp" and hinted.slope_deg == pytest.approx(10.0, abs=1.0)
+            ramps += 1
+    assert levels >= 3 and ramps >= 3
+
+
+def far_ray_profile(height_m: float, noise_rel: float, rng: np.random.Generator) -> np.ndarray:
+    """ray_profile seen from a thigh swung forward, the nearest ground 1.3 m ahead, its
+    range noise correlated over 3 pixel rows (as royale's adaptive filter leaves it)."""
+    elevations = np.radians(np.arange(-22.0, -12.0, 0.26))
+    common = np.convolve(rng.standard_normal(len(elevations) + 2), np.ones(3) / 3**0.5, "valid")
+    rows = []
+    for elevation, offset in zip(elevations, common):
+        r = height_m / -np.sin(elevation)
+        if r * np.cos(elevation) > 2.45:
+            continue
+        n = max(2, int(0.1 / (r * np.radians(62.0 / 224))))
+        measured = r * (1 + noise_rel * (offset + 0.3 * rng.standard_normal(n)))
+        rows.append(np.stack([measured * np.cos(elevation), measured * np.sin(elevation)], 1))
+    return np.concatenate(rows).astype(np.float32)
+
+
+@pytest.mark.parametrize(
+    "noise_rel, most_beyond", [(0.0142, 0.10), (0.0227, 0.20)], ids=["indoor", "outdoor"]
+)
+def test_far_level_ground_zig_zagging_with_the_noise_stays_level(noise_rel, most_beyond):
+    """Far level ground alone: patches of correlated noise read too far lie low and far
+    along their rays, the next ones high and near, so the polyline zig-zags in long shallow
+    pieces down and short steep ones up. Only the long ones pass as flat: their angles
+    alone tilt level ground down (outdoors by 2 deg at the median)."""
+    rng = np.random.default_rng(7)
+    slopes = []
+    for _ in range(60):
+        f = terrain_features(far_ray_profile(rng.uniform(0.5, 0.6), noise_rel, rng), "LG")
+        if f.slope_deg is not None:
+            slopes.append(f.slope_deg)
+    assert len(slopes) >= 40
+    assert abs(np.median(slopes)) < 0.5
+    assert np.mean(np.abs(slopes) > 3.0) <= most_beyond

@@ -562,7 +562,7 @@ def stream_geometry(fusion, probabilities, shown):
     return decisions
 
 
-@pytest.mark.parametrize("margin, weight", [(0.6, 0.18), (0.0, 1.0), (0.8, 0.5)])
+@pytest.mark.parametrize("margin, weight", [(0.6, 0.36), (0.0, 1.0), (0.8, 0.5)])
 def test_steady_geometry_is_the_steady_hmm_observing_the_geometry_too(margin, weight):
     from inference.fusion import GeometryFusion
 
@@ -628,7 +628,7 @@ def test_steady_geometry_parameters_are_checked_and_configured():
         GeometryFusion(hysteresis=1.0)
     fusion = make_fusion("steady+geometry", geometry_hysteresis=0.7, geometry_evidence=0.3)
     assert (fusion.hysteresis, fusion.geometry_evidence) == (0.7, 0.3)
-    assert (GEOMETRY_HYSTERESIS, GEOMETRY_EVIDENCE) == (0.6, 0.18)
+    assert (GEOMETRY_HYSTERESIS, GEOMETRY_EVIDENCE) == (0.6, 0.36)
     assert np.allclose(np.sum(GEOMETRY_SHOWN, axis=1), 1.0, atol=2e-3)
     # each terrain shows as itself more often than any other shows as it, but stairs down
     assert all(GEOMETRY_SHOWN[m][m] == max(r[m] for r in GEOMETRY_SHOWN) for m in (0, 1, 3, 4))
