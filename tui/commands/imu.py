@@ -405,6 +405,8 @@ def _decode(args, config) -> int:
 
 
 def _decode_table(objects) -> None:
+    from devices import xbus
+
     def vec(values, fmt="{:+8.3f}"):
         if values is None:
             return "-"
@@ -423,19 +425,7 @@ def _decode_table(objects) -> None:
                 f"{s['malformed']} malformed"
             )
             continue
-        other = [
-            k
-            for k in obj
-            if k
-            not in (
-                "packet_counter",
-                "sample_time_fine",
-                "quaternion",
-                "acceleration",
-                "rate_of_turn",
-                "status_word",
-            )
-        ]
+        other = [k for k in obj if k not in xbus.DEFAULT_OUTPUTS]
         status = obj.get("status_word")
         print(
             f"{_or_dash(obj.get('packet_counter')):>7} "
