@@ -52,7 +52,6 @@ At the ends of a sequence (documented choices, the paper does not say):
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -332,8 +331,7 @@ class Method:
 
     name: str
     cls: type
-    args: Callable[[dict], tuple]  # the [fusion] parameters -> cls's arguments
-    keys: tuple[str, ...]  # the [fusion] keys it takes (besides the transition matrix)
+    params: tuple[str, ...]  # cls's arguments, in order: [fusion] keys and "transition"
     title: str  # in figures, tables and the live screen
     style: dict  # in figures: grey level, hatch, marker and dash (never a mode's colour)
     doc: str  # what it decides: the docs' methods table and `eval --methods` help
@@ -343,12 +341,20 @@ class Method:
     votes_on: str | None = None  # votes over this method's decisions (`--vote-delay`)
     bench_us: float | None = None  # `walkcap bench`'s bound on one push, us
 
+    @property
+    def keys(self) -> tuple[str, ...]:
+        """The [fusion] keys it takes (besides the transition matrix)."""
+        return tuple(k for k in self.params if k != "transition")
+
+    def args(self, values: dict) -> tuple:
+        """cls's arguments from the [fusion] parameter `values`."""
+        return tuple(int(values[k]) if k == "vote_delay" else values[k] for k in self.params)
+
 
 METHOD_TABLE: tuple[Method, ...] = (
     Method(
         "cnn",
         ArgmaxFusion,
-        lambda p: (),
         (),
         "CNN",
         {"color": "#e4e4e4", "hatch": "", "line": "#a8a8a8", "marker": "o", "linestyle": ":"},
@@ -359,7 +365,6 @@ METHOD_TABLE: tuple[Method, ...] = (
     Method(
         "cnn+voting",
         ArgmaxFusion,
-        lambda p: (int(p["vote_delay"]),),
         ("vote_delay",),
         "CNN + voting",
         {
@@ -378,8 +383,7 @@ METHOD_TABLE: tuple[Method, ...] = (
     Method(
         "hmm",
         HmmFusion,
-        lambda p: (p["window"], p["transition"]),
-        ("window",),
+        ("window", "transition"),
         "HMM",
         {"color": "#6a6a6a", "hatch": "", "line": "#505050", "marker": "D", "linestyle": "--"},
         "the HMM of Zhang et al. (Algorithm 1) over a smoothing window of `--window` frames",
@@ -389,8 +393,7 @@ METHOD_TABLE: tuple[Method, ...] = (
     Method(
         "hmm+voting",
         HmmFusion,
-        lambda p: (p["window"], p["transition"], int(p["vote_delay"])),
-        ("window", "vote_delay"),
+        ("window", "transition", "vote_delay"),
         "HMM + voting",
         {
             "color": "#262626",
@@ -408,8 +411,7 @@ METHOD_TABLE: tuple[Method, ...] = (
     Method(
         "forward",
         ForwardFilter,
-        lambda p: (p["transition"],),
-        (),
+        ("transition",),
         "forward filter",
         {
             "color": "#ffffff",
@@ -423,8 +425,7 @@ METHOD_TABLE: tuple[Method, ...] = (
     Method(
         "fixed-lag",
         FixedLagSmoother,
-        lambda p: (p["transition"], p["lag"]),
-        ("lag",),
+        ("transition", "lag"),
         "fixed-lag smoother",
         {
             "color": "#d8d8d8",
@@ -438,7 +439,6 @@ METHOD_TABLE: tuple[Method, ...] = (
     Method(
         "steady",
         SteadyFusion,
-        lambda p: (p["stay"], p["evidence"]),
         ("stay", "evidence"),
         "steady",
         {
@@ -457,7 +457,6 @@ METHOD_TABLE: tuple[Method, ...] = (
     Method(
         "steady+gait",
         GaitSteadyFusion,
-        lambda p: (p["stay"], p["evidence"]),
         ("stay", "evidence"),
         "steady + gait",
         {
@@ -476,7 +475,6 @@ METHOD_TABLE: tuple[Method, ...] = (
     Method(
         "steady+hysteresis",
         HysteresisFusion,
-        lambda p: (p["stay"], p["evidence"], p["hysteresis"]),
         ("stay", "evidence", "hysteresis"),
         "steady + hysteresis",
         {
@@ -495,7 +493,6 @@ METHOD_TABLE: tuple[Method, ...] = (
     Method(
         "steady+geometry",
         GeometryFusion,
-        lambda p: (p["stay"], p["evidence"], p["geometry_hysteresis"], p["geometry_evidence"]),
         ("stay", "evidence", "geometry_hysteresis", "geometry_evidence"),
         "steady + geometry",
         {
@@ -515,7 +512,6 @@ METHOD_TABLE: tuple[Method, ...] = (
     Method(
         "steady+slope",
         SlopeFusion,
-        lambda p: (p["stay"], p["evidence"], p["hysteresis"]),
         ("stay", "evidence", "hysteresis"),
         "steady + slope",
         {
@@ -534,7 +530,6 @@ METHOD_TABLE: tuple[Method, ...] = (
     Method(
         "steady+steps",
         StepFusion,
-        lambda p: (p["stay"], p["evidence"], p["hysteresis"]),
         ("stay", "evidence", "hysteresis"),
         "steady + steps",
         {
