@@ -122,12 +122,7 @@ class ArgmaxFusion(Stream):
         t = self._frame
         self._frame = t + 1
         decision = e.index(max(e))
-        out = FusionOutput(t, decision, t, tuple(e))
-        if self._voter is not None:
-            vote = self._voter.push(t, decision)
-            if vote is not None:
-                out.voted_frame, out.voted = vote
-        return out
+        return self._voted(FusionOutput(t, decision, t, tuple(e)))
 
     def flush(self) -> list[FusionOutput]:
         if self._flushed:
@@ -204,12 +199,7 @@ class HmmFusion(Stream):
         smooth.append(p)
         if decision is None:  # frame 0: nothing to decide yet (p(s_0) is the CNN's output)
             return None
-        out = FusionOutput(t - 1, decision, t, p)
-        if self._voter is not None:
-            vote = self._voter.push(t - 1, decision)
-            if vote is not None:
-                out.voted_frame, out.voted = vote
-        return out
+        return self._voted(FusionOutput(t - 1, decision, t, p))
 
     def flush(self) -> list[FusionOutput]:
         """Decide the last frame as argmax of its p(s_t) (it has no next frame), then votes."""
@@ -220,12 +210,7 @@ class HmmFusion(Stream):
         if self._frame > 0:
             last = self._smooth[-1]
             frame, decision = self._frame - 1, last.index(max(last))
-            out = FusionOutput(frame, decision)
-            if self._voter is not None:
-                vote = self._voter.push(frame, decision)
-                if vote is not None:
-                    out.voted_frame, out.voted = vote
-            outputs.append(out)
+            outputs.append(self._voted(FusionOutput(frame, decision)))
         return outputs + self._vote_outputs()
 
 
