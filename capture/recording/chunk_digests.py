@@ -33,6 +33,7 @@ from capture.recording import topics as T
 from capture.recording._mcap import MAGIC
 from capture.recording.gaps import TOPICS as SENSOR_STREAMS
 from capture.recording.gaps import Gap, Late, RecordedLoss, StreamLoss, recorded_periods
+from capture.recording.metadata import DevicesRecord
 
 CHUNK_DIGESTS = "chunk_digests"  # the metadata record that holds them
 FIRST_VERSION = 4  # the format version that writes them (capture.recording.versions)
@@ -44,7 +45,7 @@ class Tally:
     """The writer's side: regions and per-topic figures, gathered as the file is written."""
 
     def __init__(self, metadata: dict[str, dict]) -> None:
-        self._periods = recorded_periods(metadata)
+        self._periods = recorded_periods(DevicesRecord.from_dict(metadata.get("devices")))
         self.regions: list[tuple[int, int, int]] = []  # (offset, length, CRC-32)
         self._times: dict[str, list[int]] = {}  # topic -> [messages, first, last log time]
         self._losses: dict[str, RecordedLoss | None] = {}  # None: no configured rate

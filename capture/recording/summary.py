@@ -341,6 +341,6 @@ def _from_digests(rec: Recording) -> _Seen | None:
         )
         m = decode(found.schemas.get(channel.schema_id), channel, record)
         _take(m, labels, events, markers)
-    counters = loss_counters(rec.metadata, rec.topics)
+    counters = loss_counters(rec.meta.devices, rec.topics)
     losses = {topic: digest.losses.get(topic, StreamLoss()) for topic in counters}
     return _Seen([], digest.times, losses, dict(digest.flags), labels, events, markers)

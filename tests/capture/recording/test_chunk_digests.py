@@ -6,7 +6,8 @@ import json
 import numpy as np
 import pytest
 
-from capture.recording import _mcap, summary
+from capture.recording import _mcap
+from capture.recording.summary import summary
 from capture.recording import topics as T
 from capture.recording.chunk_digests import CHUNK_DIGESTS
 from capture.recording.reader import open_recording
