@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from capture.recording import _mcap
-from capture.recording.summary import summary
 from capture.recording import topics as T
 from capture.recording.chunk_digests import CHUNK_DIGESTS
 from capture.recording.reader import open_recording
+from capture.recording.summary import summary
 from capture.recording.writer import Recorder
 from devices.base import DeviceEvent
 from tests import recording_fixtures as F
