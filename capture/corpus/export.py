@@ -44,6 +44,7 @@ import numpy as np
 
 from capture.corpus import jobs
 from capture.corpus import selection as corpus_mod
+from capture.corpus.imu_columns import ImuColumns
 from capture.errors import CaptureError
 from capture.recording import labels as L
 from capture.recording import topics as T
@@ -115,12 +116,11 @@ def tables(path: str | os.PathLike) -> dict:
         "condition": condition,
         "trial": trial,
     }
-    imu, events, gait = [], [], []
+    imu, events, gait = ImuColumns(_IMU_FIELDS), [], []
 
     def take(m) -> None:
-        if m.topic == T.IMU:  # the fields the table takes: a long trial's samples are many
-            s = m.data
-            imu.append(tuple(s.get(k) for k in _IMU_FIELDS))
+        if m.topic == T.IMU:
+            imu.add(m.data)
         elif m.topic in (T.GAIT, T.SIM_GAIT):
             gait.append(m.data)
         else:
@@ -130,7 +130,7 @@ def tables(path: str | os.PathLike) -> dict:
     events.sort(key=lambda e: int(e.get("time_ns", 0)))  # in time order, as the rest
     gait.sort(key=lambda e: int(e["time_ns"]))
     gait_t = np.array([int(e["time_ns"]) for e in gait], dtype=np.int64)
-    imu_t = np.array([int(s[0] if s[0] is not None else s[1]) for s in imu], dtype=np.int64)
+    imu_t = imu.times()
     label_t = np.array([c[0] for c in changes], dtype=np.int64)
     event_t = np.array([int(e.get("time_ns", 0)) for e in events], dtype=np.int64)
     # time_s counts from the recording's start: its earliest time, receive or sample (an
@@ -224,24 +224,20 @@ def _frame_columns(table: FrameTable, offset: int | None, t0: int) -> dict:
 _IMU_FIELDS = ("time_ns", "host_time_ns", *DEFAULT_OUTPUTS)
 
 
-def _imu_columns(imu: list[tuple], imu_t: np.ndarray, offset: int | None, t0: int) -> dict:
-    imu_cols = {"time_ns": imu_t, "host_time_ns": _ints([s[1] for s in imu])}
+def _imu_columns(imu: ImuColumns, imu_t: np.ndarray, offset: int | None, t0: int) -> dict:
+    imu_cols = {"time_ns": imu_t, "host_time_ns": imu.ints_of("host_time_ns")}
     imu_cols.update(_clock(imu_t, offset, t0))
-    imu_cols["packet_counter"] = _ints([s[2] for s in imu])
-    imu_cols["sample_time_fine"] = _ints([s[3] for s in imu])
-    for at, names in (
-        (4, ("qw", "qx", "qy", "qz")),
-        (5, ("acc_x", "acc_y", "acc_z")),
-        (6, ("gyr_x", "gyr_y", "gyr_z")),
+    imu_cols["packet_counter"] = imu.ints_of("packet_counter")
+    imu_cols["sample_time_fine"] = imu.ints_of("sample_time_fine")
+    for field, names in (
+        ("quaternion", ("qw", "qx", "qy", "qz")),
+        ("acceleration", ("acc_x", "acc_y", "acc_z")),
+        ("rate_of_turn", ("gyr_x", "gyr_y", "gyr_z")),
     ):
-        values = np.full((len(imu), len(names)), np.nan)
-        for k, s in enumerate(imu):
-            v = s[at]
-            if v is not None:
-                values[k] = [np.nan if x is None else x for x in v]
+        values = imu.vector(field)
         for j, name in enumerate(names):
-            imu_cols[name] = values[:, j]
-    imu_cols["status_word"] = _ints([s[7] for s in imu])
+            imu_cols[name] = values[:, j].copy()
+    imu_cols["status_word"] = imu.ints_of("status_word")
     return imu_cols
 
 

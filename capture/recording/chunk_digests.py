@@ -45,7 +45,7 @@ class Tally:
     """The writer's side: regions and per-topic figures, gathered as the file is written."""
 
     def __init__(self, metadata: dict[str, dict]) -> None:
-        self._periods = recorded_periods(DevicesRecord.from_dict(metadata.get(DevicesRecord.NAME)))
+        self._periods = recorded_periods(DevicesRecord.from_dict(metadata.get("devices")))
         self.regions: list[tuple[int, int, int]] = []  # (offset, length, CRC-32)
         self._times: dict[str, list[int]] = {}  # topic -> [messages, first, last log time]
         self._losses: dict[str, RecordedLoss | None] = {}  # None: no configured rate

@@ -106,112 +106,246 @@ def _numbers(values) -> list[float]:
     return [np.nan if p is None else p for p in values]
 
 
+class _Columns:
+    """Finished frame rows as growing numpy columns (and lists for the text and dict
+    fields): a few hundred bytes a frame instead of a dict entry per topic."""
+
+    NUMBERS = {
+        "index": (np.int64, ()),
+        "time_ns": (np.int64, ()),
+        "host_time_ns": (np.int64, ()),
+        "classified": (bool, ()),
+        "probabilities": (float, (len(MODES),)),
+        "cnn_decision": (np.int64, ()),
+        "decision": (np.int64, ()),
+        "decision_at": (np.int64, ()),
+        "posterior": (float, (len(MODES),)),
+        "voted": (np.int64, ()),
+        "voted_at": (np.int64, ()),
+        "produced": (np.int64, ()),
+        "truth": (np.int64, ()),
+        "quaternion": (float, (4,)),
+        "oriented": (bool, ()),
+    }
+    LISTS = ("flag", "cloud_points", "features")
+
+    def __init__(self) -> None:
+        self.n = 0
+        self.arrays = {k: np.empty((1024, *s), dtype=t) for k, (t, s) in self.NUMBERS.items()}
+        self.lists: dict[str, list] = {k: [] for k in self.LISTS}
+
+    def append(self, k: int, e: dict) -> None:
+        if self.n == len(self.arrays["index"]):
+            for name, a in self.arrays.items():
+                self.arrays[name] = np.concatenate([a, np.empty_like(a)])
+        self.set(self.n, _row(k, e))
+        self.n += 1
+
+    def set(self, at: int, row: dict) -> None:
+        for name, value in row.items():
+            if name in self.lists:
+                if at == len(self.lists[name]):
+                    self.lists[name].append(value)
+                else:
+                    self.lists[name][at] = value
+            else:
+                self.arrays[name][at] = value
+
+    def take(self) -> dict:
+        """The columns, in frame order."""
+        out: dict = {k: a[: self.n] for k, a in self.arrays.items()}
+        order = np.argsort(out["index"], kind="stable")
+        if np.any(order != np.arange(self.n)):  # a late frame appended after later ones
+            out = {k: a[order] for k, a in out.items()}
+            self.lists = {k: [v[j] for j in order] for k, v in self.lists.items()}
+        return out | self.lists
+
+
+def _row(k: int, e: dict) -> dict:
+    """One frame's row from its collected messages (see FrameJoin.add)."""
+    cnn, pre = e.get("cnn"), e.get("pre", (0, 0, "", False, None))
+    first = cnn or pre
+    fused, voted = e.get("fused", (NONE, NONE)), e.get("voted", (NONE, NONE))
+    posterior = e.get("posterior")
+    quaternion = e.get("quaternion")
+    return {
+        "index": k,
+        "time_ns": first[0],
+        "host_time_ns": first[1],
+        "classified": cnn is not None,
+        "probabilities": np.nan if cnn is None else cnn[2],
+        "cnn_decision": NONE if cnn is None else cnn[3],
+        "decision": fused[0],
+        "decision_at": fused[1],
+        "posterior": np.nan if posterior is None else _numbers(posterior),
+        "voted": voted[0],
+        "voted_at": voted[1],
+        "produced": e.get("produced", NONE),
+        "truth": e.get("truth", NONE),
+        "quaternion": np.nan if quaternion is None else quaternion,
+        "oriented": pre[3],
+        "flag": pre[2],
+        "cloud_points": pre[4],
+        "features": e.get("features", {}),
+    }
+
+
+# the row's columns each collected message sets
+_COLUMNS_OF = {
+    "cnn": ("time_ns", "host_time_ns", "classified", "probabilities", "cnn_decision"),
+    "pre": ("flag", "oriented", "cloud_points"),
+    "fused": ("decision", "decision_at"),
+    "posterior": ("posterior",),
+    "voted": ("voted", "voted_at"),
+    "produced": ("produced",),
+    "truth": ("truth",),
+    "quaternion": ("quaternion",),
+    "features": ("features",),
+}
+
+
 class FrameJoin:
-    """Collects the per-frame messages of one pass over a recording."""
+    """Collects the per-frame messages of one pass over a recording, holding only the
+    frames still open: a frame's row is finished once the newest frame (by its CNN output
+    or preprocessing record) is `lateness` frames past it. Messages are logged in near
+    frame order (the fused decision, the latest, refers at most the vote delay back, 2
+    frames on the recorded trials); a message for a frame already finished is kept aside
+    and laid over its row when the table is made, so the table is the same whatever the
+    window."""
 
     TOPICS = (T.CNN, T.FUSED, T.PREPROCESS, T.TF, T.TRUTH, T.FEATURES)
+    LATENESS = 64  # frames, about 1.4 s at 45 fps
+    _BATCH = 16  # frames finished together
 
-    # Only the fields the table takes are kept, as tuples: a long trial's frames are many.
-    def __init__(self) -> None:
-        self.cnn: dict[int, tuple[int, int, tuple, int]] = {}  # (time, log, p, decision)
-        self.pre: dict[int, tuple[int, int, str, bool, int | None]] = {}  # (time, log, flag,
-        # oriented, cloud points)
-        self.fused: dict[int, tuple[int, int]] = {}  # frame -> (decision, produced at)
-        self.posterior: dict[int, list] = {}
-        self.voted: dict[int, tuple[int, int]] = {}
-        self.produced: dict[int, int] = {}
-        self.truth: dict[int, int] = {}
-        self.quaternion: dict[int, np.ndarray] = {}
-        self.features: dict[int, dict] = {}
+    def __init__(self, lateness: int = LATENESS) -> None:
+        self.lateness = lateness
+        self.open: dict[int, dict] = {}  # frame -> what its messages said so far
+        self.late: dict[int, dict] = {}  # the same, for frames already finished
+        self.newest = NONE
+        self.finished_to = NONE  # every frame up to this one is finished
+        self.held_peak = 0  # the most frames open at once
+        self.rows = _Columns()
+
+    def _entry(self, k: int) -> dict:
+        if k <= self.finished_to:
+            return self.late.setdefault(k, {})
+        return self.open.setdefault(k, {})
 
     def add(self, m) -> bool:
         """Take a decoded message (capture.recording.reader.RecordedMessage); False when
         its topic is not a per-frame one."""
         d, topic = m.data, m.topic
         if topic == T.CNN:
-            self.cnn[int(d["frame_index"])] = (
+            k = int(d["frame_index"])
+            self._entry(k)["cnn"] = (
                 int(d["time_ns"]),
                 m.log_time_ns,
                 tuple(_numbers(d["probabilities"])),
                 L.mode_index(d["decision"]),
             )
+            self._advance(k)
         elif topic == T.FUSED:
             made = int(d["source_frame_index"])
             if d.get("decision") is not None:
                 decision = L.mode_index(d["decision"])
-                self.fused[int(d["frame_index"])] = (decision, made)
-                self.produced[made] = decision
+                self._entry(int(d["frame_index"]))["fused"] = (decision, made)
+                self._entry(made)["produced"] = decision
             if d.get("posterior") is not None:
-                self.posterior[int(d.get("posterior_frame_index", d["frame_index"]))] = d[
-                    "posterior"
-                ]
+                at = int(d.get("posterior_frame_index", d["frame_index"]))
+                self._entry(at)["posterior"] = d["posterior"]
             if d.get("voted") is not None and d.get("voted_frame_index") is not None:
-                self.voted[int(d["voted_frame_index"])] = (L.mode_index(d["voted"]), made)
+                self._entry(int(d["voted_frame_index"]))["voted"] = (
+                    L.mode_index(d["voted"]),
+                    made,
+                )
         elif topic == T.PREPROCESS:
-            self.pre[int(d["frame_index"])] = (
+            k = int(d["frame_index"])
+            self._entry(k)["pre"] = (
                 int(d["time_ns"]),
                 m.log_time_ns,
                 d.get("flag", "") or "",
                 bool(d.get("oriented", False)),
                 d.get("cloud_points"),
             )
+            self._advance(k)
         elif topic == T.TF:
-            self.quaternion[m.sequence] = np.asarray(d, dtype=float)
+            self._entry(m.sequence)["quaternion"] = np.asarray(d, dtype=float)
         elif topic == T.TRUTH:
-            self.truth[int(d["frame_index"])] = L.mode_index(d.get("mode"))
+            self._entry(int(d["frame_index"]))["truth"] = L.mode_index(d.get("mode"))
         elif topic == T.FEATURES:
-            self.features[int(d["frame_index"])] = {
+            self._entry(int(d["frame_index"]))["features"] = {
                 k: v for k, v in d.items() if k not in ("frame_index", "time_ns")
             }
         else:
             return False
+        self.held_peak = max(self.held_peak, len(self.open))
         return True
+
+    def _advance(self, k: int) -> None:
+        self.newest = max(self.newest, k)
+        if self.newest - self.lateness >= self.finished_to + self._BATCH:
+            self._finish(self.newest - self.lateness)
+
+    def _finish(self, upto: int | float) -> None:
+        for k in sorted(k for k in self.open if k <= upto):
+            e = self.open.pop(k)
+            if "cnn" in e or "pre" in e:
+                self.rows.append(k, e)
+            else:  # no row (yet): its CNN output or preprocessing may still come
+                self.late[k] = e
+        if upto != float("inf"):
+            self.finished_to = max(self.finished_to, int(upto))
+
+    def _lay_late(self) -> None:
+        """Lay the messages that came after their frame was finished over its row (a
+        frame's later message replaces an earlier one of its topic, as in one pass)."""
+        if not self.late:
+            return
+        n = self.rows.n
+        at = {int(k): j for j, k in enumerate(self.rows.arrays["index"][:n])}
+        for k, e in sorted(self.late.items()):
+            if k not in at:
+                if "cnn" in e or "pre" in e:
+                    self.rows.append(k, e)
+                continue
+            j = at[k]
+            columns = [c for key in e for c in _COLUMNS_OF[key]]
+            if "pre" in e and "cnn" not in e and not self.rows.arrays["classified"][j]:
+                columns += ["time_ns", "host_time_ns"]  # a frame's time: its CNN's, else this
+            row = _row(k, e)
+            self.rows.set(j, {name: row[name] for name in columns})
+        self.late = {}
 
     def table(self, changes: list[L.LabelChange], *, has_truth: bool) -> FrameTable:
         """The joined table; `changes`: every /labels change of the file, any order."""
-        index = np.array(sorted(set(self.cnn) | set(self.pre)), dtype=np.int64)
-        n = len(index)
-        first = [self.cnn.get(int(i)) or self.pre[int(i)] for i in index]
-        times = np.array([f[0] for f in first], dtype=np.int64).reshape(-1)
-        probs = np.full((n, len(MODES)), np.nan)
-        post = np.full((n, len(MODES)), np.nan)
-        quats = np.full((n, 4), np.nan)
-        for k, i in enumerate(index.tolist()):
-            if i in self.cnn:
-                probs[k] = self.cnn[i][2]
-            if i in self.posterior:
-                post[k] = _numbers(self.posterior[i])
-            if i in self.quaternion:
-                quats[k] = self.quaternion[i]
-
-        def column(values: dict, default=NONE) -> np.ndarray:
-            return np.array([values.get(int(i), default) for i in index], dtype=int)
-
-        pre = [self.pre.get(int(i), (0, 0, "", False, None)) for i in index]
+        self._finish(float("inf"))
+        self._lay_late()
+        c = self.rows.take()
+        times = c["time_ns"]
         reference = L.effective_changes(changes)
         labels = L.labels_at(times, reference)
-        truth = column(self.truth)
+        truth = c["truth"].astype(int)
         source = L.terrain_source(has_truth, changes)
         return FrameTable(
-            index=index,
+            index=c["index"],
             time_ns=times,
-            host_time_ns=np.array([f[1] for f in first], dtype=np.int64),
-            classified=np.array([int(i) in self.cnn for i in index], dtype=bool),
-            probabilities=probs,
-            cnn_decision=column({i: c[3] for i, c in self.cnn.items()}),
-            decision=column({i: v[0] for i, v in self.fused.items()}),
-            decision_at=column({i: v[1] for i, v in self.fused.items()}),
-            posterior=post,
-            voted=column({i: v[0] for i, v in self.voted.items()}),
-            voted_at=column({i: v[1] for i, v in self.voted.items()}),
-            produced=column(self.produced),
+            host_time_ns=c["host_time_ns"],
+            classified=c["classified"],
+            probabilities=c["probabilities"],
+            cnn_decision=c["cnn_decision"].astype(int),
+            decision=c["decision"].astype(int),
+            decision_at=c["decision_at"].astype(int),
+            posterior=c["posterior"],
+            voted=c["voted"].astype(int),
+            voted_at=c["voted_at"].astype(int),
+            produced=c["produced"].astype(int),
             truth=truth,
             has_truth=has_truth,
-            quaternion=quats,
-            flag=[f[2] for f in pre],
-            oriented=np.array([f[3] for f in pre], dtype=bool),
-            cloud_points=[f[4] for f in pre],
-            features=[self.features.get(int(i), {}) for i in index],
+            quaternion=c["quaternion"],
+            flag=c["flag"],
+            oriented=c["oriented"],
+            cloud_points=c["cloud_points"],
+            features=c["features"],
             labels=labels,
             locomotion=L.labels_at(times, L.live_changes(reference)),
             terrain=truth if has_truth else labels if source else None,
