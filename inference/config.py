@@ -12,16 +12,8 @@ import math
 from dataclasses import dataclass
 
 from devices.config import Problems, choice_problems, key, number_in
+from inference import fusion_design as design  # the authors' matrix and the designs, defined once
 from inference.fusion import Fusion, make_fusion
-from inference.fusion_design import (  # the authors' matrix and the designs, defined once
-    GEOMETRY_EVIDENCE,
-    GEOMETRY_HYSTERESIS,
-    HYSTERESIS,
-    N_MODES,
-    PAPER_TRANSITION,
-    STEADY_EVIDENCE,
-    STEADY_STAY,
-)
 
 
 @dataclass
@@ -125,29 +117,30 @@ class FusionConfig:
     vote_delay: int = key(1, "voting half-window l_v, frames (decisions lag by this many)")
     transition: list[list[float]] = key(
         doc="HMM transition matrix (the paper's), rows and columns LG US DS UR DR",
-        factory=lambda: PAPER_TRANSITION.tolist(),
+        factory=lambda: design.PAPER_TRANSITION.tolist(),
     )
     lag: int = key(1, "fixed-lag: frames the smoother waits for (its decision delay)")
     stay: float = key(
-        STEADY_STAY, "steady: per-frame stay probability (0.987: a terrain held ~5 s at 15 fps)"
+        design.STEADY_STAY,
+        "steady: per-frame stay probability (0.987: a terrain held ~5 s at 15 fps)",
     )
     evidence: float = key(
-        STEADY_EVIDENCE,
+        design.STEADY_EVIDENCE,
         "steady: each frame's CNN probabilities to this power (its errors come in runs of "
         "1.34 frames)",
     )
     hysteresis: float = key(
-        HYSTERESIS,
+        design.HYSTERESIS,
         "steady+hysteresis: the posterior level ground needs before the decision leaves "
         "stairs or a ramp for it (0.8: 4 to 1 against the others)",
     )
     geometry_hysteresis: float = key(
-        GEOMETRY_HYSTERESIS,
+        design.GEOMETRY_HYSTERESIS,
         "steady+geometry: the posterior level ground needs, the terrain features included, "
         "before the decision leaves stairs or a ramp for it (0.6)",
     )
     geometry_evidence: float = key(
-        GEOMETRY_EVIDENCE,
+        design.GEOMETRY_EVIDENCE,
         "steady+geometry: each frame's terrain-feature likelihood to this power (their "
         "misreads come in runs of 2.7 frames)",
     )
@@ -189,13 +182,13 @@ class FusionConfig:
         if not 0 <= self.lag <= 1000:
             out.append(("lag", "0 to 1000 frames"))
         rows = self.transition
-        shape_ok = len(rows) == N_MODES and all(len(r) == N_MODES for r in rows)
+        shape_ok = len(rows) == design.N_MODES and all(len(r) == design.N_MODES for r in rows)
         values_ok = shape_ok and all(math.isfinite(v) and v >= 0 for r in rows for v in r)
         if not (values_ok and all(sum(r) > 0 for r in rows)):
             out.append(
                 (
                     "transition",
-                    f"{N_MODES} rows of {N_MODES} finite, non-negative numbers, "
+                    f"{design.N_MODES} rows of {design.N_MODES} finite, non-negative numbers, "
                     "each row with a positive sum",
                 )
             )

@@ -52,7 +52,6 @@ At the ends of a sequence (documented choices, the paper does not say):
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -123,12 +122,7 @@ class ArgmaxFusion(Stream):
         t = self._frame
         self._frame = t + 1
         decision = e.index(max(e))
-        out = FusionOutput(t, decision, t, tuple(e))
-        if self._voter is not None:
-            vote = self._voter.push(t, decision)
-            if vote is not None:
-                out.voted_frame, out.voted = vote
-        return out
+        return self._voted(FusionOutput(t, decision, t, tuple(e)))
 
     def flush(self) -> list[FusionOutput]:
         if self._flushed:
@@ -205,12 +199,7 @@ class HmmFusion(Stream):
         smooth.append(p)
         if decision is None:  # frame 0: nothing to decide yet (p(s_0) is the CNN's output)
             return None
-        out = FusionOutput(t - 1, decision, t, p)
-        if self._voter is not None:
-            vote = self._voter.push(t - 1, decision)
-            if vote is not None:
-                out.voted_frame, out.voted = vote
-        return out
+        return self._voted(FusionOutput(t - 1, decision, t, p))
 
     def flush(self) -> list[FusionOutput]:
         """Decide the last frame as argmax of its p(s_t) (it has no next frame), then votes."""
@@ -221,12 +210,7 @@ class HmmFusion(Stream):
         if self._frame > 0:
             last = self._smooth[-1]
             frame, decision = self._frame - 1, last.index(max(last))
-            out = FusionOutput(frame, decision)
-            if self._voter is not None:
-                vote = self._voter.push(frame, decision)
-                if vote is not None:
-                    out.voted_frame, out.voted = vote
-            outputs.append(out)
+            outputs.append(self._voted(FusionOutput(frame, decision)))
         return outputs + self._vote_outputs()
 
 
@@ -332,8 +316,7 @@ class Method:
 
     name: str
     cls: type
-    args: Callable[[dict], tuple]  # the [fusion] parameters -> cls's arguments
-    keys: tuple[str, ...]  # the [fusion] keys it takes (besides the transition matrix)
+    params: tuple[str, ...]  # cls's arguments, in order: [fusion] keys and "transition"
     title: str  # in figures, tables and the live screen
     style: dict  # in figures: grey level, hatch, marker and dash (never a mode's colour)
     doc: str  # what it decides: the docs' methods table and `eval --methods` help
@@ -343,12 +326,20 @@ class Method:
     votes_on: str | None = None  # votes over this method's decisions (`--vote-delay`)
     bench_us: float | None = None  # `walkcap bench`'s bound on one push, us
 
+    @property
+    def keys(self) -> tuple[str, ...]:
+        """The [fusion] keys it takes (besides the transition matrix)."""
+        return tuple(k for k in self.params if k != "transition")
+
+    def args(self, values: dict) -> tuple:
+        """cls's arguments from the [fusion] parameter `values`."""
+        return tuple(int(values[k]) if k == "vote_delay" else values[k] for k in self.params)
+
 
 METHOD_TABLE: tuple[Method, ...] = (
     Method(
         "cnn",
         ArgmaxFusion,
-        lambda p: (),
         (),
         "CNN",
         {"color": "#e4e4e4", "hatch": "", "line": "#a8a8a8", "marker": "o", "linestyle": ":"},
@@ -359,7 +350,6 @@ METHOD_TABLE: tuple[Method, ...] = (
     Method(
         "cnn+voting",
         ArgmaxFusion,
-        lambda p: (int(p["vote_delay"]),),
         ("vote_delay",),
         "CNN + voting",
         {
@@ -378,8 +368,7 @@ METHOD_TABLE: tuple[Method, ...] = (
     Method(
         "hmm",
         HmmFusion,
-        lambda p: (p["window"], p["transition"]),
-        ("window",),
+        ("window", "transition"),
         "HMM",
         {"color": "#6a6a6a", "hatch": "", "line": "#505050", "marker": "D", "linestyle": "--"},
         "the HMM of Zhang et al. (Algorithm 1) over a smoothing window of `--window` frames",
@@ -389,8 +378,7 @@ METHOD_TABLE: tuple[Method, ...] = (
     Method(
         "hmm+voting",
         HmmFusion,
-        lambda p: (p["window"], p["transition"], int(p["vote_delay"])),
-        ("window", "vote_delay"),
+        ("window", "transition", "vote_delay"),
         "HMM + voting",
         {
             "color": "#262626",
@@ -408,8 +396,7 @@ METHOD_TABLE: tuple[Method, ...] = (
     Method(
         "forward",
         ForwardFilter,
-        lambda p: (p["transition"],),
-        (),
+        ("transition",),
         "forward filter",
         {
             "color": "#ffffff",
@@ -423,8 +410,7 @@ METHOD_TABLE: tuple[Method, ...] = (
     Method(
         "fixed-lag",
         FixedLagSmoother,
-        lambda p: (p["transition"], p["lag"]),
-        ("lag",),
+        ("transition", "lag"),
         "fixed-lag smoother",
         {
             "color": "#d8d8d8",
@@ -438,7 +424,6 @@ METHOD_TABLE: tuple[Method, ...] = (
     Method(
         "steady",
         SteadyFusion,
-        lambda p: (p["stay"], p["evidence"]),
         ("stay", "evidence"),
         "steady",
         {
@@ -457,7 +442,6 @@ METHOD_TABLE: tuple[Method, ...] = (
     Method(
         "steady+gait",
         GaitSteadyFusion,
-        lambda p: (p["stay"], p["evidence"]),
         ("stay", "evidence"),
         "steady + gait",
         {
@@ -476,7 +460,6 @@ METHOD_TABLE: tuple[Method, ...] = (
     Method(
         "steady+hysteresis",
         HysteresisFusion,
-        lambda p: (p["stay"], p["evidence"], p["hysteresis"]),
         ("stay", "evidence", "hysteresis"),
         "steady + hysteresis",
         {
@@ -495,7 +478,6 @@ METHOD_TABLE: tuple[Method, ...] = (
     Method(
         "steady+geometry",
         GeometryFusion,
-        lambda p: (p["stay"], p["evidence"], p["geometry_hysteresis"], p["geometry_evidence"]),
         ("stay", "evidence", "geometry_hysteresis", "geometry_evidence"),
         "steady + geometry",
         {
@@ -515,7 +497,6 @@ METHOD_TABLE: tuple[Method, ...] = (
     Method(
         "steady+slope",
         SlopeFusion,
-        lambda p: (p["stay"], p["evidence"], p["hysteresis"]),
         ("stay", "evidence", "hysteresis"),
         "steady + slope",
         {
@@ -534,7 +515,6 @@ METHOD_TABLE: tuple[Method, ...] = (
     Method(
         "steady+steps",
         StepFusion,
-        lambda p: (p["stay"], p["evidence"], p["hysteresis"]),
         ("stay", "evidence", "hysteresis"),
         "steady + steps",
         {

@@ -150,6 +150,14 @@ class Stream:
         if self._flushed:
             raise InferenceError(f"{self.method}: the sequence was flushed; reset() first")
 
+    def _voted(self, out: FusionOutput) -> FusionOutput:
+        """`out` with the vote its decision completes, when voting and one is due."""
+        if self._voter is not None:
+            vote = self._voter.push(out.frame, out.decision)
+            if vote is not None:
+                out.voted_frame, out.voted = vote
+        return out
+
     def _vote_outputs(self) -> list[FusionOutput]:
         if self._voter is None:
             return []

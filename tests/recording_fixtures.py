@@ -236,3 +236,18 @@ def decoded_messages(path: str | os.PathLike, relative: bool = False) -> dict:
             (m.log_time_ns - t0, m.publish_time_ns - t0, m.sequence, plain(m.data))
         )
     return out
+
+
+def synth_recording(tmp_path: Path, method: str, preset: str, frames: int) -> Path:
+    """The one recording `walkcap synth --format recording` (seed 78) makes in `tmp_path`
+    with [fusion] method = `method`."""
+    from tui import cli
+
+    config = tmp_path / "walkcap.toml"
+    config.write_text(f'[fusion]\nmethod = "{method}"\n')
+    out = tmp_path / "synth"
+    args = ["--config", str(config), "synth", "--format", "recording", "--out", str(out)]
+    args += ["--sessions", "1", "--preset", preset, "--seed", "78", "--frames", str(frames)]
+    assert cli.main(args) == 0
+    (path,) = out.glob("*.mcap")
+    return path

@@ -33,3 +33,19 @@ def synthetic_trial(
         probabilities[i, chosen[i]] = confidence[i]
         probabilities[i, np.arange(N_MODES) != chosen[i]] = rest[i]
     return Trial(path or f"synthetic-{seed}", probabilities, reference, dict(metadata or {}))
+
+
+def live_final(fusion, probabilities):
+    """What a live session sees: push per frame, flush at the end, final decisions
+    (-1: undecided)."""
+    n = len(probabilities)
+    final = np.full(n, -1)
+    for out in [fusion.push(row) for row in probabilities] + fusion.flush():
+        if out is None:
+            continue
+        frame, decision = (
+            (out.voted_frame, out.voted) if fusion.votes else (out.frame, out.decision)
+        )
+        if frame is not None:
+            final[frame] = decision
+    return final

@@ -56,6 +56,7 @@ from capture.recording.reader import frame_table, open_recording
 from devices import clock
 from devices.files import check_replaceable
 from devices.frames import MODES
+from devices.xbus import DEFAULT_OUTPUTS
 
 TABLES = ("frames", "imu", "labels", "events", "gait", "trials")
 FORMATS = ("parquet", "csv", "mat")
@@ -220,16 +221,7 @@ def _frame_columns(table: FrameTable, offset: int | None, t0: int) -> dict:
 
 
 # an IMU sample's fields the table takes, in this order
-_IMU_FIELDS = (
-    "time_ns",
-    "host_time_ns",
-    "packet_counter",
-    "sample_time_fine",
-    "quaternion",
-    "acceleration",
-    "rate_of_turn",
-    "status_word",
-)
+_IMU_FIELDS = ("time_ns", "host_time_ns", *DEFAULT_OUTPUTS)
 
 
 def _imu_columns(imu: ImuColumns, imu_t: np.ndarray, offset: int | None, t0: int) -> dict:

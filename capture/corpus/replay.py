@@ -414,19 +414,8 @@ def replay(
             )
         if fast:
             blocks = _fixed_batches(blocks, BATCH)
-        return _replay(
-            source,
-            rec,
-            output,
-            config,
-            params,
-            mounting,
-            speed,
-            classifier,
-            progress,
-            blocks,
-            (imu, labels, events),
-        )
+        job = _ReplayJob(source, rec, output, config, params, mounting, speed, classifier, progress)
+        return _replay(job, blocks, (imu, labels, events))
     finally:
         if frames_in is not None:
             frames_in.close()
@@ -466,19 +455,24 @@ def _head_start(source, params, mounting, imu_orientations, frames_in: _ReaderPr
     yield from frames_in.batches(BATCH)
 
 
-def _replay(
-    source,
-    rec,
-    output,
-    config,
-    params,
-    mounting,
-    speed,
-    classifier,
-    progress,
-    blocks,
-    recorded_streams,
-) -> ReplayReport:
+@dataclass(frozen=True)
+class _ReplayJob:
+    """What one replay runs with: the source and its open recording, the output, the
+    configuration and the parameter copies it started with, the pace, the classifier (None:
+    the configured model) and the progress callback."""
+
+    source: Path
+    rec: object
+    output: Path
+    config: object
+    params: object
+    mounting: object
+    speed: float | None
+    classifier: object
+    progress: object
+
+
+def _replay(job: _ReplayJob, blocks, recorded_streams) -> ReplayReport:
     from capture.recording.chunks import ZSTD_LEVEL_FAST
     from capture.recording.gait import read_gait
     from capture.recording.writer import Recorder
@@ -486,38 +480,40 @@ def _replay(
     from inference.gait import GaitDetector
     from inference.model import load_classifier
 
-    classifier = classifier or load_classifier(config.model.path or None, threads=CNN_THREADS)
-    pipeline = build_pipeline(config, classifier, params, mounting)
+    classifier = job.classifier or load_classifier(
+        job.config.model.path or None, threads=CNN_THREADS
+    )
+    pipeline = build_pipeline(job.config, classifier, job.params, job.mounting)
 
     imu, labels, events = recorded_streams
 
-    meta = rec.meta
+    meta = job.rec.meta
     # the source's records kept, in the source's order
     metadata = {
         name: getattr(meta, name).to_dict()
-        for name in rec.metadata
+        for name in job.rec.metadata
         if name in (SessionRecord.NAME, DevicesRecord.NAME, CameraRecord.NAME)
     }
     software = SoftwareRecord.from_dict(
         {
             **meta.software.to_dict(),
-            **software_metadata(config, pipeline),
-            "replay_of": source.name,
+            **software_metadata(job.config, pipeline),
+            "replay_of": job.source.name,
         }
     )
     metadata[software.NAME] = software.to_dict()
     replay_id = str(uuid.uuid4())
     metadata[DerivationRecord.NAME] = derivation(
-        rec,
+        job.rec,
         replay_id,
         REPLAY,
         f"replay with model {software.model_hash[:12] or '?'} ({software.model_path})",
         model_hash=software.model_hash,
         model_path=software.model_path,
     )
-    attachments = {name: data for name, data in rec.attachments.items()}
+    attachments = {name: data for name, data in job.rec.attachments.items()}
     recorder = Recorder(
-        output,
+        job.output,
         recording_id=replay_id,
         metadata=metadata,
         attachments=attachments,
@@ -544,7 +540,7 @@ def _replay(
             recorder.write_label(int(lab["time_ns"]), lab.get("mode", ""), lab.get("source", ""))
         for ev in events:
             recorder.write_event(dict(ev))
-        for event in read_gait(rec, source="simulator").events():  # the truth, as recorded
+        for event in read_gait(job.rec, source="simulator").events():  # the truth, as recorded
             recorder.write_gait(event)
         for block in blocks:
             probs = (
@@ -556,8 +552,8 @@ def _replay(
                 t = frame.device_time_ns
                 first_t = t if first_t is None else first_t
                 last_t = t
-                if speed:  # recorded pace, scaled
-                    wait = clock.seconds(t - first_t) / speed - (time.monotonic() - wall0)
+                if job.speed:  # recorded pace, scaled
+                    wait = clock.seconds(t - first_t) / job.speed - (time.monotonic() - wall0)
                     if wait > 0:
                         time.sleep(wait)
                 while i_imu < len(imu_times) and imu_times[i_imu] <= t + IMU_LOOKAHEAD_NS:
@@ -567,15 +563,15 @@ def _replay(
                 recorder.write_encoded(frame.index, t, frame.host_time_ns, encoded)
                 record_decisions(recorder, result, frame.host_time_ns)
                 frames += 1
-                if progress is not None:
-                    progress(frames)
+                if job.progress is not None:
+                    job.progress(frames)
         for s in imu_samples:
             write_imu(s)
     finally:
         stats = recorder.close()
     taken = time.monotonic() - wall0
     recorded = clock.seconds(last_t - first_t) if frames > 1 else 0.0
-    return ReplayReport(str(source), str(output), frames, recorded, taken, stats)
+    return ReplayReport(str(job.source), str(job.output), frames, recorded, taken, stats)
 
 
 def replay_file(source: str, config, output: str) -> ReplayReport:

@@ -23,6 +23,7 @@ import numpy as np
 
 from capture import __version__
 from capture.recording import topics as T
+from capture.recording import write_queue as wq
 from capture.recording.chunk_digests import CHUNK_DIGESTS, Tally
 from capture.recording.digests import Sealer
 from capture.recording.encode import (
@@ -37,19 +38,6 @@ from capture.recording.encode import (
     encode_truth,
 )
 from capture.recording.metadata import CameraRecord
-from capture.recording.write_queue import (
-    QueuedDeviceEvent,
-    QueuedEncodedFrame,
-    QueuedFeatures,
-    QueuedFrame,
-    QueuedGait,
-    QueuedImuSample,
-    QueuedInference,
-    QueuedItem,
-    QueuedMessage,
-    QueuedProcessing,
-    QueuedTruth,
-)
 from devices.clock import now_ns
 
 log = logging.getLogger(__name__)
@@ -298,7 +286,7 @@ class ChunkWriter:
         """A JSON message logged and published at `time_ns` (labels, events)."""
         self.add(Encoded(topic, time_ns, time_ns, T.encode_json(entry)))
 
-    def write(self, item: QueuedItem) -> None:
+    def write(self, item: wq.QueuedItem) -> None:
         """A queued item's messages; an item that cannot be encoded is logged and counted."""
         try:
             messages = self._ENCODERS[type(item)](self, item)
@@ -321,7 +309,7 @@ class ChunkWriter:
     def _log_time(self, index: int, default: int) -> int:
         return self._frame_times.get(index, (default, default))[1]
 
-    def _encode_depth_frame(self, item: QueuedFrame) -> list[Encoded]:
+    def _encode_depth_frame(self, item: wq.QueuedFrame) -> list[Encoded]:
         frame = item.frame
         t = frame.device_time_ns if item.time_ns is None else item.time_ns
         log_time = frame.host_time_ns
@@ -360,10 +348,10 @@ class ChunkWriter:
             self.add_json(T.EVENTS, t, event)
             log.warning("recording %s: %s", self.path, event["message"])
 
-    def _encode_imu_sample(self, item: QueuedImuSample) -> list[Encoded]:
+    def _encode_imu_sample(self, item: wq.QueuedImuSample) -> list[Encoded]:
         return encode_imu(item.sample)
 
-    def _encode_processing(self, item: QueuedProcessing) -> list[Encoded]:
+    def _encode_processing(self, item: wq.QueuedProcessing) -> list[Encoded]:
         self._remember(item.index, item.time_ns, item.log_time)
         return encode_processed(
             item.index,
@@ -377,41 +365,41 @@ class ChunkWriter:
             self._cloud_max_points,
         )
 
-    def _encode_inference(self, item: QueuedInference) -> list[Encoded]:
+    def _encode_inference(self, item: wq.QueuedInference) -> list[Encoded]:
         return encode_inference(item.index, item.time_ns, item.log_time, item.probs, item.fused)
 
-    def _encode_features(self, item: QueuedFeatures) -> list[Encoded]:
+    def _encode_features(self, item: wq.QueuedFeatures) -> list[Encoded]:
         log_time = self._log_time(item.index, item.time_ns)
         return encode_features(item.index, item.time_ns, log_time, item.features)
 
-    def _encode_truth(self, item: QueuedTruth) -> list[Encoded]:
+    def _encode_truth(self, item: wq.QueuedTruth) -> list[Encoded]:
         log_time = self._log_time(item.index, item.time_ns)
         return encode_truth(item.index, item.time_ns, log_time, item.truth)
 
-    def _encode_gait(self, item: QueuedGait) -> list[Encoded]:
+    def _encode_gait(self, item: wq.QueuedGait) -> list[Encoded]:
         return encode_gait(item.event, item.log_time)
 
-    def _take_encoded_frame(self, item: QueuedEncodedFrame) -> list[Encoded]:
+    def _take_encoded_frame(self, item: wq.QueuedEncodedFrame) -> list[Encoded]:
         self._remember(item.index, item.time_ns, item.log_time)
         return item.messages
 
-    def _encode_message(self, item: QueuedMessage) -> list[Encoded]:
+    def _encode_message(self, item: wq.QueuedMessage) -> list[Encoded]:
         if item.topic not in self._declared:
             raise ValueError(f"{item.topic}: not declared")
         return [Encoded(item.topic, item.log_time, item.time_ns, T.encode_json(item.message))]
 
-    def _encode_device_event(self, item: QueuedDeviceEvent) -> list[Encoded]:
+    def _encode_device_event(self, item: wq.QueuedDeviceEvent) -> list[Encoded]:
         return encode_event(item.event)
 
     _ENCODERS = {
-        QueuedFrame: _encode_depth_frame,
-        QueuedImuSample: _encode_imu_sample,
-        QueuedProcessing: _encode_processing,
-        QueuedInference: _encode_inference,
-        QueuedFeatures: _encode_features,
-        QueuedTruth: _encode_truth,
-        QueuedGait: _encode_gait,
-        QueuedEncodedFrame: _take_encoded_frame,
-        QueuedDeviceEvent: _encode_device_event,
-        QueuedMessage: _encode_message,
+        wq.QueuedFrame: _encode_depth_frame,
+        wq.QueuedImuSample: _encode_imu_sample,
+        wq.QueuedProcessing: _encode_processing,
+        wq.QueuedInference: _encode_inference,
+        wq.QueuedFeatures: _encode_features,
+        wq.QueuedTruth: _encode_truth,
+        wq.QueuedGait: _encode_gait,
+        wq.QueuedEncodedFrame: _take_encoded_frame,
+        wq.QueuedDeviceEvent: _encode_device_event,
+        wq.QueuedMessage: _encode_message,
     }

@@ -100,6 +100,27 @@ def decisions_of(probabilities: np.ndarray) -> np.ndarray:
     return out
 
 
+class FrameOutputs:
+    """What a fusion's outputs (push and flush) say of each of `n` frames: its decision,
+    vote and posterior (-1, nan: none)."""
+
+    def __init__(self, n: int) -> None:
+        self.decisions = np.full(n, -1)
+        self.voted = np.full(n, -1)
+        self.posteriors = np.full((n, N_MODES), np.nan)
+
+    def add(self, out) -> None:
+        """One output (None: a push that decided nothing yet)."""
+        if out is None:
+            return
+        if out.frame is not None:
+            self.decisions[out.frame] = out.decision
+        if out.posterior_frame is not None:
+            self.posteriors[out.posterior_frame] = out.probabilities
+        if out.voted_frame is not None:
+            self.voted[out.voted_frame] = out.voted
+
+
 def run_offline(
     fusion: Fusion,
     probabilities: np.ndarray,
@@ -123,20 +144,10 @@ def run_offline(
     unusable = ~np.all(np.isfinite(e), axis=1) if e.ndim == 2 else np.zeros(len(e), bool)
     e[unusable] = 1.0 / N_MODES
     n = len(e)
-    decisions = np.full(n, -1)
-    voted = np.full(n, -1)
-    posteriors = np.full((n, N_MODES), np.nan)
+    by_frame = FrameOutputs(n)
+    decisions, voted, posteriors = by_frame.decisions, by_frame.voted, by_frame.posteriors
+    collect = by_frame.add
     fusion.reset()
-
-    def collect(out) -> None:
-        if out is None:
-            return
-        if out.frame is not None:
-            decisions[out.frame] = out.decision
-        if out.posterior_frame is not None:
-            posteriors[out.posterior_frame] = out.probabilities
-        if out.voted_frame is not None:
-            voted[out.voted_frame] = out.voted
 
     if getattr(fusion, "uses_gait", False):
         if elevation_deg is None:

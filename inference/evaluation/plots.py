@@ -319,45 +319,68 @@ def _reference_of(results) -> str:
     return " / ".join(names) or "terrain"
 
 
+def _condition_panels(plt, n: int):
+    """n panels stacked, one a condition, on one x axis."""
+    return plt.subplots(
+        n,
+        1,
+        figsize=(COLUMN_IN, 0.4 + 1.6 * n),
+        squeeze=False,
+        sharex=True,
+        layout="constrained",
+    )
+
+
+def _method_point(ax, m: str, k: int, params, x, y) -> None:
+    """Method m's (the k-th shown) point in its style, labelled with its delay."""
+    style = method_style(m, k)
+    ax.plot(
+        x,
+        y,
+        marker=style["marker"],
+        color=style["line"],
+        markeredgecolor="black",
+        markeredgewidth=0.4,
+        linestyle="none",
+        markersize=4.5,
+        label=f"{TITLES.get(m, m)} ({params.delay_frames(m)} fr)",
+    )
+
+
+def _switches_axis(axes) -> None:
+    """Spurious switches a minute along x: a point at 0 shows whole, on one scale for
+    every condition."""
+    for (ax,) in axes:
+        right = max(1.0, ax.get_xlim()[1])
+        ax.set_xlim(-0.04 * right, right)
+    axes[-1][0].set_xlabel("spurious switches a minute")
+
+
 def _plot_switches(plt, results, methods, params):
     """Per condition (one panel each, stacked): each method's accuracy (mean over trials)
     against its spurious switches a minute (pooled), with its delay: the trade-off a
     controller feels."""
     conditions = by_condition(results)
-    fig, axes = plt.subplots(
-        len(conditions),
-        1,
-        figsize=(COLUMN_IN, 0.4 + 1.6 * len(conditions)),
-        squeeze=False,
-        sharex=True,
-        layout="constrained",
-    )
+    fig, axes = _condition_panels(plt, len(conditions))
     reference = _reference_of(results)
     for (ax,), (condition, rs) in zip(axes, conditions.items()):
         for k, m in enumerate(methods):
             stats = pooled_transitions(rs, m).get(reference)
             if stats is None:
                 continue
-            style = method_style(m, k)
-            ax.plot(
+            _method_point(
+                ax,
+                m,
+                k,
+                params,
                 stats.spurious_per_min,
                 100 * mean_sd([r.accuracy[m] for r in rs])[0],
-                marker=style["marker"],
-                color=style["line"],
-                markeredgecolor="black",
-                markeredgewidth=0.4,
-                linestyle="none",
-                markersize=4.5,
-                label=f"{TITLES.get(m, m)} ({params.delay_frames(m)} fr)",
             )
         ax.set_ylabel("accuracy (%)")
         ax.grid(True, linewidth=0.3)
         n = len(rs)
         ax.set_title(f"{condition or 'all trials'} (n = {n} trial{'s' if n != 1 else ''})")
-    for (ax,) in axes:  # a point at 0 shows whole, on one scale for every condition
-        right = max(1.0, ax.get_xlim()[1])
-        ax.set_xlim(-0.04 * right, right)
-    axes[-1][0].set_xlabel("spurious switches a minute")
+    _switches_axis(axes)
     fig.suptitle(f"Accuracy against spurious switches ({reference} reference)")
     _legend_below(
         fig,
@@ -375,14 +398,7 @@ def _plot_steps(plt, results, methods, params):
     (pooled over the trials' steps) against its spurious switches a minute: what a
     prosthesis acting at steps feels."""
     conditions = {c: rs for c, rs in by_condition(results).items() if any(r.steps for r in rs)}
-    fig, axes = plt.subplots(
-        len(conditions),
-        1,
-        figsize=(COLUMN_IN, 0.4 + 1.6 * len(conditions)),
-        squeeze=False,
-        sharex=True,
-        layout="constrained",
-    )
+    fig, axes = _condition_panels(plt, len(conditions))
     reference = _reference_of(results)
     for (ax,), (condition, rs) in zip(axes, conditions.items()):
         for k, m in enumerate(methods):
@@ -390,27 +406,15 @@ def _plot_steps(plt, results, methods, params):
             switches = pooled_transitions(rs, m).get(reference)
             if steps is None or switches is None:
                 continue
-            style = method_style(m, k)
-            ax.plot(
-                switches.spurious_per_min,
-                100 * steps.error_rate_at_heel_contact,
-                marker=style["marker"],
-                color=style["line"],
-                markeredgecolor="black",
-                markeredgewidth=0.4,
-                linestyle="none",
-                markersize=4.5,
-                label=f"{TITLES.get(m, m)} ({params.delay_frames(m)} fr)",
+            _method_point(
+                ax, m, k, params, switches.spurious_per_min, 100 * steps.error_rate_at_heel_contact
             )
         ax.set_ylabel("errors at heel contact (%)")
         ax.grid(True, linewidth=0.3)
         heel = sum(r.steps[methods[0]].heel_contacts for r in rs if methods[0] in r.steps)
         ax.set_title(f"{condition or 'all trials'} ({heel} heel contacts)")
         ax.set_ylim(bottom=0)
-    for (ax,) in axes:
-        right = max(1.0, ax.get_xlim()[1])
-        ax.set_xlim(-0.04 * right, right)
-    axes[-1][0].set_xlabel("spurious switches a minute")
+    _switches_axis(axes)
     fig.suptitle("Errors at heel contact against spurious switches")
     _legend_below(
         fig,

@@ -12,24 +12,9 @@ from inference.errors import InferenceError
 from inference.evaluation import metrics
 from inference.fusion import METHODS, make_fusion
 from inference.fusion_design import PAPER_TRANSITION
-from tests.scored_trials import synthetic_trial
+from tests.scored_trials import live_final, synthetic_trial
 
 HEADER = "LG,US,DS,UR,DR,label\n"
-
-
-def live_final(fusion, probabilities):
-    """What a live session sees: push per frame, flush at the end, final decisions."""
-    n = len(probabilities)
-    final = np.full(n, -1)
-    for out in [fusion.push(row) for row in probabilities] + fusion.flush():
-        if out is None:
-            continue
-        frame, decision = (
-            (out.voted_frame, out.voted) if fusion.votes else (out.frame, out.decision)
-        )
-        if frame is not None:
-            final[frame] = decision
-    return final
 
 
 @pytest.fixture(scope="module")

@@ -5,7 +5,7 @@ import pytest
 
 from inference.config import FusionConfig
 from inference.errors import InferenceError
-from inference.evaluation.metrics import accuracy, run_offline
+from inference.evaluation.metrics import FrameOutputs, accuracy, run_offline
 from inference.fusion import (
     METHODS,
     FixedLagSmoother,
@@ -36,20 +36,10 @@ def random_probabilities(rng, n, concentration=0.5):
 
 def stream(fusion, probabilities):
     """Live use: push each frame, then flush; collect by frame."""
-    n = len(probabilities)
-    decisions, voted = np.full(n, -1), np.full(n, -1)
-    posteriors = np.full((n, 5), np.nan)
-    outputs = [fusion.push(row) for row in probabilities] + fusion.flush()
-    for out in outputs:
-        if out is None:
-            continue
-        if out.frame is not None:
-            decisions[out.frame] = out.decision
-        if out.posterior_frame is not None:
-            posteriors[out.posterior_frame] = out.posterior
-        if out.voted_frame is not None:
-            voted[out.voted_frame] = out.voted
-    return decisions, voted, posteriors
+    by_frame = FrameOutputs(len(probabilities))
+    for out in [fusion.push(row) for row in probabilities] + fusion.flush():
+        by_frame.add(out)
+    return by_frame.decisions, by_frame.voted, by_frame.posteriors
 
 
 # --- transition matrices -----------------------------------------------------------------

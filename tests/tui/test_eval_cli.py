@@ -10,7 +10,7 @@ import pytest
 from devices.frames import MODES
 from inference import evaluation as ev
 from inference.fusion import make_fusion
-from tests.scored_trials import synthetic_trial
+from tests.scored_trials import live_final, synthetic_trial
 from tui import cli
 from tui.commands import eval_model
 
@@ -36,16 +36,7 @@ def run(capsys, *argv):
 
 def live_accuracy(method, probabilities, reference, **kw):
     """The decisions a live session would make, frame by frame."""
-    fusion = make_fusion(method, **kw)
-    final = {}
-    for out in [fusion.push(row) for row in probabilities] + fusion.flush():
-        if out is None:
-            continue
-        frame, decision = (
-            (out.voted_frame, out.voted) if fusion.votes else (out.frame, out.decision)
-        )
-        if frame is not None:
-            final[frame] = decision
+    final = live_final(make_fusion(method, **kw), probabilities)
     return np.mean([final[i] == r for i, r in enumerate(reference) if r >= 0])
 
 

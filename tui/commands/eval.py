@@ -18,6 +18,7 @@ import json
 import math
 from pathlib import Path
 
+from inference.config import FusionConfig
 from inference.fusion import METHOD_TABLE, METHODS
 from tui.commands import add_cluster_argument, count, eval_gait, eval_model, positive
 
@@ -48,31 +49,29 @@ def _methods_help() -> str:
     )
 
 
+# the [fusion] frame counts a run may set: key, its smallest value, what it counts
+_FUSION_COUNTS = (
+    ("window", 1, "l_w, the HMM's smoothing window in frames"),
+    ("vote_delay", 0, "l_v, voting half-window in frames"),
+    ("lag", 0, "lag of the fixed-lag smoother in frames"),
+)
+
+
 def _common_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--window",
-        type=count(1),
-        metavar="N",
-        help="l_w, the HMM's smoothing window in frames (default: [fusion] window, 5)",
-    )
-    p.add_argument(
-        "--vote-delay",
-        type=count(0),
-        metavar="N",
-        help="l_v, voting half-window in frames (default: [fusion] vote_delay, 1)",
-    )
+    defaults = FusionConfig()
+    for key, smallest, what in _FUSION_COUNTS:
+        p.add_argument(
+            "--" + key.replace("_", "-"),
+            type=count(smallest),
+            metavar="N",
+            help=f"{what} (default: [fusion] {key}, {getattr(defaults, key)})",
+        )
     p.add_argument(
         "--methods",
         type=_methods,
         default=None,
         metavar="LIST",
         help=_methods_help(),
-    )
-    p.add_argument(
-        "--lag",
-        type=count(0),
-        metavar="N",
-        help="lag of the fixed-lag smoother in frames (default: [fusion] lag, 1)",
     )
     p.add_argument(
         "--transition",

@@ -88,16 +88,12 @@ def add_arguments(parser) -> None:
         type=count(1, 2000),
         help="output rate at power-up in Hz (default: [imu] rate_hz)",
     )
-    p.add_argument(
-        "--drift-ppm",
-        type=config_value("imu.drift_ppm"),
-        help="device clock drift (default: [imu] drift_ppm)",
-    )
-    p.add_argument(
-        "--jitter-ms",
-        type=config_value("imu.jitter_ms"),
-        help="transmit jitter (default: [imu] jitter_ms)",
-    )
+    for key, what in (("drift_ppm", "device clock drift"), ("jitter_ms", "transmit jitter")):
+        p.add_argument(
+            "--" + key.replace("_", "-"),
+            type=config_value(f"imu.{key}"),
+            help=f"{what} (default: [imu] {key})",
+        )
     p.add_argument("--seed", type=int, default=0, help="seed of the emulated motion (default 0)")
     p.add_argument(
         "--model", help="the model it plays, e.g. MTi-3, MTi-630 (default: [imu] emulate)"
@@ -405,6 +401,8 @@ def _decode(args, config) -> int:
 
 
 def _decode_table(objects) -> None:
+    from devices import xbus
+
     def vec(values, fmt="{:+8.3f}"):
         if values is None:
             return "-"
@@ -423,19 +421,7 @@ def _decode_table(objects) -> None:
                 f"{s['malformed']} malformed"
             )
             continue
-        other = [
-            k
-            for k in obj
-            if k
-            not in (
-                "packet_counter",
-                "sample_time_fine",
-                "quaternion",
-                "acceleration",
-                "rate_of_turn",
-                "status_word",
-            )
-        ]
+        other = [k for k in obj if k not in xbus.DEFAULT_OUTPUTS]
         status = obj.get("status_word")
         print(
             f"{_or_dash(obj.get('packet_counter')):>7} "

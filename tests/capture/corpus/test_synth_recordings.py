@@ -7,6 +7,7 @@ import pytest
 from capture.corpus.dataset import labeled_session, read_sessions
 from capture.corpus.trials import read_trial
 from capture.recording.reader import open_recording
+from tests.recording_fixtures import synth_recording
 from tui import cli
 
 
@@ -111,13 +112,7 @@ def test_a_geometry_fusion_decides_offline_as_it_decided_live(tmp_path, method):
     from inference.evaluation.metrics import run_offline
     from inference.fusion import make_fusion
 
-    config = tmp_path / "walkcap.toml"
-    config.write_text(f'[fusion]\nmethod = "{method}"\n')
-    out = tmp_path / "synth"
-    args = ["--config", str(config), "synth", "--format", "recording", "--out", str(out)]
-    args += ["--sessions", "1", "--preset", "outdoor", "--seed", "78", "--frames", "60"]
-    assert cli.main(args) == 0
-    (path,) = out.glob("*.mcap")
+    path = synth_recording(tmp_path, method, "outdoor", 60)
     trial = read_trial(path)
     fusion = make_fusion(method)
     cues = trial.frames.geometry, trial.frames.ground_ahead

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from capture.corpus.trials import read_evaluation_trial, read_trial
-from tui import cli
+from tests.recording_fixtures import synth_recording
 
 
 @pytest.mark.slow
@@ -15,13 +15,7 @@ def test_steady_steps_decides_offline_as_it_decided_live(tmp_path):
     from inference.evaluation.metrics import run_trial
     from inference.fusion import make_fusion
 
-    config = tmp_path / "walkcap.toml"
-    config.write_text('[fusion]\nmethod = "steady+steps"\n')
-    out = tmp_path / "synth"
-    args = ["--config", str(config), "synth", "--format", "recording", "--out", str(out)]
-    args += ["--sessions", "1", "--preset", "indoor", "--seed", "78", "--frames", "120"]
-    assert cli.main(args) == 0
-    (path,) = out.glob("*.mcap")
+    path = synth_recording(tmp_path, "steady+steps", "indoor", 120)
     recorded = read_trial(path)
     live = recorded.frames.decision
     trial = read_evaluation_trial(path)

@@ -3,8 +3,6 @@ read through it; a recording's records round-trip byte for byte, old files still
 
 import dataclasses
 
-import pytest
-
 from capture import config as config_mod
 from capture.recording import topics as T
 from capture.recording.metadata import (
@@ -19,14 +17,7 @@ from capture.recording.reader import open_recording
 from capture.recording.writer import Recorder
 from devices.frames import CameraGeometry
 from tests.old_recordings import as_version_1
-from tests.recording_fixtures import METADATA, write_recording
-
-
-@pytest.fixture(scope="module")
-def recording(tmp_path_factory):
-    path = tmp_path_factory.mktemp("metadata") / "S07_indoor_t03.mcap"
-    write_recording(path, seconds=1.0)
-    return path
+from tests.recording_fixtures import METADATA
 
 
 def test_every_record_of_a_recording_round_trips_key_order_and_values(recording):

@@ -25,13 +25,6 @@ from tests.recording_fixtures import (
 )
 
 
-@pytest.fixture(scope="module")
-def recording(tmp_path_factory):
-    path = tmp_path_factory.mktemp("rd") / "trial.mcap"
-    write_recording(path, seconds=2.0)
-    return path
-
-
 def test_read_trial_gives_per_frame_arrays_with_the_label_in_force(recording):
     trial = read_trial(recording)
     n = int(2.0 * FPS)
