@@ -145,8 +145,12 @@ def tables(path: str | os.PathLike) -> dict:
         "frames": _frame(pd, identity, _frame_columns(table, offset, t0), n),
         "imu": _frame(pd, identity, _imu_columns(imu, imu_t, offset, t0), len(imu)),
         "labels": _frame(pd, identity, _label_columns(changes, label_t, offset, t0), len(changes)),
-        "events": _frame(pd, identity, _event_columns(events, event_t, offset, t0), len(events)),
-        "gait": _frame(pd, identity, _gait_columns(gait, gait_t, offset, t0), len(gait)),
+        "events": _frame(
+            pd, identity, _timed_columns(events, event_t, offset, t0, _EVENT_COLUMNS), len(events)
+        ),
+        "gait": _frame(
+            pd, identity, _timed_columns(gait, gait_t, offset, t0, _GAIT_COLUMNS), len(gait)
+        ),
         "trials": _trials_frame(pd, _trial_row(rec, member, identity, table)),
     }
 
@@ -254,22 +258,29 @@ def _label_columns(changes: list, label_t: np.ndarray, offset: int | None, t0: i
     return labels
 
 
-def _event_columns(events: list[dict], event_t: np.ndarray, offset: int | None, t0: int) -> dict:
-    event_cols = {"time_ns": event_t}
-    event_cols.update(_clock(event_t, offset, t0))
-    event_cols["device"] = [str(e.get("device", "")) for e in events]
-    event_cols["kind"] = [str(e.get("kind", "")) for e in events]
-    event_cols["message"] = [str(e.get("message", "")) for e in events]
-    event_cols["details"] = [_json_text(e.get("details") or {}) for e in events]
-    return event_cols
+# each table of timed records: its columns after the clock's, and how a record gives each
+_EVENT_COLUMNS = {
+    "device": lambda e: str(e.get("device", "")),
+    "kind": lambda e: str(e.get("kind", "")),
+    "message": lambda e: str(e.get("message", "")),
+    "details": lambda e: _json_text(e.get("details") or {}),
+}
+_GAIT_COLUMNS = {
+    "event": lambda e: str(e.get("event", "")),
+    "source": lambda e: str(e.get("source", "")),
+    "mode": lambda e: str(e.get("mode") or ""),
+}
 
 
-def _gait_columns(gait: list[dict], gait_t: np.ndarray, offset: int | None, t0: int) -> dict:
-    cols = {"time_ns": gait_t}
-    cols.update(_clock(gait_t, offset, t0))
-    cols["event"] = [str(e.get("event", "")) for e in gait]
-    cols["source"] = [str(e.get("source", "")) for e in gait]
-    cols["mode"] = [str(e.get("mode") or "") for e in gait]
+def _timed_columns(
+    records: list[dict], t: np.ndarray, offset: int | None, t0: int, columns: dict
+) -> dict:
+    """A table of timed records (events, gait events): their times on every clock, then
+    `columns` (name -> the value of a record)."""
+    cols = {"time_ns": t}
+    cols.update(_clock(t, offset, t0))
+    for name, value in columns.items():
+        cols[name] = [value(r) for r in records]
     return cols
 
 
@@ -313,6 +324,20 @@ def _trial_row(rec, member, identity: dict, table: FrameTable) -> dict:
     return trials
 
 
+def _files_to_export(paths, replays: bool, every_file: bool):
+    """The recordings an export reads and the corpus they came from: one file per trial
+    (capture.corpus.selection.select), or `every_file` as found; refused when none."""
+    if every_file:
+        files = corpus_mod.recording_files(paths)
+        chosen = corpus_mod.Corpus([], [])
+    else:
+        chosen = corpus_mod.select(paths, replays=replays)
+        files = chosen.files
+    if not files:
+        raise chosen.nothing_left("nothing to export")
+    return files, chosen
+
+
 def corpus_tables(
     paths: Iterable[str | os.PathLike],
     *,
@@ -325,14 +350,7 @@ def corpus_tables(
     file per trial (capture.corpus.selection.select), or `every_file` as found. `cluster`: a Ray
     cluster's address or "local", one task a recording (capture.corpus.jobs)."""
     pd = _pd()
-    if every_file:
-        files = corpus_mod.recording_files(paths)
-        chosen = corpus_mod.Corpus([], [])
-    else:
-        chosen = corpus_mod.select(paths, replays=replays)
-        files = chosen.files
-    if not files:
-        raise chosen.nothing_left("nothing to export")
+    files, chosen = _files_to_export(paths, replays, every_file)
     parts: dict[str, list] = {name: [] for name in TABLES}
     where = jobs.choose(cluster)
     tasks = [jobs.Task(Path(f).name, tables, (jobs.task_path(where, f),)) for f in files]
@@ -390,14 +408,7 @@ def write_corpus(
             paths, replays=replays, every_file=every_file, progress=progress, cluster=cluster
         )
         return write(tables_, out, fmt), {n: len(df) for n, df in tables_.items()}, chosen
-    if every_file:
-        files = corpus_mod.recording_files(paths)
-        chosen = corpus_mod.Corpus([], [])
-    else:
-        chosen = corpus_mod.select(paths, replays=replays)
-        files = chosen.files
-    if not files:
-        raise chosen.nothing_left("nothing to export")
+    files, chosen = _files_to_export(paths, replays, every_file)
     if len(files) == 1:  # one trial's tables: written as they are, no spool
         one = tables(files[0])
         return write(one, out, fmt), {n: len(df) for n, df in one.items()}, chosen

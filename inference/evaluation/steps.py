@@ -33,6 +33,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from inference.evaluation.transitions import pool_records
+
 HEEL_CONTACT = "heel_contact"
 TOE_OFF = "toe_off"
 
@@ -182,20 +184,11 @@ def pooled(stats: Sequence[StepStats]) -> StepStats:
     """Several sequences' figures as one: counts and minutes summed, leads concatenated."""
     if not stats:
         raise ValueError("nothing to pool")
-    sources = sorted({s.source for s in stats})
-    mode_sources = sorted({s.mode_source for s in stats})
-    return StepStats(
-        heel_contacts=sum(s.heel_contacts for s in stats),
-        errors_at_heel_contact=sum(s.errors_at_heel_contact for s in stats),
-        toe_offs=sum(s.toe_offs for s in stats),
-        errors_at_toe_off=sum(s.errors_at_toe_off for s in stats),
-        transition_steps=sum(s.transition_steps for s in stats),
-        transition_steps_late=sum(s.transition_steps_late for s in stats),
-        critical_errors=sum(s.critical_errors for s in stats),
-        minutes=sum(s.minutes for s in stats),
-        lead_steps=[x for s in stats for x in s.lead_steps],
-        source="+".join(sources),
-        mode_source="+".join(mode_sources),
+    return pool_records(
+        StepStats,
+        stats,
+        source="+".join(sorted({s.source for s in stats})),
+        mode_source="+".join(sorted({s.mode_source for s in stats})),
     )
 
 

@@ -30,6 +30,7 @@ reference sequence (mode indices per frame, -1 where there is none):
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -237,17 +238,22 @@ def pooled(stats: Sequence[TransitionStats]) -> TransitionStats:
     """Several sequences' stats as one: counts and minutes summed, delays concatenated."""
     if not stats:
         raise ValueError("nothing to pool")
-    return TransitionStats(
-        reference=stats[0].reference,
-        changes=sum(s.changes for s in stats),
-        switches=sum(s.switches for s in stats),
-        matched=sum(s.matched for s in stats),
-        missed=sum(s.missed for s in stats),
-        spurious=sum(s.spurious for s in stats),
-        minutes=sum(s.minutes for s in stats),
-        delays_s=[d for s in stats for d in s.delays_s],
-        delays_frames=[d for s in stats for d in s.delays_frames],
-    )
+    return pool_records(TransitionStats, stats, reference=stats[0].reference)
+
+
+def pool_records(cls, stats: Sequence, **given):
+    """One record of dataclass `cls` for several: its number fields summed, its list fields
+    concatenated in order; `given` sets the others (e.g. what the records are against)."""
+    values = {}
+    for f in dataclasses.fields(cls):
+        if f.name in given:
+            continue
+        first = getattr(stats[0], f.name)
+        if isinstance(first, list):
+            values[f.name] = [x for s in stats for x in getattr(s, f.name)]
+        else:
+            values[f.name] = sum(getattr(s, f.name) for s in stats)
+    return cls(**values, **given)
 
 
 def _finite(x: float) -> float | None:
