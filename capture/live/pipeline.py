@@ -16,8 +16,10 @@ from capture.recording.sink import Sink
 from devices.clock import now_ns, seconds, to_ns
 from devices.frames import MODES, DepthFrame
 from devices.rotations import quat_multiply, quat_slerp
+from inference import level_tilt
 from inference.errors import InferenceError
 from inference.fusion import FusionOutput
+from inference.level_tilt import TiltEstimate
 
 # One torch thread for the per-frame CNN: the pipeline shares the cores with the devices and
 # the recorder, and torch's thread pool spinning against them costs far more than it gains.
@@ -195,6 +197,8 @@ class Pipeline:
         # gait events for a fusion that acts at steps, from the IMU's thread: a deque's
         # append and popleft are atomic, so the two threads share it without a lock
         self._gait: collections.deque = collections.deque(maxlen=256)
+        # the IMU's tilt error, learned on level ground, off every reported slope
+        self.tilt = TiltEstimate()
 
     def see_gait(self, event, known_ns: int | None = None) -> None:
         """A gait event (devices.frames.GaitEvent) from the detector, on any thread, and when
@@ -251,6 +255,7 @@ class Pipeline:
         pre = prepared
         if pre.flag in UNDECIDED:
             # no image to trust: no CNN output, and the fusion is not fed (it holds)
+            tilt_offset = 0.0
             probs, cnn, fused, feats, done_ns = (
                 np.full(len(MODES), np.nan),
                 -1,
@@ -277,6 +282,23 @@ class Pipeline:
             feats = (
                 terrain_features(pre.profile, hint, self.params.max_forward_m) if pre.ok else None
             )
+            tilt_offset = self.tilt.offset_deg
+            if feats is not None:
+                # corrected by what earlier frames taught, then taught by this one
+                raw = feats.slope_deg
+                feats.slope_deg = level_tilt.correct(self.tilt, raw)
+                decided = (
+                    MODES[fused.decision]
+                    if fused is not None and fused.decision is not None
+                    else None
+                )
+                self.tilt = level_tilt.update(
+                    self.tilt,
+                    decided,
+                    feats.kind,
+                    raw,
+                    frame.device_time_ns if time_ns is None else time_ns,
+                )
             if getattr(self.fusion, "uses_geometry", False):  # decides this frame next push
                 if feats is None:
                     self.fusion.see_geometry(-1, -1)
@@ -296,7 +318,7 @@ class Pipeline:
             probabilities=probs,
             cnn_decision=cnn,
             fused=fused,
-            features=_features_dict(feats),
+            features=_features_dict(feats, tilt_offset),
             done_ns=done_ns,
         )
 
@@ -410,9 +432,11 @@ def model_hash(classifier) -> str:
     return str((getattr(classifier, "metadata", None) or {}).get("weights_sha256", ""))
 
 
-def _features_dict(feats) -> dict:
+def _features_dict(feats, tilt_offset_deg: float = 0.0) -> dict:
     if feats is None:
         return {}
     values = ((f.name, getattr(feats, f.name)) for f in dataclasses.fields(feats))
     # the scalars only; asdict() would deep-copy the segment list first
-    return {k: v for k, v in values if v is None or isinstance(v, (int, float, str, bool))}
+    out = {k: v for k, v in values if v is None or isinstance(v, (int, float, str, bool))}
+    out["tilt_offset_deg"] = tilt_offset_deg  # taken off slope_deg (inference.level_tilt)
+    return out

@@ -68,3 +68,40 @@ def test_the_pipeline_hands_a_step_fusion_the_gait_events_up_to_each_frame():
     plain = Pipeline(PreprocessConfig(), Classifier(), GeometryFusion())
     plain.see_gait(GaitEvent(0, "heel_contact", "imu"))
     assert not plain._gait
+
+
+def _tilted_walk(pipeline, frames: int, tilt_deg: float):
+    """Frames of synthetic_frame's level walk through an IMU whose pitch is off by tilt_deg."""
+    from devices.rotations import quat_multiply
+
+    error = quat_from_euler(0.0, np.radians(tilt_deg), 0.0)
+    out = []
+    for k in range(frames):
+        swing = quat_from_euler(0.0, np.radians(20.0) * np.sin(2 * np.pi * k / 45.0), 0.0)
+        out.append(
+            pipeline.process(synthetic_frame(k, 66_666_667 * k), quat_multiply(error, swing))
+        )
+    return out
+
+
+def test_the_pipeline_takes_the_imus_tilt_learned_on_level_ground_off_the_slope():
+    class Level:
+        def predict(self, image):
+            return np.array([0.9, 0.025, 0.025, 0.025, 0.025])
+
+    results = _tilted_walk(Pipeline(PreprocessConfig(), Level(), GeometryFusion()), 60, 2.0)
+    late = [r.features for r in results[30:] if r.features.get("kind") == "level"]
+    assert len(late) >= 15
+    raw = np.median([f["slope_deg"] + f["tilt_offset_deg"] for f in late])
+    assert abs(raw + 2.0) < 0.5  # the tilted IMU tilts the leveled ground by 2 deg
+    assert abs(np.median([f["slope_deg"] for f in late])) < 0.3  # reported net of it
+    assert abs(results[-1].features["tilt_offset_deg"] - raw) < 0.3
+
+
+def test_the_pipeline_learns_no_tilt_while_the_decision_is_not_level_ground():
+    class Ramp:
+        def predict(self, image):
+            return np.array([0.025, 0.025, 0.025, 0.9, 0.025])
+
+    results = _tilted_walk(Pipeline(PreprocessConfig(), Ramp(), GeometryFusion()), 30, 2.0)
+    assert all(r.features.get("tilt_offset_deg", 0.0) == 0.0 for r in results)
