@@ -91,6 +91,7 @@ FEATURE_FIELDS = (
     "steps",
     "inlier_fraction",
     "residual_m",
+    "tilt_offset_deg",
 )
 
 

@@ -98,3 +98,17 @@ def test_info_shows_marker_notes_and_the_modes_as_they_stand(tmp_path, capsys):
     assert main(["info", "--json", str(path)]) == 0
     data = json.loads(capsys.readouterr().out)[0]
     assert [m["note"] for m in data["markers"]] == ["slip"]
+
+
+def test_the_frames_table_has_every_recorded_terrain_feature(tmp_path):
+    """The features the pipeline records (the IMU's tilt estimate among them) are columns,
+    so `terrain_slope_deg + terrain_tilt_offset_deg` gives back the slope as leveled by the
+    IMU alone."""
+    path = tmp_path / "t.mcap"
+    rec = write_trial(path, [(frame_time(1), "LG", "operator")], frames=3, close=False)
+    rec.write_features(0, frame_time(0), {"slope_deg": 0.5, "tilt_offset_deg": -1.25})
+    rec.close()
+    frames = export.tables(path)["frames"]
+    row = frames[frames.frame_index == 0].iloc[0]
+    assert row.terrain_slope_deg + row.terrain_tilt_offset_deg == -0.75
+    assert set(f"terrain_{n}" for n in export.FEATURE_FIELDS) <= set(frames.columns)
