@@ -34,6 +34,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from devices import clock
 from devices.frames import GaitEvent, ImuSample
 
 COUNTER_MODULO = 65536  # the Xsens packet counter's wrap
@@ -114,7 +115,7 @@ class GaitDetector:
             if self._prev is None or t <= self._prev[0]:
                 self._prev = (t, math.nan, flexion)
                 return out
-            rate = (flexion - self._prev[2]) / ((t - self._prev[0]) * 1e-9)
+            rate = (flexion - self._prev[2]) / clock.seconds(t - self._prev[0])
         pending = self._pending
         if pending is not None and t >= pending.time_ns:
             out.append(self._emit(pending))
@@ -136,7 +137,7 @@ class GaitDetector:
             self._counter = counter
         if prev is None:
             return False
-        dt = (t - prev[0]) * 1e-9
+        dt = clock.seconds(t - prev[0])
         limit = self.params.max_gap_s
         return dt <= 0 or dt > limit or (missing and dt > limit / 2)
 
@@ -179,7 +180,7 @@ class GaitDetector:
         if start is None or end is None or end <= start:
             return False
         return (
-            (end - start) * 1e-9 >= p.min_phase_s
+            clock.seconds(end - start) >= p.min_phase_s
             and self._peak_rate >= rate_needed
             and math.degrees(self._flex_hi - self._flex_lo) >= p.min_range_deg
         )
@@ -189,7 +190,7 @@ class GaitDetector:
         peak = self._crossing_ns
         lo, hi = self.params.stride_range_s
         if self._last_peak_ns is not None and peak is not None:
-            stride = (peak - self._last_peak_ns) * 1e-9
+            stride = clock.seconds(peak - self._last_peak_ns)
             if lo <= stride <= hi:
                 self.stride_s = stride
         self._last_peak_ns = peak

@@ -20,6 +20,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from devices import clock
+
 TAU_S = 10.0  # exponential memory once warm; the error drifts over minutes, not seconds
 WARM_FRAMES = 30  # a running mean over the first frames (2 s at 15 fps): fast start
 MAX_DEG = 3.0  # |estimate| bound: 3 x the MTi 1-series' 1.0 deg RMS roll/pitch
@@ -56,7 +58,7 @@ def update(
     if state.frames < WARM_FRAMES or state.time_ns is None:
         weight = 1.0 / (state.frames + 1)
     else:
-        dt_s = max(0.0, (time_ns - state.time_ns) * 1e-9)
+        dt_s = max(0.0, clock.seconds(time_ns - state.time_ns))
         weight = 1.0 - math.exp(-dt_s / TAU_S)
     offset = state.offset_deg + weight * (slope_deg - state.offset_deg)
     offset = min(MAX_DEG, max(-MAX_DEG, offset))
