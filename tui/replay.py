@@ -14,6 +14,7 @@ win (capture.recording.labels), so a correction at time t applies from t until t
 from __future__ import annotations
 
 import bisect
+import collections
 import dataclasses
 import datetime as dt
 import logging
@@ -23,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from capture.corpus.trial_pass import FrameRows, Spool
 from capture.errors import CaptureError
 from capture.live.pipeline import FrameResult
 from capture.live.session import Snapshot
@@ -31,11 +33,11 @@ from capture.live.trials import SubjectInfo
 from capture.recording import labels as L
 from capture.recording import topics as T
 from capture.recording.copy import copy_recording
-from capture.recording.frames import FrameJoin, FrameTable
+from capture.recording.frames import FrameJoin, frame_rows
 from capture.recording.labels import CORRECTION, LabelChange
 from capture.recording.lineage import CORRECTED
 from capture.recording.metadata import Metadata, SessionRecord
-from capture.recording.reader import frame_table, open_recording
+from capture.recording.reader import open_recording
 from devices import clock
 from devices.base import DeviceEvent, DeviceState, DeviceStatus
 from devices.clock import now_ns
@@ -191,40 +193,44 @@ class _Frames:
     stale_upto: np.ndarray  # (N,) frames left undecided up to each
 
     @classmethod
-    def shown(cls, table: FrameTable, images: dict, profiles: dict, features: dict) -> _Frames:
-        """The frames the screens show: classified ones, and undecided ones (stale or bad
-        orientation)."""
-        stale = np.array([f in UNDECIDED for f in table.flag], dtype=bool)
-        t = table.select(table.classified | stale)
-        features.update(
-            (int(i), shown)
-            for i, f in zip(t.index, t.features, strict=True)
-            if (shown := _shown_features(f))
-        )
-        probs = t.probabilities
-        shown = np.full(len(t), -1, dtype=int)
-        last = -1
-        for k, made in enumerate(t.produced):  # what the big display showed at frame k
-            last = int(made) if made >= 0 else last
-            shown[k] = last
-        return cls(
-            index=t.index,
-            time_ns=t.time_ns,
-            host_ns=t.host_time_ns,
-            probabilities=probs,
-            cnn=np.array(
-                [int(np.nanargmax(p)) if np.isfinite(p).any() else -1 for p in probs], dtype=int
-            ),
-            fused=t.decision,
-            voted=t.voted,
-            fused_shown=shown,
-            truth=t.truth,
-            images=images,
-            profiles=profiles,
-            features=features,
-            flags={int(i): f for i, f in zip(t.index, t.flag, strict=True) if f},
-            stale_upto=np.cumsum([f in UNDECIDED for f in t.flag]),
-        )
+    def shown(cls, tables, images: dict, profiles: dict, features: dict) -> _Frames:
+        """The frames the screens show, from the per-frame table in blocks (FrameTables in
+        frame order): classified ones, and undecided ones (stale or bad orientation)."""
+        parts: dict[str, list] = collections.defaultdict(list)
+        flags: dict[int, str] = {}
+        last, stale_before = -1, 0
+        for table in tables:
+            stale = np.array([f in UNDECIDED for f in table.flag], dtype=bool)
+            t = table.select(table.classified | stale)
+            features.update(
+                (int(i), shown)
+                for i, f in zip(t.index, t.features, strict=True)
+                if (shown := _shown_features(f))
+            )
+            flags.update((int(i), f) for i, f in zip(t.index, t.flag, strict=True) if f)
+            shown = np.full(len(t), -1, dtype=int)
+            for k, made in enumerate(t.produced):  # what the big display showed at frame k
+                last = int(made) if made >= 0 else last
+                shown[k] = last
+            probs = t.probabilities
+            cnn = [int(np.nanargmax(p)) if np.isfinite(p).any() else -1 for p in probs]
+            stale_upto = stale_before + np.cumsum([f in UNDECIDED for f in t.flag], dtype=int)
+            stale_before = int(stale_upto[-1]) if len(stale_upto) else stale_before
+            for name, values in (
+                ("index", t.index),
+                ("time_ns", t.time_ns),
+                ("host_ns", t.host_time_ns),
+                ("probabilities", probs),
+                ("cnn", np.array(cnn, dtype=int)),
+                ("fused", t.decision),
+                ("voted", t.voted),
+                ("fused_shown", shown),
+                ("truth", t.truth),
+                ("stale_upto", stale_upto),
+            ):
+                parts[name].append(values)
+        columns = {name: np.concatenate(values) for name, values in parts.items()}
+        return cls(**columns, images=images, profiles=profiles, features=features, flags=flags)
 
 
 class ReplaySource:
@@ -273,14 +279,15 @@ class ReplaySource:
         self.playing = self._play_on_start
 
     def _load(self, rec) -> _Frames:
-        """The per-frame table; the images, profiles and terrain features of a finished
-        file are read around the cursor as it moves (_Window), an unfinished file's (no
-        index) all at once."""
+        """The per-frame table, its rows through a spool on disk and kept as the arrays
+        shown; the images, profiles and terrain features of a finished file are read
+        around the cursor as it moves (_Window), an unfinished file's (no index) all at
+        once."""
         images, profiles, features = {}, {}, {}
         topics = FrameJoin.TOPICS
         if rec.complete:
             self._window = _Window(rec)
-            topics = tuple(t for t in topics if t != T.FEATURES)
+            topics = tuple(t for t in topics if t not in (T.FEATURES, T.TF))  # not shown
 
         def take(m) -> None:
             d = m.data
@@ -294,15 +301,31 @@ class ReplaySource:
                         d.get("details") or {},
                     )
                 )
+            elif m.topic == T.LABELS:
+                changes.append(L.change_from_message(d))
             elif m.topic == T.BINARY_IMAGE:
                 images[m.sequence] = _packed_image(d)
             elif m.topic == T.CLOUD:
                 profiles[m.sequence] = _profile(d)
 
         shown = (T.EVENTS,) if rec.complete else (T.EVENTS, T.BINARY_IMAGE, T.CLOUD)
-        table, self.original_labels = frame_table(rec, shown, take, frame_topics=topics)
+        rows, changes = FrameRows(Spool()), []
+        try:
+            for m in rec.messages([t for t in (*topics, T.LABELS, *shown) if t in rec.topics]):
+                if not rows.add(m):
+                    take(m)
+            rows.end()
+            self.original_labels = L.in_time_order(changes)
+            has_truth = T.TRUTH in rec.topics
+            tables = (
+                frame_rows(block, self.original_labels, has_truth=has_truth)
+                for block in rows.blocks()
+            )
+            frames = _Frames.shown(tables, images, profiles, features)
+        finally:
+            rows.close()
         self.events.sort(key=lambda e: e.time_ns)
-        return _Frames.shown(table, images, profiles, features)
+        return frames
 
     def _device_status(self, rec, frames: int) -> tuple[DeviceStatus, DeviceStatus]:
         devices = self.meta.devices

@@ -60,17 +60,20 @@ COMMANDS = (
 )
 
 
-def synthesize(path: str | os.PathLike, minutes: float, seed: int = 0) -> Path:
+def synthesize(
+    path: str | os.PathLike, minutes: float, seed: int = 0, session: dict | None = None
+) -> Path:
     """A mock trial of `minutes` at 45 fps: depth, cloud, image, CNN, fused decision,
     features, truth, IMU, a label change every 5 s. Frames cycle through a few synthetic
-    ones (devices.simulator.synthetic): the sizes and rates of a trial, quickly."""
+    ones (devices.simulator.synthetic): the sizes and rates of a trial, quickly. `session`:
+    its session metadata (default subject B01, indoor, trial 1)."""
     from capture.recording.writer import Recorder
     from devices.frames import MODES, ImuSample
     from devices.simulator.synthetic import synthetic_frame
 
     frames = [synthetic_frame(i, 0, seed=seed) for i in range(24)]
     metadata = {
-        "session": {"subject": "B01", "condition": "indoor", "trial": 1},
+        "session": session or {"subject": "B01", "condition": "indoor", "trial": 1},
         "devices": {"camera_backend": "mock", "camera_fps": FPS, "imu_rate_hz": IMU_HZ},
     }
     rec = Recorder(path, metadata=metadata, blocking=True, queue_size=4096)

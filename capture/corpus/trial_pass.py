@@ -45,15 +45,15 @@ FEATURE_FIELDS = (
 
 class Spool:
     """Blocks kept in the order added: pickled one after another into a file in `folder`
-    (deleted on close), or in memory when `folder` is None."""
+    (the system's temporary folder when None; deleted on close), or in memory."""
 
-    def __init__(self, folder: str | os.PathLike | None) -> None:
+    def __init__(self, folder: str | os.PathLike | None = None, *, memory: bool = False) -> None:
         self._blocks: list | None = None
         self._file = None
-        if folder is None:
+        if memory:
             self._blocks = []
         else:
-            self._file = tempfile.TemporaryFile(dir=folder, prefix=".export-spool-")
+            self._file = tempfile.TemporaryFile(dir=folder, prefix=".walkcap-spool-")
         self.rows = 0
 
     def add(self, block, rows: int) -> None:
@@ -81,6 +81,73 @@ class Spool:
         self._blocks = None
 
 
+class FrameRows:
+    """The per-frame join (FrameJoin) of one pass, its finished rows spooled in blocks as
+    they come; read back, the messages that came after their frame was finished are laid
+    over the rows, as FrameJoin.table() lays them."""
+
+    def __init__(self, spool: Spool, join: FrameJoin | None = None) -> None:
+        self.spool = spool
+        self.join = join or FrameJoin()
+        self.late: dict = {}
+
+    def add(self, m) -> bool:
+        """FrameJoin.add: False when `m` is not of a per-frame topic."""
+        if not self.join.add(m):
+            return False
+        block = self.join.finished(BLOCK)
+        if block is not None:
+            self.spool.add(block, len(block["index"]))
+        return True
+
+    def end(self) -> None:
+        """The pass is over."""
+        self.join.end()
+        block = self.join.finished()
+        if block is not None:
+            self.spool.add(block, len(block["index"]))
+        self.late = self.join.late
+
+    def close(self) -> None:
+        self.spool.close()
+
+    def blocks(self) -> Iterator[dict]:
+        """The rows in frame order, in blocks as spooled, the late messages laid over them
+        (one empty block when there are no rows)."""
+        given = False
+        for block in self._laid():
+            given = True
+            yield block
+        if not given:
+            yield _Columns().take()
+
+    def _laid(self) -> Iterator[dict]:
+        late = self.late
+        if not late:
+            yield from self.spool.blocks()
+            return
+        spooled: set[int] = set()
+        for block in self.spool.blocks():
+            spooled.update(int(k) for k in block["index"])
+        # a late message goes over its frame's row; a frame with none that it gives its CNN
+        # output or preprocessing gets one, in frame order
+        extra = {k: e for k, e in late.items() if k not in spooled and ("cnn" in e or "pre" in e)}
+        for block in self.spool.blocks():
+            if not len(block["index"]):
+                continue
+            mine = {int(k) for k in block["index"]}
+            last = int(block["index"][-1])
+            here = {k: e for k, e in late.items() if k in mine}
+            here |= {k: extra.pop(k) for k in sorted(extra) if k <= last}
+            rows = _Columns.of(block)
+            lay_late(rows, here, append=True)
+            yield rows.take()
+        if extra:
+            rows = _Columns()
+            lay_late(rows, extra, append=True)
+            yield rows.take()
+
+
 @dataclass
 class FrameSummary:
     """What the frames table's rows say as a whole, known before any row is written."""
@@ -100,9 +167,8 @@ class TrialPass:
     gait events, as recorded)."""
 
     rec: object  # capture.recording.reader.Recording
-    frames: Spool
+    frames: FrameRows
     imu: Spool
-    late: dict  # FrameJoin.late at the end of the pass
     changes: list
     events: list
     gait: list
@@ -124,17 +190,17 @@ class TrialPass:
     @classmethod
     def gather(cls, rec, messages, spool, imu_fields: tuple, join: FrameJoin) -> TrialPass:
         """read() from `messages` (of TOPICS, decoded), joined by `join`."""
-        frames, imu_spool = Spool(spool), Spool(spool)
+        memory = spool is None
+        frames = FrameRows(Spool(spool, memory=memory), join)
+        imu_spool = Spool(spool, memory=memory)
         imu = ImuColumns(imu_fields)
         changes, events, gait = [], [], []
         earliest = None
         try:
             for m in messages:
-                if join.add(m):
-                    block = join.finished(BLOCK)
-                    if block is not None:
-                        frames.add(block, len(block["index"]))
-                elif m.topic == T.LABELS:
+                if frames.add(m):
+                    continue
+                if m.topic == T.LABELS:
                     changes.append(L.change_from_message(m.data))
                 elif m.topic == T.IMU:
                     imu.add(m.data)
@@ -146,10 +212,7 @@ class TrialPass:
                     gait.append(m.data)
                 else:
                     events.append(m.data)
-            join.end()
-            block = join.finished()
-            if block is not None:
-                frames.add(block, len(block["index"]))
+            frames.end()
             if len(imu):
                 earliest = _earliest(earliest, imu.times())
                 imu_spool.add(imu, len(imu))
@@ -161,7 +224,6 @@ class TrialPass:
             rec,
             frames,
             imu_spool,
-            join.late,
             L.in_time_order(changes),
             events,
             gait,
@@ -184,39 +246,13 @@ class TrialPass:
     def frame_blocks(self, rows: int) -> Iterator[dict]:
         """The frames' rows (FrameJoin columns), the late messages laid over them, in frame
         order, in blocks of `rows` (the last may be shorter; one empty block when none)."""
-        return _reblocked(self._frames_laid(), rows, _Columns.NUMBERS, _Columns.LISTS)
-
-    def _frames_laid(self) -> Iterator[dict]:
-        late = self.late
-        if not late:
-            yield from self.frames.blocks()
-            return
-        spooled: set[int] = set()
-        for block in self.frames.blocks():
-            spooled.update(int(k) for k in block["index"])
-        # a late message goes over its frame's row; a frame with none that it gives its CNN
-        # output or preprocessing gets one, in frame order (FrameJoin.table does the same)
-        extra = {k: e for k, e in late.items() if k not in spooled and ("cnn" in e or "pre" in e)}
-        for block in self.frames.blocks():
-            if not len(block["index"]):
-                continue
-            mine = {int(k) for k in block["index"]}
-            last = int(block["index"][-1])
-            here = {k: e for k, e in late.items() if k in mine}
-            here |= {k: extra.pop(k) for k in sorted(extra) if k <= last}
-            rows = _Columns.of(block)
-            lay_late(rows, here, append=True)
-            yield rows.take()
-        if extra:
-            rows = _Columns()
-            lay_late(rows, extra, append=True)
-            yield rows.take()
+        return _reblocked(self.frames.blocks(), rows, _Columns.NUMBERS, _Columns.LISTS)
 
     def frame_summary(self) -> FrameSummary:
         """Row count, stale frames, earliest time and the feature fields' kinds, over the
         rows frame_blocks gives (one read of the spool)."""
         out = FrameSummary()
-        for block in self._frames_laid():
+        for block in self.frames.blocks():
             n = len(block["index"])
             if not n:
                 continue
