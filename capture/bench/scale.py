@@ -15,10 +15,8 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import subprocess
 import sys
 import tempfile
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -61,12 +59,18 @@ COMMANDS = (
 
 
 def synthesize(
-    path: str | os.PathLike, minutes: float, seed: int = 0, session: dict | None = None
+    path: str | os.PathLike,
+    minutes: float,
+    seed: int = 0,
+    session: dict | None = None,
+    depth: bool = True,
 ) -> Path:
     """A mock trial of `minutes` at 45 fps: depth, cloud, image, CNN, fused decision,
     features, truth, IMU, a label change every 5 s. Frames cycle through a few synthetic
     ones (devices.simulator.synthetic): the sizes and rates of a trial, quickly. `session`:
-    its session metadata (default subject B01, indoor, trial 1)."""
+    its session metadata (default subject B01, indoor, trial 1); `depth` False: no depth
+    frames and no clouds (a trial's tables at a fraction of its bytes, for the readers of
+    tables: export, eval, the frame table)."""
     from capture.recording.writer import Recorder
     from devices.frames import MODES, ImuSample
     from devices.simulator.synthetic import synthetic_frame
@@ -106,10 +110,12 @@ def synthesize(
         frame = dataclasses.replace(
             frames[i % len(frames)], index=i, device_time_ns=t, host_time_ns=t + 3_000_000
         )
-        rec.write_frame(frame)
+        if depth:
+            rec.write_frame(frame)
         image[:] = 0
         image[50 + i % 20 :, :] = 1
-        rec.write_processed(i, t, t + 3_000_000, cloud, image, quaternion, "")
+        shown = cloud if depth else cloud[:0]
+        rec.write_processed(i, t, t + 3_000_000, shown, image, quaternion, "")
         p = np.full(len(MODES), 0.05)
         p[MODES.index(mode)] = 0.8
         fused = {"frame_index": max(0, i - 1), "decision": mode, "posterior": p}
@@ -135,18 +141,11 @@ class Run:
 
 def measure(argv: list[str]) -> tuple[float, float, float, bool]:
     """(wall s, CPU s, peak resident MiB, exit 0) of `python argv` in a fresh process, its
-    children included."""
-    start = time.perf_counter()
-    child = subprocess.Popen(
-        [sys.executable, *argv],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
-    # wait4: the child's own resource use, the processes it waited for included
-    _, status, usage = os.wait4(child.pid, 0)
-    child.returncode = os.waitstatus_to_exitcode(status)
-    cpu = usage.ru_utime + usage.ru_stime
-    return time.perf_counter() - start, cpu, usage.ru_maxrss / 1024, child.returncode == 0
+    children included (capture.bench.launch)."""
+    from capture.bench.launch import measured
+
+    run = measured([sys.executable, *argv])
+    return run.wall_s, run.cpu_s, run.peak_mib, run.returncode == 0
 
 
 def cut_copy(path: Path, out: Path, fraction: float = 0.6) -> Path:

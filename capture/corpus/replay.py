@@ -211,8 +211,7 @@ def replay_steps(
 
     def step(entry: dict | None) -> ReplayStep | None:
         nonlocal news, steps
-        frame = None if entry is None else frames.frame(entry)
-        imu = order.take(None if frame is None else frame.device_time_ns + IMU_LOOKAHEAD_NS)
+        imu = order.take(None if entry is None else entry["pub"] + IMU_LOOKAHEAD_NS)
         for sample, _ in imu:
             if sample.quaternion is not None:
                 rate = sample.rate_of_turn
@@ -223,8 +222,9 @@ def replay_steps(
         steps += 1
         if steps <= skip:
             return None
-        if frame is None:
+        if entry is None:
             return ReplayStep(None, None, None, [], imu, **came)
+        frame = frames.frame(entry)  # device_time_ns: the entry's publish time
         q, age_ns = track.at(frame.device_time_ns)
         level = q if q is not None else np.full(4, np.nan)
         pre = preprocess(frame.xyz, frame.confidence, level, params, age_ns, mounting)
