@@ -589,13 +589,13 @@ def _write_tables(named, folder: Path, fmt: str) -> list[Path]:
 def _csv_parts(path: Path, frames) -> None:
     with open(path, "w", newline="") as f:
         for k, df in enumerate(frames):
-            df.to_csv(f, index=False, header=k == 0, chunksize=ROW_GROUP)
+            df.to_csv(f, index=False, header=k == 0, chunksize=CSV_ROWS)
 
 
 def _write_one(path: Path, df, fmt: str) -> Path:
     if fmt == "parquet":
         return _whole(path, lambda p: _write_parquet(p, df))
-    return _whole(path, lambda p: df.to_csv(p, index=False, chunksize=ROW_GROUP))
+    return _whole(path, lambda p: df.to_csv(p, index=False, chunksize=CSV_ROWS))
 
 
 def write(tables_: dict, out: str | os.PathLike, fmt: str = "parquet") -> list[Path]:
@@ -616,7 +616,7 @@ def write(tables_: dict, out: str | os.PathLike, fmt: str = "parquet") -> list[P
         if fmt == "parquet":
             write_table = lambda p, df=df: _write_parquet(p, df)  # noqa: E731
         else:
-            write_table = lambda p, df=df: df.to_csv(p, index=False, chunksize=ROW_GROUP)  # noqa: E731
+            write_table = lambda p, df=df: df.to_csv(p, index=False, chunksize=CSV_ROWS)  # noqa: E731
         try:
             written.append(_whole(path, write_table))
         except ImportError:
@@ -627,7 +627,10 @@ def write(tables_: dict, out: str | os.PathLike, fmt: str = "parquet") -> list[P
     return written
 
 
-ROW_GROUP = 50_000  # rows a Parquet row group (and a CSV block) holds
+ROW_GROUP = 50_000  # rows a Parquet row group (and a table's block in memory) holds
+# rows pandas formats at once into CSV text: the text of a whole block would take several
+# times the block's memory
+CSV_ROWS = 4096
 
 
 def _write_parquet(path: Path, df) -> None:
