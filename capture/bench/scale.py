@@ -247,9 +247,8 @@ def _cell(r: Run) -> str:
         f" ({r.seconds_range[0]:.1f}-{r.seconds_range[1]:.1f})" if several else ""
     )
     cpu = "" if r.cpu_s != r.cpu_s else f", {r.cpu_s:.1f} s CPU"
+    low_peak, high_peak = (f"{v:.0f}" for v in r.peak_range)
     peak = f", {r.peak_mib:.0f} MiB" + (
-        f" ({r.peak_range[0]:.0f}-{r.peak_range[1]:.0f})"
-        if several and r.peak_range[0] != r.peak_range[1]
-        else ""
+        f" ({low_peak}-{high_peak})" if several and low_peak != high_peak else ""
     )
     return wall + cpu + peak + ("" if r.ok else " (failed)")

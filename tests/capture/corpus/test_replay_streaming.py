@@ -107,23 +107,20 @@ def test_a_sample_held_late_gives_the_replay_that_reads_every_sample_first(tmp_p
         passes.append(kwargs.get("times") is not None)
         return steps(*args, **kwargs)
 
+    def replayed(name: str):
+        return R.replay(
+            source,
+            Config(),
+            output=tmp_path / name,
+            classifier=StandInClassifier(),
+            reader_process=False,
+        )
+
     monkeypatch.setattr(R, "replay_steps", counted)
-    caught = R.replay(
-        source,
-        Config(),
-        output=tmp_path / "a.mcap",
-        classifier=StandInClassifier(),
-        reader_process=False,
-    )
+    caught = replayed("a.mcap")
     assert passes == [False, True]  # the pass within the horizon failed; the one with times
     monkeypatch.setattr(R.SampleOrder, "HORIZON_NS", 10**15)  # every sample read first
-    reference = R.replay(
-        source,
-        Config(),
-        output=tmp_path / "b.mcap",
-        classifier=StandInClassifier(),
-        reader_process=False,
-    )
+    reference = replayed("b.mcap")
     assert caught.frames == reference.frames == 180
     a, b = _messages(caught.output), _messages(reference.output)
     assert a == b and len(a[T.TF]) == 180
