@@ -479,7 +479,15 @@ def write_trial(
             rows[name] += len(df)
             yield df
 
-    with TrialPass.read(path, folder, _IMU_FIELDS) as trial:
+    try:
+        trial = TrialPass.read(path, folder, _IMU_FIELDS)
+    except OSError as e:  # the spool beside the output: a full disk
+        first = folder / ("walkcap.mat" if fmt == "mat" else f"{TABLES[0]}.{fmt}")
+        raise CaptureError(
+            f"{first}: not written (the rows read go beside it first: {e.strerror or e}); "
+            "nothing of the export is left"
+        ) from None
+    with trial:
         named = ((name, counted(name, blocks)) for name, blocks in table_blocks(trial))
         if fmt == "mat":
             written = [_whole(folder / "walkcap.mat", lambda p: _write_mat_spooled(p, named))]
