@@ -347,8 +347,7 @@ def _fit_points(points: np.ndarray, index: np.ndarray, first: int = 0, stop: int
     for _ in range(2):
         if len(points) < 5:
             return None
-        centre = points.sum(axis=0) / len(points)  # = mean(axis=0), without its overhead
-        normal, offset = _ray_line(points, centre)
+        normal, offset = _ray_line(points)
         direction = np.array([-normal[1], normal[0]])
         dist = points @ normal - offset
         inside = np.abs(dist) <= FIT_TRIM_M
@@ -373,13 +372,13 @@ def _fit_points(points: np.ndarray, index: np.ndarray, first: int = 0, stop: int
         end=end,
         angle_deg=angle,
         centre=centre,
-        rms_m=float(np.sqrt(np.mean(dist[inside] ** 2))),
+        rms_m=float(np.sqrt((dist[inside] ** 2).sum() / np.count_nonzero(inside))),  # a mean
         first=first,
         stop=stop,
     )
 
 
-def _ray_line(points: np.ndarray, centre: np.ndarray) -> tuple[np.ndarray, float]:
+def _ray_line(points: np.ndarray) -> tuple[np.ndarray, float]:
     """Unit normal n and offset d of the line n . p = d through `points`, fitted where a
     time-of-flight camera errs: along each point's ray from the camera (the origin), by a
     share of the distance.
@@ -405,6 +404,7 @@ def _ray_line(points: np.ndarray, centre: np.ndarray) -> tuple[np.ndarray, float
         norm = math.hypot(a, b)
         if norm > 0 and 1.0 / norm > 0.01:  # a line 1 cm or more from the camera
             return np.array([a, b]) / norm, 1.0 / norm
+    centre = points.sum(axis=0) / len(points)  # = mean(axis=0), without its overhead
     _, normal = _principal_axes(points - centre)
     return normal, float(centre @ normal)
 

@@ -14,6 +14,7 @@ win (capture.recording.labels), so a correction at time t applies from t until t
 from __future__ import annotations
 
 import bisect
+import collections
 import dataclasses
 import datetime as dt
 import logging
@@ -23,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from capture.corpus.trial_pass import FrameRows, Spool
 from capture.errors import CaptureError
 from capture.live.pipeline import FrameResult
 from capture.live.session import Snapshot
@@ -31,11 +33,11 @@ from capture.live.trials import SubjectInfo
 from capture.recording import labels as L
 from capture.recording import topics as T
 from capture.recording.copy import copy_recording
-from capture.recording.frames import FrameTable
+from capture.recording.frames import FrameJoin, frame_rows
 from capture.recording.labels import CORRECTION, LabelChange
 from capture.recording.lineage import CORRECTED
 from capture.recording.metadata import Metadata, SessionRecord
-from capture.recording.reader import frame_table, open_recording
+from capture.recording.reader import open_recording
 from devices import clock
 from devices.base import DeviceEvent, DeviceState, DeviceStatus
 from devices.clock import now_ns
@@ -66,10 +68,12 @@ _MESSAGE_HEAD = struct.Struct("<BQHIQQ")  # opcode, length, channel, sequence, l
 
 
 class _Window:
-    """The images and profiles of the frames around the cursor, read from a finished
-    file's chunks as the cursor reaches them: each chunk decompressed once while it is
-    near, only its image and cloud messages parsed (by its message index), dropped when
-    the cursor has left it. Memory the same whatever the recording's length."""
+    """The images, profiles and terrain features of the frames around the cursor, read
+    from a finished file's chunks as the cursor reaches them: each chunk decompressed once
+    while it is near, only those messages parsed (by its message index), dropped when the
+    cursor has left it. Memory the same whatever the recording's length."""
+
+    TOPICS = (T.BINARY_IMAGE, T.CLOUD, T.FEATURES)
 
     def __init__(self, rec) -> None:
         from mcap.reader import make_reader
@@ -79,9 +83,7 @@ class _Window:
         with open(self.path, "rb") as f:
             summary = make_reader(f).get_summary()
         self._schemas = summary.schemas
-        self._channels = {
-            c.id: c for c in summary.channels.values() if c.topic in (T.BINARY_IMAGE, T.CLOUD)
-        }
+        self._channels = {c.id: c for c in summary.channels.values() if c.topic in self.TOPICS}
         self._chunks = sorted(
             (
                 c
@@ -90,9 +92,10 @@ class _Window:
             ),
             key=lambda c: c.message_start_time,
         )
-        self._held: dict[int, tuple[dict, dict]] = {}  # chunk offset -> (images, profiles)
+        self._held: dict[int, tuple[dict, dict, dict]] = {}  # chunk offset -> its frames'
         self.images: dict[int, np.ndarray] = {}
         self.profiles: dict[int, np.ndarray] = {}
+        self.features: dict[int, dict] = {}
 
     def around(self, host_ns: int) -> None:
         """Hold the frames of the chunks received within WINDOW_S of `host_ns`."""
@@ -106,10 +109,11 @@ class _Window:
                 for c in near
             }
         self._held = held
-        self.images = {k: v for images, _ in held.values() for k, v in images.items()}
-        self.profiles = {k: v for _, profiles in held.values() for k, v in profiles.items()}
+        self.images = {k: v for images, _, _ in held.values() for k, v in images.items()}
+        self.profiles = {k: v for _, profiles, _ in held.values() for k, v in profiles.items()}
+        self.features = {k: v for *_, features in held.values() for k, v in features.items()}
 
-    def _read(self, f, chunk) -> tuple[dict, dict]:
+    def _read(self, f, chunk) -> tuple[dict, dict, dict]:
         import zstandard
         from mcap.records import Message
 
@@ -125,7 +129,7 @@ class _Window:
             records = zstandard.ZstdDecompressor().decompress(records, max_output_size=size)
         elif compression:
             raise CaptureError(f"{self.path}: chunks compressed with {compression}")
-        images, profiles = {}, {}
+        images, profiles, features = {}, {}, {}
         for cid, channel in self._channels.items():
             index_at = chunk.message_index_offsets.get(cid)
             if index_at is None:
@@ -150,9 +154,20 @@ class _Window:
                 m = self._decode(self._schemas.get(channel.schema_id), channel, message)
                 if m.topic == T.BINARY_IMAGE:
                     images[m.sequence] = _packed_image(m.data)
-                else:
+                elif m.topic == T.CLOUD:
                     profiles[m.sequence] = _profile(m.data)
-        return images, profiles
+                elif shown := _shown_features(m.data):
+                    features[int(m.data["frame_index"])] = shown
+        return images, profiles, features
+
+
+def _shown_features(features: dict) -> dict:
+    """A frame's terrain features as the screens show them: the numbers and words."""
+    return {
+        k: v
+        for k, v in features.items()
+        if k not in ("frame_index", "time_ns") and not isinstance(v, (list, dict))
+    }
 
 
 @dataclasses.dataclass
@@ -169,44 +184,53 @@ class _Frames:
     voted: np.ndarray  # (N,)
     fused_shown: np.ndarray  # (N,) latest fused decision produced at or before the frame
     truth: np.ndarray  # (N,) simulator's mode, -1 none
-    images: dict[int, np.ndarray]  # frame -> packed bits of the 100 x 100 image (all
-    profiles: dict[int, np.ndarray]  # frame -> (M, 2) float16     frames, or the window's)
-    flags: dict[int, str]
+    # frame -> packed bits of the 100 x 100 image, (M, 2) float16 profile, terrain features
+    # (every frame's, or the window's of a finished file: _Window)
+    images: dict[int, np.ndarray]
+    profiles: dict[int, np.ndarray]
     features: dict[int, dict]
+    flags: dict[int, str]  # frame -> its preprocessing flag, where it has one
+    stale_upto: np.ndarray  # (N,) frames left undecided up to each
 
     @classmethod
-    def shown(cls, table: FrameTable, images: dict, profiles: dict) -> _Frames:
-        """The frames the screens show: classified ones, and undecided ones (stale or bad
-        orientation)."""
-        stale = np.array([f in UNDECIDED for f in table.flag], dtype=bool)
-        t = table.select(table.classified | stale)
-        probs = t.probabilities
-        shown = np.full(len(t), -1, dtype=int)
-        last = -1
-        for k, made in enumerate(t.produced):  # what the big display showed at frame k
-            last = int(made) if made >= 0 else last
-            shown[k] = last
-        return cls(
-            index=t.index,
-            time_ns=t.time_ns,
-            host_ns=t.host_time_ns,
-            probabilities=probs,
-            cnn=np.array(
-                [int(np.nanargmax(p)) if np.isfinite(p).any() else -1 for p in probs], dtype=int
-            ),
-            fused=t.decision,
-            voted=t.voted,
-            fused_shown=shown,
-            truth=t.truth,
-            images=images,
-            profiles=profiles,
-            flags={int(i): f for i, f in zip(t.index, t.flag, strict=True)},
-            features={
-                int(i): {k: v for k, v in f.items() if not isinstance(v, (list, dict))}
+    def shown(cls, tables, images: dict, profiles: dict, features: dict) -> _Frames:
+        """The frames the screens show, from the per-frame table in blocks (FrameTables in
+        frame order): classified ones, and undecided ones (stale or bad orientation)."""
+        parts: dict[str, list] = collections.defaultdict(list)
+        flags: dict[int, str] = {}
+        last, stale_before = -1, 0
+        for table in tables:
+            stale = np.array([f in UNDECIDED for f in table.flag], dtype=bool)
+            t = table.select(table.classified | stale)
+            features.update(
+                (int(i), shown)
                 for i, f in zip(t.index, t.features, strict=True)
-                if f
-            },
-        )
+                if (shown := _shown_features(f))
+            )
+            flags.update((int(i), f) for i, f in zip(t.index, t.flag, strict=True) if f)
+            shown = np.full(len(t), -1, dtype=int)
+            for k, made in enumerate(t.produced):  # what the big display showed at frame k
+                last = int(made) if made >= 0 else last
+                shown[k] = last
+            probs = t.probabilities
+            cnn = [int(np.nanargmax(p)) if np.isfinite(p).any() else -1 for p in probs]
+            stale_upto = stale_before + np.cumsum([f in UNDECIDED for f in t.flag], dtype=int)
+            stale_before = int(stale_upto[-1]) if len(stale_upto) else stale_before
+            for name, values in (
+                ("index", t.index),
+                ("time_ns", t.time_ns),
+                ("host_ns", t.host_time_ns),
+                ("probabilities", probs),
+                ("cnn", np.array(cnn, dtype=int)),
+                ("fused", t.decision),
+                ("voted", t.voted),
+                ("fused_shown", shown),
+                ("truth", t.truth),
+                ("stale_upto", stale_upto),
+            ):
+                parts[name].append(values)
+        columns = {name: np.concatenate(values) for name, values in parts.items()}
+        return cls(**columns, images=images, profiles=profiles, features=features, flags=flags)
 
 
 class ReplaySource:
@@ -244,10 +268,6 @@ class ReplaySource:
         rec = open_recording(self.path)
         self.meta = rec.meta
         self.frames = self._load(rec)
-        # stale frames up to each frame, for the devices panel's count
-        self._stale_upto = np.cumsum(
-            [self.frames.flags.get(int(i)) in UNDECIDED for i in self.frames.index]
-        )
         n = len(self.frames.index)
         if n == 0:
             raise CaptureError(f"{self.path}: no classified frames to replay")
@@ -259,12 +279,15 @@ class ReplaySource:
         self.playing = self._play_on_start
 
     def _load(self, rec) -> _Frames:
-        """The per-frame table; the images and profiles of a finished file are read around
-        the cursor as it moves (_Window), an unfinished file's (no index) all at once."""
-        images, profiles = {}, {}
+        """The per-frame table, its rows through a spool on disk and kept as the arrays
+        shown; the images, profiles and terrain features of a finished file are read
+        around the cursor as it moves (_Window), an unfinished file's (no index) all at
+        once."""
+        images, profiles, features = {}, {}, {}
+        topics = FrameJoin.TOPICS
         if rec.complete:
             self._window = _Window(rec)
-            images, profiles = self._window.images, self._window.profiles
+            topics = tuple(t for t in topics if t not in (T.FEATURES, T.TF))  # not shown
 
         def take(m) -> None:
             d = m.data
@@ -278,15 +301,31 @@ class ReplaySource:
                         d.get("details") or {},
                     )
                 )
+            elif m.topic == T.LABELS:
+                changes.append(L.change_from_message(d))
             elif m.topic == T.BINARY_IMAGE:
                 images[m.sequence] = _packed_image(d)
             elif m.topic == T.CLOUD:
                 profiles[m.sequence] = _profile(d)
 
         shown = (T.EVENTS,) if rec.complete else (T.EVENTS, T.BINARY_IMAGE, T.CLOUD)
-        table, self.original_labels = frame_table(rec, shown, take)
+        rows, changes = FrameRows(Spool()), []
+        try:
+            for m in rec.messages([t for t in (*topics, T.LABELS, *shown) if t in rec.topics]):
+                if not rows.add(m):
+                    take(m)
+            rows.end()
+            self.original_labels = L.in_time_order(changes)
+            has_truth = T.TRUTH in rec.topics
+            tables = (
+                frame_rows(block, self.original_labels, has_truth=has_truth)
+                for block in rows.blocks()
+            )
+            frames = _Frames.shown(tables, images, profiles, features)
+        finally:
+            rows.close()
         self.events.sort(key=lambda e: e.time_ns)
-        return _Frames.shown(table, images, profiles)
+        return frames
 
     def _device_status(self, rec, frames: int) -> tuple[DeviceStatus, DeviceStatus]:
         devices = self.meta.devices
@@ -437,6 +476,7 @@ class ReplaySource:
         if self._window is not None:
             self._window.around(int(f.host_ns[k]))
             f.images, f.profiles = self._window.images, self._window.profiles
+            f.features = self._window.features
         image = (
             np.unpackbits(f.images[i])[: 100 * 100].reshape(100, 100)
             if i in f.images
@@ -490,7 +530,7 @@ class ReplaySource:
             recording_started_ns=None,
             frames=k + 1,
             latency_ms={},
-            stale_frames=int(self._stale_upto[k]),
+            stale_frames=int(f.stale_upto[k]),
             fusion_method=str(self.meta.software.fusion_method or ""),
         )
 

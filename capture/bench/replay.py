@@ -10,10 +10,8 @@ resident set of the processes), the medians of a few runs. A trial of realistic 
 from __future__ import annotations
 
 import os
-import subprocess
 import sys
 import tempfile
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -53,27 +51,22 @@ def replay_trial(path: str | os.PathLike, runs: int = 3, command=None) -> Replay
     rec = open_recording(path)
     if T.DEPTH not in rec.topics:
         raise CaptureError(f"{path}: no depth frames to replay")
+    from capture.bench.launch import measured
+
     command = command or [sys.executable, "-m", "tui.cli"]
     walls, cpus, peaks = [], [], []
     with tempfile.TemporaryDirectory() as tmp:
         for k in range(runs):
             out = Path(tmp) / f"replay{k}.mcap"
             with open(Path(tmp) / "stderr.txt", "w+b") as err:
-                start = time.monotonic()
-                proc = subprocess.Popen(
-                    [*command, "replay", str(path), "-o", str(out)],
-                    stdout=subprocess.DEVNULL,
-                    stderr=err,
-                )
-                # wait4: the child's own resource use, its waited-for reader process in it
-                _, status, usage = os.wait4(proc.pid, 0)
-                walls.append(time.monotonic() - start)
-                proc.returncode = os.waitstatus_to_exitcode(status)
-                if proc.returncode != 0:
+                # its waited-for reader process included
+                run = measured([*command, "replay", str(path), "-o", str(out)], stderr=err)
+                if run.returncode != 0:
                     err.seek(0)
                     last = err.read().decode(errors="replace").strip().splitlines()[-1:]
                     raise CaptureError(f"replay of {path} failed: {' '.join(last)}")
-            cpus.append(usage.ru_utime + usage.ru_stime)
-            peaks.append(usage.ru_maxrss / 1024)  # KiB on Linux
+            walls.append(run.wall_s)
+            cpus.append(run.cpu_s)
+            peaks.append(run.peak_mib)
             out.unlink(missing_ok=True)
     return ReplayRun(str(path), rec.topics[T.DEPTH].count, rec.duration_s, walls, cpus, peaks)

@@ -1,10 +1,12 @@
 """`walkcap bench --scale`: what reading a trial costs as the trial grows.
 
 Synthesizes trials of growing length (every topic a session writes, 45 fps, 100 Hz IMU,
-written with a blocking recorder so that nothing is shed), runs each reading command on
-each in a fresh process, one at a time, and reports its wall time and peak memory (the
-child's maximum resident set) per minute of recording, with the growth from the shortest
-trial: flat memory and linear time are ratios of 1 and of the length ratio.
+written with a blocking recorder so that nothing is shed), or takes recorded ones, runs
+each reading command on each in a fresh process, one at a time, and reports its wall
+time, CPU time (user + system, its children included: steadier than wall time on a shared
+machine) and peak memory (the largest resident set of the process and its children), the
+median of a few runs, with the growth from the shortest trial: flat memory and linear time
+are ratios of 1 and of the length ratio.
 
     walkcap bench --scale --minutes 1,4,16
 """
@@ -13,10 +15,8 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import subprocess
 import sys
 import tempfile
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,27 +25,59 @@ import numpy as np
 FPS = 45.0
 IMU_HZ = 100.0
 T0 = 1_000_000_000_000  # 1000 s on the session clock
-# (name, the command's arguments after `walkcap`; FILE, CUT and OUT are filled in)
+
+# the replay screen (`walkcap replay --tui`) without a terminal: the trial loaded, then
+# played through a second at a time, as the screen asks for it
+SCREEN = """
+import sys
+from tui.replay import ReplaySource
+src = ReplaySource(sys.argv[1], clock=lambda: 0, play=False)
+src.start()
+while src.position()[0] < src.duration_s:
+    src.seek(1.0)
+    src.snapshot()
+"""
+# the Python API's per-frame table of the trial
+FRAME_TABLE = """
+import sys
+from capture.recording.reader import frame_table, open_recording
+frame_table(open_recording(sys.argv[1]))
+"""
+WALKCAP = ["-m", "tui.cli"]
+# (name, the Python arguments; FILE and CUT are filled in, and OUT in the paths it begins)
 COMMANDS = (
-    ("info", ["info", "FILE"]),
-    ("export parquet", ["export", "FILE", "--quiet", "-o", "OUT"]),
-    ("export csv", ["export", "FILE", "--quiet", "--format", "csv", "-o", "OUT"]),
-    ("export mat", ["export", "FILE", "--quiet", "--format", "mat", "-o", "OUT"]),
-    ("recover (60 % cut)", ["recover", "CUT", "-o", "OUT/recovered.mcap"]),
+    ("info", [*WALKCAP, "info", "FILE"]),
+    ("export parquet", [*WALKCAP, "export", "FILE", "--quiet", "-o", "OUT"]),
+    ("export csv", [*WALKCAP, "export", "FILE", "--quiet", "--format", "csv", "-o", "OUT"]),
+    ("export mat", [*WALKCAP, "export", "FILE", "--quiet", "--format", "mat", "-o", "OUT"]),
+    ("recover (60 % cut)", [*WALKCAP, "recover", "CUT", "-o", "OUT/recovered.mcap"]),
+    ("replay", [*WALKCAP, "replay", "FILE", "-o", "OUT/replay.mcap"]),
+    ("eval recordings", [*WALKCAP, "eval", "recordings", "FILE", "--json"]),
+    ("replay --tui screen", ["-c", SCREEN, "FILE"]),
+    ("Python API frame table", ["-c", FRAME_TABLE, "FILE"]),
 )
 
 
-def synthesize(path: str | os.PathLike, minutes: float, seed: int = 0) -> Path:
+def synthesize(
+    path: str | os.PathLike,
+    minutes: float,
+    seed: int = 0,
+    session: dict | None = None,
+    depth: bool = True,
+) -> Path:
     """A mock trial of `minutes` at 45 fps: depth, cloud, image, CNN, fused decision,
     features, truth, IMU, a label change every 5 s. Frames cycle through a few synthetic
-    ones (devices.simulator.synthetic): the sizes and rates of a trial, quickly."""
+    ones (devices.simulator.synthetic): the sizes and rates of a trial, quickly. `session`:
+    its session metadata (default subject B01, indoor, trial 1); `depth` False: no depth
+    frames and no clouds (a trial's tables at a fraction of its bytes, for the readers of
+    tables: export, eval, the frame table)."""
     from capture.recording.writer import Recorder
     from devices.frames import MODES, ImuSample
     from devices.simulator.synthetic import synthetic_frame
 
     frames = [synthetic_frame(i, 0, seed=seed) for i in range(24)]
     metadata = {
-        "session": {"subject": "B01", "condition": "indoor", "trial": 1},
+        "session": session or {"subject": "B01", "condition": "indoor", "trial": 1},
         "devices": {"camera_backend": "mock", "camera_fps": FPS, "imu_rate_hz": IMU_HZ},
     }
     rec = Recorder(path, metadata=metadata, blocking=True, queue_size=4096)
@@ -78,10 +110,12 @@ def synthesize(path: str | os.PathLike, minutes: float, seed: int = 0) -> Path:
         frame = dataclasses.replace(
             frames[i % len(frames)], index=i, device_time_ns=t, host_time_ns=t + 3_000_000
         )
-        rec.write_frame(frame)
+        if depth:
+            rec.write_frame(frame)
         image[:] = 0
         image[50 + i % 20 :, :] = 1
-        rec.write_processed(i, t, t + 3_000_000, cloud, image, quaternion, "")
+        shown = cloud if depth else cloud[:0]
+        rec.write_processed(i, t, t + 3_000_000, shown, image, quaternion, "")
         p = np.full(len(MODES), 0.05)
         p[MODES.index(mode)] = 0.8
         fused = {"frame_index": max(0, i - 1), "decision": mode, "posterior": p}
@@ -96,22 +130,22 @@ def synthesize(path: str | os.PathLike, minutes: float, seed: int = 0) -> Path:
 class Run:
     command: str
     minutes: float
-    seconds: float
+    seconds: float  # the median of the runs
     peak_mib: float
     ok: bool
+    cpu_s: float = float("nan")
+    seconds_range: tuple[float, float] = (float("nan"), float("nan"))
+    cpu_range: tuple[float, float] = (float("nan"), float("nan"))
+    peak_range: tuple[float, float] = (float("nan"), float("nan"))
 
 
-def measure(argv: list[str]) -> tuple[float, float, bool]:
-    """(wall s, the child's peak resident MiB, exit 0) of `walkcap argv` in a fresh process."""
-    start = time.perf_counter()
-    child = subprocess.Popen(
-        [sys.executable, "-m", "tui.cli", *argv],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
-    _, status, usage = os.wait4(child.pid, 0)
-    child.returncode = os.waitstatus_to_exitcode(status)
-    return time.perf_counter() - start, usage.ru_maxrss / 1024, child.returncode == 0
+def measure(argv: list[str]) -> tuple[float, float, float, bool]:
+    """(wall s, CPU s, peak resident MiB, exit 0) of `python argv` in a fresh process, its
+    children included (capture.bench.launch)."""
+    from capture.bench.launch import measured
+
+    run = measured([sys.executable, *argv])
+    return run.wall_s, run.cpu_s, run.peak_mib, run.returncode == 0
 
 
 def cut_copy(path: Path, out: Path, fraction: float = 0.6) -> Path:
@@ -127,34 +161,70 @@ def cut_copy(path: Path, out: Path, fraction: float = 0.6) -> Path:
     return out
 
 
-def run(minutes: list[float], folder: str | None = None, progress=print) -> list[Run]:
-    """Each command on a synthesized trial of each length, one command at a time."""
-    runs: list[Run] = []
+def run(
+    minutes: list[float],
+    folder: str | None = None,
+    progress=print,
+    *,
+    trials: dict[float, Path] | None = None,
+    runs: int = 1,
+    commands: list[str] | None = None,
+) -> list[Run]:
+    """Each command on a trial of each length, one command at a time, `runs` times (the
+    runs of a command on a trial one after another). `trials`: recorded trials by length
+    in minutes, used instead of synthesized ones; `commands`: the names of COMMANDS run
+    (default all)."""
+    chosen = [(n, a) for n, a in COMMANDS if commands is None or n in commands]
+    out_runs: list[Run] = []
     with tempfile.TemporaryDirectory(dir=folder) as tmp:
         work = Path(tmp)
         for m in sorted(minutes):
-            progress(f"synthesizing a {m:g}-minute trial")
-            trial = synthesize(work / f"B01_indoor_t01_{m:g}min.mcap", m)
+            if trials is not None:
+                trial, made = Path(trials[m]), False
+            else:
+                progress(f"synthesizing a {m:g}-minute trial")
+                trial, made = synthesize(work / f"B01_indoor_t01_{m:g}min.mcap", m), True
             cut = cut_copy(trial, work / f"cut_{m:g}min.mcap")
-            for name, args in COMMANDS:
+            for name, args in chosen:
                 out = work / "out"
-                out.mkdir(exist_ok=True)
-                argv = [
-                    str(trial) if a == "FILE" else str(cut) if a == "CUT" else a
-                    for a in (x.replace("OUT", str(out)) for x in args)
-                ]
-                progress(f"{name} on {m:g} min")
-                seconds, peak, ok = measure(argv)
-                runs.append(Run(name, m, seconds, peak, ok))
-                for p in sorted(out.rglob("*"), reverse=True):
-                    p.unlink() if p.is_file() else p.rmdir()
-            trial.unlink()
+                figures = []
+                for k in range(runs):
+                    out.mkdir(exist_ok=True)
+                    argv = [
+                        str(trial) if a == "FILE" else str(cut) if a == "CUT" else a
+                        for a in (str(out) + x[3:] if x.startswith("OUT") else x for x in args)
+                    ]
+                    progress(
+                        f"{name} on {m:g} min" + (f", run {k + 1} of {runs}" if runs > 1 else "")
+                    )
+                    figures.append(measure(argv))
+                    for p in sorted(out.rglob("*"), reverse=True):
+                        p.unlink() if p.is_file() else p.rmdir()
+                out_runs.append(_run_of(name, m, figures))
+            if made:
+                trial.unlink()
             cut.unlink()
-    return runs
+    return out_runs
+
+
+def _run_of(name: str, minutes: float, figures: list[tuple[float, float, float, bool]]) -> Run:
+    wall, cpu, peak, ok = (np.array([f[k] for f in figures]) for k in range(4))
+    return Run(
+        name,
+        minutes,
+        float(np.median(wall)),
+        float(np.median(peak)),
+        bool(ok.all()),
+        float(np.median(cpu)),
+        (float(wall.min()), float(wall.max())),
+        (float(cpu.min()), float(cpu.max())),
+        (float(peak.min()), float(peak.max())),
+    )
 
 
 def table(runs: list[Run]) -> list[str]:
-    """Markdown: per command and length, time and peak memory; growth from the shortest."""
+    """Markdown: per command and length, wall time, CPU time and peak memory (medians, with
+    their range when there were several runs); the growth from the shortest length."""
     lengths = sorted({r.minutes for r in runs})
     head = "| command | " + " | ".join(f"{m:g} min" for m in lengths)
     head += f" | growth {lengths[0]:g} -> {lengths[-1]:g} min (time, memory) |"
@@ -163,11 +233,22 @@ def table(runs: list[Run]) -> list[str]:
         rows = {r.minutes: r for r in runs if r.command == name}
         if not rows:
             continue
-        cells = [
-            f"{r.seconds:.1f} s, {r.peak_mib:.0f} MiB" + ("" if r.ok else " (failed)")
-            for r in (rows[m] for m in lengths)
-        ]
-        a, b = rows[lengths[0]], rows[lengths[-1]]
-        growth = f"{b.seconds / a.seconds:.2f}x, {b.peak_mib / a.peak_mib:.2f}x"
+        cells = [_cell(rows[m]) if m in rows else "" for m in lengths]
+        a, b = rows.get(lengths[0]), rows.get(lengths[-1])
+        growth = f"{b.seconds / a.seconds:.2f}x, {b.peak_mib / a.peak_mib:.2f}x" if a and b else ""
         lines.append(f"| {name} | " + " | ".join(cells) + f" | {growth} |")
     return lines
+
+
+def _cell(r: Run) -> str:
+    low, high = r.seconds_range
+    several = low == low and high == high and low != high  # known (not NaN) and apart
+    wall = f"{r.seconds:.1f} s" + (
+        f" ({r.seconds_range[0]:.1f}-{r.seconds_range[1]:.1f})" if several else ""
+    )
+    cpu = "" if r.cpu_s != r.cpu_s else f", {r.cpu_s:.1f} s CPU"
+    low_peak, high_peak = (f"{v:.0f}" for v in r.peak_range)
+    peak = f", {r.peak_mib:.0f} MiB" + (
+        f" ({low_peak}-{high_peak})" if several and low_peak != high_peak else ""
+    )
+    return wall + cpu + peak + ("" if r.ok else " (failed)")

@@ -45,14 +45,14 @@ import numpy as np
 from capture.corpus import jobs
 from capture.corpus import selection as corpus_mod
 from capture.corpus.imu_columns import ImuColumns
+from capture.corpus.trial_pass import FEATURE_FIELDS, FrameSummary, TrialPass
 from capture.errors import CaptureError
 from capture.recording import labels as L
 from capture.recording import topics as T
-from capture.recording.frames import FrameTable, mode_names
+from capture.recording.frames import FrameTable, frame_rows, mode_names
 from capture.recording.gaps import TOPICS as GAP_TOPICS
 from capture.recording.gaps import recording_loss
 from capture.recording.lineage import describe
-from capture.recording.reader import frame_table, open_recording
 from devices import clock
 from devices.files import check_replaceable
 from devices.frames import MODES
@@ -81,18 +81,6 @@ SOFTWARE_COLUMNS = {
     "fusion_window": "Int64",
     "fusion_vote_delay": "Int64",
 }
-FEATURE_FIELDS = (
-    "kind",
-    "slope_deg",
-    "ahead_slope_deg",
-    "riser_m",
-    "tread_m",
-    "direction",
-    "steps",
-    "inlier_fraction",
-    "residual_m",
-    "tilt_offset_deg",
-)
 
 
 def _pd():
@@ -106,54 +94,67 @@ def _pd():
 def tables(path: str | os.PathLike) -> dict:
     """The tables of one recording as pandas DataFrames (see the module's docstring)."""
     pd = _pd()
-    rec = open_recording(path)
+    with TrialPass.read(path, None, _IMU_FIELDS) as trial:
+        return {name: _joined(pd, list(blocks)) for name, blocks in table_blocks(trial)}
+
+
+def table_blocks(trial: TrialPass, rows: int | None = None):
+    """(name, its DataFrames) for each table of the recording read by `trial`, in TABLES
+    order, each table in DataFrames of `rows` rows (default ROW_GROUP; the last may be
+    shorter): what tables() joins and the writers write one at a time. Each table's
+    DataFrames are to be taken before the next table's."""
+    pd = _pd()
+    rows = rows or ROW_GROUP
+    rec = trial.rec
     member = describe(rec)
-    subject, condition, trial = rec.trial
+    subject, condition, trial_number = rec.trial
     offset = rec.unix_offset_ns
     identity = {
         "file": rec.path.name,
         "recording_id": member.id,
         "subject": subject,
         "condition": condition,
-        "trial": trial,
+        "trial": trial_number,
     }
-    imu, events, gait = ImuColumns(_IMU_FIELDS), [], []
-
-    def take(m) -> None:
-        if m.topic == T.IMU:
-            imu.add(m.data)
-        elif m.topic in (T.GAIT, T.SIM_GAIT):
-            gait.append(m.data)
-        else:
-            events.append(m.data)
-
-    table, changes = frame_table(rec, (T.IMU, T.EVENTS, T.GAIT, T.SIM_GAIT), take)
-    events.sort(key=lambda e: int(e.get("time_ns", 0)))  # in time order, as the rest
-    gait.sort(key=lambda e: int(e["time_ns"]))
+    summary = trial.frame_summary()
+    changes = trial.changes
+    events = sorted(trial.events, key=lambda e: int(e.get("time_ns", 0)))  # in time order
+    gait = sorted(trial.gait, key=lambda e: int(e["time_ns"]))
     gait_t = np.array([int(e["time_ns"]) for e in gait], dtype=np.int64)
-    imu_t = imu.times()
     label_t = np.array([c[0] for c in changes], dtype=np.int64)
     event_t = np.array([int(e.get("time_ns", 0)) for e in events], dtype=np.int64)
     # time_s counts from the recording's start: its earliest time, receive or sample (an
     # IMU sample's time precedes its arrival), so that no row has a negative time
-    t0 = min(
-        [int(a.min()) for a in (table.time_ns, imu_t, label_t, event_t, gait_t) if len(a)]
-        + ([rec.start_ns] if rec.start_ns is not None else []),
-        default=0,
-    )
-    n = len(table)
-    return {
-        "frames": _frame(pd, identity, _frame_columns(table, offset, t0), n),
-        "imu": _frame(pd, identity, _imu_columns(imu, imu_t, offset, t0), len(imu)),
-        "labels": _frame(pd, identity, _label_columns(changes, label_t, offset, t0), len(changes)),
-        "events": _frame(
-            pd, identity, _timed_columns(events, event_t, offset, t0, _EVENT_COLUMNS), len(events)
-        ),
-        "gait": _frame(
-            pd, identity, _timed_columns(gait, gait_t, offset, t0, _GAIT_COLUMNS), len(gait)
-        ),
-        "trials": _trials_frame(pd, _trial_row(rec, member, identity, table)),
-    }
+    earliest = [summary.earliest_ns, trial.imu_earliest_ns, rec.start_ns]
+    earliest += [int(a.min()) for a in (label_t, event_t, gait_t) if len(a)]
+    t0 = min((t for t in earliest if t is not None), default=0)
+    has_truth = T.TRUTH in rec.topics
+
+    def frames():
+        for block in trial.frame_blocks(rows):
+            table = frame_rows(block, changes, has_truth=has_truth)
+            columns = _frame_columns(table, offset, t0, summary.numeric)
+            yield _frame(pd, identity, columns, len(table))
+
+    def imu():
+        for block in trial.imu_blocks(rows):
+            columns = _imu_columns(block, block.times(), offset, t0)
+            yield _frame(pd, identity, columns, len(block))
+
+    def one(columns: dict, n: int):
+        yield _frame(pd, identity, columns, n)
+
+    yield "frames", frames()
+    yield "imu", imu()
+    yield "labels", one(_label_columns(changes, label_t, offset, t0), len(changes))
+    yield "events", one(_timed_columns(events, event_t, offset, t0, _EVENT_COLUMNS), len(events))
+    yield "gait", one(_timed_columns(gait, gait_t, offset, t0, _GAIT_COLUMNS), len(gait))
+    yield "trials", iter([_trials_frame(pd, _trial_row(rec, member, identity, summary))])
+
+
+def _joined(pd, dfs: list):
+    """A table's DataFrames as one."""
+    return dfs[0] if len(dfs) == 1 else pd.concat(dfs, ignore_index=True)
 
 
 def _trials_frame(pd, row: dict):
@@ -195,8 +196,12 @@ def _frame(pd, identity: dict, columns: dict, n: int):
     return df
 
 
-def _frame_columns(table: FrameTable, offset: int | None, t0: int) -> dict:
-    """The frames table's columns from the per-frame table (capture.recording.frames)."""
+def _frame_columns(
+    table: FrameTable, offset: int | None, t0: int, numeric: dict[str, bool] | None = None
+) -> dict:
+    """The frames table's columns from the per-frame table (capture.recording.frames);
+    `numeric`: which terrain feature fields are numbers over the whole table, when
+    `table` is a block of it (else taken from `table`)."""
     frames = {"frame_index": table.index, "time_ns": table.time_ns}
     frames.update(_clock(table.time_ns, offset, t0))
     frames["label"] = mode_names(table.labels)
@@ -216,7 +221,8 @@ def _frame_columns(table: FrameTable, offset: int | None, t0: int) -> dict:
     frames["voted"] = mode_names(table.voted)
     frames["voted_at_frame"] = _frames_at(table.voted_at)
     for name in FEATURE_FIELDS:
-        frames[f"terrain_{name}"] = _column([f.get(name) for f in table.features])
+        values = [f.get(name) for f in table.features]
+        frames[f"terrain_{name}"] = _column(values, None if numeric is None else numeric[name])
     frames["preprocess_flag"] = list(table.flag)
     frames["oriented"] = [bool(x) for x in table.oriented]
     frames["cloud_points"] = _ints(table.cloud_points)
@@ -285,7 +291,7 @@ def _timed_columns(
     return cols
 
 
-def _trial_row(rec, member, identity: dict, table: FrameTable) -> dict:
+def _trial_row(rec, member, identity: dict, frames: FrameSummary) -> dict:
     offset = rec.unix_offset_ns
     trials = {**identity}
     trials.update(
@@ -300,9 +306,9 @@ def _trial_row(rec, member, identity: dict, table: FrameTable) -> dict:
             "start_unix_time_ns": rec.unix_time_ns(rec.start_ns),
             "end_unix_time_ns": rec.unix_time_ns(rec.end_ns),
             "duration_s": rec.duration_s,
-            "frames": len(table),
+            "frames": frames.rows,
             # frames left undecided: their IMU orientation was too old to level the cloud
-            "stale_orientation_frames": sum(1 for f in table.flag if f == "stale_orientation"),
+            "stale_orientation_frames": frames.stale,
             "unix_offset_ns": offset,
         }
     )
@@ -374,13 +380,21 @@ def corpus_tables(
 
 def spool(path: str, folder: str) -> dict[str, int]:
     """One corpus job (capture.corpus.jobs): a recording's tables as Parquet files in
-    `folder`, one a table; the rows of each."""
+    `folder`, one a table, written as they are made; the rows of each."""
     out = Path(folder)
     out.mkdir(parents=True, exist_ok=True)
+    with TrialPass.read(path, out, _IMU_FIELDS) as trial:
+        return _spool_frames(out, table_blocks(trial))
+
+
+def _spool_frames(folder: Path, named) -> dict[str, int]:
+    """Tables given as (name, DataFrame or DataFrames) into Parquet files in `folder`, in
+    row groups of ROW_GROUP rows; the rows of each."""
+    folder.mkdir(parents=True, exist_ok=True)
     rows = {}
-    for name, df in tables(path).items():
-        df.to_parquet(out / f"{name}.parquet", index=False)
-        rows[name] = len(df)
+    for name, frames in named:
+        frames = [frames] if hasattr(frames, "columns") else frames
+        rows[name] = _write_parquet_frames(folder / f"{name}.parquet", frames)
     return rows
 
 
@@ -404,40 +418,91 @@ def write_corpus(
     pd = _pd()
     if fmt not in FORMATS:
         raise CaptureError(f"export format {fmt!r}: one of {', '.join(FORMATS)}")
-    if cluster:  # a node need not see this folder: the tables come back whole
-        tables_, chosen = corpus_tables(
-            paths, replays=replays, every_file=every_file, progress=progress, cluster=cluster
-        )
-        return write(tables_, out, fmt), {n: len(df) for n, df in tables_.items()}, chosen
     files, chosen = _files_to_export(paths, replays, every_file)
-    if len(files) == 1:  # one trial's tables: written as they are, no spool
-        one = tables(files[0])
-        return write(one, out, fmt), {n: len(df) for n, df in one.items()}, chosen
+    folder = _folder(out)
+    if len(files) == 1 and not cluster:  # one trial's tables, written as they are made
+        written, rows = write_trial(files[0], folder, fmt)
+        return written, rows, chosen
+    work = folder / ".export-spool"
+    shutil.rmtree(work, ignore_errors=True)
+    try:
+        parts = [work / f"{k:06d}" for k in range(len(files))]
+        show = progress and len(files) > 1
+        if cluster:  # a node need not see this folder: each trial's tables come back whole
+            where = jobs.choose(cluster)
+            tasks = [jobs.Task(Path(f).name, tables, (jobs.task_path(where, f),)) for f in files]
+            rows = dict.fromkeys(TABLES, 0)
+
+            def spool_tables(i: int, trial_tables: dict) -> None:
+                for name, n in _spool_frames(parts[i], trial_tables.items()).items():
+                    rows[name] += n
+
+            jobs.run(
+                tasks,
+                where,
+                desc="export",
+                unit="recording",
+                show_progress=show,
+                on_result=spool_tables,
+                keep_results=False,
+            )
+        else:
+            tasks = [
+                jobs.Task(Path(f).name, spool, (str(f), str(p)))
+                for f, p in zip(files, parts, strict=True)
+            ]
+            per_file = jobs.run(
+                tasks, jobs.LOCAL, desc="export", unit="recording", show_progress=show
+            )
+            rows = {name: sum(r[name] for r in per_file) for name in TABLES}
+        written = _write_spooled(pd, parts, folder, fmt)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    return written, rows, chosen
+
+
+def write_trial(
+    path: str | os.PathLike, out: str | os.PathLike, fmt: str = "parquet"
+) -> tuple[list[Path], dict[str, int]]:
+    """One recording's tables written into folder `out` as they are made, in blocks of
+    ROW_GROUP rows: the same files write(tables(path), out, fmt) gives, in memory that
+    does not grow with the trial's length (its frames and IMU samples go through a spool
+    beside the output). (written files, rows per table)."""
+    if fmt not in FORMATS:
+        raise CaptureError(f"export format {fmt!r}: one of {', '.join(FORMATS)}")
+    folder = _folder(out)
+    rows: dict[str, int] = {}
+
+    def counted(name: str, blocks):
+        rows[name] = 0
+        for df in blocks:
+            rows[name] += len(df)
+            yield df
+
+    try:
+        trial = TrialPass.read(path, folder, _IMU_FIELDS)
+    except OSError as e:  # the spool beside the output: a full disk
+        first = folder / ("walkcap.mat" if fmt == "mat" else f"{TABLES[0]}.{fmt}")
+        raise CaptureError(
+            f"{first}: not written (the rows read go beside it first: {e.strerror or e}); "
+            "nothing of the export is left"
+        ) from None
+    with trial:
+        named = ((name, counted(name, blocks)) for name, blocks in table_blocks(trial))
+        if fmt == "mat":
+            written = [_whole(folder / "walkcap.mat", lambda p: _write_mat_spooled(p, named))]
+        else:
+            written = _write_tables(named, folder, fmt)
+    return written, rows
+
+
+def _folder(out: str | os.PathLike) -> Path:
     folder = Path(out)
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise CaptureError(f"cannot create {folder}: {e.strerror}") from None
-    work = folder / ".export-spool"
-    shutil.rmtree(work, ignore_errors=True)
-    try:
-        parts = [work / f"{k:06d}" for k in range(len(files))]
-        tasks = [
-            jobs.Task(Path(f).name, spool, (str(f), str(p)))
-            for f, p in zip(files, parts, strict=True)
-        ]
-        per_file = jobs.run(
-            tasks,
-            jobs.LOCAL,
-            desc="export",
-            unit="recording",
-            show_progress=progress and len(files) > 1,
-        )
-        rows = {name: sum(r[name] for r in per_file) for name in TABLES}
-        written = _write_spooled(pd, parts, folder, fmt)
-    finally:
-        shutil.rmtree(work, ignore_errors=True)
-    return written, rows, chosen
+    return folder
 
 
 class _Spooled:
@@ -455,9 +520,15 @@ class _Spooled:
         self.same = all(s.equals(schemas[0]) for s in schemas)
 
     def frames(self):
-        """Each trial's table, the empty ones only when all are empty."""
+        """Each trial's table a row group at a time (the empty ones only when all are
+        empty)."""
+        import pyarrow.parquet as pq
+
         for f in self.nonempty or self.files[:1]:
-            yield self.pd.read_parquet(f)
+            groups = pq.ParquetFile(f)
+            for k in range(max(groups.num_row_groups, 1)):
+                table = groups.read_row_group(k) if groups.num_row_groups else groups.read()
+                yield table.to_pandas()
 
     def whole(self):
         dfs = list(self.frames())
@@ -465,9 +536,13 @@ class _Spooled:
 
 
 def _write_spooled(pd, parts: list[Path], folder: Path, fmt: str) -> list[Path]:
-    if fmt == "mat":  # a MATLAB variable is written whole: one table in memory at a time
-        lazy = _Lazy({name: _Spooled(pd, parts, name) for name in TABLES})
-        return [_whole(folder / "walkcap.mat", lambda p: _write_mat(p, lazy))]
+    if fmt == "mat":  # a MATLAB variable holds a column whole: one column in memory at a time
+        spooled = {name: _Spooled(pd, parts, name) for name in TABLES}
+        tables_ = {
+            name: _columns_of(t.nonempty or t.files[:1]) if t.same else t.whole()
+            for name, t in spooled.items()
+        }
+        return [_whole(folder / "walkcap.mat", lambda p: _write_mat(p, tables_))]
     written: list[Path] = []
     for name in TABLES:
         table = _Spooled(pd, parts, name)
@@ -476,49 +551,59 @@ def _write_spooled(pd, parts: list[Path], folder: Path, fmt: str) -> list[Path]:
             written.append(_write_one(path, table.whole(), fmt))
             continue
         if fmt == "parquet":
-            write_table = lambda p, t=table: _parquet_parts(p, t.frames())  # noqa: E731
+            write_table = lambda p, t=table: _write_parquet_frames(p, t.frames())  # noqa: E731
         else:
             write_table = lambda p, t=table: _csv_parts(p, t.frames())  # noqa: E731
         written.append(_whole(path, write_table))
     return written
 
 
-class _Lazy(dict):
-    """name -> DataFrame, each read when asked for (the .mat writer takes one at a time)."""
-
-    def items(self):
-        return ((name, spooled.whole()) for name, spooled in super().items())
-
-
-def _parquet_parts(path: Path, frames) -> None:
+def _write_parquet_frames(path: Path, frames) -> int:
+    """DataFrames of one table into a Parquet file, in row groups of up to ROW_GROUP rows,
+    each converted to Arrow on its own: one group's copy in memory at a time. The schema is
+    the first one's. Read back, it is the tables joined. The rows written."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    writer = None
+    writer, rows = None, 0
     try:
         for df in frames:
-            schema = pa.Schema.from_pandas(df, preserve_index=False)
             if writer is None:
-                writer = pq.ParquetWriter(path, schema)
+                writer = pq.ParquetWriter(path, pa.Schema.from_pandas(df, preserve_index=False))
             for start in range(0, max(len(df), 1), ROW_GROUP):
                 part = df.iloc[start : start + ROW_GROUP]
-                table = pa.Table.from_pandas(part, schema=schema, preserve_index=False)
+                table = pa.Table.from_pandas(part, schema=writer.schema, preserve_index=False)
                 writer.write_table(table.replace_schema_metadata(writer.schema.metadata))
+            rows += len(df)
     finally:
         if writer is not None:
             writer.close()
+    return rows
+
+
+def _write_tables(named, folder: Path, fmt: str) -> list[Path]:
+    """(name, DataFrames) of each table, in turn, into `name.fmt` (parquet or csv)."""
+    written: list[Path] = []
+    for name, frames in named:
+        path = folder / f"{name}.{fmt}"
+        if fmt == "parquet":
+            write_table = lambda p, f=frames: _write_parquet_frames(p, f)  # noqa: E731
+        else:
+            write_table = lambda p, f=frames: _csv_parts(p, f)  # noqa: E731
+        written.append(_whole(path, write_table))
+    return written
 
 
 def _csv_parts(path: Path, frames) -> None:
     with open(path, "w", newline="") as f:
         for k, df in enumerate(frames):
-            df.to_csv(f, index=False, header=k == 0, chunksize=ROW_GROUP)
+            df.to_csv(f, index=False, header=k == 0, chunksize=CSV_ROWS)
 
 
 def _write_one(path: Path, df, fmt: str) -> Path:
     if fmt == "parquet":
         return _whole(path, lambda p: _write_parquet(p, df))
-    return _whole(path, lambda p: df.to_csv(p, index=False, chunksize=ROW_GROUP))
+    return _whole(path, lambda p: df.to_csv(p, index=False, chunksize=CSV_ROWS))
 
 
 def write(tables_: dict, out: str | os.PathLike, fmt: str = "parquet") -> list[Path]:
@@ -539,7 +624,7 @@ def write(tables_: dict, out: str | os.PathLike, fmt: str = "parquet") -> list[P
         if fmt == "parquet":
             write_table = lambda p, df=df: _write_parquet(p, df)  # noqa: E731
         else:
-            write_table = lambda p, df=df: df.to_csv(p, index=False, chunksize=ROW_GROUP)  # noqa: E731
+            write_table = lambda p, df=df: df.to_csv(p, index=False, chunksize=CSV_ROWS)  # noqa: E731
         try:
             written.append(_whole(path, write_table))
         except ImportError:
@@ -550,30 +635,81 @@ def write(tables_: dict, out: str | os.PathLike, fmt: str = "parquet") -> list[P
     return written
 
 
-ROW_GROUP = 50_000  # rows a Parquet row group (and a CSV block) holds
+ROW_GROUP = 50_000  # rows a Parquet row group (and a table's block in memory) holds
+# rows pandas formats at once into CSV text: the text of a whole block would take several
+# times the block's memory
+CSV_ROWS = 4096
 
 
 def _write_parquet(path: Path, df) -> None:
-    """The table in row groups of ROW_GROUP rows, each converted to Arrow on its own: one
-    group's copy in memory at a time, not the table's. Read back, it is the table."""
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
-    schema = pa.Schema.from_pandas(df, preserve_index=False)
-    with pq.ParquetWriter(path, schema) as writer:
-        for start in range(0, max(len(df), 1), ROW_GROUP):
-            part = df.iloc[start : start + ROW_GROUP]
-            writer.write_table(pa.Table.from_pandas(part, schema=schema, preserve_index=False))
+    """The table in row groups of ROW_GROUP rows (_write_parquet_frames)."""
+    _write_parquet_frames(path, [df])
 
 
 def _write_mat(path: Path, tables_: dict) -> None:
-    """One walkcap.mat, a struct per table, the tables converted and written one by one: a
-    table's MATLAB copy is held while it is written, never the whole trial's twice."""
+    """One walkcap.mat, a struct per table (a DataFrame, or a _SpooledColumns), the
+    tables converted and written one by one, a spooled table a column at a time: never
+    the whole trial's MATLAB copy in memory at once."""
     from scipy.io import savemat
 
     with open(path, "wb") as f:  # savemat writes the file's header at its start only
-        for name, df in tables_.items():
-            savemat(f, {name: _mat_struct(df)}, oned_as="column")
+        for name, table in tables_.items():
+            savemat(f, {name: _mat_struct(table)}, oned_as="column")
+
+
+# tables large enough to go through a Parquet spool on their way to a .mat file
+_SPOOLED_FOR_MAT = ("frames", "imu")
+
+
+def _write_mat_spooled(path: Path, named) -> None:
+    """(name, DataFrames) of each table into one .mat file at `path`: the large tables
+    through Parquet files beside it, read back a column at a time."""
+    import shutil
+
+    work = path.with_name(f".{path.stem}.spool")
+    shutil.rmtree(work, ignore_errors=True)
+    work.mkdir()
+    try:
+        tables_ = {}
+        for name, frames in named:
+            if name in _SPOOLED_FOR_MAT:
+                _write_parquet_frames(work / f"{name}.parquet", frames)
+                tables_[name] = _columns_of([work / f"{name}.parquet"])
+            else:
+                tables_[name] = _joined(_pd(), list(frames))
+        _write_mat(path, tables_)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+class _SpooledColumns:
+    """A table in Parquet files (one after another), read a column at a time."""
+
+    def __init__(self, files: list[Path]) -> None:
+        import pyarrow.parquet as pq
+
+        self.files = files
+        self.columns = list(pq.read_schema(files[0]).names)
+
+    def column(self, name: str):
+        import pyarrow.parquet as pq
+
+        parts = [pq.read_table(f, columns=[name]).to_pandas()[name] for f in self.files]
+        return parts[0] if len(parts) == 1 else _pd().concat(parts, ignore_index=True)
+
+
+def _columns_of(files: list[Path]) -> _SpooledColumns:
+    return _SpooledColumns(files)
+
+
+class _MatColumn:
+    """A spooled column that becomes its MATLAB values when scipy's writer takes it."""
+
+    def __init__(self, table: _SpooledColumns, name: str) -> None:
+        self.table, self.name = table, name
+
+    def __array__(self, dtype=None, copy=None):
+        return _mat_values(self.table.column(self.name))
 
 
 def _whole(path: Path, write) -> Path:
@@ -616,9 +752,14 @@ def _ints(values: list):
     return pd.array(values, dtype="Int64")
 
 
-def _column(values: list):
-    """Numbers as float (None -> NaN), anything else as text (None -> "")."""
-    if all(v is None or (isinstance(v, (int, float)) and not isinstance(v, bool)) for v in values):
+def _column(values: list, numbers: bool | None = None):
+    """Numbers as float (None -> NaN), anything else as text (None -> ""); `numbers`:
+    whether the whole column is numbers (None: these values say)."""
+    if numbers is None:
+        numbers = all(
+            v is None or (isinstance(v, (int, float)) and not isinstance(v, bool)) for v in values
+        )
+    if numbers:
         return np.array([np.nan if v is None else float(v) for v in values], dtype=float)
     return ["" if v is None else str(v) for v in values]
 
@@ -642,24 +783,26 @@ def matlab_name(name: str) -> str:
     return out[:63]
 
 
-def _mat_struct(df) -> dict:
-    """A DataFrame as a MATLAB struct of columns: integers as int64 (double, gaps NaN,
-    where a value is missing), other numbers as double, booleans as logical (a flag that
-    may be unknown as double: 1, 0, NaN), text as cell arrays of char."""
+def _mat_struct(table) -> dict:
+    """A DataFrame (or _SpooledColumns) as a MATLAB struct of columns (_mat_values); a
+    spooled table's columns are read as the writer reaches each."""
+    if isinstance(table, _SpooledColumns):
+        return {matlab_name(str(c)): _MatColumn(table, c) for c in table.columns}
+    return {matlab_name(str(column)): _mat_values(table[column]) for column in table.columns}
+
+
+def _mat_values(s):
+    """A column as MATLAB values: integers as int64 (double, gaps NaN, where a value is
+    missing), other numbers as double, booleans as logical (a flag that may be unknown as
+    double: 1, 0, NaN), text as cell arrays of char."""
     from pandas.api.types import is_bool_dtype, is_integer_dtype, is_numeric_dtype
 
-    out = {}
-    for column in df.columns:
-        s = df[column]
-        if isinstance(s.dtype, _pd().BooleanDtype):  # a flag that may be unknown: 1, 0 or NaN
-            values = s.astype("float64").to_numpy(na_value=np.nan)
-        elif is_bool_dtype(s.dtype):
-            values = s.to_numpy(dtype=bool)
-        elif is_integer_dtype(s.dtype) and not s.isna().any():
-            values = s.to_numpy(dtype=np.int64)  # ns times need all 64 bits
-        elif is_numeric_dtype(s.dtype):
-            values = s.astype("float64").to_numpy(na_value=np.nan)
-        else:
-            values = np.array(["" if v is None else str(v) for v in s], dtype=object)
-        out[matlab_name(str(column))] = values
-    return out
+    if isinstance(s.dtype, _pd().BooleanDtype):  # a flag that may be unknown: 1, 0 or NaN
+        return s.astype("float64").to_numpy(na_value=np.nan)
+    if is_bool_dtype(s.dtype):
+        return s.to_numpy(dtype=bool)
+    if is_integer_dtype(s.dtype) and not s.isna().any():
+        return s.to_numpy(dtype=np.int64)  # ns times need all 64 bits
+    if is_numeric_dtype(s.dtype):
+        return s.astype("float64").to_numpy(na_value=np.nan)
+    return np.array(["" if v is None else str(v) for v in s], dtype=object)

@@ -30,9 +30,14 @@ class ImuColumns:
 
     def add(self, s: dict) -> None:
         if self.n == len(self.integers):
-            self.integers = np.concatenate([self.integers, np.zeros_like(self.integers)])
-            self.known = np.concatenate([self.known, np.zeros_like(self.known)])
-            self.vectors = np.concatenate([self.vectors, np.full_like(self.vectors, np.nan)])
+            more = max(self.n, 1024)
+            self.integers = np.concatenate(
+                [self.integers, np.zeros((more, len(self.ints)), np.int64)]
+            )
+            self.known = np.concatenate([self.known, np.zeros((more, len(self.ints)), bool)])
+            self.vectors = np.concatenate(
+                [self.vectors, np.full((more, self.vectors.shape[1]), np.nan)]
+            )
         k = self.n
         for j, name in enumerate(self.ints):
             v = s.get(name)
@@ -44,6 +49,23 @@ class ImuColumns:
             if v is not None:
                 self.vectors[k, columns] = [np.nan if x is None else x for x in v]
         self.n += 1
+
+    def slice(self, start: int, stop: int) -> ImuColumns:
+        """Samples start..stop-1, as columns of their own."""
+        out = ImuColumns.__new__(ImuColumns)
+        out.n, out.ints, out.at = stop - start, self.ints, self.at
+        out.integers = self.integers[start:stop].copy()
+        out.known = self.known[start:stop].copy()
+        out.vectors = self.vectors[start:stop].copy()
+        return out
+
+    def extend(self, other: ImuColumns) -> None:
+        """`other`'s samples (the same fields) after these."""
+        n = self.n
+        self.integers = np.concatenate([self.integers[:n], other.integers[: other.n]])
+        self.known = np.concatenate([self.known[:n], other.known[: other.n]])
+        self.vectors = np.concatenate([self.vectors[:n], other.vectors[: other.n]])
+        self.n = n + other.n
 
     def ints_of(self, name: str):
         """An integer field as pandas' nullable Int64 (None: a gap)."""

@@ -99,10 +99,13 @@ def run(
     unit: str = "task",
     show_progress: bool | None = None,
     on_result: Callable[[int, object], None] | None = None,
+    keep_results: bool = True,
 ) -> list:
     """The tasks' results in task order, computed `where` (see the module's text).
     `show_progress`: a bar over tasks on stderr (default: when stderr is a terminal);
-    `on_result(i, result)`: called in task order as results come in."""
+    `on_result(i, result)`: called in task order as results come in; `keep_results`
+    False: each result let go once on_result has had it (None in the list), for results
+    too large to hold all at once."""
     from tqdm import tqdm
 
     tasks = list(tasks)
@@ -110,15 +113,15 @@ def run(
         show_progress = sys.stderr.isatty()
     if isinstance(where, Cluster):
         with cluster.connect(where.address, num_cpus=where.cpus):
-            return _on_ray(tasks, desc, unit, show_progress, on_result)
+            return _on_ray(tasks, desc, unit, show_progress, on_result, keep_results)
     results: list = []
     with tqdm(
         total=len(tasks), desc=desc, unit=unit, file=sys.stderr, disable=not show_progress
     ) as bar:
         for i, result in enumerate(_in_order(tasks, where)):
-            results.append(result)
             if on_result is not None:
                 on_result(i, result)
+            results.append(result if keep_results else None)
             bar.update(1)
     return results
 
@@ -148,6 +151,7 @@ def _on_ray(
     unit: str,
     show_progress: bool,
     on_result: Callable[[int, object], None] | None,
+    keep_results: bool = True,
 ) -> list:
     """The tasks on the connected Ray cluster; errors are caught in the worker, so a
     failure is one line, not Ray's traceback."""
@@ -193,6 +197,8 @@ def _on_ray(
                 while said < len(tasks) and ended[said]:
                     if on_result is not None and succeeded[said]:
                         on_result(said, results[said])
+                    if not keep_results:
+                        results[said] = None
                     said += 1
     except KeyboardInterrupt:
         for ref in index:

@@ -2,27 +2,30 @@
 
 Deterministic: frames in order, each with the IMU samples recorded up to just after its
 time in the orientation track, exactly as the live session would have had them. The
-original file is only read.
+original file is only read, in one pass: the frames, the IMU samples (handed out in
+sample-time order, SampleOrder), labels, events and the simulator's gait events come
+from the same chunks, each decompressed once. What replay does not change (depth,
+confidence, truth, IMU samples, the simulator's gait events, labels, events) is written
+as recorded: the messages' bytes themselves when the file is of the current format.
 
 As fast as possible (`speed=None`), the work is split over two processes, since one
-Python process cannot use a second core: a reader process decodes the frames, levels and
-preprocesses them and encodes what the new recording keeps of them (depth, cloud, image,
-orientation, truth); this one classifies them in batches, fuses, measures the terrain and
+Python process cannot use a second core: a reader process reads the file, levels and
+preprocesses the frames and encodes what the new recording keeps of them (cloud, image,
+orientation); this one classifies them in batches, fuses, measures the terrain and
 records (its main thread shares the interpreter with the threads that receive the frames
-and write the file: the two processes' shares of a frame's CPU time are about even). The
-IMU is read in one pass and kept in compact columns. While the reader process starts,
-this one prepares the first frames itself. The frames are classified in batches of BATCH
-from the first frame on, whatever the reader process has sent so far: the CNN's float
-results depend on the batch's size, and fixed batches give the same file on every run.
-Paced replays (`speed=X`), and replays that are one task of a corpus job
-(`reader_process=False`: the cluster has given each task one core), run in this process
-alone.
+and write the file). While the reader process starts, this one prepares the first frames
+itself. The frames are classified in batches of BATCH from the first frame on, whatever
+the reader process has sent so far: the CNN's float results depend on the batch's size,
+and fixed batches give the same file on every run. Paced replays (`speed=X`), and
+replays that are one task of a corpus job (`reader_process=False`: the cluster has given
+each task one core), run in this process alone.
 """
 
 from __future__ import annotations
 
-import array
+import collections
 import dataclasses
+import heapq
 import os
 import queue
 import socket
@@ -87,165 +90,216 @@ def default_output(source: Path, folder: Path | None = None) -> Path:
         k += 1
 
 
-_INTS = ("host_time_ns", "time_ns", "packet_counter", "sample_time_fine", "status_word")
-_VECTORS = (("quaternion", 4), ("acceleration", 3), ("rate_of_turn", 3))
+class ImuOrderError(CaptureError):
+    """An IMU sample lies later in the file than SampleOrder's horizon allows: the replay
+    reads every sample's time first and starts again."""
 
 
-class ImuColumns:
-    """IMU samples kept as columns, about 130 bytes a sample (an ImuSample object takes
-    nearly 800: a two-hour trial's samples would take over half a GB). A sample that does
-    not fit the columns (a value of another type or shape, extra outputs) is kept whole."""
+class SampleOrder:
+    """The IMU samples of one pass over a recording, handed out in sample-time order (ties:
+    file order): the order a sort of every sample gives. A frame takes the samples up to
+    its time plus IMU_LOOKAHEAD_NS.
 
-    def __init__(self) -> None:
-        self._ints = [array.array("q") for _ in _INTS]
-        self._vectors = [array.array("d") for _ in _VECTORS]
-        self._present = [bytearray() for _ in _INTS + _VECTORS]
-        self._whole: dict[int, ImuSample] = {}
-        self._n = 0
+    Samples are logged in near time order, so the pass need not read them all first: a
+    frame is `ready` once the pass has read messages logged HORIZON_NS past its time. A
+    sample read after later ones were handed out raises ImuOrderError (a host that
+    delivered it seconds late). Given `times` (every sample's time, sorted: imu_times), a
+    frame waits instead until every sample up to its time has been read, however late
+    the file holds it."""
 
-    def add(self, s: ImuSample) -> None:
-        ints = [getattr(s, name) for name in _INTS]
-        vectors = [getattr(s, name) for name, _ in _VECTORS]
-        fits = not s.extra and all(v is None or type(v) is int for v in ints)
-        fits = fits and all(v is None or v.shape == (k,) for v, (_, k) in zip(vectors, _VECTORS))
-        if not fits:
-            self._whole[self._n] = s
-            ints, vectors = [None] * len(_INTS), [None] * len(_VECTORS)
-        for column, present, v in zip(self._ints, self._present, ints):
-            column.append(0 if v is None else v)
-            present.append(v is not None)
-        for (_, k), column, present, v in zip(
-            _VECTORS, self._vectors, self._present[len(_INTS) :], vectors
-        ):
-            column.extend((np.nan,) * k if v is None else v.tolist())
-            present.append(v is not None)
-        self._n += 1
+    HORIZON_NS = 2_000_000_000
 
-    def __len__(self) -> int:
-        return self._n
+    def __init__(self, times: np.ndarray | None = None) -> None:
+        self._times = times
+        self._heap: list = []
+        self._read = 0  # samples added
+        self._taken = 0  # samples handed out
+        self._taken_to: int | None = None  # every sample up to this time is handed out
+        self._newest_log: int | None = None  # the latest log time the pass has read
+        self._ended = False
 
-    def column(self, name: str) -> tuple[np.ndarray, np.ndarray]:
-        """(values, present) of a field over the samples that fit the columns."""
-        if name in _INTS:
-            k = _INTS.index(name)
-            values = np.frombuffer(self._ints[k], dtype=np.int64)
-        else:
-            k = [n for n, _ in _VECTORS].index(name)
-            values = np.frombuffer(self._vectors[k], dtype=np.float64).reshape(-1, _VECTORS[k][1])
-            k += len(_INTS)
-        return values, np.frombuffer(self._present[k], dtype=bool)
+    def add(self, time_ns: int, item) -> None:
+        if self._times is None and self._taken_to is not None and time_ns <= self._taken_to:
+            raise ImuOrderError(f"an IMU sample at {time_ns} ns lies after later ones")
+        heapq.heappush(self._heap, (time_ns, self._read, item))
+        self._read += 1
 
-    def whole(self) -> dict[int, ImuSample]:
-        """The samples kept whole, by their position."""
-        return self._whole
+    def read_to(self, log_time_ns: int) -> None:
+        """The pass has read a message logged at `log_time_ns`."""
+        if self._newest_log is None or log_time_ns > self._newest_log:
+            self._newest_log = log_time_ns
 
-    def sample(self, i: int) -> ImuSample:
-        """Sample `i` (in the order added), the same as the one added."""
-        whole = self._whole.get(i)
-        if whole is not None:
-            return whole
-        values = {
-            name: int(c[i]) if p[i] else None
-            for name, c, p in zip(_INTS, self._ints, self._present)
-        }
-        for k, (name, size) in enumerate(_VECTORS):
-            here = self._present[len(_INTS) + k][i]
-            c = self._vectors[k]
-            values[name] = np.array(c[i * size : (i + 1) * size]) if here else None
-        return ImuSample(**values)
+    def end(self) -> None:
+        """The pass has read the whole file."""
+        self._ended = True
 
-    @property
-    def nbytes(self) -> int:
-        columns = (*self._ints, *self._vectors, *self._present)
-        return sum(len(c) * (c.itemsize if isinstance(c, array.array) else 1) for c in columns)
+    def ready(self, upto_ns: int) -> bool:
+        """Whether every sample up to `upto_ns` has been read."""
+        if self._ended:
+            return True
+        if self._times is not None:
+            due = int(np.searchsorted(self._times, upto_ns, side="right"))
+            return self._taken + sum(1 for t, _, _ in self._heap if t <= upto_ns) >= due
+        return self._newest_log is not None and self._newest_log >= upto_ns + self.HORIZON_NS
+
+    def take(self, upto_ns: int | None = None) -> list:
+        """The samples up to `upto_ns` (None: all that are left) in order."""
+        heap, out = self._heap, []
+        while heap and (upto_ns is None or heap[0][0] <= upto_ns):
+            out.append(heapq.heappop(heap)[2])
+        self._taken += len(out)
+        if upto_ns is not None and (self._taken_to is None or upto_ns > self._taken_to):
+            self._taken_to = upto_ns
+        return out
 
 
-@dataclass
-class RecordedImu:
-    """What replay keeps of a recording's IMU from one pass, in compact arrays.
-    `samples`: in file order; `order`: their positions sorted by sample time (stable);
-    `times_ns`: their sample times in that order; `orientations`: (times ns, quaternions
-    N x 4, rates of turn N x 3, NaN where absent) of the samples that carry an
-    orientation, in that order: what the orientation track needs, compact to hand over."""
-
-    samples: ImuColumns
-    order: np.ndarray
-    times_ns: np.ndarray
-    orientations: tuple[np.ndarray, np.ndarray, np.ndarray]
-
-    def in_order(self) -> Iterator[ImuSample]:
-        """The samples in sample-time order."""
-        for i in self.order:
-            yield self.samples.sample(int(i))
-
-
-def recorded_compact(rec) -> tuple[RecordedImu, list[dict], list[dict]]:
-    """The recording's IMU (as RecordedImu), labels and events: one pass."""
-    samples = ImuColumns()
-    labels, events = [], []
-    for m in rec.messages([T.IMU, T.LABELS, T.EVENTS]):
-        if m.topic == T.IMU:
-            samples.add(imu_sample(m.data))
-        else:
-            (labels if m.topic == T.LABELS else events).append(m.data)
-    t, has_t = samples.column("time_ns")
-    host, _ = samples.column("host_time_ns")
-    quats, has_q = samples.column("quaternion")
-    rates, has_rate = samples.column("rate_of_turn")
-    t, quats, rates = np.where(has_t, t, host), quats.copy(), rates.copy()
-    has_q = has_q.copy()
-    rates[~has_rate] = np.nan
-    for i, s in samples.whole().items():
-        t[i] = _sample_time(s)
-        has_q[i] = s.quaternion is not None
-        if has_q[i]:
-            quats[i] = s.quaternion
-            rates[i] = s.rate_of_turn if s.rate_of_turn is not None else np.nan
-    order = np.argsort(t, kind="stable")
-    kept = order[has_q[order]]
-    return (
-        RecordedImu(samples, order, t[order], (t[kept], quats[kept], rates[kept])),
-        labels,
-        events,
-    )
+def imu_times(rec) -> np.ndarray:
+    """Every IMU sample's time (its sample time, else its arrival), sorted."""
+    times = [_sample_time(imu_sample(m.data)) for m in rec.messages([T.IMU])]
+    return np.sort(np.asarray(times, dtype=np.int64))
 
 
 def _sample_time(s: ImuSample) -> int:
     return s.time_ns if s.time_ns is not None else s.host_time_ns
 
 
-def prepared_frames(
-    source: str | Path, params, mounting, imu_orientations=None, skip: int = 0
-) -> Iterator[tuple[DepthFrame, np.ndarray | None, object]]:
-    """(frame, orientation, Preprocessed) for every recorded frame, in order, after the
-    first `skip`, preprocessed with `params` (a PreprocessConfig) and the camera's
-    `mounting`. `imu_orientations`: RecordedImu.orientations of the recording, if already read."""
-    from capture.recording.reader import depth_frames, open_recording
+@dataclass(slots=True)
+class ReplayStep:
+    """One frame as replay's reader hands it on, in frame order: the frame (its bulky
+    arrays dropped once encoded), its orientation and Preprocessed, the messages the new
+    file keeps of it (`messages`: depth, confidence, cloud, image, preprocessing,
+    orientation, truth), and what the pass read since the step before: the IMU samples
+    due before the frame (`imu`: (ImuSample, its message as recorded), in sample-time
+    order), labels and events (their messages' data) and the simulator's gait events.
+    The last step has no frame: it carries what comes after the last frame."""
+
+    frame: DepthFrame | None
+    orientation: np.ndarray | None
+    prepared: object | None
+    messages: list
+    imu: list
+    labels: list
+    events: list
+    sim_gait: list
+
+
+_COPIED = (T.DEPTH, T.CONFIDENCE, T.TRUTH)  # a frame's messages the new file keeps as recorded
+
+
+def replay_steps(
+    source: str | os.PathLike, params, mounting, *, skip: int = 0, times=None
+) -> Iterator[ReplayStep]:
+    """The recording as ReplaySteps from one pass over it, after the first `skip` steps
+    (read for nothing: a skipped step costs its reading only); each frame preprocessed
+    with `params` (a PreprocessConfig) and the camera's `mounting`. `times`: imu_times()
+    of the file, when a pass without them has raised ImuOrderError."""
+    from capture.recording.encode import Encoded
+    from capture.recording.reader import FrameAssembler, open_recording
+    from capture.recording.versions import needs_upgrade
     from inference.preprocess import preprocess
 
-    if imu_orientations is None:
-        imu_orientations = recorded_compact(open_recording(source))[0].orientations
-    times, quats, rates = imu_orientations
+    rec = open_recording(source)
+    frames = FrameAssembler(rec, gray=False)
+    # a file of the current format holds its messages as this version encodes them
+    as_recorded = not needs_upgrade(rec.format_version)
+    order = SampleOrder(times)
     track = OrientationTrack(span_s=5.0)
-    i = 0
-    for k, frame in enumerate(depth_frames(source)):
-        if k < skip:  # decoded for nothing: a skipped frame costs its decoding only
-            continue
-        t = frame.device_time_ns
-        while i < len(times) and times[i] <= t + IMU_LOOKAHEAD_NS:
-            track.add(int(times[i]), quats[i], rates[i] if np.isfinite(rates[i, 0]) else None)
-            i += 1
-        q, age_ns = track.at(t)
+    held: collections.deque = collections.deque()  # frames waiting for their IMU samples
+    stored: dict = {}  # (topic, frame index) -> the frame's message as recorded
+    news: dict = {"labels": [], "events": [], "sim_gait": []}
+    steps = 0
+
+    def step(entry: dict | None) -> ReplayStep | None:
+        nonlocal news, steps
+        imu = order.take(None if entry is None else entry["pub"] + IMU_LOOKAHEAD_NS)
+        for sample, _ in imu:
+            if sample.quaternion is not None:
+                rate = sample.rate_of_turn
+                rate = rate if rate is not None and np.isfinite(rate[0]) else None
+                track.add(_sample_time(sample), sample.quaternion, rate)
+        recorded = [] if entry is None else [stored.pop((t, entry["index"]), None) for t in _COPIED]
+        came, news = news, {"labels": [], "events": [], "sim_gait": []}
+        steps += 1
+        if steps <= skip:
+            return None
+        if entry is None:
+            return ReplayStep(None, None, None, [], imu, **came)
+        frame = frames.frame(entry)  # device_time_ns: the entry's publish time
+        q, age_ns = track.at(frame.device_time_ns)
         level = q if q is not None else np.full(4, np.nan)
-        yield frame, q, preprocess(frame.xyz, frame.confidence, level, params, age_ns, mounting)
+        pre = preprocess(frame.xyz, frame.confidence, level, params, age_ns, mounting)
+        messages = _frame_messages(frame, q, pre, recorded if as_recorded else None)
+        slim, slim_pre = _slim(frame, pre)
+        return ReplayStep(slim, q, slim_pre, messages, imu, **came)
+
+    def due() -> Iterator[ReplayStep]:
+        while held and order.ready(held[0]["pub"] + IMU_LOOKAHEAD_NS):
+            out = step(held.popleft())
+            if out is not None:
+                yield out
+
+    topics = (*frames.topics, T.IMU, T.LABELS, T.EVENTS, T.SIM_GAIT)
+    for m, data in rec.stored(t for t in topics if t in rec.topics):
+        order.read_to(m.log_time_ns)
+        if m.topic == T.IMU:
+            sample = imu_sample(m.data)
+            copy = Encoded(T.IMU, m.log_time_ns, m.publish_time_ns, data, m.sequence)
+            order.add(_sample_time(sample), (sample, copy if as_recorded else None))
+        elif m.topic == T.LABELS:
+            news["labels"].append(m.data)
+        elif m.topic == T.EVENTS:
+            news["events"].append(m.data)
+        elif m.topic == T.SIM_GAIT:
+            news["sim_gait"].append(T.gait_from_message(m.data))
+        else:
+            if m.topic in _COPIED:
+                stored[(m.topic, m.sequence)] = Encoded(
+                    m.topic, m.log_time_ns, m.publish_time_ns, data, m.sequence
+                )
+            held.extend(frames.add(m))
+        yield from due()
+    order.end()
+    held.extend(frames.rest())
+    yield from due()
+    last = step(None)
+    if last is not None:
+        yield last
+
+
+def _frame_messages(frame: DepthFrame, q, pre, recorded: list | None) -> list:
+    """What the new recording keeps of a frame that fusion does not change: depth,
+    confidence and truth as `recorded` (their messages, None where not in the file; None:
+    encoded again, for a file of an older format), cloud, image, preprocessing and
+    orientation encoded."""
+    from capture.recording.encode import encode_depth, encode_processed, encode_truth
+
+    t, log_time = frame.device_time_ns, frame.host_time_ns
+    if recorded is None:
+        depth = encode_depth(frame, t, log_time)
+        truth = encode_truth(frame.index, t, log_time, frame.truth) if frame.truth else []
+    else:
+        depth, truth = [m for m in recorded[:2] if m is not None], recorded[2:3]
+        truth = [m for m in truth if m is not None]
+    processed = encode_processed(frame.index, t, log_time, pre.cloud, pre.image, q, pre.flag)
+    return depth + processed + truth
+
+
+def _slim(frame: DepthFrame, pre) -> tuple[DepthFrame, object]:
+    """The frame and its Preprocessed without the bulky arrays the host does not use (the
+    reader process sends them): the rays come with the source's attachments."""
+    none = np.zeros((0, 0), np.uint8)
+    slim = dataclasses.replace(
+        frame, xyz=np.zeros((0, 0, 3), np.float32), confidence=none, gray=none, range_mm=None
+    )
+    return slim, dataclasses.replace(pre, cloud=np.zeros((0, 3), np.float32))
 
 
 class _ReaderProcess:
-    """prepared_frames() run in a child process, read back in order. A thread here takes
-    the frames off the socket as they come: the socket holds about one frame, so without
+    """replay_steps() run in a child process, read back in order. A thread here takes
+    the steps off the socket as they come: the socket holds about one frame, so without
     it the reader would stop while this process classifies a batch, and the two would
     take turns instead of working at once. The child says when it is ready (`ready`) and
-    is then told how many frames to skip (`start_at`): those this process has done itself
+    is then told how many steps to skip (`start_at`): those this process has done itself
     meanwhile."""
 
     AHEAD = 64  # frames received and not yet taken (~10 MB)
@@ -261,9 +315,8 @@ class _ReaderProcess:
             target=self._receive, name="walkcap-replay-receiver", daemon=True
         )
 
-    def start(self, imu_orientations) -> None:
-        """The IMU's orientations, read meanwhile in this process: frames start coming."""
-        self._child.conn.send(imu_orientations)
+    def start(self) -> None:
+        """Its messages start coming (`ready` first)."""
         self._receiver.start()
 
     def _receive(self) -> None:
@@ -288,10 +341,11 @@ class _ReaderProcess:
             if message[0] != "frame":
                 return
 
-    def start_at(self, skip: int) -> None:
-        """Frames from number `skip` on (the child waits for this after `ready`)."""
+    def start_at(self, skip: int, times=None) -> None:
+        """Steps from number `skip` on (the child waits for this after `ready`); `times`:
+        as replay_steps takes them."""
         try:
-            self._child.conn.send(skip)
+            self._child.conn.send((skip, times))
         except OSError:
             pass  # it has ended: its error, if any, is already queued
 
@@ -310,6 +364,8 @@ class _ReaderProcess:
                     continue
                 if message[0] == "error":
                     raise CaptureError(message[1])
+                if message[0] == "order":
+                    raise ImuOrderError("an IMU sample lies late in the file")
                 return
             batch.append(message[1])
             if len(batch) == size:
@@ -337,41 +393,24 @@ class _ReaderProcess:
 
 
 def _serve_prepared(conn, source: str, params, mounting) -> None:
-    from capture.recording.encode import encode_depth  # noqa: F401
-    from capture.recording.reader import depth_frames  # noqa: F401  (imported while the host reads)
+    from capture.recording.encode import encode_processed  # noqa: F401  (imported meanwhile)
+    from capture.recording.reader import FrameAssembler  # noqa: F401
+    from inference.preprocess import preprocess  # noqa: F401
 
     try:
-        imu_orientations = conn.recv()
         conn.send(("ready",))
-        skip = conn.recv()
-        for frame, q, pre in prepared_frames(source, params, mounting, imu_orientations, skip):
-            conn.send(("frame", _encoded(frame, q, pre)))
+        skip, times = conn.recv()
+        for step in replay_steps(source, params, mounting, skip=skip, times=times):
+            conn.send(("frame", step))
         conn.send(("end",))
     except (BrokenPipeError, ConnectionResetError, EOFError):
         pass  # the replay was stopped
+    except ImuOrderError:
+        conn.send(("order",))
     except CaptureError as e:
         conn.send(("error", str(e)))
     except Exception as e:  # a corrupt file: one message on the other side
         conn.send(("error", f"{source}: {type(e).__name__}: {e}"))
-
-
-def _encoded(frame: DepthFrame, q, pre):
-    """What the recording needs of a frame that fusion does not change, encoded (in the
-    reader process when replaying fast); the frame and its Preprocessed go on without
-    their bulky arrays. The rays come with the source's attachments."""
-    from capture.recording.encode import encode_depth, encode_processed, encode_truth
-
-    t, log_time = frame.device_time_ns, frame.host_time_ns
-    messages = encode_depth(frame, t, log_time) + encode_processed(
-        frame.index, t, log_time, pre.cloud, pre.image, q, pre.flag
-    )
-    if frame.truth:
-        messages += encode_truth(frame.index, t, log_time, frame.truth)
-    none = np.zeros((0, 0), np.uint8)
-    slim = dataclasses.replace(
-        frame, xyz=np.zeros((0, 0, 3), np.float32), confidence=none, gray=none, range_mm=None
-    )
-    return slim, q, dataclasses.replace(pre, cloud=np.zeros((0, 3), np.float32)), messages
 
 
 def replay(
@@ -398,24 +437,31 @@ def replay(
         raise CaptureError("the replay must go to a new file; the original is never modified")
     # copies: the replay keeps the parameters it started with
     params, mounting = dataclasses.replace(config.preprocess), dataclasses.replace(config.mounting)
-    fast = not speed
-    # the reader process starts first: its imports overlap with reading the IMU here
-    frames_in = _ReaderProcess(source, params, mounting) if fast and reader_process else None
+    job = _ReplayJob(source, rec, output, config, params, mounting, speed, classifier, progress)
     try:
-        imu, labels, events = recorded_compact(rec)
-        imu_orientations = imu.orientations
+        return _replay_pass(job, reader_process, None)
+    except ImuOrderError:  # a sample held late in the file: every sample's time first
+        for partial in (output, output.with_name(output.name + ".journal.jsonl")):
+            partial.unlink(missing_ok=True)
+        return _replay_pass(job, reader_process, imu_times(rec))
+
+
+def _replay_pass(job: _ReplayJob, reader_process: bool, times) -> ReplayReport:
+    """One replay of the job: its steps from the reader process (fast) or this one."""
+    fast = not job.speed
+    # the reader process starts first: its imports overlap with loading the model here
+    frames_in = (
+        _ReaderProcess(job.source, job.params, job.mounting) if fast and reader_process else None
+    )
+    try:
         if frames_in is not None:
-            frames_in.start(imu_orientations)
-            blocks = _head_start(source, params, mounting, imu_orientations, frames_in)
+            frames_in.start()
+            blocks = _head_start(job.source, job.params, job.mounting, frames_in, times)
         else:  # one by one, in this process
-            blocks = (
-                [_encoded(frame, q, pre)]
-                for frame, q, pre in prepared_frames(source, params, mounting, imu_orientations)
-            )
+            blocks = ([s] for s in replay_steps(job.source, job.params, job.mounting, times=times))
         if fast:
             blocks = _fixed_batches(blocks, BATCH)
-        job = _ReplayJob(source, rec, output, config, params, mounting, speed, classifier, progress)
-        return _replay(job, blocks, (imu, labels, events))
+        return _replay(job, blocks)
     finally:
         if frames_in is not None:
             frames_in.close()
@@ -435,23 +481,23 @@ def _fixed_batches(blocks, size: int):
         yield batch
 
 
-def _head_start(source, params, mounting, imu_orientations, frames_in: _ReaderProcess):
-    """Blocks of frames: prepared here, one at a time, until the reader process is ready
+def _head_start(source, params, mounting, frames_in: _ReaderProcess, times=None):
+    """Blocks of steps: prepared here, one at a time, until the reader process is ready
     (a Python that imports numpy, mcap and protobuf first: waiting for it would cost a
     noticeable part of a short recording's replay); then the reader's batches, from the
-    next frame on."""
+    next step on."""
     done = 0
     if not frames_in.ready.is_set():
-        own = prepared_frames(source, params, mounting, imu_orientations)
+        own = replay_steps(source, params, mounting, times=times)
         try:
-            for frame, q, pre in own:
-                yield [_encoded(frame, q, pre)]
+            for step in own:
+                yield [step]
                 done += 1
                 if frames_in.ready.is_set():
                     break
         finally:
             own.close()
-    frames_in.start_at(done)
+    frames_in.start_at(done, times)
     yield from frames_in.batches(BATCH)
 
 
@@ -472,9 +518,8 @@ class _ReplayJob:
     progress: object
 
 
-def _replay(job: _ReplayJob, blocks, recorded_streams) -> ReplayReport:
+def _replay(job: _ReplayJob, blocks) -> ReplayReport:
     from capture.recording.chunks import ZSTD_LEVEL_FAST
-    from capture.recording.gait import read_gait
     from capture.recording.writer import Recorder
     from inference import features  # noqa: F401  (imported now, not in the first frame's time)
     from inference.gait import GaitDetector
@@ -484,8 +529,6 @@ def _replay(job: _ReplayJob, blocks, recorded_streams) -> ReplayReport:
         job.config.model.path or None, threads=CNN_THREADS
     )
     pipeline = build_pipeline(job.config, classifier, job.params, job.mounting)
-
-    imu, labels, events = recorded_streams
 
     meta = job.rec.meta
     # the source's records kept, in the source's order
@@ -522,33 +565,38 @@ def _replay(job: _ReplayJob, blocks, recorded_streams) -> ReplayReport:
     )
     recorder.start()
     batch = getattr(classifier, "predict_batch", None)
-    imu_times, imu_samples = imu.times_ns, imu.in_order()
     gait = GaitDetector()  # /gait recomputed from the IMU, as live
+    sim_gait: list = []  # the walk's truth, written as recorded, in time order
 
-    def write_imu(sample) -> None:
-        recorder.write_imu(sample)
-        for event in gait.push(sample):
-            recorder.write_gait(event, sample.host_time_ns)
-            pipeline.see_gait(event, sample.host_time_ns)  # as live
+    def recorded(step: ReplayStep) -> None:
+        """What the pass read before the step's frame, into the new file."""
+        for lab in step.labels:
+            recorder.write_label(int(lab["time_ns"]), lab.get("mode", ""), lab.get("source", ""))
+        for ev in step.events:
+            recorder.write_event(dict(ev))
+        sim_gait.extend(step.sim_gait)
+        for sample, message in step.imu:
+            if message is None:
+                recorder.write_imu(sample)
+            else:
+                recorder.write_recorded([message])
+            for event in gait.push(sample):
+                recorder.write_gait(event, sample.host_time_ns)
+                pipeline.see_gait(event, sample.host_time_ns)  # as live
 
-    i_imu = 0
     frames = 0
     first_t = last_t = None
     wall0 = time.monotonic()
     try:
-        for lab in labels:
-            recorder.write_label(int(lab["time_ns"]), lab.get("mode", ""), lab.get("source", ""))
-        for ev in events:
-            recorder.write_event(dict(ev))
-        for event in read_gait(job.rec, source="simulator").events():  # the truth, as recorded
-            recorder.write_gait(event)
         for block in blocks:
+            images = [s.prepared.image for s in block if s.frame is not None]
             probs = (
-                batch(np.stack([pre.image for _, _, pre, _ in block]))
-                if batch is not None
-                else [classifier.predict(pre.image) for _, _, pre, _ in block]
+                batch(np.stack(images))
+                if batch is not None and images
+                else [classifier.predict(image) for image in images]
             )
-            for (frame, q, pre, encoded), p in zip(block, probs):
+            for step, p in zip((s for s in block if s.frame is not None), probs):
+                frame = step.frame
                 t = frame.device_time_ns
                 first_t = t if first_t is None else first_t
                 last_t = t
@@ -556,22 +604,25 @@ def _replay(job: _ReplayJob, blocks, recorded_streams) -> ReplayReport:
                     wait = clock.seconds(t - first_t) / job.speed - (time.monotonic() - wall0)
                     if wait > 0:
                         time.sleep(wait)
-                while i_imu < len(imu_times) and imu_times[i_imu] <= t + IMU_LOOKAHEAD_NS:
-                    write_imu(next(imu_samples))
-                    i_imu += 1
-                result = pipeline.process(frame, q, t, prepared=pre, probabilities=p)
-                recorder.write_encoded(frame.index, t, frame.host_time_ns, encoded)
+                recorded(step)
+                result = pipeline.process(
+                    frame, step.orientation, t, prepared=step.prepared, probabilities=p
+                )
+                recorder.write_encoded(frame.index, t, frame.host_time_ns, step.messages)
                 record_decisions(recorder, result, frame.host_time_ns)
                 frames += 1
                 if job.progress is not None:
                     job.progress(frames)
-        for s in imu_samples:
-            write_imu(s)
+            for step in block:
+                if step.frame is None:  # the last: what follows the last frame
+                    recorded(step)
+        for event in sorted(sim_gait, key=lambda e: e.time_ns):
+            recorder.write_gait(event)
     finally:
         stats = recorder.close()
     taken = time.monotonic() - wall0
-    recorded = clock.seconds(last_t - first_t) if frames > 1 else 0.0
-    return ReplayReport(str(job.source), str(job.output), frames, recorded, taken, stats)
+    recorded_s = clock.seconds(last_t - first_t) if frames > 1 else 0.0
+    return ReplayReport(str(job.source), str(job.output), frames, recorded_s, taken, stats)
 
 
 def replay_file(source: str, config, output: str) -> ReplayReport:

@@ -383,6 +383,9 @@ class ChunkWriter:
         self._remember(item.index, item.time_ns, item.log_time)
         return item.messages
 
+    def _take_recorded(self, item: wq.QueuedRecorded) -> list[Encoded]:
+        return item.messages
+
     def _encode_message(self, item: wq.QueuedMessage) -> list[Encoded]:
         if item.topic not in self._declared:
             raise ValueError(f"{item.topic}: not declared")
@@ -400,6 +403,7 @@ class ChunkWriter:
         wq.QueuedTruth: _encode_truth,
         wq.QueuedGait: _encode_gait,
         wq.QueuedEncodedFrame: _take_encoded_frame,
+        wq.QueuedRecorded: _take_recorded,
         wq.QueuedDeviceEvent: _encode_device_event,
         wq.QueuedMessage: _encode_message,
     }

@@ -151,6 +151,15 @@ class _Columns:
             else:
                 self.arrays[name][at] = value
 
+    @classmethod
+    def of(cls, columns: dict) -> _Columns:
+        """Rows from columns that take() gave."""
+        rows = cls()
+        rows.n = len(columns["index"])
+        rows.arrays = {k: np.array(columns[k]) for k in cls.NUMBERS}
+        rows.lists = {k: list(columns[k]) for k in cls.LISTS}
+        return rows
+
     def take(self) -> dict:
         """The columns, in frame order."""
         out: dict = {k: a[: self.n] for k, a in self.arrays.items()}
@@ -299,55 +308,83 @@ class FrameJoin:
     def _lay_late(self) -> None:
         """Lay the messages that came after their frame was finished over its row (a
         frame's later message replaces an earlier one of its topic, as in one pass)."""
-        if not self.late:
-            return
-        n = self.rows.n
-        at = {int(k): j for j, k in enumerate(self.rows.arrays["index"][:n])}
-        for k, e in sorted(self.late.items()):
-            if k not in at:
-                if "cnn" in e or "pre" in e:
-                    self.rows.append(k, e)
-                continue
-            j = at[k]
-            columns = [c for key in e for c in _COLUMNS_OF[key]]
-            if "pre" in e and "cnn" not in e and not self.rows.arrays["classified"][j]:
-                columns += ["time_ns", "host_time_ns"]  # a frame's time: its CNN's, else this
-            row = _row(k, e)
-            self.rows.set(j, {name: row[name] for name in columns})
+        lay_late(self.rows, self.late, append=True)
         self.late = {}
 
     def table(self, changes: list[L.LabelChange], *, has_truth: bool) -> FrameTable:
         """The joined table; `changes`: every /labels change of the file, any order."""
         self._finish(float("inf"))
         self._lay_late()
-        c = self.rows.take()
-        times = c["time_ns"]
-        reference = L.effective_changes(changes)
-        labels = L.labels_at(times, reference)
-        truth = c["truth"].astype(int)
-        source = L.terrain_source(has_truth, changes)
-        return FrameTable(
-            index=c["index"],
-            time_ns=times,
-            host_time_ns=c["host_time_ns"],
-            classified=c["classified"],
-            probabilities=c["probabilities"],
-            cnn_decision=c["cnn_decision"].astype(int),
-            decision=c["decision"].astype(int),
-            decision_at=c["decision_at"].astype(int),
-            posterior=c["posterior"],
-            voted=c["voted"].astype(int),
-            voted_at=c["voted_at"].astype(int),
-            produced=c["produced"].astype(int),
-            truth=truth,
-            has_truth=has_truth,
-            quaternion=c["quaternion"],
-            flag=c["flag"],
-            oriented=c["oriented"],
-            cloud_points=c["cloud_points"],
-            features=c["features"],
-            labels=labels,
-            locomotion=L.labels_at(times, L.live_changes(reference)),
-            terrain=truth if has_truth else labels if source else None,
-            terrain_source=source,
-        )
+        return frame_rows(self.rows.take(), changes, has_truth=has_truth)
+
+    def finished(self, at_least: int = 1) -> dict | None:
+        """The rows finished since the last call, as columns in frame order, once there
+        are `at_least` of them (else None): for a reader that writes rows as they are
+        finished. The messages that come later for them stay in `late`, for lay_late."""
+        if self.rows.n < max(at_least, 1):
+            return None
+        block, self.rows = self.rows.take(), _Columns()
+        return block
+
+    def end(self) -> None:
+        """The pass is over: every open frame is finished (finished() gives them)."""
+        self._finish(float("inf"))
+
+
+def lay_late(rows: _Columns, late: dict[int, dict], *, append: bool) -> set[int]:
+    """Lay `late` (FrameJoin.late: frame -> what its messages said after the frame was
+    finished) over `rows`; with `append`, a frame without a row that has its CNN output or
+    preprocessing record becomes one. The frames laid or appended."""
+    n = rows.n
+    at = {int(k): j for j, k in enumerate(rows.arrays["index"][:n])}
+    laid = set()
+    for k, e in sorted(late.items()):
+        if k not in at:
+            if append and ("cnn" in e or "pre" in e):
+                rows.append(k, e)
+                laid.add(k)
+            continue
+        j = at[k]
+        columns = [c for key in e for c in _COLUMNS_OF[key]]
+        if "pre" in e and "cnn" not in e and not rows.arrays["classified"][j]:
+            columns += ["time_ns", "host_time_ns"]  # a frame's time: its CNN's, else this
+        row = _row(k, e)
+        rows.set(j, {name: row[name] for name in columns})
+        laid.add(k)
+    return laid
+
+
+def frame_rows(c: dict, changes: list[L.LabelChange], *, has_truth: bool) -> FrameTable:
+    """A FrameTable of joined rows (columns as FrameJoin gives them, in frame order: the
+    whole table or a block of it), the label references laid over them; `changes`: every
+    /labels change of the file, any order."""
+    times = c["time_ns"]
+    reference = L.effective_changes(changes)
+    labels = L.labels_at(times, reference)
+    truth = c["truth"].astype(int)
+    source = L.terrain_source(has_truth, changes)
+    return FrameTable(
+        index=c["index"],
+        time_ns=times,
+        host_time_ns=c["host_time_ns"],
+        classified=c["classified"],
+        probabilities=c["probabilities"],
+        cnn_decision=c["cnn_decision"].astype(int),
+        decision=c["decision"].astype(int),
+        decision_at=c["decision_at"].astype(int),
+        posterior=c["posterior"],
+        voted=c["voted"].astype(int),
+        voted_at=c["voted_at"].astype(int),
+        produced=c["produced"].astype(int),
+        truth=truth,
+        has_truth=has_truth,
+        quaternion=c["quaternion"],
+        flag=c["flag"],
+        oriented=c["oriented"],
+        cloud_points=c["cloud_points"],
+        features=c["features"],
+        labels=labels,
+        locomotion=L.labels_at(times, L.live_changes(reference)),
+        terrain=truth if has_truth else labels if source else None,
+        terrain_source=source,
+    )

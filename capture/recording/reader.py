@@ -181,6 +181,14 @@ class Recording:
             for schema, channel, message in self._raw(wanted, start, end):
                 yield decode(schema, channel, message)
 
+    def stored(self, topics: Iterable[str]) -> Iterator[tuple[RecordedMessage, bytes]]:
+        """messages(topics), each with its bytes as stored in the file: what a copy writes
+        as it is, without encoding it again."""
+        decode = self.decoder()
+        with damage_is_an_error(self.path):
+            for schema, channel, message in self._raw(set(topics), None, None):
+                yield decode(schema, channel, message), message.data
+
     def _raw(self, wanted: set[str] | None, start: int | None, end: int | None):
         """(schema, channel, message) through the file a `with` block holds open, or the
         file opened again for this read."""
@@ -470,35 +478,71 @@ def depth_frames(path: str | os.PathLike) -> Iterator[DepthFrame]:
     rec = open_recording(path)
     if T.DEPTH not in rec.topics:
         return
-    rays = rec.rays()
-    geometry = rec.geometry()
-    parts = (T.DEPTH, T.CONFIDENCE) + ((T.GRAY,) if T.GRAY in rec.topics else ())
-    with_truth = T.TRUTH in rec.topics
-    pending: dict[int, dict] = {}  # frames still missing a part
-    whole: dict[int, dict] = {}  # frames waiting for their truth
-    truth: dict[int, dict] = {}
-    last_truth = -1
-    # One pass: a frame's truth is written next to its depth; a frame goes out once its
-    # truth is read, or once a later frame's truth shows that it has none.
-    for m in rec.messages(parts + ((T.TRUTH,) if with_truth else ())):
+    frames = FrameAssembler(rec)
+    for m in rec.messages(frames.topics):
+        for entry in frames.add(m):
+            yield frames.frame(entry)
+    for entry in frames.rest():
+        yield frames.frame(entry)
+
+
+class FrameAssembler:
+    """A recording's depth frames put together from their messages (depth, confidence,
+    gray, truth) in one pass in file order: `add` each message of `topics`, and take the
+    frames it completes, in frame order; `rest` at the end. A frame's truth is written
+    next to its depth; a frame goes out once its truth is read, or once a later frame's
+    truth shows that it has none. Entries hold the messages; `frame` makes the DepthFrame
+    (xyz from range), so that a reader holding frames back holds millimetres only."""
+
+    def __init__(self, rec: Recording, *, gray: bool = True) -> None:
+        self.rays = rec.rays()
+        self.geometry = rec.geometry()
+        self.parts = (T.DEPTH, T.CONFIDENCE) + ((T.GRAY,) if gray and T.GRAY in rec.topics else ())
+        self.with_truth = T.TRUTH in rec.topics
+        self.topics = self.parts + ((T.TRUTH,) if self.with_truth else ())
+        self._pending: dict[int, dict] = {}  # frames still missing a part
+        self._whole: dict[int, dict] = {}  # frames waiting for their truth
+        self._truth: dict[int, dict] = {}
+        self._last_truth = -1
+
+    def add(self, m: RecordedMessage) -> list[dict]:
+        """The entries (index, log and publish time, each part's data, truth) of the frames
+        that `m` completes, in frame order."""
         if m.topic == T.TRUTH:
             t = dict(m.data)
             index = int(t.pop("frame_index"))
-            truth[index] = t
-            last_truth = max(last_truth, index)
+            self._truth[index] = t
+            self._last_truth = max(self._last_truth, index)
         else:
-            entry = pending.setdefault(m.sequence, {"log": m.log_time_ns, "pub": m.publish_time_ns})
+            entry = self._pending.setdefault(
+                m.sequence, {"index": m.sequence, "log": m.log_time_ns, "pub": m.publish_time_ns}
+            )
             entry[m.topic] = m.data
-            if all(p in entry for p in parts):
-                whole[m.sequence] = pending.pop(m.sequence)
-        ready = [i for i in whole if not with_truth or i in truth or i < last_truth]
+            if all(p in entry for p in self.parts):
+                self._whole[m.sequence] = self._pending.pop(m.sequence)
+        whole, truth = self._whole, self._truth
+        ready = [i for i in whole if not self.with_truth or i in truth or i < self._last_truth]
         if len(whole) > _TRUTH_WAIT_FRAMES:  # the truth stopped: wait no longer
             ready = list(whole)
+        out = []
         for index in sorted(ready):
-            yield _frame(index, whole.pop(index), rays, geometry, truth.pop(index, None))
-    for index, entry in sorted({**whole, **pending}.items()):  # a cut file: best effort
-        if T.DEPTH in entry:
-            yield _frame(index, entry, rays, geometry, truth.get(index))
+            entry = whole.pop(index)
+            entry["truth"] = truth.pop(index, None)
+            out.append(entry)
+        return out
+
+    def rest(self) -> list[dict]:
+        """The frames still held at the end (a cut file: best effort), in frame order."""
+        out = []
+        for index, entry in sorted({**self._whole, **self._pending}.items()):
+            if T.DEPTH in entry:
+                entry["truth"] = self._truth.get(index)
+                out.append(entry)
+        self._whole, self._pending = {}, {}
+        return out
+
+    def frame(self, entry: dict) -> DepthFrame:
+        return _frame(entry["index"], entry, self.rays, self.geometry, entry["truth"])
 
 
 def _frame(

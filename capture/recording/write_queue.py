@@ -117,6 +117,14 @@ class QueuedEncodedFrame(LoggedFrameItem):
 
 
 @dataclass(slots=True)
+class QueuedRecorded(QueuedItem):
+    """Messages of another recording copied as they are (replay's IMU samples)."""
+
+    kind: ClassVar[str] = "recorded"
+    messages: list  # of capture.recording.encode.Encoded
+
+
+@dataclass(slots=True)
 class QueuedMessage(QueuedItem):
     """A JSON message on a topic declared with Recorder.declare_topic (an LSL stream)."""
 

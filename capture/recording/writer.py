@@ -55,6 +55,7 @@ from capture.recording.write_queue import (
     QueuedItem,
     QueuedMessage,
     QueuedProcessing,
+    QueuedRecorded,
     QueuedTruth,
     WriteQueue,
 )
@@ -390,6 +391,11 @@ class Recorder(Sink):
         encode_truth: replay's reader process), written as given. The camera's rays must be
         among the attachments: no depth frame passes here to take them from."""
         self._put(QueuedEncodedFrame(frame_index, time_ns, log_time_ns, messages))
+
+    def write_recorded(self, messages: list[Encoded]) -> None:
+        """Messages of another recording, copied as they are (their topics, times and
+        bytes): what replay does not change, written without encoding it again."""
+        self._put(QueuedRecorded(messages))
 
     def declare_topic(self, topic: str, schema: dict, description: str) -> None:
         """A JSON topic beyond walkcap's own (another device's LSL stream), with its JSON

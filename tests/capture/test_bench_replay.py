@@ -34,3 +34,26 @@ def test_a_failed_replay_is_one_line_with_its_reason(tmp_path):
     failing = [sys.executable, "-c", "import sys; sys.exit('replay: the disk is full')"]
     with pytest.raises(CaptureError, match="failed: replay: the disk is full"):
         replay_trial(path, runs=1, command=failing)
+
+
+@pytest.mark.slow
+@pytest.mark.subprocess
+def test_the_bench_replays_a_synthesized_trial_as_a_user_does(tmp_path):
+    from capture import bench
+
+    speedup, cpu = bench.replay_results(str(tmp_path), minutes=0.05, runs=1)
+    assert speedup.name == "replay_speedup" and speedup.value > 0 and speedup.goal == 20
+    assert "135 frames at 45 fps" in speedup.note
+    assert cpu.value > 0 and not list(tmp_path.glob("*.mcap"))
+
+
+@pytest.mark.subprocess
+def test_a_command_is_measured_without_the_memory_of_the_process_that_starts_it():
+    from capture.bench.launch import measured
+
+    held = bytearray(200 << 20)  # this process: over 200 MiB resident
+    held[::4096] = b"x" * len(held[::4096])
+    holds_64_mib = "block = bytearray(64 << 20); block[::4096] = b'x' * len(block[::4096])"
+    run = measured([sys.executable, "-c", holds_64_mib])
+    assert run.returncode == 0 and run.cpu_s > 0 and len(held) == 200 << 20
+    assert 64 <= run.peak_mib < 120

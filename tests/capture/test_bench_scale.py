@@ -34,6 +34,26 @@ def test_the_table_gives_each_length_and_the_growth_from_the_shortest():
     assert lines[3].endswith("10.0 s, 350 MiB (failed) | 2.50x, 1.00x |")
 
 
+def test_several_runs_give_the_median_and_the_range():
+    figures = [(3.0, 2.0, 100.0, True), (5.0, 2.2, 104.0, True), (4.0, 2.1, 101.0, True)]
+    run = scale._run_of("replay", 4, figures)
+    assert (run.seconds, run.cpu_s, run.peak_mib, run.ok) == (4.0, 2.1, 101.0, True)
+    assert scale.table([run])[2] == (
+        "| replay | 4.0 s (3.0-5.0), 2.1 s CPU, 101 MiB (100-104) | 1.00x, 1.00x |"
+    )
+
+
+@pytest.mark.slow
+@pytest.mark.subprocess
+def test_every_command_runs_on_a_short_trial(tmp_path):
+    """Each command of the scale table, on a synthesized trial of a few seconds."""
+    path = scale.synthesize(tmp_path / "B01_indoor_t01.mcap", 0.05)
+    runs = scale.run([0.05], str(tmp_path), progress=lambda line: None, trials={0.05: path})
+    assert [r.command for r in runs] == [name for name, _ in scale.COMMANDS]
+    assert all(r.ok for r in runs), [r.command for r in runs if not r.ok]
+    assert all(r.cpu_s > 0 and r.peak_mib > 0 for r in runs)
+
+
 @pytest.mark.parametrize("minutes", ["", "1,x", "0,4"])
 def test_bad_minutes_are_one_line(minutes, capsys):
     from tui import cli

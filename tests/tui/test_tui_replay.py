@@ -232,8 +232,9 @@ async def test_each_replay_correction_shows_at_once_and_notices_fit(recording, w
 
 
 def test_replay_holds_the_images_around_the_cursor_only(tmp_path):
-    """A finished file's images and profiles are read around the cursor as it moves, the
-    same ones a whole read gives; what is held does not grow with the recording."""
+    """A finished file's images, profiles and terrain features are read around the cursor
+    as it moves, the same ones a whole read gives; what is held does not grow with the
+    recording."""
     import dataclasses
 
     from tests.recording_fixtures import imu_sample
@@ -250,6 +251,7 @@ def test_replay_holds_the_images_around_the_cursor_only(tmp_path):
         cloud = np.column_stack([np.full(20, 1.0), np.zeros(20), np.full(20, 0.01 * i)])
         rec.write_processed(i, t, t + 1_000_000, cloud, image, np.array([1.0, 0, 0, 0]), "")
         rec.write_inference(i, t, t + 2_000_000, np.full(5, 0.2), {})
+        rec.write_features(i, t, {"kind": "level", "slope_deg": 0.1 * i, "segments": [[0, 1]]})
         for k in range(3):  # sensor data: its times close a chunk each 0.5 s
             at = t + k * 20_000_000
             sample = dataclasses.replace(imu_sample(3 * i + k), time_ns=at, host_time_ns=at)
@@ -266,5 +268,6 @@ def test_replay_holds_the_images_around_the_cursor_only(tmp_path):
         assert i == round(second * 15)
         assert snap.latest.image.sum() == 100 * (1 + i % 97)
         assert float(snap.latest.profile[0, 1]) == pytest.approx(0.01 * i, abs=2e-3)
-        held.append(len(source.frames.images))
-    assert 0 < min(held) and max(held) < n / 2
+        assert snap.latest.features == {"kind": "level", "slope_deg": pytest.approx(0.1 * i)}
+        held.append((len(source.frames.images), len(source.frames.features)))
+    assert 0 < min(min(h) for h in held) and max(max(h) for h in held) < n / 2

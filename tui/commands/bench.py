@@ -47,6 +47,18 @@ def add_arguments(parser) -> None:
         metavar="M,M,...",
         help="trial lengths for --scale, in minutes (default 1,2,4)",
     )
+    parser.add_argument(
+        "--trials",
+        nargs="+",
+        metavar="FILE",
+        help="for --scale: these recorded trials instead of synthesized ones",
+    )
+    parser.add_argument(
+        "--runs",
+        type=positive("runs"),
+        default=1,
+        help="for --scale: runs of each command on each trial; the median and range (default 1)",
+    )
     bench_corpus.add_arguments(parser)
 
 
@@ -61,7 +73,7 @@ def run(args, config) -> int:
     if args.replay:
         return _replay(args.replay, args.json, say)
     if args.scale:
-        return _scale(args.minutes, args.json, say)
+        return _scale(args.minutes, args.trials, int(args.runs), args.json, say)
     results = bench.run_all(args.seconds, progress=say)
     machine = bench.machine()
     if args.json:
@@ -117,17 +129,24 @@ def _replay(files: list[str], as_json: bool, say) -> int:
     return 0
 
 
-def _scale(minutes: str, as_json: bool, say) -> int:
+def _scale(minutes: str, files: list[str] | None, runs: int, as_json: bool, say) -> int:
     from capture.bench import scale
     from capture.errors import CaptureError
 
-    try:
-        lengths = [float(m) for m in minutes.split(",") if m.strip()]
-    except ValueError:
-        raise CaptureError(f"--minutes {minutes!r}: numbers separated by commas") from None
-    if not lengths or min(lengths) <= 0:
-        raise CaptureError(f"--minutes {minutes!r}: lengths above 0")
-    runs = scale.run(lengths, progress=say)
+    trials = None
+    if files:  # recorded trials, by their length
+        from capture.recording.reader import open_recording
+
+        trials = {round(open_recording(f).duration_s / 60, 1): f for f in files}
+        lengths = sorted(trials)
+    else:
+        try:
+            lengths = [float(m) for m in minutes.split(",") if m.strip()]
+        except ValueError:
+            raise CaptureError(f"--minutes {minutes!r}: numbers separated by commas") from None
+        if not lengths or min(lengths) <= 0:
+            raise CaptureError(f"--minutes {minutes!r}: lengths above 0")
+    runs = scale.run(lengths, progress=say, trials=trials, runs=runs)
     if as_json:
         print(json.dumps([r.__dict__ for r in runs], indent=2))
     else:

@@ -104,3 +104,84 @@ def test_a_study_is_written_trial_by_trial_as_the_joined_tables(study, tmp_path,
             pd.testing.assert_frame_equal(pd.read_parquet(a), pd.read_parquet(b))
     if fmt == "parquet":  # the IMU table has the same columns in every trial: one trial a group
         assert pq.ParquetFile(tmp_path / "streamed" / "imu.parquet").num_row_groups >= 3
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    path = tmp_path_factory.mktemp("trial") / "S07_indoor_t03.mcap"
+    write_recording(path, seconds=2.0)
+    return path
+
+
+def _in_blocks(monkeypatch, block: int, rows: int) -> None:
+    from capture.corpus import trial_pass
+
+    monkeypatch.setattr(trial_pass, "BLOCK", block)
+    monkeypatch.setattr(export, "ROW_GROUP", rows)
+
+
+def test_tables_made_in_blocks_are_the_ones_made_in_one(recording, monkeypatch):
+    """Rows spooled 7 at a time and tables made 16 rows at a time, joined: the tables of
+    one block each."""
+    _in_blocks(monkeypatch, 10**9, 10**9)
+    whole = export.tables(recording)
+    _in_blocks(monkeypatch, 7, 16)
+    blocks = export.tables(recording)
+    assert len(whole["frames"]) > 64 and len(whole["imu"]) > 64
+    for name, df in whole.items():
+        pd.testing.assert_frame_equal(blocks[name], df, check_exact=True)
+
+
+def test_frame_messages_far_behind_their_rows_are_laid_over_the_spooled_rows(
+    recording, tmp_path, monkeypatch
+):
+    from capture.corpus import trial_pass
+    from capture.recording import topics as T
+    from capture.recording.frames import FrameJoin, frame_rows
+    from capture.recording.reader import frame_table, open_recording
+    from tests.capture.recording.test_frame_join import _same
+
+    rec = open_recording(recording)
+    whole, changes = frame_table(rec)
+    messages = list(rec.messages([t for t in trial_pass.TrialPass.TOPICS if t in rec.topics]))
+    late = {T.FUSED, T.TF}  # every fused decision and orientation long after its frame
+    k = int(whole.index[20])  # and one frame's own CNN output and preprocessing
+    own = [m for m in messages if m.topic in (T.CNN, T.PREPROCESS) and m.data["frame_index"] == k]
+    delayed = [m for m in messages if m.topic not in late and m not in own]
+    delayed += [m for m in messages if m.topic in late] + own
+    monkeypatch.setattr(trial_pass, "BLOCK", 7)
+    trial = trial_pass.TrialPass.gather(
+        rec, delayed, tmp_path, export._IMU_FIELDS, FrameJoin(lateness=2)
+    )
+    with trial:
+        assert trial.frames.late and trial.frames.spool.rows < len(whole)  # rows from late ones
+        blocks = list(trial.frame_blocks(16))
+        summary = trial.frame_summary()
+    assert [len(b["index"]) for b in blocks[:-1]] == [16] * (len(blocks) - 1)
+    joined = {
+        key: [v for b in blocks for v in b[key]]
+        if isinstance(blocks[0][key], list)
+        else np.concatenate([b[key] for b in blocks])
+        for key in blocks[0]
+    }
+    _same(frame_rows(joined, changes, has_truth=whole.has_truth), whole)
+    assert summary.rows == len(whole) and summary.earliest_ns == int(whole.time_ns.min())
+
+
+@pytest.mark.parametrize("fmt", ["parquet", "csv", "mat"])
+def test_a_trial_written_as_it_is_read_is_the_files_of_its_tables_written_whole(
+    recording, tmp_path, monkeypatch, fmt
+):
+    _in_blocks(monkeypatch, 7, 16)
+    written, rows = export.write_trial(recording, tmp_path / "streamed", fmt)
+    tables = export.tables(recording)
+    export.write(tables, tmp_path / "whole", fmt)
+    assert rows == {name: len(df) for name, df in tables.items()}
+    assert sorted(p.name for p in (tmp_path / "streamed").iterdir()) == sorted(
+        p.name for p in written
+    )  # nothing of the spool is left
+    for path in written:
+        a, b = path.read_bytes(), (tmp_path / "whole" / path.name).read_bytes()
+        if fmt == "mat":  # the header says when the file was made
+            a, b = a[128:], b[128:]
+        assert a == b, path.name

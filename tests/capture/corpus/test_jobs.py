@@ -55,6 +55,13 @@ def test_results_come_in_task_order(where):
         assert pids == {os.getpid()}
 
 
+def test_results_too_large_to_hold_go_to_on_result_and_are_let_go():
+    tasks = [jobs.Task(f"t{i}", _square_with_pid, (i,)) for i in range(4)]
+    said = []
+    results = jobs.run(tasks, on_result=lambda i, r: said.append(r[0]), keep_results=False)
+    assert said == [0, 1, 4, 9] and results == [None] * 4
+
+
 @pytest.mark.parametrize("where", WHERE, ids=["local", "processes"])
 def test_the_first_error_ends_the_job_as_raised(where):
     said = []

@@ -1,101 +1,160 @@
-"""Replay keeps a recording's IMU in compact columns and writes the samples from them in
-sample-time order: the same samples, in the same order, as sorting the samples in memory."""
+"""Replay reads a recording in one pass: IMU samples handed out in sample-time order (the
+order a sort of every sample in memory gives), and what it does not change copied as
+recorded."""
+
+import collections
+import random
 
 import numpy as np
+import orjson
+import pytest
 
 import capture.corpus.replay as R
+from capture.config import Config
 from capture.recording import topics as T
-from capture.recording.reader import imu_sample, open_recording
+from capture.recording.encode import encode_depth, encode_imu, encode_truth
+from capture.recording.reader import FrameAssembler, imu_sample, open_recording
 from capture.recording.writer import Recorder
-from devices.frames import ImuSample
+from tests.capture.live.sessions import StandInClassifier
+from tests.recording_fixtures import ATTACHMENTS, METADATA, frame_at, frame_time, write_recording
+
+MS = 1_000_000
 
 
-def _sample(k: int, t_ns: int, oriented: bool = True, rate: bool = True) -> ImuSample:
-    angle = 0.01 * k
-    return ImuSample(
-        host_time_ns=t_ns + 3_000_000,
-        time_ns=t_ns,
-        packet_counter=k,
-        quaternion=np.array([np.cos(angle), np.sin(angle), 0.0, 0.0]) if oriented else None,
-        acceleration=np.array([0.0, 0.0, 9.81]),
-        rate_of_turn=np.array([0.1 * k, 0.0, 0.0]) if rate else None,
-    )
+def test_samples_come_in_the_order_a_sort_in_memory_gives():
+    """Samples written out of order within the horizon, some at the same time: each
+    frame gets the ones up to its time, in the order of a stable sort by time."""
+    rng = random.Random(4)
+    times = [k * 10 * MS for k in range(400)]
+    times[61] = times[60]  # the same time: the file's order decides
+    written = sorted(range(400), key=lambda k: times[k] + rng.uniform(0, 500) * MS)
+    order = R.SampleOrder()
+    frames = [k * 22 * MS for k in range(180)]
+    got, waiting = [], collections.deque(frames)
+    for k in written:
+        order.read_to(times[k] + 600 * MS)  # logged up to 0.6 s after its time
+        order.add(times[k], k)
+        while waiting and order.ready(waiting[0] + R.IMU_LOOKAHEAD_NS):
+            got.append(order.take(waiting.popleft() + R.IMU_LOOKAHEAD_NS))
+    order.end()
+    got += [order.take(t + R.IMU_LOOKAHEAD_NS) for t in waiting]
+    got.append(order.take())
+    by_time = sorted(written, key=lambda k: times[k])  # stable: file order among equals
+    assert [k for taken in got for k in taken] == by_time
+    for t, taken in zip(frames, got):
+        assert all(times[k] <= t + R.IMU_LOOKAHEAD_NS for k in taken)
+    assert written != by_time and by_time.index(61) == by_time.index(60) + 1
 
 
-def _recording_out_of_order(path):
-    """IMU samples at 100 Hz, some written after later ones (a host that delivered them
-    late), one pair at the same time, some without an orientation or a rate of turn."""
-    times = [k * 10_000_000 for k in range(200)]
-    written = list(range(200))
-    for a, b in ((5, 9), (50, 51), (120, 140), (199, 180)):
-        written[a], written[b] = written[b], written[a]
-    times[61] = times[60]  # the same sample time: the file's order decides
-    with Recorder(path, metadata={}) as rec:
-        for k in written:
-            rec.write_imu(_sample(k, times[k], oriented=k % 17 != 3, rate=k % 13 != 4))
+def test_a_sample_held_past_the_horizon_is_caught_and_known_times_wait_for_it():
+    order = R.SampleOrder()
+    for k in range(300):
+        order.read_to(k * 10 * MS)
+        order.add(k * 10 * MS, k)
+    assert order.ready(100 * MS) and order.take(100 * MS) == list(range(11))
+    with pytest.raises(R.ImuOrderError):
+        order.add(50 * MS, "late")
+
+    times = np.sort(np.array([k * 10 * MS for k in range(300)] + [50 * MS]))
+    order = R.SampleOrder(times)
+    for k in range(300):
+        order.read_to(k * 10 * MS)
+        order.add(k * 10 * MS, k)
+    assert not order.ready(100 * MS)  # one sample up to there is not read yet
+    order.add(50 * MS, "late")
+    assert order.ready(100 * MS)
+    assert order.take(100 * MS) == [0, 1, 2, 3, 4, 5, "late", 6, 7, 8, 9, 10]
+
+
+def _late_sample_recording(path, late_by_s: float = 3.0):
+    """Frames at 45 fps for 4 s with the IMU at 100 Hz, one sample written `late_by_s`
+    after its time (a host that delivered it late)."""
+    from tests.recording_fixtures import imu_sample as fixture_sample
+
+    late = 37
+    with Recorder(path, metadata=METADATA, attachments=ATTACHMENTS, queue_size=100_000) as rec:
+        k_imu = 0
+        for i in range(180):
+            t = frame_time(i)
+            while frame_time(0) + k_imu * 10 * MS <= t:
+                if k_imu != late:
+                    rec.write_imu(fixture_sample(k_imu))
+                k_imu += 1
+            if t >= fixture_sample(late).time_ns + int(late_by_s * 1e9):
+                rec.write_imu(fixture_sample(late))
+                late = -1
+            frame = frame_at(i)
+            rec.write_frame(frame)
+            rec.write_truth(i, t, frame.truth)
     return path
 
 
-def test_the_imu_read_again_comes_in_the_order_a_sort_in_memory_gives(tmp_path):
-    path = _recording_out_of_order(tmp_path / "imu.mcap")
-    in_file = [imu_sample(m.data) for m in open_recording(path).messages([T.IMU])]
-    by_time = sorted(in_file, key=lambda s: s.time_ns)  # stable: file order among equals
-    assert [s.packet_counter for s in in_file] != [s.packet_counter for s in by_time]
-
-    imu, labels, events = R.recorded_compact(open_recording(path))
-    assert labels == [] and isinstance(events, list)
-    again = list(imu.in_order())
-    assert [s.packet_counter for s in again] == [s.packet_counter for s in by_time]
-    assert [s.time_ns for s in again] == list(imu.times_ns)
-    for a, b in zip(again, by_time):
-        _same(a, b)
-
-    times, quats, rates = imu.orientations
-    oriented = [s for s in by_time if s.quaternion is not None]
-    assert len(oriented) < len(by_time)
-    assert list(times) == [s.time_ns for s in oriented]
-    np.testing.assert_array_equal(quats, np.array([s.quaternion for s in oriented]))
-    expected = [s.rate_of_turn if s.rate_of_turn is not None else [np.nan] * 3 for s in oriented]
-    np.testing.assert_array_equal(rates, np.array(expected))
+def _messages(path) -> dict:
+    out = collections.defaultdict(list)
+    for _, channel, m in open_recording(path)._raw(None, None, None):
+        out[channel.topic].append((m.log_time, m.publish_time, m.sequence, bytes(m.data)))
+    return out
 
 
-def _same(a: ImuSample, b: ImuSample) -> None:
-    for name in ("host_time_ns", "time_ns", "packet_counter", "sample_time_fine", "extra"):
-        assert getattr(a, name) == getattr(b, name)
-    for name in ("quaternion", "acceleration", "rate_of_turn"):
-        x, y = getattr(a, name), getattr(b, name)
-        assert (x is None) == (y is None)
-        if x is not None:
-            assert x.dtype == y.dtype == np.float64
-            np.testing.assert_array_equal(x, y)
+def test_a_sample_held_late_gives_the_replay_that_reads_every_sample_first(tmp_path, monkeypatch):
+    source = _late_sample_recording(tmp_path / "late.mcap")
+    in_file = [imu_sample(m.data).time_ns for m in open_recording(source).messages([T.IMU])]
+    assert in_file != sorted(in_file)
+    passes = []
+    steps = R.replay_steps
+
+    def counted(*args, **kwargs):
+        passes.append(kwargs.get("times") is not None)
+        return steps(*args, **kwargs)
+
+    def replayed(name: str):
+        return R.replay(
+            source,
+            Config(),
+            output=tmp_path / name,
+            classifier=StandInClassifier(),
+            reader_process=False,
+        )
+
+    monkeypatch.setattr(R, "replay_steps", counted)
+    caught = replayed("a.mcap")
+    assert passes == [False, True]  # the pass within the horizon failed; the one with times
+    monkeypatch.setattr(R.SampleOrder, "HORIZON_NS", 10**15)  # every sample read first
+    reference = replayed("b.mcap")
+    assert caught.frames == reference.frames == 180
+    a, b = _messages(caught.output), _messages(reference.output)
+    assert a == b and len(a[T.TF]) == 180
+    written = [imu_sample(orjson.loads(d)).time_ns for _, _, _, d in a[T.IMU]]
+    assert written == sorted(in_file)
 
 
-def test_a_sample_comes_back_as_it_went_in_even_one_the_columns_do_not_fit():
-    columns = R.ImuColumns()
-    odd = _sample(3, 30_000_000)
-    odd.extra = {"free_acceleration": [0.1, 0.2, 0.3]}
-    short = ImuSample(host_time_ns=5, quaternion=np.array([1.0, 0.0]))  # not a quaternion
-    given = [_sample(0, 0), _sample(1, 10, oriented=False, rate=False), odd, short]
-    given.append(ImuSample(host_time_ns=7))
-    for s in given:
-        columns.add(s)
-    assert len(columns) == 5 and set(columns.whole()) == {2, 3}
-    for k, s in enumerate(given):
-        back = columns.sample(k)
-        assert back.extra == s.extra
-        for name in ("host_time_ns", "time_ns", "packet_counter", "status_word"):
-            assert getattr(back, name) == getattr(s, name)
-        for name in ("quaternion", "acceleration", "rate_of_turn"):
-            x, y = getattr(back, name), getattr(s, name)
-            assert (x is None) == (y is None) and (x is None or np.array_equal(x, y))
+def test_replay_copies_what_it_does_not_change_as_recorded(tmp_path):
+    """Depth, confidence, truth, IMU samples, labels and events: the messages' bytes as
+    the recording holds them, which are what encoding the decoded data again gives."""
+    source = tmp_path / "S07_indoor_t03.mcap"
+    write_recording(source, seconds=2.0)
+    report = R.replay(
+        source, Config(), output=tmp_path / "again.mcap", classifier=StandInClassifier()
+    )
+    a, b = _messages(source), _messages(report.output)
+    for topic in (T.DEPTH, T.CONFIDENCE, T.TRUTH, T.IMU, T.LABELS):
+        assert a[topic] == b[topic] and len(a[topic]) > 1, topic
+    # an operator's marker is written ahead of the queue, as live: the same messages
+    assert sorted(a[T.EVENTS]) == sorted(b[T.EVENTS]) and len(a[T.EVENTS]) == 2
 
-
-def test_what_replay_holds_of_the_imu_is_about_two_hundred_bytes_a_sample(tmp_path):
-    """No sample objects stay in memory (nearly 800 bytes each): arrays alone."""
-    path = _recording_out_of_order(tmp_path / "imu.mcap")
-    imu, _, _ = R.recorded_compact(open_recording(path))
-    arrays = [imu.order, imu.times_ns, *imu.orientations]
-    assert all(isinstance(a, np.ndarray) and a.dtype != object for a in arrays)
-    assert not imu.samples.whole()
-    held = imu.samples.nbytes + sum(a.nbytes for a in arrays)
-    assert held / len(imu.order) <= 256  # an ImuSample object alone takes nearly 800
+    rec = open_recording(source)
+    frames = FrameAssembler(rec)
+    entries = [e for m in rec.messages(frames.topics) for e in frames.add(m)]
+    for entry, depth, truth in zip(entries, a[T.DEPTH], a[T.TRUTH], strict=True):
+        frame = frames.frame(entry)
+        t, log_time = frame.device_time_ns, frame.host_time_ns
+        again = encode_depth(frame, t, log_time) + encode_truth(
+            frame.index, t, log_time, frame.truth
+        )
+        assert [bytes(m.data) for m in again] == [
+            depth[3],
+            a[T.CONFIDENCE][frame.index][3],
+            truth[3],
+        ]
+    for m, stored in zip(rec.messages([T.IMU]), a[T.IMU], strict=True):
+        assert encode_imu(imu_sample(m.data))[0].data == stored[3]

@@ -320,39 +320,42 @@ def test_the_reader_process_hands_over_what_has_come_without_waiting_for_a_full_
 
 @pytest.mark.realtime
 def test_fast_replay_prepares_frames_itself_until_its_reader_process_is_ready(recorded):
-    """The frames done here while the reader starts, then the reader's from the next on:
-    each frame once, in order, the same as the reader would have made them."""
+    """The steps done here while the reader starts, then the reader's from the next on:
+    each step once, in order, the same as the reader would have made them."""
     import capture.corpus.replay as R
 
     path, _, _, _ = recorded
     config = Config()
     params, mounting = config.preprocess, config.mounting
-    imu = R.recorded_compact(open_recording(path))[0].orientations
 
     class Reader:  # stands in for the reader process
         ready = threading.Event()
         skip = None
 
-        def start_at(self, skip):
+        def start_at(self, skip, times=None):
             self.skip = skip
 
         def batches(self, size):
-            for frame, q, pre in R.prepared_frames(path, params, mounting, imu, self.skip):
-                yield [R._encoded(frame, q, pre)]
+            for step in R.replay_steps(path, params, mounting, skip=self.skip):
+                yield [step]
 
     reader = Reader()
-    frames = []
-    for block in R._head_start(path, params, mounting, imu, reader):
-        frames += [frame.index for frame, _, _, _ in block]
-        if len(frames) == 3:
+    steps = []
+    for block in R._head_start(path, params, mounting, reader):
+        steps += block
+        if len(steps) == 3:
             reader.ready.set()  # the reader process says it is ready
-    every = [frame.index for frame, _, _ in R.prepared_frames(path, params, mounting, imu)]
+    every = list(R.replay_steps(path, params, mounting))
     assert reader.skip == 3
-    assert frames == every and len(every) > 30
-    skipped = R.prepared_frames(path, params, mounting, imu, skip=5)
-    first, q, _ = next(skipped)
-    _, q5, _ = list(R.prepared_frames(path, params, mounting, imu))[5]
-    assert first.index == every[5] and np.array_equal(q, q5)
+    assert [s.frame.index if s.frame else None for s in steps] == [
+        s.frame.index if s.frame else None for s in every
+    ]
+    assert len(every) > 30 and every[-1].frame is None
+    assert [len(s.imu) for s in steps] == [len(s.imu) for s in every]
+    skipped = R.replay_steps(path, params, mounting, skip=5)
+    first = next(skipped)
+    assert first.frame.index == every[5].frame.index
+    assert np.array_equal(first.orientation, every[5].orientation)
 
 
 def test_switches_are_counted_over_the_last_minute():
