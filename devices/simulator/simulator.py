@@ -61,6 +61,17 @@ FILL_CELLS = 8  # gaps between a terrain's points it still covers (_covered)
 WALKER_KEYS = ("speed_mps", "cadence_spm", "camera_height_m", "camera_tilt_deg")
 
 
+def draw_walker(rng: np.random.Generator) -> dict:
+    """A walker of its own (WALKER_KEYS): subjects and mountings differ in speed, cadence,
+    thigh length and strap angle."""
+    return {
+        "speed_mps": float(rng.uniform(0.85, 1.35)),
+        "cadence_spm": float(rng.uniform(90.0, 120.0)),
+        "camera_height_m": float(rng.uniform(0.48, 0.62)),
+        "camera_tilt_deg": float(rng.uniform(28.0, 42.0)),
+    }
+
+
 class Simulator:
     def __init__(
         self,
