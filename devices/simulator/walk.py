@@ -71,6 +71,43 @@ HEEL_CONTACT_PHASE = np.pi / 2 + 0.05 * 2 * np.pi
 STANCE_SHARE = 0.60
 
 
+# Mid-stance, the hip above the foot: a quarter stride after heel contact, of either leg.
+MID_STANCE_PHASE = HEEL_CONTACT_PHASE + np.pi / 2
+# The strides over which a walker adjusts its steps to put a foot on the first tread.
+APPROACH_M = 1.5
+BLEND_M = 0.3  # the stride's rate changes over this much either side of the stairs
+
+
+def stairs_footing(course: Course, x: np.ndarray, phase: np.ndarray) -> np.ndarray:
+    """The walk's phase along the course (`phase` at positions `x`) with the steps a walker
+    takes on stairs: one step a tread, each foot in the middle of its tread (mid-stance, the
+    hip above the foot, at the tread's centre), the strides before the stairs lengthened or
+    shortened (by at most a quarter stride over APPROACH_M) so that the first foot lands on
+    the first tread, never across a riser or a nosing (stair gait places the whole foot on
+    each tread). Past the stairs the walk's own rhythm resumes. The stride's rate changes
+    smoothly, over BLEND_M either side, so the thigh's rate of turn never jumps."""
+    for seg in course.segments:
+        if seg.mode not in ("US", "DS") or seg.steps < 1:
+            continue
+        first = seg.x0 + 0.5 * seg.tread_m  # the centre of the first tread
+        last = seg.x0 + (seg.steps - 0.5) * seg.tread_m  # of the floor the stairs lead to
+        if first - APPROACH_M <= x[0] or last + BLEND_M >= x[-1]:
+            continue
+        on = np.clip((x - (first - BLEND_M)) / BLEND_M, 0.0, 1.0) * np.clip(
+            (last + BLEND_M - x) / BLEND_M, 0.0, 1.0
+        )
+        on = on * on * (3 - 2 * on)
+        rate = (1 - on) * np.gradient(phase, x) + on * (np.pi / seg.tread_m)
+        steps = 0.5 * (rate[1:] + rate[:-1]) * np.diff(x)
+        phase = phase[0] + np.concatenate([[0.0], np.cumsum(steps)])
+        natural = float(np.interp(first, x, phase))
+        # the nearest phase at which a foot is at mid-stance (either leg: every half stride)
+        target = MID_STANCE_PHASE + np.pi * np.round((natural - MID_STANCE_PHASE) / np.pi)
+        ramp = np.clip((x - (first - APPROACH_M)) / APPROACH_M, 0.0, 1.0)
+        phase = phase + (target - natural) * ramp * ramp * (3 - 2 * ramp)
+    return phase
+
+
 @dataclass(frozen=True)
 class ErrorEvent:
     kind: str  # one of ERROR_KINDS
@@ -150,6 +187,7 @@ class Walk:
         stride_hz = cadence_spm / 120.0 * smooth(params[:, 1], 0.6)
         t = np.concatenate([[0.0], np.cumsum(GRID_M / speed[:-1])])
         phase = np.concatenate([[0.0], np.cumsum(2 * np.pi * stride_hz[:-1] * GRID_M / speed[:-1])])
+        phase = stairs_footing(course, x, phase)
         # The walk ends where a stride ends, as it began: the thigh's last pose is its first
         # (a looping course or a camera started again begins the walk anew, and the IMU
         # would feel any jump between the two as a rate of turn of tens of rad/s).
