@@ -185,9 +185,12 @@ class Walk:
         params = np.array([GAIT[m] for m in course.modes])[course.segment_index(x)]
         speed = speed_mps * smooth(params[:, 0], 0.6)
         stride_hz = cadence_spm / 120.0 * smooth(params[:, 1], 0.6)
-        t = np.concatenate([[0.0], np.cumsum(GRID_M / speed[:-1])])
         phase = np.concatenate([[0.0], np.cumsum(2 * np.pi * stride_hz[:-1] * GRID_M / speed[:-1])])
         phase = stairs_footing(course, x, phase)
+        # the cadence is the walker's, the steps the footing's: time follows from both
+        # (on stairs a tread a step; elsewhere the walker's own speed)
+        rate = 0.5 * (stride_hz[1:] + stride_hz[:-1])
+        t = np.concatenate([[0.0], np.cumsum(np.diff(phase) / (2 * np.pi * rate))])
         # The walk ends where a stride ends, as it began: the thigh's last pose is its first
         # (a looping course or a camera started again begins the walk anew, and the IMU
         # would feel any jump between the two as a rate of turn of tens of rad/s).

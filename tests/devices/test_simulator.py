@@ -106,7 +106,7 @@ def test_walker_swings_the_thigh_and_climbs_with_the_terrain():
     walk = Walk(course, seed=0)
     t = np.linspace(0, walk.duration_s, 2000)
     flexion = np.degrees(walk.flexion(t))
-    assert 40 < np.ptp(flexion) < 80  # +-19 degrees on level ground, more on stairs
+    assert 40 < np.ptp(flexion) < 85  # +-19 degrees on level ground, more on stairs and lifts
     # Level ground, no high knee lifts: 38 degrees (normal walking's thigh motion), times the
     # walker's own scale (0.9-1.1).
     calm = Walk(course, seed=0, events=[])
