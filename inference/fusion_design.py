@@ -295,10 +295,16 @@ STEP_THIGH_M = 0.35
 STEP_CAMERA_FORWARD_M = 0.07
 STEP_SPEED_MPS = 1.1  # before any edge is followed: a usual walking speed
 STEP_SWING_SHARE = 0.4  # toe off to heel contact, of a stride (stance 60 %)
-STEP_TRACK_S = 2.0
+STEP_TRACK_S = 2.0  # a track not fed this long is forgotten
 STEP_TRACK_INLIER_M = 0.05
 STEP_TRACK_MIN_POINTS = 4
-STEP_TRACK_MIN_SPAN_S = 0.25
+STEP_TRACK_MIN_SPAN_S = 0.2  # two measurements this far apart start a track with their speed
+STEP_TRACK_MISSES = 3  # measurements off the track in a row: the edge followed is another
+# the tracker's gains: a measurement moves the distance by half its residual and the speed
+# by a tenth of it over the time since the last (the edge's 2-4 cm of noise against a speed
+# that changes over strides)
+STEP_TRACK_ALPHA, STEP_TRACK_BETA = 0.5, 0.1
+STEP_SPEEDS = (0.3, 1.8)  # m/s: a speed outside walking's is a track gone wrong
 STEP_STAIRS_EXIT_M = 0.30
 # The edge that starts each mode (rows: the mode changed to, in MODES order).
 STEP_EDGE = ("level", "rise", "drop", "ramp_up", "ramp_down")

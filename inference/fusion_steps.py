@@ -125,7 +125,7 @@ class StepFusion(HysteresisFusion):
         for kind, track in self._tracks.items():
             x = edges.get(kind)
             if x is not None and math.isfinite(x):
-                track.add(now, x + offset)
+                track.add(now, x + offset, self._speed)
 
     def _edge_distance(self, held: int, new: int, now: float) -> tuple[float, float] | None:
         """(distance the hip has to the new mode's start, walking speed) from the edge

@@ -8,8 +8,9 @@ ahead; which heel contact is the first on the new terrain follows from where the
 changes (an edge of inference.features, seen from the camera) and where the hip will be at
 the next step's mid-stance (the foot under the hip: the step's terrain). The edge is fixed
 in the world and the walker closes in on it, so its distances from the hip over the last
-frames lie on a line whose slope is the walking speed: a line through most of them (a few
-are a later riser, an edge the noise moved, an object in view) gives both.
+frames lie on a line whose slope is the walking speed: a tracker that follows that line
+and leaves out what lies off it (a later riser, an edge the noise moved, an object in
+view) gives both.
 
 Pure: the fusion feeds the events and the frames in, as the live pipeline and eval do.
 """
@@ -17,17 +18,20 @@ Pure: the fusion feeds the events and the frames in, as the live pipeline and ev
 from __future__ import annotations
 
 import math
-from collections import deque
 from dataclasses import dataclass
 
 from inference.fusion_design import (
     STEP_CAMERA_FORWARD_M,
     STEP_SPEED_MPS,
+    STEP_SPEEDS,
     STEP_SWING_SHARE,
     STEP_THIGH_M,
+    STEP_TRACK_ALPHA,
+    STEP_TRACK_BETA,
     STEP_TRACK_INLIER_M,
     STEP_TRACK_MIN_POINTS,
     STEP_TRACK_MIN_SPAN_S,
+    STEP_TRACK_MISSES,
     STEP_TRACK_S,
 )
 
@@ -54,60 +58,83 @@ class EdgeFit:
 
 
 class EdgeTrack:
-    """The recent distances (m, ahead of the hip) of one kind of edge, with their times."""
+    """One kind of edge followed over the frames: its distance ahead of the hip and the
+    speed that closes it, an alpha-beta tracker (a constant-speed Kalman filter with fixed
+    gains) on its hip-relative distances. A measurement farther than STEP_TRACK_INLIER_M
+    from the prediction is another edge (a later riser, an edge the noise moved, an object
+    in view) and is left out; STEP_TRACK_MISSES of them in a row start the track again
+    there (the edge followed went out of view, the next one is the edge now). O(1) a frame."""
 
     def __init__(self, span_s: float = STEP_TRACK_S) -> None:
         self.span_s = span_s
-        self._points: deque[tuple[float, float]] = deque()
-
-    def add(self, time_s: float, distance_m: float) -> None:
-        self._points.append((time_s, distance_m))
-        self.forget(time_s)
-
-    def forget(self, now_s: float) -> None:
-        while self._points and now_s - self._points[0][0] > self.span_s:
-            self._points.popleft()
+        self.clear()
 
     def clear(self) -> None:
-        self._points.clear()
+        self._time: float | None = None  # of the estimate
+        self._distance = 0.0
+        self._speed: float | None = None
+        self._first: tuple[float, float] | None = None  # a lone measurement, not yet a track
+        self._agreed = 0  # measurements the track took in
+        self._misses = 0  # left out in a row
+        self._last: tuple[float, float] | None = None
 
-    def __len__(self) -> int:
-        return len(self._points)
+    def add(self, time_s: float, distance_m: float, speed_mps: float | None = None) -> None:
+        """A measurement; `speed_mps`: the walking speed to start a track with when its
+        first two measurements are too close in time to tell (STEP_TRACK_MIN_SPAN_S)."""
+        self._last = (time_s, distance_m)
+        if self._time is not None and time_s - self._time > self.span_s:
+            self.clear()
+            self._last = (time_s, distance_m)
+        if self._time is None:
+            first = self._first
+            if first is None or time_s - first[0] > self.span_s:
+                self._first = (time_s, distance_m)
+                return
+            dt = time_s - first[0]
+            if dt < STEP_TRACK_MIN_SPAN_S:
+                if speed_mps is None:
+                    return
+                speed = speed_mps
+            else:
+                speed = (first[1] - distance_m) / dt
+            self._time, self._distance = time_s, distance_m
+            self._speed = min(max(speed, STEP_SPEEDS[0]), STEP_SPEEDS[1])
+            self._agreed, self._misses = 2, 0
+            return
+        dt = time_s - self._time
+        predicted = self._distance - self._speed * dt
+        residual = distance_m - predicted
+        if abs(residual) > STEP_TRACK_INLIER_M:
+            self._misses += 1
+            if self._misses >= STEP_TRACK_MISSES:  # the edge is another one now
+                speed = self._speed
+                self.clear()
+                self._first = (time_s, distance_m)
+                self._last = (time_s, distance_m)
+                self.add(time_s, distance_m, speed)
+            return
+        self._misses = 0
+        self._agreed += 1
+        self._time, self._distance = time_s, predicted + STEP_TRACK_ALPHA * residual
+        if dt > 0:
+            speed = self._speed - STEP_TRACK_BETA * residual / dt
+            self._speed = min(max(speed, STEP_SPEEDS[0]), STEP_SPEEDS[1])
+
+    def forget(self, now_s: float) -> None:
+        if self._last is not None and now_s - self._last[0] > self.span_s:
+            self.clear()
 
     def last(self) -> tuple[float, float] | None:
-        return self._points[-1] if self._points else None
+        """The newest measurement (time, distance), taken in or not."""
+        return self._last
 
-    def fit(self, now_s: float, speeds=(0.3, 1.8)) -> EdgeFit | None:
-        """The line through most measurements (within STEP_TRACK_INLIER_M), over at least
-        STEP_TRACK_MIN_SPAN_S and STEP_TRACK_MIN_POINTS points, with a walking speed in
-        `speeds`: the edge's distance at `now_s`. None: no such line."""
-        pts = list(self._points)
-        best: tuple[tuple[int, float], float, float] | None = None
-        lo, hi = speeds
-        for i in range(len(pts)):
-            ti, di = pts[i]
-            for j in range(i + 1, len(pts)):
-                tj, dj = pts[j]
-                if tj - ti < STEP_TRACK_MIN_SPAN_S / 2:
-                    continue
-                v = (di - dj) / (tj - ti)
-                if not lo <= v <= hi:
-                    continue
-                at_now = dj - v * (now_s - tj)
-                inside = [
-                    (t, abs(d - v * (now_s - t) - at_now))
-                    for t, d in pts
-                    if abs(d - v * (now_s - t) - at_now) <= STEP_TRACK_INLIER_M
-                ]
-                span = max(t for t, _ in inside) - min(t for t, _ in inside)
-                if len(inside) < STEP_TRACK_MIN_POINTS or span < STEP_TRACK_MIN_SPAN_S:
-                    continue
-                score = (len(inside), -sum(r for _, r in inside))
-                if best is None or score > best[0]:
-                    best = (score, at_now, v)
-        if best is None:
+    def fit(self, now_s: float) -> EdgeFit | None:
+        """The edge's distance at `now_s` and the walking speed, once STEP_TRACK_MIN_POINTS
+        measurements agree; None before."""
+        if self._time is None or self._agreed < STEP_TRACK_MIN_POINTS:
             return None
-        return EdgeFit(best[1], best[2], best[0][0])
+        speed = self._speed
+        return EdgeFit(self._distance - speed * (now_s - self._time), speed, self._agreed)
 
 
 class StepClock:
