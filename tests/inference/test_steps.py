@@ -212,18 +212,20 @@ def test_bench_times_steady_steps_with_its_gait_events(monkeypatch):
     from inference.fusion import METHOD_TABLE
 
     assert "steady+steps" in [m.name for m in METHOD_TABLE if m.bench_us]  # `walkcap bench`
-    seen = []
+    seen, frames = [], []
     original = make_fusion
 
     def spying(method):
         fusion = original(method)
-        see = fusion.see_gait
-        fusion.see_gait = lambda event: (seen.append(event), see(event))
+        see, see_frame = fusion.see_gait, fusion.see_frame
+        fusion.see_gait = lambda event, t: (seen.append(event), see(event, t))
+        fusion.see_frame = lambda f, edges: (frames.append(edges), see_frame(f, edges))
         return fusion
 
     monkeypatch.setattr("capture.bench.components.make_fusion", spying)
     assert bench_method_update("steady+steps", updates=200) > 0
     assert {"heel_contact", "toe_off"} <= set(seen)
+    assert len(frames) == 210 and all("rise" in e for e in frames)  # an edge every frame
 
 
 def _walk_to_an_edge(edge_m: float, speed: float = 1.0, stride: float = 1.1, fps: float = 15.0):
