@@ -90,13 +90,6 @@ def quat_to_euler(q: np.ndarray) -> np.ndarray:
     return np.stack([roll, pitch, yaw], axis=-1)
 
 
-def forward_elevation_deg(q: np.ndarray) -> float:
-    """How far the body's x axis points above the horizontal, degrees: a thigh IMU worn with
-    x forward reads the thigh's flexion (positive lifting the knee)."""
-    w, x, y, z = quat_normalize(np.asarray(q, dtype=np.float64))
-    return float(np.degrees(np.arcsin(np.clip(2 * (x * z - w * y), -1.0, 1.0))))
-
-
 def quat_slerp(a: np.ndarray, b: np.ndarray, t: float) -> np.ndarray:
     """Spherical interpolation from a (t=0) to b (t=1) along the short arc."""
     a = quat_normalize(a)

@@ -221,13 +221,6 @@ FLIGHT_MIN_DEG = 20.0
 EDGES = ("rise", "drop", "ramp_up", "ramp_down", "level")
 
 
-def edges_of(features) -> dict[str, float | None]:
-    """The edges (EDGES, metres ahead of the camera) of a TerrainFeatures or of a recorded
-    /terrain/features message (its `edge_<kind>_m` fields)."""
-    get = features.get if isinstance(features, dict) else lambda k: getattr(features, k, None)
-    return {kind: get(f"edge_{kind}_m") for kind in EDGES}
-
-
 def terrain_edges(segments: list[_Segment]) -> dict[str, float | None]:
     """Forward distance (m) of the first place along the profile, near to far, where the
     terrain changes, by kind (EDGES): where the walker's foot would meet the next terrain.

@@ -277,34 +277,3 @@ STEP_OFFSET = (  # strides; rows: from, columns: to (LG, US, DS, UR, DR)
     (0.2, _STEP_ANY, _STEP_ANY, _STEP_ANY, _STEP_ANY),
     (_STEP_ANY, _STEP_ANY, -0.3, _STEP_ANY, _STEP_ANY),
 )
-
-# StepFusion's timing by the terrain ahead (inference.step_timing): the step a change belongs
-# to follows from where the terrain changes (the terrain features' edge of the new mode:
-# STEP_EDGE) and where the hip will be at the next step's mid-stance, a quarter stride after
-# its heel contact (the foot under the hip; devices.simulator.walk places the step's
-# terrain there). The camera sits STEP_THIGH_M down the thigh from the hip (a thigh of
-# 0.45 m and a camera a third of the way up from the knee: the simulated walkers' 0.28-0.42
-# m) and STEP_CAMERA_FORWARD_M in front of it. An edge's distances over the last
-# STEP_TRACK_S lie on a line within STEP_TRACK_INLIER_M (the features place a riser within
-# 2 cm, a ramp's start within 4 cm, tests/inference/test_features.py); a line needs
-# STEP_TRACK_MIN_POINTS frames over STEP_TRACK_MIN_SPAN_S. Leaving stairs, the step onto
-# the floor past the last riser is still a stair step (a riser climbed or descended): the
-# change comes STEP_STAIRS_EXIT_M (a tread) past the edge of level ground.
-STEP_MID_STANCE = 0.25  # of a stride after heel contact
-STEP_THIGH_M = 0.35
-STEP_CAMERA_FORWARD_M = 0.07
-STEP_SPEED_MPS = 1.1  # before any edge is followed: a usual walking speed
-STEP_SWING_SHARE = 0.4  # toe off to heel contact, of a stride (stance 60 %)
-STEP_TRACK_S = 2.0  # a track not fed this long is forgotten
-STEP_TRACK_INLIER_M = 0.05
-STEP_TRACK_MIN_POINTS = 4
-STEP_TRACK_MIN_SPAN_S = 0.2  # two measurements this far apart start a track with their speed
-STEP_TRACK_MISSES = 3  # measurements off the track in a row: the edge followed is another
-# the tracker's gains: a measurement moves the distance by half its residual and the speed
-# by a tenth of it over the time since the last (the edge's 2-4 cm of noise against a speed
-# that changes over strides)
-STEP_TRACK_ALPHA, STEP_TRACK_BETA = 0.5, 0.1
-STEP_SPEEDS = (0.3, 1.8)  # m/s: a speed outside walking's is a track gone wrong
-STEP_STAIRS_EXIT_M = 0.30
-# The edge that starts each mode (rows: the mode changed to, in MODES order).
-STEP_EDGE = ("level", "rise", "drop", "ramp_up", "ramp_down")

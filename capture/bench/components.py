@@ -5,7 +5,6 @@ fusion and the recorder. Each returns plain numbers; capture.bench collects them
 from __future__ import annotations
 
 import collections
-import math
 import os
 import tempfile
 import time
@@ -223,17 +222,12 @@ def bench_method_update(method: str, updates: int = 20000, seed: int = 0) -> flo
             start = clock()
             fusion.push(row, elevation[k])
             times.append(clock() - start)
-    elif getattr(fusion, "uses_steps", False):
-        # 15 fps, a gait event every 8 frames (2 a stride), the thigh swinging 20 degrees,
-        # and a riser closing in at 1 m/s from 2.4 m, again every 2 s: the frame's edges
+    elif getattr(fusion, "uses_steps", False):  # a gait event every 8 frames: 2 a stride
         for k, row in enumerate(frames):
-            t = k / 15.0
-            edges = {"rise": 2.4 - (t % 2.0)}
             start = clock()
             if k % 8 == 0:
-                fusion.see_gait("heel_contact" if k % 16 == 0 else "toe_off", t)
-            fusion.push(row, t)
-            fusion.see_frame(20 * math.sin(2 * math.pi * t), edges)
+                fusion.see_gait("heel_contact" if k % 16 == 0 else "toe_off")
+            fusion.push(row)
             times.append(clock() - start)
     elif getattr(fusion, "uses_geometry", False):  # the push and the frame's geometry
         shown = rng.integers(-1, N_MODES, size=len(frames)).tolist()

@@ -78,8 +78,6 @@ class RecordedTrial:
             "locomotion": f.locomotion,
             "time_ns": f.time_ns,
             "camera_elevation_deg": f.camera_elevation_deg,
-            "flexion_deg": f.thigh_flexion_deg,
-            "edges": f.edges,
             "geometry": f.geometry,
             "ground_ahead": f.ground_ahead,
             "metadata": self.metadata,

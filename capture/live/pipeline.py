@@ -15,7 +15,7 @@ import numpy as np
 from capture.recording.sink import Sink
 from devices.clock import now_ns, seconds, to_ns
 from devices.frames import MODES, DepthFrame
-from devices.rotations import forward_elevation_deg, quat_multiply, quat_slerp
+from devices.rotations import quat_multiply, quat_slerp
 from inference import level_tilt
 from inference.errors import InferenceError
 from inference.fusion import FusionOutput
@@ -207,15 +207,13 @@ class Pipeline:
         or after that, as `eval` hands it the recorded events (their log time)."""
         if getattr(self.fusion, "uses_steps", False):
             at = event.time_ns if known_ns is None else max(event.time_ns, known_ns)
-            self._gait.append((at, event.event, event.time_ns))
+            self._gait.append((at, event.event))
 
     def _hand_gait(self, time_ns: int) -> None:
-        """The queued gait events known by the frame's time, in order, to the fusion, each
-        with its own time."""
+        """The queued gait events known by the frame's time, in order, to the fusion."""
         gait = self._gait
         while gait and gait[0][0] <= time_ns:
-            _, event, at_ns = gait.popleft()
-            self.fusion.see_gait(event, seconds(at_ns))
+            self.fusion.see_gait(gait.popleft()[1])
 
     def prepare(
         self, frame: DepthFrame, quaternion: np.ndarray | None, orientation_age_ns: int = 0
@@ -247,7 +245,7 @@ class Pipeline:
         decision: the CNN does not see it and the fusion holds (it is not fed), so nothing
         is decided on a wrongly levelled cloud.
         """
-        from inference.features import edges_of, ground_ahead, shown_mode, terrain_features
+        from inference.features import ground_ahead, shown_mode, terrain_features
         from inference.preprocess import UNDECIDED
 
         if quaternion is None:
@@ -276,8 +274,7 @@ class Pipeline:
             cnn = int(np.argmax(probs))
             if self._gait:
                 self._hand_gait(frame.device_time_ns if time_ns is None else time_ns)
-            t_ns = frame.device_time_ns if time_ns is None else time_ns
-            fused = self._push(frame.index, probs, pre.elevation_deg, t_ns)
+            fused = self._push(frame.index, probs, pre.elevation_deg)
             done_ns = now_ns()  # the decision is out; features: display, recording, geometry cue
             hint = MODES[
                 fused.decision if fused is not None and fused.decision is not None else cnn
@@ -301,11 +298,6 @@ class Pipeline:
                     feats.kind,
                     raw,
                     frame.device_time_ns if time_ns is None else time_ns,
-                )
-            if getattr(self.fusion, "uses_steps", False):  # times its next push's change
-                self.fusion.see_frame(
-                    forward_elevation_deg(quaternion) if np.all(np.isfinite(quaternion)) else None,
-                    None if feats is None else edges_of(feats),
                 )
             if getattr(self.fusion, "uses_geometry", False):  # decides this frame next push
                 if feats is None:
@@ -331,21 +323,15 @@ class Pipeline:
         )
 
     def _push(
-        self,
-        frame_index: int,
-        probs: np.ndarray,
-        elevation_deg: float = float("nan"),
-        time_ns: int | None = None,
+        self, frame_index: int, probs: np.ndarray, elevation_deg: float = float("nan")
     ) -> FusionOutput | None:
-        """Push to the fusion (with the camera's elevation for gait cues, the frame's time
-        for steps); its output with push numbers turned into frame indices."""
+        """Push to the fusion (with the camera's elevation for gait cues); its output with
+        push numbers turned into frame indices."""
         self._frame_of_push[self._pushed] = frame_index
         self._frame_of_push.pop(self._pushed - 256, None)
         self._pushed += 1
         if getattr(self.fusion, "uses_gait", False):
             out = self.fusion.push(probs, elevation_deg)
-        elif getattr(self.fusion, "uses_steps", False):
-            out = self.fusion.push(probs, None if time_ns is None else seconds(time_ns))
         else:
             out = self.fusion.push(probs)
         if out is None:

@@ -24,8 +24,7 @@ import numpy as np
 from capture.recording import labels as L
 from capture.recording import topics as T
 from devices.frames import MODES
-from devices.rotations import forward_elevation_deg
-from inference.features import edges_of, ground_ahead, shown_mode
+from inference.features import ground_ahead, shown_mode
 
 NONE = -1  # no mode, no frame
 
@@ -81,22 +80,6 @@ class FrameTable:
         the gait cue of fusion (GaitSteadyFusion)."""
         x, y = self.quaternion[:, 1], self.quaternion[:, 2]
         return np.degrees(np.arcsin(np.clip(1 - 2 * (x * x + y * y), -1.0, 1.0)))
-
-    @property
-    def thigh_flexion_deg(self) -> np.ndarray:
-        """The thigh's flexion (the IMU's forward axis above the horizon, from /tf), NaN
-        without orientation: the step fusion's cue (StepFusion)."""
-        out = np.full(len(self.quaternion), np.nan)
-        for k, q in enumerate(self.quaternion):
-            if np.all(np.isfinite(q)):
-                out[k] = forward_elevation_deg(q)
-        return out
-
-    @property
-    def edges(self) -> list[dict]:
-        """Each frame's terrain edges (inference.features.edges_of; empty where not
-        recorded): the step fusion's cue (StepFusion)."""
-        return [edges_of(f) if f else {} for f in self.features]
 
     @property
     def geometry(self) -> np.ndarray:

@@ -128,10 +128,8 @@ def run_offline(
     elevation_deg: np.ndarray | None = None,
     geometry: np.ndarray | None = None,
     ground_ahead: np.ndarray | None = None,
-    gait_events: list[tuple] | None = None,
+    gait_events: list[tuple[float, str]] | None = None,
     times_s: np.ndarray | None = None,
-    flexion_deg: np.ndarray | None = None,
-    edges: Sequence[dict] | None = None,
 ) -> FusionRun:
     """Push every frame through a fresh streaming object, then flush: the live decisions.
 
@@ -140,12 +138,9 @@ def run_offline(
     with gait cues (`uses_gait`) gets each frame's camera elevation, `elevation_deg`; one
     with the geometry cue (`uses_geometry`) sees each frame's `geometry` and `ground_ahead`
     (-1 where not given) after its push, as the live pipeline shows it the frame's terrain
-    features; one that acts at steps (`uses_steps`) gets each of `gait_events` ((known s,
-    event, time s): when the detector knew it, what, when it happened) with `see_gait`
-    before the first frame at or after it was known, each frame's time with its push
-    (`times_s`), and after the push its thigh flexion (`flexion_deg`) and terrain edges
-    (`edges`, dicts of inference.features.EDGES) with `see_frame`, as the live pipeline
-    hands them over."""
+    features; one that acts at steps (`uses_steps`) gets each of `gait_events` ((time s,
+    event), the detector's) with `see_gait` before the first frame at or after its time
+    (`times_s`), as the live pipeline hands it each event as it is detected."""
     e = np.array(probabilities, dtype=float)
     unusable = ~np.all(np.isfinite(e), axis=1) if e.ndim == 2 else np.zeros(len(e), bool)
     e[unusable] = 1.0 / N_MODES
@@ -170,16 +165,12 @@ def run_offline(
             )
         t = tr.frame_times(n, times_s).tolist()
         events = sorted(gait_events)
-        flex = [None] * n if flexion_deg is None else np.asarray(flexion_deg, float).tolist()
-        seen = [None] * n if edges is None else list(edges)
         k = 0
-        for row, time, f, frame_edges in zip(e, t, flex, seen):
+        for row, time in zip(e, t):
             while k < len(events) and events[k][0] <= time:
-                known, event, *at = events[k]
-                fusion.see_gait(event, at[0] if at else known)
+                fusion.see_gait(events[k][1])
                 k += 1
-            collect(fusion.push(row, time))
-            fusion.see_frame(f, frame_edges)
+            collect(fusion.push(row))
     elif getattr(fusion, "uses_geometry", False):
         if geometry is None:
             raise InferenceError(
@@ -292,8 +283,6 @@ def run_trial(fusion: Fusion, trial: Trial) -> FusionRun:
         trial.ground_ahead,
         trial.gait_events,
         trial.times_s,
-        trial.flexion_deg,
-        trial.edges,
     )
 
 

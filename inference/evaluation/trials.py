@@ -54,10 +54,7 @@ class Trial:
     geometry: np.ndarray | None = None  # (N,) the mode the terrain features show, -1: unknown
     ground_ahead: np.ndarray | None = None  # (N,) the mode the ground ahead slopes as, -1: unknown
     steps: st.Steps | None = None  # the gait events the per-step metrics score at
-    # (known s, event, time s): the step fusion's cue, the detector's events
-    gait_events: list[tuple[float, str, float]] | None = None
-    flexion_deg: np.ndarray | None = None  # (N,) the thigh's flexion: the step fusion's
-    edges: list[dict] | None = None  # (N,) the terrain features' edges: the step fusion's
+    gait_events: list[tuple[float, str]] | None = None  # (time s, event): the step fusion's cue
 
     def __post_init__(self) -> None:
         self.probabilities = np.asarray(self.probabilities, dtype=float)
@@ -287,9 +284,7 @@ def read_scores(path: str | Path, fps: float = tr.PAPER_FPS) -> Trial:
             mode_source="locomotion" if locomotion else "terrain",
         )
         gait_events = sorted(
-            (float(times_s[k]), name, float(times_s[k]))
-            for name, frames in events.items()
-            for k in frames
+            (float(times_s[k]), name) for name, frames in events.items() for k in frames
         )
     return Trial(
         path,
@@ -392,10 +387,6 @@ def trial_from_recording(path: str, data: Any, reference: str = "terrain") -> Tr
     elevation = get("camera_elevation_deg")
     if elevation is not None:
         elevation = np.asarray(elevation, dtype=float)
-    flexion = get("flexion_deg") if has("flexion_deg") else None
-    if flexion is not None:
-        flexion = np.asarray(flexion, dtype=float)
-    edges = get("edges") if has("edges") else None
     geometry, ahead = get("geometry"), get("ground_ahead")
     if geometry is not None:
         geometry = np.asarray(geometry, dtype=int)
@@ -419,8 +410,6 @@ def trial_from_recording(path: str, data: Any, reference: str = "terrain") -> Tr
         elevation = elevation[finite] if elevation is not None else None
         geometry = geometry[finite] if geometry is not None else None
         ahead = ahead[finite] if ahead is not None else None
-        flexion = flexion[finite] if flexion is not None else None
-        edges = [x for x, keep in zip(edges, finite) if keep] if edges is not None else None
     return Trial(
         str(path),
         probabilities,
@@ -434,8 +423,6 @@ def trial_from_recording(path: str, data: Any, reference: str = "terrain") -> Tr
         ahead,
         steps,
         gait_events,
-        flexion,
-        edges,
     )
 
 
@@ -449,13 +436,12 @@ def gait_steps(
     times_s: np.ndarray | None,
     locomotion: np.ndarray | None,
     logged_ns=None,
-) -> tuple[st.Steps | None, list[tuple[float, str, float]] | None]:
+) -> tuple[st.Steps | None, list[tuple[float, str]] | None]:
     """From a recording's gait events (times on the session clock, `t0_ns` the first
     frame's): the steps the per-step metrics score at, and the detector's events as the
-    step fusion's cue ((known, event, time), seconds since the first frame, in order of
-    when known): known at the later of its time and when it was logged (`logged_ns`, one
-    per event: when the detector reported it), as live the fusion gets an event only once
-    it is detected.
+    step fusion's cue ((seconds since the first frame, event), in time order): each at
+    the later of its time and when it was logged (`logged_ns`, one per event: when the
+    detector reported it), as live the fusion gets an event only once it is detected.
 
     The steps are the simulator's heel contacts with the terrain under the foot where the
     recording has them; else the detector's, each with the locomotion mode (keyed live) in
@@ -474,7 +460,7 @@ def gait_steps(
     rows.sort(key=lambda r: r[0])
     imu = [(t, ev) for t, ev, source, _, _ in rows if source == "imu"]
     detected = sorted(
-        (t if known is None else max(t, known), ev, t)
+        (t if known is None else max(t, known), ev)
         for t, ev, source, _, known in rows
         if source == "imu"
     )

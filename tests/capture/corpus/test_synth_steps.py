@@ -19,7 +19,7 @@ def test_steady_steps_decides_offline_as_it_decided_live(tmp_path):
     recorded = read_trial(path)
     live = recorded.frames.decision
     trial = read_evaluation_trial(path)
-    assert sum(1 for _, e, _ in trial.gait_events if e == "heel_contact") >= 5  # 8 s walking
+    assert sum(1 for _, e in trial.gait_events if e == "heel_contact") >= 5  # 8 s walking
     assert len(set(live[live >= 0].tolist())) > 1  # it changed its mode at least once
     offline = run_trial(make_fusion("steady+steps"), trial)
     np.testing.assert_array_equal(offline.final[live >= 0], live[live >= 0])
