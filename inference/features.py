@@ -261,8 +261,8 @@ def terrain_edges(segments: list[_Segment]) -> dict[str, float | None]:
                 edge = _nosing(surface, s)
                 first("drop", edge)
                 changed = True
-                if s.flat and s.length >= LEVEL_RUN_M:
-                    first("level", edge)
+                if s.flat and s.length >= LEVEL_RUN_M and -step <= RISER_MAX_M:
+                    first("level", edge)  # one riser down to it: the floor starts there
         if s.flat:
             if changed and s.length >= LEVEL_RUN_M:
                 first("level", x0)
