@@ -26,6 +26,9 @@ each decision waits for:
   leaves stairs or a ramp for level ground only when level ground's posterior reaches
   HYSTERESIS, so a short run of middling misreads (level ground read on a ramp) does not
   switch; every other switch is steady's (`HysteresisFusion`).
+- "steady+margins": steady whose every switch needs the new mode's posterior at a margin
+  by the mode switched to, higher into level ground and ramps than into stairs, each
+  frame's evidence less tempered (`MarginFusion`; delay 1).
 - "steady+geometry": steady+hysteresis whose filter also observes each frame's terrain
   features (the mode their geometry shows, after the frame's push: `see_geometry`), so a
   riser or a slope still in view holds stairs or a ramp against a run of level-ground
@@ -78,6 +81,7 @@ from inference.fusion_steady import (
     GaitSteadyFusion,
     GeometryFusion,
     HysteresisFusion,
+    MarginFusion,
     SlopeFusion,
     SteadyFusion,
 )
@@ -96,6 +100,7 @@ __all__ = [
     "GeometryFusion",
     "HmmFusion",
     "HysteresisFusion",
+    "MarginFusion",
     "Method",
     "SlopeFusion",
     "SteadyFusion",
@@ -472,6 +477,25 @@ METHOD_TABLE: tuple[Method, ...] = (
         },
         "`steady` that leaves stairs or a ramp for level ground only once level ground's "
         "posterior reaches `[fusion] hysteresis`",
+        default=True,
+        bench_us=5.0,
+    ),
+    Method(
+        "steady+margins",
+        MarginFusion,
+        ("stay",),
+        "steady + margins",
+        {
+            "color": "#d6d6d6",
+            "hatch": "xx",
+            "hatchcolor": "#202020",
+            "line": "#404040",
+            "marker": "X",
+            "linestyle": (0, (6, 1, 1, 1, 1, 1)),
+        },
+        "`steady` whose every switch waits for the new mode's posterior at a margin, 0.9 into "
+        "level ground or a ramp, 0.7 into stairs (the terrains a classifier mistakes for "
+        "each other and for objects that look like them)",
         default=True,
         bench_us=5.0,
     ),

@@ -18,6 +18,8 @@ from inference.fusion_design import (
     GEOMETRY_HYSTERESIS,
     GEOMETRY_SHOWN,
     HYSTERESIS,
+    MARGIN_EVIDENCE,
+    MARGINS,
     N_MODES,
     SLOPE_HOLD_FRAMES,
     STEADY_EVIDENCE,
@@ -184,6 +186,48 @@ class HysteresisFusion(SteadyFusion):
     def _may_leave(self, held: int, level_posterior: float) -> bool:
         """Whether the decision leaves stairs or a ramp, `held`, for level ground."""
         return level_posterior >= self.hysteresis
+
+    def push(self, probabilities) -> FusionOutput | None:
+        out = self._update(probabilities, self._rows)
+        return None if out is None else self._hold(out)
+
+    def flush(self) -> list[FusionOutput]:
+        return [self._hold(out) for out in super().flush()]
+
+
+class MarginFusion(SteadyFusion):
+    """Steady's posterior, every switch at a margin by the mode switched to (delay 1).
+
+    The first decision is steady's. After it, the decision moves to another mode only when
+    that mode's posterior (steady's, for the decided frame, with `evidence`) reaches
+    `margins[mode]`: higher into level ground and ramps, which a classifier mistakes for
+    each other and for objects that look like them, than into stairs (the design in
+    inference.fusion_design: MARGINS). `probabilities` stay steady's posterior; `flush`
+    applies the same rule to the last frame.
+    """
+
+    def __init__(
+        self,
+        stay: float = STEADY_STAY,
+        evidence: float = MARGIN_EVIDENCE,
+        margins=MARGINS,
+    ):
+        if len(margins) != N_MODES or not all(0.0 <= m < 1.0 for m in margins):
+            raise InferenceError(f"margins: expected {N_MODES} numbers in [0, 1), got {margins}")
+        super().__init__(stay, evidence)
+        self.margins = tuple(float(m) for m in margins)
+        self._held = -1
+
+    def _reset_state(self) -> None:
+        super()._reset_state()
+        self._held = -1
+
+    def _hold(self, out: FusionOutput) -> FusionOutput:
+        g, d = out.probabilities, out.decision
+        if self._held < 0 or (d != self._held and g[d] >= self.margins[d]):
+            self._held = d
+        out.decision = self._held
+        return out
 
     def push(self, probabilities) -> FusionOutput | None:
         out = self._update(probabilities, self._rows)

@@ -28,7 +28,7 @@ from devices.config import MountingConfig, SimulatorConfig
 from devices.frames import MODES
 from devices.orientation_error import OrientationError, OrientationErrorModel
 from devices.simulator import Simulator, make_course
-from devices.simulator.simulator import WALKER_KEYS
+from devices.simulator.simulator import WALKER_KEYS, draw_walker
 from inference.config import PreprocessConfig
 from inference.dataset import LabeledSession, read_session, write_session
 from inference.errors import InferenceError
@@ -152,16 +152,20 @@ def session_plan(count: int, preset: str, base_seed: int) -> list[tuple[str, int
     return [(presets[i % len(presets)], session_seed(base_seed, i)) for i in range(count)]
 
 
-def _walker(rng: np.random.Generator, vary: bool, config) -> dict:
-    if not vary:
-        return {k: getattr(config, k) for k in WALKER_KEYS}
-    # Subjects and mountings differ: speed, cadence, thigh length, strap angle.
-    return {
-        "speed_mps": float(rng.uniform(0.85, 1.35)),
-        "cadence_spm": float(rng.uniform(90.0, 120.0)),
-        "camera_height_m": float(rng.uniform(0.48, 0.62)),
-        "camera_tilt_deg": float(rng.uniform(28.0, 42.0)),
-    }
+def session_walker(
+    seed: int, vary: bool, simulator_config, mounting_error_deg: float
+) -> tuple[dict, float, np.random.Generator]:
+    """A synthesized session's walker (drawn for the seed, or the configured one), the
+    camera pitch the operator would calibrate for it (its tilt plus `mounting_error_deg`,
+    1 sigma: the strap settling), and the session's random generator after both draws:
+    the same seed gives the same walker as a training session and as a recording."""
+    rng = np.random.default_rng([seed, 7919])
+    if vary:
+        walker = draw_walker(rng)
+    else:
+        walker = {k: getattr(simulator_config, k) for k in WALKER_KEYS}
+    pitch = walker["camera_tilt_deg"] + float(rng.normal(0.0, mounting_error_deg))
+    return walker, pitch, rng
 
 
 def render_synth_session(
@@ -183,14 +187,14 @@ def render_synth_session(
     """
     params = params or PreprocessConfig()
     simulator_config = simulator_config or SimulatorConfig()
-    rng = np.random.default_rng([seed, 7919])
-    walker = _walker(rng, settings.vary_walker, simulator_config)
+    walker, mounting_pitch, rng = session_walker(
+        seed, settings.vary_walker, simulator_config, settings.mounting_error_deg
+    )
     try:
         course = make_course(preset, seed)
     except ValueError as e:
         raise InferenceError(str(e)) from None
     sim = Simulator(course, seed=seed, fps=settings.fps, **walker)
-    mounting_pitch = walker["camera_tilt_deg"] + float(rng.normal(0.0, settings.mounting_error_deg))
     mounting = replace(mounting or MountingConfig(), pitch_deg=mounting_pitch)
     imu_error = OrientationError(settings.imu_error, rng)
 

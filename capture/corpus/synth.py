@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from capture import config as config_mod
+from capture.corpus.dataset import SynthSettings, session_walker
 from capture.live.pipeline import (
     OrientationTrack,
     build_pipeline,
@@ -33,6 +34,7 @@ from inference.gait import GaitDetector
 GRAVITY = np.array([0.0, 0.0, 9.81])
 TRANSPORT_NS = 3_000_000  # a USB-serial hop: samples arrive ~3 ms after they are taken
 FRAME_TRANSFER_NS = 5_000_000  # a ToF frame arrives ~5 ms after its exposure
+MOUNTING_ERROR_DEG = SynthSettings.mounting_error_deg  # as a training session's
 
 
 def imu_samples(
@@ -78,14 +80,24 @@ def synth_recording(
     subject: str = "SIM01",  # a simulated subject, an id of the default subject_pattern
     trial: int = 1,
     max_frames: int = 0,
+    vary_walker: bool = True,
     progress=None,
 ):
-    """Walk one simulated course into the recording at `path`; returns its RecorderStats."""
+    """Walk one simulated course into the recording at `path`; returns its RecorderStats.
+
+    `vary_walker`: the session's own walker and the mounting calibrated for it, drawn for
+    the seed as a training session's (capture.corpus.dataset.session_walker); else the
+    configured [simulator] walker and [mounting]."""
     from capture.recording.writer import Recorder
     from devices.simulator import Simulator
 
     cfg = copy.deepcopy(config)
     cfg.simulator.course, cfg.simulator.seed = preset, seed
+    if vary_walker:
+        walker, pitch, _ = session_walker(seed, True, cfg.simulator, MOUNTING_ERROR_DEG)
+        for key, value in walker.items():
+            setattr(cfg.simulator, key, value)
+        cfg.mounting.pitch_deg = pitch
     simulator = Simulator.from_config(cfg.simulator, fps=cfg.camera.fps)
     rng = np.random.default_rng([seed, 4242])
     pipeline = build_pipeline(cfg, classifier)
@@ -149,7 +161,13 @@ _classifiers: dict = {}  # per process: a job's worker loads the model once for 
 
 
 def synth_recording_file(
-    path: str | Path, config: config_mod.Config, preset: str, seed: int, trial: int, max_frames: int
+    path: str | Path,
+    config: config_mod.Config,
+    preset: str,
+    seed: int,
+    trial: int,
+    max_frames: int,
+    vary_walker: bool = True,
 ) -> str:
     """synth_recording with the configured model, as one task of a corpus job
     (capture.corpus.jobs): the path written, or CaptureError when the recording failed."""
@@ -168,6 +186,7 @@ def synth_recording_file(
         seed=seed,
         trial=trial,
         max_frames=max_frames,
+        vary_walker=vary_walker,
     )
     if stats.state == "failed":
         raise CaptureError(f"{path}: {stats.message}")

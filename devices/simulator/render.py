@@ -20,8 +20,8 @@ the pico flexx datasheet and the royale pipeline's defaults (sources in ToFParam
   sigma above royale's 7 cm threshold, the flying-pixel flag; outdoors also a speckle of
   saturated pixels. Invalid pixels have confidence 0 and xyz = 0, exactly like royale
   frames; the others a confidence from their amplitude (1-255), flying ones less.
-Occluders for error images (the other foot, something in front of the lens) are drawn
-analytically in the camera frame, so the scene never changes per frame.
+Occluders for error images (the other foot, something in front of the lens, an object's
+face ahead) are drawn analytically per ray, so the scene never changes per frame.
 """
 
 from __future__ import annotations
@@ -252,7 +252,7 @@ def draw_occlusion(
     """Something flat close in front of the lens, over one side and the centre."""
     rays = rays_cam.reshape(geometry.height, geometry.width, 3)
     cols = np.arange(geometry.width)
-    edge = geometry.width * (0.55 + 0.3 * strength)  # always over the centre
+    edge = geometry.width * (0.55 + 0.6 * strength)  # over the centre; half the time all
     covered = cols < edge if rng.random() < 0.5 else cols >= geometry.width - edge
     d0 = rng.uniform(0.3, 0.9)
     a, b = rng.uniform(-0.3, 0.3, size=2)  # the plane's tilt
@@ -260,6 +260,37 @@ def draw_occlusion(
     t_occ = (d0 / np.maximum(denom, 0.2)).astype(np.float32)
     mask = np.broadcast_to(covered[None, :], t_occ.shape)
     _apply_occluder(hits, mask.ravel(), t_occ.ravel(), denom.ravel(), 0.6)
+
+
+def draw_object(
+    hits: Hits,
+    rays_cam: np.ndarray,
+    pose: np.ndarray,
+    ground_z: float,
+    strength: float,
+    rng: np.random.Generator,
+) -> None:
+    """An object close ahead whose flat face fills the view: the other thigh, a bag, a
+    door, a person passing. Its face is a plane across the whole view at a tilt a terrain
+    could have (level, or a ramp's 5-15 degrees up or down), above the ground, so the
+    image it leaves is a clean image of level ground or a ramp whatever the terrain."""
+    rays = rays_cam @ pose[:3, :3].T  # world directions
+    axis = pose[:3, 2]
+    heading = np.arctan2(axis[1], axis[0])
+    c, s = np.cos(heading), np.sin(heading)
+    forward = rays[:, 0] * c + rays[:, 1] * s
+    up = rays[:, 2]
+    kind = rng.random()
+    slope = 0.0 if kind < 0.4 else np.sign(kind - 0.7) * (5.0 + 10.0 * strength)
+    k = np.tan(np.radians(slope + rng.normal(0.0, 1.0)))
+    # its face: z = z0 + k x (camera at 0), above the ground over the view's 2.5 m
+    z0 = ground_z - pose[2, 3] + 0.05 + 0.1 * rng.random() + max(0.0, -2.5 * k)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_obj = z0 / (up - k * forward)
+    face = np.isfinite(t_obj) & (t_obj > 0.1)
+    t_obj = np.where(face, t_obj, np.inf).astype(np.float32)
+    cos_inc = (np.abs(up - k * forward) / np.sqrt(1 + k * k)).astype(np.float32)
+    _apply_occluder(hits, face, t_obj, cos_inc, 0.45)
 
 
 def _draw_blob(hits, geometry, uc, vc, ru, rv, depth, bulge, albedo) -> None:

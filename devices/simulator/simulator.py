@@ -19,7 +19,8 @@ ground truth in `frame.truth`:
 - "camera_pose": camera -> world, 4x4 nested list; "thigh_quaternion": [w, x, y, z],
   IMU (thigh) -> world, without sensor noise; "segment": index of the segment the image
   truth names (the look-ahead segment, or the nearest segment of that mode in view);
-  "error": "" or the kind of error image ("swing_blur", "sky", "foot", "occlusion");
+  "error": "" or the kind of error image ("swing_blur", "sky", "foot", "occlusion",
+  "object");
   "gait" (added by whoever knows the frame before, the mock camera and `walkcap synth`): the
   GaitEvents of the walk since the frame before (`gait_truth`), source "simulator", each
   with the mode of the terrain under that foot.
@@ -43,13 +44,13 @@ from devices.simulator.render import (
     ToFSensor,
     blend_swing,
     draw_foot,
+    draw_object,
     draw_occlusion,
 )
 from devices.simulator.walk import GRID_M, Walk, smooth
 
 # Look-ahead (m) of the truth rule's fallback per terrain under the camera (module doc).
 LOOKAHEAD_M = {"LG": 0.75, "US": 0.7, "DS": 1.1, "UR": 0.75, "DR": 0.6}
-OUTDOOR_ERROR_RATE = 1.6  # error images outdoors relative to indoors
 # The classifier's image (inference.preprocess defaults): a corridor 0.1 m wide, 2.5 m
 # ahead and -2..1 m high around the camera; 100 cells of 1 cm, the minimum in cell 1.
 CORRIDOR_M, IMAGE_FORWARD_M, IMAGE_BELOW_M, IMAGE_ABOVE_M = 0.1, 2.5, 2.0, 1.0
@@ -59,6 +60,17 @@ FILL_CELLS = 8  # gaps between a terrain's points it still covers (_covered)
 
 # The walker's parameters that a [simulator] section sets (devices.config.SimulatorConfig).
 WALKER_KEYS = ("speed_mps", "cadence_spm", "camera_height_m", "camera_tilt_deg")
+
+
+def draw_walker(rng: np.random.Generator) -> dict:
+    """A walker of its own (WALKER_KEYS): subjects and mountings differ in speed, cadence,
+    thigh length and strap angle."""
+    return {
+        "speed_mps": float(rng.uniform(0.85, 1.35)),
+        "cadence_spm": float(rng.uniform(90.0, 120.0)),
+        "camera_height_m": float(rng.uniform(0.48, 0.62)),
+        "camera_tilt_deg": float(rng.uniform(28.0, 42.0)),
+    }
 
 
 class Simulator:
@@ -74,13 +86,14 @@ class Simulator:
         **walker,
     ) -> None:
         """`fps`: the camera's frame rate, which picks its use case and so its depth noise;
-        `error_rate` scales the error images (default 1 indoors, 1.6 outdoors);
+        `error_rate` scales the error images' rates (devices.simulator.walk's, which differ
+        indoors and outdoors; default 1);
         `cast_threads`: threads per ray cast (0: all cores); `walker`: the Walk's
         parameters (speed_mps, cadence_spm, camera_height_m, camera_tilt_deg,
         camera_forward_m: the camera's distance in front of the thigh's axis, events: an
         ErrorEvent list that replaces the error images' random schedule, e.g. [] for none)."""
         if error_rate is None:
-            error_rate = OUTDOOR_ERROR_RATE if course.outdoor else 1.0
+            error_rate = 1.0
         self.course = course
         self.geometry = geometry
         self.seed = seed
@@ -217,6 +230,9 @@ class Simulator:
                 draw_foot(hits, self.geometry, progress, event.strength, shape_rng)
             elif event.kind == "occlusion":
                 draw_occlusion(hits, self.sensor.rays_cam, self.geometry, event.strength, shape_rng)
+            elif event.kind == "object":  # above the ground the camera looks at
+                ground = float(self.course.height_at(np.array([pose[0, 3] + 0.4]))[0])
+                draw_object(hits, self.sensor.rays_cam, pose, ground, event.strength, shape_rng)
         xyz, confidence, gray = self.sensor.apply(hits, rng, noise_scale)
         truth = {
             "mode": mode,

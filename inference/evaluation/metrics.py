@@ -21,6 +21,7 @@ import numpy as np
 
 from inference.config import FusionConfig
 from inference.errors import InferenceError
+from inference.evaluation import errors as er
 from inference.evaluation import steps as st
 from inference.evaluation import transitions as tr
 from inference.evaluation.trials import FusionRun, Trial, TrialResult
@@ -247,7 +248,29 @@ def evaluate_trial(
         {m: trial_steps(trial, r.final, params.delay_frames(m)) for m, r in runs.items()}
         if trial.steps is not None
         else {},
+        trial_errors(trial),
     )
+
+
+def trial_errors(trial: Trial) -> er.ErrorShape:
+    """The shape of the classifier's own errors (each frame's argmax) against the trial's
+    reference, split by swing and stance where the trial has its steps."""
+    t = tr.frame_times(trial.frames, trial.times_s)
+    steps = trial.steps
+    return er.error_shape(
+        decisions_of(trial.probabilities),
+        trial.reference,
+        trial.probabilities,
+        t,
+        tr.duration_minutes(t),
+        () if steps is None else steps.heel_contacts_s,
+        () if steps is None else steps.toe_offs_s,
+    )
+
+
+def pooled_errors(results: Sequence[TrialResult]) -> er.ErrorShape | None:
+    shapes = [r.errors for r in results if r.errors is not None]
+    return er.pooled(shapes) if shapes else None
 
 
 def run_trial(fusion: Fusion, trial: Trial) -> FusionRun:

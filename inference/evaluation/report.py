@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from inference.config import FusionConfig
+from inference.evaluation import errors as er
 from inference.evaluation import steps as st
 from inference.evaluation import transitions as tr
 from inference.evaluation.metrics import (
@@ -21,6 +22,7 @@ from inference.evaluation.metrics import (
     column_sd,
     group_results,
     paired_t_tests,
+    pooled_errors,
     pooled_steps,
     pooled_transitions,
     summarize,
@@ -93,6 +95,8 @@ def report(
         }
         if r.steps:
             entry["steps"] = {m: st.summary(r.steps[m]) for m in methods if m in r.steps}
+        if r.errors is not None:
+            entry["errors"] = er.summary(r.errors)
         files.append(entry)
     summary = summarize(results, methods)
     scored = sorted({r.trial.reference_name for r in results})
@@ -103,6 +107,7 @@ def report(
         "sd": _nums(summary["sd"]),
         "transitions": _transitions_json(results, methods),
         **_steps_json(results, methods),
+        **_errors_json(results),
         "delay_frames": {m: params.delay_frames(m) for m in methods},
         "parameters": {
             "window": params.window,
@@ -140,6 +145,7 @@ def report(
                     "paired_t_tests": _tests_json(paired_t_tests(rs, methods)),
                     "transitions": _transitions_json(rs, methods),
                     **_steps_json(rs, methods),
+                    **_errors_json(rs),
                 }
             )
     if sweep is not None:
@@ -171,3 +177,9 @@ def _steps_json(results: Sequence[TrialResult], methods: Sequence[str]) -> dict:
         if stats is not None:
             out[m] = st.summary(stats)
     return {"steps": out} if out else {}
+
+
+def _errors_json(results: Sequence[TrialResult]) -> dict:
+    """{"errors": the classifier's own errors pooled} (inference.evaluation.errors)."""
+    shape = pooled_errors(results)
+    return {"errors": er.summary(shape)} if shape is not None else {}

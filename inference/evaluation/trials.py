@@ -21,6 +21,7 @@ import numpy as np
 from devices import clock
 from devices.frames import MODES
 from inference.errors import InferenceError
+from inference.evaluation import errors as er
 from inference.evaluation import steps as st
 from inference.evaluation import transitions as tr
 from inference.fusion_design import N_MODES, mode_indices
@@ -187,13 +188,19 @@ class TrialResult:
     # method -> reference name -> its switches against that reference
     transitions: dict[str, dict[str, tr.TransitionStats]] = field(default_factory=dict)
     steps: dict[str, st.StepStats] = field(default_factory=dict)  # method -> per-step figures
+    errors: er.ErrorShape | None = None  # the classifier's own errors (its argmax)
 
     def summarized(self) -> TrialResult:
         """The accuracies and switches a report needs, without the per-frame arrays (the
         trial's and each method's run: several MB for a long trial). Plots, the delay
         sweep and the confusion matrices need the whole result."""
         return TrialResult(
-            TrialSummary.of(self.trial), dict(self.accuracy), {}, self.transitions, self.steps
+            TrialSummary.of(self.trial),
+            dict(self.accuracy),
+            {},
+            self.transitions,
+            self.steps,
+            self.errors,
         )
 
 

@@ -9,8 +9,9 @@ model and its metadata), `settings` (`TrainSettings`).
   dominates every walk; 1 is full balance, the default 0.3 part of the way).
 - Augmentation imitates the sensor, on the occupied cells of the binary image: a small
   rotation of the profile (IMU pitch error, mounting error), a small scale (depth scale,
-  camera height), missing returns, a stray cell; then the authors' shift of the minimum to
-  one cell, as the preprocessing does. No left-right flips: they reverse up and down.
+  camera height), missing returns, the stray returns under a surface missing (the shift
+  then lands on the surface itself), a stray cell; then the authors' shift of the minimum
+  to one cell, as the preprocessing does. No left-right flips: they reverse up and down.
 - Mirrored ascents: a share of the up-stairs and up-ramp frames is mirrored in height and
   trained as down stairs and down ramp. The simulator shows a descent as its geometry
   does, treads stepping down with gaps where the nosings hide the risers; a person, and

@@ -89,6 +89,10 @@ def augment_image(
     c, sn = math.cos(angle) * s, math.sin(angle) * s
     x, z = c * x - sn * z, sn * x + c * z
     keep = rng.random(len(x)) >= rng.uniform(0.0, dropout)  # missing returns
+    if rng.random() < 0.3:
+        # The stray returns under a surface missing: the authors' shift registers the image
+        # on its lowest point, a stray's or the surface's, so the surface's own rows vary.
+        keep &= z >= np.quantile(z, rng.uniform(0.0, 0.1))
     if keep.sum() < 3:
         return image
     x, z = x[keep], z[keep]

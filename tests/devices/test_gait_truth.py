@@ -108,3 +108,30 @@ def test_the_mock_camera_hands_the_events_out_with_its_frames_and_none_standing(
     frame = standing.simulator.render(standing.walk_time(2.0))
     standing._add_gait_truth(frame, standing.walk_time(2.0))
     assert "gait" not in frame.truth
+
+
+@pytest.mark.parametrize(("preset", "seed"), [("indoor", 4), ("indoor", 11), ("outdoor", 5)])
+def test_on_stairs_each_foot_lands_in_the_middle_of_a_tread(preset, seed):
+    """A walker puts one foot a tread, the whole foot on it: no heel contact lands across
+    a riser or a nosing, and the stride before the stairs is fitted so that the first foot
+    lands on the first tread."""
+    course = make_course(preset, seed)
+    sim = Simulator(course, seed=seed, speed_mps=1.3, cadence_spm=95.0)  # a long stride
+    events = sim.walk.gait_events(-1.0, sim.duration_s)
+    feet = [x for _, event, x in events if event == "heel_contact"]
+    stairs = [s for s in course.segments if s.mode in ("US", "DS")]
+    on_stairs = 0
+    for seg in stairs:
+        for x in feet:
+            if seg.x0 <= x < seg.x0 + seg.steps * seg.tread_m:
+                on_stairs += 1
+                tread, place = divmod((x - seg.x0) / seg.tread_m, 1.0)  # place 0.5: the middle
+                if tread < seg.steps - 1:
+                    assert abs(place - 0.5) < 0.25, (seg.mode, x, place)
+                else:  # the floor the stairs lead to: clear of the last riser or nosing
+                    assert place > 0.25, (seg.mode, x, place)
+        before = max(x for x in feet if x < seg.x0)
+        assert seg.x0 - before > 0.5 * seg.tread_m  # the last foot on the floor stays clear
+    assert on_stairs >= len(stairs)
+    # the walk goes on, forward only
+    assert np.all(np.diff(sim.walk._phase) > 0)

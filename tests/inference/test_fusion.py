@@ -312,6 +312,7 @@ def test_make_fusion_knows_every_method_and_its_delay():
         "steady": 1,
         "steady+gait": 1,
         "steady+hysteresis": 1,
+        "steady+margins": 1,
         "steady+geometry": 1,
         "steady+slope": 1,
         "steady+steps": 1,
@@ -516,6 +517,77 @@ def test_steady_hysteresis_margin_is_checked_and_configured():
         HysteresisFusion(hysteresis=1.0)
     assert make_fusion("steady+hysteresis", hysteresis=0.9).hysteresis == 0.9
     assert HysteresisFusion().hysteresis == 0.8  # 4 to 1 against the other modes
+
+
+# --- steady+margins ----------------------------------------------------------------------
+
+
+def margins_reference(posteriors: np.ndarray, margins) -> np.ndarray:
+    """steady+margins by its definition: the first decision is steady's argmax; after it a
+    switch to another mode needs that mode's posterior at its margin."""
+    out, held = [], -1
+    for g in posteriors:
+        best = int(np.argmax(g))
+        if held < 0 or (best != held and g[best] >= margins[best]):
+            held = best
+        out.append(held)
+    return np.array(out)
+
+
+@pytest.mark.parametrize(
+    "margins", [(0.0,) * 5, (0.9, 0.7, 0.7, 0.9, 0.9), (0.5, 0.95, 0.6, 0.8, 0.99)]
+)
+def test_steady_margins_is_steadys_posterior_with_a_margin_by_mode(margins):
+    from inference.fusion import MarginFusion
+    from inference.fusion_design import MARGIN_EVIDENCE
+
+    e = random_probabilities(np.random.default_rng(12), 200, concentration=0.3)
+    fusion = MarginFusion(margins=margins)
+    decisions, _, posteriors = stream(fusion, e)
+    _, _, steady_posteriors = stream(SteadyFusion(evidence=MARGIN_EVIDENCE), e)
+    np.testing.assert_allclose(posteriors, steady_posteriors, rtol=1e-12)
+    np.testing.assert_array_equal(decisions, margins_reference(steady_posteriors, margins))
+    assert fusion.delay_frames == 1
+    if max(margins) == 0.0:  # no margins: steady itself (at the method's evidence)
+        np.testing.assert_array_equal(
+            decisions, stream(SteadyFusion(evidence=MARGIN_EVIDENCE), e)[0]
+        )
+    fusion.reset()  # a new sequence starts without the held decision
+    again = stream(fusion, e[::-1])[0]
+    np.testing.assert_array_equal(
+        again,
+        margins_reference(stream(SteadyFusion(evidence=MARGIN_EVIDENCE), e[::-1])[2], margins),
+    )
+
+
+def test_steady_margins_holds_a_sure_misread_run_into_level_ground_not_into_stairs():
+    """On level ground, three frames read as a ramp up at 0.8 then level ground again: steady
+    follows the ramp, steady+margins (0.9 into a ramp; the posterior peaks at 0.86) holds
+    level ground. A real change to
+    stairs up at 0.85 passes stairs' lower margin (0.7) on the same frame for both."""
+
+    def scores(mode: int, p: float) -> list[float]:
+        return [p if j == mode else (1 - p) / 4 for j in range(5)]
+
+    frames = np.array([scores(0, 0.9)] * 30 + [scores(3, 0.8)] * 3 + [scores(0, 0.9)] * 30
+                      + [scores(1, 0.85)] * 30)  # fmt: skip
+    steady = run_offline(make_fusion("steady"), frames).final
+    held = run_offline(make_fusion("steady+margins"), frames).final
+    assert 3 in set(steady[30:40]) and np.count_nonzero(np.diff(steady)) == 3
+    assert set(held[:63]) == {0} and np.count_nonzero(np.diff(held)) == 1
+    assert held[-1] == steady[-1] == 1
+    assert np.argmax(held == 1) == np.argmax(steady[40:] == 1) + 40
+
+
+def test_steady_margins_are_checked():
+    from inference.fusion import MarginFusion
+    from inference.fusion_design import MARGINS
+
+    with pytest.raises(InferenceError, match="margins"):
+        MarginFusion(margins=(0.9, 0.7, 1.0, 0.9, 0.9))
+    with pytest.raises(InferenceError, match="margins"):
+        MarginFusion(margins=(0.9, 0.7))
+    assert make_fusion("steady+margins").margins == MARGINS == (0.9, 0.7, 0.7, 0.9, 0.9)
 
 
 # --- steady+geometry ---------------------------------------------------------------------

@@ -303,6 +303,7 @@ def format_report(data: dict, methods: list[str]) -> str:
 
     out += _format_transitions(data, methods)
     out += _format_steps(data, methods)
+    out += _format_errors(data, reference)
 
     out += _format_tests(data.get("paired_t_tests"))
 
@@ -437,6 +438,41 @@ def _format_steps(data: dict, methods: list[str]) -> list[str]:
                 ]
             )
     return out + _table(head, rows, left=2)
+
+
+def _format_errors(data: dict, reference: str) -> list[str]:
+    """The shape of the classifier's own errors, per condition (docs/analysis.md)."""
+    scopes = [("all", data.get("errors"))]
+    if data.get("conditions"):
+        scopes += [(c["condition"] or "-", c.get("errors")) for c in data["conditions"]]
+    rows = []
+    for scope, e in scopes:
+        if not e or not e["frames"]:
+            continue
+        rows.append(
+            [
+                scope,
+                _pct(e["error_rate"]),
+                _num(e["runs_per_min"], 1),
+                _pct(e["in_runs"]),
+                " ".join(f"{k}:{n}" for k, n in e["run_lengths"].items()),
+                _num(e["confidence_wrong_median"], 2),
+                _pct(e["confident_wrong"]),
+                _pct(e["near_change"]),
+                f"{_pct(e['error_rate_swing'])} / {_pct(e['error_rate_stance'])}",
+            ]
+        )
+    if not rows:
+        return []
+    out = [
+        "",
+        f"the classifier's own errors (its argmax against {reference}): error rate %, runs of "
+        "wrong frames a minute, share of wrong frames in runs of 2 or more %, runs by length, "
+        "median confidence when wrong, wrong at confidence >= 0.9 %, wrong within 0.5 s of a "
+        "change %, error rate in swing / stance %",
+    ]
+    headers = ["", "errors", "runs/min", "in runs", "run lengths", "conf", "sure", "near"]
+    return out + _table([*headers, "swing/stance"], rows)
 
 
 def _mean_sd(entry: dict, method: str) -> str:

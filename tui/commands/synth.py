@@ -115,7 +115,15 @@ def _recordings(args, config) -> int:
         jobs.Task(
             path.name,
             synth_recording_file,
-            (jobs.task_path(where, path), config, preset, seed, i + 1, args.frames or 0),
+            (
+                jobs.task_path(where, path),
+                config,
+                preset,
+                seed,
+                i + 1,
+                args.frames or 0,
+                not args.fixed_walker,
+            ),
         )
         for i, (path, (preset, seed)) in enumerate(zip(paths, plan))
     ]

@@ -37,6 +37,29 @@ def synth_folder(tmp_path_factory):
     return out
 
 
+def test_each_session_walks_with_a_walker_of_its_own(synth_folder, tmp_path):
+    """Recordings draw the walker per session, as training sessions do (the same walker for
+    the same seed), with the mounting calibrated for it; --fixed-walker keeps [simulator]."""
+    from capture.corpus.dataset import session_walker
+    from devices.config import SimulatorConfig
+
+    walkers = []
+    for f, seed in zip(sorted(synth_folder.glob("*.mcap")), (5, 6)):
+        meta = open_recording(f).meta
+        walker, pitch, _ = session_walker(seed, True, SimulatorConfig(), 0.5)
+        recorded = meta.devices.to_dict()["simulator"]
+        assert {k: recorded[k] for k in walker} == walker
+        assert meta.software.to_dict()["preprocess"]["mounting_pitch_deg"] == pytest.approx(pitch)
+        walkers.append(walker)
+    assert walkers[0] != walkers[1]
+    args = ["synth", "--format", "recording", "--out", str(tmp_path), "--sessions", "1"]
+    assert cli.main([*args, "--seed", "5", "--frames", "2", "--fixed-walker"]) == 0
+    (fixed,) = tmp_path.glob("*.mcap")
+    recorded = open_recording(fixed).meta.devices.to_dict()["simulator"]
+    assert recorded["speed_mps"] == SimulatorConfig().speed_mps
+    assert recorded["camera_tilt_deg"] == SimulatorConfig().camera_tilt_deg
+
+
 def test_writes_one_complete_recording_per_session(synth_folder):
     files = sorted(synth_folder.glob("*.mcap"))
     assert [f.name.split("_")[1] for f in files] == ["indoor", "outdoor"]
