@@ -85,6 +85,14 @@ class TerrainFeatures:
     inlier_fraction: float = 0.0  # profile points explained by the fitted segments
     residual_m: float | None = None  # RMS distance of those points to their segments
     segments: list = field(default_factory=list)  # [(x0, z0, x1, z1, angle_deg), ...]
+    # Where the terrain ahead changes, forward from the camera (m; None: not seen): the
+    # first riser up, the first drop (a nosing), the start of a ramp up or down, the start
+    # of level ground after stairs or a ramp (terrain_edges).
+    edge_rise_m: float | None = None
+    edge_drop_m: float | None = None
+    edge_ramp_up_m: float | None = None
+    edge_ramp_down_m: float | None = None
+    edge_level_m: float | None = None
 
 
 @dataclass
@@ -187,6 +195,8 @@ def terrain_features(
         or TerrainFeatures()
     )
     result.ahead_slope_deg = _slope_at(segments, AHEAD_M)
+    for name, x_m in terrain_edges(segments).items():
+        setattr(result, f"edge_{name}_m", x_m)
     result.inlier_fraction = inlier_fraction
     result.residual_m = residual
     result.segments = [
@@ -194,6 +204,82 @@ def terrain_features(
         for s in segments
     ]
     return result
+
+
+# Edges: a riser is a steep piece rising more than RISER_MIN_M above the ground before it
+# (or a tread that much higher); level ground after stairs or a ramp is a flat stretch longer
+# than any tread (TREAD_MAX_M would take a landing for a tread: 0.45 m is the longest tread
+# the courses and the codes allow, 0.38 m, with a margin).
+RISER_STEEP_DEG = 45.0
+LEVEL_RUN_M = 0.45
+# Seen from above, a flight of stairs down hides its treads behind the nosings: the next
+# surface seen may lie far beyond the edge (a riser of 0.2 m hides 2 m of treads from a
+# camera 0.5 m up, 1 m before the edge), or the nosings line up as one steep slope, steeper
+# than the 15 degrees of the courses' steepest ramp (the codes allow 7).
+MAX_DROP_GAP_M = 2.0
+FLIGHT_MIN_DEG = 20.0
+EDGES = ("rise", "drop", "ramp_up", "ramp_down", "level")
+
+
+def terrain_edges(segments: list[_Segment]) -> dict[str, float | None]:
+    """Forward distance (m) of the first place along the profile, near to far, where the
+    terrain changes, by kind (EDGES): where the walker's foot would meet the next terrain.
+    Distances are along the ground from the camera (at 0); None: not in view.
+
+    - rise: a riser up (a steep piece, or the next surface starting a riser higher);
+    - drop: a nosing (the next surface a riser lower, its start hidden by the edge);
+    - ramp_up, ramp_down: the start of a slanted stretch at least RAMP_MIN_LENGTH_M long;
+    - level: the start of flat ground longer than any tread after stairs or a ramp (the
+      top or bottom riser's edge, or a ramp's end).
+    """
+    found: dict[str, float | None] = dict.fromkeys(EDGES)
+    surface: _Segment | None = None  # the last surface passed (flat or a ramp)
+    changed = False  # stairs or a ramp lie between the near ground and here
+
+    def first(kind: str, x_m: float) -> None:
+        if found[kind] is None:
+            found[kind] = float(x_m)
+
+    for s in segments:
+        x0 = float(min(s.start[0], s.end[0]))
+        steep = abs(s.angle_deg) > RISER_STEEP_DEG
+        if steep:
+            if s.length >= 0.03 and s.angle_deg > 0:
+                top = float(max(s.start[1], s.end[1]))
+                base = surface.end[1] if surface is not None else min(s.start[1], s.end[1])
+                if top - float(base) >= RISER_MIN_M:
+                    first("rise", float(np.median(s.points[:, 0])))
+                    changed = True
+            continue
+        if surface is not None:
+            step = float(s.start[1] - surface.end[1])  # height change at the junction
+            gap = float(np.percentile(s.points[:, 0], 2) - np.percentile(surface.points[:, 0], 98))
+            if step >= RISER_MIN_M and gap <= 0.05:
+                first("rise", x0)
+                changed = True
+            elif step <= -RISER_MIN_M and -0.02 <= gap <= MAX_DROP_GAP_M:
+                edge = _nosing(surface, s)
+                first("drop", edge)
+                changed = True
+                if s.flat and s.length >= LEVEL_RUN_M:
+                    first("level", edge)
+        if s.flat:
+            if changed and s.length >= LEVEL_RUN_M:
+                first("level", x0)
+        elif _ramp_piece(s, RAMP_MIN_LENGTH_M) and abs(s.angle_deg) > FLIGHT_MIN_DEG:
+            # steeper than any walkable ramp: a flight of stairs, its nosings in a line
+            if surface is not None:
+                first("rise" if s.angle_deg > 0 else "drop", x0)
+            changed = True
+        elif _ramp_piece(s, RAMP_MIN_LENGTH_M):
+            if surface is not None and (surface.flat or surface.angle_deg * s.angle_deg < 0):
+                # a ramp after other ground; the first surface seen is the ground walked
+                first("ramp_up" if s.angle_deg > 0 else "ramp_down", x0)
+            changed = True
+        elif not _ramp_piece(s, 0.02):
+            continue  # too short to be a surface of its own: noise, a nosing's corner
+        surface = s
+    return found
 
 
 # The mode each kind of terrain shows: the geometry cue of fusion (GeometryFusion).

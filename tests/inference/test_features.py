@@ -280,3 +280,46 @@ def test_far_level_ground_zig_zagging_with_the_noise_stays_level(noise_rel, most
     assert len(slopes) >= 40
     assert abs(np.median(slopes)) < 0.5
     assert np.mean(np.abs(slopes) > 3.0) <= most_beyond
+
+
+# ---- edges: where the terrain ahead changes ------------------------------------------------
+
+
+def edges_over_poses(terrain, kind: str, seed: int, count: int = 10) -> list[float | None]:
+    """edge_<kind>_m of the terrain seen from a set of walking poses."""
+    feats = features_over_poses(terrain, count=count, seed=seed, pitch_deg=(-15, 5))
+    return [getattr(f, f"edge_{kind}_m") for f in feats]
+
+
+def crest(angle_deg: float, at_m: float) -> list[tuple[float, float]]:
+    """A ramp under the camera that ends `at_m` ahead in level ground (a crest, going up;
+    the foot of a ramp down)."""
+    k = np.tan(np.radians(angle_deg))
+    return [(-5.0, -(at_m + 5.0) * k), (at_m, 0.0), (10.0, 0.0)]
+
+
+@pytest.mark.parametrize(
+    ("terrain", "kind", "at_m"),
+    [
+        (tr.stairs(0.16, 0.3, first_m=1.2), "rise", 1.2),
+        (tr.stairs(0.17, 0.32, first_m=1.0, up=False), "drop", 1.0),
+        (tr.ramp(10.0, start_m=1.1), "ramp_up", 1.1),
+        (tr.ramp(-9.0, start_m=1.1), "ramp_down", 1.1),
+        (crest(8.0, 1.1), "level", 1.1),
+        (crest(-10.0, 1.0), "level", 1.0),
+    ],
+)
+def test_the_first_edge_ahead_is_where_the_terrain_changes(terrain, kind, at_m):
+    seen = [x for x in edges_over_poses(terrain, kind, seed=int(at_m * 100)) if x is not None]
+    assert len(seen) >= 6
+    assert abs(np.median(seen) - at_m) < 0.04
+
+
+@pytest.mark.parametrize("kind", ["rise", "drop", "ramp_up", "ramp_down", "level"])
+def test_level_ground_has_no_edge(kind):
+    assert all(x is None for x in edges_over_poses(tr.level(), kind, seed=7))
+
+
+def test_a_ramp_underfoot_is_no_ramp_edge():
+    """The ground walked is no edge: on a ramp, the ramp's start is behind."""
+    assert all(x is None for x in edges_over_poses(tr.ramp(10.0), "ramp_up", seed=8))
