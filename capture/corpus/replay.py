@@ -196,10 +196,11 @@ def replay_steps(
     from capture.recording.encode import Encoded
     from capture.recording.reader import FrameAssembler, open_recording
     from capture.recording.versions import needs_upgrade
-    from inference.preprocess import preprocess
+    from inference.preprocess import preprocess_ranges
 
     rec = open_recording(source)
-    frames = FrameAssembler(rec, gray=False)
+    frames = FrameAssembler(rec, gray=False, points=False)
+    rays = frames.rays.astype(np.float32, copy=False)
     # a file of the current format holds its messages as this version encodes them
     as_recorded = not needs_upgrade(rec.format_version)
     order = SampleOrder(times)
@@ -227,7 +228,9 @@ def replay_steps(
         frame = frames.frame(entry)  # device_time_ns: the entry's publish time
         q, age_ns = track.at(frame.device_time_ns)
         level = q if q is not None else np.full(4, np.nan)
-        pre = preprocess(frame.xyz, frame.confidence, level, params, age_ns, mounting)
+        pre = preprocess_ranges(
+            frame.range_mm, rays, frame.confidence, level, params, age_ns, mounting
+        )
         messages = _frame_messages(frame, q, pre, recorded if as_recorded else None)
         slim, slim_pre = _slim(frame, pre)
         return ReplayStep(slim, q, slim_pre, messages, imu, **came)
@@ -395,7 +398,7 @@ class _ReaderProcess:
 def _serve_prepared(conn, source: str, params, mounting) -> None:
     from capture.recording.encode import encode_processed  # noqa: F401  (imported meanwhile)
     from capture.recording.reader import FrameAssembler  # noqa: F401
-    from inference.preprocess import preprocess  # noqa: F401
+    from inference.preprocess import preprocess_ranges  # noqa: F401
 
     try:
         conn.send(("ready",))

@@ -1,0 +1,126 @@
+"""The compiled steps of inference.preprocess: points from ranges, the corridor's points,
+the isolated ones removed, the binary image.
+
+Each step gives what the straightforward numpy functions of inference.preprocess give,
+bit for bit: the same float32 operations in the same order (numpy compares a float32
+array with a threshold cast to float32, and so do these, given float32 thresholds). The
+dot products that level the points stay with numpy (its BLAS rounds as it does), between
+these steps. Compiled by numba on first use and cached, as inference.profile_fit.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True)
+def points_from_ranges(mm, rays):
+    """(H * W, 3) float32 camera-frame points in metres from (H, W) ranges in mm and
+    (H, W, 3) float32 unit rays (capture.recording.topics.xyz_from_range, flattened)."""
+    h, w = mm.shape
+    out = np.empty((h * w, 3), np.float32)
+    scale = np.float32(0.001)
+    for r in range(h):
+        for c in range(w):
+            metres = np.float32(mm[r, c]) * scale
+            k = r * w + c
+            out[k, 0] = metres * rays[r, c, 0]
+            out[k, 1] = metres * rays[r, c, 1]
+            out[k, 2] = metres * rays[r, c, 2]
+    return out
+
+
+@njit(cache=True, nogil=True)
+def corridor_indices(y, confidence, half, min_confidence):
+    """The indices of the points within `half` of the corridor's centre line (y: their
+    lateral coordinate) and of at least `min_confidence`, in order."""
+    n = len(y)
+    out = np.empty(n, np.int64)
+    k = 0
+    for i in range(n):
+        if abs(y[i]) <= half and confidence[i] >= min_confidence:
+            out[k] = i
+            k += 1
+    return out[:k]
+
+
+@njit(cache=True, nogil=True)
+def gather(flat, index):
+    """flat[index] for (N, 3) points."""
+    out = np.empty((len(index), 3), flat.dtype)
+    for k in range(len(index)):
+        i = index[k]
+        out[k, 0], out[k, 1], out[k, 2] = flat[i, 0], flat[i, 1], flat[i, 2]
+    return out
+
+
+@njit(cache=True, nogil=True)
+def corridor_cloud(
+    x, y, z, keep, min_forward, max_forward, min_height, max_height, cell, min_points
+):
+    """The leveled cloud (N, 3) of the corridor's points (x forward and z up of each, y
+    lateral of every point, `keep` the corridor's indices into y) inside the box, without
+    those whose 3 x 3 sagittal cells of `cell` (a float32 1 / cell size) hold fewer than
+    `min_points` points (min_points <= 1: every point kept)."""
+    n = len(x)
+    cloud = np.empty((n, 3), np.float32)
+    m = 0
+    for k in range(n):
+        xk, zk = x[k], z[k]
+        if xk >= min_forward and xk <= max_forward and zk >= min_height and zk <= max_height:
+            cloud[m, 0], cloud[m, 1], cloud[m, 2] = xk, y[keep[k]], zk
+            m += 1
+    cloud = cloud[:m]
+    if min_points <= 1 or m == 0:
+        return cloud
+    x_min, z_min = cloud[0, 0], cloud[0, 2]
+    for k in range(m):
+        x_min = min(x_min, cloud[k, 0])
+        z_min = min(z_min, cloud[k, 2])
+    ix = np.empty(m, np.int32)
+    iz = np.empty(m, np.int32)
+    width = height = 0
+    for k in range(m):  # one empty cell around
+        ix[k] = np.int32((cloud[k, 0] - x_min) * cell) + 1
+        iz[k] = np.int32((cloud[k, 2] - z_min) * cell) + 1
+        width = max(width, ix[k] + 2)
+        height = max(height, iz[k] + 2)
+    counts = np.zeros((height, width), np.int32)
+    for k in range(m):
+        counts[iz[k], ix[k]] += 1
+    dense = np.empty((m, 3), np.float32)
+    kept = 0
+    for k in range(m):
+        r, c = iz[k], ix[k]
+        box = 0
+        for dr in range(-1, 2):
+            for dc in range(-1, 2):
+                box += counts[r + dr, c + dc]
+        if box >= min_points:
+            dense[kept] = cloud[k]
+            kept += 1
+    return dense[:kept]
+
+
+@njit(cache=True, nogil=True)
+def rasterise(profile, grid, cell):
+    """inference.preprocess.rasterise of float32 (N, 2) points with `cell` a float32
+    1 / cell size: the image, and the minimum x and (of the points the x crop kept) z."""
+    image = np.zeros((grid, grid), np.uint8)
+    n = len(profile)
+    x_min = profile[0, 0]
+    for k in range(n):
+        x_min = min(x_min, profile[k, 0])
+    col = np.empty(n, np.int32)
+    z_min = np.float32(np.inf)
+    for k in range(n):
+        col[k] = np.int32((profile[k, 0] - x_min) * cell) + 1
+        if col[k] < grid:
+            z_min = min(z_min, profile[k, 1])
+    for k in range(n):
+        if col[k] < grid:
+            up = np.int32((profile[k, 1] - z_min) * cell) + 1
+            if up < grid:
+                image[grid - 1 - up, col[k]] = 1
+    return image, x_min, z_min
