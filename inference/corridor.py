@@ -124,3 +124,25 @@ def rasterise(profile, grid, cell):
             if up < grid:
                 image[grid - 1 - up, col[k]] = 1
     return image, x_min, z_min
+
+
+@njit(cache=True, nogil=True)
+def first_in_voxel(points, voxel):
+    """The indices of the first of the (N, 3) float32 points in each voxel of `voxel`
+    (float32) metres, in order: capture.recording.encode.thin_cloud's np.unique of the
+    voxels' keys, first occurrences, in the points' order."""
+    n = len(points)
+    seen = set()
+    out = np.empty(n, np.int64)
+    k = 0
+    offset = np.int64(1 << 20)
+    for i in range(n):
+        cx = np.int64(np.floor(points[i, 0] / voxel)) + offset
+        cy = np.int64(np.floor(points[i, 1] / voxel)) + offset
+        cz = np.int64(np.floor(points[i, 2] / voxel)) + offset
+        key = (cx << 42) | (cy << 21) | cz
+        if key not in seen:
+            seen.add(key)
+            out[k] = i
+            k += 1
+    return out[:k]

@@ -166,16 +166,19 @@ def _sample_time(s: ImuSample) -> int:
 @dataclass(slots=True)
 class ReplayStep:
     """One frame as replay's reader hands it on, in frame order: the frame (its bulky
-    arrays dropped once encoded), its orientation and Preprocessed, the messages the new
-    file keeps of it (`messages`: depth, confidence, cloud, image, preprocessing,
-    orientation, truth), and what the pass read since the step before: the IMU samples
-    due before the frame (`imu`: (ImuSample, its message as recorded), in sample-time
-    order), labels and events (their messages' data) and the simulator's gait events.
-    The last step has no frame: it carries what comes after the last frame."""
+    arrays dropped once encoded), its orientation and Preprocessed (its image and flag),
+    the fit of its profile (inference.features.fit_profile without the points: what the
+    terrain features need besides the fused decision; None for a frame without features),
+    the messages the new file keeps of it (`messages`: depth, confidence, cloud, image,
+    preprocessing, orientation, truth), and what the pass read since the step before: the
+    IMU samples due before the frame (`imu`: (ImuSample, its message as recorded), in
+    sample-time order), labels and events (their messages' data) and the simulator's gait
+    events. The last step has no frame: it carries what comes after the last frame."""
 
     frame: DepthFrame | None
     orientation: np.ndarray | None
     prepared: object | None
+    fit: object | None
     messages: list
     imu: list
     labels: list
@@ -196,6 +199,7 @@ def replay_steps(
     from capture.recording.encode import Encoded
     from capture.recording.reader import FrameAssembler, open_recording
     from capture.recording.versions import needs_upgrade
+    from inference.features import fit_profile
     from inference.preprocess import preprocess_ranges
 
     rec = open_recording(source)
@@ -224,7 +228,7 @@ def replay_steps(
         if steps <= skip:
             return None
         if entry is None:
-            return ReplayStep(None, None, None, [], imu, **came)
+            return ReplayStep(None, None, None, None, [], imu, **came)
         frame = frames.frame(entry)  # device_time_ns: the entry's publish time
         q, age_ns = track.at(frame.device_time_ns)
         level = q if q is not None else np.full(4, np.nan)
@@ -232,8 +236,10 @@ def replay_steps(
             frame.range_mm, rays, frame.confidence, level, params, age_ns, mounting
         )
         messages = _frame_messages(frame, q, pre, recorded if as_recorded else None)
+        # the features' hint-free part (Pipeline.process measures features of these frames)
+        fit = fit_profile(pre.profile, params.max_forward_m) if pre.ok else None
         slim, slim_pre = _slim(frame, pre)
-        return ReplayStep(slim, q, slim_pre, messages, imu, **came)
+        return ReplayStep(slim, q, slim_pre, fit and fit.without_points(), messages, imu, **came)
 
     def due() -> Iterator[ReplayStep]:
         while held and order.ready(held[0]["pub"] + IMU_LOOKAHEAD_NS):
@@ -288,13 +294,20 @@ def _frame_messages(frame: DepthFrame, q, pre, recorded: list | None) -> list:
 
 
 def _slim(frame: DepthFrame, pre) -> tuple[DepthFrame, object]:
-    """The frame and its Preprocessed without the bulky arrays the host does not use (the
-    reader process sends them): the rays come with the source's attachments."""
+    """The frame and its Preprocessed without what the host does not use (the reader
+    process sends them): the bulky arrays (the rays come with the source's attachments),
+    the camera's geometry, the cloud and the profile (the step's fit stands in for it)."""
     none = np.zeros((0, 0), np.uint8)
     slim = dataclasses.replace(
-        frame, xyz=np.zeros((0, 0, 3), np.float32), confidence=none, gray=none, range_mm=None
+        frame,
+        xyz=np.zeros((0, 0, 3), np.float32),
+        confidence=none,
+        gray=none,
+        range_mm=None,
+        geometry=None,
     )
-    return slim, dataclasses.replace(pre, cloud=np.zeros((0, 3), np.float32))
+    cloud, profile = np.zeros((0, 3), np.float32), np.zeros((0, 2), np.float32)
+    return slim, dataclasses.replace(pre, cloud=cloud, profile=profile, details={})
 
 
 class _ReaderProcess:
@@ -398,6 +411,7 @@ class _ReaderProcess:
 def _serve_prepared(conn, source: str, params, mounting) -> None:
     from capture.recording.encode import encode_processed  # noqa: F401  (imported meanwhile)
     from capture.recording.reader import FrameAssembler  # noqa: F401
+    from inference.features import fit_profile  # noqa: F401
     from inference.preprocess import preprocess_ranges  # noqa: F401
 
     try:
@@ -609,7 +623,12 @@ def _replay(job: _ReplayJob, blocks) -> ReplayReport:
                         time.sleep(wait)
                 recorded(step)
                 result = pipeline.process(
-                    frame, step.orientation, t, prepared=step.prepared, probabilities=p
+                    frame,
+                    step.orientation,
+                    t,
+                    prepared=step.prepared,
+                    probabilities=p,
+                    fit=step.fit,
                 )
                 recorder.write_encoded(frame.index, t, frame.host_time_ns, step.messages)
                 record_decisions(recorder, result, frame.host_time_ns)

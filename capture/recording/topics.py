@@ -189,6 +189,8 @@ def image_from_message(msg: RawImage) -> np.ndarray:
 def binary_image_u8(image: np.ndarray) -> np.ndarray:
     """The classifier input as mono8: 0/1 (or bool) become 0/255 so it is visible."""
     a = np.asarray(image)
+    if a.dtype == np.uint8 and a.size and a.max() <= 1:  # the preprocessing's image
+        return a * np.uint8(255)
     if a.dtype == bool or (a.size and float(np.nanmax(a)) <= 1.0):
         return (np.nan_to_num(a.astype(np.float32)) * 255).round().astype(np.uint8)
     return np.clip(np.nan_to_num(a), 0, 255).astype(np.uint8)

@@ -147,3 +147,18 @@ def test_a_fit_without_its_points_classifies_the_same(frames):
         assert all(s.index is None for s in slim.segments)
         for hint in HINTS:
             assert classify(slim, hint) == classify(fit, hint)
+
+
+def test_the_clouds_thinning_keeps_the_first_point_of_each_voxel_as_np_unique_does(frames):
+    """capture.recording.encode.thin_cloud's kernel against numpy's unique voxel keys."""
+    from inference.corridor import first_in_voxel
+
+    voxel = 0.02
+    for frame, q in frames[::6]:
+        cloud = preprocess(frame.xyz, frame.confidence, q, PARAMS).cloud
+        cloud = np.concatenate([cloud, -cloud[::7]])  # both signs, repeated voxels
+        cells = np.floor(cloud / voxel).astype(np.int64) + (1 << 20)
+        key = (cells[:, 0] << 42) | (cells[:, 1] << 21) | cells[:, 2]
+        _, first = np.unique(key, return_index=True)
+        kept = first_in_voxel(cloud, np.float32(voxel))
+        assert np.array_equal(kept, np.sort(first)) and 0 < len(kept) < len(cloud)
