@@ -36,12 +36,11 @@ def corridor_indices(y, confidence, half, min_confidence):
     """The indices of the points within `half` of the corridor's centre line (y: their
     lateral coordinate) and of at least `min_confidence`, in order."""
     n = len(y)
-    out = np.empty(n, np.int64)
+    out = np.empty(n + 1, np.int64)
     k = 0
-    for i in range(n):
-        if abs(y[i]) <= half and confidence[i] >= min_confidence:
-            out[k] = i
-            k += 1
+    for i in range(n):  # without a branch: every index written, the kept ones advance
+        out[k] = i
+        k += (abs(y[i]) <= half) & (confidence[i] >= min_confidence)
     return out[:k]
 
 
@@ -130,9 +129,12 @@ def rasterise(profile, grid, cell):
 def first_in_voxel(points, voxel):
     """The indices of the first of the (N, 3) float32 points in each voxel of `voxel`
     (float32) metres, in order: capture.recording.encode.thin_cloud's np.unique of the
-    voxels' keys, first occurrences, in the points' order."""
+    voxels' keys, first occurrences, in the points' order (a hash table of the keys)."""
     n = len(points)
-    seen = set()
+    size = 1
+    while size < 2 * n:
+        size *= 2
+    table = np.full(size, -1, np.int64)  # keys are >= 0: the cells are offset by 2^20
     out = np.empty(n, np.int64)
     k = 0
     offset = np.int64(1 << 20)
@@ -141,8 +143,11 @@ def first_in_voxel(points, voxel):
         cy = np.int64(np.floor(points[i, 1] / voxel)) + offset
         cz = np.int64(np.floor(points[i, 2] / voxel)) + offset
         key = (cx << 42) | (cy << 21) | cz
-        if key not in seen:
-            seen.add(key)
+        slot = ((key * np.int64(-7046029254386353131)) >> 20) & (size - 1)
+        while table[slot] != -1 and table[slot] != key:
+            slot = (slot + 1) & (size - 1)
+        if table[slot] == -1:
+            table[slot] = key
             out[k] = i
             k += 1
     return out[:k]

@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from devices.config import MountingConfig
-from devices.rotations import mounting_matrix, quat_to_matrix
+from devices.rotations import mounting_matrix, quat_normalize
 from inference.config import PreprocessConfig
 
 log = logging.getLogger(__name__)
@@ -108,6 +108,19 @@ def _mounting(roll_deg: float, pitch_deg: float, yaw_deg: float) -> np.ndarray:
     return mounting_matrix(roll_deg, pitch_deg, yaw_deg)
 
 
+def _rotation(q: np.ndarray) -> np.ndarray:
+    """devices.rotations.quat_to_matrix of one quaternion, bit for bit (its normalisation,
+    then the same float operations on Python floats instead of numpy's 0-d arrays)."""
+    w, x, y, z = quat_normalize(q).tolist()
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
 def leveling_matrix(
     quaternion: np.ndarray, mounting: MountingConfig = NOMINAL_MOUNTING
 ) -> np.ndarray | None:
@@ -121,7 +134,7 @@ def leveling_matrix(
     norm = float(np.linalg.norm(q))
     if not 0.5 < norm < 2.0:  # a real orientation filter never drifts this far
         return None
-    cam_to_world = quat_to_matrix(q / norm) @ _mounting(
+    cam_to_world = _rotation(q / norm) @ _mounting(
         float(mounting.roll_deg), float(mounting.pitch_deg), float(mounting.yaw_deg)
     )
     axis = cam_to_world[:, 2]  # the optical axis in the world
