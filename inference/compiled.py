@@ -14,13 +14,13 @@ from __future__ import annotations
 def warm() -> None:
     """Compile, or load from the cache, every kernel the pipeline calls, as it calls them:
     one synthetic frame preprocessed (from its points and from its ranges), its cloud
-    thinned as recorded and its profile's features; the refit of level ground's
+    thinned and rounded as recorded and its profile's features; the refit of level ground's
     stretches, which that profile may not need, on its own."""
     import numpy as np
 
     from devices.simulator.synthetic import synthetic_frame
     from inference.config import PreprocessConfig
-    from inference.corridor import first_in_voxel
+    from inference.corridor import first_in_voxel, quantized_cloud
     from inference.features import FIT_TRIM_M, terrain_features
     from inference.preprocess import preprocess, preprocess_ranges
     from inference.profile_fit import fit_points
@@ -34,6 +34,7 @@ def warm() -> None:
     preprocess_ranges(ranges, rays, frame.confidence, level, params)
     terrain_features(pre.profile, "LG", params.max_forward_m)
     first_in_voxel(pre.cloud, np.float32(0.02))  # the recorded cloud's thinning
+    quantized_cloud(pre.cloud, 2.0**-10)  # and its rounding
     pts = pre.profile.astype(np.float64)  # as features passes them: columns of a (M, 2) array
     fit_points(pts[:, 0], pts[:, 1], np.arange(len(pts)), FIT_TRIM_M)
 

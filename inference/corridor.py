@@ -151,3 +151,27 @@ def first_in_voxel(points, voxel):
             out[k] = i
             k += 1
     return out[:k]
+
+
+@njit(cache=True, nogil=True)
+def quantized_cloud(cloud, quantum):
+    """The (N, 3) points as capture.recording.topics.cloud_message records them: the finite
+    ones, sorted by x (stable), each coordinate rounded to a multiple of `quantum` in
+    float64, as float32."""
+    n = len(cloud)
+    finite = np.empty(n, np.int64)
+    m = 0
+    for i in range(n):
+        if np.isfinite(cloud[i, 0]) and np.isfinite(cloud[i, 1]) and np.isfinite(cloud[i, 2]):
+            finite[m] = i
+            m += 1
+    x = np.empty(m)
+    for k in range(m):
+        x[k] = np.float64(cloud[finite[k], 0])
+    order = np.argsort(x, kind="mergesort")
+    out = np.empty((m, 3), np.float32)
+    for k in range(m):
+        i = finite[order[k]]
+        for c in range(3):
+            out[k, c] = np.float32(np.rint(np.float64(cloud[i, c]) / quantum) * quantum)
+    return out

@@ -10,13 +10,15 @@ as recorded: the messages' bytes themselves when the file is of the current form
 
 As fast as possible (`speed=None`), the work is split over two processes, since one
 Python process cannot use a second core: a reader process reads the file, levels and
-preprocesses the frames and encodes what the new recording keeps of them (cloud, image,
-orientation); this one classifies them in batches, fuses, measures the terrain and
-records (its main thread shares the interpreter with the threads that receive the frames
-and write the file). While the reader process starts, this one prepares the first frames
-itself. The frames are classified in batches of BATCH from the first frame on, whatever
-the reader process has sent so far: the CNN's float results depend on the batch's size,
-and fixed batches give the same file on every run. Paced replays (`speed=X`), and
+preprocesses the frames, encodes what the new recording keeps of them (cloud, image,
+orientation), fits each frame's profile (the terrain features' hint-free part) and runs
+the gait detector on the IMU samples; this one classifies the frames in batches, fuses,
+classifies the fitted terrain under the fused decision and records (its main thread
+shares the interpreter with the threads that receive the frames and write the file).
+While the reader process starts, this one prepares the first frames itself. The frames
+are classified in batches of BATCH from the first frame on, whatever the reader process
+has sent so far: the CNN's float results depend on the batch's size, and fixed batches
+give the same file on every run. Paced replays (`speed=X`), and
 replays that are one task of a corpus job (`reader_process=False`: the cluster has given
 each task one core), run in this process alone.
 """
@@ -171,9 +173,11 @@ class ReplayStep:
     terrain features need besides the fused decision; None for a frame without features),
     the messages the new file keeps of it (`messages`: depth, confidence, cloud, image,
     preprocessing, orientation, truth), and what the pass read since the step before: the
-    IMU samples due before the frame (`imu`: (ImuSample, its message as recorded), in
-    sample-time order), labels and events (their messages' data) and the simulator's gait
-    events. The last step has no frame: it carries what comes after the last frame."""
+    IMU samples due before the frame, in sample-time order (`imu`: (the ImuSample when its
+    message is not copied as recorded, else None; its message as recorded; the gait events
+    the detector found at it; its receipt), labels and events (their messages' data) and
+    the simulator's gait events. The last step has no frame: it carries what comes after
+    the last frame."""
 
     frame: DepthFrame | None
     orientation: np.ndarray | None
@@ -200,6 +204,7 @@ def replay_steps(
     from capture.recording.reader import FrameAssembler, open_recording
     from capture.recording.versions import needs_upgrade
     from inference.features import fit_profile
+    from inference.gait import GaitDetector
     from inference.preprocess import preprocess_ranges
 
     rec = open_recording(source)
@@ -209,6 +214,7 @@ def replay_steps(
     as_recorded = not needs_upgrade(rec.format_version)
     order = SampleOrder(times)
     track = OrientationTrack(span_s=5.0)
+    gait = GaitDetector()  # /gait recomputed from the IMU, as live
     held: collections.deque = collections.deque()  # frames waiting for their IMU samples
     stored: dict = {}  # (topic, frame index) -> the frame's message as recorded
     news: dict = {"labels": [], "events": [], "sim_gait": []}
@@ -216,12 +222,17 @@ def replay_steps(
 
     def step(entry: dict | None) -> ReplayStep | None:
         nonlocal news, steps
-        imu = order.take(None if entry is None else entry["pub"] + IMU_LOOKAHEAD_NS)
-        for sample, _ in imu:
+        imu = []
+        for sample, message in order.take(
+            None if entry is None else entry["pub"] + IMU_LOOKAHEAD_NS
+        ):
             if sample.quaternion is not None:
                 rate = sample.rate_of_turn
                 rate = rate if rate is not None and np.isfinite(rate[0]) else None
                 track.add(_sample_time(sample), sample.quaternion, rate)
+            # the gait detector sees every sample, a skipped step's too, as live
+            events = gait.push(sample)
+            imu.append((sample if message is None else None, message, events, sample.host_time_ns))
         recorded = [] if entry is None else [stored.pop((t, entry["index"]), None) for t in _COPIED]
         came, news = news, {"labels": [], "events": [], "sim_gait": []}
         steps += 1
@@ -539,7 +550,6 @@ def _replay(job: _ReplayJob, blocks) -> ReplayReport:
     from capture.recording.chunks import ZSTD_LEVEL_FAST
     from capture.recording.writer import Recorder
     from inference import features  # noqa: F401  (imported now, not in the first frame's time)
-    from inference.gait import GaitDetector
     from inference.model import load_classifier
 
     classifier = job.classifier or load_classifier(
@@ -582,7 +592,6 @@ def _replay(job: _ReplayJob, blocks) -> ReplayReport:
     )
     recorder.start()
     batch = getattr(classifier, "predict_batch", None)
-    gait = GaitDetector()  # /gait recomputed from the IMU, as live
     sim_gait: list = []  # the walk's truth, written as recorded, in time order
 
     def recorded(step: ReplayStep) -> None:
@@ -592,14 +601,14 @@ def _replay(job: _ReplayJob, blocks) -> ReplayReport:
         for ev in step.events:
             recorder.write_event(dict(ev))
         sim_gait.extend(step.sim_gait)
-        for sample, message in step.imu:
+        for sample, message, events, received_ns in step.imu:
             if message is None:
                 recorder.write_imu(sample)
             else:
                 recorder.write_recorded([message])
-            for event in gait.push(sample):
-                recorder.write_gait(event, sample.host_time_ns)
-                pipeline.see_gait(event, sample.host_time_ns)  # as live
+            for event in events:
+                recorder.write_gait(event, received_ns)
+                pipeline.see_gait(event, received_ns)  # as live
 
     frames = 0
     first_t = last_t = None

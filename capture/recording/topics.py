@@ -225,10 +225,16 @@ _XYZ_FIELDS = [
 def cloud_message(cloud: np.ndarray, time_ns: int, frame_id: str = WORLD_FRAME) -> PointCloud:
     """The cloud as a set: finite points, rounded to CLOUD_QUANTUM_M, sorted by x (forward),
     which makes neighbours alike and the compressed cloud about 13 % smaller."""
-    points = np.asarray(cloud, dtype=np.float64).reshape(-1, 3)
-    points = points[np.all(np.isfinite(points), axis=1)]
-    points = points[np.argsort(points[:, 0], kind="stable")]
-    q = (np.rint(points / CLOUD_QUANTUM_M) * CLOUD_QUANTUM_M).astype("<f4")
+    points = np.asarray(cloud).reshape(-1, 3)
+    if points.dtype == np.float32:  # the pipeline's clouds: compiled, the same float32s
+        from inference.corridor import quantized_cloud
+
+        q = quantized_cloud(np.ascontiguousarray(points), CLOUD_QUANTUM_M)
+    else:
+        points = points.astype(np.float64)
+        points = points[np.all(np.isfinite(points), axis=1)]
+        points = points[np.argsort(points[:, 0], kind="stable")]
+        q = (np.rint(points / CLOUD_QUANTUM_M) * CLOUD_QUANTUM_M).astype("<f4")
     return PointCloud(
         timestamp=timestamp(time_ns),
         frame_id=frame_id,

@@ -162,3 +162,21 @@ def test_the_clouds_thinning_keeps_the_first_point_of_each_voxel_as_np_unique_do
         _, first = np.unique(key, return_index=True)
         kept = first_in_voxel(cloud, np.float32(voxel))
         assert np.array_equal(kept, np.sort(first)) and 0 < len(kept) < len(cloud)
+
+
+def test_the_recorded_clouds_rounding_is_numpys_bit_for_bit(frames):
+    """capture.recording.topics.cloud_message's kernel: finite points, sorted by x
+    (stable: equal x keep their order), rounded to the quantum."""
+    from inference.corridor import quantized_cloud
+
+    quantum = T.CLOUD_QUANTUM_M
+    for frame, q in frames[::6]:
+        cloud = preprocess(frame.xyz, frame.confidence, q, PARAMS).cloud.copy()
+        cloud[1::9, 0] = cloud[::9, 0][: len(cloud[1::9])]  # equal x
+        cloud[::31, 1] = np.nan
+        points = cloud.astype(np.float64)
+        points = points[np.all(np.isfinite(points), axis=1)]
+        points = points[np.argsort(points[:, 0], kind="stable")]
+        reference = (np.rint(points / quantum) * quantum).astype("<f4")
+        assert quantized_cloud(cloud, quantum).tobytes() == reference.tobytes()
+        assert 0 < len(reference) < len(cloud)
