@@ -131,9 +131,11 @@ def first_in_voxel(points, voxel):
     (float32) metres, in order: capture.recording.encode.thin_cloud's np.unique of the
     voxels' keys, first occurrences, in the points' order (a hash table of the keys)."""
     n = len(points)
-    size = 1
-    while size < 2 * n:
-        size *= 2
+    bits = 1
+    while (1 << bits) < 2 * n:
+        bits += 1
+    size = 1 << bits
+    shift = np.uint64(64 - bits)  # a slot: the top bits of the key times a golden-ratio odd
     table = np.full(size, -1, np.int64)  # keys are >= 0: the cells are offset by 2^20
     out = np.empty(n, np.int64)
     k = 0
@@ -143,7 +145,7 @@ def first_in_voxel(points, voxel):
         cy = np.int64(np.floor(points[i, 1] / voxel)) + offset
         cz = np.int64(np.floor(points[i, 2] / voxel)) + offset
         key = (cx << 42) | (cy << 21) | cz
-        slot = ((key * np.int64(-7046029254386353131)) >> 20) & (size - 1)
+        slot = np.int64((np.uint64(key) * np.uint64(0x9E3779B97F4A7C15)) >> shift)
         while table[slot] != -1 and table[slot] != key:
             slot = (slot + 1) & (size - 1)
         if table[slot] == -1:

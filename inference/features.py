@@ -101,7 +101,7 @@ class TerrainFeatures:
 class _Segment:
     profile: np.ndarray | None  # (M, 2) the sorted profile (None: left behind, without_points)
     index: np.ndarray | None  # the indices of its own points in it
-    start: np.ndarray  # (x, z), near end
+    start: np.ndarray  # (x, z), near end (a pair of floats: without_points)
     end: np.ndarray  # far end
     angle_deg: float  # of the travel direction near -> far: +90 riser up, 0 flat
     centre: np.ndarray
@@ -170,11 +170,12 @@ class _Segment:
 
     def without_points(self) -> _Segment:
         """A copy without its points, for another process: what the classification reads
-        (its figures and order statistics) worked out first."""
+        (its figures and order statistics) worked out first, its ends as float pairs."""
         for name in ("count", "length", "flat", "level", "x_p2", "x_median", "x_p98"):
             getattr(self, name)
         slim = copy.copy(self)
-        slim.profile = slim.index = None
+        slim.profile = slim.index = slim.centre = None
+        slim.start, slim.end = tuple(self.start.tolist()), tuple(self.end.tolist())
         vars(slim).pop("points", None)
         return slim
 

@@ -29,6 +29,7 @@ import collections
 import dataclasses
 import heapq
 import os
+import pickle
 import queue
 import socket
 import threading
@@ -307,7 +308,8 @@ def _frame_messages(frame: DepthFrame, q, pre, recorded: list | None) -> list:
 def _slim(frame: DepthFrame, pre) -> tuple[DepthFrame, object]:
     """The frame and its Preprocessed without what the host does not use (the reader
     process sends them): the bulky arrays (the rays come with the source's attachments),
-    the camera's geometry, the cloud and the profile (the step's fit stands in for it)."""
+    the camera's geometry, the truth, the cloud and the profile (the step's fit stands in
+    for it)."""
     none = np.zeros((0, 0), np.uint8)
     slim = dataclasses.replace(
         frame,
@@ -316,6 +318,7 @@ def _slim(frame: DepthFrame, pre) -> tuple[DepthFrame, object]:
         gray=none,
         range_mm=None,
         geometry=None,
+        truth=None,  # its message goes as recorded
     )
     cloud, profile = np.zeros((0, 3), np.float32), np.zeros((0, 2), np.float32)
     return slim, dataclasses.replace(pre, cloud=cloud, profile=profile, details={})
@@ -350,7 +353,7 @@ class _ReaderProcess:
         conn = self._child.conn
         while not self._closed.is_set():
             try:
-                message = conn.recv()
+                message = _unpacked(conn.recv_bytes())
             except (EOFError, OSError):
                 message = ("error", "replay: the frame reader process ended unexpectedly")
             except Exception as e:  # never leave the consumer waiting for nothing
@@ -426,19 +429,67 @@ def _serve_prepared(conn, source: str, params, mounting) -> None:
     from inference.preprocess import preprocess_ranges  # noqa: F401
 
     try:
-        conn.send(("ready",))
+        conn.send_bytes(_packed(("ready",)))
         skip, times = conn.recv()
         for step in replay_steps(source, params, mounting, skip=skip, times=times):
-            conn.send(("frame", step))
-        conn.send(("end",))
+            conn.send_bytes(_packed(("frame", step)))
+        conn.send_bytes(_packed(("end",)))
     except (BrokenPipeError, ConnectionResetError, EOFError):
         pass  # the replay was stopped
     except ImuOrderError:
-        conn.send(("order",))
+        conn.send_bytes(_packed(("order",)))
     except CaptureError as e:
-        conn.send(("error", str(e)))
+        conn.send_bytes(_packed(("error", str(e))))
     except Exception as e:  # a corrupt file: one message on the other side
-        conn.send(("error", f"{source}: {type(e).__name__}: {e}"))
+        conn.send_bytes(_packed(("error", f"{source}: {type(e).__name__}: {e}")))
+
+
+def _packed(message: tuple) -> bytes:
+    """A message of the reader process as it goes over the socket: the length of its
+    pickle, the pickle, then the data of a step's messages (depth, confidence, ...: the
+    bulk of its bytes) one after the other, outside the pickle: pickling copies bytes
+    into its stream and unpickling out of it again, for the best part of a frame's
+    transfer. The step's messages are left as (topic, log time, publish time, size,
+    sequence)."""
+    if message[0] != "frame":
+        head = pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL)
+        return b"".join((len(head).to_bytes(8, "little"), head))
+    step, data = message[1], []
+
+    def bare(m):
+        if m is None:
+            return None
+        data.append(m.data)
+        return (m.topic, m.log_time, m.publish_time, len(m.data), m.sequence)
+
+    step.messages = [bare(m) for m in step.messages]
+    step.imu = [(sample, bare(m), events, at) for sample, m, events, at in step.imu]
+    head = pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL)
+    return b"".join((len(head).to_bytes(8, "little"), head, *data))
+
+
+def _unpacked(payload: bytes) -> tuple:
+    """_packed's message again, a step's messages' data views of `payload`."""
+    from capture.recording.encode import Encoded
+
+    view = memoryview(payload)
+    size = int.from_bytes(view[:8], "little")
+    message = pickle.loads(view[8 : 8 + size])
+    if message[0] != "frame":
+        return message
+    step, at = message[1], 8 + size
+
+    def dressed(bare):
+        nonlocal at
+        if bare is None:
+            return None
+        topic, log_time, publish_time, size, sequence = bare
+        at += size
+        return Encoded(topic, log_time, publish_time, view[at - size : at], sequence)
+
+    step.messages = [dressed(m) for m in step.messages]
+    step.imu = [(sample, dressed(m), events, t) for sample, m, events, t in step.imu]
+    return message
 
 
 def replay(
