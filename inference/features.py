@@ -30,8 +30,6 @@ perpendicular fit would tilt far level ground down. Then:
 
 from __future__ import annotations
 
-import copy
-import dataclasses
 import functools
 import math
 from dataclasses import dataclass, field
@@ -99,9 +97,9 @@ class TerrainFeatures:
 
 @dataclass(eq=False)
 class _Segment:
-    profile: np.ndarray | None  # (M, 2) the sorted profile (None: left behind, without_points)
+    profile: np.ndarray | None  # (M, 2) the sorted profile (None: left behind, drop_points)
     index: np.ndarray | None  # the indices of its own points in it
-    start: np.ndarray  # (x, z), near end (a pair of floats: without_points)
+    start: np.ndarray  # (x, z), near end (a pair of floats once drop_points has run)
     end: np.ndarray  # far end
     angle_deg: float  # of the travel direction near -> far: +90 riser up, 0 flat
     centre: np.ndarray
@@ -168,16 +166,17 @@ class _Segment:
         """The 98th percentile of its points' forward distances: where it ends."""
         return float(np.percentile(self.points[:, 0], 98))
 
-    def without_points(self) -> _Segment:
-        """A copy without its points, for another process: what the classification reads
-        (its figures and order statistics) worked out first, its ends as float pairs."""
+    def drop_points(self) -> None:
+        """Its points left behind, for another process: what the classification reads (its
+        figures and order statistics) worked out first, its ends made float pairs. A level
+        stretch of one segment is that segment: a second call finds it done."""
+        if self.profile is None:
+            return
         for name in ("count", "length", "flat", "level", "x_p2", "x_median", "x_p98"):
             getattr(self, name)
-        slim = copy.copy(self)
-        slim.profile = slim.index = slim.centre = None
-        slim.start, slim.end = tuple(self.start.tolist()), tuple(self.end.tolist())
-        vars(slim).pop("points", None)
-        return slim
+        self.profile = self.index = self.centre = None
+        self.start, self.end = tuple(self.start.tolist()), tuple(self.end.tolist())
+        vars(self).pop("points", None)
 
 
 def terrain_features(
@@ -201,8 +200,9 @@ def terrain_features(
 class ProfileFit:
     """What a profile shows whatever the fused decision: its segments near to far, how
     well they explain it, the edges ahead, the ground's slope a step ahead and the level
-    stretches' lines (_level_stretches). classify() reads only these; the segments of
-    `without_points()` serve it as well, at a fraction of the bytes."""
+    stretches' lines (_level_stretches). classify() reads only these; the segments serve
+    it as well once `drop_points()` has left their points behind, at a fraction of the
+    bytes."""
 
     segments: list[_Segment] = field(default_factory=list)
     x_near: float = 0.0  # the nearest point's forward distance
@@ -212,12 +212,11 @@ class ProfileFit:
     ahead_slope_deg: float | None = None
     stretches: list[_Segment] = field(default_factory=list)
 
-    def without_points(self) -> ProfileFit:
-        return dataclasses.replace(
-            self,
-            segments=[s.without_points() for s in self.segments],
-            stretches=[s.without_points() for s in self.stretches],
-        )
+    def drop_points(self) -> ProfileFit:
+        """This fit, its segments' and stretches' points left behind (_Segment.drop_points)."""
+        for segment in (*self.segments, *self.stretches):
+            segment.drop_points()
+        return self
 
 
 def fit_profile(

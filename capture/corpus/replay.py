@@ -170,7 +170,7 @@ def _sample_time(s: ImuSample) -> int:
 class ReplayStep:
     """One frame as replay's reader hands it on, in frame order: the frame (its bulky
     arrays dropped once encoded), its orientation and Preprocessed (its image and flag),
-    the fit of its profile (inference.features.fit_profile without the points: what the
+    the fit of its profile (inference.features.fit_profile, its points dropped: what the
     terrain features need besides the fused decision; None for a frame without features),
     the messages the new file keeps of it (`messages`: depth, confidence, cloud, image,
     preprocessing, orientation, truth), and what the pass read since the step before: the
@@ -251,7 +251,7 @@ def replay_steps(
         # the features' hint-free part (Pipeline.process measures features of these frames)
         fit = fit_profile(pre.profile, params.max_forward_m) if pre.ok else None
         slim, slim_pre = _slim(frame, pre)
-        return ReplayStep(slim, q, slim_pre, fit and fit.without_points(), messages, imu, **came)
+        return ReplayStep(slim, q, slim_pre, fit and fit.drop_points(), messages, imu, **came)
 
     def due() -> Iterator[ReplayStep]:
         while held and order.ready(held[0]["pub"] + IMU_LOOKAHEAD_NS):
