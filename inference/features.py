@@ -95,11 +95,11 @@ class TerrainFeatures:
     edge_level_m: float | None = None
 
 
-@dataclass
+@dataclass(eq=False)
 class _Segment:
-    points: np.ndarray  # (K, 2) raw profile points assigned to it
-    index: np.ndarray  # their indices in the profile
-    start: np.ndarray  # (x, z), near end
+    profile: np.ndarray | None  # (M, 2) the sorted profile (None: left behind, drop_points)
+    index: np.ndarray | None  # the indices of its own points in it
+    start: np.ndarray  # (x, z), near end (a pair of floats once drop_points has run)
     end: np.ndarray  # far end
     angle_deg: float  # of the travel direction near -> far: +90 riser up, 0 flat
     centre: np.ndarray
@@ -107,12 +107,22 @@ class _Segment:
     first: int = 0  # the slice of the sorted profile it was fitted on
     stop: int = 0
 
+    @functools.cached_property
+    def points(self) -> np.ndarray:
+        """(K, 2) the profile's points that are its own."""
+        return self.profile[self.index]
+
+    @functools.cached_property
+    def count(self) -> int:
+        """How many points are its own."""
+        return len(self.index)
+
     @property
     def rss(self) -> float:
         """Sum of its points' squared distances to the line."""
-        return self.rms_m**2 * len(self.points)
+        return self.rms_m**2 * self.count
 
-    @property
+    @functools.cached_property
     def length(self) -> float:
         return float(np.hypot(*(self.end - self.start)))
 
@@ -120,11 +130,11 @@ class _Segment:
     def angle_se_deg(self) -> float:
         """Standard error of angle_deg: the residuals over the spread of its points along
         the line, with one independent point per NOISE_CELL_POINTS (correlated noise)."""
-        independent = max(len(self.points) / NOISE_CELL_POINTS, 2.0)
+        independent = max(self.count / NOISE_CELL_POINTS, 2.0)
         spread = max(self.length, 1e-6) * math.sqrt(independent / 12.0)
         return math.degrees(self.rms_m / spread)
 
-    @property
+    @functools.cached_property
     def flat(self) -> bool:
         """Horizontal, or not measurably sloped: a far stretch whose angle the noise
         leaves uncertain by degrees is no evidence of a ramp."""
@@ -136,28 +146,95 @@ class _Segment:
             or abs(self.angle_deg) <= FLAT_MAX_DEG + FLAT_SE * self.angle_se_deg
         )
 
+    # The order statistics of its points (the compiled fit works them out with the line).
     @functools.cached_property
     def level(self) -> float:
+        """The median height of its points."""
         return float(np.median(self.points[:, 1]))
+
+    @functools.cached_property
+    def x_p2(self) -> float:
+        """The 2nd percentile of its points' forward distances: where it begins."""
+        return float(np.percentile(self.points[:, 0], 2))
+
+    @functools.cached_property
+    def x_median(self) -> float:
+        return float(np.median(self.points[:, 0]))
+
+    @functools.cached_property
+    def x_p98(self) -> float:
+        """The 98th percentile of its points' forward distances: where it ends."""
+        return float(np.percentile(self.points[:, 0], 98))
+
+    def drop_points(self) -> None:
+        """Its points left behind, for another process: what the classification reads (its
+        figures and order statistics) worked out first, its ends made float pairs. A level
+        stretch of one segment is that segment: a second call finds it done."""
+        if self.profile is None:
+            return
+        for name in ("count", "length", "flat", "level", "x_p2", "x_median", "x_p98"):
+            getattr(self, name)
+        self.profile = self.index = self.centre = None
+        self.start, self.end = tuple(self.start.tolist()), tuple(self.end.tolist())
+        vars(self).pop("points", None)
 
 
 def terrain_features(
-    profile: np.ndarray, mode_hint: str | None = None, max_forward_m: float = MAX_FORWARD_M
+    profile: np.ndarray,
+    mode_hint: str | None = None,
+    max_forward_m: float = MAX_FORWARD_M,
+    *,
+    fit: ProfileFit | None = None,
 ) -> TerrainFeatures:
     """Features of the leveled profile ((M, 2): forward x, height z, camera at the origin).
 
     mode_hint: the fused decision ("LG", "US", "DS", "UR", "DR") or None; it only relaxes
     the evidence needed for the matching kind. max_forward_m: where the preprocessing cut
-    the profile (PreprocessConfig.max_forward_m).
+    the profile (PreprocessConfig.max_forward_m). fit: fit_profile() of the profile when
+    worked out already (replay does it in its reader process; `profile` is then unused).
     """
+    return classify(fit if fit is not None else fit_profile(profile, max_forward_m), mode_hint)
+
+
+@dataclass
+class ProfileFit:
+    """What a profile shows whatever the fused decision: its segments near to far, how
+    well they explain it, the edges ahead, the ground's slope a step ahead and the level
+    stretches' lines (_level_stretches). classify() reads only these; the segments serve
+    it as well once `drop_points()` has left their points behind, at a fraction of the
+    bytes."""
+
+    segments: list[_Segment] = field(default_factory=list)
+    x_near: float = 0.0  # the nearest point's forward distance
+    inlier_fraction: float = 0.0
+    residual_m: float | None = None
+    edges: dict = field(default_factory=dict)  # terrain_edges()
+    ahead_slope_deg: float | None = None
+    stretches: list[_Segment] = field(default_factory=list)
+
+    def drop_points(self) -> ProfileFit:
+        """This fit, its segments' and stretches' points left behind (_Segment.drop_points)."""
+        for segment in (*self.segments, *self.stretches):
+            segment.drop_points()
+        return self
+
+
+def fit_profile(
+    profile: np.ndarray, max_forward_m: float = MAX_FORWARD_M, compiled: bool = True
+) -> ProfileFit:
+    """The hint-free part of terrain_features: the profile's segments and what follows
+    from them alone. compiled False: the straightforward numpy functions below (the
+    reference inference.profile_fit is tested against) cut and fit the segments."""
     pts = np.asarray(profile, dtype=np.float64).reshape(-1, 2)
     x, z = pts[:, 0], pts[:, 1]
     keep = (x > 0) & (x < np.inf) & np.isfinite(z)  # per column: all(axis=1) costs more
     x, z = x[keep], z[keep]
     if len(x) < MIN_POINTS:
-        return TerrainFeatures()
-    rng = np.sqrt(x * x + z * z)
+        return ProfileFit()
     bins = np.floor(np.arctan2(z, x) * (1.0 / np.radians(ANGLE_BIN_DEG))).astype(np.int64)
+    if compiled:
+        return _compiled_profile_fit(x, z, bins, max_forward_m)
+    rng = np.sqrt(x * x + z * z)
     # A ray the forward cut crosses kept only its nearer points (the range noise runs along
     # the ray): its median is too near, too high on far level ground. Such rays go whole.
     cut = x > max_forward_m - CUT_MARGIN_M
@@ -165,45 +242,128 @@ def terrain_features(
         keep = ~np.isin(bins, np.unique(bins[cut]))
         x, z, rng, bins = x[keep], z[keep], rng[keep], bins[keep]
         if len(x) < MIN_POINTS:
-            return TerrainFeatures()
+            return ProfileFit()
     # Sorted by angle bin, then by range within the bin (ranges < 100 m): the polyline's
     # medians are the middle of each bin, and a segment's own points are one slice.
     order = np.argsort(bins * 128.0 + np.minimum(rng, 100.0), kind="stable")
     pts = np.column_stack((x[order], z[order]))
     bins, rng = bins[order], rng[order]
     segments = [s for run in _polyline_runs(bins, rng) for s in _fit_segments(run, pts, bins)]
+    return _profile_fit(segments, len(pts), float(x.min()), _fit_points)
+
+
+def _profile_fit(segments: list[_Segment], points: int, x_near: float, refit) -> ProfileFit:
+    """The ProfileFit of `segments` of a sorted profile of so many `points`; `refit` as
+    _level_stretches takes it."""
     if not segments:
-        return TerrainFeatures()
-    explained = np.zeros(len(pts), bool)
+        return ProfileFit()
+    explained = np.zeros(points, bool)
     for s in segments:
         explained[s.index] = True
-    inlier_fraction = float(explained.mean())
-    residual = float(
-        np.sqrt(
-            sum(s.rms_m**2 * len(s.points) for s in segments) / sum(len(s.points) for s in segments)
-        )
+    return ProfileFit(
+        segments=segments,
+        x_near=x_near,
+        inlier_fraction=float(explained.mean()),
+        residual_m=float(
+            np.sqrt(sum(s.rms_m**2 * s.count for s in segments) / sum(s.count for s in segments))
+        ),
+        edges=terrain_edges(segments),
+        ahead_slope_deg=_slope_at(segments, AHEAD_M),
+        stretches=_level_stretches(segments, refit),
     )
+
+
+def classify(fit: ProfileFit, mode_hint: str | None = None) -> TerrainFeatures:
+    """The features of a fitted profile under the fused decision `mode_hint`."""
+    segments = fit.segments
+    if not segments:
+        return TerrainFeatures()
     # A fused decision of level ground keeps the frame level while the ground a step ahead
     # (AHEAD_M) is flat, or flat pieces fill more of the image than a ramp, or make up most
     # of what is seen: a slanted piece beyond or starting inside the image (the next terrain
     # coming into view, or a far stretch the noise tilts) is not yet the ground it shows.
     result = (
         _stairs(segments, mode_hint)
-        or (mode_hint == "LG" and _level(segments, _level_shown(segments, float(x.min()))))
+        or (mode_hint == "LG" and _level(fit, _level_shown(segments, fit.x_near)))
         or _ramp(segments, mode_hint)
-        or _level(segments)
+        or _level(fit)
         or TerrainFeatures()
     )
-    result.ahead_slope_deg = _slope_at(segments, AHEAD_M)
-    for name, x_m in terrain_edges(segments).items():
+    result.ahead_slope_deg = fit.ahead_slope_deg
+    for name, x_m in fit.edges.items():
         setattr(result, f"edge_{name}_m", x_m)
-    result.inlier_fraction = inlier_fraction
-    result.residual_m = residual
+    result.inlier_fraction = fit.inlier_fraction
+    result.residual_m = fit.residual_m
     result.segments = [
         (float(s.start[0]), float(s.start[1]), float(s.end[0]), float(s.end[1]), float(s.angle_deg))
         for s in segments
     ]
     return result
+
+
+def _compiled_profile_fit(x, z, bins, max_forward_m: float) -> ProfileFit:
+    """fit_profile by inference.profile_fit, from the points kept and their angle bins."""
+    from inference import profile_fit as pf
+
+    xs, zs, bins, _, x_near, medians = pf.sorted_profile(x, z, bins, max_forward_m - CUT_MARGIN_M)
+    if len(xs) < MIN_POINTS:
+        return ProfileFit()
+    table, members = pf.segments(
+        xs,
+        zs,
+        bins,
+        medians,
+        np.radians(ANGLE_BIN_DEG),
+        MIN_BIN_POINTS,
+        BREAK_GAP_M,
+        JUMP_RATIO,
+        JUMP_WINDOW,
+        SPLIT_TOL_M,
+        FIT_TRIM_M,
+        MERGE_RSS_RATIO,
+        MERGE_MIN_KEPT,
+    )
+    pts = np.column_stack((xs, zs))
+    segments, at = [], 0
+    for row in table:
+        count = int(row[pf.COUNT])
+        segments.append(_table_segment(row, pts, members[at : at + count]))
+        at += count
+    return _profile_fit(segments, len(pts), x_near, _compiled_fit)
+
+
+def _compiled_fit(pts: np.ndarray, index: np.ndarray) -> _Segment | None:
+    """_fit_points on the points `index` of the sorted profile, by inference.profile_fit."""
+    from inference import profile_fit as pf
+
+    row, kept = pf.fit_points(pts[:, 0], pts[:, 1], index, FIT_TRIM_M)
+    return _table_segment(row[0], pts, kept) if len(row) else None
+
+
+def _table_segment(row: np.ndarray, pts: np.ndarray, index: np.ndarray) -> _Segment:
+    """A row of inference.profile_fit's segment table as a _Segment of the sorted profile
+    `pts`, its order statistics known."""
+    from inference import profile_fit as pf
+
+    seg = _Segment(
+        profile=pts,
+        index=index,
+        start=row[pf.START_X : pf.START_Z + 1],
+        end=row[pf.END_X : pf.END_Z + 1],
+        angle_deg=float(row[pf.ANGLE]),
+        centre=row[pf.CENTRE_X : pf.CENTRE_Z + 1],
+        rms_m=float(row[pf.RMS]),
+        first=int(row[pf.FIRST]),
+        stop=int(row[pf.STOP]),
+    )
+    # the cached properties, worked out already
+    vars(seg).update(
+        level=float(row[pf.LEVEL]),
+        x_p2=float(row[pf.X_P2]),
+        x_median=float(row[pf.X_MEDIAN]),
+        x_p98=float(row[pf.X_P98]),
+    )
+    return seg
 
 
 # Edges: a riser is a steep piece rising more than RISER_MIN_M above the ground before it
@@ -248,12 +408,12 @@ def terrain_edges(segments: list[_Segment]) -> dict[str, float | None]:
                 top = float(max(s.start[1], s.end[1]))
                 base = surface.end[1] if surface is not None else min(s.start[1], s.end[1])
                 if top - float(base) >= RISER_MIN_M:
-                    first("rise", float(np.median(s.points[:, 0])))
+                    first("rise", s.x_median)
                     changed = True
             continue
         if surface is not None:
             step = float(s.start[1] - surface.end[1])  # height change at the junction
-            gap = float(np.percentile(s.points[:, 0], 2) - np.percentile(surface.points[:, 0], 98))
+            gap = s.x_p2 - surface.x_p98
             if step >= RISER_MIN_M and gap <= 0.05:
                 first("rise", x0)
                 changed = True
@@ -409,7 +569,7 @@ def _merge(fitted: list[tuple[int, int, _Segment]], pts: np.ndarray):
             if key not in cache:
                 cache[key] = _fit_line(pts, a.first, b.stop)
             m = cache[key]
-            if m is None or len(m.points) < MERGE_MIN_KEPT * (len(a.points) + len(b.points)):
+            if m is None or m.count < MERGE_MIN_KEPT * (a.count + b.count):
                 continue
             ratio = m.rss / max(a.rss + b.rss, 1e-12)
             if ratio <= best_ratio:
@@ -425,11 +585,12 @@ def _merge(fitted: list[tuple[int, int, _Segment]], pts: np.ndarray):
 def _fit_line(pts: np.ndarray, first: int, stop: int) -> _Segment | None:
     """The line through pts[first:stop] by least squares along the camera's rays, refit
     once without the points beyond FIT_TRIM_M of it."""
-    return _fit_points(pts[first:stop], np.arange(first, stop), first, stop)
+    return _fit_points(pts, np.arange(first, stop), first, stop)
 
 
-def _fit_points(points: np.ndarray, index: np.ndarray, first: int = 0, stop: int = 0):
-    """_fit_line on any set of profile points (`index`: theirs in the profile)."""
+def _fit_points(pts: np.ndarray, index: np.ndarray, first: int = 0, stop: int = 0):
+    """_fit_line on any set of the sorted profile's points (`index`: theirs in it)."""
+    points = pts[index]
     for _ in range(2):
         if len(points) < 5:
             return None
@@ -452,7 +613,7 @@ def _fit_points(points: np.ndarray, index: np.ndarray, first: int = 0, stop: int
     d = end - start
     angle = float(np.degrees(np.arctan2(d[1], d[0])))
     return _Segment(
-        points=points,
+        profile=pts,
         index=index,
         start=start,
         end=end,
@@ -514,7 +675,7 @@ def _stairs(segments: list[_Segment], hint: str | None) -> TerrainFeatures | Non
         rise = b.level - a.level
         if not RISER_MIN_M <= abs(rise) <= RISER_MAX_M:
             continue
-        gap = float(np.percentile(b.points[:, 0], 2) - np.percentile(a.points[:, 0], 98))
+        gap = b.x_p2 - a.x_p98
         if rise > 0 and gap <= 0.05:
             up_rises.append(rise)
         elif rise < 0 and -0.02 <= gap <= MAX_HIDDEN_M:  # the lower tread is half hidden
@@ -536,7 +697,7 @@ def _stairs(segments: list[_Segment], hint: str | None) -> TerrainFeatures | Non
         rises = up_rises or [r for r in (_complete_riser(segments, i) for i in risers) if r]
         if not rises and len(risers) < 2:
             return None
-        edges = [float(np.median(segments[i].points[:, 0])) for i in risers]
+        edges = [segments[i].x_median for i in risers]
         tops = [float(segments[i].end[1]) for i in risers]
         bottoms = [float(segments[i].start[1]) for i in risers]
         depths = [
@@ -573,8 +734,7 @@ def _nosing(upper: _Segment, lower: _Segment) -> float:
     origin), and the first sample there lies beyond. The mean of both cancels most of
     the sampling bias.
     """
-    last = float(np.percentile(upper.points[:, 0], 98))
-    first = float(np.percentile(lower.points[:, 0], 2))
+    last, first = upper.x_p98, lower.x_p2
     if upper.level < -0.02 and lower.level < upper.level:
         return 0.5 * (last + first * upper.level / lower.level)
     return last
@@ -633,9 +793,10 @@ def _level_shown(segments: list[_Segment], x_near: float) -> bool:
     return not ramps or sum(cover(s) for s in segments if s.flat) >= max(ramps)
 
 
-def _level(segments: list[_Segment], shown: bool = False) -> TerrainFeatures | None:
+def _level(fit: ProfileFit, shown: bool = False) -> TerrainFeatures | None:
     """Level ground: flat pieces most of what is seen, or (`shown`, _level_shown) level
     ground what the image shows."""
+    segments = fit.segments
     total = sum(s.length for s in segments)
     flat = [s for s in segments if s.flat]
     if not flat or (not shown and sum(s.length for s in flat) < 0.5 * total):
@@ -643,7 +804,7 @@ def _level(segments: list[_Segment], shown: bool = False) -> TerrainFeatures | N
     # One tilt from all the stretches of level ground (a curb splits level ground into
     # stretches at two heights, not two tilts): their angles weighted by the inverse square
     # of their standard errors, so that a short far stretch the noise tilts counts for little.
-    stretches = _level_stretches(segments)
+    stretches = fit.stretches
     weights = np.array([1.0 / max(s.angle_se_deg, MIN_ANGLE_SE_DEG) ** 2 for s in stretches])
     angles = np.array([s.angle_deg for s in stretches])
     # A tilt the noise leaves this uncertain cannot tell level ground from a walkway's
@@ -653,7 +814,7 @@ def _level(segments: list[_Segment], shown: bool = False) -> TerrainFeatures | N
     return TerrainFeatures(kind="level", slope_deg=slope if measured else None)
 
 
-def _level_stretches(segments: list[_Segment]) -> list[_Segment]:
+def _level_stretches(segments: list[_Segment], refit=None) -> list[_Segment]:
     """The stretches of level ground, each one line along the rays through the points of
     its flat pieces and the short pieces between them that rise less than a riser.
 
@@ -661,7 +822,10 @@ def _level_stretches(segments: list[_Segment]) -> list[_Segment]:
     a patch read too far lies low and far along its rays, the next one read too near lies
     high and near, so the polyline zig-zags in long shallow pieces down and short steep
     ones up. Only the long ones pass as flat; their angles alone tilt the ground down.
-    One line through the whole stretch sees the noise along the rays, as it is."""
+    One line through the whole stretch sees the noise along the rays, as it is.
+
+    refit: what fits a line through points of the sorted profile, _fit_points' way (its
+    arguments: the profile and the points' indices; None: _fit_points)."""
     stretches: list[list[_Segment]] = []
     current: list[_Segment] = []
     for s in segments:
@@ -685,7 +849,7 @@ def _level_stretches(segments: list[_Segment]) -> list[_Segment]:
             out.append(stretch[0])
             continue
         # neighbours share their corner's points: each point once
-        index, first = np.unique(np.concatenate([s.index for s in stretch]), return_index=True)
-        fitted = _fit_points(np.concatenate([s.points for s in stretch])[first], index)
+        index = np.unique(np.concatenate([s.index for s in stretch]))
+        fitted = (refit or _fit_points)(stretch[0].profile, index)
         out.extend([fitted] if fitted is not None and fitted.flat else flat)
     return out

@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from devices.config import MountingConfig
-from devices.rotations import mounting_matrix, quat_to_matrix
+from devices.rotations import mounting_matrix, quat_normalize
 from inference.config import PreprocessConfig
 
 log = logging.getLogger(__name__)
@@ -108,6 +108,19 @@ def _mounting(roll_deg: float, pitch_deg: float, yaw_deg: float) -> np.ndarray:
     return mounting_matrix(roll_deg, pitch_deg, yaw_deg)
 
 
+def _rotation(q: np.ndarray) -> np.ndarray:
+    """devices.rotations.quat_to_matrix of one quaternion, bit for bit (its normalisation,
+    then the same float operations on Python floats instead of numpy's 0-d arrays)."""
+    w, x, y, z = quat_normalize(q).tolist()
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
 def leveling_matrix(
     quaternion: np.ndarray, mounting: MountingConfig = NOMINAL_MOUNTING
 ) -> np.ndarray | None:
@@ -121,7 +134,7 @@ def leveling_matrix(
     norm = float(np.linalg.norm(q))
     if not 0.5 < norm < 2.0:  # a real orientation filter never drifts this far
         return None
-    cam_to_world = quat_to_matrix(q / norm) @ _mounting(
+    cam_to_world = _rotation(q / norm) @ _mounting(
         float(mounting.roll_deg), float(mounting.pitch_deg), float(mounting.yaw_deg)
     )
     axis = cam_to_world[:, 2]  # the optical axis in the world
@@ -141,18 +154,70 @@ def preprocess(
     params: PreprocessConfig,
     orientation_age_ns: int = 0,
     mounting: MountingConfig = NOMINAL_MOUNTING,
+    *,
+    compiled: bool = True,
 ) -> Preprocessed:
     """Level, crop, clean and rasterise one depth frame (see the module docstring).
 
     xyz: (H, W, 3) metres, camera frame; confidence: (H, W), 0 = invalid;
     quaternion: [w, x, y, z] IMU -> world at the frame's time; orientation_age_ns: how far
     the quaternion is from the IMU sample it comes from (capture.live.pipeline.OrientationTrack);
-    mounting: the camera's orientation on the IMU.
+    mounting: the camera's orientation on the IMU. compiled False: the numpy backend's
+    straightforward functions (the reference inference.corridor is tested against) instead
+    of their compiled steps; the same result, bit for bit.
     """
     xyz = np.asarray(xyz)
     confidence = np.asarray(confidence)
     if xyz.ndim != 3 or xyz.shape[-1] != 3 or confidence.shape != xyz.shape[:2]:
         return empty(params, BAD_INPUT, shape=list(xyz.shape))
+    return _preprocess(
+        lambda: xyz.reshape(-1, 3),
+        xyz,
+        confidence,
+        quaternion,
+        params,
+        orientation_age_ns,
+        mounting,
+        compiled,
+    )
+
+
+def preprocess_ranges(
+    range_mm: np.ndarray,
+    rays: np.ndarray,
+    confidence: np.ndarray,
+    quaternion: np.ndarray,
+    params: PreprocessConfig,
+    orientation_age_ns: int = 0,
+    mounting: MountingConfig = NOMINAL_MOUNTING,
+) -> Preprocessed:
+    """preprocess() of the points that ranges in mm ((H, W) uint16) along the camera's unit
+    rays ((H, W, 3) float32) make (capture.recording.topics.xyz_from_range): a recording's
+    frame, without building its points first where they are not needed."""
+    range_mm, confidence = np.asarray(range_mm), np.asarray(confidence)
+    if (
+        range_mm.ndim != 2
+        or rays.shape != (*range_mm.shape, 3)
+        or confidence.shape != range_mm.shape
+        or params.backend != "numpy"
+    ):
+        xyz = (range_mm.astype(np.float32)[..., None] * np.float32(0.001)) * rays
+        return preprocess(xyz, confidence, quaternion, params, orientation_age_ns, mounting)
+    from inference.corridor import points_from_ranges
+
+    def points() -> np.ndarray:
+        return points_from_ranges(range_mm, rays.astype(np.float32, copy=False))
+
+    return _preprocess(
+        points, None, confidence, quaternion, params, orientation_age_ns, mounting, True
+    )
+
+
+def _preprocess(
+    points, xyz, confidence, quaternion, params, orientation_age_ns, mounting, compiled
+) -> Preprocessed:
+    """preprocess() once its input is checked: `points()` makes the (N, 3) points (xyz
+    flattened; xyz None: the open3d backend is not asked for)."""
     if orientation_age_ns > params.max_orientation_age_ms * 1e6:
         return empty(params, STALE_ORIENTATION, age_ms=orientation_age_ns * 1e-6)
     level = leveling_matrix(quaternion, mounting)
@@ -162,23 +227,36 @@ def preprocess(
     if elevation > params.max_elevation_deg:
         return empty(params, LOOKING_UP, elevation)
 
+    flat = None
     if params.backend == "open3d":
         cloud = _corridor_open3d(xyz, confidence, level, params)
+    elif compiled:
+        flat = points()
+        cloud = _corridor_compiled(flat, confidence, level, params)
     else:
-        cloud = _corridor_numpy(xyz, confidence, level, params)
+        flat = points()
+        cloud = _corridor_numpy(flat, confidence, level, params)
 
     if len(cloud) < params.min_points:
-        valid = confidence >= params.min_confidence
+        flat = points() if flat is None else flat
+        valid = confidence.reshape(-1) >= params.min_confidence
         n_valid = int(np.count_nonzero(valid))
         if n_valid == 0:
             return empty(params, NO_VALID_POINTS, elevation)
-        n_finite = int(np.count_nonzero(np.isfinite(xyz[valid]).all(axis=1)))
+        n_finite = int(np.count_nonzero(np.isfinite(flat[valid]).all(axis=1)))
         if n_finite == 0:
             return empty(params, NAN_INPUT, elevation, valid=n_valid)
         return empty(params, EMPTY_CORRIDOR, elevation, valid=n_valid, corridor=len(cloud))
 
     profile = np.ascontiguousarray(cloud[:, [0, 2]])
-    image, origin = rasterise(profile, params.grid_size, params.cell_m)
+    if compiled:
+        from inference import corridor
+
+        grid, cell = params.grid_size, params.cell_m
+        image, x_min, z_min = corridor.rasterise(profile, grid, np.float32(1.0 / cell))
+        origin = (float(x_min) - cell, float(z_min) - cell)
+    else:
+        image, origin = rasterise(profile, params.grid_size, params.cell_m)
     return Preprocessed(
         image=image,
         cloud=cloud,
@@ -222,10 +300,43 @@ def rasterise(
     return image, (x_min - cell_m, z_min - cell_m)
 
 
-def _corridor_numpy(
-    xyz: np.ndarray, confidence: np.ndarray, level: np.ndarray, params: PreprocessConfig
+def _corridor_compiled(
+    flat: np.ndarray, confidence: np.ndarray, level: np.ndarray, params: PreprocessConfig
 ) -> np.ndarray:
-    flat = xyz.reshape(-1, 3)
+    """_corridor_numpy by inference.corridor's steps, the dot products by numpy's."""
+    from inference import corridor
+
+    rows = level.astype(np.float32)
+    with np.errstate(invalid="ignore", over="ignore"):
+        y = flat @ rows[1]
+    keep = corridor.corridor_indices(
+        y,
+        confidence.reshape(-1),
+        np.float32(params.corridor_width_m / 2),
+        params.min_confidence,
+    )
+    near = corridor.gather(flat, keep)
+    with np.errstate(invalid="ignore", over="ignore"):
+        x = near @ rows[0]
+        z = near @ rows[2]
+    f32 = np.float32
+    return corridor.corridor_cloud(
+        x,
+        y,
+        z,
+        keep,
+        f32(params.min_forward_m),
+        f32(params.max_forward_m),
+        f32(params.min_height_m),
+        f32(params.max_height_m),
+        f32(1.0 / params.outlier_cell_m),
+        params.outlier_min_points,
+    )
+
+
+def _corridor_numpy(
+    flat: np.ndarray, confidence: np.ndarray, level: np.ndarray, params: PreprocessConfig
+) -> np.ndarray:
     rows = level.astype(np.float32)
     # Crop on y (and confidence) before computing x and z: nine pixels in ten leave here.
     # NaNs fail every test.

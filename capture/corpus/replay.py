@@ -10,13 +10,15 @@ as recorded: the messages' bytes themselves when the file is of the current form
 
 As fast as possible (`speed=None`), the work is split over two processes, since one
 Python process cannot use a second core: a reader process reads the file, levels and
-preprocesses the frames and encodes what the new recording keeps of them (cloud, image,
-orientation); this one classifies them in batches, fuses, measures the terrain and
-records (its main thread shares the interpreter with the threads that receive the frames
-and write the file). While the reader process starts, this one prepares the first frames
-itself. The frames are classified in batches of BATCH from the first frame on, whatever
-the reader process has sent so far: the CNN's float results depend on the batch's size,
-and fixed batches give the same file on every run. Paced replays (`speed=X`), and
+preprocesses the frames, encodes what the new recording keeps of them (cloud, image,
+orientation), fits each frame's profile (the terrain features' hint-free part) and runs
+the gait detector on the IMU samples; this one classifies the frames in batches, fuses,
+classifies the fitted terrain under the fused decision and records (its main thread
+shares the interpreter with the threads that receive the frames and write the file).
+While the reader process starts, this one prepares the first frames itself. The frames
+are classified in batches of BATCH from the first frame on, whatever the reader process
+has sent so far: the CNN's float results depend on the batch's size, and fixed batches
+give the same file on every run. Paced replays (`speed=X`), and
 replays that are one task of a corpus job (`reader_process=False`: the cluster has given
 each task one core), run in this process alone.
 """
@@ -27,6 +29,7 @@ import collections
 import dataclasses
 import heapq
 import os
+import pickle
 import queue
 import socket
 import threading
@@ -166,16 +169,21 @@ def _sample_time(s: ImuSample) -> int:
 @dataclass(slots=True)
 class ReplayStep:
     """One frame as replay's reader hands it on, in frame order: the frame (its bulky
-    arrays dropped once encoded), its orientation and Preprocessed, the messages the new
-    file keeps of it (`messages`: depth, confidence, cloud, image, preprocessing,
-    orientation, truth), and what the pass read since the step before: the IMU samples
-    due before the frame (`imu`: (ImuSample, its message as recorded), in sample-time
-    order), labels and events (their messages' data) and the simulator's gait events.
-    The last step has no frame: it carries what comes after the last frame."""
+    arrays dropped once encoded), its orientation and Preprocessed (its image and flag),
+    the fit of its profile (inference.features.fit_profile, its points dropped: what the
+    terrain features need besides the fused decision; None for a frame without features),
+    the messages the new file keeps of it (`messages`: depth, confidence, cloud, image,
+    preprocessing, orientation, truth), and what the pass read since the step before: the
+    IMU samples due before the frame, in sample-time order (`imu`: (the ImuSample when its
+    message is not copied as recorded, else None; its message as recorded; the gait events
+    the detector found at it; its receipt), labels and events (their messages' data) and
+    the simulator's gait events. The last step has no frame: it carries what comes after
+    the last frame."""
 
     frame: DepthFrame | None
     orientation: np.ndarray | None
     prepared: object | None
+    fit: object | None
     messages: list
     imu: list
     labels: list
@@ -196,14 +204,18 @@ def replay_steps(
     from capture.recording.encode import Encoded
     from capture.recording.reader import FrameAssembler, open_recording
     from capture.recording.versions import needs_upgrade
-    from inference.preprocess import preprocess
+    from inference.features import fit_profile
+    from inference.gait import GaitDetector
+    from inference.preprocess import preprocess_ranges
 
     rec = open_recording(source)
-    frames = FrameAssembler(rec, gray=False)
+    frames = FrameAssembler(rec, gray=False, points=False)
+    rays = frames.rays.astype(np.float32, copy=False)
     # a file of the current format holds its messages as this version encodes them
     as_recorded = not needs_upgrade(rec.format_version)
     order = SampleOrder(times)
     track = OrientationTrack(span_s=5.0)
+    gait = GaitDetector()  # /gait recomputed from the IMU, as live
     held: collections.deque = collections.deque()  # frames waiting for their IMU samples
     stored: dict = {}  # (topic, frame index) -> the frame's message as recorded
     news: dict = {"labels": [], "events": [], "sim_gait": []}
@@ -211,26 +223,35 @@ def replay_steps(
 
     def step(entry: dict | None) -> ReplayStep | None:
         nonlocal news, steps
-        imu = order.take(None if entry is None else entry["pub"] + IMU_LOOKAHEAD_NS)
-        for sample, _ in imu:
+        imu = []
+        for sample, message in order.take(
+            None if entry is None else entry["pub"] + IMU_LOOKAHEAD_NS
+        ):
             if sample.quaternion is not None:
                 rate = sample.rate_of_turn
                 rate = rate if rate is not None and np.isfinite(rate[0]) else None
                 track.add(_sample_time(sample), sample.quaternion, rate)
+            # the gait detector sees every sample, a skipped step's too, as live
+            events = gait.push(sample)
+            imu.append((sample if message is None else None, message, events, sample.host_time_ns))
         recorded = [] if entry is None else [stored.pop((t, entry["index"]), None) for t in _COPIED]
         came, news = news, {"labels": [], "events": [], "sim_gait": []}
         steps += 1
         if steps <= skip:
             return None
         if entry is None:
-            return ReplayStep(None, None, None, [], imu, **came)
+            return ReplayStep(None, None, None, None, [], imu, **came)
         frame = frames.frame(entry)  # device_time_ns: the entry's publish time
         q, age_ns = track.at(frame.device_time_ns)
         level = q if q is not None else np.full(4, np.nan)
-        pre = preprocess(frame.xyz, frame.confidence, level, params, age_ns, mounting)
+        pre = preprocess_ranges(
+            frame.range_mm, rays, frame.confidence, level, params, age_ns, mounting
+        )
         messages = _frame_messages(frame, q, pre, recorded if as_recorded else None)
+        # the features' hint-free part (Pipeline.process measures features of these frames)
+        fit = fit_profile(pre.profile, params.max_forward_m) if pre.ok else None
         slim, slim_pre = _slim(frame, pre)
-        return ReplayStep(slim, q, slim_pre, messages, imu, **came)
+        return ReplayStep(slim, q, slim_pre, fit and fit.drop_points(), messages, imu, **came)
 
     def due() -> Iterator[ReplayStep]:
         while held and order.ready(held[0]["pub"] + IMU_LOOKAHEAD_NS):
@@ -285,13 +306,22 @@ def _frame_messages(frame: DepthFrame, q, pre, recorded: list | None) -> list:
 
 
 def _slim(frame: DepthFrame, pre) -> tuple[DepthFrame, object]:
-    """The frame and its Preprocessed without the bulky arrays the host does not use (the
-    reader process sends them): the rays come with the source's attachments."""
+    """The frame and its Preprocessed without what the host does not use (the reader
+    process sends them): the bulky arrays (the rays come with the source's attachments),
+    the camera's geometry, the truth, the cloud and the profile (the step's fit stands in
+    for it)."""
     none = np.zeros((0, 0), np.uint8)
     slim = dataclasses.replace(
-        frame, xyz=np.zeros((0, 0, 3), np.float32), confidence=none, gray=none, range_mm=None
+        frame,
+        xyz=np.zeros((0, 0, 3), np.float32),
+        confidence=none,
+        gray=none,
+        range_mm=None,
+        geometry=None,
+        truth=None,  # its message goes as recorded
     )
-    return slim, dataclasses.replace(pre, cloud=np.zeros((0, 3), np.float32))
+    cloud, profile = np.zeros((0, 3), np.float32), np.zeros((0, 2), np.float32)
+    return slim, dataclasses.replace(pre, cloud=cloud, profile=profile, details={})
 
 
 class _ReaderProcess:
@@ -323,7 +353,7 @@ class _ReaderProcess:
         conn = self._child.conn
         while not self._closed.is_set():
             try:
-                message = conn.recv()
+                message = _unpacked(conn.recv_bytes())
             except (EOFError, OSError):
                 message = ("error", "replay: the frame reader process ended unexpectedly")
             except Exception as e:  # never leave the consumer waiting for nothing
@@ -395,22 +425,71 @@ class _ReaderProcess:
 def _serve_prepared(conn, source: str, params, mounting) -> None:
     from capture.recording.encode import encode_processed  # noqa: F401  (imported meanwhile)
     from capture.recording.reader import FrameAssembler  # noqa: F401
-    from inference.preprocess import preprocess  # noqa: F401
+    from inference.features import fit_profile  # noqa: F401
+    from inference.preprocess import preprocess_ranges  # noqa: F401
 
     try:
-        conn.send(("ready",))
+        conn.send_bytes(_packed(("ready",)))
         skip, times = conn.recv()
         for step in replay_steps(source, params, mounting, skip=skip, times=times):
-            conn.send(("frame", step))
-        conn.send(("end",))
+            conn.send_bytes(_packed(("frame", step)))
+        conn.send_bytes(_packed(("end",)))
     except (BrokenPipeError, ConnectionResetError, EOFError):
         pass  # the replay was stopped
     except ImuOrderError:
-        conn.send(("order",))
+        conn.send_bytes(_packed(("order",)))
     except CaptureError as e:
-        conn.send(("error", str(e)))
+        conn.send_bytes(_packed(("error", str(e))))
     except Exception as e:  # a corrupt file: one message on the other side
-        conn.send(("error", f"{source}: {type(e).__name__}: {e}"))
+        conn.send_bytes(_packed(("error", f"{source}: {type(e).__name__}: {e}")))
+
+
+def _packed(message: tuple) -> bytes:
+    """A message of the reader process as it goes over the socket: the length of its
+    pickle, the pickle, then the data of a step's messages (depth, confidence, ...: the
+    bulk of its bytes) one after the other, outside the pickle: pickling copies bytes
+    into its stream and unpickling out of it again, for the best part of a frame's
+    transfer. The step's messages are left as (topic, log time, publish time, size,
+    sequence)."""
+    if message[0] != "frame":
+        head = pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL)
+        return b"".join((len(head).to_bytes(8, "little"), head))
+    step, data = message[1], []
+
+    def bare(m):
+        if m is None:
+            return None
+        data.append(m.data)
+        return (m.topic, m.log_time, m.publish_time, len(m.data), m.sequence)
+
+    step.messages = [bare(m) for m in step.messages]
+    step.imu = [(sample, bare(m), events, at) for sample, m, events, at in step.imu]
+    head = pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL)
+    return b"".join((len(head).to_bytes(8, "little"), head, *data))
+
+
+def _unpacked(payload: bytes) -> tuple:
+    """_packed's message again, a step's messages' data views of `payload`."""
+    from capture.recording.encode import Encoded
+
+    view = memoryview(payload)
+    size = int.from_bytes(view[:8], "little")
+    message = pickle.loads(view[8 : 8 + size])
+    if message[0] != "frame":
+        return message
+    step, at = message[1], 8 + size
+
+    def dressed(bare):
+        nonlocal at
+        if bare is None:
+            return None
+        topic, log_time, publish_time, size, sequence = bare
+        at += size
+        return Encoded(topic, log_time, publish_time, view[at - size : at], sequence)
+
+    step.messages = [dressed(m) for m in step.messages]
+    step.imu = [(sample, dressed(m), events, t) for sample, m, events, t in step.imu]
+    return message
 
 
 def replay(
@@ -522,7 +601,6 @@ def _replay(job: _ReplayJob, blocks) -> ReplayReport:
     from capture.recording.chunks import ZSTD_LEVEL_FAST
     from capture.recording.writer import Recorder
     from inference import features  # noqa: F401  (imported now, not in the first frame's time)
-    from inference.gait import GaitDetector
     from inference.model import load_classifier
 
     classifier = job.classifier or load_classifier(
@@ -565,7 +643,6 @@ def _replay(job: _ReplayJob, blocks) -> ReplayReport:
     )
     recorder.start()
     batch = getattr(classifier, "predict_batch", None)
-    gait = GaitDetector()  # /gait recomputed from the IMU, as live
     sim_gait: list = []  # the walk's truth, written as recorded, in time order
 
     def recorded(step: ReplayStep) -> None:
@@ -575,14 +652,14 @@ def _replay(job: _ReplayJob, blocks) -> ReplayReport:
         for ev in step.events:
             recorder.write_event(dict(ev))
         sim_gait.extend(step.sim_gait)
-        for sample, message in step.imu:
+        for sample, message, events, received_ns in step.imu:
             if message is None:
                 recorder.write_imu(sample)
             else:
                 recorder.write_recorded([message])
-            for event in gait.push(sample):
-                recorder.write_gait(event, sample.host_time_ns)
-                pipeline.see_gait(event, sample.host_time_ns)  # as live
+            for event in events:
+                recorder.write_gait(event, received_ns)
+                pipeline.see_gait(event, received_ns)  # as live
 
     frames = 0
     first_t = last_t = None
@@ -606,7 +683,12 @@ def _replay(job: _ReplayJob, blocks) -> ReplayReport:
                         time.sleep(wait)
                 recorded(step)
                 result = pipeline.process(
-                    frame, step.orientation, t, prepared=step.prepared, probabilities=p
+                    frame,
+                    step.orientation,
+                    t,
+                    prepared=step.prepared,
+                    probabilities=p,
+                    fit=step.fit,
                 )
                 recorder.write_encoded(frame.index, t, frame.host_time_ns, step.messages)
                 record_decisions(recorder, result, frame.host_time_ns)

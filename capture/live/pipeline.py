@@ -237,9 +237,11 @@ class Pipeline:
         prepared=None,
         probabilities: np.ndarray | None = None,
         orientation_age_ns: int = 0,
+        fit=None,
     ) -> FrameResult:
-        """The whole frame; `prepared` and `probabilities` when worked out ahead (replay
-        preprocesses in another process and classifies in batches).
+        """The whole frame; `prepared`, `probabilities` and `fit` (the profile's
+        inference.features.fit_profile) when worked out ahead (replay preprocesses and fits
+        in another process and classifies in batches).
 
         A frame whose orientation is stale or bad (inference.preprocess.UNDECIDED) gets no
         decision: the CNN does not see it and the fusion holds (it is not fed), so nothing
@@ -280,7 +282,9 @@ class Pipeline:
                 fused.decision if fused is not None and fused.decision is not None else cnn
             ]
             feats = (
-                terrain_features(pre.profile, hint, self.params.max_forward_m) if pre.ok else None
+                terrain_features(pre.profile, hint, self.params.max_forward_m, fit=fit)
+                if pre.ok
+                else None
             )
             tilt_offset = self.tilt.offset_deg
             if feats is not None:

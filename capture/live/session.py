@@ -164,6 +164,9 @@ class Session:
                 self._classifier.predict(np.zeros((100, 100), np.uint8))
         except Exception as e:  # refused before any device opens, as a model file is
             raise InferenceError(f"the classifier fails on a blank image: {e}") from None
+        from inference import compiled
+
+        compiled.warm()  # the compiled kernels loaded (compiled, on a fresh machine's first run)
         import capture.recording.writer  # noqa: F401  (mcap, protobuf: a second of imports)
 
         # The pipeline thread gives the GIL up hundreds of times a frame (numpy, torch) and

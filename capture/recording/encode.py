@@ -56,10 +56,10 @@ def thin_cloud(cloud, voxel_m: float = CLOUD_VOXEL_M, max_points: int = CLOUD_MA
         # a quarter of a 1 cm voxel's bytes, the difference between meeting the 2.5 MB/s
         # budget at 45 fps or not (`walkcap bench`). The cloud is derived data (depth,
         # /tf and the preprocessing parameters rebuild it); the depth is kept exactly.
-        cells = np.floor(points / voxel_m).astype(np.int64) + (1 << 20)
-        key = (cells[:, 0] << 42) | (cells[:, 1] << 21) | cells[:, 2]  # one int per voxel
-        _, first = np.unique(key, return_index=True)
-        points = points[np.sort(first)]
+        # (a voxel's key: its cells, each + 2^20, in 21 bits; numpy's float32 division)
+        from inference.corridor import first_in_voxel
+
+        points = points[first_in_voxel(np.ascontiguousarray(points), np.float32(voxel_m))]
     if len(points) > max_points:
         points = points[np.linspace(0, len(points) - 1, max_points).astype(int)]
     return points

@@ -494,7 +494,10 @@ class FrameAssembler:
     truth shows that it has none. Entries hold the messages; `frame` makes the DepthFrame
     (xyz from range), so that a reader holding frames back holds millimetres only."""
 
-    def __init__(self, rec: Recording, *, gray: bool = True) -> None:
+    def __init__(self, rec: Recording, *, gray: bool = True, points: bool = True) -> None:
+        """points False: frames without their points (xyz empty), for a reader that works
+        from the ranges and `rays` (inference.preprocess.preprocess_ranges)."""
+        self.points = points
         self.rays = rec.rays()
         self.geometry = rec.geometry()
         self.parts = (T.DEPTH, T.CONFIDENCE) + ((T.GRAY,) if gray and T.GRAY in rec.topics else ())
@@ -542,12 +545,14 @@ class FrameAssembler:
         return out
 
     def frame(self, entry: dict) -> DepthFrame:
-        return _frame(entry["index"], entry, self.rays, self.geometry, entry["truth"])
+        rays = self.rays if self.points else None
+        return _frame(entry["index"], entry, rays, self.geometry, entry["truth"])
 
 
 def _frame(
-    index: int, entry: dict, rays: np.ndarray, geometry: CameraGeometry, truth: dict | None
+    index: int, entry: dict, rays: np.ndarray | None, geometry: CameraGeometry, truth: dict | None
 ) -> DepthFrame:
+    """The entry's DepthFrame; rays None: without its points."""
     depth = entry[T.DEPTH]
     confidence = entry.get(T.CONFIDENCE)
     if confidence is None:
@@ -561,7 +566,7 @@ def _frame(
         index=index,
         device_time_ns=entry["pub"],
         host_time_ns=entry["log"],
-        xyz=T.xyz_from_range(depth, rays),
+        xyz=T.xyz_from_range(depth, rays) if rays is not None else np.zeros((0, 0, 3), np.float32),
         confidence=confidence,
         gray=gray,
         geometry=geometry,

@@ -189,6 +189,8 @@ def image_from_message(msg: RawImage) -> np.ndarray:
 def binary_image_u8(image: np.ndarray) -> np.ndarray:
     """The classifier input as mono8: 0/1 (or bool) become 0/255 so it is visible."""
     a = np.asarray(image)
+    if a.dtype == np.uint8 and a.size and a.max() <= 1:  # the preprocessing's image
+        return a * np.uint8(255)
     if a.dtype == bool or (a.size and float(np.nanmax(a)) <= 1.0):
         return (np.nan_to_num(a.astype(np.float32)) * 255).round().astype(np.uint8)
     return np.clip(np.nan_to_num(a), 0, 255).astype(np.uint8)
@@ -223,10 +225,16 @@ _XYZ_FIELDS = [
 def cloud_message(cloud: np.ndarray, time_ns: int, frame_id: str = WORLD_FRAME) -> PointCloud:
     """The cloud as a set: finite points, rounded to CLOUD_QUANTUM_M, sorted by x (forward),
     which makes neighbours alike and the compressed cloud about 13 % smaller."""
-    points = np.asarray(cloud, dtype=np.float64).reshape(-1, 3)
-    points = points[np.all(np.isfinite(points), axis=1)]
-    points = points[np.argsort(points[:, 0], kind="stable")]
-    q = (np.rint(points / CLOUD_QUANTUM_M) * CLOUD_QUANTUM_M).astype("<f4")
+    points = np.asarray(cloud).reshape(-1, 3)
+    if points.dtype == np.float32:  # the pipeline's clouds: compiled, the same float32s
+        from inference.corridor import quantized_cloud
+
+        q = quantized_cloud(np.ascontiguousarray(points), CLOUD_QUANTUM_M)
+    else:
+        points = points.astype(np.float64)
+        points = points[np.all(np.isfinite(points), axis=1)]
+        points = points[np.argsort(points[:, 0], kind="stable")]
+        q = (np.rint(points / CLOUD_QUANTUM_M) * CLOUD_QUANTUM_M).astype("<f4")
     return PointCloud(
         timestamp=timestamp(time_ns),
         frame_id=frame_id,

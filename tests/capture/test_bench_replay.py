@@ -57,3 +57,24 @@ def test_a_command_is_measured_without_the_memory_of_the_process_that_starts_it(
     run = measured([sys.executable, "-c", holds_64_mib])
     assert run.returncode == 0 and run.cpu_s > 0 and len(held) == 200 << 20
     assert 64 <= run.peak_mib < 120
+
+
+def test_the_stages_of_a_replay_are_each_timed(tmp_path):
+    from capture.bench.replay import STAGES, stage_cpu
+
+    path = tmp_path / "trial.mcap"
+    write_recording(path, seconds=2.0)
+    stages = stage_cpu(path, frames=40, skip=20)
+    named = {(process, name) for process, name, _, _ in STAGES}
+    assert named <= stages.keys()
+    assert {p for p, _ in stages} == {"reader", "host"} and len(stages) == len(named) + 3
+    timed = [
+        ("reader", "preprocessing"),
+        ("reader", "fitting the profile"),
+        ("host", "CNN, batches of 16"),
+        ("host", "writer: compression (zstd)"),
+        ("reader", "sending (packing)"),
+        ("host", "receiving (unpacking)"),
+    ]
+    assert all(stages[key] > 0 for key in timed), stages
+    assert all(ms < 1000 for ms in stages.values())  # a frame's share, not the run's

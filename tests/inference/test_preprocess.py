@@ -300,3 +300,14 @@ def test_bench_reports_both_backends():
     result = bench_preprocess(frames=4)
     assert result["numpy_median_ms"] > 0 and result["open3d_median_ms"] > 0
     assert result["numpy_corridor_points"] > 100
+
+
+def test_the_levelings_rotation_is_quat_to_matrix_bit_for_bit():
+    from devices.rotations import quat_to_matrix
+    from inference.preprocess import _rotation
+
+    rng = np.random.default_rng(11)
+    for _ in range(2000):
+        q = rng.standard_normal(4)
+        q /= np.linalg.norm(q) * rng.uniform(0.9, 1.1)
+        assert np.array_equal(_rotation(q), quat_to_matrix(q))

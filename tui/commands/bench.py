@@ -36,6 +36,12 @@ def add_arguments(parser) -> None:
         "whole command as a user runs it, 3 runs each: times real time, CPU time, peak memory",
     )
     parser.add_argument(
+        "--stages",
+        action="store_true",
+        help="for --replay: instead, the CPU time a frame of each stage of the reader and the "
+        "host, the replay run in one process over --frames frames (default 2000)",
+    )
+    parser.add_argument(
         "--scale",
         action="store_true",
         help="instead: synthesize trials of growing length (--minutes) and measure each "
@@ -70,6 +76,8 @@ def run(args, config) -> int:
         return _soak(bench, args.soak, args.json)
     if args.cluster:
         return bench_corpus.run(args, config)
+    if args.replay and args.stages:
+        return _stages(args.replay, int(args.frames) or 2000, args.json, say)
     if args.replay:
         return _replay(args.replay, args.json, say)
     if args.scale:
@@ -126,6 +134,30 @@ def _replay(files: list[str], as_json: bool, say) -> int:
         return 0
     print(f"machine: {m['cpu']}, {m['cores']} cores, load {m['load_avg_1min']}")
     _print_results(results)
+    return 0
+
+
+def _stages(files: list[str], frames: int, as_json: bool, say) -> int:
+    from capture.bench.replay import stage_cpu
+
+    tables = {}
+    for f in files:
+        say(f"the stages of replaying {f}, {frames} frames")
+        tables[f] = stage_cpu(f, frames)
+    if as_json:
+        out = {
+            f: [{"process": p, "stage": s, "ms": v} for (p, s), v in t.items()]
+            for f, t in tables.items()
+        }
+        print(json.dumps(out, indent=2))
+        return 0
+    for f, table in tables.items():
+        print(f"{f}: CPU a frame, each stage ({frames} frames, one process)")
+        for process in ("reader", "host"):
+            rows = [(s, v) for (p, s), v in table.items() if p == process]
+            for stage, ms in sorted(rows, key=lambda r: -r[1]):
+                print(f"  {process:6} {stage:72} {ms:6.3f} ms")
+            print(f"  {process:6} {'in all':72} {sum(v for _, v in rows):6.3f} ms")
     return 0
 
 

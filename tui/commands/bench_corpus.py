@@ -17,7 +17,11 @@ def add_arguments(parser) -> None:
         "--rounds", type=count(1), default=2, metavar="N", help="A/B rounds (default 2)"
     )
     parser.add_argument(
-        "--frames", type=count(0), default=0, metavar="N", help="at most N frames a session"
+        "--frames",
+        type=count(0),
+        default=0,
+        metavar="N",
+        help="at most N frames a session (--cluster); frames measured (--replay --stages)",
     )
 
 

@@ -158,3 +158,46 @@ def test_replay_copies_what_it_does_not_change_as_recorded(tmp_path):
         ]
     for m, stored in zip(rec.messages([T.IMU]), a[T.IMU], strict=True):
         assert encode_imu(imu_sample(m.data))[0].data == stored[3]
+
+
+def test_the_reader_process_fits_the_profile_as_the_live_pipeline_would(tmp_path, monkeypatch):
+    """The reader process fits each frame's profile (inference.features.fit_profile) and the
+    host classifies the fit under the fused decision: the same file as the live pipeline's
+    way, the whole terrain_features on the host from the profile, gives (the features'
+    floats to the last bits: the compiled fit against numpy's, tests/inference)."""
+    from capture.live.pipeline import Pipeline
+
+    source = tmp_path / "S07_indoor_t04.mcap"
+    write_recording(source, seconds=3.0)
+    fast = R.replay(source, Config(), output=tmp_path / "fast.mcap", classifier=StandInClassifier())
+
+    slim = R._slim
+    process = Pipeline.process
+    monkeypatch.setattr(R, "_slim", lambda frame, pre: (slim(frame, pre)[0], pre))  # profile kept
+    monkeypatch.setattr(
+        Pipeline, "process", lambda self, *a, fit=None, **k: process(self, *a, **k, fit=None)
+    )
+    live = R.replay(
+        source,
+        Config(),
+        output=tmp_path / "live.mcap",
+        classifier=StandInClassifier(),
+        reader_process=False,
+    )
+    a, b = _messages(fast.output), _messages(live.output)
+    assert a.keys() == b.keys()
+    for topic in a.keys() - {T.FEATURES}:
+        assert a[topic] == b[topic], topic
+    assert len(a[T.FEATURES]) == len(b[T.FEATURES]) == fast.frames > 60
+    kinds = collections.Counter()
+    for x, y in zip(a[T.FEATURES], b[T.FEATURES]):
+        assert x[:3] == y[:3]
+        u, v = orjson.loads(x[3]), orjson.loads(y[3])
+        assert u.keys() == v.keys()
+        for key in u:
+            if isinstance(u[key], float) and isinstance(v[key], float):
+                assert abs(u[key] - v[key]) <= 1e-6, key
+            else:
+                assert u[key] == v[key], key
+        kinds[u["kind"]] += 1
+    assert fast.frames - kinds["unknown"] > 30, kinds  # terrain, measured
