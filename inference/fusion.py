@@ -27,8 +27,8 @@ each decision waits for:
   HYSTERESIS, so a short run of middling misreads (level ground read on a ramp) does not
   switch; every other switch is steady's (`HysteresisFusion`).
 - "steady+margins": steady whose every switch needs the new mode's posterior at a margin
-  by the mode switched to, higher into level ground and ramps than into stairs, each
-  frame's evidence less tempered (`MarginFusion`; delay 1).
+  by the mode switched to, higher into level ground than into stairs or a ramp
+  (`MarginFusion`; delay 1).
 - "steady+geometry": steady+hysteresis whose filter also observes each frame's terrain
   features (the mode their geometry shows, after the frame's push: `see_geometry`), so a
   riser or a slope still in view holds stairs or a ramp against a run of level-ground
@@ -483,7 +483,7 @@ METHOD_TABLE: tuple[Method, ...] = (
     Method(
         "steady+margins",
         MarginFusion,
-        ("stay",),
+        ("stay", "evidence"),
         "steady + margins",
         {
             "color": "#d6d6d6",
@@ -494,8 +494,8 @@ METHOD_TABLE: tuple[Method, ...] = (
             "linestyle": (0, (6, 1, 1, 1, 1, 1)),
         },
         "`steady` whose every switch waits for the new mode's posterior at a margin, 0.9 into "
-        "level ground or a ramp, 0.7 into stairs (the terrains a classifier mistakes for "
-        "each other and for objects that look like them)",
+        "level ground (what a classifier reads most often where it is not), 0.7 into stairs "
+        "or a ramp",
         default=True,
         bench_us=5.0,
     ),

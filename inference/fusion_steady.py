@@ -18,7 +18,6 @@ from inference.fusion_design import (
     GEOMETRY_HYSTERESIS,
     GEOMETRY_SHOWN,
     HYSTERESIS,
-    MARGIN_EVIDENCE,
     MARGINS,
     N_MODES,
     SLOPE_HOLD_FRAMES,
@@ -200,16 +199,16 @@ class MarginFusion(SteadyFusion):
 
     The first decision is steady's. After it, the decision moves to another mode only when
     that mode's posterior (steady's, for the decided frame, with `evidence`) reaches
-    `margins[mode]`: higher into level ground and ramps, which a classifier mistakes for
-    each other and for objects that look like them, than into stairs (the design in
-    inference.fusion_design: MARGINS). `probabilities` stay steady's posterior; `flush`
+    `margins[mode]`: higher into level ground, which a classifier reads most often where it
+    is not (an object's flat face, a ramp's misread), than into stairs or a ramp (the
+    design in inference.fusion_design: MARGINS). `probabilities` stay steady's posterior; `flush`
     applies the same rule to the last frame.
     """
 
     def __init__(
         self,
         stay: float = STEADY_STAY,
-        evidence: float = MARGIN_EVIDENCE,
+        evidence: float = STEADY_EVIDENCE,
         margins=MARGINS,
     ):
         if len(margins) != N_MODES or not all(0.0 <= m < 1.0 for m in margins):

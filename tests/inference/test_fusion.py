@@ -535,46 +535,43 @@ def margins_reference(posteriors: np.ndarray, margins) -> np.ndarray:
 
 
 @pytest.mark.parametrize(
-    "margins", [(0.0,) * 5, (0.9, 0.7, 0.7, 0.9, 0.9), (0.5, 0.95, 0.6, 0.8, 0.99)]
+    "margins", [(0.0,) * 5, (0.9, 0.7, 0.7, 0.7, 0.7), (0.5, 0.95, 0.6, 0.8, 0.99)]
 )
 def test_steady_margins_is_steadys_posterior_with_a_margin_by_mode(margins):
     from inference.fusion import MarginFusion
-    from inference.fusion_design import MARGIN_EVIDENCE
 
     e = random_probabilities(np.random.default_rng(12), 200, concentration=0.3)
     fusion = MarginFusion(margins=margins)
     decisions, _, posteriors = stream(fusion, e)
-    _, _, steady_posteriors = stream(SteadyFusion(evidence=MARGIN_EVIDENCE), e)
+    _, _, steady_posteriors = stream(SteadyFusion(), e)
     np.testing.assert_allclose(posteriors, steady_posteriors, rtol=1e-12)
     np.testing.assert_array_equal(decisions, margins_reference(steady_posteriors, margins))
     assert fusion.delay_frames == 1
-    if max(margins) == 0.0:  # no margins: steady itself (at the method's evidence)
-        np.testing.assert_array_equal(
-            decisions, stream(SteadyFusion(evidence=MARGIN_EVIDENCE), e)[0]
-        )
+    if max(margins) == 0.0:  # no margins: steady itself
+        np.testing.assert_array_equal(decisions, stream(SteadyFusion(), e)[0])
     fusion.reset()  # a new sequence starts without the held decision
     again = stream(fusion, e[::-1])[0]
     np.testing.assert_array_equal(
         again,
-        margins_reference(stream(SteadyFusion(evidence=MARGIN_EVIDENCE), e[::-1])[2], margins),
+        margins_reference(stream(SteadyFusion(), e[::-1])[2], margins),
     )
 
 
-def test_steady_margins_holds_a_sure_misread_run_into_level_ground_not_into_stairs():
-    """On level ground, three frames read as a ramp up at 0.8 then level ground again: steady
-    follows the ramp, steady+margins (0.9 into a ramp; the posterior peaks at 0.86) holds
-    level ground. A real change to
-    stairs up at 0.85 passes stairs' lower margin (0.7) on the same frame for both."""
+def test_steady_margins_holds_a_misread_run_into_level_ground_not_a_change_into_stairs():
+    """On a ramp up, three frames read as level ground at 0.8 then the ramp again: steady
+    follows level ground, steady+margins (0.9 into level ground; the posterior peaks at
+    0.85) holds the ramp. A real change to stairs up at 0.85 passes stairs' margin (0.7)
+    on the same frame for both."""
 
     def scores(mode: int, p: float) -> list[float]:
         return [p if j == mode else (1 - p) / 4 for j in range(5)]
 
-    frames = np.array([scores(0, 0.9)] * 30 + [scores(3, 0.8)] * 3 + [scores(0, 0.9)] * 30
+    frames = np.array([scores(3, 0.9)] * 30 + [scores(0, 0.8)] * 3 + [scores(3, 0.9)] * 30
                       + [scores(1, 0.85)] * 30)  # fmt: skip
     steady = run_offline(make_fusion("steady"), frames).final
     held = run_offline(make_fusion("steady+margins"), frames).final
-    assert 3 in set(steady[30:40]) and np.count_nonzero(np.diff(steady)) == 3
-    assert set(held[:63]) == {0} and np.count_nonzero(np.diff(held)) == 1
+    assert 0 in set(steady[30:40]) and np.count_nonzero(np.diff(steady)) == 3
+    assert set(held[:63]) == {3} and np.count_nonzero(np.diff(held)) == 1
     assert held[-1] == steady[-1] == 1
     assert np.argmax(held == 1) == np.argmax(steady[40:] == 1) + 40
 
@@ -587,7 +584,7 @@ def test_steady_margins_are_checked():
         MarginFusion(margins=(0.9, 0.7, 1.0, 0.9, 0.9))
     with pytest.raises(InferenceError, match="margins"):
         MarginFusion(margins=(0.9, 0.7))
-    assert make_fusion("steady+margins").margins == MARGINS == (0.9, 0.7, 0.7, 0.9, 0.9)
+    assert make_fusion("steady+margins").margins == MARGINS == (0.9, 0.7, 0.7, 0.7, 0.7)
 
 
 # --- steady+geometry ---------------------------------------------------------------------

@@ -90,6 +90,7 @@ def test_scores_json_equals_live_decisions(capsys, score_files):
         "hmm+voting": 3,
         "steady": 1,
         "steady+hysteresis": 1,
+        "steady+margins": 1,
     }
     assert data["parameters"]["window"] == 4
     for path, entry in zip(score_files, data["files"]):
