@@ -209,8 +209,15 @@ class Walk:
         # (a looping course or a camera started again begins the walk anew, and the IMU
         # would feel any jump between the two as a rate of turn of tens of rad/s).
         strides = max(1.0, np.floor(phase[-1] / (2 * np.pi)))
-        end = min(len(x), int(np.searchsorted(phase, strides * 2 * np.pi)) + 1)
-        x, t, phase, params = x[:end], t[:end], phase[:end], params[:end]
+        target = strides * 2 * np.pi
+        end = min(len(x) - 1, int(np.searchsorted(phase, target)))
+        x, t, phase, params = x[: end + 1], t[: end + 1], phase[: end + 1], params[: end + 1]
+        if end > 0 and phase[-1] > target:  # the last point where the stride ends exactly
+            f = (target - phase[-2]) / (phase[-1] - phase[-2])
+            x, t, phase = x.copy(), t.copy(), phase.copy()
+            x[-1] = x[-2] + f * (x[-1] - x[-2])
+            t[-1] = t[-2] + f * (t[-1] - t[-2])
+            phase[-1] = target
         self.end_x = float(x[-1])
         self._x, self._t, self._phase = x, t, phase
         self._flex_mean = np.radians(smooth(params[:, 2], 0.6)) + self.mean_offset

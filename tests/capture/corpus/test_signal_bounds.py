@@ -43,6 +43,14 @@ def test_a_looping_course_never_jumps_the_thigh(preset, seed):
     )
     rates = body_rates(camera.orientation_at, t)
     assert rates.max() < MAX_RATE_RAD_S, f"{rates.max():.1f} rad/s at the wrap"
+    # seamless: the walk ends in its first pose, and the rate of turn goes on across the
+    # wrap as it does elsewhere (a step of a few hundredths of a degree would be a glitch
+    # of a rad/s in one IMU sample, which the gait detector takes for the end of a swing)
+    q0, q_end = camera.orientation_at(0.0), camera.orientation_at(d - 1e-9)
+    assert np.degrees(2 * np.arccos(min(1.0, abs(float(np.dot(q0, q_end)))))) < 0.01
+    before = np.arange(d - 0.05, d - 0.01, 0.0005)
+    jump = np.abs(np.diff(rates[: len(before) + 40]))
+    assert jump.max() < 0.1, f"the rate of turn jumps {jump.max():.2f} rad/s at the wrap"
 
 
 @pytest.mark.parametrize("preset, seed", [("indoor", 0), ("outdoor", 3)])
