@@ -194,15 +194,15 @@ class HysteresisFusion(SteadyFusion):
         return [self._hold(out) for out in super().flush()]
 
 
-class MarginFusion(SteadyFusion):
+class MarginFusion(HysteresisFusion):
     """Steady's posterior, every switch at a margin by the mode switched to (delay 1).
 
     The first decision is steady's. After it, the decision moves to another mode only when
     that mode's posterior (steady's, for the decided frame, with `evidence`) reaches
     `margins[mode]`: higher into level ground, which a classifier reads most often where it
     is not (an object's flat face, a ramp's misread), than into stairs or a ramp (the
-    design in inference.fusion_design: MARGINS). `probabilities` stay steady's posterior; `flush`
-    applies the same rule to the last frame.
+    design in inference.fusion_design: MARGINS). HysteresisFusion is the case of a margin
+    into level ground alone; `probabilities` and `flush` are its.
     """
 
     def __init__(
@@ -213,13 +213,8 @@ class MarginFusion(SteadyFusion):
     ):
         if len(margins) != N_MODES or not all(0.0 <= m < 1.0 for m in margins):
             raise InferenceError(f"margins: expected {N_MODES} numbers in [0, 1), got {margins}")
-        super().__init__(stay, evidence)
+        super().__init__(stay, evidence, hysteresis=margins[0])
         self.margins = tuple(float(m) for m in margins)
-        self._held = -1
-
-    def _reset_state(self) -> None:
-        super()._reset_state()
-        self._held = -1
 
     def _hold(self, out: FusionOutput) -> FusionOutput:
         g, d = out.probabilities, out.decision
@@ -227,13 +222,6 @@ class MarginFusion(SteadyFusion):
             self._held = d
         out.decision = self._held
         return out
-
-    def push(self, probabilities) -> FusionOutput | None:
-        out = self._update(probabilities, self._rows)
-        return None if out is None else self._hold(out)
-
-    def flush(self) -> list[FusionOutput]:
-        return [self._hold(out) for out in super().flush()]
 
 
 class GeometryFusion(HysteresisFusion):

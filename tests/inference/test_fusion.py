@@ -463,18 +463,23 @@ def test_the_pipeline_gives_a_gait_fusion_the_cameras_elevation():
     assert seen[1] != pytest.approx(seen[0]) and max(seen) < 0  # looking down, swinging
 
 
-def hysteresis_reference(posteriors: np.ndarray, margin: float) -> np.ndarray:
-    """steady+hysteresis by its definition: steady's decision (the posterior's argmax),
-    except that a move from stairs or a ramp to level ground (0) needs level ground's
-    posterior at the margin."""
+def margins_reference(posteriors: np.ndarray, margins) -> np.ndarray:
+    """steady+margins by its definition: the first decision is steady's argmax; after it a
+    switch to another mode needs that mode's posterior at its margin."""
     out, held = [], -1
     for g in posteriors:
         best = int(np.argmax(g))
-        to_level = best == 0 and held > 0
-        if held < 0 or not to_level or g[best] >= margin:
+        if held < 0 or (best != held and g[best] >= margins[best]):
             held = best
         out.append(held)
     return np.array(out)
+
+
+def hysteresis_reference(posteriors: np.ndarray, margin: float) -> np.ndarray:
+    """steady+hysteresis by its definition: steady's decision (the posterior's argmax),
+    except that a move from stairs or a ramp to level ground (0) needs level ground's
+    posterior at the margin: a margin into level ground alone."""
+    return margins_reference(posteriors, (margin, 0.0, 0.0, 0.0, 0.0))
 
 
 @pytest.mark.parametrize("margin", [0.0, 0.6, 0.8, 0.95])
@@ -520,18 +525,6 @@ def test_steady_hysteresis_margin_is_checked_and_configured():
 
 
 # --- steady+margins ----------------------------------------------------------------------
-
-
-def margins_reference(posteriors: np.ndarray, margins) -> np.ndarray:
-    """steady+margins by its definition: the first decision is steady's argmax; after it a
-    switch to another mode needs that mode's posterior at its margin."""
-    out, held = [], -1
-    for g in posteriors:
-        best = int(np.argmax(g))
-        if held < 0 or (best != held and g[best] >= margins[best]):
-            held = best
-        out.append(held)
-    return np.array(out)
 
 
 @pytest.mark.parametrize(
