@@ -236,12 +236,17 @@ class Walk:
         self._sky = [e for e in self.events if e.kind == "sky"]
         self._gait = self._gait_events()
 
+    def _strides(self) -> int:
+        """Whole strides in the walk (it ends where a stride ends: its phase a multiple of
+        2 pi, to rounding)."""
+        return int(self._phase[-1] / (2 * np.pi) + 1e-6)
+
     # ---- gait events ----------------------------------------------------------------------
 
     def _gait_events(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(times s, kinds 0 = heel contact / 1 = toe off, foot positions m), in time order."""
         full = 2 * np.pi
-        k = np.arange(int(self._phase[-1] // full) + 1)
+        k = np.arange(self._strides() + 1)
         # each stride's peak flexion, as the thigh moves (a high knee lift moves it), within
         # a quarter stride of the swing's own (phase pi / 2)
         around = np.linspace(-np.pi / 2, np.pi / 2, 121)
@@ -273,7 +278,7 @@ class Walk:
     # ---- scheduling ---------------------------------------------------------------------
 
     def _schedule_errors(self, rng: np.random.Generator, rate: float):
-        strides = int(self._phase[-1] // (2 * np.pi))
+        strides = self._strides()
         events: list[ErrorEvent] = []
         for k in range(strides):
             for kind in ERROR_KINDS:
