@@ -482,21 +482,32 @@ def hysteresis_reference(posteriors: np.ndarray, margin: float) -> np.ndarray:
     return margins_reference(posteriors, (margin, 0.0, 0.0, 0.0, 0.0))
 
 
-@pytest.mark.parametrize("margin", [0.0, 0.6, 0.8, 0.95])
-def test_steady_hysteresis_is_steadys_posterior_with_a_switch_margin(margin):
+@pytest.mark.parametrize(
+    "method, margins",
+    [("steady+hysteresis", (m, 0.0, 0.0, 0.0, 0.0)) for m in (0.0, 0.6, 0.8, 0.95)]
+    + [("steady+margins", m) for m in ((0.9, 0.7, 0.7, 0.7, 0.7), (0.5, 0.95, 0.6, 0.8, 0.99))],
+)
+def test_a_margin_method_is_steadys_posterior_with_its_switch_margins(method, margins):
+    """steady+hysteresis (a margin into level ground alone) and steady+margins (one into
+    every mode) against their definition, on steady's posterior; all zero: steady itself."""
+    from inference.fusion import MarginFusion
+
     e = random_probabilities(np.random.default_rng(11), 200, concentration=0.3)
-    fusion = HysteresisFusion(hysteresis=margin)
+    if method == "steady+hysteresis":
+        fusion = HysteresisFusion(hysteresis=margins[0])
+    else:
+        fusion = MarginFusion(margins=margins)
     decisions, _, posteriors = stream(fusion, e)
     _, _, steady_posteriors = stream(SteadyFusion(), e)
     np.testing.assert_allclose(posteriors, steady_posteriors, rtol=1e-12)
-    np.testing.assert_array_equal(decisions, hysteresis_reference(steady_posteriors, margin))
+    np.testing.assert_array_equal(decisions, margins_reference(steady_posteriors, margins))
     assert fusion.delay_frames == 1
-    if margin == 0.0:  # no margin: steady itself
+    if max(margins) == 0.0:
         np.testing.assert_array_equal(decisions, stream(SteadyFusion(), e)[0])
     fusion.reset()  # a new sequence starts without the held decision
     again = stream(fusion, e[::-1])[0]
     np.testing.assert_array_equal(
-        again, hysteresis_reference(stream(SteadyFusion(), e[::-1])[2], margin)
+        again, margins_reference(stream(SteadyFusion(), e[::-1])[2], margins)
     )
 
 
@@ -525,29 +536,6 @@ def test_steady_hysteresis_margin_is_checked_and_configured():
 
 
 # --- steady+margins ----------------------------------------------------------------------
-
-
-@pytest.mark.parametrize(
-    "margins", [(0.0,) * 5, (0.9, 0.7, 0.7, 0.7, 0.7), (0.5, 0.95, 0.6, 0.8, 0.99)]
-)
-def test_steady_margins_is_steadys_posterior_with_a_margin_by_mode(margins):
-    from inference.fusion import MarginFusion
-
-    e = random_probabilities(np.random.default_rng(12), 200, concentration=0.3)
-    fusion = MarginFusion(margins=margins)
-    decisions, _, posteriors = stream(fusion, e)
-    _, _, steady_posteriors = stream(SteadyFusion(), e)
-    np.testing.assert_allclose(posteriors, steady_posteriors, rtol=1e-12)
-    np.testing.assert_array_equal(decisions, margins_reference(steady_posteriors, margins))
-    assert fusion.delay_frames == 1
-    if max(margins) == 0.0:  # no margins: steady itself
-        np.testing.assert_array_equal(decisions, stream(SteadyFusion(), e)[0])
-    fusion.reset()  # a new sequence starts without the held decision
-    again = stream(fusion, e[::-1])[0]
-    np.testing.assert_array_equal(
-        again,
-        margins_reference(stream(SteadyFusion(), e[::-1])[2], margins),
-    )
 
 
 def test_steady_margins_holds_a_misread_run_into_level_ground_not_a_change_into_stairs():
