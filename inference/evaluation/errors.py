@@ -87,6 +87,17 @@ class ErrorShape:
         return self._rate(self.stance)
 
 
+def _near(t: np.ndarray, changes: np.ndarray, within_s: float) -> np.ndarray:
+    """Frames within `within_s` of a change (`changes` in time order): the nearest change
+    either side of each frame, so memory stays that of the frames on trials of hours."""
+    if not len(changes):
+        return np.zeros(len(t), bool)
+    i = np.searchsorted(changes, t)
+    after = changes[np.minimum(i, len(changes) - 1)]
+    before = changes[np.maximum(i - 1, 0)]
+    return np.minimum(np.abs(after - t), np.abs(t - before)) <= within_s
+
+
 def error_shape(
     decisions: Sequence[int] | np.ndarray,
     reference: Sequence[int] | np.ndarray,
@@ -110,10 +121,7 @@ def error_shape(
     conf = np.where(scored, p[idx, np.clip(d, 0, p.shape[1] - 1)], np.nan)
     runs = _runs(wrong)
     changes = np.array([t[c.frame] for c in reference_changes(ref)])
-    if len(changes):
-        near = np.min(np.abs(t[:, None] - changes[None, :]), axis=1) <= NEAR_CHANGE_S
-    else:
-        near = np.zeros(len(t), bool)
+    near = _near(t, changes, NEAR_CHANGE_S)
     confusions: dict[tuple[int, int], int] = {}
     for a, b in zip(ref[wrong].tolist(), d[wrong].tolist()):
         confusions[(a, b)] = confusions.get((a, b), 0) + 1
