@@ -75,6 +75,19 @@ def test_augmentation_keeps_a_plausible_binary_profile():
     assert not augment_image(empty, rng).any()
 
 
+def test_augmentation_sometimes_drops_the_strays_under_a_surface():
+    """A level floor in rows 95-97 over a few strays in row 98 (the authors' shift lands on
+    the lowest stray): in some augmented images the strays are gone and the floor itself
+    sits on row 98, as a floor with no stray under it does."""
+    image = np.zeros((100, 100), np.uint8)
+    image[95:98, 1:100] = 1
+    image[98, [10, 40, 70]] = 1
+    rng = np.random.default_rng(4)
+    out = [augment_image(image, rng, tilt_deg=0.0, scale=0.0, dropout=0.0) for _ in range(60)]
+    floor_on_98 = [int(a[98].sum()) > 80 for a in out]  # else 3 strays and a few jitters
+    assert any(floor_on_98) and not all(floor_on_98)
+
+
 def test_a_mirrored_ascent_is_trained_as_the_descent_of_its_shape():
     rng = np.random.default_rng(3)
     up = draw_profile("US", rng)
