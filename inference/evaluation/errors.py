@@ -21,25 +21,33 @@ from inference.evaluation.transitions import pool_records, reference_changes
 NEAR_CHANGE_S = 0.5  # an error this close to a change of the reference is a transition's
 SURE = 0.9  # a wrong decision this sure or surer is confident
 RUN_BINS = ((1, 1), (2, 2), (3, 4), (5, 8), (9, None))  # run lengths, frames
+RUN_CAP = 9  # runs this long or longer are counted together (RUN_BINS' last)
+CONF_BINS = 1000  # confidences counted in bins of 0.001: a study's figures in fixed memory
+
+
+def _zeros(n: int):
+    return field(default_factory=lambda: np.zeros(n, np.int64))
 
 
 @dataclass
 class ErrorShape:
-    """One sequence's error figures (counts; rates and shares are properties).
+    """One sequence's error figures, as counts of fixed size whatever its length (so that
+    figures pooled over a study of long trials stay small; rates and shares are properties).
 
-    `runs`: the lengths of its runs of wrong frames (consecutive frames wrong, whatever
-    the wrong mode); `wrong_confidence` / `right_confidence`: the classifier's probability
-    of the mode it chose, on wrong and on right frames; `near_change`: wrong frames within
-    NEAR_CHANGE_S of a change of the reference; `swing` / `stance`: (frames, wrong frames)
-    between toe off and heel contact and between heel contact and toe off (0, 0 without
-    gait events); `confusions`: wrong frames per (reference mode, decision) pair."""
+    `run_lengths[k]`: runs of k consecutive wrong frames (whatever the wrong mode), k up to
+    RUN_CAP (that long or longer); `wrong_confidence` / `right_confidence`: the
+    classifier's probability of the mode it chose, counted in CONF_BINS bins, on wrong and
+    on right frames; `near_change`: wrong frames within NEAR_CHANGE_S of a change of the
+    reference; `swing` / `stance`: (frames, wrong frames) between toe off and heel contact
+    and between heel contact and toe off (0, 0 without gait events); `confusions`: wrong
+    frames per (reference mode, decision) pair."""
 
     frames: int
     errors: int
     minutes: float
-    runs: list[int] = field(default_factory=list)
-    wrong_confidence: list[float] = field(default_factory=list)
-    right_confidence: list[float] = field(default_factory=list)
+    run_lengths: np.ndarray = _zeros(RUN_CAP + 1)
+    wrong_confidence: np.ndarray = _zeros(CONF_BINS)
+    right_confidence: np.ndarray = _zeros(CONF_BINS)
     near_change: int = 0
     swing: tuple[int, int] = (0, 0)
     stance: tuple[int, int] = (0, 0)
@@ -50,24 +58,29 @@ class ErrorShape:
         return self.errors / self.frames if self.frames else float("nan")
 
     @property
+    def runs(self) -> int:
+        return int(self.run_lengths.sum())
+
+    @property
     def runs_per_min(self) -> float:
-        return len(self.runs) / self.minutes if self.minutes > 0 else float("nan")
+        return self.runs / self.minutes if self.minutes > 0 else float("nan")
 
     @property
     def in_runs(self) -> float:
         """The share of wrong frames in runs of two frames or more."""
-        return sum(n for n in self.runs if n >= 2) / self.errors if self.errors else float("nan")
+        return (
+            (self.errors - int(self.run_lengths[1])) / self.errors if self.errors else float("nan")
+        )
 
     def run_histogram(self) -> list[int]:
         """Runs per RUN_BINS bin."""
-        r = np.asarray(self.runs, dtype=int)
-        return [int(np.sum((r >= lo) & (r <= (hi or r.max(initial=0))))) for lo, hi in RUN_BINS]
+        return [int(self.run_lengths[lo : (hi or RUN_CAP) + 1].sum()) for lo, hi in RUN_BINS]
 
     @property
     def confident_wrong(self) -> float:
         """The share of wrong frames decided with probability SURE or more."""
-        c = np.asarray(self.wrong_confidence)
-        return float(np.mean(c >= SURE)) if len(c) else float("nan")
+        c = self.wrong_confidence
+        return float(c[_bin(SURE) :].sum() / c.sum()) if c.sum() else float("nan")
 
     @property
     def near_change_share(self) -> float:
@@ -130,9 +143,9 @@ def error_shape(
         frames=int(scored.sum()),
         errors=int(wrong.sum()),
         minutes=minutes,
-        runs=runs,
-        wrong_confidence=conf[wrong].tolist(),
-        right_confidence=conf[scored & ~wrong].tolist(),
+        run_lengths=np.bincount(np.minimum(runs, RUN_CAP), minlength=RUN_CAP + 1),
+        wrong_confidence=_counts(conf[wrong]),
+        right_confidence=_counts(conf[scored & ~wrong]),
         near_change=int((wrong & near).sum()),
         swing=swing,
         stance=stance,
@@ -140,11 +153,29 @@ def error_shape(
     )
 
 
-def _runs(mask: np.ndarray) -> list[int]:
+def _runs(mask: np.ndarray) -> np.ndarray:
     """Lengths of the runs of True in `mask`."""
     m = np.concatenate([[False], np.asarray(mask, bool), [False]]).astype(np.int8)
     edges = np.flatnonzero(np.diff(m))
-    return (edges[1::2] - edges[::2]).tolist()
+    return edges[1::2] - edges[::2]
+
+
+def _bin(confidence):
+    """The CONF_BINS bin of a confidence in [0, 1] (1 in the last)."""
+    return np.minimum((np.asarray(confidence) * CONF_BINS).astype(np.int64), CONF_BINS - 1)
+
+
+def _counts(confidences: np.ndarray) -> np.ndarray:
+    return np.bincount(_bin(confidences), minlength=CONF_BINS)
+
+
+def _median(counts: np.ndarray) -> float | None:
+    """The median confidence of binned counts (its bin's middle), None without any."""
+    n = int(counts.sum())
+    if not n:
+        return None
+    k = int(np.searchsorted(np.cumsum(counts), (n + 1) / 2))
+    return (k + 0.5) / CONF_BINS
 
 
 def _phases(t, scored, wrong, heel_contacts_s, toe_offs_s) -> tuple[tuple[int, int], ...]:
@@ -188,21 +219,19 @@ def _finite(x: float) -> float | None:
 
 def summary(shape: ErrorShape) -> dict:
     """The figures as JSON: rates and shares as fractions, null where undefined."""
-    wrong = np.asarray(shape.wrong_confidence)
-    right = np.asarray(shape.right_confidence)
     return {
         "frames": shape.frames,
         "errors": shape.errors,
         "error_rate": _finite(shape.error_rate),
-        "runs": len(shape.runs),
+        "runs": shape.runs,
         "runs_per_min": _finite(shape.runs_per_min),
         "in_runs": _finite(shape.in_runs),
         "run_lengths": {
             (f"{lo}" if hi == lo else f"{lo}+" if hi is None else f"{lo}-{hi}"): n
             for (lo, hi), n in zip(RUN_BINS, shape.run_histogram())
         },
-        "confidence_wrong_median": _finite(float(np.median(wrong))) if len(wrong) else None,
-        "confidence_right_median": _finite(float(np.median(right))) if len(right) else None,
+        "confidence_wrong_median": _median(shape.wrong_confidence),
+        "confidence_right_median": _median(shape.right_confidence),
         "confident_wrong": _finite(shape.confident_wrong),
         "near_change": _finite(shape.near_change_share),
         "error_rate_swing": _finite(shape.swing_error_rate),
