@@ -145,24 +145,49 @@ def test_named_streams_are_recorded_into_the_mcap_file(tmp_path):
     assert abs(markers[0]["time_ns"] - (sent_at - L.lsl_offset_s()) * 1e9) < 1e6
 
 
+_CLOSING_OUTLET = """
+import sys, pylsl
+name = sys.argv[1]
+outlet = pylsl.StreamOutlet(pylsl.StreamInfo(name, "EMG", 2, 100.0, pylsl.cf_float32, name))
+assert outlet.wait_for_consumers(60)
+outlet.push_sample([1.0, 2.0])
+print("sent", flush=True)
+sys.stdin.readline()
+del outlet  # the device's program closes its stream and ends
+"""
+
+
+@pytest.mark.subprocess
 def test_a_stream_that_disappears_is_an_event_and_is_looked_for_again():
+    # The outlet lives in a process of its own, as another device's stream does: liblsl
+    # can crash a process that destroys an outlet while an inlet of the same process pulls
+    # from it (its transfer threads outlive the destructor's wait under load).
+    import subprocess
+    import sys
+
     name = f"Gone-{uuid.uuid4().hex[:6]}"
-    outlet = pylsl.StreamOutlet(pylsl.StreamInfo(name, "EMG", 2, 100.0, pylsl.cf_float32, name))
+    device = subprocess.Popen(
+        [sys.executable, "-c", _CLOSING_OUTLET, name],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
     events = []
     inlets = L.LslInlets([name], lambda: None, events.append)
     inlets.start()
     try:
-        deadline = time.monotonic() + 10
-        while not events and time.monotonic() < deadline:
-            time.sleep(0.05)
-        outlet.push_sample([1.0, 2.0])
-        del outlet
-        deadline = time.monotonic() + 15
-        while not any(e.kind == "lsl_lost" for e in events) and time.monotonic() < deadline:
-            time.sleep(0.1)
+        assert device.stdout.readline() == "sent\n"
+        wait_for(lambda: any(e.kind == "lsl_found" for e in events), what="the stream found")
+        device.stdin.write("\n")
+        device.stdin.flush()
+        device.wait(timeout=30)
+        wait_for(lambda: any(e.kind == "lsl_lost" for e in events), what="the stream lost")
         assert [e.kind for e in events][:2] == ["lsl_found", "lsl_lost"]
-        assert inlets.state[name] == "looking"
+        wait_for(lambda: inlets.state[name] == "looking", what="a new search")
     finally:
+        device.kill()
+        device.wait()
         inlets.stop()
 
 
