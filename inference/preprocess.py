@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from devices.config import MountingConfig
-from devices.rotations import mounting_matrix, quat_normalize
+from devices.rotations import matrix_to_quat, mounting_matrix, quat_normalize
 from inference.config import PreprocessConfig
 
 log = logging.getLogger(__name__)
@@ -145,6 +145,16 @@ def leveling_matrix(
     c, s = np.cos(heading), np.sin(heading)
     unyaw = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
     return unyaw @ cam_to_world
+
+
+def camera_orientation(
+    quaternion: np.ndarray, mounting: MountingConfig = NOMINAL_MOUNTING
+) -> np.ndarray | None:
+    """The camera's orientation in the leveled frame the clouds are in, [w, x, y, z]
+    (camera -> leveled world: leveling_matrix as a quaternion); None where the IMU's
+    quaternion is not a rotation. Its optical axis rises elevation_deg above the horizon."""
+    level = None if quaternion is None else leveling_matrix(quaternion, mounting)
+    return None if level is None else matrix_to_quat(level)
 
 
 def preprocess(

@@ -63,3 +63,31 @@ def as_version_1(
             )
         w.finish()
     return target
+
+
+def as_version_4(source: Path, target: Path, tf) -> Path:
+    """`source` copied record for record (digests sealed anew) into `target`, a file that
+    says `format_version` 4 and holds /tf as version 4 wrote it: `tf(sequence)` gives
+    frame `sequence`'s IMU quaternion [w, x, y, z]."""
+    import dataclasses
+
+    from capture.recording.copy import RecordingCopy, new_recording
+    from capture.recording.messages import iter_raw
+    from capture.recording.reader import open_recording
+
+    rec = open_recording(source)
+    with new_recording(target) as out:
+        copy = RecordingCopy(out)
+        copy.start(library=rec.library or "walkcap")
+        for name, values in rec.metadata_records:
+            if name == "recording":
+                values = {**values, "format_version": "4"}
+            copy.metadata(name, T.encode_metadata(values))
+        for schema, channel, message in iter_raw(source, rec.complete, None):
+            copy.channel(channel, schema)
+            if channel.topic == T.TF:
+                transform = T.transform_message(tf(message.sequence), message.publish_time)
+                message = dataclasses.replace(message, data=transform.SerializeToString())
+            copy.message(message)
+        copy.finish()
+    return target

@@ -206,7 +206,7 @@ def replay_steps(
     from capture.recording.versions import needs_upgrade
     from inference.features import fit_profile
     from inference.gait import GaitDetector
-    from inference.preprocess import preprocess_ranges
+    from inference.preprocess import camera_orientation, preprocess_ranges
 
     rec = open_recording(source)
     frames = FrameAssembler(rec, gray=False, points=False)
@@ -247,7 +247,8 @@ def replay_steps(
         pre = preprocess_ranges(
             frame.range_mm, rays, frame.confidence, level, params, age_ns, mounting
         )
-        messages = _frame_messages(frame, q, pre, recorded if as_recorded else None)
+        orientation = camera_orientation(q, mounting)
+        messages = _frame_messages(frame, orientation, pre, recorded if as_recorded else None)
         # the features' hint-free part (Pipeline.process measures features of these frames)
         fit = fit_profile(pre.profile, params.max_forward_m) if pre.ok else None
         slim, slim_pre = _slim(frame, pre)
@@ -287,11 +288,11 @@ def replay_steps(
         yield last
 
 
-def _frame_messages(frame: DepthFrame, q, pre, recorded: list | None) -> list:
+def _frame_messages(frame: DepthFrame, orientation, pre, recorded: list | None) -> list:
     """What the new recording keeps of a frame that fusion does not change: depth,
     confidence and truth as `recorded` (their messages, None where not in the file; None:
     encoded again, for a file of an older format), cloud, image, preprocessing and
-    orientation encoded."""
+    the camera's orientation encoded."""
     from capture.recording.encode import encode_depth, encode_processed, encode_truth
 
     t, log_time = frame.device_time_ns, frame.host_time_ns
@@ -301,7 +302,9 @@ def _frame_messages(frame: DepthFrame, q, pre, recorded: list | None) -> list:
     else:
         depth, truth = [m for m in recorded[:2] if m is not None], recorded[2:3]
         truth = [m for m in truth if m is not None]
-    processed = encode_processed(frame.index, t, log_time, pre.cloud, pre.image, q, pre.flag)
+    processed = encode_processed(
+        frame.index, t, log_time, pre.cloud, pre.image, orientation, pre.flag
+    )
     return depth + processed + truth
 
 

@@ -20,6 +20,7 @@ from inference import level_tilt
 from inference.errors import InferenceError
 from inference.fusion import FusionOutput
 from inference.level_tilt import TiltEstimate
+from inference.preprocess import camera_orientation
 
 # One torch thread for the per-frame CNN: the pipeline shares the cores with the devices and
 # the recorder, and torch's thread pool spinning against them costs far more than it gains.
@@ -143,7 +144,7 @@ class FrameResult:
     index: int
     time_ns: int  # the frame's sample time, session clock
     host_time_ns: int  # receive time, session clock
-    quaternion: np.ndarray | None
+    orientation: np.ndarray | None  # the camera's: camera -> leveled world (/tf)
     image: np.ndarray  # 100 x 100 uint8 0/1
     cloud: np.ndarray  # N x 3 float32, leveled
     profile: np.ndarray  # M x 2 float32 (forward, height)
@@ -314,7 +315,7 @@ class Pipeline:
             index=frame.index,
             time_ns=frame.device_time_ns if time_ns is None else time_ns,
             host_time_ns=frame.host_time_ns,
-            quaternion=None if not np.all(np.isfinite(quaternion)) else quaternion,
+            orientation=camera_orientation(quaternion, self.mounting),
             image=pre.image,
             cloud=pre.cloud,
             profile=pre.profile,
@@ -361,7 +362,7 @@ def record_result(
     """
     recorder.write_frame(frame, r.time_ns)
     recorder.write_processed(
-        r.index, r.time_ns, r.host_time_ns, r.cloud, r.image, r.quaternion, r.flag
+        r.index, r.time_ns, r.host_time_ns, r.cloud, r.image, r.orientation, r.flag
     )
     record_decisions(recorder, r, decided_ns)
     if frame.truth:

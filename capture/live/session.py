@@ -54,6 +54,7 @@ from devices.frames import DepthFrame
 from devices.scheduling import NORMAL_PRIORITY, realtime_priority
 from inference.errors import InferenceError
 from inference.gait import GaitDetector
+from inference.preprocess import camera_orientation
 
 if TYPE_CHECKING:  # the writer's imports take a second: Recorder is imported when it records
     from capture.recording.writer import RecorderStats
@@ -395,11 +396,7 @@ class Session:
             log.debug("frame %d", frame.index, exc_info=True)
             self._report(self._failures.fail(t, f"frame {frame.index}: {e}"), say=True)
             if pre is not None:
-                q = (
-                    quaternion
-                    if quaternion is not None and np.all(np.isfinite(quaternion))
-                    else None
-                )
+                q = camera_orientation(quaternion, self.pipeline.mounting)
                 for out in outputs:
                     out.write_processed(
                         frame.index, t, frame.host_time_ns, pre.cloud, pre.image, q, pre.flag
@@ -413,7 +410,7 @@ class Session:
                 result.host_time_ns,
                 result.cloud,
                 result.image,
-                result.quaternion,
+                result.orientation,
                 result.flag,
             )
             record_decisions(out, result)

@@ -206,6 +206,9 @@ class Recording:
         decoders = Decoders()
         offset = self.unix_offset_ns
         upgrade = versions.needs_upgrade(self.format_version)
+        orientation = versions.orientation_upgrade(
+            self.format_version, self.meta.software.preprocess
+        )
 
         def decode(schema, channel, message) -> RecordedMessage:
             decoded = decoders.decode(schema, channel, message.data)
@@ -213,6 +216,8 @@ class Recording:
                 decoded = convert(channel.topic, decoded)
                 if upgrade:
                     decoded = versions.upgrade_message(channel.topic, decoded)
+                if orientation is not None and channel.topic == T.TF:
+                    decoded = orientation(decoded)
             return RecordedMessage(
                 channel.topic,
                 message.log_time,

@@ -47,7 +47,7 @@ from google.protobuf.timestamp_pb2 import Timestamp
 
 from devices.frames import GAIT_EVENTS, GAIT_SOURCES, MODES, GaitEvent
 
-FORMAT_VERSION = "4"  # the rule and the reading of older files: capture.recording.versions
+FORMAT_VERSION = "5"  # the rule and the reading of older files: capture.recording.versions
 
 DEPTH = "/camera/depth"
 CONFIDENCE = "/camera/confidence"

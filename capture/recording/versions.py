@@ -12,6 +12,14 @@ capture.recording.topics.FORMAT_VERSION when written). The rule:
   what this version holds: no other reading code knows about older files;
 - a file of a newer version is refused with one line.
 
+Version 4 -> 5:
+- /tf: in 5 it holds the camera's orientation in the leveled frame the clouds are in
+  (camera -> world, inference.preprocess.camera_orientation), as its "camera" child
+  frame says; up to 4 it held the IMU's orientation (IMU -> ENU world) at the frame's
+  time. Read from an older file, /tf is turned into the camera's with the mounting its
+  "software" record names (`preprocess.mounting_*`; the nominal mounting where it names
+  none). Nothing else changed.
+
 Version 3 -> 4:
 - chunk digests: a finished file of 4 holds a `chunk_digests` metadata record
   (capture.recording.chunk_digests) with the CRC of every region the writer wrote and
@@ -42,11 +50,16 @@ Version 1 -> 2:
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from capture.errors import CaptureError
 from capture.recording import topics as T
+from devices.config import MountingConfig
+from inference.preprocess import camera_orientation
 
 RawRecords = list[tuple[str, dict[str, str]]]
 Records = list[tuple[str, dict[str, Any]]]
@@ -87,7 +100,7 @@ def read_metadata(raw: RawRecords, path: Path) -> tuple[str, Records]:
             f"{path}: recording format {version!r}, newer than this walkcap reads "
             f"(up to {T.FORMAT_VERSION}): update walkcap to read it"
         )
-    if number >= 2:  # 3 adds record digests, 4 chunk digests (checked on reading), no new values
+    if number >= 2:  # 3 adds record digests, 4 chunk digests, 5 changes /tf: no new values
         return version, [
             (name, {k: T.decode_metadata_value(v) for k, v in values.items()})
             for name, values in raw
@@ -207,3 +220,30 @@ def upgrade_message(topic: str, data: Any) -> Any:
     if topic == T.FUSED and isinstance(data, dict) and "source_frame_index" not in data:
         return {**data, "source_frame_index": data["frame_index"]}
     return data
+
+
+# ---- version 4 ---------------------------------------------------------------------------
+
+
+def orientation_upgrade(version: str, preprocess: dict | None) -> Callable | None:
+    """For a file older than version 5: a function that turns its /tf quaternion (the
+    IMU's) into the camera's, with the mounting in `preprocess` (the "software" record's
+    preprocessing); None for a file of 5 on. A quaternion that is not a rotation gives
+    NaN."""
+    number = _number(version)
+    if number is not None and number >= 5:
+        return None
+    nominal, named = MountingConfig(), preprocess or {}
+    angles = {}
+    for name in ("roll_deg", "pitch_deg", "yaw_deg"):
+        try:
+            angles[name] = float(named.get(f"mounting_{name}", getattr(nominal, name)))
+        except (TypeError, ValueError):
+            angles[name] = float(getattr(nominal, name))
+    mounting = MountingConfig(**angles)
+
+    def upgrade(quaternion: np.ndarray) -> np.ndarray:
+        camera = camera_orientation(quaternion, mounting)
+        return np.full(4, np.nan) if camera is None else camera
+
+    return upgrade

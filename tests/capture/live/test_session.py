@@ -457,3 +457,33 @@ def test_replay_keeps_the_walks_gait_and_detects_the_same_steps(recorded, tmp_pa
     # detector placed from samples before the recording began
     common = [t for t in again if np.min(np.abs(live - t)) <= 1_000]
     assert len(again) >= 1 and len(common) >= len(again) - 1
+
+
+def _tf_against_the_walk(path) -> np.ndarray:
+    """Per frame: the optical axis's elevation from /tf, and from the simulator's camera
+    pose (camera -> world, z up), degrees."""
+    rec = open_recording(path)
+    tf = {m.sequence: m.data for m in rec.messages([T.TF])}
+    pose = {m.data["frame_index"]: m.data["camera_pose"] for m in rec.messages([T.TRUTH])}
+    out = []
+    for k in sorted(set(tf) & set(pose)):
+        w, x, y, z = tf[k]
+        out.append((1 - 2 * (x * x + y * y), np.asarray(pose[k])[2, 2]))
+    return np.degrees(np.arcsin(np.clip(np.asarray(out), -1.0, 1.0)))
+
+
+@pytest.mark.realtime
+def test_tf_is_the_cameras_orientation_live_and_in_replay(recorded, tmp_path):
+    """/tf's child frame is the camera: its optical axis rises and falls as the walk's
+    camera does (the IMU's orientation there would be some 110 degrees off), and the
+    frame table's camera elevation, the gait cue of fusion, reads it."""
+    path = recorded[0]
+    live = _tf_against_the_walk(path)
+    assert len(live) > 20
+    assert np.median(np.abs(live[:, 0] - live[:, 1])) < 5.0
+    trial = read_trial(path)
+    by_tf = trial.frames.camera_elevation_deg[np.isfinite(trial.frames.camera_elevation_deg)]
+    np.testing.assert_allclose(np.sort(by_tf), np.sort(live[:, 0]), atol=1e-6)
+    out = replay(path, config(tmp_path), output=tmp_path / "r.mcap", speed=None).output
+    again = _tf_against_the_walk(out)
+    assert np.median(np.abs(again[:, 0] - again[:, 1])) < 5.0

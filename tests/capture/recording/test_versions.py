@@ -42,7 +42,7 @@ def files(tmp_path_factory):
 
 def test_files_written_now_name_the_current_version(files):
     new, old = files
-    assert FORMAT_VERSION == "4"
+    assert FORMAT_VERSION == "5"
     assert open_recording(new).format_version == FORMAT_VERSION
     assert open_recording(old).format_version == "1"
 
@@ -118,3 +118,39 @@ def test_a_newer_version_is_refused_with_one_line(files, tmp_path, capsys):
     assert cli.main(["info", str(future)]) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "update walkcap" in err and "Traceback" not in err
+
+
+def test_a_version_4_files_tf_holds_the_imus_orientation_and_reads_as_the_cameras(tmp_path):
+    """Up to version 4 /tf held the IMU's orientation: read, it is the camera's, with the
+    mounting the file's software record names (not the nominal one)."""
+    from capture.recording.reader import open_recording as opened
+    from devices.config import MountingConfig
+    from devices.rotations import quat_from_euler
+    from inference.config import PreprocessConfig
+    from inference.preprocess import camera_orientation
+    from inference.preprocess import metadata as preprocess_metadata
+    from tests.old_recordings import as_version_4
+
+    mounting = MountingConfig(roll_deg=3.0, pitch_deg=28.0, yaw_deg=-2.0)
+    rng = np.random.default_rng(4)
+    imu = [quat_from_euler(*rng.uniform(-1.5, 1.5, 3)) for _ in range(N)]
+    new = tmp_path / "S03_indoor_t01.mcap"
+    software = {"preprocess": preprocess_metadata(PreprocessConfig(), mounting)}
+    rec = Recorder(new, metadata={"session": {"subject": "S03"}, "software": software})
+    rec.start()
+    cloud, image = np.zeros((0, 3), np.float32), np.zeros((100, 100), np.uint8)
+    for i, q in enumerate(imu):
+        t = T0 + i * 66_000_000
+        rec.write_processed(i, t, t + 1_000_000, cloud, image, camera_orientation(q, mounting), "")
+    rec.close()
+    old = as_version_4(new, tmp_path / "old.mcap", lambda k: imu[k])
+    stored = [T.quaternion_from_transform(m.data) for m in opened(old).messages([T.TF], raw=True)]
+    np.testing.assert_allclose(stored, imu)  # as version 4 wrote it
+    assert opened(old).format_version == "4" and check(old).complete
+    read_old = [m.data for m in opened(old).messages([T.TF])]
+    read_new = [m.data for m in opened(new).messages([T.TF])]
+    np.testing.assert_allclose(read_old, read_new, atol=1e-9)
+    nominal = [camera_orientation(q) for q in imu]
+    assert np.max(np.abs(np.asarray(nominal) - np.asarray(read_old))) > 0.01
+    elevation = read_trial(old).frames.camera_elevation_deg
+    np.testing.assert_allclose(elevation, read_trial(new).frames.camera_elevation_deg)
