@@ -262,7 +262,10 @@ def replay_steps(
 
     topics = (*frames.topics, T.IMU, T.LABELS, T.EVENTS, T.SIM_GAIT)
     for m, data in rec.stored(t for t in topics if t in rec.topics):
-        order.read_to(m.log_time_ns)
+        if m.topic not in (T.LABELS, T.EVENTS):
+            # labels and events jump the writer's queue (capture.recording.writer): where
+            # they lie in the file says nothing of where the samples logged before them are
+            order.read_to(m.log_time_ns)
         if m.topic == T.IMU:
             sample = imu_sample(m.data)
             copy = Encoded(T.IMU, m.log_time_ns, m.publish_time_ns, data, m.sequence)

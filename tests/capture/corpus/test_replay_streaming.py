@@ -128,6 +128,58 @@ def test_a_sample_held_late_gives_the_replay_that_reads_every_sample_first(tmp_p
     assert written == sorted(in_file)
 
 
+def _label_ahead(source, target, ahead_s: float):
+    """`source` copied with an operator label logged `ahead_s` after its first IMU sample
+    placed right after that sample: where a label that jumped the writer's queue lies."""
+    from capture.recording.copy import RecordingCopy, new_recording
+    from capture.recording.messages import iter_raw
+
+    rec = open_recording(source)
+    with new_recording(target) as out:
+        copy = RecordingCopy(out)
+        copy.start()
+        for name, values in rec.metadata_records:
+            copy.metadata(name, T.encode_metadata(values))
+        for name, data in rec.attachments.items():
+            copy.attachment(0, 0, name, "application/octet-stream", data)
+        placed = False
+        for schema, channel, message in iter_raw(source, rec.complete, None):
+            copy.channel(channel, schema)
+            copy.message(message)
+            if channel.topic == T.IMU and not placed:
+                at = message.log_time + int(ahead_s * 1e9)
+                copy.add(T.LABELS, T.label_json(at, "US", "operator"))
+                placed = True
+        copy.finish()
+    return target
+
+
+def test_a_label_ahead_of_the_samples_in_the_file_does_not_stop_the_pass(tmp_path, monkeypatch):
+    """Labels and events jump the writer's queue (a backed-up queue puts a label seconds
+    ahead of samples logged before it): the pass goes by the samples' and frames' log
+    times, and needs no second one."""
+    write_recording(tmp_path / "plain.mcap", seconds=4.0)
+    source = _label_ahead(tmp_path / "plain.mcap", tmp_path / "ahead.mcap", 3.0)
+    topics = [m.topic for m, _ in open_recording(source).stored([T.IMU, T.LABELS])]
+    assert topics.index(T.LABELS) < 5  # right after the first sample
+    passes = []
+    steps = R.replay_steps
+
+    def counted(*args, **kwargs):
+        passes.append(kwargs.get("times") is not None)
+        return steps(*args, **kwargs)
+
+    monkeypatch.setattr(R, "replay_steps", counted)
+    report = R.replay(
+        source,
+        Config(),
+        output=tmp_path / "again.mcap",
+        classifier=StandInClassifier(),
+        reader_process=False,
+    )
+    assert passes == [False] and report.frames == open_recording(source).topics[T.DEPTH].count
+
+
 def test_replay_copies_what_it_does_not_change_as_recorded(tmp_path):
     """Depth, confidence, truth, IMU samples, labels and events: the messages' bytes as
     the recording holds them, which are what encoding the decoded data again gives."""
