@@ -96,10 +96,16 @@ def _messages(path) -> dict:
     return out
 
 
-def test_a_sample_held_late_gives_the_replay_that_reads_every_sample_first(tmp_path, monkeypatch):
-    source = _late_sample_recording(tmp_path / "late.mcap")
-    in_file = [imu_sample(m.data).time_ns for m in open_recording(source).messages([T.IMU])]
-    assert in_file != sorted(in_file)
+def _in_this_process(source, output):
+    """A replay of `source` into `output` in this process alone, with the stand-in model."""
+    return R.replay(
+        source, Config(), output=output, classifier=StandInClassifier(), reader_process=False
+    )
+
+
+def _passes(monkeypatch) -> list:
+    """The replay's passes over the file as they start: True for one that read every
+    sample's time first (after ImuOrderError)."""
     passes = []
     steps = R.replay_steps
 
@@ -107,16 +113,19 @@ def test_a_sample_held_late_gives_the_replay_that_reads_every_sample_first(tmp_p
         passes.append(kwargs.get("times") is not None)
         return steps(*args, **kwargs)
 
-    def replayed(name: str):
-        return R.replay(
-            source,
-            Config(),
-            output=tmp_path / name,
-            classifier=StandInClassifier(),
-            reader_process=False,
-        )
-
     monkeypatch.setattr(R, "replay_steps", counted)
+    return passes
+
+
+def test_a_sample_held_late_gives_the_replay_that_reads_every_sample_first(tmp_path, monkeypatch):
+    source = _late_sample_recording(tmp_path / "late.mcap")
+    in_file = [imu_sample(m.data).time_ns for m in open_recording(source).messages([T.IMU])]
+    assert in_file != sorted(in_file)
+
+    def replayed(name: str):
+        return _in_this_process(source, tmp_path / name)
+
+    passes = _passes(monkeypatch)
     caught = replayed("a.mcap")
     assert passes == [False, True]  # the pass within the horizon failed; the one with times
     monkeypatch.setattr(R.SampleOrder, "HORIZON_NS", 10**15)  # every sample read first
@@ -162,21 +171,8 @@ def test_a_label_ahead_of_the_samples_in_the_file_does_not_stop_the_pass(tmp_pat
     source = _label_ahead(tmp_path / "plain.mcap", tmp_path / "ahead.mcap", 3.0)
     topics = [m.topic for m, _ in open_recording(source).stored([T.IMU, T.LABELS])]
     assert topics.index(T.LABELS) < 5  # right after the first sample
-    passes = []
-    steps = R.replay_steps
-
-    def counted(*args, **kwargs):
-        passes.append(kwargs.get("times") is not None)
-        return steps(*args, **kwargs)
-
-    monkeypatch.setattr(R, "replay_steps", counted)
-    report = R.replay(
-        source,
-        Config(),
-        output=tmp_path / "again.mcap",
-        classifier=StandInClassifier(),
-        reader_process=False,
-    )
+    passes = _passes(monkeypatch)
+    report = _in_this_process(source, tmp_path / "again.mcap")
     assert passes == [False] and report.frames == open_recording(source).topics[T.DEPTH].count
 
 
@@ -229,13 +225,7 @@ def test_the_reader_process_fits_the_profile_as_the_live_pipeline_would(tmp_path
     monkeypatch.setattr(
         Pipeline, "process", lambda self, *a, fit=None, **k: process(self, *a, **k, fit=None)
     )
-    live = R.replay(
-        source,
-        Config(),
-        output=tmp_path / "live.mcap",
-        classifier=StandInClassifier(),
-        reader_process=False,
-    )
+    live = _in_this_process(source, tmp_path / "live.mcap")
     a, b = _messages(fast.output), _messages(live.output)
     assert a.keys() == b.keys()
     for topic in a.keys() - {T.FEATURES}:
