@@ -458,7 +458,7 @@ METHOD_TABLE: tuple[Method, ...] = (
             "linestyle": (0, (3, 1, 1, 1, 1, 1)),
         },
         "`steady` with the gait phase from the camera's pitch: a mode changes more readily "
-        "while the thigh pitches the camera down",
+        "while the thigh swings forward and pitches the camera up",
         cues=("orientation",),
         bench_us=20.0,
     ),

@@ -106,15 +106,46 @@ class SteadyFusion(Stream):
         return [FusionOutput(self._frame - 1, a.index(max(a)), self._frame - 1, a)]
 
 
+class GaitPhase:
+    """The gait phase in which terrain changes show, frame by frame from the camera's
+    elevation (its optical axis above the horizon, degrees; it follows the thigh): the
+    camera pitching up by more than GAIT_PHASE_SD running standard deviations of its
+    frame-to-frame change (over about GAIT_RATE_FRAMES frames), as the thigh swings
+    forward and the view reaches ahead."""
+
+    def __init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        self._last = math.nan
+        self._var = 1.0  # deg^2 a frame: a start that a second of walking replaces
+
+    def update(self, elevation_deg: float) -> bool | None:
+        """Whether this frame is in the phase; None without a change to tell (no
+        elevation now, or none before)."""
+        change = elevation_deg - self._last
+        if elevation_deg == elevation_deg:  # not NaN
+            self._last = elevation_deg
+        if change != change:
+            return None
+        self._var += (change * change - self._var) / GAIT_RATE_FRAMES
+        return change >= GAIT_PHASE_SD * math.sqrt(self._var)
+
+
+def gait_phases(elevation_deg) -> list[bool | None]:
+    """GaitPhase over a sequence of frames' camera elevations."""
+    phase = GaitPhase()
+    return [phase.update(float(e)) for e in elevation_deg]
+
+
 class GaitSteadyFusion(SteadyFusion):
     """Steady whose chance of leaving a mode follows the gait phase.
 
     `push(probabilities, elevation_deg)`: the camera's optical axis above the horizon at
-    the frame (inference.preprocess; it follows the thigh). The frame-to-frame change of
-    it, in running standard deviations, tells the phase: below GAIT_PHASE_SD (the camera
-    pitching down) leaving a mode is GAIT_LEAVE[0] times as likely as steady's average,
-    otherwise GAIT_LEAVE[1] times (see the design notes there). Without an elevation (no
-    IMU orientation) the frame uses steady's own transition.
+    the frame (inference.preprocess). In GaitPhase (the camera pitching up) leaving a mode
+    is GAIT_LEAVE[0] times as likely as steady's average, otherwise GAIT_LEAVE[1] times
+    (see the design notes there). Without an elevation (no IMU orientation) the frame uses
+    steady's own transition.
     """
 
     uses_gait = True
@@ -125,25 +156,16 @@ class GaitSteadyFusion(SteadyFusion):
         self._phase_rows = tuple(
             tuple(tuple(r) for r in steady_transition(1.0 - leave * g).tolist()) for g in GAIT_LEAVE
         )
-        self._last_elevation = math.nan
-        self._rate_var = 1.0  # deg^2 a frame: a start that a second of walking replaces
+        self._phase = GaitPhase()
 
     def _reset_state(self) -> None:
         super()._reset_state()
-        self._last_elevation = math.nan
-        self._rate_var = 1.0
+        self._phase.reset()
 
     def push(self, probabilities, elevation_deg: float | None = None) -> FusionOutput | None:
         rows = self._rows
-        e = math.nan if elevation_deg is None else float(elevation_deg)
-        change = e - self._last_elevation
-        if e == e:  # not NaN
-            self._last_elevation = e
-        if change == change:
-            var = self._rate_var
-            var += (change * change - var) / GAIT_RATE_FRAMES
-            self._rate_var = var
-            in_phase = change <= GAIT_PHASE_SD * math.sqrt(var)
+        in_phase = self._phase.update(math.nan if elevation_deg is None else float(elevation_deg))
+        if in_phase is not None:
             rows = self._phase_rows[0 if in_phase else 1]
         return self._update(probabilities, rows)
 
