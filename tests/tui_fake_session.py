@@ -126,7 +126,7 @@ class FakeSession:
             index=1299,
             time_ns=NOW_NS,
             host_time_ns=NOW_NS,
-            quaternion=np.array([1.0, 0, 0, 0]),
+            orientation=np.array([1.0, 0, 0, 0]),
             image=image_from_profile(profile),
             cloud=np.zeros((0, 3), np.float32),
             profile=profile,

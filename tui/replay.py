@@ -487,7 +487,7 @@ class ReplaySource:
             index=i,
             time_ns=int(f.time_ns[k]),
             host_time_ns=int(f.host_ns[k]),
-            quaternion=None,
+            orientation=None,
             image=image,
             cloud=np.zeros((0, 3), np.float32),
             profile=f.profiles.get(i, np.zeros((0, 2), np.float16)).astype(np.float32),
