@@ -36,7 +36,8 @@ class RecordedTrial:
     two references of inference.evaluation (`locomotion`: keyed live; `terrain`: what each
     image shows, the simulator's truth, else the offline labels laid over the live keys,
     else None; `terrain_source`), and the fusion cues (`camera_elevation_deg`,
-    `geometry`, `ground_ahead`).
+    `geometry`, `ground_ahead`: the terrain features themselves are not kept, a long
+    trial's would take most of its memory).
     """
 
     MODES: ClassVar[tuple[str, ...]] = MODES
@@ -100,6 +101,7 @@ def read_trial(path: str | os.PathLike) -> RecordedTrial:
         (T.GAIT, T.SIM_GAIT),
         take_gait,
         frame_topics=(T.CNN, T.FUSED, T.TF, T.TRUTH, T.FEATURES),
+        keep_features=False,
     )
     frames = table.select(table.classified)
     gait.sort(key=lambda g: g[0].time_ns)

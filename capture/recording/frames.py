@@ -51,7 +51,12 @@ class FrameTable:
     flag: list[str]  # preprocessing flag ("" none)
     oriented: np.ndarray  # (N,) bool
     cloud_points: list[int | None]
-    features: list[dict]  # terrain features (without frame_index, time_ns)
+    features: list[dict]  # terrain features (without frame_index, time_ns); {} when not kept
+    # the fusion cues from them: the mode the features show (inference.features.shown_mode)
+    # and the mode the ground ahead shows by its slope (inference.features.ground_ahead),
+    # -1 where unknown or not recorded
+    geometry: np.ndarray  # (N,)
+    ground_ahead: np.ndarray  # (N,)
     labels: np.ndarray  # (N,) the labels in force, undos applied, corrections laid over
     locomotion: np.ndarray  # (N,) the mode keyed live, undos applied, corrections not
     terrain: np.ndarray | None  # (N,) what each image shows; None when nothing says
@@ -61,7 +66,10 @@ class FrameTable:
         return len(self.index)
 
     def select(self, rows: np.ndarray) -> FrameTable:
-        """The table's rows where `rows` (a boolean mask) is true."""
+        """The table's rows where `rows` (a boolean mask) is true (every row: the same
+        columns, not copied)."""
+        if np.all(rows):
+            return dataclasses.replace(self)
         keep = np.flatnonzero(rows)
         out = {}
         for f in dataclasses.fields(self):
@@ -81,20 +89,9 @@ class FrameTable:
         x, y = self.quaternion[:, 1], self.quaternion[:, 2]
         return np.degrees(np.arcsin(np.clip(1 - 2 * (x * x + y * y), -1.0, 1.0)))
 
-    @property
-    def geometry(self) -> np.ndarray:
-        """The mode each frame's terrain features show (inference.features.shown_mode), -1
-        where unknown or not recorded: the cue of fusion (GeometryFusion)."""
-        shown = [shown_mode(f.get("kind"), f.get("direction")) for f in self.features]
-        return np.array(shown, dtype=int).reshape(-1)
-
-    @property
-    def ground_ahead(self) -> np.ndarray:
-        """The mode the ground ahead of each frame shows by its slope
-        (inference.features.ground_ahead), -1 where not seen or not recorded: the cue of
-        fusion (SlopeFusion)."""
-        ahead = [ground_ahead(f.get("ahead_slope_deg")) for f in self.features]
-        return np.array(ahead, dtype=int).reshape(-1)
+    def __post_init__(self) -> None:
+        self.geometry = np.asarray(self.geometry, dtype=int).reshape(-1)
+        self.ground_ahead = np.asarray(self.ground_ahead, dtype=int).reshape(-1)
 
 
 def mode_names(modes: np.ndarray) -> list[str]:
@@ -126,19 +123,25 @@ class _Columns:
         "truth": (np.int64, ()),
         "quaternion": (float, (4,)),
         "oriented": (bool, ()),
+        "geometry": (np.int8, ()),
+        "ground_ahead": (np.int8, ()),
     }
     LISTS = ("flag", "cloud_points", "features")
 
-    def __init__(self) -> None:
+    def __init__(self, capacity: int = 1024, *, keep_features: bool = True) -> None:
+        """`capacity`: the rows expected (the columns grow past it); `keep_features` False:
+        each row's terrain features are reduced to their cues (geometry, ground_ahead)."""
         self.n = 0
-        self.arrays = {k: np.empty((1024, *s), dtype=t) for k, (t, s) in self.NUMBERS.items()}
+        rows = max(int(capacity), 16)
+        self.arrays = {k: np.empty((rows, *s), dtype=t) for k, (t, s) in self.NUMBERS.items()}
         self.lists: dict[str, list] = {k: [] for k in self.LISTS}
+        self.keep_features = keep_features
 
     def append(self, k: int, e: dict) -> None:
         if self.n == len(self.arrays["index"]):
             for name, a in self.arrays.items():
-                self.arrays[name] = np.concatenate([a, np.empty_like(a)])
-        self.set(self.n, _row(k, e))
+                self.arrays[name] = np.concatenate([a, np.empty_like(a[: len(a) // 2 + 1])])
+        self.set(self.n, _row(k, e, self.keep_features))
         self.n += 1
 
     def set(self, at: int, row: dict) -> None:
@@ -170,13 +173,17 @@ class _Columns:
         return out | self.lists
 
 
-def _row(k: int, e: dict) -> dict:
+_NO_FEATURES: dict = {}  # a row's features when not kept (shared: never changed)
+
+
+def _row(k: int, e: dict, keep_features: bool = True) -> dict:
     """One frame's row from its collected messages (see FrameJoin.add)."""
     cnn, pre = e.get("cnn"), e.get("pre", (0, 0, "", False, None))
     first = cnn or pre
     fused, voted = e.get("fused", (NONE, NONE)), e.get("voted", (NONE, NONE))
     posterior = e.get("posterior")
     quaternion = e.get("quaternion")
+    features = e.get("features", _NO_FEATURES)
     return {
         "index": k,
         "time_ns": first[0],
@@ -195,7 +202,9 @@ def _row(k: int, e: dict) -> dict:
         "oriented": pre[3],
         "flag": pre[2],
         "cloud_points": pre[4],
-        "features": e.get("features", {}),
+        "features": features if keep_features else _NO_FEATURES,
+        "geometry": shown_mode(features.get("kind"), features.get("direction")),
+        "ground_ahead": ground_ahead(features.get("ahead_slope_deg")),
     }
 
 
@@ -209,7 +218,7 @@ _COLUMNS_OF = {
     "produced": ("produced",),
     "truth": ("truth",),
     "quaternion": ("quaternion",),
-    "features": ("features",),
+    "features": ("features", "geometry", "ground_ahead"),
 }
 
 
@@ -226,14 +235,19 @@ class FrameJoin:
     LATENESS = 64  # frames, about 1.4 s at 45 fps
     _BATCH = 16  # frames finished together
 
-    def __init__(self, lateness: int = LATENESS) -> None:
+    def __init__(
+        self, lateness: int = LATENESS, *, capacity: int = 1024, keep_features: bool = True
+    ) -> None:
+        """`capacity`: the frames expected; `keep_features` False: the rows keep the terrain
+        features' cues alone (FrameTable.geometry, ground_ahead), not the features."""
         self.lateness = lateness
         self.open: dict[int, dict] = {}  # frame -> what its messages said so far
         self.late: dict[int, dict] = {}  # the same, for frames already finished
         self.newest = NONE
         self.finished_to = NONE  # every frame up to this one is finished
         self.held_peak = 0  # the most frames open at once
-        self.rows = _Columns()
+        self.keep_features = keep_features
+        self.rows = _Columns(capacity, keep_features=keep_features)
 
     def _entry(self, k: int) -> dict:
         if k <= self.finished_to:
@@ -323,7 +337,7 @@ class FrameJoin:
         finished. The messages that come later for them stay in `late`, for lay_late."""
         if self.rows.n < max(at_least, 1):
             return None
-        block, self.rows = self.rows.take(), _Columns()
+        block, self.rows = self.rows.take(), _Columns(keep_features=self.keep_features)
         return block
 
     def end(self) -> None:
@@ -348,7 +362,7 @@ def lay_late(rows: _Columns, late: dict[int, dict], *, append: bool) -> set[int]
         columns = [c for key in e for c in _COLUMNS_OF[key]]
         if "pre" in e and "cnn" not in e and not rows.arrays["classified"][j]:
             columns += ["time_ns", "host_time_ns"]  # a frame's time: its CNN's, else this
-        row = _row(k, e)
+        row = _row(k, e, rows.keep_features)
         rows.set(j, {name: row[name] for name in columns})
         laid.add(k)
     return laid
@@ -383,6 +397,8 @@ def frame_rows(c: dict, changes: list[L.LabelChange], *, has_truth: bool) -> Fra
         oriented=c["oriented"],
         cloud_points=c["cloud_points"],
         features=c["features"],
+        geometry=c["geometry"],
+        ground_ahead=c["ground_ahead"],
         labels=labels,
         locomotion=L.labels_at(times, L.live_changes(reference)),
         terrain=truth if has_truth else labels if source else None,

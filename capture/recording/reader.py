@@ -454,11 +454,16 @@ def frame_table(
     take: Callable[[RecordedMessage], None] | None = None,
     *,
     frame_topics: Iterable[str] = FrameJoin.TOPICS,
+    keep_features: bool = True,
 ) -> tuple[FrameTable, list[L.LabelChange]]:
     """The recording's per-frame table (capture.recording.frames) and its label changes in
     time order, in one pass over the file; `take` gets the messages of `other_topics`
-    read in the same pass. `frame_topics`: the per-frame topics joined (default: all)."""
-    join = FrameJoin()
+    read in the same pass. `frame_topics`: the per-frame topics joined (default: all);
+    `keep_features` False: the terrain features' cues alone (FrameTable.geometry,
+    ground_ahead), for a reader that needs no more of them (a few hundred bytes a frame)."""
+    # the columns sized once from the summary's counts (a damaged file's: grown as read)
+    counts = [rec.topics[t].count for t in (T.CNN, T.PREPROCESS) if t in rec.topics]
+    join = FrameJoin(capacity=max(counts, default=0) + 1, keep_features=keep_features)
     changes: list[L.LabelChange] = []
     others = set(other_topics)
     wanted = [t for t in (*frame_topics, T.LABELS, *others) if t in rec.topics]

@@ -232,24 +232,30 @@ def evaluate_trial(
     trial: Trial,
     methods: Sequence[str] = PAPER_METHODS,
     params: FusionConfig | None = None,
+    *,
+    keep_runs: bool = True,
 ) -> TrialResult:
+    """Each method over the trial: its accuracy, switches and per-step figures, and the
+    classifier's own errors. `keep_runs` False: each method's per-frame run is dropped
+    once its figures are taken (runs empty), so that a long trial holds one run at a
+    time; plots, the delay sweep and the confusion matrices need the runs."""
     if not (trial.reference >= 0).any():
         raise InferenceError(f"{trial.path}: no frame has a reference mode")
     params = params or FusionConfig()
-    try:
-        runs = {m: run_trial(params.make(m), trial) for m in methods}
-    except InferenceError as e:
-        raise InferenceError(f"{trial.path}: {e}") from None
-    return TrialResult(
-        trial,
-        {m: accuracy(r.final, trial.reference) for m, r in runs.items()},
-        runs,
-        {m: trial_transitions(trial, r.final, params.delay_frames(m)) for m, r in runs.items()},
-        {m: trial_steps(trial, r.final, params.delay_frames(m)) for m, r in runs.items()}
-        if trial.steps is not None
-        else {},
-        trial_errors(trial),
-    )
+    result = TrialResult(trial, {}, {}, {}, {}, trial_errors(trial))
+    for m in methods:
+        try:
+            run = run_trial(params.make(m), trial)
+        except InferenceError as e:
+            raise InferenceError(f"{trial.path}: {e}") from None
+        result.accuracy[m] = accuracy(run.final, trial.reference)
+        delay = params.delay_frames(m)
+        result.transitions[m] = trial_transitions(trial, run.final, delay)
+        if trial.steps is not None:
+            result.steps[m] = trial_steps(trial, run.final, delay)
+        if keep_runs:
+            result.runs[m] = run
+    return result
 
 
 def trial_errors(trial: Trial) -> er.ErrorShape:

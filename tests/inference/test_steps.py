@@ -160,6 +160,14 @@ def test_score_file_with_heel_contacts_is_scored_per_step(tmp_path):
     cnn = result.steps["cnn"]
     assert (cnn.heel_contacts, cnn.errors_at_heel_contact) == (6, 2)  # always LG
     assert cnn.transition_steps == 1 and cnn.transition_steps_late == 1
+    # a study's evaluation drops each run once its figures are taken: the same figures
+    lean = evaluate_trial(trial, ["cnn", "steady+steps"], keep_runs=False)
+    assert lean.runs == {} and set(result.runs) == {"cnn", "steady+steps"}
+    assert (lean.accuracy, lean.steps, lean.transitions) == (
+        result.accuracy,
+        result.steps,
+        result.transitions,
+    )
 
 
 def test_score_file_event_column_must_be_zero_or_one(tmp_path):

@@ -6,7 +6,7 @@ import pytest
 
 from capture.corpus.dataset import labeled_session, read_sessions
 from capture.corpus.trials import read_trial
-from capture.recording.reader import open_recording
+from capture.recording.reader import frame_table, open_recording
 from tests.recording_fixtures import synth_recording
 from tui import cli
 
@@ -110,6 +110,11 @@ def test_each_frame_carries_the_geometry_its_terrain_features_show(synth_folder)
             for i in trial.frames.index.tolist()
         ]
         assert trial.frames.ground_ahead.tolist() == ahead
+        # the evaluation's trial keeps the cues alone, the whole table the features too
+        assert all(f == {} for f in trial.frames.features)
+        table, _ = frame_table(open_recording(f))
+        assert table.select(table.classified).geometry.tolist() == expected
+        assert sum(bool(f) for f in table.features) == len(features)
         assert (trial.frames.ground_ahead >= 0).any()
 
 
