@@ -178,8 +178,8 @@ class _Frames:
     index: np.ndarray  # (N,) frame numbers
     time_ns: np.ndarray  # (N,) sample time
     host_ns: np.ndarray  # (N,) receive time
-    probabilities: np.ndarray  # (N, 5)
-    cnn: np.ndarray  # (N,) mode index
+    probabilities: np.ndarray  # (N, 5) float32
+    cnn: np.ndarray  # (N,) mode index (int8, as the other modes)
     fused: np.ndarray  # (N,) fused decision recorded for the frame, -1 none
     voted: np.ndarray  # (N,)
     fused_shown: np.ndarray  # (N,) latest fused decision produced at or before the frame
@@ -213,22 +213,26 @@ class _Frames:
                 last = int(made) if made >= 0 else last
                 shown[k] = last
             probs = t.probabilities
-            cnn = [int(np.nanargmax(p)) if np.isfinite(p).any() else -1 for p in probs]
+            finite = np.isfinite(probs)
+            cnn = np.where(
+                finite.any(axis=1), np.argmax(np.where(finite, probs, -np.inf), axis=1), -1
+            )
             stale_upto = stale_before + np.cumsum([f in UNDECIDED for f in t.flag], dtype=int)
             stale_before = int(stale_upto[-1]) if len(stale_upto) else stale_before
-            for name, values in (
-                ("index", t.index),
-                ("time_ns", t.time_ns),
-                ("host_ns", t.host_time_ns),
-                ("probabilities", probs),
-                ("cnn", np.array(cnn, dtype=int)),
-                ("fused", t.decision),
-                ("voted", t.voted),
-                ("fused_shown", shown),
-                ("truth", t.truth),
-                ("stale_upto", stale_upto),
+            # modes as bytes and the scores as float32: a long trial's arrays a third the size
+            for name, values, dtype in (
+                ("index", t.index, np.int64),
+                ("time_ns", t.time_ns, np.int64),
+                ("host_ns", t.host_time_ns, np.int64),
+                ("probabilities", probs, np.float32),
+                ("cnn", cnn, np.int8),
+                ("fused", t.decision, np.int8),
+                ("voted", t.voted, np.int8),
+                ("fused_shown", shown, np.int8),
+                ("truth", t.truth, np.int8),
+                ("stale_upto", stale_upto, np.int64),
             ):
-                parts[name].append(values)
+                parts[name].append(np.asarray(values).astype(dtype, copy=False))
         columns = {name: np.concatenate(values) for name, values in parts.items()}
         return cls(**columns, images=images, profiles=profiles, features=features, flags=flags)
 
@@ -492,7 +496,7 @@ class ReplaySource:
             cloud=np.zeros((0, 3), np.float32),
             profile=f.profiles.get(i, np.zeros((0, 2), np.float16)).astype(np.float32),
             flag=f.flags.get(i, ""),
-            probabilities=f.probabilities[k],
+            probabilities=f.probabilities[k].astype(float),
             cnn_decision=int(f.cnn[k]),
             # the decision the display showed then (the frame it decided is not kept)
             fused=FusionOutput(frame=None, decision=shown) if shown >= 0 else None,
