@@ -271,3 +271,8 @@ def test_replay_holds_the_images_around_the_cursor_only(tmp_path):
         assert snap.latest.features == {"kind": "level", "slope_deg": pytest.approx(0.1 * i)}
         held.append((len(source.frames.images), len(source.frames.features)))
     assert 0 < min(min(h) for h in held) and max(max(h) for h in held) < n / 2
+    # what the screen keeps of every frame: its times and scores, its modes as bytes
+    per_frame = sum(
+        a.nbytes for a in vars(source.frames).values() if isinstance(a, np.ndarray)
+    ) / len(source.frames.index)
+    assert per_frame <= 6 * 8 + 5 * 4 + 5
