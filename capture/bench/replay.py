@@ -77,13 +77,14 @@ def replay_trial(path: str | os.PathLike, runs: int = 3, command=None) -> Replay
 STAGES = (
     ("reader", "preprocessing", "inference.preprocess", "preprocess_ranges"),
     ("reader", "fitting the profile", "inference.features", "fit_profile"),
-    (
-        "reader",
-        "encoding cloud, image, preprocessing, orientation",
-        "capture.corpus.replay",
-        "_frame_messages",
-    ),
+    ("reader", "thinning and encoding the cloud", "capture.corpus.replay", "_frame_messages"),
     ("host", "CNN, batches of 16", "inference.model", "Classifier.predict_batch"),
+    (
+        "host",
+        "encoding image, preprocessing, orientation",
+        "capture.recording.encode",
+        "encode_preprocessing",
+    ),
     ("host", "fusion, features' classification, tilt", "capture.live.pipeline", "Pipeline.process"),
     ("host", "handing messages to the writer", "capture.recording.writer", "Recorder._put"),
     ("host", "writer: compression (zstd)", "capture.recording.chunks", "_ZstdAtLevel.compress"),

@@ -206,7 +206,7 @@ def replay_steps(
     from capture.recording.versions import needs_upgrade
     from inference.features import fit_profile
     from inference.gait import GaitDetector
-    from inference.preprocess import camera_orientation, preprocess_ranges
+    from inference.preprocess import preprocess_ranges
 
     rec = open_recording(source)
     frames = FrameAssembler(rec, gray=False, points=False)
@@ -247,8 +247,7 @@ def replay_steps(
         pre = preprocess_ranges(
             frame.range_mm, rays, frame.confidence, level, params, age_ns, mounting
         )
-        orientation = camera_orientation(q, mounting)
-        messages = _frame_messages(frame, orientation, pre, recorded if as_recorded else None)
+        messages = _frame_messages(frame, pre, recorded if as_recorded else None)
         # the features' hint-free part (Pipeline.process measures features of these frames)
         fit = fit_profile(pre.profile, params.max_forward_m) if pre.ok else None
         slim, slim_pre = _slim(frame, pre)
@@ -291,12 +290,14 @@ def replay_steps(
         yield last
 
 
-def _frame_messages(frame: DepthFrame, orientation, pre, recorded: list | None) -> list:
-    """What the new recording keeps of a frame that fusion does not change: depth,
-    confidence and truth as `recorded` (their messages, None where not in the file; None:
-    encoded again, for a file of an older format), cloud, image, preprocessing and
-    the camera's orientation encoded."""
-    from capture.recording.encode import encode_depth, encode_processed, encode_truth
+def _frame_messages(frame: DepthFrame, pre, recorded: list | None) -> list:
+    """What the new recording keeps of a frame that fusion does not change, but for what
+    the host encodes (_replay: image, preprocessing record, orientation; the reader
+    process's share of the work is the larger): depth, confidence and truth as `recorded`
+    (their messages, None where not in the file; None: encoded again, for a file of an
+    older format), and the cloud (its thinning and encoding use compiled kernels, loaded
+    in the reader process already)."""
+    from capture.recording.encode import encode_cloud, encode_depth, encode_truth, thin_cloud
 
     t, log_time = frame.device_time_ns, frame.host_time_ns
     if recorded is None:
@@ -305,10 +306,9 @@ def _frame_messages(frame: DepthFrame, orientation, pre, recorded: list | None) 
     else:
         depth, truth = [m for m in recorded[:2] if m is not None], recorded[2:3]
         truth = [m for m in truth if m is not None]
-    processed = encode_processed(
-        frame.index, t, log_time, pre.cloud, pre.image, orientation, pre.flag
-    )
-    return depth + processed + truth
+    kept = thin_cloud(pre.cloud)
+    pre.details = {"cloud_points": len(pre.cloud), "cloud_kept": len(kept)}
+    return depth + [encode_cloud(frame.index, t, log_time, kept)] + truth
 
 
 def _slim(frame: DepthFrame, pre) -> tuple[DepthFrame, object]:
@@ -326,8 +326,9 @@ def _slim(frame: DepthFrame, pre) -> tuple[DepthFrame, object]:
         geometry=None,
         truth=None,  # its message goes as recorded
     )
+    # the cloud thinned as recorded (capture.recording.encode), its count in `details`
     cloud, profile = np.zeros((0, 3), np.float32), np.zeros((0, 2), np.float32)
-    return slim, dataclasses.replace(pre, cloud=cloud, profile=profile, details={})
+    return slim, dataclasses.replace(pre, cloud=cloud, profile=profile)
 
 
 class _ReaderProcess:
@@ -336,17 +337,21 @@ class _ReaderProcess:
     it the reader would stop while this process classifies a batch, and the two would
     take turns instead of working at once. The child says when it is ready (`ready`) and
     is then told how many steps to skip (`start_at`): those this process has done itself
-    meanwhile."""
+    meanwhile, or none when it is ready before this process starts on the frames (this
+    one loads the model meanwhile: the child's frames wait here, up to AHEAD)."""
 
     AHEAD = 64  # frames received and not yet taken (~10 MB)
 
-    def __init__(self, source: Path, params, mounting) -> None:
+    def __init__(self, source: Path, params, mounting, times=None) -> None:
         from devices.child import Child
 
         self._child = Child("capture.corpus.replay:_serve_prepared", str(source), params, mounting)
         self._received: queue.Queue = queue.Queue(maxsize=self.AHEAD)
         self._closed = threading.Event()
         self.ready = threading.Event()  # set at the child's first message
+        self.times = times  # as replay_steps takes them
+        self._start_lock = threading.Lock()
+        self._starter: str | None = None  # who told the child where to start
         self._receiver = threading.Thread(
             target=self._receive, name="walkcap-replay-receiver", daemon=True
         )
@@ -367,6 +372,8 @@ class _ReaderProcess:
             if not self.ready.is_set():  # or it failed before it was: nothing more to wait for
                 self.ready.set()
             if message[0] == "ready":
+                if self.claim_start("child"):  # nothing done here yet: all from the child
+                    self.start_at(0)
                 continue
             while not self._closed.is_set():
                 try:
@@ -377,11 +384,18 @@ class _ReaderProcess:
             if message[0] != "frame":
                 return
 
-    def start_at(self, skip: int, times=None) -> None:
-        """Steps from number `skip` on (the child waits for this after `ready`); `times`:
-        as replay_steps takes them."""
+    def claim_start(self, who: str) -> bool:
+        """True for the first to claim where the child starts ("child": at its ready, from
+        the first step; "host": after the steps this process prepares itself)."""
+        with self._start_lock:
+            if self._starter is None:
+                self._starter = who
+            return self._starter == who
+
+    def start_at(self, skip: int) -> None:
+        """Steps from number `skip` on (the child waits for this after `ready`)."""
         try:
-            self._child.conn.send((skip, times))
+            self._child.conn.send((skip, self.times))
         except OSError:
             pass  # it has ended: its error, if any, is already queued
 
@@ -437,17 +451,62 @@ def _serve_prepared(conn, source: str, params, mounting) -> None:
     try:
         conn.send_bytes(_packed(("ready",)))
         skip, times = conn.recv()
-        for step in replay_steps(source, params, mounting, skip=skip, times=times):
-            conn.send_bytes(_packed(("frame", step)))
-        conn.send_bytes(_packed(("end",)))
     except (BrokenPipeError, ConnectionResetError, EOFError):
-        pass  # the replay was stopped
+        return  # the replay was stopped
+    outbox = _Outbox(conn)
+    try:
+        for step in replay_steps(source, params, mounting, skip=skip, times=times):
+            if not outbox.put(_packed(("frame", step))):
+                return  # the replay was stopped
+        outbox.put(_packed(("end",)))
     except ImuOrderError:
-        conn.send_bytes(_packed(("order",)))
+        outbox.put(_packed(("order",)))
     except CaptureError as e:
-        conn.send_bytes(_packed(("error", str(e))))
+        outbox.put(_packed(("error", str(e))))
     except Exception as e:  # a corrupt file: one message on the other side
-        conn.send_bytes(_packed(("error", f"{source}: {type(e).__name__}: {e}")))
+        outbox.put(_packed(("error", f"{source}: {type(e).__name__}: {e}")))
+    finally:
+        outbox.close()
+
+
+class _Outbox:
+    """The reader process's messages sent by a thread of their own, up to AHEAD waiting:
+    the socket holds about one frame, and while the other side is slow to take it (its
+    threads share one interpreter) the reader goes on with the next frames instead of
+    waiting in the send."""
+
+    AHEAD = 32
+
+    def __init__(self, conn) -> None:
+        self._conn = conn
+        self._queue: queue.Queue = queue.Queue(maxsize=self.AHEAD)
+        self._broken = threading.Event()
+        self._thread = threading.Thread(target=self._send, name="walkcap-replay-sender")
+        self._thread.start()
+
+    def _send(self) -> None:
+        while (payload := self._queue.get()) is not None:
+            if self._broken.is_set():
+                continue  # drain: nobody is listening
+            try:
+                self._conn.send_bytes(payload)
+            except (BrokenPipeError, ConnectionResetError, OSError):
+                self._broken.set()  # the replay was stopped
+
+    def put(self, payload: bytes) -> bool:
+        """Queued to send; False once the other side has gone."""
+        while not self._broken.is_set():
+            try:
+                self._queue.put(payload, timeout=0.2)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def close(self) -> None:
+        """Everything queued is sent (or dropped, the other side gone); the thread ends."""
+        self._queue.put(None)
+        self._thread.join()
 
 
 def _packed(message: tuple) -> bytes:
@@ -536,12 +595,14 @@ def _replay_pass(job: _ReplayJob, reader_process: bool, times) -> ReplayReport:
     fast = not job.speed
     # the reader process starts first: its imports overlap with loading the model here
     frames_in = (
-        _ReaderProcess(job.source, job.params, job.mounting) if fast and reader_process else None
+        _ReaderProcess(job.source, job.params, job.mounting, times)
+        if fast and reader_process
+        else None
     )
     try:
         if frames_in is not None:
             frames_in.start()
-            blocks = _head_start(job.source, job.params, job.mounting, frames_in, times)
+            blocks = _head_start(job.source, job.params, job.mounting, frames_in)
         else:  # one by one, in this process
             blocks = ([s] for s in replay_steps(job.source, job.params, job.mounting, times=times))
         if fast:
@@ -566,14 +627,18 @@ def _fixed_batches(blocks, size: int):
         yield batch
 
 
-def _head_start(source, params, mounting, frames_in: _ReaderProcess, times=None):
-    """Blocks of steps: prepared here, one at a time, until the reader process is ready
-    (a Python that imports numpy, mcap and protobuf first: waiting for it would cost a
-    noticeable part of a short recording's replay); then the reader's batches, from the
-    next step on."""
+def _head_start(source, params, mounting, frames_in: _ReaderProcess):
+    """Blocks of steps: the reader process's batches, all of them when it was ready
+    before this process came to the frames; else prepared here, one at a time, until it is
+    ready (a Python that imports numpy, mcap and protobuf first: waiting for it would cost
+    a noticeable part of a short recording's replay), then its batches from the next step
+    on."""
+    if not frames_in.claim_start("host"):
+        yield from frames_in.batches(BATCH)
+        return
     done = 0
     if not frames_in.ready.is_set():
-        own = replay_steps(source, params, mounting, times=times)
+        own = replay_steps(source, params, mounting, times=frames_in.times)
         try:
             for step in own:
                 yield [step]
@@ -582,7 +647,7 @@ def _head_start(source, params, mounting, frames_in: _ReaderProcess, times=None)
                     break
         finally:
             own.close()
-    frames_in.start_at(done, times)
+    frames_in.start_at(done)
     yield from frames_in.batches(BATCH)
 
 
@@ -605,6 +670,7 @@ class _ReplayJob:
 
 def _replay(job: _ReplayJob, blocks) -> ReplayReport:
     from capture.recording.chunks import ZSTD_LEVEL_FAST
+    from capture.recording.encode import encode_preprocessing
     from capture.recording.writer import Recorder
     from inference import features  # noqa: F401  (imported now, not in the first frame's time)
     from inference.model import load_classifier
@@ -696,7 +762,18 @@ def _replay(job: _ReplayJob, blocks) -> ReplayReport:
                     probabilities=p,
                     fit=step.fit,
                 )
-                recorder.write_encoded(frame.index, t, frame.host_time_ns, step.messages)
+                pre, log_time = step.prepared, frame.host_time_ns
+                processed = encode_preprocessing(
+                    frame.index,
+                    t,
+                    log_time,
+                    pre.image,
+                    result.orientation,
+                    pre.flag,
+                    pre.details["cloud_points"],
+                    pre.details["cloud_kept"],
+                )
+                recorder.write_encoded(frame.index, t, log_time, step.messages + processed)
                 record_decisions(recorder, result, frame.host_time_ns)
                 frames += 1
                 if job.progress is not None:

@@ -79,10 +79,31 @@ def encode_processed(
     """A frame's preprocessing: cloud, classifier input, flag, and the orientation if known."""
     points = np.asarray(cloud, dtype=np.float32).reshape(-1, 3)
     kept = thin_cloud(points, voxel_m, max_points)
+    return [encode_cloud(index, time_ns, log_time, kept)] + encode_preprocessing(
+        index, time_ns, log_time, image, quaternion, flag, len(points), len(kept)
+    )
+
+
+def encode_cloud(index: int, time_ns: int, log_time: int, kept) -> Encoded:
+    """A frame's cloud, thinned as recorded (thin_cloud)."""
+    return message(T.CLOUD, log_time, time_ns, kept, time_ns, sequence=index)
+
+
+def encode_preprocessing(
+    index: int,
+    time_ns: int,
+    log_time: int,
+    image,
+    quaternion,
+    flag: str,
+    points: int,
+    kept: int,
+) -> list[Encoded]:
+    """encode_processed without the cloud: the classifier input, the preprocessing record
+    (the cloud's `points` and the `kept` of them recorded) and the orientation if known."""
     oriented = quaternion is not None and bool(np.all(np.isfinite(quaternion)))
-    preprocess = (index, time_ns, flag, oriented, len(points), len(kept))
+    preprocess = (index, time_ns, flag, oriented, points, kept)
     out = [
-        message(T.CLOUD, log_time, time_ns, kept, time_ns, sequence=index),
         message(T.BINARY_IMAGE, log_time, time_ns, image, time_ns, sequence=index),
         message(T.PREPROCESS, log_time, time_ns, *preprocess, sequence=index),
     ]

@@ -243,3 +243,22 @@ def test_the_reader_process_fits_the_profile_as_the_live_pipeline_would(tmp_path
                 assert u[key] == v[key], key
         kinds[u["kind"]] += 1
     assert fast.frames - kinds["unknown"] > 30, kinds  # terrain, measured
+
+
+def test_the_reader_sends_from_a_thread_in_order_and_stops_when_nobody_listens():
+    """The reader process's messages go out in the order made, from a thread of their
+    own (the reader goes on while the other side is slow to take them); once the other
+    side has gone, a message is refused and the thread ends."""
+    from multiprocessing import Pipe
+
+    ours, theirs = Pipe()
+    outbox = R._Outbox(ours)
+    payloads = [bytes([k]) * (1 + 1000 * k) for k in range(5)]
+    assert all(outbox.put(p) for p in payloads)
+    assert [theirs.recv_bytes() for _ in payloads] == payloads
+    theirs.close()
+    big = b"x" * (1 << 20)  # beyond what the socket holds: the send finds nobody
+    assert not all(outbox.put(big) for _ in range(100))
+    outbox.close()
+    assert not outbox._thread.is_alive()
+    ours.close()

@@ -331,8 +331,12 @@ def test_fast_replay_prepares_frames_itself_until_its_reader_process_is_ready(re
     class Reader:  # stands in for the reader process
         ready = threading.Event()
         skip = None
+        times = None
 
-        def start_at(self, skip, times=None):
+        def claim_start(self, who):
+            return who == "host"  # this side comes to the frames first
+
+        def start_at(self, skip):
             self.skip = skip
 
         def batches(self, size):
@@ -356,6 +360,29 @@ def test_fast_replay_prepares_frames_itself_until_its_reader_process_is_ready(re
     first = next(skipped)
     assert first.frame.index == every[5].frame.index
     assert np.array_equal(first.orientation, every[5].orientation)
+
+
+def test_a_reader_process_ready_first_gives_every_step():
+    """Ready before this side comes to the frames (this side loads the model meanwhile),
+    the reader process starts at the first step and this side prepares none itself."""
+    import queue
+    import types
+
+    import capture.corpus.replay as R
+
+    reader = R._ReaderProcess.__new__(R._ReaderProcess)  # no process: its start and queue
+    reader._start_lock, reader._starter, reader.times = threading.Lock(), None, None
+    sent: list = []
+    reader._child = types.SimpleNamespace(conn=types.SimpleNamespace(send=sent.append))
+    reader._received = queue.Queue()
+    assert reader.claim_start("child")  # at its ready message
+    reader.start_at(0)
+    for k in range(3):
+        reader._received.put(("frame", k))
+    reader._received.put(("end",))
+    blocks = list(R._head_start("no such file", None, None, reader))
+    assert sent == [(0, None)] and blocks == [[0, 1, 2]]
+    assert not reader.claim_start("host")
 
 
 def test_switches_are_counted_over_the_last_minute():
