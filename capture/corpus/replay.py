@@ -10,12 +10,14 @@ as recorded: the messages' bytes themselves when the file is of the current form
 
 As fast as possible (`speed=None`), the work is split over two processes, since one
 Python process cannot use a second core: a reader process reads the file, levels and
-preprocesses the frames, encodes what the new recording keeps of them (cloud, image,
-orientation), fits each frame's profile (the terrain features' hint-free part) and runs
-the gait detector on the IMU samples; this one classifies the frames in batches, fuses,
-classifies the fitted terrain under the fused decision and records (its main thread
-shares the interpreter with the threads that receive the frames and write the file).
-While the reader process starts, this one prepares the first frames itself. The frames
+preprocesses the frames, thins and encodes their clouds, fits each frame's profile (the
+terrain features' hint-free part) and runs the gait detector on the IMU samples, sending
+each step from a thread of its own; this one classifies the frames in batches, fuses,
+classifies the fitted terrain under the fused decision, encodes the image, preprocessing
+record and orientation, and records (its main thread shares the interpreter with the
+threads that receive the frames and write the file). The reader process starts on the
+frames as soon as it is ready, while this one loads the model; should this one come to
+the frames first, it prepares them itself until the reader process is ready. The frames
 are classified in batches of BATCH from the first frame on, whatever the reader process
 has sent so far: the CNN's float results depend on the batch's size, and fixed batches
 give the same file on every run. Paced replays (`speed=X`), and
