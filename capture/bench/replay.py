@@ -77,7 +77,12 @@ def replay_trial(path: str | os.PathLike, runs: int = 3, command=None) -> Replay
 STAGES = (
     ("reader", "preprocessing", "inference.preprocess", "preprocess_ranges"),
     ("reader", "fitting the profile", "inference.features", "fit_profile"),
-    ("reader", "thinning and encoding the cloud", "capture.corpus.replay", "_frame_messages"),
+    (
+        "reader",
+        "encoding the cloud (and depth, truth of an older format)",
+        "capture.corpus.replay",
+        "_frame_messages",
+    ),
     ("host", "CNN, batches of 16", "inference.model", "Classifier.predict_batch"),
     (
         "host",

@@ -313,6 +313,13 @@ def _frame_messages(frame: DepthFrame, pre, recorded: list | None) -> list:
     return depth + [encode_cloud(frame.index, t, log_time, kept)] + truth
 
 
+def _with_processed(messages: list, processed: list) -> list:
+    """A frame's messages in the order live recording writes them: depth, confidence,
+    cloud, then the host's `processed` (image, preprocessing, orientation), then truth."""
+    k = next((i for i, m in enumerate(messages) if m.topic == T.TRUTH), len(messages))
+    return messages[:k] + processed + messages[k:]
+
+
 def _slim(frame: DepthFrame, pre) -> tuple[DepthFrame, object]:
     """The frame and its Preprocessed without what the host does not use (the reader
     process sends them): the bulky arrays (the rays come with the source's attachments),
@@ -492,8 +499,8 @@ class _Outbox:
                 continue  # drain: nobody is listening
             try:
                 self._conn.send_bytes(payload)
-            except (BrokenPipeError, ConnectionResetError, OSError):
-                self._broken.set()  # the replay was stopped
+            except BaseException:  # the replay was stopped (a broken pipe), or worse
+                self._broken.set()  # either way nothing more goes out: the reader stops
 
     def put(self, payload: bytes) -> bool:
         """Queued to send; False once the other side has gone."""
@@ -507,7 +514,12 @@ class _Outbox:
 
     def close(self) -> None:
         """Everything queued is sent (or dropped, the other side gone); the thread ends."""
-        self._queue.put(None)
+        while self._thread.is_alive():
+            try:
+                self._queue.put(None, timeout=0.2)
+                break
+            except queue.Full:
+                continue
         self._thread.join()
 
 
@@ -775,7 +787,8 @@ def _replay(job: _ReplayJob, blocks) -> ReplayReport:
                     pre.details["cloud_points"],
                     pre.details["cloud_kept"],
                 )
-                recorder.write_encoded(frame.index, t, log_time, step.messages + processed)
+                messages = _with_processed(step.messages, processed)
+                recorder.write_encoded(frame.index, t, log_time, messages)
                 record_decisions(recorder, result, frame.host_time_ns)
                 frames += 1
                 if job.progress is not None:

@@ -36,8 +36,8 @@ class RecordedTrial:
     two references of inference.evaluation (`locomotion`: keyed live; `terrain`: what each
     image shows, the simulator's truth, else the offline labels laid over the live keys,
     else None; `terrain_source`), and the fusion cues (`camera_elevation_deg`,
-    `geometry`, `ground_ahead`: the terrain features themselves are not kept, a long
-    trial's would take most of its memory).
+    `geometry`, `ground_ahead`; the evaluation reads the trial without the terrain
+    features themselves: a long trial's would take most of its memory).
     """
 
     MODES: ClassVar[tuple[str, ...]] = MODES
@@ -87,8 +87,10 @@ class RecordedTrial:
         }
 
 
-def read_trial(path: str | os.PathLike) -> RecordedTrial:
-    """One trial's classified frames (frames with a CNN output), in frame order."""
+def read_trial(path: str | os.PathLike, *, keep_features: bool = True) -> RecordedTrial:
+    """One trial's classified frames (frames with a CNN output), in frame order;
+    `keep_features` False: the terrain features' cues alone (FrameTable.geometry,
+    ground_ahead), not the features (most of a long trial's memory)."""
     rec = open_recording(path)
     gait: list[tuple[GaitEvent, int]] = []  # read in the same pass as the frames
 
@@ -101,7 +103,7 @@ def read_trial(path: str | os.PathLike) -> RecordedTrial:
         (T.GAIT, T.SIM_GAIT),
         take_gait,
         frame_topics=(T.CNN, T.FUSED, T.TF, T.TRUTH, T.FEATURES),
-        keep_features=False,
+        keep_features=keep_features,
     )
     frames = table.select(table.classified)
     gait.sort(key=lambda g: g[0].time_ns)
@@ -132,5 +134,5 @@ def read_evaluation_trial(path, reference: str = "terrain", name: str | None = N
     path); one task of a corpus job (capture.corpus.jobs)."""
     from inference.evaluation import trial_from_recording
 
-    trial = read_trial(path)
+    trial = read_trial(path, keep_features=False)
     return trial_from_recording(str(name or path), trial.evaluation_inputs(), reference)

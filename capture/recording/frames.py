@@ -90,8 +90,8 @@ class FrameTable:
         return np.degrees(np.arcsin(np.clip(1 - 2 * (x * x + y * y), -1.0, 1.0)))
 
     def __post_init__(self) -> None:
-        self.geometry = np.asarray(self.geometry, dtype=int).reshape(-1)
-        self.ground_ahead = np.asarray(self.ground_ahead, dtype=int).reshape(-1)
+        self.geometry = np.asarray(self.geometry, dtype=np.int8).reshape(-1)
+        self.ground_ahead = np.asarray(self.ground_ahead, dtype=np.int8).reshape(-1)
 
 
 def mode_names(modes: np.ndarray) -> list[str]:
@@ -203,9 +203,22 @@ def _row(k: int, e: dict, keep_features: bool = True) -> dict:
         "flag": pre[2],
         "cloud_points": pre[4],
         "features": features if keep_features else _NO_FEATURES,
-        "geometry": shown_mode(features.get("kind"), features.get("direction")),
-        "ground_ahead": ground_ahead(features.get("ahead_slope_deg")),
+        **_cues(features),
     }
+
+
+def _cues(features: dict) -> dict:
+    """The fusion cues of a frame's recorded terrain features, -1 where unknown (a
+    foreign file's field of another type too)."""
+    try:
+        shown = shown_mode(features.get("kind"), features.get("direction"))
+    except (TypeError, ValueError):
+        shown = -1
+    try:
+        ahead = ground_ahead(features.get("ahead_slope_deg"))
+    except (TypeError, ValueError):
+        ahead = -1
+    return {"geometry": shown, "ground_ahead": ahead}
 
 
 # the row's columns each collected message sets

@@ -387,8 +387,9 @@ class Recorder(Sink):
     def write_encoded(
         self, frame_index: int, time_ns: int, log_time_ns: int, messages: list[Encoded]
     ) -> None:
-        """One frame's messages encoded elsewhere (encode_depth, encode_processed,
-        encode_truth: replay's reader process), written as given. The camera's rays must be
+        """One frame's messages encoded elsewhere (encode_depth, encode_cloud,
+        encode_preprocessing, encode_truth: replay's reader process and host), written as
+        given. The camera's rays must be
         among the attachments: no depth frame passes here to take them from."""
         self._put(QueuedEncodedFrame(frame_index, time_ns, log_time_ns, messages))
 

@@ -262,3 +262,16 @@ def test_the_reader_sends_from_a_thread_in_order_and_stops_when_nobody_listens()
     outbox.close()
     assert not outbox._thread.is_alive()
     ours.close()
+
+
+def test_a_replayed_frame_keeps_the_order_of_a_live_frames_messages():
+    from capture.recording.encode import Encoded
+
+    def m(topic):
+        return Encoded(topic, 1, 1, b"", 0)
+
+    read = [m(T.DEPTH), m(T.CONFIDENCE), m(T.CLOUD), m(T.TRUTH)]
+    host = [m(T.BINARY_IMAGE), m(T.PREPROCESS), m(T.TF)]
+    order = [x.topic for x in R._with_processed(read, host)]
+    assert order == [T.DEPTH, T.CONFIDENCE, T.CLOUD, T.BINARY_IMAGE, T.PREPROCESS, T.TF, T.TRUTH]
+    assert [x.topic for x in R._with_processed(read[:3], host)] == order[:-1]

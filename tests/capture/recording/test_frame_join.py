@@ -78,3 +78,33 @@ def test_a_long_trial_holds_a_window_of_frames_not_the_trial(tmp_path):
     assert join.held_peak <= FrameJoin.LATENESS + 2 * FrameJoin._BATCH
     assert not join.late and not join.open
     assert (table.labels == L.mode_index("LG")).all()
+
+
+def test_a_frames_fusion_cues_come_from_its_features_and_a_foreign_field_is_unknown():
+    """geometry and ground_ahead, as the fusions take them, from each frame's recorded
+    terrain features; a field of another type (a foreign file's) is unknown (-1), not a
+    failure of every reader of the table."""
+    from types import SimpleNamespace
+
+    from devices.frames import MODES
+
+    def cnn(k):
+        data = {"frame_index": k, "time_ns": T0 + k, "probabilities": [0.2] * 5}
+        return SimpleNamespace(topic=T.CNN, data=data | {"decision": "LG"}, log_time_ns=T0 + k)
+
+    def features(k, **fields):
+        data = {"frame_index": k, "time_ns": T0 + k, **fields}
+        return SimpleNamespace(topic=T.FEATURES, data=data, log_time_ns=T0 + k)
+
+    messages = [
+        cnn(0),
+        features(0, kind="stairs", direction="up", ahead_slope_deg=8.0),
+        cnn(1),
+        features(1, kind=["stairs"], direction="up", ahead_slope_deg="8"),
+        cnn(2),
+    ]
+    for keep in (True, False):
+        table = _table(messages, FrameJoin(keep_features=keep), False)
+        assert table.geometry.tolist() == [MODES.index("US"), -1, -1]
+        assert table.ground_ahead.tolist() == [MODES.index("UR"), -1, -1]
+        assert (table.features[0] != {}) == keep and table.features[2] == {}
