@@ -295,7 +295,7 @@ def test_recordings_through_the_reader(monkeypatch, trials):
     from capture.corpus import trials as reader
 
     by_path = {t.path: t for t in trials}
-    fake = lambda path: types.SimpleNamespace(  # noqa: E731
+    fake = lambda path, **_: types.SimpleNamespace(  # noqa: E731
         evaluation_inputs=lambda: {
             "probabilities": by_path[path].probabilities,
             "labels": [None] * len(by_path[path].reference),
