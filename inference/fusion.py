@@ -40,7 +40,8 @@ each decision waits for:
 - "steady+steps": steady+hysteresis whose changes are timed to the steps of the
   instrumented leg (the detector's heel contacts, `see_gait`): each at the heel contact
   before the foot swings onto the new terrain, as a prosthesis changes its mode at a gait
-  event (`StepFusion`; delay 1).
+  event; how many heel contacts a change waits follows the stride's phase and the
+  frame's camera elevation, which it takes with its probabilities (`StepFusion`; delay 1).
 The standard HMMs use the CNN output as a scaled emission likelihood, as the paper does.
 
 At the ends of a sequence (documented choices, the paper does not say):

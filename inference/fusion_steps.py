@@ -5,6 +5,8 @@ swings onto the new terrain, as a powered prosthesis changes its mode at a gait 
 
 from __future__ import annotations
 
+import math
+
 from inference.errors import InferenceError
 from inference.fusion_base import FusionOutput
 from inference.fusion_design import (
@@ -12,6 +14,8 @@ from inference.fusion_design import (
     N_MODES,
     STEADY_EVIDENCE,
     STEADY_STAY,
+    STEP_ELEVATION,
+    STEP_ELEVATION_REF_DEG,
     STEP_HOLD_FRAMES,
     STEP_OFFSET,
     STEP_STALL_FRAMES,
@@ -35,13 +39,19 @@ class StepFusion(HysteresisFusion):
     heel contact nearest to `offset[old][new]` strides after it (the stride: the running
     mean of the intervals between heel contacts, in frames) is the step before the
     transition; the decision changes as that heel contact is handed over, or at once when
-    it is the last one, already passed. A proposal that goes back before its heel contact
-    is dropped: a run of misreads shorter than the wait never switches. Without a heel
-    contact for `stall_frames` frames (standing, an IMU gap, no detector) a proposal
-    switches on its hold alone, so the method never freezes on a mode.
+    it is the last one, already passed. The camera's elevation at the proposed frame
+    shifts it: the higher the camera looks, the farther ahead the change it shows
+    (`elevation` strides a degree above `elevation_ref_deg`). A proposal that goes back
+    before its heel contact is dropped: a run of misreads shorter than the wait never
+    switches. Without a heel contact for `stall_frames` frames (standing, an IMU gap, no
+    detector) a proposal switches on its hold alone, so the method never freezes on a
+    mode.
 
-    `see_gait(event)`: a gait event just detected (before the next frame's push); only
-    heel contacts time the steps. `probabilities` stay steady's posterior.
+    `push(probabilities, elevation_deg)`: the camera's optical axis above the horizon at
+    the frame (inference.preprocess); without one (NaN or None: no IMU orientation, a
+    score file) the frame counts as at the reference elevation. `see_gait(event)`: a gait
+    event just detected (before the next frame's push); only heel contacts time the steps.
+    `probabilities` stay steady's posterior.
     """
 
     uses_steps = True
@@ -54,6 +64,8 @@ class StepFusion(HysteresisFusion):
         hold_frames: int = STEP_HOLD_FRAMES,
         stall_frames: int = STEP_STALL_FRAMES,
         offset=STEP_OFFSET,
+        elevation: float = STEP_ELEVATION,
+        elevation_ref_deg: float = STEP_ELEVATION_REF_DEG,
     ):
         for name, value in (("hold frames", hold_frames), ("stall frames", stall_frames)):
             if int(value) != value or value < 1:
@@ -64,6 +76,7 @@ class StepFusion(HysteresisFusion):
         self.hold_frames = int(hold_frames)
         self.stall_frames = int(stall_frames)
         self.offset = tuple(tuple(float(x) for x in row) for row in offset)
+        self.elevation, self.elevation_ref_deg = float(elevation), float(elevation_ref_deg)
         self._reset_steps()
 
     def _reset_steps(self) -> None:
@@ -75,6 +88,8 @@ class StepFusion(HysteresisFusion):
         self._hc_pending = False  # a heel contact came since the last decided frame
         self._pending = -1  # the mode scheduled, -1: none
         self._left = 0  # heel contacts until it switches
+        self._elevation = math.nan  # the camera's at the newest frame pushed
+        self._decided_elevation = math.nan  # ...at the frame being decided (one before)
 
     def _reset_state(self) -> None:
         super()._reset_state()
@@ -119,7 +134,7 @@ class StepFusion(HysteresisFusion):
                 self._pending = -1
             elif self._pending != proposed:  # schedule it at a heel contact
                 phase = (n - self._last_hc) / self._stride  # strides since the last one
-                left = round(phase + self.offset[held][proposed])
+                left = self._heel_contacts_to_wait(held, proposed, phase)
                 if left <= 0:
                     self._held = proposed
                     self._pending = -1
@@ -128,11 +143,24 @@ class StepFusion(HysteresisFusion):
         out.decision = self._held
         return out
 
-    def push(self, probabilities) -> FusionOutput | None:
+    def _heel_contacts_to_wait(self, held: int, proposed: int, phase: float) -> int:
+        """How many heel contacts a change from `held` to `proposed` waits for, proposed
+        `phase` strides after the last heel contact, at the decided frame's elevation (0
+        or fewer: at once)."""
+        shift = self.offset[held][proposed]
+        if self._decided_elevation == self._decided_elevation:  # not NaN
+            shift += self.elevation * (self._decided_elevation - self.elevation_ref_deg)
+        return round(phase + shift)
+
+    def push(self, probabilities, elevation_deg: float | None = None) -> FusionOutput | None:
+        # a push decides the frame before it: its elevation is the previous push's
+        self._decided_elevation = self._elevation
+        self._elevation = math.nan if elevation_deg is None else float(elevation_deg)
         out = self._update(probabilities, self._rows)
         return None if out is None else self._gate(out)
 
     def flush(self) -> list[FusionOutput]:
         if self._flushed:
             return []
+        self._decided_elevation = self._elevation  # the last frame pushed
         return [self._gate(out) for out in super(HysteresisFusion, self).flush()]

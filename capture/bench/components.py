@@ -216,8 +216,9 @@ def bench_method_update(method: str, updates: int = 20000, seed: int = 0) -> flo
     clock = time.perf_counter_ns
     fusion = make_fusion(method)
     times = []
-    if getattr(fusion, "uses_gait", False):  # with a thigh swinging 20 degrees at 1 Hz
-        elevation = (-35 + 20 * np.sin(2 * np.pi * np.arange(len(frames)) / 15)).tolist()
+    # with a thigh swinging 20 degrees at 1 Hz
+    elevation = (-35 + 20 * np.sin(2 * np.pi * np.arange(len(frames)) / 15)).tolist()
+    if getattr(fusion, "uses_gait", False):
         for k, row in enumerate(frames):
             start = clock()
             fusion.push(row, elevation[k])
@@ -227,7 +228,7 @@ def bench_method_update(method: str, updates: int = 20000, seed: int = 0) -> flo
             start = clock()
             if k % 8 == 0:
                 fusion.see_gait("heel_contact" if k % 16 == 0 else "toe_off")
-            fusion.push(row)
+            fusion.push(row, elevation[k])
             times.append(clock() - start)
     elif getattr(fusion, "uses_geometry", False):  # the push and the frame's geometry
         shown = rng.integers(-1, N_MODES, size=len(frames)).tolist()

@@ -140,7 +140,8 @@ def run_offline(
     (-1 where not given) after its push, as the live pipeline shows it the frame's terrain
     features; one that acts at steps (`uses_steps`) gets each of `gait_events` ((time s,
     event), the detector's) with `see_gait` before the first frame at or after its time
-    (`times_s`), as the live pipeline hands it each event as it is detected."""
+    (`times_s`), as the live pipeline hands it each event as it is detected, and each
+    frame's camera elevation where given (NaN where not)."""
     e = np.array(probabilities, dtype=float)
     unusable = ~np.all(np.isfinite(e), axis=1) if e.ndim == 2 else np.zeros(len(e), bool)
     e[unusable] = 1.0 / N_MODES
@@ -165,12 +166,17 @@ def run_offline(
             )
         t = tr.frame_times(n, times_s).tolist()
         events = sorted(gait_events)
+        elevations = (
+            [math.nan] * n
+            if elevation_deg is None
+            else np.asarray(elevation_deg, dtype=float).tolist()
+        )
         k = 0
-        for row, time in zip(e, t):
+        for row, time, elevation in zip(e, t, elevations):
             while k < len(events) and events[k][0] <= time:
                 fusion.see_gait(events[k][1])
                 k += 1
-            collect(fusion.push(row))
+            collect(fusion.push(row, elevation))
     elif getattr(fusion, "uses_geometry", False):
         if geometry is None:
             raise InferenceError(

@@ -114,8 +114,35 @@ def test_step_fusion_drops_a_change_that_goes_back_before_its_step():
     probs = _probabilities(read, 0.99)
     plain = run_offline(make_fusion("steady+hysteresis"), probs)
     assert len(np.flatnonzero(np.diff(plain.final))) == 2  # there and back
-    run = run_offline(make_fusion("steady+steps"), probs, gait_events=events, times_s=_frames(n))
+    # the camera level with the horizon: it shows terrain far ahead, a step away or more
+    level = np.zeros(n)
+    run = run_offline(
+        make_fusion("steady+steps"), probs, level, gait_events=events, times_s=_frames(n)
+    )
     assert (run.final == LG).all()
+
+
+def test_step_fusion_waits_longer_for_a_change_seen_farther_ahead():
+    n = 120
+    read = np.full(n, LG)
+    read[42:] = DR  # read mid-stride: heel contacts at frames 36 and 52
+    events = _heel_contacts(range(4, n, 16))
+    probs = _probabilities(read, 0.99)
+
+    def switch(elevation_deg: float) -> int:
+        run = run_offline(
+            make_fusion("steady+steps"),
+            probs,
+            np.full(n, elevation_deg),
+            gait_events=events,
+            times_s=_frames(n),
+        )
+        return int(np.flatnonzero(np.diff(run.final))[0])
+
+    # looking steeply down, the ramp is close: the next foot lands on it, so at once
+    assert switch(-40.0) < 46
+    # looking level, it is far: the change waits for the heel contact at frame 52
+    assert switch(0.0) == 50
 
 
 def test_step_fusion_ignores_a_misread_shorter_than_its_hold():

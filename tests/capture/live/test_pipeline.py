@@ -44,11 +44,16 @@ def test_the_pipeline_hands_a_step_fusion_the_gait_events_up_to_each_frame():
             seen.append((self._frame, event))
             super().see_gait(event)
 
+        def push(self, probabilities, elevation_deg=None):
+            elevations.append(elevation_deg)
+            return super().push(probabilities, elevation_deg)
+
     class Classifier:
         def predict(self, image):
             return np.array([0.6, 0.1, 0.1, 0.1, 0.1])
 
     seen: list = []
+    elevations: list = []
     pipeline = Pipeline(PreprocessConfig(), Classifier(), Spy())
     frames = [synthetic_frame(k, 100_000_000 * k) for k in range(3)]  # 0, 0.1, 0.2 s
     # from the IMU's thread, ahead of the frames: each waits for the first frame at or
@@ -64,6 +69,8 @@ def test_the_pipeline_hands_a_step_fusion_the_gait_events_up_to_each_frame():
     # two before frame 1's push (the fusion had taken frame 0), one before frame 2's; the
     # last waits for a frame at 0.25 s
     assert seen == [(1, "heel_contact"), (1, "toe_off"), (2, "heel_contact")]
+    # each frame's camera elevation goes with its push: the steps' timing uses it
+    assert len(elevations) == 3 and all(np.isfinite(e) and -90 < e < 0 for e in elevations)
     # a fusion that does not act at steps is never handed any
     plain = Pipeline(PreprocessConfig(), Classifier(), GeometryFusion())
     plain.see_gait(GaitEvent(0, "heel_contact", "imu"))
