@@ -282,7 +282,7 @@ def estimate_transition(label_sequences: Iterable[Iterable], smoothing: float = 
 # offsets fitted at each (0.03: 285 of 328 right; the phase alone, 260; fitted on one half,
 # the other half's changes are 83-85 % right against 73-77 % by the phase alone), then per pair
 # of terrains the middle of the widest range of offsets that schedules the most right.
-# The reference elevation is about the proposals' median (-18 degrees). Off stairs down
+# The reference elevation, -20 degrees, is near the proposals' median (-18). Off stairs down
 # the proposal comes as the floor below fills the view, a step before the foot reaches it
 # (1.06). Pairs the design recordings never showed take the one offset that schedules the
 # most over all pairs (0.13). A proposal must hold STEP_HOLD_FRAMES decided frames first
@@ -290,8 +290,8 @@ def estimate_transition(label_sequences: Iterable[Iterable], smoothing: float = 
 # between heel contacts, from STEP_STRIDE_FRAMES (1.1 s at 15 fps: 105 steps a minute).
 # Without a heel contact for STEP_STALL_FRAMES frames (2 s, longer than any stride at
 # walking cadence) the walker stands or the detector is silent: a proposal then switches on
-# the hold alone. Without an elevation (a score file, no IMU) the proposal takes the
-# reference elevation.
+# the hold alone. Without an elevation (a score file, no IMU) a proposal counts as at the
+# reference elevation, -20 degrees.
 STEP_HOLD_FRAMES = 2
 STEP_STALL_FRAMES = 30
 STEP_STRIDE_FRAMES = 17.0

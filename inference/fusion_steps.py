@@ -48,8 +48,8 @@ class StepFusion(HysteresisFusion):
     mode.
 
     `push(probabilities, elevation_deg)`: the camera's optical axis above the horizon at
-    the frame (inference.preprocess); without one (NaN or None: no IMU orientation, a
-    score file) the frame counts as at the reference elevation. `see_gait(event)`: a gait
+    the frame (inference.preprocess); without a finite one (None, NaN: no IMU
+    orientation, a score file) the frame counts as at `elevation_ref_deg`. `see_gait(event)`: a gait
     event just detected (before the next frame's push); only heel contacts time the steps.
     `probabilities` stay steady's posterior.
     """
@@ -148,15 +148,15 @@ class StepFusion(HysteresisFusion):
         `phase` strides after the last heel contact, at the decided frame's elevation (0
         or fewer: at once)."""
         shift = self.offset[held][proposed]
-        if self._decided_elevation == self._decided_elevation:  # not NaN
+        if math.isfinite(self._decided_elevation):
             shift += self.elevation * (self._decided_elevation - self.elevation_ref_deg)
         return round(phase + shift)
 
     def push(self, probabilities, elevation_deg: float | None = None) -> FusionOutput | None:
+        elevation = math.nan if elevation_deg is None else float(elevation_deg)
+        out = self._update(probabilities, self._rows)  # raises before any state moves
         # a push decides the frame before it: its elevation is the previous push's
-        self._decided_elevation = self._elevation
-        self._elevation = math.nan if elevation_deg is None else float(elevation_deg)
-        out = self._update(probabilities, self._rows)
+        self._decided_elevation, self._elevation = self._elevation, elevation
         return None if out is None else self._gate(out)
 
     def flush(self) -> list[FusionOutput]:

@@ -330,8 +330,9 @@ class Pipeline:
     def _push(
         self, frame_index: int, probs: np.ndarray, elevation_deg: float = float("nan")
     ) -> FusionOutput | None:
-        """Push to the fusion (with the camera's elevation for gait cues); its output with
-        push numbers turned into frame indices."""
+        """Push to the fusion (with the camera's elevation, for a fusion that takes it: gait
+        cues, the timing of steps); its output with push numbers turned into frame
+        indices."""
         self._frame_of_push[self._pushed] = frame_index
         self._frame_of_push.pop(self._pushed - 256, None)
         self._pushed += 1

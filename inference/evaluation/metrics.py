@@ -171,6 +171,8 @@ def run_offline(
             if elevation_deg is None
             else np.asarray(elevation_deg, dtype=float).tolist()
         )
+        if len(elevations) != n:
+            raise InferenceError(f"{n} frames but {len(elevations)} camera elevations")
         k = 0
         for row, time, elevation in zip(e, t, elevations):
             while k < len(events) and events[k][0] <= time:

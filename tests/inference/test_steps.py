@@ -122,6 +122,50 @@ def test_step_fusion_drops_a_change_that_goes_back_before_its_step():
     assert (run.final == LG).all()
 
 
+def test_step_fusion_drops_a_change_that_goes_back_without_an_elevation():
+    # a score file has no camera elevation: a proposal counts as at the reference one
+    n = 120
+    read = np.full(n, LG)
+    read[44:50] = DR  # late in the stride: heel contacts at frames 36 and 52
+    events = _heel_contacts(range(4, n, 16))
+    probs = _probabilities(read, 0.99)
+    plain = run_offline(make_fusion("steady+hysteresis"), probs)
+    assert len(np.flatnonzero(np.diff(plain.final))) == 2  # there and back
+    for elevation in (None, np.full(n, np.nan)):
+        run = run_offline(
+            make_fusion("steady+steps"), probs, elevation, gait_events=events, times_s=_frames(n)
+        )
+        assert (run.final == LG).all()
+    with pytest.raises(Exception, match="119 camera elevations"):
+        run_offline(
+            make_fusion("steady+steps"),
+            probs,
+            np.zeros(n - 1),
+            gait_events=events,
+            times_s=_frames(n),
+        )
+
+
+def test_step_fusion_times_a_change_by_the_decided_frames_elevation():
+    # a push decides the frame before it: the elevation that counts is that frame's
+    n = 120
+    read = np.full(n, LG)
+    read[42:] = DR  # the proposal holds its 2 decided frames at frame 43
+    events = _heel_contacts(range(4, n, 16))
+    probs = _probabilities(read, 0.99)
+
+    def switch(level_frames: int) -> int:
+        # every other frame level with the horizon (far ahead), the others steeply down
+        elevation = np.where(np.arange(n) % 2 == level_frames, 0.0, -40.0)
+        run = run_offline(
+            make_fusion("steady+steps"), probs, elevation, gait_events=events, times_s=_frames(n)
+        )
+        return int(np.flatnonzero(np.diff(run.final))[0])
+
+    assert switch(level_frames=1) == 50  # frame 43 looks far: the heel contact at frame 52
+    assert switch(level_frames=0) == 42  # frame 43 looks down (frame 44, pushed, is level)
+
+
 def test_step_fusion_waits_longer_for_a_change_seen_farther_ahead():
     n = 120
     read = np.full(n, LG)
