@@ -39,7 +39,8 @@ class SteadyFusion(Stream):
     frame by its filter. Pure-Python floats, unrolled: one update in a few microseconds.
     """
 
-    uses_gait = False  # push takes the frame's camera elevation too (GaitSteadyFusion)
+    takes_elevation = False  # push takes the frame's camera elevation too
+    uses_gait = False  # ...and needs it (GaitSteadyFusion)
 
     def __init__(self, stay: float = STEADY_STAY, evidence: float = STEADY_EVIDENCE):
         if not 0.0 < evidence <= 1.0:
@@ -148,7 +149,7 @@ class GaitSteadyFusion(SteadyFusion):
     steady's own transition.
     """
 
-    uses_gait = True
+    takes_elevation = uses_gait = True
 
     def __init__(self, stay: float = STEADY_STAY, evidence: float = STEADY_EVIDENCE):
         super().__init__(stay, evidence)

@@ -55,6 +55,7 @@ class StepFusion(HysteresisFusion):
     """
 
     uses_steps = True
+    takes_elevation = True  # the timing of a change; without one, the reference's
 
     def __init__(
         self,

@@ -216,17 +216,12 @@ def bench_method_update(method: str, updates: int = 20000, seed: int = 0) -> flo
     clock = time.perf_counter_ns
     fusion = make_fusion(method)
     times = []
-    # with a thigh swinging 20 degrees at 1 Hz
-    elevation = (-35 + 20 * np.sin(2 * np.pi * np.arange(len(frames)) / 15)).tolist()
-    if getattr(fusion, "uses_gait", False):
+    if getattr(fusion, "takes_elevation", False):  # a thigh swinging 20 degrees at 1 Hz
+        elevation = (-35 + 20 * np.sin(2 * np.pi * np.arange(len(frames)) / 15)).tolist()
+        steps = getattr(fusion, "uses_steps", False)  # a gait event every 8 frames: 2 a stride
         for k, row in enumerate(frames):
             start = clock()
-            fusion.push(row, elevation[k])
-            times.append(clock() - start)
-    elif getattr(fusion, "uses_steps", False):  # a gait event every 8 frames: 2 a stride
-        for k, row in enumerate(frames):
-            start = clock()
-            if k % 8 == 0:
+            if steps and k % 8 == 0:
                 fusion.see_gait("heel_contact" if k % 16 == 0 else "toe_off")
             fusion.push(row, elevation[k])
             times.append(clock() - start)

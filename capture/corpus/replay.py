@@ -174,8 +174,9 @@ class ReplayStep:
     arrays dropped once encoded), its orientation and Preprocessed (its image and flag),
     the fit of its profile (inference.features.fit_profile, its points dropped: what the
     terrain features need besides the fused decision; None for a frame without features),
-    the messages the new file keeps of it (`messages`: depth, confidence, cloud, image,
-    preprocessing, orientation, truth), and what the pass read since the step before: the
+    the messages the new file keeps of it that the reader encodes (`messages`: depth,
+    confidence, cloud, truth; the host encodes the image, preprocessing record and
+    orientation, and puts them before the truth), and what the pass read since the step before: the
     IMU samples due before the frame, in sample-time order (`imu`: (the ImuSample when its
     message is not copied as recorded, else None; its message as recorded; the gait events
     the detector found at it; its receipt), labels and events (their messages' data) and
@@ -249,10 +250,10 @@ def replay_steps(
         pre = preprocess_ranges(
             frame.range_mm, rays, frame.confidence, level, params, age_ns, mounting
         )
-        messages = _frame_messages(frame, pre, recorded if as_recorded else None)
+        messages, kept = _frame_messages(frame, pre, recorded if as_recorded else None)
         # the features' hint-free part (Pipeline.process measures features of these frames)
         fit = fit_profile(pre.profile, params.max_forward_m) if pre.ok else None
-        slim, slim_pre = _slim(frame, pre)
+        slim, slim_pre = _slim(frame, pre, kept)
         return ReplayStep(slim, q, slim_pre, fit and fit.drop_points(), messages, imu, **came)
 
     def due() -> Iterator[ReplayStep]:
@@ -292,13 +293,13 @@ def replay_steps(
         yield last
 
 
-def _frame_messages(frame: DepthFrame, pre, recorded: list | None) -> list:
+def _frame_messages(frame: DepthFrame, pre, recorded: list | None) -> tuple[list, int]:
     """What the new recording keeps of a frame that fusion does not change, but for what
     the host encodes (_replay: image, preprocessing record, orientation; the reader
     process's share of the work is the larger): depth, confidence and truth as `recorded`
     (their messages, None where not in the file; None: encoded again, for a file of an
     older format), and the cloud (its thinning and encoding use compiled kernels, loaded
-    in the reader process already)."""
+    in the reader process already); with the number of the cloud's points recorded."""
     from capture.recording.encode import encode_cloud, encode_depth, encode_truth, thin_cloud
 
     t, log_time = frame.device_time_ns, frame.host_time_ns
@@ -309,8 +310,7 @@ def _frame_messages(frame: DepthFrame, pre, recorded: list | None) -> list:
         depth, truth = [m for m in recorded[:2] if m is not None], recorded[2:3]
         truth = [m for m in truth if m is not None]
     kept = thin_cloud(pre.cloud)
-    pre.details = {"cloud_points": len(pre.cloud), "cloud_kept": len(kept)}
-    return depth + [encode_cloud(frame.index, t, log_time, kept)] + truth
+    return depth + [encode_cloud(frame.index, t, log_time, kept)] + truth, len(kept)
 
 
 def _with_processed(messages: list, processed: list) -> list:
@@ -320,11 +320,12 @@ def _with_processed(messages: list, processed: list) -> list:
     return messages[:k] + processed + messages[k:]
 
 
-def _slim(frame: DepthFrame, pre) -> tuple[DepthFrame, object]:
+def _slim(frame: DepthFrame, pre, kept: int) -> tuple[DepthFrame, object]:
     """The frame and its Preprocessed without what the host does not use (the reader
     process sends them): the bulky arrays (the rays come with the source's attachments),
     the camera's geometry, the truth, the cloud and the profile (the step's fit stands in
-    for it)."""
+    for it); the cloud's counts, its points and the `kept` of them recorded, in its
+    `details` (the host's preprocessing record needs them)."""
     none = np.zeros((0, 0), np.uint8)
     slim = dataclasses.replace(
         frame,
@@ -335,9 +336,9 @@ def _slim(frame: DepthFrame, pre) -> tuple[DepthFrame, object]:
         geometry=None,
         truth=None,  # its message goes as recorded
     )
-    # the cloud thinned as recorded (capture.recording.encode), its count in `details`
     cloud, profile = np.zeros((0, 3), np.float32), np.zeros((0, 2), np.float32)
-    return slim, dataclasses.replace(pre, cloud=cloud, profile=profile)
+    details = pre.details | {"cloud_points": len(pre.cloud), "cloud_kept": kept}
+    return slim, dataclasses.replace(pre, cloud=cloud, profile=profile, details=details)
 
 
 class _ReaderProcess:

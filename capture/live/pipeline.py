@@ -336,7 +336,7 @@ class Pipeline:
         self._frame_of_push[self._pushed] = frame_index
         self._frame_of_push.pop(self._pushed - 256, None)
         self._pushed += 1
-        if getattr(self.fusion, "uses_gait", False) or getattr(self.fusion, "uses_steps", False):
+        if getattr(self.fusion, "takes_elevation", False):
             out = self.fusion.push(probs, elevation_deg)
         else:
             out = self.fusion.push(probs)

@@ -135,13 +135,14 @@ def run_offline(
 
     A frame whose probabilities are not finite (a broken classifier) is pushed as uniform,
     carrying no evidence, and left undecided (-1): it is never scored as right. A method
-    with gait cues (`uses_gait`) gets each frame's camera elevation, `elevation_deg`; one
+    that takes the camera's elevation (`takes_elevation`) gets each frame's,
+    `elevation_deg` (NaN for each when not given, but a method with gait cues, `uses_gait`,
+    needs it); one
     with the geometry cue (`uses_geometry`) sees each frame's `geometry` and `ground_ahead`
     (-1 where not given) after its push, as the live pipeline shows it the frame's terrain
     features; one that acts at steps (`uses_steps`) gets each of `gait_events` ((time s,
     event), the detector's) with `see_gait` before the first frame at or after its time
-    (`times_s`), as the live pipeline hands it each event as it is detected, and each
-    frame's camera elevation where given (NaN where not)."""
+    (`times_s`), as the live pipeline hands it each event as it is detected."""
     e = np.array(probabilities, dtype=float)
     unusable = ~np.all(np.isfinite(e), axis=1) if e.ndim == 2 else np.zeros(len(e), bool)
     e[unusable] = 1.0 / N_MODES
@@ -151,12 +152,21 @@ def run_offline(
     collect = by_frame.add
     fusion.reset()
 
-    if getattr(fusion, "uses_gait", False):
-        if elevation_deg is None:
+    elevations: list[float] = []
+    if getattr(fusion, "takes_elevation", False):
+        if elevation_deg is None and getattr(fusion, "uses_gait", False):
             raise InferenceError(
                 f"{fusion.method} needs the camera's orientation at each frame (recordings)"
             )
-        for row, elevation in zip(e, np.asarray(elevation_deg, dtype=float).tolist()):
+        elevations = (
+            [math.nan] * n
+            if elevation_deg is None
+            else np.asarray(elevation_deg, dtype=float).tolist()
+        )
+        if len(elevations) != n:
+            raise InferenceError(f"{n} frames but {len(elevations)} camera elevations")
+    if getattr(fusion, "uses_gait", False):
+        for row, elevation in zip(e, elevations):
             collect(fusion.push(row, elevation))
     elif getattr(fusion, "uses_steps", False):
         if gait_events is None:
@@ -166,19 +176,12 @@ def run_offline(
             )
         t = tr.frame_times(n, times_s).tolist()
         events = sorted(gait_events)
-        elevations = (
-            [math.nan] * n
-            if elevation_deg is None
-            else np.asarray(elevation_deg, dtype=float).tolist()
-        )
-        if len(elevations) != n:
-            raise InferenceError(f"{n} frames but {len(elevations)} camera elevations")
         k = 0
-        for row, time, elevation in zip(e, t, elevations):
+        for i, (row, time) in enumerate(zip(e, t)):
             while k < len(events) and events[k][0] <= time:
                 fusion.see_gait(events[k][1])
                 k += 1
-            collect(fusion.push(row, elevation))
+            collect(fusion.push(row, elevations[i]) if elevations else fusion.push(row))
     elif getattr(fusion, "uses_geometry", False):
         if geometry is None:
             raise InferenceError(

@@ -3,6 +3,7 @@ order a sort of every sample in memory gives), and what it does not change copie
 recorded."""
 
 import collections
+import dataclasses
 import random
 
 import numpy as np
@@ -221,7 +222,12 @@ def test_the_reader_process_fits_the_profile_as_the_live_pipeline_would(tmp_path
 
     slim = R._slim
     process = Pipeline.process
-    monkeypatch.setattr(R, "_slim", lambda frame, pre: (slim(frame, pre)[0], pre))  # profile kept
+
+    def with_profile(frame, pre, kept):
+        thin, thin_pre = slim(frame, pre, kept)
+        return thin, dataclasses.replace(thin_pre, profile=pre.profile)
+
+    monkeypatch.setattr(R, "_slim", with_profile)
     monkeypatch.setattr(
         Pipeline, "process", lambda self, *a, fit=None, **k: process(self, *a, **k, fit=None)
     )
